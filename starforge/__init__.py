@@ -1,0 +1,27 @@
+"""starforge: geometry of optical motion-capture markers.
+
+Marker-star families (unique 4-sphere rigid bodies), printable bodies, prop marker
+placement and tracker files.  ``import starforge`` stays light: heavy libraries
+(build123d, trimesh, matplotlib) are imported where they are used.
+"""
+
+from __future__ import annotations
+
+__version__ = "0.1.0"
+
+__all__ = ["__version__", "load_family", "StarforgeError"]
+
+from starforge.errors import StarforgeError
+
+
+def load_family(path):
+    """Read a ``family.json`` back into a :class:`starforge.stars.model.Family`.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``family.json`` file, or the folder that holds one.
+    """
+    from starforge.stars.model import load_family as _load
+
+    return _load(path)

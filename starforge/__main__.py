@@ -1,0 +1,3 @@
+from starforge.cli import main
+
+main()

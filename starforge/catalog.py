@@ -1,0 +1,59 @@
+"""Catalogs as data: named TOML templates shipped in ``templates/<kind>/<name>.toml``.
+
+The folder is installed as the package ``starforge.templates`` (see pyproject), so names
+resolve the same after an editable or a plain ``pip install .``.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+from starforge.errors import StarforgeError
+
+KINDS = ("stars", "mounts", "rigs", "place", "presets")
+
+
+def _kind_dir(kind: str):
+    if kind not in KINDS:
+        raise StarforgeError(f"unknown template kind {kind!r}; known: {', '.join(KINDS)}")
+    return resources.files("starforge.templates").joinpath(kind)
+
+
+def list_templates(kind: str) -> list[str]:
+    """Names (file stems) of the shipped templates of one kind, sorted."""
+    folder = _kind_dir(kind)
+    if not folder.is_dir():
+        return []
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def read_toml(path: str | Path) -> dict:
+    """Parse a TOML file with one-line errors for missing or corrupt files."""
+    path = Path(path)
+    if not path.is_file():
+        raise StarforgeError(f"spec file not found: {path}")
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise StarforgeError(f"spec file {path} is not valid TOML: {exc}") from None
+
+
+def load_template(kind: str, name_or_path: str | Path) -> tuple[str, dict]:
+    """Resolve a template name (``finger``) or a TOML path; return ``(name, data)``.
+
+    An unknown name raises StarforgeError listing the known ones.
+    """
+    text = str(name_or_path)
+    if text.endswith(".toml") or "/" in text or "\\" in text:
+        path = Path(text)
+        return path.stem, read_toml(path)
+    known = list_templates(kind)
+    if text not in known:
+        raise StarforgeError(f"unknown {kind} template {text!r}; known: {', '.join(known) or '(none)'}")
+    res = _kind_dir(kind).joinpath(f"{text}.toml")
+    try:
+        return text, tomllib.loads(res.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:  # a shipped template is broken: still one clear line
+        raise StarforgeError(f"template {kind}/{text} is not valid TOML: {exc}") from None

@@ -1,0 +1,53 @@
+"""``starforge`` command line: thin; parses, calls library functions, prints.
+
+Every user-facing error (StarforgeError, ValueError, a missing or unreadable file) becomes one
+line on stderr and exit code 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import sys
+
+from starforge.cli._app import app
+
+__all__ = ["app", "main"]
+
+_loaded = False
+
+
+def _load_commands() -> None:
+    global _loaded
+    if _loaded:
+        return
+    for mod in sorted(m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_")):
+        importlib.import_module(f"{__name__}.{mod}")
+    _loaded = True
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console-script entry point; returns (and exits with) the process exit code."""
+    import click
+
+    _load_commands()
+    try:
+        rv = app(args=argv, prog_name="starforge", standalone_mode=False)
+        code = rv if isinstance(rv, int) else 0
+    except click.exceptions.Exit as exc:
+        code = exc.exit_code
+    except click.exceptions.Abort:
+        print("aborted", file=sys.stderr)
+        code = 130
+    except click.ClickException as exc:
+        exc.show()
+        code = 2
+    except (ValueError, OSError) as exc:  # StarforgeError is a ValueError
+        msg = str(exc) or exc.__class__.__name__
+        if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
+            msg = f"{msg}: {exc.filename}"
+        print(f"error: {msg}", file=sys.stderr)
+        code = 2
+    if argv is None:
+        sys.exit(code)
+    return code

@@ -1,0 +1,28 @@
+"""``starforge templates``: list the shipped TOML templates (catalogs as data)."""
+
+from __future__ import annotations
+
+import typer
+
+from starforge.cli._app import app
+
+
+@app.command("templates")
+def templates_cmd(
+    kind: str = typer.Argument(None, help="stars, mounts, rigs, place or presets; all when omitted."),
+    show: str = typer.Option(None, "--show", help="Print one template's TOML text (KIND is required)."),
+) -> None:
+    """List the shipped templates, or print one to copy and edit."""
+    from importlib import resources
+
+    from starforge.catalog import KINDS, list_templates, load_template
+
+    if show:
+        if not kind:
+            raise ValueError("--show needs KIND, e.g. starforge templates stars --show finger")
+        load_template(kind, show)  # validates the name, lists known ones if unknown
+        print(resources.files("starforge.templates").joinpath(kind, f"{show}.toml").read_text(), end="")
+        return
+    for k in [kind] if kind else KINDS:
+        names = list_templates(k)
+        print(f"{k}: {', '.join(names) if names else '(none)'}")

@@ -1,0 +1,11 @@
+"""The one exception type a user ever sees as a message (never as a traceback)."""
+
+from __future__ import annotations
+
+
+class StarforgeError(ValueError):
+    """Bad input or an impossible request: the CLI prints it as one line and exits with code 2.
+
+    It subclasses ValueError so library callers can catch the usual type; messages name the
+    parameter and the allowed range, e.g. ``delta_mm must be > 0, got -1.5``.
+    """
