@@ -28,26 +28,30 @@ def _load_commands() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Console-script entry point; returns (and exits with) the process exit code."""
-    import click
-
     _load_commands()
     try:
         rv = app(args=argv, prog_name="starforge", standalone_mode=False)
         code = rv if isinstance(rv, int) else 0
-    except click.exceptions.Exit as exc:
-        code = exc.exit_code
-    except click.exceptions.Abort:
-        print("aborted", file=sys.stderr)
-        code = 130
-    except click.ClickException as exc:
-        exc.show()
-        code = 2
     except (ValueError, OSError) as exc:  # StarforgeError is a ValueError
         msg = str(exc) or exc.__class__.__name__
         if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
             msg = f"{msg}: {exc.filename}"
         print(f"error: {msg}", file=sys.stderr)
         code = 2
+    except Exception as exc:
+        # click's (or typer's vendored click's) control-flow exceptions, matched by shape so
+        # that both layouts work: Exit carries exit_code, usage errors also know how to show().
+        name = type(exc).__name__
+        if name == "Abort":
+            print("aborted", file=sys.stderr)
+            code = 130
+        elif hasattr(exc, "show") and hasattr(exc, "exit_code"):
+            exc.show()
+            code = 2 if exc.exit_code not in (0,) else 0
+        elif name == "Exit" and hasattr(exc, "exit_code"):
+            code = exc.exit_code
+        else:
+            raise
     if argv is None:
         sys.exit(code)
     return code

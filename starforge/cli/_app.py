@@ -51,3 +51,20 @@ def progress(transient: bool = True, disable: bool | None = None):
         transient=transient,
         disable=disable,
     )
+
+
+@app.callback(invoke_without_command=True)
+def _root(
+    ctx: typer.Context,
+    version: bool = typer.Option(False, "--version", help="Print the version and exit.", is_eager=True),
+) -> None:
+    """Design optical motion-capture markers: unique marker-star families, printable bodies,
+    prop marker placement and the files trackers load."""
+    if version:
+        from starforge import __version__
+
+        print(f"starforge {__version__}")
+        raise typer.Exit(0)
+    if ctx.invoked_subcommand is None:
+        print(ctx.get_help())
+        raise typer.Exit(0)
