@@ -1,0 +1,140 @@
+"""``starforge place``: optimize a marker set on a prop (``place PROP``) or score one (``place score``).
+
+``place`` is a default-command group: ``starforge place hammer`` runs the placement, while
+``starforge place score PROP MARKERS.csv`` scores a given layout.  A prop file that happens to be
+named ``score`` can be given as ``./score``.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import typer
+from typer.core import TyperGroup
+
+from starforge.cli._app import app, console, progress
+
+_DEFAULT = "run"
+
+
+class _DefaultGroup(TyperGroup):
+    """Dispatch to a subcommand when the first argument names one, else to the default command."""
+
+    def parse_args(self, ctx, args):
+        if args and args[0] not in self.commands and args[0] not in ctx.help_option_names:
+            args = [_DEFAULT, *args]
+        return super().parse_args(ctx, args)
+
+
+place_app = typer.Typer(
+    cls=_DefaultGroup,
+    no_args_is_help=True,
+    add_completion=False,
+    help="Optimize retroreflective marker placement on a prop: `starforge place PROP \\[OPTIONS]` "
+    "(PROP: a mesh file or a built-in: hammer, racket, sword, bottle, box, shield, umbrella), "
+    "or score a layout: `starforge place score PROP MARKERS.csv`.",
+)
+app.add_typer(place_app, name="place")
+
+
+def _prop_and_spec(prop, units, spec, rig, markers, resolution, orientations, sites, restarts,
+                   forbid_mesh, mask, mesh_format):
+    from dataclasses import replace
+
+    from starforge.props.mesh import load_prop
+    from starforge.props.placement import load_spec, with_overrides
+
+    s = load_spec(spec)
+    cons = None
+    if forbid_mesh or mask:
+        cons = s.constraints
+        if forbid_mesh:
+            cons = replace(cons, mesh=str(forbid_mesh))
+        if mask:
+            cons = replace(cons, mask=str(mask))
+    s = with_overrides(s, markers=markers, resolution=resolution, orientations=orientations, sites=sites,
+                       restarts=restarts, rig=rig, constraints=cons, mesh_format=mesh_format)
+    return load_prop(prop, units), s
+
+
+_PROP = typer.Argument(..., help="Mesh file (STL, OBJ, PLY, GLB, OFF) or built-in prop name.")
+
+
+@place_app.command(_DEFAULT, help="Optimize a marker set on PROP (the default command).")
+def run_cmd(
+    prop: str = _PROP,
+    spec: str = typer.Option("default", "--spec", help="Settings template name (default, long, paper) or TOML file."),
+    rig: str = typer.Option(None, "--rig", help="Rig template name or TOML file (default: the spec's)."),
+    markers: int = typer.Option(None, "--markers", help="Target number of markers (Table 1: 7), in [4, 20]."),
+    resolution: int = typer.Option(None, "--resolution", help="n for n x n x n prop positions (4, 8, 12)."),
+    orientations: int = typer.Option(None, "--orientations", help="Prop orientations per position (K)."),
+    sites: int = typer.Option(None, "--sites", help="Candidate sites (Poisson-disk samples, default 1000)."),
+    restarts: int = typer.Option(None, "--restarts", help="Independent annealing runs; the best is kept."),
+    units: str = typer.Option("m", "--units", help="Units of a mesh file: m, cm or mm."),
+    forbid_mesh: Path = typer.Option(None, "--forbid-mesh", help="Mesh of a constrained area (no markers)."),
+    mask: Path = typer.Option(None, "--mask", help="Per-face mask file (1 = no markers on that face)."),
+    mesh_format: str = typer.Option(None, "--mesh-format", help="glb or stl for the prop-with-markers mesh."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same result)."),
+    out: Path = typer.Option(Path("out/place"), "--out", help="Output folder."),
+    force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
+) -> None:
+    from starforge.errors import StarforgeError
+    from starforge.io import check_writable, staged_output
+    from starforge.props.placement import place, summary_lines, write_outputs
+
+    if seed < 0:
+        raise StarforgeError(f"seed must be >= 0, got {seed}")
+    p, s = _prop_and_spec(prop, units, spec, rig, markers, resolution, orientations, sites, restarts,
+                          forbid_mesh, mask, mesh_format)
+    names = ["placement.json", "markers.csv", f"prop_markers.{s.mesh_format}", "convergence.png", "layout.png"]
+    check_writable(out, names, force)  # fail before the work, not after
+    with progress() as bar:
+        task = bar.add_task("visibility", total=None)
+
+        def cb(stage, done, total):
+            bar.update(task, description=stage, completed=done, total=total)
+
+        res = place(p, s, seed=seed, progress=cb)
+        bar.update(task, description="writing")
+        with staged_output(out, force) as stage:
+            write_outputs(res, stage)
+    if not quiet:
+        con = console()
+        for line in summary_lines(res):
+            con.print(line)
+        t = res.timings
+        con.print(f"time: visibility {t['visibility_s']:.2f} s, optimization {t['optimize_s']:.2f} s")
+        con.print(f"wrote {out}/: {', '.join(names)}")
+
+
+@place_app.command("score", help="Score a given marker layout (CSV id,x_m,y_m,z_m,nx,ny,nz) on PROP.")
+def score_cmd(
+    prop: str = _PROP,
+    markers_csv: Path = typer.Argument(..., help="Markers CSV (metres, prop frame); normals optional."),
+    spec: str = typer.Option("default", "--spec", help="Settings template name or TOML file."),
+    rig: str = typer.Option(None, "--rig", help="Rig template name or TOML file."),
+    resolution: int = typer.Option(None, "--resolution", help="n for n x n x n prop positions."),
+    orientations: int = typer.Option(None, "--orientations", help="Prop orientations per position (K)."),
+    units: str = typer.Option("m", "--units", help="Units of the mesh file: m, cm or mm."),
+    seed: int = typer.Option(0, "--seed", help="Seed for random orientations."),
+    as_json: bool = typer.Option(False, "--json", help="Print the costs as JSON."),
+) -> None:
+    import json
+
+    from starforge.props.placement import read_markers_csv, score_layout
+
+    p, s = _prop_and_spec(prop, units, spec, rig, None, resolution, orientations, None, None, None, None, None)
+    pts, nrm = read_markers_csv(markers_csv)
+    cost, vis = score_layout(p, pts, nrm, s, seed=seed)
+    doc = {**cost.to_json(), "marker_visibility": [round(float(v), 9) for v in vis]}
+    if as_json:
+        sys.stdout.write(json.dumps(doc, indent=2) + "\n")
+        return
+    con = console()
+    con.print(f"{p.name}: {cost.markers} markers, cost {cost.total:.4f}")
+    con.print(f"  visibility {cost.visibility:.4f} (mean {cost.mean_visibility:.3f}), count {cost.count:.4f}, "
+              f"overlap {cost.overlap:.4f} ({cost.overlapping_pairs} pairs), symmetry {cost.symmetry:.0f}")
+    if doc["near_symmetry_margin_m"] is not None:
+        con.print(f"  near-symmetry margin {cost.margin_m * 1000:.1f} mm")

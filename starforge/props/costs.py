@@ -1,0 +1,173 @@
+"""Cost terms of a marker layout (the paper's eq. 1-5) as pure functions on arrays.
+
+Marker size: the paper's Table 1 gives "2 mm" and its text (section 3.2.2) says a marker is a
+sphere of 2 mm *radius*; we follow the text, so the default ``marker_diameter_m`` is 0.004 m.
+Two markers overlap when their spheres intersect: centre distance < diameter.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from starforge.spec import in_range, non_negative, positive, require
+
+
+@dataclass(frozen=True)
+class CostSettings:
+    """Targets and weights (defaults: the paper's Table 1 and section 4).
+
+    Attributes
+    ----------
+    target_visibility : float
+        rho_v, target mean pair visibility in [0, 1] (1).
+    target_markers : int
+        rho_n, target number of markers (7).
+    target_overlap, target_symmetry : float
+        rho_o and rho_s in [0, 1] (0, 0).
+    sigma_markers : float
+        Spread of the Gaussian count penalty (1).
+    w_visibility, w_count, w_overlap, w_symmetry : float
+        Weights (1, 0.8, 1, 1), >= 0.
+    w_near_symmetry : float
+        Weight of the optional continuous near-symmetry term (0 = off).
+    near_symmetry_scale_m : float
+        Near-symmetry cost is exp(-margin / scale), m (0.005).
+    marker_diameter_m : float
+        Marker sphere diameter, m (0.004: the paper's 2 mm radius).
+    symmetry_k : int
+        Largest rotation order tried about x, y and z (8).
+    symmetry_tol_m : float
+        Distance tolerance for a symmetric match, m (0.002).
+    min_markers, max_markers : int
+        Allowed marker count; the paper's interval [4, 20] (max is Z in eq. 7-8).
+    """
+
+    target_visibility: float = 1.0
+    target_markers: int = 7
+    target_overlap: float = 0.0
+    target_symmetry: float = 0.0
+    sigma_markers: float = 1.0
+    w_visibility: float = 1.0
+    w_count: float = 0.8
+    w_overlap: float = 1.0
+    w_symmetry: float = 1.0
+    w_near_symmetry: float = 0.0
+    near_symmetry_scale_m: float = 0.005
+    marker_diameter_m: float = 0.004
+    symmetry_k: int = 8
+    symmetry_tol_m: float = 0.002
+    min_markers: int = 4
+    max_markers: int = 20
+
+    def __post_init__(self):
+        in_range("target_visibility", self.target_visibility, 0.0, 1.0)
+        in_range("target_overlap", self.target_overlap, 0.0, 1.0)
+        in_range("target_symmetry", self.target_symmetry, 0.0, 1.0)
+        positive("sigma_markers", self.sigma_markers)
+        for name in ("w_visibility", "w_count", "w_overlap", "w_symmetry", "w_near_symmetry"):
+            non_negative(name, getattr(self, name))
+        positive("near_symmetry_scale_m", self.near_symmetry_scale_m)
+        positive("marker_diameter_m", self.marker_diameter_m)
+        in_range("symmetry_k", self.symmetry_k, 2, 360)
+        non_negative("symmetry_tol_m", self.symmetry_tol_m)
+        in_range("min_markers", self.min_markers, 1, 1000)
+        in_range("max_markers", self.max_markers, 1, 1000)
+        require(self.min_markers <= self.max_markers,
+                f"min_markers must be <= max_markers, got {self.min_markers} > {self.max_markers}")
+        in_range("markers (target_markers)", self.target_markers, self.min_markers, self.max_markers)
+
+
+@dataclass(frozen=True)
+class CostBreakdown:
+    """Every term of eq. 1 for one layout (weighted sum in ``total``)."""
+
+    total: float
+    visibility: float
+    count: float
+    overlap: float
+    symmetry: float
+    near_symmetry: float
+    mean_visibility: float
+    overlapping_pairs: int
+    symmetric: bool
+    margin_m: float
+    markers: int
+
+    def to_json(self) -> dict:
+        return {
+            "total": self.total, "visibility": self.visibility, "count": self.count,
+            "overlap": self.overlap, "symmetry": self.symmetry, "near_symmetry": self.near_symmetry,
+            "mean_visibility": self.mean_visibility, "overlapping_pairs": self.overlapping_pairs,
+            "symmetric": self.symmetric,
+            "near_symmetry_margin_m": None if math.isinf(self.margin_m) else self.margin_m,
+            "markers": self.markers,
+        }
+
+
+def visibility_cost(marker_visibility: np.ndarray, target: float) -> float:
+    """Eq. 2: |mean over markers (of mean over poses and pairs) - rho_v|."""
+    v = np.asarray(marker_visibility, dtype=float)
+    return abs(float(v.mean()) - target) if len(v) else abs(target)
+
+
+def count_cost(n: int, target: float, sigma: float = 1.0) -> float:
+    """Eq. 3: 1 - exp(-(n - rho_n)^2 / (2 sigma^2))."""
+    return 1.0 - math.exp(-((n - target) ** 2) / (2.0 * sigma * sigma))
+
+
+def overlapping_pairs(points: np.ndarray, diameter_m: float) -> int:
+    """Unordered marker pairs whose spheres intersect (centre distance < diameter)."""
+    p = np.asarray(points, dtype=float)
+    if len(p) < 2:
+        return 0
+    d = np.linalg.norm(p[:, None] - p[None], axis=2)
+    iu = np.triu_indices(len(p), 1)
+    return int((d[iu] < diameter_m).sum())
+
+
+def overlap_cost(points: np.ndarray, diameter_m: float, target: float = 0.0) -> float:
+    """Eq. 4: |(1/N) sum over ordered pairs i != j of OVL - rho_o|, N = n (n - 1)."""
+    n = len(points)
+    if n < 2:
+        return abs(target)
+    return abs(2.0 * overlapping_pairs(points, diameter_m) / (n * (n - 1)) - target)
+
+
+def near_symmetry_cost(margin_m: float, scale_m: float) -> float:
+    """exp(-margin / scale): 1 for an exactly symmetric set, -> 0 for a distinctive one."""
+    return 0.0 if math.isinf(margin_m) else math.exp(-margin_m / scale_m)
+
+
+def evaluate(points: np.ndarray, marker_visibility: np.ndarray, s: CostSettings,
+             with_margin: bool = True) -> CostBreakdown:
+    """All cost terms of a layout (eq. 1), from scratch.
+
+    Parameters
+    ----------
+    points : (n, 3) float, m
+        Marker positions, prop frame.
+    marker_visibility : (n,) float in [0, 1]
+        Fraction of (pose, pair) combinations that see each marker.
+    s : CostSettings
+    with_margin : bool
+        Compute the near-symmetry margin even when its weight is 0 (for reports).
+    """
+    from starforge.props.symmetry import is_symmetric, near_symmetry_margin
+
+    p = np.asarray(points, dtype=float)
+    n = len(p)
+    cv = visibility_cost(marker_visibility, s.target_visibility)
+    cn = count_cost(n, s.target_markers, s.sigma_markers)
+    pairs = overlapping_pairs(p, s.marker_diameter_m)
+    co = overlap_cost(p, s.marker_diameter_m, s.target_overlap)
+    sym = is_symmetric(p, s.symmetry_k, s.symmetry_tol_m)
+    cs = abs(float(sym) - s.target_symmetry)
+    margin = near_symmetry_margin(p) if (with_margin or s.w_near_symmetry > 0) else math.inf
+    cns = near_symmetry_cost(margin, s.near_symmetry_scale_m)
+    total = s.w_visibility * cv + s.w_count * cn + s.w_overlap * co + s.w_symmetry * cs
+    total += s.w_near_symmetry * cns
+    mv = float(np.mean(marker_visibility)) if n else 0.0
+    return CostBreakdown(total, cv, cn, co, cs, cns, mv, pairs, sym, margin, n)

@@ -1,0 +1,240 @@
+"""Prop meshes: load any format trimesh reads, convert units, repair, orient normals outward.
+
+Everything here works in metres.  The result is a :class:`PropMesh`: the repaired
+``trimesh.Trimesh``, the original face index of every face (for per-face masks) and a
+list of plain-language notes saying what was repaired.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from starforge.errors import StarforgeError
+
+UNITS_TO_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+MESH_SUFFIXES = (".stl", ".obj", ".ply", ".glb", ".gltf", ".off")
+
+
+@dataclass(frozen=True)
+class PropMesh:
+    """A repaired prop mesh in metres.
+
+    Attributes
+    ----------
+    name : str
+        Built-in name or file stem.
+    source : str
+        ``builtin`` or the file path as given.
+    units : str
+        Units of the source file (``m``, ``cm`` or ``mm``); the mesh itself is in metres.
+    mesh : trimesh.Trimesh
+        Repaired mesh, metres, normals outward where that can be decided.
+    face_origin : (f,) int
+        Index of each face in the file as loaded; -1 for faces added by repair (filled holes).
+    notes : tuple of str
+        What the repair did, one short line per action.
+    source_faces : int
+        Number of faces in the source as loaded (the length a per-face mask must have).
+    """
+
+    name: str
+    source: str
+    units: str
+    mesh: object
+    face_origin: np.ndarray = field(repr=False)
+    notes: tuple[str, ...] = ()
+    source_faces: int = 0
+
+    @property
+    def extents_m(self) -> np.ndarray:
+        """(3,) float, m: axis-aligned size of the prop."""
+        return np.asarray(self.mesh.extents, dtype=float)
+
+
+def units_scale(units: str) -> float:
+    """Metres per file unit; StarforgeError naming ``units`` when unknown."""
+    if units not in UNITS_TO_M:
+        raise StarforgeError(f"units must be one of {', '.join(UNITS_TO_M)}, got {units!r}")
+    return UNITS_TO_M[units]
+
+
+def load_mesh_file(path: str | Path, units: str = "m"):
+    """Read a mesh file (STL, OBJ, PLY, GLB, OFF, ...) into one ``trimesh.Trimesh`` in metres, unrepaired.
+
+    Scenes (GLB, multi-object OBJ) are flattened with their transforms applied.
+    Raises StarforgeError for a missing, unreadable or empty file.
+    """
+    import trimesh
+
+    scale = units_scale(units)
+    path = Path(path)
+    if not path.exists():
+        raise StarforgeError(f"prop mesh not found: {path}")
+    if path.is_dir():
+        raise StarforgeError(f"prop mesh {path} is a folder, expected a mesh file")
+    if path.stat().st_size == 0:
+        raise StarforgeError(f"prop mesh {path} is empty (0 bytes)")
+    try:
+        loaded = trimesh.load(str(path), force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many types for corrupt files
+        raise StarforgeError(f"cannot read prop mesh {path}: {exc.__class__.__name__}: {exc}") from None
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise StarforgeError(f"prop mesh {path} holds no triangles")
+    vertices = np.asarray(loaded.vertices, dtype=float) * scale
+    faces = np.asarray(loaded.faces, dtype=np.int64)
+    if not np.all(np.isfinite(vertices)):
+        raise StarforgeError(f"prop mesh {path} has non-finite vertex coordinates")
+    return trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
+
+
+def repair_mesh(mesh, union_shells: bool = True):
+    """Repair a raw mesh for placement; return ``(mesh, face_origin, notes)``.
+
+    Steps (each reported in ``notes`` when it changed something): merge duplicate vertices,
+    drop degenerate and duplicate faces, make winding consistent and normals outward per
+    connected shell, fill small holes, and merge overlapping watertight shells into one
+    surface with a boolean union (manifold3d) so that no candidate site lies buried inside
+    another shell.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        Raw mesh, metres.
+    union_shells : bool
+        Merge two or more watertight shells with a boolean union.
+
+    Returns
+    -------
+    mesh : trimesh.Trimesh
+    face_origin : (f,) int
+        Input face index of every output face, -1 for faces the repair created.
+    notes : list of str
+    """
+    import trimesh
+
+    notes: list[str] = []
+    m = trimesh.Trimesh(vertices=mesh.vertices.copy(), faces=mesh.faces.copy(), process=False)
+    origin = np.arange(len(m.faces))
+    nv = len(m.vertices)
+    m.merge_vertices()
+    if len(m.vertices) < nv:
+        notes.append(f"merged {nv - len(m.vertices)} duplicate vertices")
+    keep = m.nondegenerate_faces(height=1e-12)
+    unique = np.zeros(len(m.faces), dtype=bool)
+    unique[m.unique_faces()] = True
+    keep &= unique
+    if not keep.all():
+        notes.append(f"removed {int((~keep).sum())} degenerate or duplicate faces")
+        m.update_faces(keep)
+        origin = origin[keep]
+    m.remove_unreferenced_vertices()
+    if len(m.faces) == 0:
+        raise StarforgeError("prop mesh has no usable faces after removing degenerate ones")
+
+    # consistent winding and outward normals, shell by shell
+    before = m.faces.copy()
+    trimesh.repair.fix_winding(m)
+    trimesh.repair.fix_inversion(m, multibody=True)
+    flipped = int(np.any(m.faces != before, axis=1).sum())
+    if flipped:
+        notes.append(f"flipped {flipped} faces so normals point outward")
+
+    if not m.is_watertight:
+        nf = len(m.faces)
+        trimesh.repair.fill_holes(m)
+        added = len(m.faces) - nf
+        if added > 0:
+            origin = np.concatenate([origin, -np.ones(added, dtype=origin.dtype)])
+            notes.append(f"filled holes with {added} faces")
+
+    shells = m.split(only_watertight=False)
+    if len(shells) > 1:
+        notes.append(f"{len(shells)} separate shells")
+    tight = [s for s in shells if s.is_watertight and s.is_volume]
+    if union_shells and len(tight) >= 2 and _any_overlap(tight):
+        merged = _union(tight)
+        if merged is not None:
+            loose = [s for s in shells if not (s.is_watertight and s.is_volume)]
+            parts = [merged, *loose]
+            m = trimesh.util.concatenate(parts) if len(parts) > 1 else merged
+            # faces from a union have no single source face: keep the mask by nearest source face
+            origin = _nearest_origin(mesh, origin, m)
+            notes.append(f"merged {len(tight)} overlapping watertight shells with a boolean union")
+    if len(m.faces) == 0 or m.area <= 0:
+        raise StarforgeError("prop mesh has no usable surface after repair")
+    return m, origin, notes
+
+
+def _any_overlap(shells) -> bool:
+    boxes = np.array([s.bounds for s in shells])
+    lo, hi = boxes[:, 0], boxes[:, 1]
+    for i in range(len(shells)):
+        for j in range(i + 1, len(shells)):
+            if np.all(lo[i] <= hi[j]) and np.all(lo[j] <= hi[i]):
+                return True
+    return False
+
+
+def _union(shells):
+    """Boolean union of watertight shells with manifold3d; None when manifold refuses them."""
+    import manifold3d
+    import trimesh
+
+    try:
+        solids = [
+            manifold3d.Manifold(
+                manifold3d.Mesh(
+                    vert_properties=np.asarray(s.vertices, dtype=np.float32),
+                    tri_verts=np.asarray(s.faces, dtype=np.uint32),
+                )
+            )
+            for s in shells
+        ]
+        if any(s.status() != manifold3d.Error.NoError or s.is_empty() for s in solids):
+            return None
+        out = manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add).to_mesh()
+    except Exception:  # manifold3d refuses some inputs; the caller keeps the shells as they are
+        return None
+    merged = trimesh.Trimesh(vertices=np.asarray(out.vert_properties[:, :3], dtype=float),
+                             faces=np.asarray(out.tri_verts, dtype=np.int64), process=True)
+    if len(merged.faces) == 0 or not merged.is_watertight:
+        return None
+    if merged.volume < 0:
+        merged.invert()
+    return merged
+
+
+def _nearest_origin(raw, origin, new):
+    """Source face index for each face of ``new``: the nearest face of the repaired-before mesh."""
+    from scipy.spatial import cKDTree
+
+    origin = np.asarray(origin)
+    known = origin[origin >= 0]
+    if len(known) == 0:
+        return -np.ones(len(new.faces), dtype=np.int64)
+    _, idx = cKDTree(raw.triangles_center[known]).query(new.triangles_center)
+    return known[idx]
+
+
+def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
+    """A built-in prop name (``hammer``) or a mesh file path -> repaired :class:`PropMesh` in metres."""
+    from starforge.props.builtin import BUILTIN, builtin_mesh
+
+    text = str(prop)
+    if text in BUILTIN and not Path(text).exists():
+        mesh = builtin_mesh(text)
+        n = len(mesh.faces)
+        return PropMesh(text, "builtin", "m", mesh, np.arange(n), (), n)
+    path = Path(text)
+    if not path.exists() and path.suffix.lower() not in MESH_SUFFIXES:
+        raise StarforgeError(
+            f"unknown prop {text!r}: not a file and not a built-in; built-ins: {', '.join(BUILTIN)}"
+        )
+    raw = load_mesh_file(path, units)
+    if not repair:
+        return PropMesh(path.stem, text, units, raw, np.arange(len(raw.faces)), (), len(raw.faces))
+    mesh, origin, notes = repair_mesh(raw)
+    return PropMesh(path.stem, text, units, mesh, origin, tuple(notes), len(raw.faces))
