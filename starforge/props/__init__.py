@@ -1,0 +1,19 @@
+"""Prop marker placement (Acevedo et al. 2023, sections 3-5): optimize a marker set on a prop mesh.
+
+Modules: ``mesh`` (load, repair), ``builtin`` (props generated in code), ``sites`` (Poisson-disk
+candidate sites, constrained areas), ``rig`` (cameras, pairs, poses), ``visibility`` (the
+sites x poses x pairs table, embree), ``costs`` and ``symmetry`` (eq. 1-5), ``optimizer``
+(RJ-MCMC simulated annealing, eq. 6-9), ``placement`` (pipeline, files, :func:`load_placement`).
+Importing this package is light; heavy libraries load inside the functions that use them.
+"""
+
+from __future__ import annotations
+
+__all__ = ["load_placement"]
+
+
+def load_placement(path):
+    """Read a ``placement.json`` (or the folder holding one); see :func:`starforge.props.placement.load_placement`."""
+    from starforge.props.placement import load_placement as _load
+
+    return _load(path)

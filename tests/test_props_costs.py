@@ -1,0 +1,153 @@
+"""Cost terms against hand-computed values; symmetry of regular and scalene layouts."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from starforge.errors import StarforgeError
+from starforge.props.costs import (
+    CostSettings,
+    count_cost,
+    evaluate,
+    overlap_cost,
+    overlapping_pairs,
+    visibility_cost,
+)
+from starforge.props.symmetry import is_symmetric, near_symmetry_margin, quick_reject
+
+
+def test_count_cost_by_hand():
+    assert count_cost(7, 7) == 0.0
+    assert count_cost(8, 7) == pytest.approx(1 - math.exp(-0.5))
+    assert count_cost(5, 7) == pytest.approx(1 - math.exp(-2.0))
+    assert count_cost(9, 7, sigma=2.0) == pytest.approx(1 - math.exp(-0.5))
+
+
+def test_visibility_cost_by_hand():
+    assert visibility_cost(np.array([1.0, 0.5, 0.0]), 1.0) == pytest.approx(0.5)
+    assert visibility_cost(np.array([0.25, 0.75]), 0.2) == pytest.approx(0.3)
+
+
+def test_overlap_by_hand():
+    d = 0.004  # marker diameter
+    pts = np.array([[0, 0, 0], [0.003, 0, 0], [0.1, 0, 0]], dtype=float)
+    assert overlapping_pairs(pts, d) == 1
+    # ordered pairs: 2 of 3 * 2 = 6 overlap
+    assert overlap_cost(pts, d) == pytest.approx(2 / 6)
+    assert overlap_cost(pts, d, target=0.5) == pytest.approx(0.5 - 1 / 3)
+    touching = np.array([[0, 0, 0], [0.004, 0, 0]], dtype=float)
+    assert overlapping_pairs(touching, d) == 0  # touching spheres do not intersect
+    same = np.zeros((3, 3))
+    assert overlap_cost(same, d) == pytest.approx(1.0)
+
+
+def test_evaluate_is_the_weighted_sum():
+    cs = CostSettings(target_markers=5, w_visibility=2.0, w_count=0.5, w_overlap=3.0, w_symmetry=0.25)
+    pts = np.array([[0, 0, 0], [0.002, 0, 0], [0.1, 0.03, 0.01], [0.05, 0.2, 0.07]])
+    vis = np.array([0.5, 0.25, 1.0, 0.75])
+    c = evaluate(pts, vis, cs)
+    cv = abs(np.mean(vis) - 1.0)
+    cn = 1 - math.exp(-((4 - 5) ** 2) / 2)
+    co = 2 * 1 / (4 * 3)
+    assert c.visibility == pytest.approx(cv)
+    assert c.count == pytest.approx(cn)
+    assert c.overlap == pytest.approx(co)
+    assert c.symmetry == 0.0 and not c.symmetric
+    assert c.total == pytest.approx(2 * cv + 0.5 * cn + 3 * co)
+
+
+def test_settings_validation_names_the_parameter():
+    with pytest.raises(StarforgeError, match="w_overlap must be >= 0"):
+        CostSettings(w_overlap=-1)
+    with pytest.raises(StarforgeError, match=r"markers \(target_markers\) must be in \[4, 20\]"):
+        CostSettings(target_markers=21)
+    with pytest.raises(StarforgeError, match="marker_diameter_m must be > 0"):
+        CostSettings(marker_diameter_m=0)
+
+
+def _polygon(k, radius, axis, centre, phase):
+    ang = phase + 2 * math.pi * np.arange(k) / k
+    ring = np.column_stack([radius * np.cos(ang), radius * np.sin(ang), np.zeros(k)])
+    # put the ring's normal along the chosen axis
+    perm = {0: [2, 0, 1], 1: [1, 2, 0], 2: [0, 1, 2]}[axis]
+    return ring[:, perm] + centre
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    k=st.integers(2, 8),
+    radius=st.floats(0.02, 0.5),
+    axis=st.integers(0, 2),
+    phase=st.floats(0, 2 * math.pi),
+    centre=st.tuples(*[st.floats(-1, 1)] * 3),
+    height=st.floats(-0.1, 0.1),
+)
+def test_regular_polygons_are_symmetric(k, radius, axis, phase, centre, height):
+    pts = _polygon(k, radius, axis, np.array(centre), phase)
+    if k == 2:  # a pair plus an apex on the axis is still 2-fold symmetric
+        apex = np.array(centre) + height * np.eye(3)[axis]
+        pts = np.vstack([pts, apex])
+    assert not quick_reject(pts, 0.002)
+    assert is_symmetric(pts, k=8, tol_m=0.002)
+    assert near_symmetry_margin(pts) < 1e-9
+
+
+def test_square_symmetric_scalene_not():
+    square = np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]) * 0.05 + [0.3, -0.2, 0.9]
+    assert is_symmetric(square)
+    scalene = np.array([[0, 0, 0], [0.1, 0, 0], [0.03, 0.05, 0.01], [0.2, 0.13, 0.07]])
+    assert not is_symmetric(scalene)
+    assert near_symmetry_margin(scalene) > 0.005
+    # a triangle needs order 3, missed by rotations that are multiples of 45 degrees only
+    tri = _polygon(3, 0.1, 2, np.zeros(3), 0.3)
+    assert is_symmetric(tri, k=8) and not is_symmetric(tri, k=2)
+
+
+def test_tolerance_is_a_distance():
+    square = np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]) * 0.05
+    noisy = square + np.array([[0.0005, 0, 0], [0, -0.0004, 0], [0, 0, 0.0003], [0, 0, 0]])
+    assert is_symmetric(noisy, tol_m=0.002)
+    assert not is_symmetric(noisy, tol_m=0.0001)
+
+
+def _exact_margin(p):
+    """Brute force over every non-identity permutation (small n): min Kabsch RMS."""
+    n = len(p)
+    best = math.inf
+    for perm in itertools.permutations(range(n)):
+        if perm == tuple(range(n)):
+            continue
+        q = p[list(perm)]
+        ca, cb = p.mean(0), q.mean(0)
+        U, _, Vt = np.linalg.svd((p - ca).T @ (q - cb))
+        d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+        R = Vt.T @ np.diag([1, 1, d]) @ U.T
+        rms = math.sqrt(((p - ca) @ R.T + cb - q).__pow__(2).sum(1).mean())
+        best = min(best, rms)
+    return best
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_near_symmetry_margin_matches_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    n = 4 + seed % 2
+    p = rng.random((n, 3)) * 0.2
+    exact = _exact_margin(p)
+    got = near_symmetry_margin(p)
+    assert got >= exact - 1e-12  # it is a residual of a real self-match
+    assert got <= exact * 1.05 + 1e-12
+
+
+def test_near_symmetry_margin_grows_with_noise():
+    square = np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]) * 0.05
+    rng = np.random.default_rng(0)
+    noise = rng.normal(0, 1, square.shape)
+    noise *= 0.001 / np.sqrt((noise**2).sum(1).mean())  # RMS 1 mm
+    m = near_symmetry_margin(square + noise)
+    assert 0 < m <= 2 * 0.001 + 1e-12  # the 90 degree self-match moves each point by at most twice the noise

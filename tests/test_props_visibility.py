@@ -1,0 +1,186 @@
+"""Visibility: hand-worked cases and an independent brute-force re-check."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from starforge.errors import StarforgeError
+from starforge.props.rig import Camera, Poses, Rig, Volume, grid_positions, load_rig, make_poses
+from starforge.props.visibility import compute_table, segment_occluded
+
+
+def _identity_pose(at=(0.0, 0.0, 0.0)):
+    return Poses(np.eye(3)[None], np.array([at], dtype=float), np.zeros(3))
+
+
+def _rig(cams, pairs):
+    return Rig(cameras=tuple(cams), pairs=tuple(pairs), volume=Volume((0, 0, 0), (0.1, 0.1, 0.1)))
+
+
+@pytest.fixture(scope="module")
+def box():
+    import trimesh
+
+    return trimesh.creation.box(extents=(0.4, 0.4, 0.4))  # centred at the origin, top at z = 0.2
+
+
+def test_top_seen_from_above_bottom_by_none_out_of_view_by_none(box):
+    above = [Camera((0.0, 0.0, 3.0), (0, 0, 0), 60), Camera((1.0, 0.0, 3.0), (0, 0, 0), 60)]
+    aside = [Camera((3.0, 0.0, 0.0), (3.0, 5.0, 0.0), 30), Camera((3.0, 1.0, 0.0), (3.0, 5.0, 0.0), 30)]
+    rig = _rig(above + aside, [(0, 1), (2, 3)])
+    pts = np.array([[0.05, 0.02, 0.2], [0.05, 0.02, -0.2]])
+    nrm = np.array([[0, 0, 1.0], [0, 0, -1.0]])
+    seen = compute_table(box, pts, nrm, rig, _identity_pose()).seen[:, 0, :]
+    # top marker: the pair above sees it; the pair looking away (+y, far to the side) does not
+    assert seen[0].tolist() == [True, False]
+    # bottom marker faces away from every camera: nobody sees it
+    assert seen[1].tolist() == [False, False]
+
+
+def test_marker_outside_field_of_view(box):
+    # a pair straight above the box with a narrow 4 degree field of view aimed at its centre
+    cams = [Camera((0.0, 0.0, 3.0), (0, 0, 0), 4), Camera((0.01, 0.0, 3.0), (0.01, 0, 0), 4)]
+    rig = _rig(cams, [(0, 1)])
+    pts = np.array([[0.18, 0.18, 0.2], [0.0, 0.0, 0.2]])  # a corner of the top face, and its centre
+    # hand check: the corner is ~5.2 degrees off the optical axis, beyond the ~2 degree half-angle
+    d = np.subtract(pts[0], cams[0].position)
+    assert math.degrees(math.atan2(math.hypot(d[0], d[1]), -d[2])) > 5
+    t = compute_table(box, pts, np.array([[0, 0, 1.0], [0, 0, 1.0]]), rig, _identity_pose())
+    assert t.seen[:, 0, 0].tolist() == [False, True]
+
+
+def test_occluded_by_the_prop_itself():
+    import trimesh
+
+    # a low slab with a tall wall on it; a marker on the slab at the foot of the wall
+    slab = trimesh.creation.box(extents=(1.0, 1.0, 0.1))
+    wall = trimesh.creation.box(extents=(0.1, 1.0, 1.0), transform=_tf((0.2, 0, 0.55)))
+    prop = trimesh.util.concatenate([slab, wall])
+    site = np.array([[0.0, 0.0, 0.05]])
+    up = np.array([[0.0, 0.0, 1.0]])
+    # cameras low on the far side of the wall (+x), looking at the marker: line of sight crosses the wall
+    far = [Camera((3.0, 0.0, 0.6), (0, 0, 0.05), 60), Camera((3.0, 0.5, 0.6), (0, 0, 0.05), 60)]
+    near = [Camera((-3.0, 0.0, 0.6), (0, 0, 0.05), 60), Camera((-3.0, 0.5, 0.6), (0, 0, 0.05), 60)]
+    rig = _rig(far + near, [(0, 1), (2, 3)])
+    seen = compute_table(prop, site, up, rig, _identity_pose(), grazing_limit_deg=89).seen[0, 0]
+    assert seen.tolist() == [False, True]
+    # the same cameras see it once the wall is gone (so the wall, not the field of view, blocked it)
+    seen_open = compute_table(slab, site, up, rig, _identity_pose(), grazing_limit_deg=89).seen[0, 0]
+    assert seen_open.tolist() == [True, True]
+
+
+def test_grazing_limit(box):
+    # camera pair level with the top face, 20 degrees above its plane: normal-to-camera angle ~70 degrees
+    cams = [Camera((3.0, 0.0, 0.2 + 3 * math.tan(math.radians(20))), (0, 0, 0.2), 60),
+            Camera((3.0, 0.3, 0.2 + 3 * math.tan(math.radians(20))), (0, 0, 0.2), 60)]
+    rig = _rig(cams, [(0, 1)])
+    args = (box, np.array([[0.0, 0.0, 0.2]]), np.array([[0, 0, 1.0]]), rig, _identity_pose())
+    assert compute_table(*args, grazing_limit_deg=75).seen.all()
+    assert not compute_table(*args, grazing_limit_deg=65).seen.any()
+
+
+def _tf(t):
+    m = np.eye(4)
+    m[:3, 3] = t
+    return m
+
+
+def test_segment_occluded_is_a_segment_not_a_ray(box):
+    o = np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 2.0]])
+    tgt = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -2.0]])  # stops above the box / passes through it
+    assert segment_occluded(box, o, tgt).tolist() == [False, True]
+
+
+def _brute_force(mesh, pts, nrm, rig, poses, grazing_deg):
+    """Independent re-check: world-frame geometry with angles, trimesh's numpy ray tracer."""
+    from trimesh.ray.ray_triangle import RayMeshIntersector
+
+    tracer = RayMeshIntersector(mesh)
+    mats = poses.matrices()
+    out = np.zeros((len(pts), len(poses), len(rig.pairs)), dtype=bool)
+    for k, M in enumerate(mats):
+        R, t = M[:3, :3], M[:3, 3]
+        world = pts @ R.T + t
+        wn = nrm @ R.T
+        cam_ok = np.zeros((len(pts), len(rig.cameras)), dtype=bool)
+        for c, cam in enumerate(rig.cameras):
+            right, up, fwd = cam.basis()
+            th, tv = cam.half_tangents
+            for i in range(len(pts)):
+                d = world[i] - np.asarray(cam.position)
+                z = d @ fwd
+                if z <= 0:
+                    continue
+                if math.atan2(abs(d @ right), z) > math.atan(th) or math.atan2(abs(d @ up), z) > math.atan(tv):
+                    continue
+                to_cam = -d / np.linalg.norm(d)
+                if math.degrees(math.acos(np.clip(wn[i] @ to_cam, -1, 1))) > grazing_deg:
+                    continue
+                # occlusion in the prop frame: from the site towards the camera
+                cam_local = R.T @ (np.asarray(cam.position) - t)
+                o = pts[i] + 1e-6 * nrm[i]
+                v = cam_local - o
+                dist = np.linalg.norm(v)
+                locs, _, _ = tracer.intersects_location([o], [v / dist])
+                hits = np.linalg.norm(locs - o, axis=1) if len(locs) else np.zeros(0)
+                cam_ok[i, c] = not np.any(hits < dist)
+        for j, (a, b) in enumerate(rig.pairs):
+            out[:, k, j] = cam_ok[:, a] & cam_ok[:, b]
+    return out
+
+
+def test_table_matches_brute_force_on_hammer():
+    from starforge.props.builtin import builtin_mesh
+    from starforge.props.sites import sample_sites
+
+    rng = np.random.default_rng(5)
+    mesh = builtin_mesh("hammer")
+    sites = sample_sites(mesh, 60, rng)
+    rig = load_rig("default")
+    poses = make_poses(rig.volume, 2, 2, mesh.bounds.mean(axis=0), rng)
+    fast = compute_table(mesh, sites.points, sites.normals, rig, poses, 80.0).seen
+    slow = _brute_force(mesh, sites.points, sites.normals, rig, poses, 80.0)
+    assert fast.any() and not fast.all()
+    # allow a handful of disagreements only where a ray grazes an edge (float32 embree vs float64)
+    assert (fast != slow).mean() < 0.005
+
+
+def test_rig_template_is_the_papers():
+    rig = load_rig("default")
+    assert len(rig.cameras) == 8 and len(rig.pairs) == 4
+    assert sorted(i for p in rig.pairs for i in p) == list(range(8))
+    assert all(c.fov_deg == 60 and c.position[2] == 2.5 for c in rig.cameras)
+    assert rig.volume.size == (2.0, 2.0, 2.0)
+    for a, b in rig.pairs:  # non-parallel views
+        fa, fb = rig.cameras[a].basis()[2], rig.cameras[b].basis()[2]
+        assert abs(fa @ fb) < 0.9
+    pos = grid_positions(rig.volume, 4)
+    assert len(pos) == 64
+    lo = np.subtract(rig.volume.center, np.divide(rig.volume.size, 2))
+    hi = np.add(rig.volume.center, np.divide(rig.volume.size, 2))
+    assert np.all(pos > lo) and np.all(pos < hi)
+
+
+def test_no_pair_sees_the_volume():
+    cams = [Camera((5.0, 0, 1), (10.0, 0, 1), 30), Camera((5.0, 1, 1), (10.0, 1, 1), 30)]
+    rig = Rig(cameras=tuple(cams), pairs="auto")
+    import trimesh
+
+    box = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    with pytest.raises(StarforgeError, match="no camera pair sees the capture volume"):
+        compute_table(box, np.zeros((1, 3)), np.array([[0, 0, 1.0]]), rig,
+                      make_poses(rig.volume, 2, 1, np.zeros(3), np.random.default_rng(0)))
+
+
+def test_pose_matrices_map_pivot_to_position():
+    rng = np.random.default_rng(1)
+    poses = make_poses(Volume(), 2, 3, np.array([0.1, 0.2, 0.3]), rng)
+    M = poses.matrices()
+    assert len(poses) == 24
+    for k in range(len(poses)):
+        R = M[k, :3, :3]
+        assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
+        assert np.allclose(M[k] @ np.array([0.1, 0.2, 0.3, 1.0]), [*poses.translations[k], 1.0])
