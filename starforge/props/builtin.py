@@ -18,7 +18,7 @@ DESCRIPTIONS = {
     "bottle": "bottle: 30 cm tall, 74 mm body diameter, narrow neck",
     "box": "cardboard box: 40 x 30 x 25 cm",
     "shield": "round shield: 60 cm diameter, 2 cm thick, with a boss and a handle bar at the back",
-    "umbrella": "umbrella-like canopy: 1 m spherical-cap canopy (3 mm thick) on an 80 cm shaft",
+    "umbrella": "umbrella-like canopy: 1 m spherical-cap canopy (3 mm thick) on a 94 cm shaft",
 }
 
 
@@ -101,7 +101,7 @@ def _parts(name: str) -> list:
         canopy = np.vstack([outer, inner, outer[:1]])
         return [
             _revolve(canopy, sections=64),
-            _cylinder(0.008, 0.90, (0, 0, 0.45)),
+            _cylinder(0.008, 0.94, (0, 0, 0.47)),  # the tip pokes 4 cm through the canopy
             _cylinder(0.014, 0.12, (0, 0, 0.06)),
         ]
     raise StarforgeError(f"unknown built-in prop {name!r}; known: {', '.join(BUILTIN)}")

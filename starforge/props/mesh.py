@@ -162,7 +162,7 @@ def repair_mesh(mesh, union_shells: bool = True):
             m = trimesh.util.concatenate(parts) if len(parts) > 1 else merged
             # faces from a union have no single source face: keep the mask by nearest source face
             origin = _nearest_origin(mesh, origin, m)
-            notes.append(f"merged {len(tight)} overlapping watertight shells with a boolean union")
+            notes.append(f"united {len(tight)} watertight shells (boolean union) so no surface is buried in another")
     if len(m.faces) == 0 or m.area <= 0:
         raise StarforgeError("prop mesh has no usable surface after repair")
     return m, origin, notes
@@ -199,7 +199,7 @@ def _union(shells):
     except Exception:  # manifold3d refuses some inputs; the caller keeps the shells as they are
         return None
     merged = trimesh.Trimesh(vertices=np.asarray(out.vert_properties[:, :3], dtype=float),
-                             faces=np.asarray(out.tri_verts, dtype=np.int64), process=True)
+                             faces=np.asarray(out.tri_verts, dtype=np.int64), process=False)
     if len(merged.faces) == 0 or not merged.is_watertight:
         return None
     if merged.volume < 0:
@@ -223,6 +223,7 @@ def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
     """A built-in prop name (``hammer``) or a mesh file path -> repaired :class:`PropMesh` in metres."""
     from starforge.props.builtin import BUILTIN, builtin_mesh
 
+    units_scale(units)  # validate even for built-ins (which are in metres)
     text = str(prop)
     if text in BUILTIN and not Path(text).exists():
         mesh = builtin_mesh(text)

@@ -220,6 +220,9 @@ def forbidden_sites(sites: Sites, constraints: Constraints, face_origin: np.ndar
         from starforge.props.mesh import load_mesh_file
 
         other = load_mesh_file(constraints.mesh, constraints.mesh_units)
+        other.merge_vertices()
+        if other.is_watertight and other.volume < 0:
+            other.invert()
         _, dist, _ = other.nearest.on_surface(p)
         near = dist <= constraints.mesh_margin_m
         inside = other.contains(p) if other.is_watertight else np.zeros(len(p), dtype=bool)

@@ -1,0 +1,172 @@
+"""``starforge place``: the default-command group, outputs, determinism, one-line errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from starforge.cli import main
+
+FAST = ["--sites", "250", "--resolution", "2", "--restarts", "2"]
+OUTPUTS = ("placement.json", "markers.csv", "prop_markers.glb", "convergence.png", "layout.png")
+
+
+def _run(args, capsys):
+    code = main(args)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_place_default_command_writes_everything(tmp_path, capsys):
+    from starforge.props import load_placement
+
+    out = tmp_path / "o"
+    code, stdout, err = _run(["place", "hammer", *FAST, "--seed", "4", "--out", str(out)], capsys)
+    assert code == 0, err
+    for name in OUTPUTS:
+        assert (out / name).is_file() and (out / name).stat().st_size > 0
+    assert "markers:" in stdout
+    doc = json.loads((out / "placement.json").read_text())
+    for key in ("format", "version", "prop", "settings", "seed", "rig", "poses", "markers",
+                "marker_diameter_m", "cost", "history", "timings"):
+        assert key in doc
+    assert doc["format"] == "starforge.placement" and doc["version"] == 1 and doc["seed"] == 4
+    assert doc["prop"]["name"] == "hammer" and doc["prop"]["units"] == "m"
+    assert len(doc["rig"]["cameras"]) == 8 and len(doc["rig"]["pairs"]) == 4
+    assert doc["poses"]["count"] == 8 and len(doc["poses"]["matrices"]) == 8
+    assert doc["marker_diameter_m"] == pytest.approx(0.004)
+    assert doc["history"]["restarts"] == 2 and len(doc["history"]["run_costs"]) == 2
+    for k in ("total", "visibility", "count", "overlap", "symmetry", "near_symmetry"):
+        assert k in doc["cost"]
+    n = len(doc["markers"])
+    assert 4 <= n <= 20
+    rows = list(csv.reader((out / "markers.csv").read_text().splitlines()))
+    assert rows[0] == ["id", "x_m", "y_m", "z_m", "nx", "ny", "nz"] and len(rows) == n + 1
+    pl = load_placement(out)
+    assert np.allclose(pl.positions_m, [[float(v) for v in r[1:4]] for r in rows[1:]])
+    # re-check: markers lie on the hammer's surface with unit normals, visibility in [0, 1]
+    from starforge.props.builtin import builtin_mesh
+
+    _, dist, _ = builtin_mesh("hammer").nearest.on_surface(pl.positions_m)
+    assert dist.max() < 1e-6
+    assert np.allclose(np.linalg.norm(pl.normals, axis=1), 1)
+    assert np.all((pl.visibility >= 0) & (pl.visibility <= 1))
+    assert pl.total_cost == pytest.approx(doc["cost"]["total"])
+
+
+def test_same_seed_same_bytes(tmp_path, capsys):
+    outs = []
+    for k in range(2):
+        out = tmp_path / f"o{k}"
+        assert _run(["place", "run", "bottle", *FAST, "--seed", "9", "--out", str(out)], capsys)[0] == 0
+        outs.append(out)
+    for name in OUTPUTS:
+        a, b = (o / name for o in outs)
+        if name == "placement.json":
+            da, db = json.loads(a.read_text()), json.loads(b.read_text())
+            da.pop("timings"), db.pop("timings")
+            assert da == db
+        else:
+            assert a.read_bytes() == b.read_bytes(), name
+
+
+def test_score_subcommand_rescores_a_layout(tmp_path, capsys):
+    out = tmp_path / "o"
+    assert _run(["place", "box", *FAST, "--out", str(out)], capsys)[0] == 0
+    doc = json.loads((out / "placement.json").read_text())
+    code, stdout, err = _run(["place", "score", "box", str(out / "markers.csv"), "--resolution", "2", "--json"],
+                             capsys)
+    assert code == 0, err
+    scored = json.loads(stdout)
+    assert scored["total"] == pytest.approx(doc["cost"]["total"], abs=1e-6)
+    assert scored["markers"] == len(doc["markers"])
+    # an expert-style layout without normals: normals come from the surface
+    (tmp_path / "expert.csv").write_text("id,x_m,y_m,z_m\n0,0,0,0.25\n1,0.1,0.05,0.25\n2,-0.2,0,0.1\n"
+                                         "3,0.05,-0.15,0.2\n4,0.2,0.1,0.05\n")
+    code, stdout, err = _run(["place", "score", "box", str(tmp_path / "expert.csv"), "--resolution", "2"], capsys)
+    assert code == 0, err and "cost" in stdout
+
+
+def test_refuses_to_overwrite_without_force(tmp_path, capsys):
+    out = tmp_path / "o"
+    assert _run(["place", "hammer", *FAST, "--out", str(out)], capsys)[0] == 0
+    before = {n: (out / n).read_bytes() for n in OUTPUTS}
+    code, _, err = _run(["place", "hammer", *FAST, "--seed", "5", "--out", str(out)], capsys)
+    assert code == 2 and "--force" in err and err.count("\n") == 1
+    assert {n: (out / n).read_bytes() for n in OUTPUTS} == before
+    assert _run(["place", "hammer", *FAST, "--seed", "5", "--out", str(out), "--force"], capsys)[0] == 0
+
+
+def _write(path, text):
+    path.write_text(text)
+    return str(path)
+
+
+@pytest.mark.parametrize("case", ["missing", "corrupt", "empty", "markers3", "markers21", "negative_weight",
+                                  "all_forbidden", "blind_rig", "unknown_prop", "bad_units"])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case):
+    out = tmp_path / "o"
+    args = ["place", "hammer", *FAST, "--out", str(out)]
+    if case == "missing":
+        args[1] = str(tmp_path / "nope.stl")
+    elif case == "corrupt":
+        args[1] = _write(tmp_path / "c.stl", "solid broken\nthis is not an stl\n")
+    elif case == "empty":
+        args[1] = _write(tmp_path / "e.obj", "")
+    elif case == "markers3":
+        args += ["--markers", "3"]
+    elif case == "markers21":
+        args += ["--markers", "21"]
+    elif case == "negative_weight":
+        spec = (tmp_path / "s.toml")
+        spec.write_text("[costs]\nw_overlap = -1.0\n")
+        args += ["--spec", str(spec)]
+    elif case == "all_forbidden":
+        spec = tmp_path / "s.toml"
+        spec.write_text("[[constraints.boxes]]\nmin = [-9, -9, -9]\nmax = [9, 9, 9]\n")
+        args += ["--spec", str(spec)]
+    elif case == "blind_rig":
+        rig = tmp_path / "r.toml"
+        rig.write_text('pairs = "auto"\n[[cameras]]\nposition = [5, 0, 1]\ntarget = [10, 0, 1]\n'
+                       '[[cameras]]\nposition = [5, 1, 1]\ntarget = [10, 1, 1]\n')
+        args += ["--rig", str(rig)]
+    elif case == "unknown_prop":
+        args[1] = "teapot"
+    elif case == "bad_units":
+        args += ["--units", "furlong"]
+    code, _, err = _run(args, capsys)
+    assert code == 2
+    assert err.startswith("error: ") and err.count("\n") == 1, err
+    assert "Traceback" not in err
+    assert not out.exists()
+    assert not list(tmp_path.glob(".o.*"))  # no staging folder left behind
+
+
+def test_constraints_from_the_cli(tmp_path, capsys):
+    import trimesh
+
+    slab = trimesh.creation.box(extents=(1, 1, 0.2))  # covers the bottom 10 cm of the box prop
+    slab.export(tmp_path / "slab.stl")
+    out = tmp_path / "o"
+    code, stdout, err = _run(["place", "box", *FAST, "--forbid-mesh", str(tmp_path / "slab.stl"),
+                              "--out", str(out)], capsys)
+    assert code == 0, err
+    doc = json.loads((out / "placement.json").read_text())
+    assert doc["sites"]["forbidden"] > 0 and doc["sites"]["usable"] + doc["sites"]["forbidden"] == 250
+    assert all(m["position"][2] > 0.1 for m in doc["markers"])
+    assert f"{doc['sites']['forbidden']} in constrained areas removed" in stdout
+
+
+def test_orientations_and_help(tmp_path, capsys):
+    out = tmp_path / "o"
+    code, _, err = _run(["place", "racket", *FAST, "--orientations", "3", "--out", str(out)], capsys)
+    assert code == 0, err
+    doc = json.loads((out / "placement.json").read_text())
+    assert doc["poses"]["count"] == 24
+    M = np.array(doc["poses"]["matrices"])
+    assert np.allclose(M[:, :3, :3] @ np.transpose(M[:, :3, :3], (0, 2, 1)), np.eye(3), atol=1e-9)
+    code, stdout, _ = _run(["place", "--help"], capsys)
+    assert code == 0 and "score" in stdout

@@ -1,0 +1,126 @@
+"""Prop loading and repair, built-in props, candidate sites and constrained areas."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from starforge.errors import StarforgeError
+from starforge.props.builtin import BUILTIN, builtin_mesh
+from starforge.props.mesh import load_prop
+from starforge.props.sites import BoxRegion, Constraints, SphereRegion, forbidden_sites, sample_sites
+
+
+def _messy(path):
+    """Two overlapping boxes (one inside out), a sphere with a hole, duplicate and degenerate faces."""
+    import trimesh
+
+    a = trimesh.creation.box(extents=(0.2, 0.1, 0.1))
+    b = trimesh.creation.box(extents=(0.1, 0.1, 0.3))
+    b.apply_translation((0.05, 0, 0.1))
+    b.invert()
+    c = trimesh.creation.icosphere(2, 0.03)
+    c.apply_translation((0.3, 0, 0))
+    c = trimesh.Trimesh(c.vertices, c.faces[1:], process=False)
+    m = trimesh.util.concatenate([a, b, c])
+    m = trimesh.Trimesh(m.vertices, np.vstack([m.faces, m.faces[:3], [[0, 0, 1]]]), process=False)
+    m.export(path)
+    return path
+
+
+def test_messy_mesh_is_repaired_and_reported(tmp_path):
+    p = load_prop(str(_messy(tmp_path / "messy.stl")))
+    text = " ".join(p.notes)
+    for word in ("degenerate", "flipped", "filled", "united"):
+        assert word in text
+    m = p.mesh
+    assert m.is_watertight and m.volume > 0
+    # union volume by hand: 0.002 + 0.003 - 0.001 overlap, plus the sphere
+    sphere = 4 / 3 * np.pi * 0.03**3
+    assert m.volume == pytest.approx(0.004 + sphere, rel=0.03)
+    # outward normals: a point just outside every face along its normal is outside the solid
+    probe = m.triangles_center + 1e-4 * m.face_normals
+    assert not m.contains(probe).any()
+    # no candidate site is buried inside the other box
+    sites = sample_sites(m, 300, np.random.default_rng(0))
+    inner = np.all((sites.points > [0.0 + 1e-4, -0.05 + 1e-4, -0.05 + 1e-4])
+                   & (sites.points < [0.1 - 1e-4, 0.05 - 1e-4, 0.05 - 1e-4]), axis=1)
+    assert not inner.any()
+
+
+def test_units_scale_the_mesh(tmp_path):
+    import trimesh
+
+    trimesh.creation.box(extents=(200.0, 100.0, 50.0)).export(tmp_path / "box_mm.ply")
+    p = load_prop(str(tmp_path / "box_mm.ply"), units="mm")
+    assert np.allclose(sorted(p.extents_m), [0.05, 0.1, 0.2])
+    with pytest.raises(StarforgeError, match="units must be one of"):
+        load_prop(str(tmp_path / "box_mm.ply"), units="inch")
+
+
+@pytest.mark.parametrize("content, match", [
+    (None, "not found"),
+    (b"", "empty"),
+    (b"solid x\nfacet normal garbage\n", "cannot read|no triangles"),
+    (b"\x00\x01\x02" * 40, "cannot read|no triangles"),
+])
+def test_bad_mesh_files(tmp_path, content, match):
+    path = tmp_path / "bad.stl"
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(StarforgeError, match=match):
+        load_prop(str(path))
+
+
+def test_unknown_prop_lists_builtins():
+    with pytest.raises(StarforgeError, match="built-ins: hammer"):
+        load_prop("teapot")
+
+
+@pytest.mark.parametrize("name", BUILTIN)
+def test_builtin_props_are_realistic_solids(name):
+    m = builtin_mesh(name)
+    assert m.is_watertight and m.volume > 0
+    assert 0.1 < max(m.extents) < 1.2  # handheld, metres
+    assert len(m.split(only_watertight=False)) == 1
+
+
+def test_sites_are_poisson_disk_on_the_surface():
+    from scipy.spatial import cKDTree
+
+    m = builtin_mesh("bottle")
+    s = sample_sites(m, 500, np.random.default_rng(2))
+    assert len(s) == 500
+    d, _ = cKDTree(s.points).query(s.points, k=2)
+    assert d[:, 1].min() >= s.radius_m * (1 - 1e-9) and s.radius_m > 0
+    _, dist, tri = m.nearest.on_surface(s.points)
+    assert dist.max() < 1e-9
+    assert np.allclose(np.linalg.norm(s.normals, axis=1), 1)
+    assert np.allclose(np.einsum("ij,ij->i", s.normals, m.face_normals[s.faces]), 1)
+    t = sample_sites(m, 500, np.random.default_rng(2))
+    assert np.array_equal(s.points, t.points)
+
+
+def test_constrained_areas(tmp_path):
+    import trimesh
+
+    m = builtin_mesh("box")  # 0.4 x 0.3 x 0.25, base at z = 0
+    s = sample_sites(m, 400, np.random.default_rng(0))
+    top = Constraints(boxes=(BoxRegion((-1, -1, 0.249), (1, 1, 1)),))
+    bad = forbidden_sites(s, top)
+    assert np.array_equal(bad, s.points[:, 2] > 0.249)
+    ball = Constraints(spheres=(SphereRegion((0.2, 0.15, 0.25), 0.1),))
+    assert np.array_equal(forbidden_sites(s, ball), np.linalg.norm(s.points - [0.2, 0.15, 0.25], axis=1) <= 0.1)
+    # a second mesh: a slab through the bottom 5 cm
+    slab = trimesh.creation.box(extents=(1, 1, 0.1))
+    slab.export(tmp_path / "slab.stl")
+    in_slab = forbidden_sites(s, Constraints(mesh=str(tmp_path / "slab.stl"), mesh_margin_m=0.0))
+    assert np.array_equal(in_slab, s.points[:, 2] <= 0.05 + 1e-9)
+    # per-face mask: forbid the two faces of the +x side of the box
+    mask = (m.face_normals[:, 0] > 0.5).astype(int)
+    (tmp_path / "mask.txt").write_text("\n".join(map(str, mask)))
+    got = forbidden_sites(s, Constraints(mask=str(tmp_path / "mask.txt")), np.arange(len(m.faces)), len(m.faces))
+    assert np.array_equal(got, s.normals[:, 0] > 0.5)
+    (tmp_path / "short.txt").write_text("1 0 1")
+    with pytest.raises(StarforgeError, match="has 3 values, the prop has 12 faces"):
+        forbidden_sites(s, Constraints(mask=str(tmp_path / "short.txt")), np.arange(12), 12)
