@@ -30,8 +30,20 @@ def test_place_default_command_writes_everything(tmp_path, capsys):
         assert (out / name).is_file() and (out / name).stat().st_size > 0
     assert "markers:" in stdout
     doc = json.loads((out / "placement.json").read_text())
-    for key in ("format", "version", "prop", "settings", "seed", "rig", "poses", "markers",
-                "marker_diameter_m", "cost", "history", "timings"):
+    for key in (
+        "format",
+        "version",
+        "prop",
+        "settings",
+        "seed",
+        "rig",
+        "poses",
+        "markers",
+        "marker_diameter_m",
+        "cost",
+        "history",
+        "timings",
+    ):
         assert key in doc
     assert doc["format"] == "starforge.placement" and doc["version"] == 1 and doc["seed"] == 4
     assert doc["prop"]["name"] == "hammer" and doc["prop"]["units"] == "m"
@@ -77,16 +89,20 @@ def test_score_subcommand_rescores_a_layout(tmp_path, capsys):
     out = tmp_path / "o"
     assert _run(["place", "box", *FAST, "--out", str(out)], capsys)[0] == 0
     doc = json.loads((out / "placement.json").read_text())
-    code, stdout, err = _run(["place", "score", "box", str(out / "markers.csv"), "--resolution", "2", "--json"],
-                             capsys)
+    code, stdout, err = _run(
+        ["place", "score", "box", str(out / "markers.csv"), "--resolution", "2", "--json"], capsys
+    )
     assert code == 0, err
     scored = json.loads(stdout)
     assert scored["total"] == pytest.approx(doc["cost"]["total"], abs=1e-6)
     assert scored["markers"] == len(doc["markers"])
     # an expert-style layout without normals: normals come from the surface
-    (tmp_path / "expert.csv").write_text("id,x_m,y_m,z_m\n0,0,0,0.25\n1,0.1,0.05,0.25\n2,-0.2,0,0.1\n"
-                                         "3,0.05,-0.15,0.2\n4,0.2,0.1,0.05\n")
-    code, stdout, err = _run(["place", "score", "box", str(tmp_path / "expert.csv"), "--resolution", "2"], capsys)
+    (tmp_path / "expert.csv").write_text(
+        "id,x_m,y_m,z_m\n0,0,0,0.25\n1,0.1,0.05,0.25\n2,-0.2,0,0.1\n3,0.05,-0.15,0.2\n4,0.2,0.1,0.05\n"
+    )
+    code, stdout, err = _run(
+        ["place", "score", "box", str(tmp_path / "expert.csv"), "--resolution", "2"], capsys
+    )
     assert code == 0, err and "cost" in stdout
 
 
@@ -105,8 +121,21 @@ def _write(path, text):
     return str(path)
 
 
-@pytest.mark.parametrize("case", ["missing", "corrupt", "empty", "markers3", "markers21", "negative_weight",
-                                  "all_forbidden", "blind_rig", "unknown_prop", "bad_units"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "missing",
+        "corrupt",
+        "empty",
+        "markers3",
+        "markers21",
+        "negative_weight",
+        "all_forbidden",
+        "blind_rig",
+        "unknown_prop",
+        "bad_units",
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case):
     out = tmp_path / "o"
     args = ["place", "hammer", *FAST, "--out", str(out)]
@@ -121,7 +150,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case):
     elif case == "markers21":
         args += ["--markers", "21"]
     elif case == "negative_weight":
-        spec = (tmp_path / "s.toml")
+        spec = tmp_path / "s.toml"
         spec.write_text("[costs]\nw_overlap = -1.0\n")
         args += ["--spec", str(spec)]
     elif case == "all_forbidden":
@@ -130,8 +159,10 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case):
         args += ["--spec", str(spec)]
     elif case == "blind_rig":
         rig = tmp_path / "r.toml"
-        rig.write_text('pairs = "auto"\n[[cameras]]\nposition = [5, 0, 1]\ntarget = [10, 0, 1]\n'
-                       '[[cameras]]\nposition = [5, 1, 1]\ntarget = [10, 1, 1]\n')
+        rig.write_text(
+            'pairs = "auto"\n[[cameras]]\nposition = [5, 0, 1]\ntarget = [10, 0, 1]\n'
+            "[[cameras]]\nposition = [5, 1, 1]\ntarget = [10, 1, 1]\n"
+        )
         args += ["--rig", str(rig)]
     elif case == "unknown_prop":
         args[1] = "teapot"
@@ -151,8 +182,9 @@ def test_constraints_from_the_cli(tmp_path, capsys):
     slab = trimesh.creation.box(extents=(1, 1, 0.2))  # covers the bottom 10 cm of the box prop
     slab.export(tmp_path / "slab.stl")
     out = tmp_path / "o"
-    code, stdout, err = _run(["place", "box", *FAST, "--forbid-mesh", str(tmp_path / "slab.stl"),
-                              "--out", str(out)], capsys)
+    code, stdout, err = _run(
+        ["place", "box", *FAST, "--forbid-mesh", str(tmp_path / "slab.stl"), "--out", str(out)], capsys
+    )
     assert code == 0, err
     doc = json.loads((out / "placement.json").read_text())
     assert doc["sites"]["forbidden"] > 0 and doc["sites"]["usable"] + doc["sites"]["forbidden"] == 250

@@ -43,8 +43,11 @@ def test_messy_mesh_is_repaired_and_reported(tmp_path):
     assert not m.contains(probe).any()
     # no candidate site is buried inside the other box
     sites = sample_sites(m, 300, np.random.default_rng(0))
-    inner = np.all((sites.points > [0.0 + 1e-4, -0.05 + 1e-4, -0.05 + 1e-4])
-                   & (sites.points < [0.1 - 1e-4, 0.05 - 1e-4, 0.05 - 1e-4]), axis=1)
+    inner = np.all(
+        (sites.points > [0.0 + 1e-4, -0.05 + 1e-4, -0.05 + 1e-4])
+        & (sites.points < [0.1 - 1e-4, 0.05 - 1e-4, 0.05 - 1e-4]),
+        axis=1,
+    )
     assert not inner.any()
 
 
@@ -58,12 +61,15 @@ def test_units_scale_the_mesh(tmp_path):
         load_prop(str(tmp_path / "box_mm.ply"), units="inch")
 
 
-@pytest.mark.parametrize("content, match", [
-    (None, "not found"),
-    (b"", "empty"),
-    (b"solid x\nfacet normal garbage\n", "cannot read|no triangles"),
-    (b"\x00\x01\x02" * 40, "cannot read|no triangles"),
-])
+@pytest.mark.parametrize(
+    "content, match",
+    [
+        (None, "not found"),
+        (b"", "empty"),
+        (b"solid x\nfacet normal garbage\n", "cannot read|no triangles"),
+        (b"\x00\x01\x02" * 40, "cannot read|no triangles"),
+    ],
+)
 def test_bad_mesh_files(tmp_path, content, match):
     path = tmp_path / "bad.stl"
     if content is not None:
@@ -110,7 +116,9 @@ def test_constrained_areas(tmp_path):
     bad = forbidden_sites(s, top)
     assert np.array_equal(bad, s.points[:, 2] > 0.249)
     ball = Constraints(spheres=(SphereRegion((0.2, 0.15, 0.25), 0.1),))
-    assert np.array_equal(forbidden_sites(s, ball), np.linalg.norm(s.points - [0.2, 0.15, 0.25], axis=1) <= 0.1)
+    assert np.array_equal(
+        forbidden_sites(s, ball), np.linalg.norm(s.points - [0.2, 0.15, 0.25], axis=1) <= 0.1
+    )
     # a second mesh: a slab through the bottom 5 cm
     slab = trimesh.creation.box(extents=(1, 1, 0.1))
     slab.export(tmp_path / "slab.stl")
@@ -119,7 +127,9 @@ def test_constrained_areas(tmp_path):
     # per-face mask: forbid the two faces of the +x side of the box
     mask = (m.face_normals[:, 0] > 0.5).astype(int)
     (tmp_path / "mask.txt").write_text("\n".join(map(str, mask)))
-    got = forbidden_sites(s, Constraints(mask=str(tmp_path / "mask.txt")), np.arange(len(m.faces)), len(m.faces))
+    got = forbidden_sites(
+        s, Constraints(mask=str(tmp_path / "mask.txt")), np.arange(len(m.faces)), len(m.faces)
+    )
     assert np.array_equal(got, s.normals[:, 0] > 0.5)
     (tmp_path / "short.txt").write_text("1 0 1")
     with pytest.raises(StarforgeError, match="has 3 values, the prop has 12 faces"):

@@ -133,7 +133,8 @@ def test_beats_best_of_1000_random_layouts(name):
     assert not res.cost.symmetric
     # independent re-score of the result
     assert res.cost.total == pytest.approx(
-        evaluate(res.marker_points, res.marker_visibility, cs, with_margin=False).total)
+        evaluate(res.marker_points, res.marker_visibility, cs, with_margin=False).total
+    )
     rng = np.random.default_rng(99)
     pts, vis = res.sites.points, res.site_visibility
     nbr = overlap_neighbours(pts, cs.marker_diameter_m)

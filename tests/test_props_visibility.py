@@ -74,8 +74,10 @@ def test_occluded_by_the_prop_itself():
 
 def test_grazing_limit(box):
     # camera pair level with the top face, 20 degrees above its plane: normal-to-camera angle ~70 degrees
-    cams = [Camera((3.0, 0.0, 0.2 + 3 * math.tan(math.radians(20))), (0, 0, 0.2), 60),
-            Camera((3.0, 0.3, 0.2 + 3 * math.tan(math.radians(20))), (0, 0, 0.2), 60)]
+    cams = [
+        Camera((3.0, 0.0, 0.2 + 3 * math.tan(math.radians(20))), (0, 0, 0.2), 60),
+        Camera((3.0, 0.3, 0.2 + 3 * math.tan(math.radians(20))), (0, 0, 0.2), 60),
+    ]
     rig = _rig(cams, [(0, 1)])
     args = (box, np.array([[0.0, 0.0, 0.2]]), np.array([[0, 0, 1.0]]), rig, _identity_pose())
     assert compute_table(*args, grazing_limit_deg=75).seen.all()
@@ -114,7 +116,9 @@ def _brute_force(mesh, pts, nrm, rig, poses, grazing_deg):
                 z = d @ fwd
                 if z <= 0:
                     continue
-                if math.atan2(abs(d @ right), z) > math.atan(th) or math.atan2(abs(d @ up), z) > math.atan(tv):
+                if math.atan2(abs(d @ right), z) > math.atan(th) or math.atan2(abs(d @ up), z) > math.atan(
+                    tv
+                ):
                     continue
                 to_cam = -d / np.linalg.norm(d)
                 if math.degrees(math.acos(np.clip(wn[i] @ to_cam, -1, 1))) > grazing_deg:
@@ -171,8 +175,13 @@ def test_no_pair_sees_the_volume():
 
     box = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
     with pytest.raises(StarforgeError, match="no camera pair sees the capture volume"):
-        compute_table(box, np.zeros((1, 3)), np.array([[0, 0, 1.0]]), rig,
-                      make_poses(rig.volume, 2, 1, np.zeros(3), np.random.default_rng(0)))
+        compute_table(
+            box,
+            np.zeros((1, 3)),
+            np.array([[0, 0, 1.0]]),
+            rig,
+            make_poses(rig.volume, 2, 1, np.zeros(3), np.random.default_rng(0)),
+        )
 
 
 def test_pose_matrices_map_pivot_to_position():

@@ -38,8 +38,9 @@ place_app = typer.Typer(
 app.add_typer(place_app, name="place")
 
 
-def _prop_and_spec(prop, units, spec, rig, markers, resolution, orientations, sites, restarts,
-                   forbid_mesh, mask, mesh_format):
+def _prop_and_spec(
+    prop, units, spec, rig, markers, resolution, orientations, sites, restarts, forbid_mesh, mask, mesh_format
+):
     from dataclasses import replace
 
     from starforge.props.mesh import load_prop
@@ -53,8 +54,17 @@ def _prop_and_spec(prop, units, spec, rig, markers, resolution, orientations, si
             cons = replace(cons, mesh=str(forbid_mesh))
         if mask:
             cons = replace(cons, mask=str(mask))
-    s = with_overrides(s, markers=markers, resolution=resolution, orientations=orientations, sites=sites,
-                       restarts=restarts, rig=rig, constraints=cons, mesh_format=mesh_format)
+    s = with_overrides(
+        s,
+        markers=markers,
+        resolution=resolution,
+        orientations=orientations,
+        sites=sites,
+        restarts=restarts,
+        rig=rig,
+        constraints=cons,
+        mesh_format=mesh_format,
+    )
     return load_prop(prop, units), s
 
 
@@ -64,7 +74,9 @@ _PROP = typer.Argument(..., help="Mesh file (STL, OBJ, PLY, GLB, OFF) or built-i
 @place_app.command(_DEFAULT, help="Optimize a marker set on PROP (the default command).")
 def run_cmd(
     prop: str = _PROP,
-    spec: str = typer.Option("default", "--spec", help="Settings template name (default, long, paper) or TOML file."),
+    spec: str = typer.Option(
+        "default", "--spec", help="Settings template name (default, long, paper) or TOML file."
+    ),
     rig: str = typer.Option(None, "--rig", help="Rig template name or TOML file (default: the spec's)."),
     markers: int = typer.Option(None, "--markers", help="Target number of markers (Table 1: 7), in [4, 20]."),
     resolution: int = typer.Option(None, "--resolution", help="n for n x n x n prop positions (4, 8, 12)."),
@@ -72,11 +84,11 @@ def run_cmd(
     sites: int = typer.Option(None, "--sites", help="Candidate sites (Poisson-disk samples, default 1000)."),
     restarts: int = typer.Option(None, "--restarts", help="Independent annealing runs; the best is kept."),
     units: str = typer.Option("m", "--units", help="Units of a mesh file: m, cm or mm."),
-    forbid_mesh: Path = typer.Option(None, "--forbid-mesh", help="Mesh of a constrained area (no markers)."),
-    mask: Path = typer.Option(None, "--mask", help="Per-face mask file (1 = no markers on that face)."),
+    forbid_mesh: str = typer.Option(None, "--forbid-mesh", help="Mesh of a constrained area (no markers)."),
+    mask: str = typer.Option(None, "--mask", help="Per-face mask file (1 = no markers on that face)."),
     mesh_format: str = typer.Option(None, "--mesh-format", help="glb or stl for the prop-with-markers mesh."),
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same result)."),
-    out: Path = typer.Option(Path("out/place"), "--out", help="Output folder."),
+    out: str = typer.Option("out/place", "--out", help="Output folder."),
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
@@ -86,9 +98,28 @@ def run_cmd(
 
     if seed < 0:
         raise StarforgeError(f"seed must be >= 0, got {seed}")
-    p, s = _prop_and_spec(prop, units, spec, rig, markers, resolution, orientations, sites, restarts,
-                          forbid_mesh, mask, mesh_format)
-    names = ["placement.json", "markers.csv", f"prop_markers.{s.mesh_format}", "convergence.png", "layout.png"]
+    out = Path(out)
+    p, s = _prop_and_spec(
+        prop,
+        units,
+        spec,
+        rig,
+        markers,
+        resolution,
+        orientations,
+        sites,
+        restarts,
+        forbid_mesh,
+        mask,
+        mesh_format,
+    )
+    names = [
+        "placement.json",
+        "markers.csv",
+        f"prop_markers.{s.mesh_format}",
+        "convergence.png",
+        "layout.png",
+    ]
     check_writable(out, names, force)  # fail before the work, not after
     with progress() as bar:
         task = bar.add_task("visibility", total=None)
@@ -112,7 +143,7 @@ def run_cmd(
 @place_app.command("score", help="Score a given marker layout (CSV id,x_m,y_m,z_m,nx,ny,nz) on PROP.")
 def score_cmd(
     prop: str = _PROP,
-    markers_csv: Path = typer.Argument(..., help="Markers CSV (metres, prop frame); normals optional."),
+    markers_csv: str = typer.Argument(..., help="Markers CSV (metres, prop frame); normals optional."),
     spec: str = typer.Option("default", "--spec", help="Settings template name or TOML file."),
     rig: str = typer.Option(None, "--rig", help="Rig template name or TOML file."),
     resolution: int = typer.Option(None, "--resolution", help="n for n x n x n prop positions."),
@@ -125,7 +156,9 @@ def score_cmd(
 
     from starforge.props.placement import read_markers_csv, score_layout
 
-    p, s = _prop_and_spec(prop, units, spec, rig, None, resolution, orientations, None, None, None, None, None)
+    p, s = _prop_and_spec(
+        prop, units, spec, rig, None, resolution, orientations, None, None, None, None, None
+    )
     pts, nrm = read_markers_csv(markers_csv)
     cost, vis = score_layout(p, pts, nrm, s, seed=seed)
     doc = {**cost.to_json(), "marker_visibility": [round(float(v), 9) for v in vis]}
@@ -134,7 +167,9 @@ def score_cmd(
         return
     con = console()
     con.print(f"{p.name}: {cost.markers} markers, cost {cost.total:.4f}")
-    con.print(f"  visibility {cost.visibility:.4f} (mean {cost.mean_visibility:.3f}), count {cost.count:.4f}, "
-              f"overlap {cost.overlap:.4f} ({cost.overlapping_pairs} pairs), symmetry {cost.symmetry:.0f}")
+    con.print(
+        f"  visibility {cost.visibility:.4f} (mean {cost.mean_visibility:.3f}), count {cost.count:.4f}, "
+        f"overlap {cost.overlap:.4f} ({cost.overlapping_pairs} pairs), symmetry {cost.symmetry:.0f}"
+    )
     if doc["near_symmetry_margin_m"] is not None:
         con.print(f"  near-symmetry margin {cost.margin_m * 1000:.1f} mm")

@@ -75,8 +75,10 @@ class CostSettings:
         non_negative("symmetry_tol_m", self.symmetry_tol_m)
         in_range("min_markers", self.min_markers, 1, 1000)
         in_range("max_markers", self.max_markers, 1, 1000)
-        require(self.min_markers <= self.max_markers,
-                f"min_markers must be <= max_markers, got {self.min_markers} > {self.max_markers}")
+        require(
+            self.min_markers <= self.max_markers,
+            f"min_markers must be <= max_markers, got {self.min_markers} > {self.max_markers}",
+        )
         in_range("markers (target_markers)", self.target_markers, self.min_markers, self.max_markers)
 
 
@@ -98,9 +100,14 @@ class CostBreakdown:
 
     def to_json(self) -> dict:
         return {
-            "total": self.total, "visibility": self.visibility, "count": self.count,
-            "overlap": self.overlap, "symmetry": self.symmetry, "near_symmetry": self.near_symmetry,
-            "mean_visibility": self.mean_visibility, "overlapping_pairs": self.overlapping_pairs,
+            "total": self.total,
+            "visibility": self.visibility,
+            "count": self.count,
+            "overlap": self.overlap,
+            "symmetry": self.symmetry,
+            "near_symmetry": self.near_symmetry,
+            "mean_visibility": self.mean_visibility,
+            "overlapping_pairs": self.overlapping_pairs,
             "symmetric": self.symmetric,
             "near_symmetry_margin_m": None if math.isinf(self.margin_m) else self.margin_m,
             "markers": self.markers,
@@ -141,8 +148,9 @@ def near_symmetry_cost(margin_m: float, scale_m: float) -> float:
     return 0.0 if math.isinf(margin_m) else math.exp(-margin_m / scale_m)
 
 
-def evaluate(points: np.ndarray, marker_visibility: np.ndarray, s: CostSettings,
-             with_margin: bool = True) -> CostBreakdown:
+def evaluate(
+    points: np.ndarray, marker_visibility: np.ndarray, s: CostSettings, with_margin: bool = True
+) -> CostBreakdown:
     """All cost terms of a layout (eq. 1), from scratch.
 
     Parameters

@@ -162,7 +162,9 @@ def repair_mesh(mesh, union_shells: bool = True):
             m = trimesh.util.concatenate(parts) if len(parts) > 1 else merged
             # faces from a union have no single source face: keep the mask by nearest source face
             origin = _nearest_origin(mesh, origin, m)
-            notes.append(f"united {len(tight)} watertight shells (boolean union) so no surface is buried in another")
+            notes.append(
+                f"united {len(tight)} watertight shells (boolean union) so no surface is buried in another"
+            )
     if len(m.faces) == 0 or m.area <= 0:
         raise StarforgeError("prop mesh has no usable surface after repair")
     return m, origin, notes
@@ -198,8 +200,11 @@ def _union(shells):
         out = manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add).to_mesh()
     except Exception:  # manifold3d refuses some inputs; the caller keeps the shells as they are
         return None
-    merged = trimesh.Trimesh(vertices=np.asarray(out.vert_properties[:, :3], dtype=float),
-                             faces=np.asarray(out.tri_verts, dtype=np.int64), process=False)
+    merged = trimesh.Trimesh(
+        vertices=np.asarray(out.vert_properties[:, :3], dtype=float),
+        faces=np.asarray(out.tri_verts, dtype=np.int64),
+        process=False,
+    )
     if len(merged.faces) == 0 or not merged.is_watertight:
         return None
     if merged.volume < 0:

@@ -85,8 +85,10 @@ class ChainSettings:
             in_range(name, getattr(self, name), 0.0, 1.0)
         total = self.p_add + self.p_remove + self.p_modify
         require(abs(total - 1.0) < 1e-9, f"p_add + p_remove + p_modify must be 1, got {total}")
-        require(self.p_add > 0 and self.p_remove > 0 or self.p_add == self.p_remove == 0,
-                "p_add and p_remove must both be > 0 (or both 0)")
+        require(
+            self.p_add > 0 and self.p_remove > 0 or self.p_add == self.p_remove == 0,
+            "p_add and p_remove must both be > 0 (or both 0)",
+        )
         non_negative("t0", self.t0)
         non_negative("cool_step", self.cool_step)
         in_range("cool_every", self.cool_every, 1, 10**9)
@@ -95,8 +97,10 @@ class ChainSettings:
         non_negative("stop_rel", self.stop_rel)
         in_range("max_iterations", self.max_iterations, 1, 10**9)
         in_range("restarts", self.restarts, 1, 10000)
-        require(self.fixed_temperature == -1.0 or self.fixed_temperature >= 0,
-                f"fixed_temperature must be >= 0 or -1 (off), got {self.fixed_temperature}")
+        require(
+            self.fixed_temperature == -1.0 or self.fixed_temperature >= 0,
+            f"fixed_temperature must be >= 0 or -1 (off), got {self.fixed_temperature}",
+        )
 
     def temperature(self, i: int) -> float:
         """Temperature at iteration ``i`` (0-based)."""
@@ -116,8 +120,9 @@ def proposal_factor(move: int, n: int, s: ChainSettings, z: int) -> float:
     return 1.0
 
 
-def acceptance_probability(move: int, n: int, cost: float, new_cost: float, t: float,
-                           s: ChainSettings, z: int) -> float:
+def acceptance_probability(
+    move: int, n: int, cost: float, new_cost: float, t: float, s: ChainSettings, z: int
+) -> float:
     """Eq. 7-9: min(1, proposal factor * f(M') / f(M)), f = exp(-C / t); the t -> 0 limit at t = 0."""
     factor = proposal_factor(move, n, s, z)
     if factor <= 0:
@@ -209,15 +214,16 @@ class _Layout:
     def cost_of(self, n: int, sum_v: float, pairs: int, sites) -> tuple[float, float]:
         cs = self.cs
         c = cs.w_visibility * abs(sum_v / n - cs.target_visibility)
-        c += cs.w_count * (1.0 - math.exp(-((n - cs.target_markers) ** 2) / (2 * cs.sigma_markers ** 2)))
+        c += cs.w_count * (1.0 - math.exp(-((n - cs.target_markers) ** 2) / (2 * cs.sigma_markers**2)))
         ovl = 2.0 * pairs / (n * (n - 1)) if n > 1 else 0.0
         c += cs.w_overlap * abs(ovl - cs.target_overlap)
         sym = 0.0
         if cs.w_symmetry > 0 or cs.w_near_symmetry > 0:
             if cs.w_symmetry > 0:
                 X, Y, Z = self.X, self.Y, self.Z
-                if n < 2 or quick_reject_xyz([X[i] for i in sites], [Y[i] for i in sites],
-                                             [Z[i] for i in sites], cs.symmetry_tol_m):
+                if n < 2 or quick_reject_xyz(
+                    [X[i] for i in sites], [Y[i] for i in sites], [Z[i] for i in sites], cs.symmetry_tol_m
+                ):
                     sym = 0.0
                 else:
                     sym = 1.0 if is_symmetric(self.points[sites], cs.symmetry_k, cs.symmetry_tol_m) else 0.0
@@ -249,8 +255,16 @@ def random_valid_layout(n: int, n_sites: int, nbr, rng: np.random.Generator, tri
     return [int(s) for s in rng.choice(n_sites, size=n, replace=False)]
 
 
-def run_chain(points: np.ndarray, site_visibility: np.ndarray, cs: CostSettings, ch: ChainSettings,
-              rng: np.random.Generator, nbr=None, initial=None, on_iteration=None) -> ChainResult:
+def run_chain(
+    points: np.ndarray,
+    site_visibility: np.ndarray,
+    cs: CostSettings,
+    ch: ChainSettings,
+    rng: np.random.Generator,
+    nbr=None,
+    initial=None,
+    on_iteration=None,
+) -> ChainResult:
     """One simulated-annealing RJ-MCMC run.
 
     Parameters
@@ -277,8 +291,11 @@ def run_chain(points: np.ndarray, site_visibility: np.ndarray, cs: CostSettings,
         nbr = overlap_neighbours(points, cs.marker_diameter_m)
     Z, lo = cs.max_markers, cs.min_markers
     lay = _Layout(points, vis.tolist(), cs, nbr)
-    start = list(initial) if initial is not None else random_valid_layout(
-        min(max(cs.target_markers, lo), Z), S, nbr, rng)
+    start = (
+        list(initial)
+        if initial is not None
+        else random_valid_layout(min(max(cs.target_markers, lo), Z), S, nbr, rng)
+    )
     for s_ in start:
         lay.place(int(s_))
     cur_cost = lay.total()
@@ -322,16 +339,22 @@ def run_chain(points: np.ndarray, site_visibility: np.ndarray, cs: CostSettings,
                 if n > lo:
                     k = int(u_pick[b] * n)
                     s_old = sites[k]
-                    new_sites = sites[:k] + sites[k + 1:]
+                    new_sites = sites[:k] + sites[k + 1 :]
                     new_n, new_v, new_pairs = n - 1, lay.sum_v - vlist[s_old], lay.pairs - int(cnt[s_old]) + 1
                     ok = True
             else:
                 k = int(u_pick[b] * n)
                 s_old, s_new = sites[k], u_site[b]
-                new_sites = sites[:k] + [s_new] + sites[k + 1:]
+                new_sites = sites[:k] + [s_new] + sites[k + 1 :]
                 lost = int(cnt[s_old]) - 1
-                gained = int(cnt[s_new]) - (1 if (s_old == s_new or (nbrset is not None and s_old in nbrset[s_new])) else 0)
-                new_n, new_v, new_pairs = n, lay.sum_v - vlist[s_old] + vlist[s_new], lay.pairs - lost + gained
+                gained = int(cnt[s_new]) - (
+                    1 if (s_old == s_new or (nbrset is not None and s_old in nbrset[s_new])) else 0
+                )
+                new_n, new_v, new_pairs = (
+                    n,
+                    lay.sum_v - vlist[s_old] + vlist[s_new],
+                    lay.pairs - lost + gained,
+                )
                 ok = True
             if ok:
                 new_cost, _ = lay.cost_of(new_n, new_v, new_pairs, new_sites)
@@ -363,8 +386,12 @@ def run_chain(points: np.ndarray, site_visibility: np.ndarray, cs: CostSettings,
                     N = i
                     break
     return ChainResult(
-        sites=best_sites, cost=float(best_cost), iterations=i,
-        history_cost=h_cost[:i].copy(), history_best=h_best[:i].copy(), history_n=h_n[:i].copy(),
+        sites=best_sites,
+        cost=float(best_cost),
+        iterations=i,
+        history_cost=h_cost[:i].copy(),
+        history_best=h_best[:i].copy(),
+        history_n=h_n[:i].copy(),
         proposed=dict(zip(MOVE_NAMES, proposed, strict=True)),
         accepted=dict(zip(MOVE_NAMES, accepted, strict=True)),
         seconds=time.perf_counter() - t_start,
@@ -383,12 +410,15 @@ class AnnealResult:
         return np.array([r.cost for r in self.runs])
 
 
-def anneal(points, site_visibility, cs: CostSettings, ch: ChainSettings, rng: np.random.Generator,
-           on_iteration=None) -> AnnealResult:
+def anneal(
+    points, site_visibility, cs: CostSettings, ch: ChainSettings, rng: np.random.Generator, on_iteration=None
+) -> AnnealResult:
     """``ch.restarts`` independent chains (sequential, one rng); the lowest-cost run is ``best``."""
     positive("marker_diameter_m", cs.marker_diameter_m)
     nbr = overlap_neighbours(np.asarray(points, dtype=float), cs.marker_diameter_m)
-    runs = [run_chain(points, site_visibility, cs, ch, rng, nbr=nbr, on_iteration=on_iteration)
-            for _ in range(ch.restarts)]
+    runs = [
+        run_chain(points, site_visibility, cs, ch, rng, nbr=nbr, on_iteration=on_iteration)
+        for _ in range(ch.restarts)
+    ]
     best = min(runs, key=lambda r: r.cost)
     return AnnealResult(best, tuple(runs))

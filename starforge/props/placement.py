@@ -62,22 +62,43 @@ def load_spec(name_or_path: str = "default") -> PlaceSpec:
     return from_mapping(PlaceSpec, data, where=f"place spec {name}")
 
 
-def with_overrides(spec: PlaceSpec, markers: int | None = None, resolution: int | None = None,
-                   orientations: int | None = None, sites: int | None = None, restarts: int | None = None,
-                   rig: str | None = None, constraints: Constraints | None = None,
-                   mesh_format: str | None = None) -> PlaceSpec:
+def with_overrides(
+    spec: PlaceSpec,
+    markers: int | None = None,
+    resolution: int | None = None,
+    orientations: int | None = None,
+    sites: int | None = None,
+    restarts: int | None = None,
+    rig: str | None = None,
+    constraints: Constraints | None = None,
+    mesh_format: str | None = None,
+) -> PlaceSpec:
     """The spec with CLI options applied (each validated by the dataclasses)."""
     if markers is not None:
         cs = spec.costs
-        require(cs.min_markers <= markers <= cs.max_markers,
-                f"markers must be in [{cs.min_markers}, {cs.max_markers}], got {markers}")
+        require(
+            cs.min_markers <= markers <= cs.max_markers,
+            f"markers must be in [{cs.min_markers}, {cs.max_markers}], got {markers}",
+        )
         spec = replace(spec, costs=replace(cs, target_markers=int(markers)))
     if restarts is not None:
         spec = replace(spec, chain=replace(spec.chain, restarts=int(restarts)))
-    kw = {k: v for k, v in dict(resolution=resolution, orientations=orientations, sites=sites, rig=rig,
-                                  constraints=constraints, mesh_format=mesh_format).items() if v is not None}
+    kw = {
+        k: v
+        for k, v in dict(
+            resolution=resolution,
+            orientations=orientations,
+            sites=sites,
+            rig=rig,
+            constraints=constraints,
+            mesh_format=mesh_format,
+        ).items()
+        if v is not None
+    }
     if "mesh_format" in kw:
-        require(kw["mesh_format"] in ("glb", "stl"), f"mesh format must be glb or stl, got {kw['mesh_format']!r}")
+        require(
+            kw["mesh_format"] in ("glb", "stl"), f"mesh format must be glb or stl, got {kw['mesh_format']!r}"
+        )
     return replace(spec, **kw) if kw else spec
 
 
@@ -139,12 +160,14 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
     if len(kept) < spec.costs.min_markers:
         raise StarforgeError(
             f"only {len(kept)} candidate sites are outside the constrained areas, "
-            f"fewer than min_markers = {spec.costs.min_markers}")
+            f"fewer than min_markers = {spec.costs.min_markers}"
+        )
     t = _tick(timings, "sample_s", t)
     pivot = np.asarray(prop.mesh.bounds, dtype=float).mean(axis=0)
     poses = make_poses(rig.volume, spec.resolution, spec.orientations, pivot, rng)
-    table = compute_table(prop.mesh, kept.points, kept.normals, rig, poses, spec.grazing_limit_deg,
-                          progress=progress)
+    table = compute_table(
+        prop.mesh, kept.points, kept.normals, rig, poses, spec.grazing_limit_deg, progress=progress
+    )
     _tick(timings, "visibility_s", t)
     return kept, int(bad.sum()), rig, poses, table
 
@@ -176,8 +199,9 @@ def place(prop, spec: PlaceSpec, seed: int = 0, progress=None) -> PlacementResul
     cost = evaluate(sites.points[list(chosen)], v[list(chosen)], spec.costs)
     seen_any = table.seen[list(chosen)].any(axis=2)
     _tick(timings, "score_s", t)
-    return PlacementResult(prop, spec, seed, rig, poses, sites, n_bad, v, chosen, cost, result,
-                           seen_any, timings, table.rays)
+    return PlacementResult(
+        prop, spec, seed, rig, poses, sites, n_bad, v, chosen, cost, result, seen_any, timings, table.rays
+    )
 
 
 def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: PlaceSpec, seed: int = 0):
@@ -243,31 +267,35 @@ def placement_json(res: PlacementResult) -> dict:
     }
     for r in runs:
         it, c = _downsample(r.history_cost)
-        history["runs"].append({
-            "iterations": r.iterations,
-            "cost": _r(r.cost),
-            "markers": len(r.sites),
-            "proposed": r.proposed,
-            "accepted": r.accepted,
-            "trace": {
-                "iteration": it,
-                "cost": _r(c),
-                "best": _r(r.history_best[it]),
-                "markers": r.history_n[it].astype(int).tolist(),
-                "temperature": [_r(spec.chain.temperature(i)) for i in it],
-            },
-        })
+        history["runs"].append(
+            {
+                "iterations": r.iterations,
+                "cost": _r(r.cost),
+                "markers": len(r.sites),
+                "proposed": r.proposed,
+                "accepted": r.accepted,
+                "trace": {
+                    "iteration": it,
+                    "cost": _r(c),
+                    "best": _r(r.history_best[it]),
+                    "markers": r.history_n[it].astype(int).tolist(),
+                    "temperature": [_r(spec.chain.temperature(i)) for i in it],
+                },
+            }
+        )
     seen3 = (res.marker_pose_seen.sum(axis=0) >= 3) if len(res.marker_sites) else np.zeros(0, bool)
     markers = []
     for i, s in enumerate(res.marker_sites):
-        markers.append({
-            "id": i,
-            "position": _r(res.sites.points[s]),
-            "normal": _r(res.sites.normals[s]),
-            "site": int(s),
-            "visibility": _r(res.site_visibility[s]),
-            "seen_fraction": _r(res.marker_pose_seen[i].mean()),
-        })
+        markers.append(
+            {
+                "id": i,
+                "position": _r(res.sites.points[s]),
+                "normal": _r(res.sites.normals[s]),
+                "site": int(s),
+                "visibility": _r(res.site_visibility[s]),
+                "seen_fraction": _r(res.marker_pose_seen[i].mean()),
+            }
+        )
     return {
         "format": FORMAT,
         "version": VERSION,
@@ -284,18 +312,34 @@ def placement_json(res: PlacementResult) -> dict:
         "settings": to_mapping(spec),
         "seed": res.seed,
         "rig": res.rig.to_json(),
-        "poses": {"count": len(res.poses), "resolution": spec.resolution,
-                  "orientations": spec.orientations, **res.poses.to_json()},
-        "sites": {"sampled": len(res.sites) + res.forbidden, "forbidden": res.forbidden,
-                  "usable": len(res.sites), "poisson_radius_m": _r(res.sites.radius_m)},
+        "poses": {
+            "count": len(res.poses),
+            "resolution": spec.resolution,
+            "orientations": spec.orientations,
+            **res.poses.to_json(),
+        },
+        "sites": {
+            "sampled": len(res.sites) + res.forbidden,
+            "forbidden": res.forbidden,
+            "usable": len(res.sites),
+            "poisson_radius_m": _r(res.sites.radius_m),
+        },
         "markers": markers,
         "marker_diameter_m": spec.costs.marker_diameter_m,
-        "cost": {**{k: (_r(v) if isinstance(v, float) else v) for k, v in res.cost.to_json().items()},
-                 "weights": {"visibility": spec.costs.w_visibility, "count": spec.costs.w_count,
-                             "overlap": spec.costs.w_overlap, "symmetry": spec.costs.w_symmetry,
-                             "near_symmetry": spec.costs.w_near_symmetry}},
-        "coverage": {"poses_with_3_markers_seen": _r(seen3.mean()) if len(seen3) else 0.0,
-                     "min_markers_seen": int(res.marker_pose_seen.sum(axis=0).min()) if len(seen3) else 0},
+        "cost": {
+            **{k: (_r(v) if isinstance(v, float) else v) for k, v in res.cost.to_json().items()},
+            "weights": {
+                "visibility": spec.costs.w_visibility,
+                "count": spec.costs.w_count,
+                "overlap": spec.costs.w_overlap,
+                "symmetry": spec.costs.w_symmetry,
+                "near_symmetry": spec.costs.w_near_symmetry,
+            },
+        },
+        "coverage": {
+            "poses_with_3_markers_seen": _r(seen3.mean()) if len(seen3) else 0.0,
+            "min_markers_seen": int(res.marker_pose_seen.sum(axis=0).min()) if len(seen3) else 0,
+        },
         "history": history,
         "timings": {**res.timings, "rays": res.rays},
     }
@@ -371,9 +415,12 @@ def write_outputs(res: PlacementResult, folder: Path, render: bool = True) -> li
     names.append("markers.csv")
     fmt = res.spec.mesh_format
     mesh_name = f"prop_markers.{fmt}"
-    atomic_write_bytes(folder / mesh_name,
-                       marker_mesh(res.prop.mesh, res.marker_points, res.marker_normals,
-                                   res.spec.costs.marker_diameter_m, fmt))
+    atomic_write_bytes(
+        folder / mesh_name,
+        marker_mesh(
+            res.prop.mesh, res.marker_points, res.marker_normals, res.spec.costs.marker_diameter_m, fmt
+        ),
+    )
     names.append(mesh_name)
     if render:
         from starforge.render.props import convergence_png, layout_png
@@ -421,9 +468,25 @@ def load_placement(path: str | Path) -> Placement:
     if data.get("format") != FORMAT:
         raise StarforgeError(f"{path} is not a starforge placement (format {data.get('format')!r})")
     if data.get("version") != VERSION:
-        raise StarforgeError(f"{path}: unsupported placement version {data.get('version')!r}, expected {VERSION}")
-    missing = [k for k in ("prop", "settings", "seed", "rig", "poses", "markers", "marker_diameter_m",
-                           "cost", "history", "timings") if k not in data]
+        raise StarforgeError(
+            f"{path}: unsupported placement version {data.get('version')!r}, expected {VERSION}"
+        )
+    missing = [
+        k
+        for k in (
+            "prop",
+            "settings",
+            "seed",
+            "rig",
+            "poses",
+            "markers",
+            "marker_diameter_m",
+            "cost",
+            "history",
+            "timings",
+        )
+        if k not in data
+    ]
     if missing:
         raise StarforgeError(f"{path} lacks {', '.join(missing)}")
     try:

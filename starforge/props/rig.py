@@ -38,8 +38,10 @@ class Camera:
 
     def __post_init__(self):
         in_range(f"camera {self.name or ''} fov_deg".replace("  ", " "), self.fov_deg, 1e-3, 179.0)
-        require(self.resolution[0] > 0 and self.resolution[1] > 0,
-                f"camera resolution must be positive, got {self.resolution}")
+        require(
+            self.resolution[0] > 0 and self.resolution[1] > 0,
+            f"camera resolution must be positive, got {self.resolution}",
+        )
         d = np.subtract(self.target, self.position)
         require(float(np.linalg.norm(d)) > 1e-9, f"camera {self.name} target equals its position")
 
@@ -85,20 +87,27 @@ class Rig:
     def __post_init__(self):
         require(len(self.cameras) >= 2, f"a rig needs at least 2 cameras, got {len(self.cameras)}")
         if isinstance(self.pairs, str):
-            require(self.pairs == "auto", f"rig pairs must be a list of [i, j] or \"auto\", got {self.pairs!r}")
+            require(self.pairs == "auto", f'rig pairs must be a list of [i, j] or "auto", got {self.pairs!r}')
             object.__setattr__(self, "pairs", auto_pairs(self.cameras))
         n = len(self.cameras)
         for i, j in self.pairs:
-            require(0 <= i < n and 0 <= j < n and i != j,
-                    f"rig pair [{i}, {j}] must name two different cameras in 0..{n - 1}")
+            require(
+                0 <= i < n and 0 <= j < n and i != j,
+                f"rig pair [{i}, {j}] must name two different cameras in 0..{n - 1}",
+            )
         require(len(self.pairs) >= 1, "a rig needs at least one camera pair")
 
     def to_json(self) -> dict:
         return {
             "name": self.name,
             "cameras": [
-                {"name": c.name, "position": list(c.position), "target": list(c.target),
-                 "fov_deg": c.fov_deg, "resolution": list(c.resolution)}
+                {
+                    "name": c.name,
+                    "position": list(c.position),
+                    "target": list(c.target),
+                    "fov_deg": c.fov_deg,
+                    "resolution": list(c.resolution),
+                }
                 for c in self.cameras
             ],
             "pairs": [list(p) for p in self.pairs],

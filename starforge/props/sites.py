@@ -197,8 +197,12 @@ def read_face_mask(path: str | Path, n_faces: int) -> np.ndarray:
     return np.asarray(values != 0, dtype=bool)
 
 
-def forbidden_sites(sites: Sites, constraints: Constraints, face_origin: np.ndarray | None = None,
-                    n_source_faces: int | None = None) -> np.ndarray:
+def forbidden_sites(
+    sites: Sites,
+    constraints: Constraints,
+    face_origin: np.ndarray | None = None,
+    n_source_faces: int | None = None,
+) -> np.ndarray:
     """(s,) bool: sites inside any constrained area.
 
     Parameters

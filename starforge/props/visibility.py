@@ -114,8 +114,16 @@ def check_rig_sees_volume(rig, positions_world: np.ndarray) -> None:
         )
 
 
-def compute_table(mesh, points, normals, rig, poses, grazing_limit_deg: float = 80.0,
-                  max_batch: int = 1_000_000, progress=None) -> VisibilityTable:
+def compute_table(
+    mesh,
+    points,
+    normals,
+    rig,
+    poses,
+    grazing_limit_deg: float = 80.0,
+    max_batch: int = 1_000_000,
+    progress=None,
+) -> VisibilityTable:
     """Build the (sites x poses x pairs) visibility table.
 
     Parameters

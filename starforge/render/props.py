@@ -19,9 +19,9 @@ def _plt():
 
 
 def _save(fig, path: Path) -> None:
-    from starforge.io import atomic_write_bytes
-
     import io
+
+    from starforge.io import atomic_write_bytes
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=_DPI, metadata={"Software": None})
@@ -104,10 +104,27 @@ def layout_png(res, path: str | Path, max_faces: int = 20000) -> Path:
         ax.add_collection(PolyCollection(polys, facecolors=cols, edgecolors=cols, linewidths=0.2))
         mp = pts @ B.T
         facing = nrm @ B[2] > 0
-        sc = ax.scatter(mp[facing, 0], mp[facing, 1], c=vis[facing], cmap="viridis", vmin=0, vmax=1,
-                        s=45, edgecolors="k", zorder=3)
-        ax.scatter(mp[~facing, 0], mp[~facing, 1], facecolors="none", edgecolors="k", s=45, lw=0.6,
-                   linestyle=":", zorder=3)
+        sc = ax.scatter(
+            mp[facing, 0],
+            mp[facing, 1],
+            c=vis[facing],
+            cmap="viridis",
+            vmin=0,
+            vmax=1,
+            s=45,
+            edgecolors="k",
+            zorder=3,
+        )
+        ax.scatter(
+            mp[~facing, 0],
+            mp[~facing, 1],
+            facecolors="none",
+            edgecolors="k",
+            s=45,
+            lw=0.6,
+            linestyle=":",
+            zorder=3,
+        )
         for i, q in enumerate(mp):
             ax.annotate(str(i), q[:2], xytext=(4, 4), textcoords="offset points", fontsize=7, zorder=4)
         allp = proj.reshape(-1, 3)
@@ -121,8 +138,10 @@ def layout_png(res, path: str | Path, max_faces: int = 20000) -> Path:
         ax.set_title(f"{title} (elevation {elev}, azimuth {azim} deg)", fontsize=8)
     cax = fig.add_axes([0.88, 0.15, 0.025, 0.65])
     fig.colorbar(sc, cax=cax, label="visibility (fraction of poses x pairs)")
-    fig.suptitle(f"{res.prop.name}: {len(pts)} markers, mean visibility {res.cost.mean_visibility:.2f} "
-                 f"(hollow: on the far side)")
+    fig.suptitle(
+        f"{res.prop.name}: {len(pts)} markers, mean visibility {res.cost.mean_visibility:.2f} "
+        f"(hollow: on the far side)"
+    )
     _save(fig, Path(path))
     plt.close(fig)
     return Path(path)
