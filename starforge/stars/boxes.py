@@ -1,0 +1,69 @@
+"""The box reported for one star, and its placement frame."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from starforge.geometry.obb import covariance_box, min_volume_box, placement_transform
+from starforge.tol import tol
+
+
+def _fits(ext, limit) -> bool:
+    return bool((np.sort(ext) <= np.asarray(limit) * (1 + tol.box_rel) + tol.length_mm).all())
+
+
+def _face_flush_frames(P: np.ndarray):
+    """All 24 face-flush frames of one tetrahedron as (R columns, center, extents)."""
+    out = []
+    for f in itertools.combinations(range(4), 3):
+        n = np.cross(P[f[1]] - P[f[0]], P[f[2]] - P[f[0]])
+        n /= np.linalg.norm(n)
+        for a, b in itertools.combinations(range(4), 2):
+            e = P[b] - P[a]
+            a2 = e - np.dot(e, n) * n
+            if np.linalg.norm(a2) < 1e-9:
+                continue
+            a2 /= np.linalg.norm(a2)
+            R = np.stack([n, a2, np.cross(n, a2)], axis=1)
+            q = P @ R
+            lo, hi = q.min(axis=0), q.max(axis=0)
+            out.append((R, R @ (0.5 * (lo + hi)), hi - lo))
+    return out
+
+
+def star_box(P: np.ndarray, limit, method: str = "exact"):
+    """The box to report for sphere centres P (4, 3) against the sorted centre limit.
+
+    ``exact``: the minimum-volume box if it fits, else the smallest fitting candidate box
+    (covariance or face-flush), labelled ``candidate``; ``covariance``: the paper's box.
+
+    Returns (R (3, 3) columns, center (3,), extents (3,), method str, fits bool).
+    """
+    if method == "covariance":
+        R, c, e = covariance_box(P)
+        return R, c, e, "covariance", _fits(e, limit)
+    R, c, e = min_volume_box(P)
+    if _fits(e, limit):
+        return R, c, e, "exact", True
+    cands = [covariance_box(P), *_face_flush_frames(P)]
+    fitting = [b for b in cands if _fits(b[2], limit)]
+    if not fitting:
+        return R, c, e, "exact", False
+    R, c, e = min(fitting, key=lambda b: float(np.prod(b[2])))
+    if np.linalg.det(R) < 0:
+        R = R.copy()
+        R[:, 2] *= -1
+    return R, c, e, "candidate", True
+
+
+def place_star(P: np.ndarray, limit, method: str = "exact"):
+    """Sphere centres in the paper's placement frame.
+
+    Returns (vertices (4, 3), T (4, 4), extents_xyz (3,), method, fits).
+    """
+    R, c, e, how, fits = star_box(P, limit, method)
+    T, ext_xyz = placement_transform(P, R, c, e)
+    V = P @ T[:3, :3].T + T[:3, 3]
+    return V, T, ext_xyz, how, fits

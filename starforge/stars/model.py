@@ -1,0 +1,192 @@
+"""Star and family values, and ``family.json`` / ``family.csv`` I/O (the source of truth).
+
+``family.json`` layout (version 1)::
+
+    {
+      "format": "starforge.family", "version": 1,
+      "spec": {...StarSpec fields...},
+      "units": "mm",
+      "summary": {"size": 333, "rule": "face", "select": "max", "upper_bound": 410, ...},
+      "stars": [
+        {"id": 1,
+         "lengths": {"u": .., "U": .., "v": .., "V": .., "w": .., "W": ..},   # mm
+         "vertices": [[x, y, z] x 4],        # A, B, C, D sphere centres, mm, placement frame
+         "obb": {"extents": [x, y, z],        # box sides along placement x, y, z, mm
+                 "transform": 4x4,            # construction frame -> placement frame
+                 "method": "exact" | "candidate" | "covariance"},
+         "faces": [[a, b, c] x 4],            # sorted sides of ABC, ABD, ACD, BCD, mm
+         "margins": {"internal_mm": .., "family_face_mm": .., "family_pair_mm": ..}},
+        ...
+      ]
+    }
+
+Vertices are in the paper's placement frame: z along the longest box side, y along the
+shortest, origin at the centre of the bottom face, so the box spans
+``[-x/2, x/2] x [-y/2, y/2] x [0, z]``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from starforge.errors import StarforgeError
+from starforge.geometry.tetra import LENGTH_NAMES, face_sides
+from starforge.io import read_json
+from starforge.spec import to_mapping
+from starforge.stars.spec import StarSpec, spec_from_mapping
+
+FORMAT = "starforge.family"
+VERSION = 1
+
+
+@dataclass(frozen=True)
+class Star:
+    """One marker star (frozen; arrays are read-only copies).
+
+    Attributes
+    ----------
+    id : int
+    lengths : (6,) float, mm          (u, U, v, V, w, W)
+    vertices : (4, 3) float, mm       sphere centres A, B, C, D in the placement frame
+    obb_extents : (3,) float, mm      box sides along placement x, y, z
+    obb_transform : (4, 4) float      construction frame -> placement frame
+    obb_method : str                  "exact", "candidate" or "covariance"
+    margins : dict                    internal_mm, family_face_mm (and family_pair_mm)
+    """
+
+    id: int
+    lengths: np.ndarray
+    vertices: np.ndarray
+    obb_extents: np.ndarray
+    obb_transform: np.ndarray
+    obb_method: str = "exact"
+    margins: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name, shape in (("lengths", (6,)), ("vertices", (4, 3)), ("obb_extents", (3,)), ("obb_transform", (4, 4))):
+            arr = np.array(getattr(self, name), dtype=float)
+            if arr.shape != shape or not np.isfinite(arr).all():
+                raise StarforgeError(f"star {self.id}: {name} must be {shape} finite numbers")
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+    @property
+    def faces(self) -> np.ndarray:
+        """(4, 3) sorted side lengths of faces ABC, ABD, ACD, BCD, mm."""
+        return face_sides(self.lengths)
+
+    @property
+    def lengths_dict(self) -> dict[str, float]:
+        return {k: float(v) for k, v in zip(LENGTH_NAMES, self.lengths, strict=True)}
+
+    def to_json(self) -> dict:
+        return {
+            "id": int(self.id),
+            "lengths": {k: round(v, 9) for k, v in self.lengths_dict.items()},
+            "vertices": _rounded(self.vertices),
+            "obb": {
+                "extents": _rounded(self.obb_extents),
+                "transform": _rounded(self.obb_transform),
+                "method": self.obb_method,
+            },
+            "faces": _rounded(self.faces),
+            "margins": {k: round(float(v), 9) for k, v in self.margins.items()},
+        }
+
+
+@dataclass(frozen=True)
+class Family:
+    """A verified family of stars with the spec that made it."""
+
+    spec: StarSpec
+    stars: tuple[Star, ...]
+    summary: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.stars)
+
+    def by_id(self, ids) -> list[Star]:
+        """The stars with these ids, in the given order; unknown ids raise StarforgeError."""
+        table = {s.id: s for s in self.stars}
+        missing = [i for i in ids if i not in table]
+        if missing:
+            raise StarforgeError(
+                f"star id{'s' if len(missing) > 1 else ''} {', '.join(map(str, missing))} not in the family "
+                f"(ids {min(table)}..{max(table)})"
+            )
+        return [table[i] for i in ids]
+
+    def to_json(self) -> dict:
+        return {
+            "format": FORMAT,
+            "version": VERSION,
+            "units": "mm",
+            "spec": to_mapping(self.spec),
+            "summary": self.summary,
+            "stars": [s.to_json() for s in self.stars],
+        }
+
+
+def _rounded(a) -> list:
+    # 1e-9 mm is far below any physical meaning and keeps the JSON byte-stable across platforms
+    return (np.round(np.asarray(a, dtype=float), 9) + 0.0).tolist()  # + 0.0 turns -0.0 into 0.0
+
+
+def family_csv(family: Family) -> str:
+    """The family table (in the spirit of the paper's Pro/ENGINEER family table), one row per star.
+
+    Columns: id, u, U, v, V, w, W, x1, y1, z1, ..., x4, y4, z4 (mm, placement frame).
+    """
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["id", *LENGTH_NAMES, *[f"{c}{i}" for i in range(1, 5) for c in "xyz"]])
+    for s in family.stars:
+        w.writerow([s.id, *[f"{x:.6f}" for x in s.lengths], *[f"{x:.6f}" for x in s.vertices.ravel()]])
+    return buf.getvalue()
+
+
+def family_from_json(data: dict, where: str = "family.json") -> Family:
+    """Parse family.json data with one-line errors for a wrong format, version or content."""
+    if data.get("format") != FORMAT:
+        raise StarforgeError(f"{where} is not a starforge family file (format {data.get('format')!r})")
+    if data.get("version") != VERSION:
+        raise StarforgeError(
+            f"{where} has family format version {data.get('version')!r}; this starforge reads version {VERSION}"
+        )
+    try:
+        spec = spec_from_mapping(data["spec"])
+        stars = []
+        for s in data["stars"]:
+            L = s["lengths"]
+            stars.append(
+                Star(
+                    id=int(s["id"]),
+                    lengths=[L[k] for k in LENGTH_NAMES],
+                    vertices=s["vertices"],
+                    obb_extents=s["obb"]["extents"],
+                    obb_transform=s["obb"]["transform"],
+                    obb_method=str(s["obb"].get("method", "exact")),
+                    margins=dict(s.get("margins", {})),
+                )
+            )
+    except (KeyError, TypeError, IndexError) as exc:
+        raise StarforgeError(f"{where} is missing or has malformed data ({exc.__class__.__name__}: {exc})") from None
+    if not stars:
+        raise StarforgeError(f"{where} holds no stars")
+    ids = [s.id for s in stars]
+    if len(set(ids)) != len(ids):
+        raise StarforgeError(f"{where} has duplicate star ids")
+    return Family(spec=spec, stars=tuple(stars), summary=dict(data.get("summary", {})))
+
+
+def load_family(path: str | Path) -> Family:
+    """Read ``family.json`` (or a folder holding one) back into a :class:`Family`."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "family.json"
+    return family_from_json(read_json(path, what="family file"), where=str(path))

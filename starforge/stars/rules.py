@@ -1,0 +1,92 @@
+"""Uniqueness rules as set packing over triangle keys.
+
+A *face key* is the sorted side-length triple of one face.  A *vertex key* is the sorted triple
+of the three edges meeting at one vertex.  With lengths on the pool grid, "differ by at least
+the tolerance" becomes "differ by at least ``m = ceil(tol / delta)`` grid steps".
+
+* ``face`` rule: every face of the family, within one star too, differs from every other face
+  in at least one sorted side by >= tol.  Two stars conflict iff they hold two face keys within
+  ``m - 1`` steps in every side.
+* ``pair`` rule (the paper): two stars are distinct iff, however the second is relabelled,
+  both lengths of at least one opposite pair differ.  Choosing one edge from each of the three
+  opposite pairs gives either a face or the three edges at a vertex (4 + 4 ways), and a
+  relabelling maps faces to faces and vertex stars to vertex stars; so two stars conflict iff
+  they share a face key or a vertex key (within tolerance).
+
+Conflicts are therefore cliques: all keys inside one window ``[a, a + m - 1]^3`` of grid indices
+conflict pairwise, and every conflicting pair lies in some window, so "each window used at
+most once" is exactly the rule.  That makes maximum-family selection a set packing with one
+row per window (a few thousand), not one per conflicting pair.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from starforge.geometry.tetra import FACE_EDGES
+
+#: edges (indices into (u, U, v, V, w, W)) meeting at A, B, C, D
+VERTEX_EDGES = np.array([(0, 4, 3), (0, 2, 5), (4, 2, 1), (3, 5, 1)], dtype=np.intp)
+
+
+def grid_steps(tolerance_mm: float, delta_mm: float) -> int:
+    """m: two pool lengths are distinguishable iff they differ by >= m grid steps."""
+    return max(1, math.ceil(tolerance_mm / delta_mm - 1e-9))
+
+
+def key_triples(index: np.ndarray, rule: str) -> np.ndarray:
+    """Sorted index triples of each star's keys: (n, 6) -> (n, k, 3); k = 4 (face) or 8 (pair).
+
+    For the pair rule the vertex keys come after the face keys; callers tag the type.
+    """
+    idx = np.asarray(index)
+    groups = [FACE_EDGES] if rule == "face" else [FACE_EDGES, VERTEX_EDGES]
+    return np.concatenate([np.sort(idx[:, g], axis=-1) for g in groups], axis=1)
+
+
+def internal_ok(index: np.ndarray, rule: str, m: int) -> np.ndarray:
+    """Stars whose own keys do not conflict with each other (n,) bool.
+
+    All six lengths of a star are distinct pool values (>= 1 step apart); with ``m > 1`` they
+    must also be >= m steps apart, and no two of the star's own keys of one type may lie within
+    m - 1 steps in every side.
+    """
+    idx = np.asarray(index)
+    srt = np.sort(idx, axis=1)
+    ok = (np.diff(srt, axis=1) >= m).all(axis=1)
+    if m > 1:
+        keys = key_triples(idx, rule)
+        nk = keys.shape[1]
+        for a in range(nk):
+            for b in range(a + 1, nk):
+                if (a < 4) != (b < 4):
+                    continue  # a face and a vertex star never conflict
+                close = (np.abs(keys[:, a] - keys[:, b]) <= m - 1).all(axis=1)
+                ok &= ~close
+    return ok
+
+
+def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
+    """The set-packing incidence: (star, row) pairs, one row per key window.
+
+    Returns
+    -------
+    star : (z,) int   row r of the constraint matrix holds star ``star[z]`` ...
+    row : (z,) int    ... in row ``row[z]`` (rows renumbered 0..R-1)
+    n_rows : int
+    """
+    keys = key_triples(index, rule)  # (n, k, 3)
+    n, k, _ = keys.shape
+    tag = (np.arange(k) >= 4).astype(np.int64)  # 0 face, 1 vertex
+    base = pool_size + m  # room for negative anchors shifted by m
+    offs = np.array([(a, b, c) for a in range(m) for b in range(m) for c in range(m)], dtype=np.int64)
+    anchors = keys[:, :, None, :].astype(np.int64) - offs[None, None] + m  # (n, k, m^3, 3)
+    code = ((tag[None, :, None] * base + anchors[..., 0]) * base + anchors[..., 1]) * base + anchors[..., 2]
+    star = np.broadcast_to(np.arange(n)[:, None, None], code.shape).ravel()
+    code = code.ravel()
+    # one entry per (star, row)
+    pairs = np.unique(np.stack([code, star], axis=1), axis=0)
+    uniq, row = np.unique(pairs[:, 0], return_inverse=True)
+    return pairs[:, 1], row, len(uniq)

@@ -1,0 +1,100 @@
+"""An independent brute-force checker for a written family (reads the raw family.json data).
+
+It shares no code with the generator beyond numpy: lengths come from the stored vertices,
+faces from explicit vertex triples, relabellings from ``itertools.permutations``, and the fit
+from the stored box.  It returns a list of problems (empty when the family is sound).
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+_FACES = [(0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)]
+# opposite edge pairs as vertex pairs: (AB, CD), (BC, AD), (AC, BD)
+_PAIRS = [((0, 1), (2, 3)), ((1, 2), (0, 3)), ((0, 2), (1, 3))]
+
+
+def _dist(P, a, b) -> float:
+    return float(np.linalg.norm(np.asarray(P[a]) - np.asarray(P[b])))
+
+
+def check_family(data: dict, slack_mm: float = 1e-6) -> list[str]:
+    """Re-check a family.json mapping: edges, faces, the rule across the family, and the fit."""
+    spec = data["spec"]
+    delta = float(spec["delta_mm"])
+    tol_mm = float(spec["tolerance_mm"]) if spec.get("tolerance_mm") is not None else delta
+    marker = float(spec["marker_mm"])
+    limit = sorted(float(b) for b in spec["box_mm"])
+    rule = spec.get("rule", "face")
+    problems: list[str] = []
+    stars = data["stars"]
+    names = ["u", "U", "v", "V", "w", "W"]
+    faces_all = []  # (star id, face index, sorted sides)
+    for s in stars:
+        sid = s["id"]
+        P = np.asarray(s["vertices"], dtype=float)
+        if P.shape != (4, 3):
+            problems.append(f"star {sid}: vertices are not 4 x 3")
+            continue
+        # 1. stored lengths match the vertices
+        edges = {"u": (0, 1), "U": (2, 3), "v": (1, 2), "V": (0, 3), "w": (0, 2), "W": (1, 3)}
+        for k in names:
+            d = _dist(P, *edges[k])
+            if abs(d - float(s["lengths"][k])) > slack_mm:
+                problems.append(f"star {sid}: |{k}| is {d:.6f} mm at the vertices, {s['lengths'][k]} stored")
+        # 2. all six lengths differ by >= delta
+        ls = sorted(_dist(P, a, b) for a, b in itertools.combinations(range(4), 2))
+        for a, b in itertools.pairwise(ls):
+            if b - a < delta - slack_mm:
+                problems.append(f"star {sid}: two edge lengths differ by {b - a:.6f} < delta {delta}")
+        # 3. spheres do not overlap
+        if ls[0] < marker - slack_mm:
+            problems.append(f"star {sid}: two sphere centres are {ls[0]:.4f} mm apart (< marker {marker})")
+        # 4. every face is scalene
+        for fi, (a, b, c) in enumerate(_FACES):
+            sides = sorted([_dist(P, a, b), _dist(P, b, c), _dist(P, a, c)])
+            if min(sides[1] - sides[0], sides[2] - sides[1]) < delta - slack_mm:
+                problems.append(f"star {sid}: face {fi} is not scalene")
+            faces_all.append((sid, fi, sides))
+        # 5. the fit: vertices inside the stored box (placement frame), box + one marker inside the limit
+        ext = np.asarray(s["obb"]["extents"], dtype=float)
+        lo = np.array([-ext[0] / 2, -ext[1] / 2, 0.0]) - slack_mm
+        hi = np.array([ext[0] / 2, ext[1] / 2, ext[2]]) + slack_mm
+        if not ((P >= lo).all() and (P <= hi).all()):
+            problems.append(f"star {sid}: a sphere centre lies outside its reported box")
+        phys = sorted(float(e) + marker for e in ext)
+        for e, lim in zip(phys, limit, strict=True):
+            if e > lim + slack_mm:
+                problems.append(f"star {sid}: box {phys} (with spheres) does not fit the limit {limit}")
+                break
+        T = np.asarray(s["obb"]["transform"], dtype=float)
+        R = T[:3, :3]
+        if not (np.allclose(R @ R.T, np.eye(3), atol=1e-7) and abs(np.linalg.det(R) - 1) < 1e-7):
+            problems.append(f"star {sid}: obb transform is not a proper rotation")
+    # 6. the rule across the family
+    if rule == "face":
+        for (i, fi, a), (j, fj, b) in itertools.combinations(faces_all, 2):
+            if max(abs(x - y) for x, y in zip(a, b, strict=True)) < tol_mm - slack_mm:
+                problems.append(f"faces {i}/{fi} and {j}/{fj} differ by less than {tol_mm} mm in every side")
+    else:
+        for s1, s2 in itertools.combinations(stars, 2):
+            P1 = np.asarray(s1["vertices"], dtype=float)
+            P2 = np.asarray(s2["vertices"], dtype=float)
+            told_apart = True
+            for perm in itertools.permutations(range(4)):
+                Q = P2[list(perm)]
+                differs = False
+                for e1, e2 in _PAIRS:
+                    d1 = abs(_dist(P1, *e1) - _dist(Q, *e1))
+                    d2 = abs(_dist(P1, *e2) - _dist(Q, *e2))
+                    if d1 >= tol_mm - slack_mm and d2 >= tol_mm - slack_mm:
+                        differs = True
+                        break
+                if not differs:
+                    told_apart = False
+                    break
+            if not told_apart:
+                problems.append(f"stars {s1['id']} and {s2['id']} are not told apart by any opposite pair")
+    return problems
