@@ -151,3 +151,17 @@ def test_near_symmetry_margin_grows_with_noise():
     noise *= 0.001 / np.sqrt((noise**2).sum(1).mean())  # RMS 1 mm
     m = near_symmetry_margin(square + noise)
     assert 0 < m <= 2 * 0.001 + 1e-12  # the 90 degree self-match moves each point by at most twice the noise
+
+
+def test_capped_margin_and_near_symmetry_cost():
+    square = np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]) * 0.05
+    assert near_symmetry_margin(square, cap=0.005) < 1e-9
+    scalene = np.array([[0, 0, 0], [0.1, 0, 0], [0.03, 0.05, 0.01], [0.2, 0.13, 0.07]])
+    full = near_symmetry_margin(scalene)
+    assert full > 0.005 and near_symmetry_margin(scalene, cap=0.005) == 0.005
+    cs = CostSettings(w_near_symmetry=2.0, near_symmetry_target_m=0.005)
+    c_sq = evaluate(square, np.ones(4), cs)
+    c_sc = evaluate(scalene, np.ones(4), cs)
+    assert c_sq.near_symmetry == pytest.approx(1.0) and c_sc.near_symmetry == 0.0
+    assert c_sc.margin_m == pytest.approx(full)
+    assert c_sq.total - c_sq.symmetry * cs.w_symmetry == pytest.approx(2.0 + cs.w_count * c_sq.count)

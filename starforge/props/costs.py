@@ -14,6 +14,9 @@ import numpy as np
 
 from starforge.spec import in_range, non_negative, positive, require
 
+# candidate self-matches refined when the near-symmetry margin is a cost term (chain and evaluate alike)
+NEAR_SYMMETRY_REFINE = 4
+
 
 @dataclass(frozen=True)
 class CostSettings:
@@ -33,8 +36,9 @@ class CostSettings:
         Weights (1, 0.8, 1, 1), >= 0.
     w_near_symmetry : float
         Weight of the optional continuous near-symmetry term (0 = off).
-    near_symmetry_scale_m : float
-        Near-symmetry cost is exp(-margin / scale), m (0.005).
+    near_symmetry_target_m : float
+        Near-symmetry cost is max(0, 1 - margin / target): 1 for an exactly symmetric set,
+        0 once no rigid self-match fits better than this RMS residual, m (0.005).
     marker_diameter_m : float
         Marker sphere diameter, m (0.004: the paper's 2 mm radius).
     symmetry_k : int
@@ -55,7 +59,7 @@ class CostSettings:
     w_overlap: float = 1.0
     w_symmetry: float = 1.0
     w_near_symmetry: float = 0.0
-    near_symmetry_scale_m: float = 0.005
+    near_symmetry_target_m: float = 0.005
     marker_diameter_m: float = 0.004
     symmetry_k: int = 8
     symmetry_tol_m: float = 0.002
@@ -69,7 +73,7 @@ class CostSettings:
         positive("sigma_markers", self.sigma_markers)
         for name in ("w_visibility", "w_count", "w_overlap", "w_symmetry", "w_near_symmetry"):
             non_negative(name, getattr(self, name))
-        positive("near_symmetry_scale_m", self.near_symmetry_scale_m)
+        positive("near_symmetry_target_m", self.near_symmetry_target_m)
         positive("marker_diameter_m", self.marker_diameter_m)
         in_range("symmetry_k", self.symmetry_k, 2, 360)
         non_negative("symmetry_tol_m", self.symmetry_tol_m)
@@ -143,9 +147,9 @@ def overlap_cost(points: np.ndarray, diameter_m: float, target: float = 0.0) -> 
     return abs(2.0 * overlapping_pairs(points, diameter_m) / (n * (n - 1)) - target)
 
 
-def near_symmetry_cost(margin_m: float, scale_m: float) -> float:
-    """exp(-margin / scale): 1 for an exactly symmetric set, -> 0 for a distinctive one."""
-    return 0.0 if math.isinf(margin_m) else math.exp(-margin_m / scale_m)
+def near_symmetry_cost(margin_m: float, target_m: float) -> float:
+    """max(0, 1 - margin / target): 1 for an exactly symmetric set, 0 from a margin of ``target_m`` on."""
+    return max(0.0, 1.0 - margin_m / target_m)
 
 
 def evaluate(
@@ -173,8 +177,14 @@ def evaluate(
     co = overlap_cost(p, s.marker_diameter_m, s.target_overlap)
     sym = is_symmetric(p, s.symmetry_k, s.symmetry_tol_m)
     cs = abs(float(sym) - s.target_symmetry)
-    margin = near_symmetry_margin(p) if (with_margin or s.w_near_symmetry > 0) else math.inf
-    cns = near_symmetry_cost(margin, s.near_symmetry_scale_m)
+    # the cost only needs the margin below the target (a capped, much faster search)
+    capped = (
+        near_symmetry_margin(p, refine=NEAR_SYMMETRY_REFINE, cap=s.near_symmetry_target_m)
+        if s.w_near_symmetry > 0
+        else math.inf
+    )
+    cns = near_symmetry_cost(capped, s.near_symmetry_target_m)
+    margin = near_symmetry_margin(p) if with_margin else capped
     total = s.w_visibility * cv + s.w_count * cn + s.w_overlap * co + s.w_symmetry * cs
     total += s.w_near_symmetry * cns
     mv = float(np.mean(marker_visibility)) if n else 0.0

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from starforge.props.costs import CostSettings
+from starforge.props.costs import NEAR_SYMMETRY_REFINE, CostSettings
 from starforge.props.symmetry import is_symmetric, near_symmetry_margin, quick_reject_xyz
 from starforge.spec import in_range, non_negative, positive, require
 
@@ -229,8 +229,10 @@ class _Layout:
                     sym = 1.0 if is_symmetric(self.points[sites], cs.symmetry_k, cs.symmetry_tol_m) else 0.0
                 c += cs.w_symmetry * abs(sym - cs.target_symmetry)
             if cs.w_near_symmetry > 0:
-                m = near_symmetry_margin(self.points[sites])
-                c += cs.w_near_symmetry * (0.0 if math.isinf(m) else math.exp(-m / cs.near_symmetry_scale_m))
+                m = near_symmetry_margin(
+                    self.points[sites], refine=NEAR_SYMMETRY_REFINE, cap=cs.near_symmetry_target_m
+                )
+                c += cs.w_near_symmetry * max(0.0, 1.0 - m / cs.near_symmetry_target_m)
         else:
             c += cs.w_symmetry * abs(0.0 - cs.target_symmetry)
         return c, sym

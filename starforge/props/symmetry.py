@@ -126,53 +126,67 @@ def _kabsch_batch(a: np.ndarray, b: np.ndarray):
     return R, cb - np.einsum("mij,mj->mi", R, ca)
 
 
-def near_symmetry_margin(points: np.ndarray, refine: int = 24) -> float:
+def near_symmetry_margin(points: np.ndarray, refine: int = 24, cap: float = math.inf) -> float:
     """Smallest RMS residual (m) of a non-identity rigid self-match of the point set.
 
     Candidate motions map an anchor triple (a wide triangle of the set) onto every other
-    ordered triple of points (batched Kabsch, proper rotations only).  Each candidate is scored
-    by the RMS distance of the moved points to their nearest points; the ``refine`` best are
-    refined by alternating an optimal one-to-one assignment (Hungarian) with Kabsch on all
-    points, and the smallest residual of a non-identity assignment is returned.  This is a
-    search, so it returns an upper bound on the true margin that is exact (0) for exactly
-    symmetric sets.  Returns ``inf`` for fewer than 3 points.
+    ordered triple of points (batched Kabsch, proper rotations only).  A triple whose side
+    lengths differ from the anchor's by ``e`` cannot give a residual below ``e / sqrt(2 n)``
+    (exact bound), so triples with a bound >= ``cap`` are skipped and ``cap`` is returned when
+    none is left.  The rest are scored by the RMS distance of the moved points to their nearest
+    points; those whose nearest-point matching is not the identity are ranked first, and
+    candidates are refined (until ``refine`` of them end in a non-identity matching) by alternating an optimal one-to-one assignment (Hungarian) with Kabsch on
+    all points, and the smallest residual of a non-identity assignment is returned (at most
+    ``cap``).  It is a search: an upper bound on the true margin, exact (0) for exactly
+    symmetric sets.  Returns ``inf`` (or ``cap``) for fewer than 3 points.
     """
     from scipy.optimize import linear_sum_assignment
 
     p = np.asarray(points, dtype=float)
     n = len(p)
     if n < 3:
-        return math.inf
+        return cap
     D = np.linalg.norm(p[:, None] - p[None], axis=2)
     i0 = int(np.argmax(D.sum(axis=1)))
     j0 = int(np.argmax(D[i0]))
     cross = np.linalg.norm(np.cross(p - p[i0], p[j0] - p[i0]), axis=1)
+    cross[[i0, j0]] = -1.0
     k0 = int(np.argmax(cross))
     idx = np.arange(n)
     A, B, C = (g.ravel() for g in np.meshgrid(idx, idx, idx, indexing="ij"))
     ok = (A != B) & (B != C) & (A != C) & ~((A == i0) & (B == j0) & (C == k0))
     A, B, C = A[ok], B[ok], C[ok]
-    if k0 in (i0, j0):  # collinear set: any anchor works poorly; use three distinct points
-        k0 = next(i for i in range(n) if i not in (i0, j0))
+    bound = np.max(np.abs([D[A, B] - D[i0, j0], D[B, C] - D[j0, k0], D[A, C] - D[i0, k0]]), axis=0)
+    keep = bound / math.sqrt(2 * n) < cap
+    if not keep.any():
+        return cap
+    A, B, C = A[keep], B[keep], C[keep]
     src = np.broadcast_to(p[[i0, j0, k0]], (len(A), 3, 3))
     dst = np.stack([p[A], p[B], p[C]], axis=1)
     R, t = _kabsch_batch(src, dst)
     moved = np.einsum("mij,nj->mni", R, p) + t[:, None]
     d2 = ((moved[:, :, None, :] - p[None, None]) ** 2).sum(axis=3)  # (m, n, n)
+    nearest = d2.argmin(axis=2)
     nn = d2.min(axis=2).mean(axis=1)
-    best = math.inf
-    ident = np.arange(n)
-    for m in np.argsort(nn, kind="stable")[:refine]:
+    not_identity = np.any(nearest != idx, axis=1)
+    order = np.argsort(nn, kind="stable")
+    order = np.concatenate([order[not_identity[order]], order[~not_identity[order]]])
+    best = cap
+    found = 0
+    for m in order[: 10 * refine]:
+        if found >= refine:
+            break
         Rm, tm = R[m], t[m]
-        perm = ident
+        perm = idx
         for _ in range(4):
             cost = ((p @ Rm.T + tm)[:, None] - p[None]) ** 2
             _, perm = linear_sum_assignment(cost.sum(axis=2))
-            if np.array_equal(perm, ident):
+            if np.array_equal(perm, idx):
                 break
             Rm, tm = _kabsch(p, p[perm])
-        if np.array_equal(perm, ident):
+        if np.array_equal(perm, idx):
             continue
         rms = math.sqrt(float(((p @ Rm.T + tm - p[perm]) ** 2).sum(axis=1).mean()))
         best = min(best, rms)
+        found += 1
     return best
