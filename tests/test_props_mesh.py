@@ -134,3 +134,21 @@ def test_constrained_areas(tmp_path):
     (tmp_path / "short.txt").write_text("1 0 1")
     with pytest.raises(StarforgeError, match="has 3 values, the prop has 12 faces"):
         forbidden_sites(s, Constraints(mask=str(tmp_path / "short.txt")), np.arange(12), 12)
+
+
+def test_open_shell_with_inward_normals_is_turned_outward():
+    import trimesh
+
+    from starforge.props.mesh import repair_mesh
+
+    b = trimesh.creation.box(extents=(0.3, 0.2, 0.1))
+    keep = ~((b.face_normals[:, 2] > 0.5) | (b.face_normals[:, 0] > 0.5))  # open top and +x side
+    inward = trimesh.Trimesh(b.vertices, b.faces[keep][:, ::-1], process=False)
+    m, _, notes = repair_mesh(inward)
+    assert any("inside out" in n for n in notes)
+    # every remaining face of a box centred at the origin faces away from the centre
+    assert np.all(np.einsum("ij,ij->i", m.face_normals, m.triangles_center) > 0)
+    outward = trimesh.Trimesh(b.vertices, b.faces[keep], process=False)
+    m2, _, notes2 = repair_mesh(outward)
+    assert not any("inside out" in n for n in notes2)
+    assert np.all(np.einsum("ij,ij->i", m2.face_normals, m2.triangles_center) > 0)

@@ -150,6 +150,13 @@ def repair_mesh(mesh, union_shells: bool = True):
             origin = np.concatenate([origin, -np.ones(added, dtype=origin.dtype)])
             notes.append(f"filled holes with {added} faces")
 
+    if not m.is_watertight:
+        n_open = _orient_open_shells(m)
+        if n_open:
+            notes.append(
+                f"turned {n_open} open shell{'s' if n_open > 1 else ''} inside out (normals faced inward)"
+            )
+
     shells = m.split(only_watertight=False)
     if len(shells) > 1:
         notes.append(f"{len(shells)} separate shells")
@@ -168,6 +175,41 @@ def repair_mesh(mesh, union_shells: bool = True):
     if len(m.faces) == 0 or m.area <= 0:
         raise StarforgeError("prop mesh has no usable surface after repair")
     return m, origin, notes
+
+
+def _orient_open_shells(m, samples: int = 64) -> int:
+    """Flip open (non-watertight) shells whose normals mostly point inward; return how many.
+
+    Volume tells nothing for an open shell, so rays are cast from face centres: along an
+    outward normal a ray mostly escapes, along an inward one it mostly hits the prop again.
+    A shell is flipped only when clearly more rays hit along its normals than against them.
+    """
+    from trimesh.graph import connected_components
+
+    groups = connected_components(m.face_adjacency, nodes=np.arange(len(m.faces)), min_len=1)
+    edges_sorted = np.sort(m.edges, axis=1)
+    flipped = 0
+    new_faces = np.array(m.faces)
+    for faces in groups:
+        faces = np.sort(np.asarray(faces))
+        e = edges_sorted.reshape(-1, 3, 2)[faces].reshape(-1, 2)
+        _, counts = np.unique(e, axis=0, return_counts=True)
+        if np.all(counts == 2):
+            continue  # closed shell: fix_inversion already handled it
+        pick = faces[np.linspace(0, len(faces) - 1, min(samples, len(faces))).astype(int)]
+        area = m.area_faces[pick]
+        c = m.triangles_center[pick]
+        n = m.face_normals[pick]
+        eps = 1e-6 * float(m.scale)
+        out_hit = m.ray.intersects_any(c + eps * n, n)
+        in_hit = m.ray.intersects_any(c - eps * n, -n)
+        w_out, w_in = float(area[out_hit].sum()), float(area[in_hit].sum())
+        if w_out > 1.5 * w_in and w_out > 0.25 * float(area.sum()):
+            new_faces[faces] = new_faces[faces][:, ::-1]
+            flipped += 1
+    if flipped:
+        m.faces = new_faces
+    return flipped
 
 
 def _any_overlap(shells) -> bool:

@@ -413,14 +413,24 @@ class AnnealResult:
 
 
 def anneal(
-    points, site_visibility, cs: CostSettings, ch: ChainSettings, rng: np.random.Generator, on_iteration=None
+    points,
+    site_visibility,
+    cs: CostSettings,
+    ch: ChainSettings,
+    rng: np.random.Generator,
+    on_iteration=None,
+    on_run=None,
 ) -> AnnealResult:
-    """``ch.restarts`` independent chains (sequential, one rng); the lowest-cost run is ``best``."""
+    """``ch.restarts`` independent chains (sequential, one rng); the lowest-cost run is ``best``.
+
+    ``on_run(done, total)`` is called after each run (for a progress bar).
+    """
     positive("marker_diameter_m", cs.marker_diameter_m)
     nbr = overlap_neighbours(np.asarray(points, dtype=float), cs.marker_diameter_m)
-    runs = [
-        run_chain(points, site_visibility, cs, ch, rng, nbr=nbr, on_iteration=on_iteration)
-        for _ in range(ch.restarts)
-    ]
+    runs = []
+    for k in range(ch.restarts):
+        runs.append(run_chain(points, site_visibility, cs, ch, rng, nbr=nbr, on_iteration=on_iteration))
+        if on_run is not None:
+            on_run(k + 1, ch.restarts)
     best = min(runs, key=lambda r: r.cost)
     return AnnealResult(best, tuple(runs))

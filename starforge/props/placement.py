@@ -191,9 +191,8 @@ def place(prop, spec: PlaceSpec, seed: int = 0, progress=None) -> PlacementResul
     sites, n_bad, rig, poses, table = prepare(prop, spec, rng, vis_cb, timings)
     v = table.site_visibility
     t = time.perf_counter()
-    result = anneal(sites.points, v, spec.costs, spec.chain, rng)
-    if progress:
-        progress("optimize", spec.chain.restarts, spec.chain.restarts)
+    run_cb = (lambda d, n: progress("annealing", d, n)) if progress else None
+    result = anneal(sites.points, v, spec.costs, spec.chain, rng, on_run=run_cb)
     t = _tick(timings, "optimize_s", t)
     chosen = tuple(int(s) for s in result.best.sites)
     cost = evaluate(sites.points[list(chosen)], v[list(chosen)], spec.costs)
