@@ -202,3 +202,29 @@ def test_orientations_and_help(tmp_path, capsys):
     assert np.allclose(M[:, :3, :3] @ np.transpose(M[:, :3, :3], (0, 2, 1)), np.eye(3), atol=1e-9)
     code, stdout, _ = _run(["place", "--help"], capsys)
     assert code == 0 and "score" in stdout
+
+
+def test_hammer_is_the_default_prop_and_custom_rigs(tmp_path, capsys):
+    out = tmp_path / "o"
+    code, _, err = _run(["place", *FAST, "--rig", "small4", "--out", str(out)], capsys)
+    assert code == 0, err
+    doc = json.loads((out / "placement.json").read_text())
+    assert doc["prop"]["name"] == "hammer"
+    assert len(doc["rig"]["cameras"]) == 4 and sorted(i for p in doc["rig"]["pairs"] for i in p) == [
+        0,
+        1,
+        2,
+        3,
+    ]
+    # a custom rig in TOML: two cameras above the volume, pair given explicitly
+    rig = tmp_path / "two.toml"
+    rig.write_text(
+        "pairs = [[0, 1]]\n[volume]\ncenter = [0, 0, 1]\nsize = [1, 1, 1]\n"
+        "[[cameras]]\nposition = [3, 0, 2.5]\ntarget = [0, 0, 1]\nfov_deg = 50\n"
+        "[[cameras]]\nposition = [0, 3, 2.5]\ntarget = [0, 0, 1]\nfov_deg = 50\n"
+    )
+    out2 = tmp_path / "o2"
+    code, _, err = _run(["place", "box", *FAST, "--rig", str(rig), "--out", str(out2)], capsys)
+    assert code == 0, err
+    doc = json.loads((out2 / "placement.json").read_text())
+    assert doc["rig"]["pairs"] == [[0, 1]] and doc["rig"]["cameras"][0]["fov_deg"] == 50

@@ -22,17 +22,18 @@ class _DefaultGroup(TyperGroup):
     """Dispatch to a subcommand when the first argument names one, else to the default command."""
 
     def parse_args(self, ctx, args):
-        if args and args[0] not in self.commands and args[0] not in ctx.help_option_names:
+        if not args or (args[0] not in self.commands and args[0] not in ctx.help_option_names):
             args = [_DEFAULT, *args]
         return super().parse_args(ctx, args)
 
 
 place_app = typer.Typer(
     cls=_DefaultGroup,
-    no_args_is_help=True,
+    no_args_is_help=False,
     add_completion=False,
     help="Optimize retroreflective marker placement on a prop: `starforge place PROP \\[OPTIONS]` "
-    "(PROP: a mesh file or a built-in: hammer, racket, sword, bottle, box, shield, umbrella), "
+    "(PROP: a mesh file or a built-in: hammer (the default), racket, sword, bottle, box, shield, "
+    "umbrella), "
     "or score a layout: `starforge place score PROP MARKERS.csv`.",
 )
 app.add_typer(place_app, name="place")
@@ -73,7 +74,9 @@ _PROP = typer.Argument(..., help="Mesh file (STL, OBJ, PLY, GLB, OFF) or built-i
 
 @place_app.command(_DEFAULT, help="Optimize a marker set on PROP (the default command).")
 def run_cmd(
-    prop: str = _PROP,
+    prop: str = typer.Argument(
+        "hammer", help="Mesh file (STL, OBJ, PLY, GLB, OFF) or built-in prop name (default: hammer)."
+    ),
     spec: str = typer.Option(
         "default", "--spec", help="Settings template name (default, long, paper) or TOML file."
     ),
