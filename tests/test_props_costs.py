@@ -14,6 +14,7 @@ from starforge.errors import StarforgeError
 from starforge.props.costs import (
     CostSettings,
     count_cost,
+    coverage_cost,
     evaluate,
     overlap_cost,
     overlapping_pairs,
@@ -165,3 +166,17 @@ def test_capped_margin_and_near_symmetry_cost():
     assert c_sq.near_symmetry == pytest.approx(1.0) and c_sc.near_symmetry == 0.0
     assert c_sc.margin_m == pytest.approx(full)
     assert c_sq.total - c_sq.symmetry * cs.w_symmetry == pytest.approx(2.0 + cs.w_count * c_sq.count)
+
+
+def test_coverage_cost_by_hand():
+    seen = np.array([[1, 1, 0, 1], [1, 0, 0, 1], [1, 1, 1, 0]], dtype=bool)  # 3 markers x 4 poses
+    # markers seen per pose: 3, 2, 1, 2 -> poses with fewer than 3: 3 of 4
+    assert coverage_cost(seen, 3) == pytest.approx(0.75)
+    assert coverage_cost(seen, 2) == pytest.approx(0.25)
+    cs = CostSettings(w_coverage=0.5)
+    pts = np.array([[0, 0, 0], [0.1, 0.02, 0], [0.03, 0.2, 0.05]])
+    c = evaluate(pts, np.ones(3), cs, marker_pose_seen=seen)
+    assert c.coverage == pytest.approx(0.75)
+    assert c.total == pytest.approx(cs.w_count * c.count + 0.5 * 0.75)
+    with pytest.raises(StarforgeError, match="coverage"):
+        evaluate(pts, np.ones(3), cs)

@@ -77,24 +77,26 @@ def hammer_case():
     rig = load_rig("default")
     poses = make_poses(rig.volume, 2, 1, mesh.bounds.mean(axis=0), rng)
     table = compute_table(mesh, sites.points, sites.normals, rig, poses)
-    return sites.points, table.site_visibility
+    return sites.points, table.site_visibility, table.seen.any(axis=2)
 
 
-def test_incremental_cost_equals_full_evaluation(hammer_case):
-    pts, vis = hammer_case
-    # large markers so that overlaps happen often, both symmetry terms on
-    cs = CostSettings(marker_diameter_m=0.03, w_near_symmetry=0.5)
+@pytest.mark.parametrize("w_coverage", [0.0, 2.0])
+def test_incremental_cost_equals_full_evaluation(hammer_case, w_coverage):
+    pts, vis, seen = hammer_case
+    # large markers so that overlaps happen often, both symmetry terms on, optional coverage term
+    cs = CostSettings(marker_diameter_m=0.03, w_near_symmetry=0.5, w_coverage=w_coverage)
     ch = ChainSettings(fixed_temperature=0.3, max_iterations=300)
-    r = run_chain(pts, vis, cs, ch, np.random.default_rng(1))
+    r = run_chain(pts, vis, cs, ch, np.random.default_rng(1), site_pose_seen=seen)
     idx = list(r.sites)
-    assert r.cost == pytest.approx(evaluate(pts[idx], vis[idx], cs).total, abs=1e-9)
+    full = evaluate(pts[idx], vis[idx], cs, marker_pose_seen=seen[idx])
+    assert r.cost == pytest.approx(full.total, abs=1e-9)
     assert cs.min_markers <= len(idx) <= cs.max_markers
     assert r.history_best[-1] == pytest.approx(r.cost)
     assert np.all(np.diff(r.history_best) <= 1e-12)
 
 
 def test_same_seed_same_result(hammer_case):
-    pts, vis = hammer_case
+    pts, vis, _ = hammer_case
     cs, ch = CostSettings(), ChainSettings()
     a = run_chain(pts, vis, cs, ch, np.random.default_rng(11))
     b = run_chain(pts, vis, cs, ch, np.random.default_rng(11))
@@ -104,7 +106,7 @@ def test_same_seed_same_result(hammer_case):
 
 
 def test_stops_by_the_three_percent_rule(hammer_case):
-    pts, vis = hammer_case
+    pts, vis, _ = hammer_case
     r = run_chain(pts, vis, CostSettings(), ChainSettings(), np.random.default_rng(2))
     h = r.history_cost
     assert 250 < r.iterations < 20000
@@ -143,3 +145,17 @@ def test_beats_best_of_1000_random_layouts(name):
         idx = random_valid_layout(n, len(pts), nbr, rng)
         best = min(best, evaluate(pts[idx], vis[idx], cs, with_margin=False).total)
     assert res.cost.total < best
+
+
+def test_coverage_term_keeps_three_markers_in_view():
+    """The optional coverage term (robust preset): re-checked from the visibility table."""
+    from starforge.props.mesh import load_prop
+    from starforge.props.placement import load_spec, place
+
+    spec = load_spec("robust")
+    res = place(load_prop("hammer"), spec, seed=2)
+    counts = res.marker_pose_seen.sum(axis=0)
+    assert res.cost.coverage == pytest.approx(float((counts < 3).mean()))
+    assert res.cost.coverage == 0.0  # every pose sees at least 3 markers
+    paper = place(load_prop("hammer"), load_spec("long"), seed=2)
+    assert paper.cost.visibility <= res.cost.visibility + 1e-12  # coverage costs some mean visibility

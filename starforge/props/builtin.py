@@ -135,4 +135,5 @@ def builtin_mesh(name: str):
     mesh = parts[0] if len(parts) == 1 else _union(parts)
     if mesh is None:  # pragma: no cover - the shipped parts are valid solids
         mesh = trimesh.util.concatenate(parts)
-    return mesh
+    # manifold3d works in float32: snap its round-off (~1e-8 m) back to 0.1 micrometre
+    return trimesh.Trimesh(vertices=np.round(mesh.vertices, 7) + 0.0, faces=mesh.faces, process=False)

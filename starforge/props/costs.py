@@ -47,6 +47,13 @@ class CostSettings:
         Distance tolerance for a symmetric match, m (0.002).
     min_markers, max_markers : int
         Allowed marker count; the paper's interval [4, 20] (max is Z in eq. 7-8).
+    w_coverage : float
+        Weight of an optional coverage term (not in the paper; 0 = off): the fraction of poses at
+        which fewer than ``coverage_markers`` markers are seen by any camera pair.  A tracker
+        needs at least 3 markers to follow a rigid body, which the average visibility of eq. 2
+        does not ensure.
+    coverage_markers : int
+        Markers that must be seen at a pose for it to count as covered (3).
     """
 
     target_visibility: float = 1.0
@@ -65,13 +72,16 @@ class CostSettings:
     symmetry_tol_m: float = 0.002
     min_markers: int = 4
     max_markers: int = 20
+    w_coverage: float = 0.0
+    coverage_markers: int = 3
 
     def __post_init__(self):
         in_range("target_visibility", self.target_visibility, 0.0, 1.0)
         in_range("target_overlap", self.target_overlap, 0.0, 1.0)
         in_range("target_symmetry", self.target_symmetry, 0.0, 1.0)
         positive("sigma_markers", self.sigma_markers)
-        for name in ("w_visibility", "w_count", "w_overlap", "w_symmetry", "w_near_symmetry"):
+        in_range("coverage_markers", self.coverage_markers, 1, 1000)
+        for name in ("w_visibility", "w_count", "w_overlap", "w_symmetry", "w_near_symmetry", "w_coverage"):
             non_negative(name, getattr(self, name))
         positive("near_symmetry_target_m", self.near_symmetry_target_m)
         positive("marker_diameter_m", self.marker_diameter_m)
@@ -101,6 +111,7 @@ class CostBreakdown:
     symmetric: bool
     margin_m: float
     markers: int
+    coverage: float = 0.0
 
     def to_json(self) -> dict:
         return {
@@ -115,6 +126,7 @@ class CostBreakdown:
             "symmetric": self.symmetric,
             "near_symmetry_margin_m": None if math.isinf(self.margin_m) else self.margin_m,
             "markers": self.markers,
+            "coverage": self.coverage,
         }
 
 
@@ -152,8 +164,20 @@ def near_symmetry_cost(margin_m: float, target_m: float) -> float:
     return max(0.0, 1.0 - margin_m / target_m)
 
 
+def coverage_cost(marker_pose_seen: np.ndarray, k: int = 3) -> float:
+    """Fraction of poses at which fewer than ``k`` markers are seen (``marker_pose_seen``: (n, p) bool)."""
+    seen = np.asarray(marker_pose_seen)
+    if seen.size == 0:
+        return 1.0
+    return float((seen.sum(axis=0) < k).mean())
+
+
 def evaluate(
-    points: np.ndarray, marker_visibility: np.ndarray, s: CostSettings, with_margin: bool = True
+    points: np.ndarray,
+    marker_visibility: np.ndarray,
+    s: CostSettings,
+    with_margin: bool = True,
+    marker_pose_seen: np.ndarray | None = None,
 ) -> CostBreakdown:
     """All cost terms of a layout (eq. 1), from scratch.
 
@@ -166,6 +190,8 @@ def evaluate(
     s : CostSettings
     with_margin : bool
         Compute the near-symmetry margin even when its weight is 0 (for reports).
+    marker_pose_seen : (n, p) bool, optional
+        Whether any camera pair sees each marker at each pose; needed for the coverage term.
     """
     from starforge.props.symmetry import is_symmetric, near_symmetry_margin
 
@@ -187,5 +213,11 @@ def evaluate(
     margin = near_symmetry_margin(p) if with_margin else capped
     total = s.w_visibility * cv + s.w_count * cn + s.w_overlap * co + s.w_symmetry * cs
     total += s.w_near_symmetry * cns
+    if marker_pose_seen is not None:
+        cc = coverage_cost(marker_pose_seen, s.coverage_markers)
+    else:
+        require(s.w_coverage == 0, "the coverage term needs the markers' per-pose visibility")
+        cc = 0.0
+    total += s.w_coverage * cc
     mv = float(np.mean(marker_visibility)) if n else 0.0
-    return CostBreakdown(total, cv, cn, co, cs, cns, mv, pairs, sym, margin, n)
+    return CostBreakdown(total, cv, cn, co, cs, cns, mv, pairs, sym, margin, n, cc)

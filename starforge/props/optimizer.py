@@ -184,8 +184,11 @@ def overlap_neighbours(points: np.ndarray, diameter_m: float) -> list[tuple[int,
 class _Layout:
     """Incremental cost of a marker set (running sums; O(Z) per move)."""
 
-    def __init__(self, points, vis, cs: CostSettings, nbr):
+    def __init__(self, points, vis, cs: CostSettings, nbr, pose_seen=None):
         self.points = points
+        # coverage term: per-site pose visibility (s, p) and the markers seen at each pose (p,)
+        self.pose_seen = pose_seen if cs.w_coverage > 0 else None
+        self.pc = None if self.pose_seen is None else np.zeros(pose_seen.shape[1], dtype=np.int32)
         self.vis = vis
         self.cs = cs
         self.nbr = nbr
@@ -211,7 +214,7 @@ class _Layout:
         self.pairs -= int(self.cnt[site])
         self.sum_v -= self.vis[site]
 
-    def cost_of(self, n: int, sum_v: float, pairs: int, sites) -> tuple[float, float]:
+    def cost_of(self, n: int, sum_v: float, pairs: int, sites, pc=None) -> tuple[float, float]:
         cs = self.cs
         c = cs.w_visibility * abs(sum_v / n - cs.target_visibility)
         c += cs.w_count * (1.0 - math.exp(-((n - cs.target_markers) ** 2) / (2 * cs.sigma_markers**2)))
@@ -235,10 +238,12 @@ class _Layout:
                 c += cs.w_near_symmetry * max(0.0, 1.0 - m / cs.near_symmetry_target_m)
         else:
             c += cs.w_symmetry * abs(0.0 - cs.target_symmetry)
+        if pc is not None:
+            c += cs.w_coverage * float(np.count_nonzero(pc < cs.coverage_markers)) / len(pc)
         return c, sym
 
     def total(self) -> float:
-        return self.cost_of(len(self.sites), self.sum_v, self.pairs, self.sites)[0]
+        return self.cost_of(len(self.sites), self.sum_v, self.pairs, self.sites, self.pc)[0]
 
 
 def random_valid_layout(n: int, n_sites: int, nbr, rng: np.random.Generator, tries: int = 1000) -> list[int]:
@@ -266,6 +271,7 @@ def run_chain(
     nbr=None,
     initial=None,
     on_iteration=None,
+    site_pose_seen=None,
 ) -> ChainResult:
     """One simulated-annealing RJ-MCMC run.
 
@@ -283,6 +289,8 @@ def run_chain(
         Starting set; default a random valid set of ``target_markers`` sites.
     on_iteration : callable, optional
         Called every 1000 iterations with the iteration number.
+    site_pose_seen : (s, p) bool, optional
+        Whether any camera pair sees each site at each pose; required when ``cs.w_coverage > 0``.
     """
     t_start = time.perf_counter()
     points = np.asarray(points, dtype=float)
@@ -292,7 +300,11 @@ def run_chain(
     if nbr is None:
         nbr = overlap_neighbours(points, cs.marker_diameter_m)
     Z, lo = cs.max_markers, cs.min_markers
-    lay = _Layout(points, vis.tolist(), cs, nbr)
+    pose_seen = None
+    if cs.w_coverage > 0:
+        require(site_pose_seen is not None, "the coverage term needs the per-pose visibility of the sites")
+        pose_seen = np.asarray(site_pose_seen, dtype=np.int32)
+    lay = _Layout(points, vis.tolist(), cs, nbr, pose_seen)
     start = (
         list(initial)
         if initial is not None
@@ -300,6 +312,8 @@ def run_chain(
     )
     for s_ in start:
         lay.place(int(s_))
+        if pose_seen is not None:
+            lay.pc += pose_seen[int(s_)]
     cur_cost = lay.total()
     best_cost, best_sites = cur_cost, tuple(lay.sites)
     N = ch.max_iterations
@@ -331,9 +345,12 @@ def run_chain(
             move = ADD if um < pa else (REMOVE if um < pr else MODIFY)
             proposed[move] += 1
             ok = False
+            new_pc = None
             if move == ADD:
                 if n < Z:
                     s_new = u_site[b]
+                    if pose_seen is not None:
+                        new_pc = lay.pc + pose_seen[s_new]
                     new_sites = sites + [s_new]
                     new_n, new_v, new_pairs = n + 1, lay.sum_v + vlist[s_new], lay.pairs + int(cnt[s_new])
                     ok = True
@@ -342,12 +359,16 @@ def run_chain(
                     k = int(u_pick[b] * n)
                     s_old = sites[k]
                     new_sites = sites[:k] + sites[k + 1 :]
+                    if pose_seen is not None:
+                        new_pc = lay.pc - pose_seen[s_old]
                     new_n, new_v, new_pairs = n - 1, lay.sum_v - vlist[s_old], lay.pairs - int(cnt[s_old]) + 1
                     ok = True
             else:
                 k = int(u_pick[b] * n)
                 s_old, s_new = sites[k], u_site[b]
                 new_sites = sites[:k] + [s_new] + sites[k + 1 :]
+                if pose_seen is not None:
+                    new_pc = lay.pc - pose_seen[s_old] + pose_seen[s_new]
                 lost = int(cnt[s_old]) - 1
                 gained = int(cnt[s_new]) - (
                     1 if (s_old == s_new or (nbrset is not None and s_old in nbrset[s_new])) else 0
@@ -359,7 +380,7 @@ def run_chain(
                 )
                 ok = True
             if ok:
-                new_cost, _ = lay.cost_of(new_n, new_v, new_pairs, new_sites)
+                new_cost, _ = lay.cost_of(new_n, new_v, new_pairs, new_sites, new_pc)
                 if t > 0 or new_cost <= cur_cost:
                     p_acc = acceptance_probability(move, n, cur_cost, new_cost, t, ch, Z)
                     if u_acc[b] < p_acc:
@@ -373,6 +394,7 @@ def run_chain(
                             lay.place(s_new)
                             # keep marker order stable: move the new marker back to slot k
                             sites.insert(k, sites.pop())
+                        lay.pc = new_pc
                         cur_cost = new_cost
                         if cur_cost < best_cost:
                             best_cost, best_sites = cur_cost, tuple(sites)
@@ -420,6 +442,7 @@ def anneal(
     rng: np.random.Generator,
     on_iteration=None,
     on_run=None,
+    site_pose_seen=None,
 ) -> AnnealResult:
     """``ch.restarts`` independent chains (sequential, one rng); the lowest-cost run is ``best``.
 
@@ -429,7 +452,18 @@ def anneal(
     nbr = overlap_neighbours(np.asarray(points, dtype=float), cs.marker_diameter_m)
     runs = []
     for k in range(ch.restarts):
-        runs.append(run_chain(points, site_visibility, cs, ch, rng, nbr=nbr, on_iteration=on_iteration))
+        runs.append(
+            run_chain(
+                points,
+                site_visibility,
+                cs,
+                ch,
+                rng,
+                nbr=nbr,
+                on_iteration=on_iteration,
+                site_pose_seen=site_pose_seen,
+            )
+        )
         if on_run is not None:
             on_run(k + 1, ch.restarts)
     best = min(runs, key=lambda r: r.cost)

@@ -192,11 +192,12 @@ def place(prop, spec: PlaceSpec, seed: int = 0, progress=None) -> PlacementResul
     v = table.site_visibility
     t = time.perf_counter()
     run_cb = (lambda d, n: progress("annealing", d, n)) if progress else None
-    result = anneal(sites.points, v, spec.costs, spec.chain, rng, on_run=run_cb)
+    pose_seen = table.seen.any(axis=2)  # (s, p): some pair sees the site at the pose
+    result = anneal(sites.points, v, spec.costs, spec.chain, rng, on_run=run_cb, site_pose_seen=pose_seen)
     t = _tick(timings, "optimize_s", t)
     chosen = tuple(int(s) for s in result.best.sites)
-    cost = evaluate(sites.points[list(chosen)], v[list(chosen)], spec.costs)
-    seen_any = table.seen[list(chosen)].any(axis=2)
+    seen_any = pose_seen[list(chosen)]
+    cost = evaluate(sites.points[list(chosen)], v[list(chosen)], spec.costs, marker_pose_seen=seen_any)
     _tick(timings, "score_s", t)
     return PlacementResult(
         prop, spec, seed, rig, poses, sites, n_bad, v, chosen, cost, result, seen_any, timings, table.rays
@@ -227,7 +228,7 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
     poses = make_poses(rig.volume, spec.resolution, spec.orientations, pivot, rng)
     table = compute_table(prop.mesh, pts, nrm, rig, poses, spec.grazing_limit_deg)
     v = table.site_visibility
-    return evaluate(pts, v, spec.costs), v
+    return evaluate(pts, v, spec.costs, marker_pose_seen=table.seen.any(axis=2)), v
 
 
 # ----------------------------------------------------------------------------- files
@@ -236,8 +237,8 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
 def _r(x, nd=9):
     """Round floats for stable, readable JSON."""
     if isinstance(x, np.ndarray):
-        return np.round(x.astype(float), nd).tolist()
-    return round(float(x), nd)
+        return (np.round(x.astype(float), nd) + 0.0).tolist()  # + 0.0 turns -0.0 into 0.0
+    return round(float(x), nd) + 0.0
 
 
 def _downsample(arr: np.ndarray, n: int = HISTORY_POINTS) -> tuple[list[int], np.ndarray]:
@@ -350,7 +351,9 @@ def markers_csv(points: np.ndarray, normals: np.ndarray) -> str:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(CSV_HEADER)
     for i, (p, n) in enumerate(zip(points, normals, strict=True)):
-        w.writerow([i, *(f"{v:.9f}" for v in p), *(f"{v:.9f}" for v in n)])
+        w.writerow(
+            [i, *(f"{v + 0.0:.9f}" for v in np.round(p, 9)), *(f"{v + 0.0:.9f}" for v in np.round(n, 9))]
+        )
     return buf.getvalue()
 
 

@@ -180,7 +180,7 @@ class Poses:
 
     def to_json(self) -> dict:
         return {
-            "pivot": self.pivot.tolist(),
+            "pivot": (np.round(self.pivot, 12) + 0.0).tolist(),
             "matrices": np.round(self.matrices(), 12).tolist(),
         }
 
