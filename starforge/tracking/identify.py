@@ -1,0 +1,491 @@
+"""Identification the way optical trackers do it, vectorised over many frames.
+
+Pipeline (no Python loop per frame or per body):
+
+1. **Library**: every triangle of 3 markers of every body, with the side opposite each vertex
+   (a triangle is the smallest identifying unit: what is left of a 4-marker star with one
+   marker hidden).  Triangles are sorted by their longest side for range look-ups.
+2. **Observed triangles**: every triple of observed points whose sides all lie in the
+   library's length range.
+3. **Distance match**: sorted sides within ``match_mm`` of a library triangle's sorted sides
+   (the bottleneck test: some vertex correspondence matches iff the sorted sides do), then
+   every one of the 6 vertex correspondences whose sides match gives a hypothesis
+   (body, observed point -> model marker).
+4. **Rigid fit**: Kabsch on the 3 points, predict the body's other markers, take the nearest
+   observed point within ``match_mm`` for each, refit on all matched points; accept when the
+   RMS residual is within ``residual_mm``.
+5. **Conflicts**: hypotheses ranked by (more markers, lower RMS); greedy acceptance, each
+   observed point and each body label used at most once per frame (done in parallel rounds:
+   a hypothesis that is the best user of all its resources is accepted; the result equals the
+   sequential greedy).
+
+Simulation: in every frame each body sits at a random pose (uniform rotation), far from the
+others (farther than the longest library distance, so points of two bodies never form a
+library distance); every marker centre gets Gaussian noise (``noise_mm`` per axis), up to
+``drop`` of its markers are hidden (uniform 0..drop, or exactly ``drop``), and ``ghosts``
+random extra points appear in a ball around it (radius: the body's radius + ``match_mm``).
+
+Outcome per body and frame: *correct* (own label, every real point on its own marker),
+*flip* (own label, a wrong correspondence: the "body flips 180 degrees" report),
+*mislabel* (another body's label), *missed* (no accepted hypothesis on its points).
+Flips and mislabels are both confusions.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from starforge.errors import StarforgeError
+from starforge.spec import non_negative, positive, require
+
+_PERMS = np.array(list(itertools.permutations(range(3))), dtype=np.intp)
+
+
+@dataclass(frozen=True)
+class Library:
+    """Precomputed triangle table of a set of bodies (all lengths mm).
+
+    Attributes
+    ----------
+    names : tuple of str
+    points : (B, nmax, 3) float, mm       body markers, NaN-padded
+    counts : (B,) int                     markers per body
+    tri_body : (M,) int                   body of each triangle
+    tri_verts : (M, 3) int                its marker indices
+    tri_sides : (M, 3) float, mm          side opposite each vertex
+    tri_sorted : (M, 3) float, mm         sorted sides; rows ordered by the longest side
+    """
+
+    names: tuple[str, ...]
+    points: np.ndarray = field(repr=False)
+    counts: np.ndarray = field(repr=False)
+    tri_body: np.ndarray = field(repr=False)
+    tri_verts: np.ndarray = field(repr=False)
+    tri_sides: np.ndarray = field(repr=False)
+    tri_sorted: np.ndarray = field(repr=False)
+
+    @property
+    def n_bodies(self) -> int:
+        return len(self.names)
+
+    @property
+    def n_max(self) -> int:
+        return self.points.shape[1]
+
+
+def triangle_sides(A: np.ndarray) -> np.ndarray:
+    """Sides opposite each vertex of triangles ``A`` (..., 3, 3) -> (..., 3), same units."""
+    return np.stack(
+        [
+            np.linalg.norm(A[..., 1, :] - A[..., 2, :], axis=-1),
+            np.linalg.norm(A[..., 0, :] - A[..., 2, :], axis=-1),
+            np.linalg.norm(A[..., 0, :] - A[..., 1, :], axis=-1),
+        ],
+        axis=-1,
+    )
+
+
+def build_library(points_list, names=None) -> Library:
+    """The triangle library of bodies given as a list of (n_i, 3) mm arrays (n_i >= 3)."""
+    pts = [np.asarray(p, dtype=float).reshape(-1, 3) for p in points_list]
+    require(len(pts) >= 1, "need at least one body")
+    for i, p in enumerate(pts):
+        require(len(p) >= 3, f"body {i} has {len(p)} markers; identification needs at least 3")
+    names = tuple(names) if names is not None else tuple(f"body_{i + 1}" for i in range(len(pts)))
+    nmax = max(len(p) for p in pts)
+    P = np.full((len(pts), nmax, 3), np.nan)
+    for i, p in enumerate(pts):
+        P[i, : len(p)] = p
+    tb, tv = [], []
+    for i, p in enumerate(pts):
+        tri = np.array(list(itertools.combinations(range(len(p)), 3)), dtype=np.intp)
+        tb.append(np.full(len(tri), i))
+        tv.append(tri)
+    tri_body = np.concatenate(tb)
+    tri_verts = np.concatenate(tv)
+    sides = triangle_sides(P[tri_body[:, None], tri_verts])
+    srt = np.sort(sides, axis=1)
+    order = np.argsort(srt[:, 2], kind="stable")
+    return Library(
+        names,
+        P,
+        np.array([len(p) for p in pts]),
+        tri_body[order],
+        tri_verts[order],
+        sides[order],
+        srt[order],
+    )
+
+
+def kabsch(model: np.ndarray, observed: np.ndarray, weight: np.ndarray | None = None, reflect: bool = False):
+    """Batched least-squares rigid fit ``observed ~ R @ model + t``.
+
+    model, observed : (H, k, 3); weight : (H, k) 0/1 or None.  NaN rows must have weight 0.
+    Returns R (H, 3, 3) (proper rotations unless ``reflect``), t (H, 3).
+    """
+    if weight is None:
+        weight = np.ones(model.shape[:2])
+    w = weight[..., None]
+    m = np.where(w > 0, model, 0.0)
+    o = np.where(w > 0, observed, 0.0)
+    ws = w.sum(axis=1)
+    mc = (m * w).sum(axis=1) / ws
+    oc = (o * w).sum(axis=1) / ws
+    X = (m - mc[:, None]) * w
+    Y = (o - oc[:, None]) * w
+    Hm = np.einsum("hki,hkj->hij", X, Y)
+    U, _, Vt = np.linalg.svd(Hm)
+    V = np.swapaxes(Vt, 1, 2)
+    Ut = np.swapaxes(U, 1, 2)
+    if not reflect:
+        d = np.sign(np.linalg.det(V @ Ut))
+        d[d == 0] = 1.0
+        V = V.copy()
+        V[:, :, 2] *= d[:, None]
+    R = V @ Ut
+    t = oc - np.einsum("hij,hj->hi", R, mc)
+    return R, t
+
+
+@dataclass(frozen=True)
+class Hypotheses:
+    """Accepted rigid-fit hypotheses (one row each).
+
+    scene : (H,) int           scene (frame x body slot) the points come from
+    body : (H,) int            library body claimed
+    assign : (H, nmax) int     observed slot matched to each model marker, -1 if none
+    n : (H,) int               matched markers
+    rms : (H,) float, mm       RMS residual of the final fit
+    """
+
+    scene: np.ndarray
+    body: np.ndarray
+    assign: np.ndarray
+    n: np.ndarray
+    rms: np.ndarray
+
+
+def hypotheses(
+    lib: Library,
+    pts: np.ndarray,
+    match_mm: float,
+    residual_mm: float,
+    reflect: bool = False,
+) -> Hypotheses:
+    """Every accepted, de-duplicated hypothesis in scenes ``pts`` (S, P, 3) mm, NaN = no point."""
+    S, P, _ = pts.shape
+    nmax = lib.n_max
+    empty = Hypotheses(*(np.zeros(0, dtype=int) for _ in range(2)), np.zeros((0, nmax), dtype=int),
+                       np.zeros(0, dtype=int), np.zeros(0))
+    if P < 3 or S == 0:
+        return empty
+    triples = np.array(list(itertools.combinations(range(P), 3)), dtype=np.intp)
+    sides = triangle_sides(pts[:, triples])  # (S, t, 3)
+    lo_lib = lib.tri_sorted[:, 0].min() - match_mm
+    hi_lib = lib.tri_sorted[:, 2].max() + match_mm
+    with np.errstate(invalid="ignore"):
+        keep = (sides.min(axis=2) >= lo_lib) & (sides.max(axis=2) <= hi_lib)
+    s_idx, t_idx = np.nonzero(keep)
+    if len(s_idx) == 0:
+        return empty
+    obs = sides[s_idx, t_idx]
+    osrt = np.sort(obs, axis=1)
+    lo = np.searchsorted(lib.tri_sorted[:, 2], osrt[:, 2] - match_mm, side="left")
+    hi = np.searchsorted(lib.tri_sorted[:, 2], osrt[:, 2] + match_mm, side="right")
+    cnt = hi - lo
+    q = np.repeat(np.arange(len(obs)), cnt)
+    start = np.repeat(np.cumsum(cnt) - cnt, cnt)
+    li = lo[q] + (np.arange(len(q)) - start)
+    ok = (np.abs(osrt[q, :2] - lib.tri_sorted[li, :2]) <= match_mm).all(axis=1)
+    q, li = q[ok], li[ok]
+    if len(q) == 0:
+        return empty
+    # every vertex correspondence whose opposite sides match
+    d = np.abs(obs[q][:, None, :] - lib.tri_sides[li][:, _PERMS])  # (n, 6, 3)
+    qi, pi = np.nonzero((d <= match_mm).all(axis=2))
+    q, li, perm = q[qi], li[qi], _PERMS[pi]
+    scene = s_idx[q]
+    slots = triples[t_idx[q]]  # (H, 3) observed slots of vertices 0, 1, 2
+    body = lib.tri_body[li]
+    markers = np.take_along_axis(lib.tri_verts[li], perm, axis=1)  # model marker of each vertex
+    H = len(scene)
+    model_all = lib.points[body]  # (H, nmax, 3)
+    obs3 = pts[scene[:, None], slots]
+    mod3 = model_all[np.arange(H)[:, None], markers]
+    R, t = kabsch(mod3, obs3, reflect=reflect)
+    pred = np.einsum("hij,hkj->hki", R, model_all) + t[:, None, :]
+    assign = np.full((H, nmax), -1, dtype=np.intp)
+    np.put_along_axis(assign, markers, slots, axis=1)
+    scene_pts = pts[scene]  # (H, P, 3)
+    used = np.zeros((H, P), dtype=bool)
+    np.put_along_axis(used, slots, True, axis=1)
+    best_d = np.full((H, nmax), np.inf)
+    for j in range(nmax):
+        todo = assign[:, j] < 0
+        if not todo.any():
+            continue
+        dist = np.linalg.norm(scene_pts - pred[:, j][:, None, :], axis=2)  # (H, P)
+        dist = np.where(np.isnan(dist) | used, np.inf, dist)
+        k = dist.argmin(axis=1)
+        dk = dist[np.arange(H), k]
+        hit = todo & (dk <= match_mm)
+        assign[hit, j] = k[hit]
+        best_d[hit, j] = dk[hit]
+    # one observed point per model marker: keep the closer of two claims
+    for j in range(nmax):
+        for k in range(j + 1, nmax):
+            clash = (assign[:, j] >= 0) & (assign[:, j] == assign[:, k])
+            if clash.any():
+                drop_k = clash & (best_d[:, k] >= best_d[:, j])
+                drop_j = clash & ~drop_k
+                assign[drop_k, k] = -1
+                assign[drop_j, j] = -1
+    w = (assign >= 0).astype(float)
+    obs_all = pts[scene[:, None], np.maximum(assign, 0)]
+    more = w.sum(axis=1) > 3  # only these gained markers: refit them, keep the 3-point fit otherwise
+    if more.any():
+        R[more], t[more] = kabsch(model_all[more], obs_all[more], w[more], reflect=reflect)
+    fit = np.einsum("hij,hkj->hki", R, np.nan_to_num(model_all)) + t[:, None, :]
+    err = np.where(w > 0, np.linalg.norm(np.nan_to_num(obs_all) - fit, axis=2), 0.0)
+    n = w.sum(axis=1).astype(int)
+    rms = np.sqrt((err**2).sum(axis=1) / n)
+    acc = (n >= 3) & (rms <= residual_mm) & (err.max(axis=1) <= match_mm)
+    scene, body, assign, n, rms = scene[acc], body[acc], assign[acc], n[acc], rms[acc]
+    if len(scene) == 0:
+        return empty
+    key = np.concatenate([scene[:, None], body[:, None], assign], axis=1)
+    _, first = np.unique(key, axis=0, return_index=True)
+    first = np.sort(first)
+    return Hypotheses(scene[first], body[first], assign[first], n[first], rms[first])
+
+
+def resolve(h: Hypotheses, frame_of_scene: np.ndarray, n_points: int, n_bodies: int) -> np.ndarray:
+    """Indices of the hypotheses a tracker reports: greedy by (more markers, lower RMS), each
+    observed point (``scene * n_points + slot``) and each (frame, body label) used once."""
+    H = len(h.scene)
+    if H == 0:
+        return np.zeros(0, dtype=np.intp)
+    order = np.lexsort((h.rms, -h.n))
+    rank = np.empty(H, dtype=np.int64)
+    rank[order] = np.arange(H)
+    pt = np.where(h.assign >= 0, h.scene[:, None] * n_points + h.assign, -1)
+    n_pt = int(frame_of_scene.size) * n_points
+    lab = n_pt + frame_of_scene[h.scene] * n_bodies + h.body
+    res = np.concatenate([pt, lab[:, None]], axis=1)  # (H, nmax + 1), -1 = none
+    valid = res >= 0
+    res_c = np.where(valid, res, 0)
+    n_res = n_pt + (int(frame_of_scene.max()) + 1) * n_bodies
+    alive = np.ones(H, dtype=bool)
+    accepted = np.zeros(H, dtype=bool)
+    big = np.iinfo(np.int64).max
+    while alive.any():
+        best = np.full(n_res, big, dtype=np.int64)
+        m = valid & alive[:, None]
+        np.minimum.at(best, res_c[m], np.broadcast_to(rank[:, None], res.shape)[m])
+        win = alive & np.where(valid, best[res_c] == rank[:, None], True).all(axis=1)
+        accepted |= win
+        taken = np.zeros(n_res, dtype=bool)
+        taken[res_c[valid & win[:, None]]] = True
+        alive &= ~win & ~np.where(valid, taken[res_c], False).any(axis=1)
+    return np.flatnonzero(accepted)
+
+
+@dataclass(frozen=True)
+class Scenes:
+    """Simulated observations.
+
+    pts : (S, P, 3) float, mm     observed points, NaN = empty slot (slot order shuffled)
+    label : (S, P) int            true marker index, -1 ghost, -2 empty
+    body : (S,) int               true body of each scene
+    frame : (S,) int              frame of each scene
+    """
+
+    pts: np.ndarray
+    label: np.ndarray
+    body: np.ndarray
+    frame: np.ndarray
+
+
+def simulate(
+    lib: Library,
+    n_frames: int,
+    noise_mm: float,
+    drop: int,
+    ghosts: int,
+    rng: np.random.Generator,
+    match_mm: float = 1.0,
+    drop_exact: bool = False,
+    first_frame: int = 0,
+) -> Scenes:
+    """Frames in which every body of ``lib`` sits at a random pose (see module docstring)."""
+    from scipy.spatial.transform import Rotation
+
+    B, nmax = lib.n_bodies, lib.n_max
+    S = n_frames * B
+    body = np.tile(np.arange(B), n_frames)
+    frame = np.repeat(np.arange(n_frames), B) + first_frame
+    R = Rotation.random(S, random_state=rng).as_matrix()
+    t = rng.uniform(-1000.0, 1000.0, size=(S, 3))
+    model = lib.points[body]
+    X = np.einsum("sij,skj->ski", R, model) + t[:, None, :]
+    X = X + rng.normal(0.0, noise_mm, size=X.shape) if noise_mm > 0 else X
+    present = np.arange(nmax)[None, :] < lib.counts[body][:, None]
+    k = np.full(S, drop) if drop_exact else rng.integers(0, drop + 1, size=S)
+    keys = np.where(present, rng.random((S, nmax)), np.inf)
+    rank = np.argsort(np.argsort(keys, axis=1), axis=1)
+    visible = present & (rank >= k[:, None])
+    X[~visible] = np.nan
+    label = np.where(visible, np.arange(nmax)[None, :], -2)
+    if ghosts > 0:
+        centre_b = np.nanmean(lib.points, axis=1)  # (B, 3)
+        radius_b = np.nanmax(np.linalg.norm(lib.points - centre_b[:, None], axis=2), axis=1) + match_mm
+        c = np.einsum("sij,sj->si", R, centre_b[body]) + t
+        u = rng.normal(size=(S, ghosts, 3))
+        u /= np.linalg.norm(u, axis=2, keepdims=True)
+        r = radius_b[body][:, None] * rng.random((S, ghosts)) ** (1 / 3)
+        G = c[:, None, :] + u * r[..., None]
+        X = np.concatenate([X, G], axis=1)
+        label = np.concatenate([label, np.full((S, ghosts), -1)], axis=1)
+    perm = np.argsort(rng.random(label.shape), axis=1)
+    X = np.take_along_axis(X, perm[..., None], axis=1)
+    label = np.take_along_axis(label, perm, axis=1)
+    return Scenes(X, label, body, frame)
+
+
+@dataclass
+class Tally:
+    """Counts over simulated frames (B bodies)."""
+
+    n_bodies: int
+    confusion: np.ndarray = None  # (B, B): true i reported as j (diagonal: correct)
+    flips: np.ndarray = None  # (B,)
+    missed: np.ndarray = None  # (B,)
+    phantoms: np.ndarray = None  # (B,) label reported on mostly-ghost points
+    frames: int = 0
+
+    def __post_init__(self):
+        B = self.n_bodies
+        self.confusion = np.zeros((B, B), dtype=np.int64)
+        self.flips = np.zeros(B, dtype=np.int64)
+        self.missed = np.zeros(B, dtype=np.int64)
+        self.phantoms = np.zeros(B, dtype=np.int64)
+
+    @property
+    def instances(self) -> int:
+        return self.frames * self.n_bodies
+
+    @property
+    def correct(self) -> int:
+        return int(np.trace(self.confusion))
+
+    @property
+    def mislabels(self) -> int:
+        return int(self.confusion.sum() - np.trace(self.confusion))
+
+    def rates(self) -> dict:
+        n = max(self.instances, 1)
+        return {
+            "identification_rate": self.correct / n,
+            "mislabel_rate": (self.mislabels + int(self.flips.sum())) / n,
+            "flip_rate": int(self.flips.sum()) / n,
+            "wrong_body_rate": self.mislabels / n,
+            "missed_rate": int(self.missed.sum()) / n,
+            "phantom_rate": int(self.phantoms.sum()) / n,
+        }
+
+
+def score(sc: Scenes, h: Hypotheses, chosen: np.ndarray, tally: Tally) -> None:
+    """Add the outcome of one batch of scenes to ``tally`` (see module docstring)."""
+    S = len(sc.body)
+    sel = Hypotheses(h.scene[chosen], h.body[chosen], h.assign[chosen], h.n[chosen], h.rms[chosen])
+    lab = np.where(sel.assign >= 0, sc.label[sel.scene[:, None], np.maximum(sel.assign, 0)], -3)
+    real = lab >= 0
+    n_real = real.sum(axis=1)
+    majority = 2 * n_real > sel.n
+    right = np.where(real, lab == np.arange(lab.shape[1])[None, :], True).all(axis=1)
+    covered = np.zeros(S, dtype=bool)
+    # phantoms: reported on mostly ghosts
+    np.add.at(tally.phantoms, sel.body[~majority], 1)
+    m = majority
+    covered[sel.scene[m]] = True
+    tb = sc.body[sel.scene[m]]
+    rb = sel.body[m]
+    ok = right[m]
+    same = tb == rb
+    np.add.at(tally.confusion, (tb[same & ok], rb[same & ok]), 1)
+    np.add.at(tally.flips, tb[same & ~ok], 1)
+    np.add.at(tally.confusion, (tb[~same], rb[~same]), 1)
+    np.add.at(tally.missed, sc.body[~covered], 1)
+    tally.frames += S // tally.n_bodies
+
+
+def check_settings(lib: Library, noise_mm: float, drop: int, ghosts: int, frames: int,
+                   match_mm: float, residual_mm: float) -> None:
+    """Validate simulation settings with one-line errors naming the parameter and range."""
+    non_negative("noise", noise_mm)
+    require(isinstance(drop, int | np.integer) and drop >= 0, f"drop must be an integer >= 0, got {drop}")
+    most = int(lib.counts.min()) - 3
+    require(
+        drop <= most,
+        f"drop must be <= markers - 3 = {most} (the smallest body has {int(lib.counts.min())} markers and "
+        f"a tracker needs 3 to identify it), got {drop}",
+    )
+    require(isinstance(ghosts, int | np.integer) and ghosts >= 0, f"ghosts must be an integer >= 0, got {ghosts}")
+    require(isinstance(frames, int | np.integer) and frames >= 1, f"frames must be an integer >= 1, got {frames}")
+    positive("match_mm", match_mm)
+    positive("residual_mm", residual_mm)
+
+
+def run(
+    lib: Library,
+    n_frames: int,
+    noise_mm: float,
+    drop: int,
+    ghosts: int,
+    rng: np.random.Generator,
+    match_mm: float,
+    residual_mm: float,
+    drop_exact: bool = False,
+    reflect: bool = False,
+    chunk_scenes: int = 20000,
+    progress=None,
+) -> Tally:
+    """Simulate ``n_frames`` frames and identify them; returns the :class:`Tally`.
+
+    ``progress(done_frames, total_frames)`` is called after each batch.
+    """
+    check_settings(lib, noise_mm, drop, ghosts, n_frames, match_mm, residual_mm)
+    B = lib.n_bodies
+    per = max(1, chunk_scenes // B)
+    tally = Tally(B)
+    done = 0
+    while done < n_frames:
+        f = min(per, n_frames - done)
+        sc = simulate(lib, f, noise_mm, drop, ghosts, rng, match_mm, drop_exact)
+        h = hypotheses(lib, sc.pts, match_mm, residual_mm, reflect)
+        chosen = resolve(h, sc.frame, sc.pts.shape[1], B)
+        score(sc, h, chosen, tally)
+        done += f
+        if progress is not None:
+            progress(done, n_frames)
+    return tally
+
+
+def self_matches(points_mm: np.ndarray, match_mm: float, residual_mm: float, reflect: bool = False):
+    """Wrong correspondences of a body onto itself that a tracker would accept (noise-free).
+
+    Returns a list of ``(rms_mm, assign)`` for every accepted non-identity correspondence that
+    uses all markers, best first; empty for a body that cannot flip.
+    """
+    lib = build_library([points_mm])
+    pts = np.asarray(points_mm, dtype=float)[None]
+    h = hypotheses(lib, pts, match_mm, residual_mm, reflect)
+    n = len(points_mm)
+    out = []
+    for a, k, r in zip(h.assign, h.n, h.rms, strict=True):
+        if k == n and not np.array_equal(a, np.arange(n)):
+            out.append((float(r), a.copy()))
+    return sorted(out, key=lambda x: x[0])
