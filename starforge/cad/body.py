@@ -1,0 +1,376 @@
+"""One printable body per star, as plain data both CAD backends build the same way.
+
+How a body sits (the design decision, in the placement frame of ``family.json``):
+
+- the sphere centres stay exactly where family.json puts them;
+- "up" is +y, the family box's shortest side: the star lies flat on the object (its long side
+  along a finger segment) and the cameras see it from above;
+- the mount is a plate under the star, its top face ``standoff_mm`` below the lowest finished
+  sphere; a stem runs from the plate to each sphere, vertical where it can be, tilted where a
+  vertical stem would pass through (or too close to) another sphere or stem;
+- the star id is engraved in seven-segment digits on the plate's top face, in a free spot
+  (the plate grows at its -z end when there is none).
+
+The whole body, with the *finished* (coated) spheres, is compared against the family's size
+limit (sorted sides, so any axis assignment counts): :func:`fit_report`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from starforge.cad.mounts import Mount, mount_geometry
+from starforge.cad.primitives import Box, Cylinder, Sphere, point_segment_distance, segment_segment_distance
+from starforge.errors import StarforgeError
+from starforge.spec import in_range, require
+
+UP = np.array([0.0, 1.0, 0.0])
+
+
+@dataclass(frozen=True)
+class BodySpec:
+    """How to turn a star into a printable body.  Lengths in mm.
+
+    Attributes
+    ----------
+    coating_mm : float
+        Coating allowance on the diameter: printed sphere = marker_mm - coating_mm
+        (paper: 3.8 mm printed, 4 mm finished -> 0.2).  Range [0, marker_mm / 2].
+    tip : "sphere" or "post"
+        Printed spheres, or posts (a pin or threaded stud) for commercial markers.
+    post_mm : float
+        Post diameter (a pin, or a stud's major diameter), range [0.8, 4].
+    post_length_mm : float
+        How far the post reaches into the marker from its surface, range [0.5, 6].
+    stem_mm : float
+        Stem diameter; must be >= ``min_stem_mm``.  Range [min_stem_mm, 4].
+    min_stem_mm : float
+        Printable minimum stem diameter (SLS nylon: about 0.8 mm).  Range [0.3, 4].
+    standoff_mm : float
+        Gap between the lowest finished sphere and the plate (room for the foil), [0.2, 10].
+    clearance_mm : float
+        Least gap between a stem and another (finished) sphere or stem, [0, 2].
+    max_tilt_deg : float
+        A stem leans at most this far from vertical, [0, 60].
+    label : bool
+        Engrave the star id on the plate.
+    label_mm : float
+        Digit height, [1.5, 8].
+    label_depth_mm : float
+        Engraving depth, [0.2, 1.5].
+    min_visibility : float
+        Warn when a sphere's upper hemisphere is less free than this fraction, [0, 1].
+    sphere_segments, cylinder_segments : int
+        Tessellation of the mesh backend (STL/3MF), [16, 256].
+    """
+
+    coating_mm: float = 0.2
+    tip: Literal["sphere", "post"] = "sphere"
+    post_mm: float = 1.5
+    post_length_mm: float = 2.0
+    stem_mm: float = 1.2
+    min_stem_mm: float = 0.8
+    standoff_mm: float = 1.0
+    clearance_mm: float = 0.3
+    max_tilt_deg: float = 40.0
+    label: bool = True
+    label_mm: float = 2.5
+    label_depth_mm: float = 0.4
+    min_visibility: float = 0.6
+    sphere_segments: int = 96
+    cylinder_segments: int = 48
+
+    def __post_init__(self) -> None:
+        require(self.tip in ("sphere", "post"), f"tip must be sphere or post, got {self.tip!r}")
+        in_range("coating_mm", self.coating_mm, 0.0, 10.0)
+        in_range("post_mm", self.post_mm, 0.8, 4.0)
+        in_range("post_length_mm", self.post_length_mm, 0.5, 6.0)
+        in_range("min_stem_mm", self.min_stem_mm, 0.3, 4.0)
+        require(
+            math.isfinite(float(self.stem_mm)) and self.stem_mm >= self.min_stem_mm,
+            f"stem_mm must be >= the printable minimum min_stem_mm={self.min_stem_mm}, got {self.stem_mm}",
+        )
+        in_range("stem_mm", self.stem_mm, self.min_stem_mm, 4.0)
+        in_range("standoff_mm", self.standoff_mm, 0.2, 10.0)
+        in_range("clearance_mm", self.clearance_mm, 0.0, 2.0)
+        in_range("max_tilt_deg", self.max_tilt_deg, 0.0, 60.0)
+        in_range("label_mm", self.label_mm, 1.5, 8.0)
+        in_range("label_depth_mm", self.label_depth_mm, 0.2, 1.5)
+        in_range("min_visibility", self.min_visibility, 0.0, 1.0)
+        in_range("sphere_segments", self.sphere_segments, 16, 256)
+        in_range("cylinder_segments", self.cylinder_segments, 16, 256)
+
+
+@dataclass(frozen=True)
+class Body:
+    """A printable star body (plain data).
+
+    Attributes
+    ----------
+    star_id : int
+    name : str                       ``star_<id>``, the STEP solid's name and the file stem
+    add : tuple of primitives        united: spheres (or posts), stems, the mount's plate
+    subtract : tuple of primitives   cut from the union: holes, slots, pockets, label digits
+    centres : (4, 3) float, mm       marker centres (family.json's vertices)
+    marker_mm : float                finished marker diameter
+    printed_mm : float or None       printed sphere diameter (None for posts)
+    stems : tuple of Cylinder        stem axes (root on the plate -> sphere)
+    mount : str                      mount template name
+    label : str                      engraved text
+    """
+
+    star_id: int
+    name: str
+    add: tuple
+    subtract: tuple
+    centres: tuple
+    marker_mm: float
+    printed_mm: float | None
+    stems: tuple
+    mount: str
+    label: str
+
+    @property
+    def centres_array(self) -> np.ndarray:
+        return np.array(self.centres, dtype=float)
+
+
+def body_name(star_id: int) -> str:
+    """File stem and STEP name of a star's body: ``star_007``."""
+    return f"star_{int(star_id):03d}"
+
+
+# ---------------------------------------------------------------------------------------------
+# Stem layout (pure)
+
+
+def _ring_offsets(max_r: float, step: float = 0.25, per_ring: int = 24) -> np.ndarray:
+    out = [np.zeros(2)]
+    for r in np.arange(step, max_r + 1e-9, step):
+        a = np.linspace(0, 2 * np.pi, per_ring, endpoint=False)
+        out.append(np.column_stack([r * np.cos(a), r * np.sin(a)]))
+    return np.vstack(out)
+
+
+def route_stems(
+    centres,
+    marker_radius_mm: float,
+    stem_radius_mm: float,
+    y_top: float,
+    clearance_mm: float,
+    max_tilt_deg: float,
+    tip_clear=None,
+) -> np.ndarray:
+    """Root points (n, 3) mm on the plane y = ``y_top`` for stems to each centre.
+
+    Each stem is the segment root -> centre.  Spheres are routed from the lowest up; a stem
+    keeps ``marker_radius + stem_radius + clearance`` from every other centre and
+    ``2 stem_radius + clearance`` from the stems already routed (above the plate), leaning at
+    most ``max_tilt_deg``.  Among clear roots the most vertical one wins.  Raises
+    StarforgeError when a sphere has no clear route.
+    """
+    c = np.asarray(centres, float)
+    n = len(c)
+    roots = np.zeros((n, 3))
+    placed: list[int] = []
+    keep_sphere = marker_radius_mm + stem_radius_mm + clearance_mm
+    keep_stem = 2 * stem_radius_mm + clearance_mm
+    for i in np.argsort(c[:, 1], kind="stable"):
+        height = c[i, 1] - y_top
+        max_off = height * math.tan(math.radians(max_tilt_deg))
+        offsets = _ring_offsets(max_off) if max_off > 0 else np.zeros((1, 2))
+        found = None
+        for dx, dz in offsets:
+            root = np.array([c[i, 0] + dx, y_top, c[i, 2] + dz])
+            others = [j for j in range(n) if j != i]
+            if others and point_segment_distance(c[others], root, c[i]).min() < keep_sphere:
+                continue
+            if any(segment_segment_distance(root, c[i], roots[k], c[k]) < keep_stem for k in placed):
+                continue
+            found = root
+            break
+        if found is None:
+            raise StarforgeError(
+                f"no stem route for sphere {'ABCD'[i] if n == 4 else i} clear of the other spheres "
+                f"(stem {2 * stem_radius_mm:.2f} mm, tilt <= {max_tilt_deg:g} deg)"
+            )
+        roots[i] = found
+        placed.append(int(i))
+    return roots
+
+
+# ---------------------------------------------------------------------------------------------
+# Label: seven-segment digits (boxes), identical in both backends
+
+_SEGMENTS = {
+    "0": "abcdef", "1": "bc", "2": "abged", "3": "abgcd", "4": "fgbc",
+    "5": "afgcd", "6": "afgedc", "7": "abc", "8": "abcdefg", "9": "abcdfg", "-": "g",
+}
+
+
+def label_boxes(text: str, height_mm: float, centre_xz, y_top: float, depth_mm: float) -> list[Box]:
+    """Engraving boxes for ``text`` (digits), read from above (+y) with +z up the page.
+
+    Digits are ``0.55 height`` wide with strokes ``0.18 height`` and gaps ``0.25 height``;
+    the boxes reach ``depth_mm`` below ``y_top`` and 0.1 mm above it (a clean cut that
+    stays below any sphere: ``standoff_mm`` >= 0.2).
+    """
+    h = height_mm
+    w, s, gap = 0.55 * h, 0.18 * h, 0.25 * h
+    total = len(text) * w + (len(text) - 1) * gap
+    seg = {
+        "a": (0.0, h / 2 - s / 2, w, s), "d": (0.0, -h / 2 + s / 2, w, s), "g": (0.0, 0.0, w, s),
+        "b": (w / 2 - s / 2, h / 4, s, h / 2), "c": (w / 2 - s / 2, -h / 4, s, h / 2),
+        "e": (-w / 2 + s / 2, -h / 4, s, h / 2), "f": (-w / 2 + s / 2, h / 4, s, h / 2),
+    }
+    cx, cz = centre_xz
+    boxes = []
+    for k, ch in enumerate(text):
+        if ch not in _SEGMENTS:
+            raise StarforgeError(f"label text may hold digits and '-', got {text!r}")
+        u0 = -total / 2 + w / 2 + k * (w + gap)
+        for sname in _SEGMENTS[ch]:
+            u, v, su, sv = seg[sname]
+            # seen from +y with +z up, the reader's right is -x
+            boxes.append(Box((cx - (u0 + u), y_top - depth_mm / 2 + 0.05, cz + v), (su, depth_mm + 0.1, sv)))
+    return boxes
+
+
+def label_size(text: str, height_mm: float) -> tuple[float, float]:
+    """(width along x, height along z) of the label, mm."""
+    w, gap = 0.55 * height_mm, 0.25 * height_mm
+    return (len(text) * w + (len(text) - 1) * gap, height_mm)
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: BodySpec) -> Body:
+    """The body description of one star (pure: no CAD kernel involved).
+
+    Parameters
+    ----------
+    star_id : int
+    centres : (4, 3) float, mm, placement frame (family.json's vertices)
+    marker_mm : float, finished marker diameter
+    mount : :class:`~starforge.cad.mounts.Mount`
+    spec : :class:`BodySpec`
+    """
+    c = np.asarray(centres, float)
+    require(c.ndim == 2 and c.shape[1] == 3 and np.isfinite(c).all(), "centres must be (n, 3) finite mm")
+    rf = marker_mm / 2
+    rs = spec.stem_mm / 2
+    if spec.tip == "sphere":
+        printed = marker_mm - spec.coating_mm
+        require(printed > spec.stem_mm, f"coating_mm={spec.coating_mm} leaves a printed sphere of "
+                f"{printed:.2f} mm, not wider than the stem ({spec.stem_mm} mm)")
+    else:
+        printed = None
+        require(spec.post_mm < marker_mm, f"post_mm={spec.post_mm} must be < marker_mm={marker_mm}")
+    y_top = float(c[:, 1].min() - rf - spec.standoff_mm)
+    roots = route_stems(c, rf, rs, y_top, spec.clearance_mm, spec.max_tilt_deg)
+    # the material under the label: thinner mounts cannot take a deep engraving
+    floor = mount["thickness_mm"]
+    if mount.kind == "magnet":
+        floor = mount["floor_mm"]
+    elif mount.kind == "adhesive":
+        floor = mount["thickness_mm"] - mount["recess_mm"]
+    text = str(int(star_id))
+    if spec.label:
+        require(
+            spec.label_depth_mm <= floor - 0.3,
+            f"label_depth_mm={spec.label_depth_mm} leaves less than 0.3 mm of the {mount.name} mount "
+            f"({floor:.2f} mm under the label)",
+        )
+    mg = mount_geometry(
+        mount,
+        roots[:, [0, 2]],
+        rs,
+        y_top,
+        label_size(text, spec.label_mm) if spec.label else None,
+    )
+    adds: list = []
+    stems = []
+    for root, cen in zip(roots, c, strict=True):
+        u = (cen - root) / np.linalg.norm(cen - root)
+        start = root - u * (0.3 / max(u[1], 1e-6))  # 0.3 mm into the plate
+        if spec.tip == "sphere":
+            adds.append(Sphere(cen, printed / 2))
+            stem = Cylinder(start, cen, rs)
+        else:
+            surf = cen - rf * u
+            stem = Cylinder(start, surf, rs)
+            adds.append(Cylinder(surf - 0.2 * u, surf + spec.post_length_mm * u, spec.post_mm / 2))
+        stems.append(stem)
+        adds.append(stem)
+    adds.extend(mg.add)
+    subs = list(mg.subtract)
+    if spec.label:
+        subs.extend(label_boxes(text, spec.label_mm, mg.label_centre, y_top, spec.label_depth_mm))
+    return Body(
+        star_id=int(star_id),
+        name=body_name(star_id),
+        add=tuple(adds),
+        subtract=tuple(subs),
+        centres=tuple(map(tuple, c.tolist())),
+        marker_mm=float(marker_mm),
+        printed_mm=printed,
+        stems=tuple(stems),
+        mount=mount.name,
+        label=text if spec.label else "",
+    )
+
+
+def body_bounds(body: Body, finished: bool = True) -> np.ndarray:
+    """(2, 3) bounds of the body, mm; ``finished`` counts the coated spheres (marker_mm)."""
+    b = [p.bounds() for p in body.add]
+    if finished:
+        c = body.centres_array
+        b.append(np.array([c.min(0) - body.marker_mm / 2, c.max(0) + body.marker_mm / 2]))
+    b = np.array(b)
+    return np.array([b[:, 0].min(0), b[:, 1].max(0)])
+
+
+@dataclass(frozen=True)
+class FitReport:
+    """The body against the family's size limit (sorted sides, mm).
+
+    Attributes
+    ----------
+    size_mm : (3,) the body's sides along x, y, z (finished spheres)
+    limit_mm : (3,) the family's box_mm
+    excess_mm : (3,) by how much each sorted side exceeds the sorted limit (0 where it fits)
+    fits : bool
+    """
+
+    size_mm: tuple
+    limit_mm: tuple
+    excess_mm: tuple
+    fits: bool
+
+    @property
+    def worst_mm(self) -> float:
+        return float(max(self.excess_mm))
+
+    def message(self, name: str) -> str:
+        s = " x ".join(f"{v:.2f}" for v in self.size_mm)
+        lim = " x ".join(f"{v:g}" for v in self.limit_mm)
+        return f"{name}: body {s} mm exceeds the size limit {lim} mm by {self.worst_mm:.2f} mm"
+
+
+def fit_report(body: Body, limit_mm) -> FitReport:
+    """Compare the body's sorted sides with the sorted limit (any axis assignment)."""
+    b = body_bounds(body)
+    size = b[1] - b[0]
+    lim = np.asarray(limit_mm, float)
+    excess = np.maximum(np.sort(size) - np.sort(lim) - 1e-9, 0.0)
+    return FitReport(
+        size_mm=tuple(float(v) for v in size),
+        limit_mm=tuple(float(v) for v in lim),
+        excess_mm=tuple(float(v) for v in excess),
+        fits=bool((excess <= 0).all()),
+    )

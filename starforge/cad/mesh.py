@@ -1,0 +1,116 @@
+"""manifold3d backend: a :class:`~starforge.cad.body.Body` -> one watertight, manifold mesh.
+
+Booleans run in two batches (union of every added primitive, minus the union of every cut),
+so the result is manifold by construction; :func:`body_mesh` checks the status and the
+triangles anyway.  Tessellation: spheres and cylinders get ``BodySpec.sphere_segments`` /
+``cylinder_segments`` around, fine enough that volumes agree with the exact STEP solid
+within 1 %.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from starforge.cad.body import Body
+from starforge.cad.primitives import Box, Cylinder, Sphere
+from starforge.errors import StarforgeError
+
+
+def _frame(axis: np.ndarray) -> np.ndarray:
+    """A rotation (3, 3) taking +z to the unit vector ``axis``."""
+    z = axis / np.linalg.norm(axis)
+    helper = np.array([1.0, 0, 0]) if abs(z[0]) < 0.9 else np.array([0, 1.0, 0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return np.column_stack([x, y, z])
+
+
+@lru_cache(maxsize=16)
+def _sphere_scale(segments: int) -> float:
+    """Radius factor giving a tessellated sphere the exact sphere's volume."""
+    from manifold3d import Manifold
+
+    v = Manifold.sphere(1.0, int(segments)).volume()
+    return float((4.0 / 3.0 * np.pi / v) ** (1.0 / 3.0))
+
+
+def _circle_scale(segments: int) -> float:
+    """Radius factor giving a regular ``segments``-gon the area of its circle."""
+    n = int(segments)
+    return float(np.sqrt(2 * np.pi / (n * np.sin(2 * np.pi / n))))
+
+
+def primitive_manifold(p, sphere_segments: int = 96, cylinder_segments: int = 48):
+    """One primitive as a manifold3d Manifold.
+
+    Curved primitives are tessellated volume-preserving: the polygon's radius is scaled so
+    that a sphere (cylinder) mesh holds the exact sphere's (cylinder's) volume; the surface
+    stays within ``radius * (1 - cos(pi / segments))`` of the exact one.
+    """
+    from manifold3d import Manifold
+
+    if isinstance(p, Sphere):
+        r = p.radius_mm * _sphere_scale(sphere_segments)
+        return Manifold.sphere(r, int(sphere_segments)).translate(p.centre)
+    if isinstance(p, Box):
+        return Manifold.cube(p.size, center=True).translate(p.centre)
+    if isinstance(p, Cylinder):
+        p0, p1 = np.array(p.p0), np.array(p.p1)
+        h = float(np.linalg.norm(p1 - p0))
+        r = p.radius_mm * _circle_scale(cylinder_segments)
+        cyl = Manifold.cylinder(h, r, r, int(cylinder_segments))
+        m = np.zeros((3, 4))
+        m[:, :3] = _frame(p1 - p0)
+        m[:, 3] = p0
+        return cyl.transform(m)
+    raise TypeError(f"unknown primitive {type(p).__name__}")
+
+
+def body_manifold(body: Body, sphere_segments: int = 96, cylinder_segments: int = 48):
+    """The body as one Manifold: (union of ``add``) minus (union of ``subtract``)."""
+    from manifold3d import Manifold, OpType
+
+    adds = [primitive_manifold(p, sphere_segments, cylinder_segments) for p in body.add]
+    solid = Manifold.batch_boolean(adds, OpType.Add)
+    if body.subtract:
+        cuts = [primitive_manifold(p, sphere_segments, cylinder_segments) for p in body.subtract]
+        solid = solid - Manifold.batch_boolean(cuts, OpType.Add)
+    status = solid.status()
+    if str(status).split(".")[-1] != "NoError":
+        raise StarforgeError(f"{body.name}: mesh boolean failed ({status})")
+    return solid
+
+
+def manifold_arrays(solid) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (n, 3) float mm, faces (m, 3) int) of a Manifold."""
+    mesh = solid.to_mesh()
+    v = np.asarray(mesh.vert_properties, dtype=float)[:, :3]
+    f = np.asarray(mesh.tri_verts, dtype=np.int64)
+    return v, f
+
+
+def body_mesh(body: Body, sphere_segments: int = 96, cylinder_segments: int = 48):
+    """The body as a trimesh.Trimesh: one watertight volume, no degenerate triangles.
+
+    Raises StarforgeError when the mesh is not a single watertight volume (a mount feature
+    that split the body, say).
+    """
+    import trimesh
+
+    solid = body_manifold(body, sphere_segments, cylinder_segments)
+    v, f = manifold_arrays(solid)
+    mesh = trimesh.Trimesh(v, f, process=False)
+    area = mesh.area_faces
+    if (area <= 1e-12).any():
+        keep = area > 1e-12
+        mesh.update_faces(keep)
+        mesh.remove_unreferenced_vertices()
+    if not mesh.is_watertight or not mesh.is_winding_consistent:
+        raise StarforgeError(f"{body.name}: mesh is not watertight")
+    if solid.decompose().__len__() != 1:
+        raise StarforgeError(f"{body.name}: the body falls apart into {len(solid.decompose())} pieces")
+    mesh.metadata["name"] = body.name
+    return mesh

@@ -1,0 +1,283 @@
+"""Mounts: parametric bases from ``templates/mounts/<name>.toml`` and their plain-data geometry.
+
+A mount template names its ``kind`` (one of :data:`KINDS`), a description, default
+``[params]`` and the allowed ``[ranges]`` of each parameter (both in the file, so the ranges are
+documented where the values are edited).  Every mount is a plate under the star in the x-z plane
+(the star lies flat; +y is up, see :mod:`starforge.cad.primitives`) plus kind-specific features:
+
+- ``flat``: screw holes through the plate, placed clear of the stems;
+- ``strap``: two slots at the ends for a Velcro strap of a given width;
+- ``saddle``: a concave underside that sits on a cylinder (a finger segment) of a given diameter;
+- ``adhesive``: a shallow recess underneath for a double-sided adhesive pad;
+- ``magnet``: a blind pocket from below for a disc magnet.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from starforge.catalog import list_templates, load_template
+from starforge.cad.primitives import Box, Cylinder
+from starforge.errors import StarforgeError
+from starforge.spec import in_range, require
+
+COMMON = ("thickness_mm", "margin_mm")
+KINDS: dict[str, tuple[str, ...]] = {
+    "flat": (*COMMON, "holes", "hole_mm", "hole_wall_mm"),
+    "strap": (*COMMON, "strap_width_mm", "slot_mm", "wall_mm"),
+    "saddle": (*COMMON, "segment_mm"),
+    "adhesive": (*COMMON, "pad_width_mm", "pad_length_mm", "recess_mm", "rim_mm"),
+    "magnet": (*COMMON, "magnet_mm", "magnet_height_mm", "floor_mm", "wall_mm"),
+}
+_INTS = {"holes"}
+
+
+@dataclass(frozen=True)
+class Mount:
+    """A validated mount: ``kind`` plus its parameters (lengths in mm).
+
+    Attributes
+    ----------
+    name : str             template name (or file stem)
+    kind : str             one of :data:`KINDS`
+    params : dict          parameter -> value (every name of ``KINDS[kind]``)
+    ranges : dict          parameter -> (lo, hi), the documented allowed range
+    description : str
+    """
+
+    name: str
+    kind: str
+    params: dict = field(hash=False)
+    ranges: dict = field(hash=False)
+    description: str = ""
+
+    def __getitem__(self, key: str) -> float:
+        return self.params[key]
+
+
+def mount_from_mapping(name: str, data: dict, overrides: dict | None = None) -> Mount:
+    """Validate a template mapping (plus ``overrides``, e.g. from ``--set``) into a :class:`Mount`."""
+    where = f"mount {name}"
+    unknown = sorted(set(data) - {"kind", "description", "params", "ranges"})
+    require(not unknown, f"unknown key(s) {', '.join(unknown)} in {where}; known: kind, description, params, ranges")
+    kind = data.get("kind")
+    require(kind in KINDS, f"{where}: kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    names = KINDS[kind]
+    params = dict(data.get("params", {}))
+    ranges = dict(data.get("ranges", {}))
+    for k, v in (overrides or {}).items():
+        params[k] = v
+    for label, table in (("params", params), ("ranges", ranges)):
+        bad = sorted(set(table) - set(names))
+        require(not bad, f"unknown {kind} mount parameter(s) {', '.join(bad)} in {where}; known: {', '.join(names)}")
+    missing = [n for n in names if n not in params or n not in ranges]
+    require(not missing, f"{where}: parameter(s) {', '.join(missing)} need a value and a range")
+    clean = {}
+    for n in names:
+        lo, hi = (float(x) for x in ranges[n])
+        v = in_range(n, params[n], lo, hi)
+        if n in _INTS:
+            require(v == int(v), f"{n} must be an integer, got {params[n]}")
+            v = int(v)
+        clean[n] = v
+        ranges[n] = (lo, hi)
+    return Mount(name=name, kind=kind, params=clean, ranges=ranges, description=str(data.get("description", "")))
+
+
+def load_mount(name_or_path: str | Path, overrides: dict | None = None) -> Mount:
+    """A mount by template name (``flat``) or TOML path; unknown names list the known ones."""
+    name, data = load_template("mounts", name_or_path)
+    return mount_from_mapping(name, data, overrides)
+
+
+def list_mounts() -> list[Mount]:
+    """Every shipped mount template, validated."""
+    return [load_mount(n) for n in list_templates("mounts")]
+
+
+# --------------------------------------------------------------------------------------------
+# Layout in the plate plane (x, z): pure functions.
+
+
+def rect_circle_clearance(centre_xz, size_xz, circles) -> float:
+    """Smallest gap (mm) between an axis-aligned rectangle and circles ``(x, z, r)``; < 0 overlaps."""
+    if len(circles) == 0:
+        return math.inf
+    c = np.atleast_2d(np.asarray(circles, float))
+    half = np.asarray(size_xz, float) / 2
+    d = np.maximum(np.abs(c[:, :2] - np.asarray(centre_xz, float)) - half, 0.0)
+    return float((np.linalg.norm(d, axis=1) - c[:, 2]).min())
+
+
+def find_spot(footprint, size_xz, circles, edge_mm: float, step_mm: float = 0.25):
+    """Centre (x, z) of a ``size_xz`` rectangle inside ``footprint`` clear of ``circles``.
+
+    Parameters
+    ----------
+    footprint : (x0, x1, z0, z1) mm
+    size_xz : (w, h) mm
+    circles : (n, 3) obstacles (x, z, radius) mm; the rectangle keeps out of them
+    edge_mm : float, distance kept from the footprint's border
+
+    Returns the candidate with the largest clearance (ties: nearest the footprint's -z end,
+    then its centre line), or None when nothing fits.
+    """
+    x0, x1, z0, z1 = footprint
+    w, h = size_xz
+    xs_lo, xs_hi = x0 + edge_mm + w / 2, x1 - edge_mm - w / 2
+    zs_lo, zs_hi = z0 + edge_mm + h / 2, z1 - edge_mm - h / 2
+    if xs_lo > xs_hi + 1e-9 or zs_lo > zs_hi + 1e-9:
+        return None
+    xs = np.arange(xs_lo, xs_hi + 1e-9, step_mm) if xs_hi > xs_lo else np.array([xs_lo])
+    zs = np.arange(zs_lo, zs_hi + 1e-9, step_mm) if zs_hi > zs_lo else np.array([zs_lo])
+    best, best_key = None, None
+    xm = (x0 + x1) / 2
+    for z in zs:
+        for x in xs:
+            c = rect_circle_clearance((x, z), (w, h), circles)
+            if c < 0:
+                continue
+            key = (min(c, 1.0), -abs(z - z0), -abs(x - xm))
+            if best_key is None or key > best_key:
+                best, best_key = (float(x), float(z)), key
+    return best
+
+
+def reserve(footprint, size_xz, circles, edge_mm: float):
+    """Like :func:`find_spot`, but grows the footprint at its -z end when nothing fits.
+
+    Returns ``(centre_xz, footprint)``; the footprint also widens (in x, symmetric) when the
+    rectangle is wider than it.
+    """
+    spot = find_spot(footprint, size_xz, circles, edge_mm)
+    if spot is not None:
+        return spot, tuple(footprint)
+    x0, x1, z0, z1 = footprint
+    w, h = size_xz
+    need_w = w + 2 * edge_mm
+    if x1 - x0 < need_w:
+        xm = (x0 + x1) / 2
+        x0, x1 = xm - need_w / 2, xm + need_w / 2
+    z0 -= h + edge_mm
+    return ((x0 + x1) / 2, z0 + edge_mm + h / 2), (x0, x1, z0, z1)
+
+
+@dataclass(frozen=True)
+class MountGeometry:
+    """What a mount adds to and cuts from the body (plain data).
+
+    Attributes
+    ----------
+    add : tuple of primitives      the plate (and its blocks)
+    subtract : tuple of primitives holes, slots, pockets, recesses, the saddle's cylinder
+    footprint : (x0, x1, z0, z1)   the plate's extent in the x-z plane, mm
+    y_bottom : float               lowest point of the mount, mm
+    label_centre : (x, z) or None  where the id label goes on the plate top
+    """
+
+    add: tuple
+    subtract: tuple
+    footprint: tuple
+    y_bottom: float
+    label_centre: tuple | None
+
+
+def mount_geometry(
+    mount: Mount,
+    roots_xz,
+    stem_radius_mm: float,
+    y_top: float,
+    label_size_xz=None,
+    min_footprint=None,
+) -> MountGeometry:
+    """The mount under stems rooted at ``roots_xz`` (n, 2) mm, its top face at ``y_top`` mm.
+
+    ``label_size_xz`` (w, h) reserves room for the id label on the top face (None: no label);
+    ``min_footprint`` (x0, x1, z0, z1) is a footprint the plate covers at least.
+    """
+    p = mount.params
+    roots = np.atleast_2d(np.asarray(roots_xz, float))
+    m = p["margin_mm"]
+    fp = (
+        roots[:, 0].min() - stem_radius_mm - m,
+        roots[:, 0].max() + stem_radius_mm + m,
+        roots[:, 1].min() - stem_radius_mm - m,
+        roots[:, 1].max() + stem_radius_mm + m,
+    )
+    if min_footprint is not None:
+        fp = (min(fp[0], min_footprint[0]), max(fp[1], min_footprint[1]),
+              min(fp[2], min_footprint[2]), max(fp[3], min_footprint[3]))
+    circles = [(x, z, stem_radius_mm + 0.4) for x, z in roots]
+    add, sub = [], []
+    t = p["thickness_mm"]
+    kind = mount.kind
+
+    if kind == "adhesive":
+        fp = _at_least(fp, p["pad_width_mm"] + 2 * p["rim_mm"], p["pad_length_mm"] + 2 * p["rim_mm"])
+    if kind == "magnet":
+        t = max(t, p["magnet_height_mm"] + p["floor_mm"])
+        d = p["magnet_mm"] + 2 * p["wall_mm"]
+        fp = _at_least(fp, d, d)
+    if kind == "strap":
+        fp = _at_least(fp, p["strap_width_mm"] + 2 * p["wall_mm"], 0.0)
+
+    label_centre = None
+    if label_size_xz is not None:
+        label_centre, fp = reserve(fp, label_size_xz, circles, edge_mm=min(m, 1.0))
+        w, h = label_size_xz
+        circles.append((label_centre[0], label_centre[1], 0.5 * math.hypot(w, h)))
+
+    if kind == "flat":
+        r = p["hole_mm"] / 2
+        for _ in range(int(p["holes"])):
+            s = 2 * (r + p["hole_wall_mm"])
+            (hx, hz), fp = reserve(fp, (s, s), circles, edge_mm=0.0)
+            sub.append(Cylinder((hx, y_top - t - 1.0, hz), (hx, y_top + 0.1, hz), r))
+            circles.append((hx, hz, s / 2))
+    if kind == "strap":
+        ext = p["slot_mm"] + 2 * p["wall_mm"]
+        x0, x1, z0, z1 = fp
+        fp = (x0, x1, z0 - ext, z1 + ext)
+        xm = (x0 + x1) / 2
+        for zc in (z0 - ext / 2, z1 + ext / 2):
+            sub.append(Box((xm, y_top - t / 2 - 0.45, zc), (p["strap_width_mm"], t + 1.1, p["slot_mm"])))
+    x0, x1, z0, z1 = fp
+    xm, zm, w, ln = (x0 + x1) / 2, (z0 + z1) / 2, x1 - x0, z1 - z0
+    y_bottom = y_top - t
+    if kind == "saddle":
+        R = p["segment_mm"] / 2
+        half = w / 2
+        sag = R - math.sqrt(R * R - half * half) if half < R else R
+        y_bottom = y_top - t - sag
+        # axis at y_top - t - R: the plate is t thick above the segment's top line
+        yc = y_top - t - R
+        sub.append(Cylinder((xm, yc, z0 - 1.0), (xm, yc, z1 + 1.0), R))
+        require(
+            half < R * 0.999,
+            f"saddle: plate width {w:.2f} mm must be < segment_mm {2 * R:.2f} mm "
+            "(the base would wrap past the segment's widest point)",
+        )
+    if kind == "adhesive":
+        rd = p["recess_mm"]
+        sub.append(Box((xm, y_bottom + rd / 2 - 0.5, zm), (p["pad_width_mm"], rd + 1.0, p["pad_length_mm"])))
+    if kind == "magnet":
+        r = p["magnet_mm"] / 2
+        h = p["magnet_height_mm"]
+        sub.append(Cylinder((xm, y_bottom - 1.0, zm), (xm, y_bottom + h, zm), r))
+    add.append(Box((xm, (y_top + y_bottom) / 2, zm), (w, y_top - y_bottom, ln)))
+    return MountGeometry(tuple(add), tuple(sub), (x0, x1, z0, z1), y_bottom, label_centre)
+
+
+def _at_least(fp, w_min: float, l_min: float):
+    x0, x1, z0, z1 = fp
+    if x1 - x0 < w_min:
+        xm = (x0 + x1) / 2
+        x0, x1 = xm - w_min / 2, xm + w_min / 2
+    if z1 - z0 < l_min:
+        zm = (z0 + z1) / 2
+        z0, z1 = zm - l_min / 2, zm + l_min / 2
+    return (x0, x1, z0, z1)

@@ -1,0 +1,181 @@
+"""Plain-data primitives of a printable body and the pure geometry both backends rely on.
+
+All lengths in mm, in the star's placement frame (see :mod:`starforge.stars.model`): the body's
+"up" is +y, the shortest side of the family box, so a star lies flat on the object it marks,
+its long side along the finger, and the cameras look at it from above.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def _vec(v) -> tuple[float, float, float]:
+    a = np.asarray(v, dtype=float).reshape(3)
+    return (float(a[0]), float(a[1]), float(a[2]))
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """A sphere: ``centre`` (3,) mm, ``radius_mm``."""
+
+    centre: tuple[float, float, float]
+    radius_mm: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "centre", _vec(self.centre))
+
+    def bounds(self) -> np.ndarray:
+        c = np.array(self.centre)
+        return np.array([c - self.radius_mm, c + self.radius_mm])
+
+    def volume(self) -> float:
+        return 4.0 / 3.0 * np.pi * self.radius_mm**3
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """A solid cylinder (flat ends) from ``p0`` to ``p1`` (3,) mm, ``radius_mm``."""
+
+    p0: tuple[float, float, float]
+    p1: tuple[float, float, float]
+    radius_mm: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "p0", _vec(self.p0))
+        object.__setattr__(self, "p1", _vec(self.p1))
+
+    @property
+    def length_mm(self) -> float:
+        return float(np.linalg.norm(np.subtract(self.p1, self.p0)))
+
+    def bounds(self) -> np.ndarray:
+        p0, p1 = np.array(self.p0), np.array(self.p1)
+        d = (p1 - p0) / max(self.length_mm, 1e-12)
+        ext = self.radius_mm * np.sqrt(np.clip(1.0 - d**2, 0.0, 1.0))
+        return np.array([np.minimum(p0, p1) - ext, np.maximum(p0, p1) + ext])
+
+    def volume(self) -> float:
+        return np.pi * self.radius_mm**2 * self.length_mm
+
+
+@dataclass(frozen=True)
+class Box:
+    """An axis-aligned box: ``centre`` (3,) mm, ``size`` (3,) mm."""
+
+    centre: tuple[float, float, float]
+    size: tuple[float, float, float]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "centre", _vec(self.centre))
+        object.__setattr__(self, "size", _vec(self.size))
+
+    def bounds(self) -> np.ndarray:
+        c, s = np.array(self.centre), np.array(self.size)
+        return np.array([c - s / 2, c + s / 2])
+
+    def volume(self) -> float:
+        return float(np.prod(self.size))
+
+
+Primitive = Sphere | Cylinder | Box
+
+
+def point_segment_distance(points, a, b) -> np.ndarray:
+    """Distance from each point to the segment ``a``-``b``.
+
+    Parameters
+    ----------
+    points : (n, 3) float, mm
+    a, b : (3,) float, mm
+
+    Returns
+    -------
+    (n,) float, mm
+    """
+    p = np.atleast_2d(np.asarray(points, dtype=float))
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    ab = b - a
+    den = float(ab @ ab)
+    t = np.zeros(len(p)) if den == 0 else np.clip((p - a) @ ab / den, 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
+
+
+def segment_segment_distance(a0, a1, b0, b1, samples: int = 0) -> float:
+    """Shortest distance between segments ``a0``-``a1`` and ``b0``-``b1`` (mm).
+
+    Exact (clamped closest points, with the end-point cases), no sampling.
+    """
+    a0, a1, b0, b1 = (np.asarray(v, dtype=float) for v in (a0, a1, b0, b1))
+    d1, d2, r = a1 - a0, b1 - b0, a0 - b0
+    a, e, f = d1 @ d1, d2 @ d2, d2 @ r
+    c, b = d1 @ r, d1 @ d2
+    den = a * e - b * b
+    cands = []
+    if den > 1e-12:
+        s = np.clip((b * f - c * e) / den, 0.0, 1.0)
+        t = np.clip((b * s + f) / e, 0.0, 1.0)
+        s = np.clip((b * t - c) / a, 0.0, 1.0)
+        cands.append(np.linalg.norm(a0 + s * d1 - (b0 + t * d2)))
+    cands.append(point_segment_distance([a0, a1], b0, b1).min())
+    cands.append(point_segment_distance([b0, b1], a0, a1).min())
+    return float(min(cands))
+
+
+def ray_hits_spheres(origins, dirs, centres, radii) -> np.ndarray:
+    """Whether each ray ``origins[i] + t dirs[i]`` (t > 0) enters any sphere.
+
+    Parameters
+    ----------
+    origins, dirs : (n, 3) float (dirs unit length)
+    centres : (m, 3) float, mm ; radii : (m,) float, mm
+
+    Returns
+    -------
+    (n,) bool
+    """
+    o, d = np.atleast_2d(origins), np.atleast_2d(dirs)
+    hit = np.zeros(len(o), dtype=bool)
+    for c, r in zip(np.atleast_2d(centres), np.atleast_1d(radii), strict=True):
+        oc = c - o
+        t = np.einsum("ij,ij->i", oc, d)
+        dist2 = np.einsum("ij,ij->i", oc, oc) - t**2
+        # the far intersection is ahead of the origin
+        hit |= (dist2 < r * r) & (t + np.sqrt(np.clip(r * r - dist2, 0.0, None)) > 0)
+    return hit
+
+
+def ray_segment_distance(origins, dirs, a, b, samples: int = 65) -> np.ndarray:
+    """Smallest distance from each ray (t >= 0) to the segment ``a``-``b``, mm.
+
+    Sampled along the segment (``samples`` points) and exact along each ray: accurate to
+    about ``|b - a| / (2 (samples - 1))``, far below a stem's radius.
+    """
+    o, d = np.atleast_2d(origins), np.atleast_2d(dirs)
+    s = np.linspace(0.0, 1.0, samples)
+    pts = np.asarray(a, float)[None] + s[:, None] * (np.asarray(b, float) - np.asarray(a, float))[None]
+    rel = pts[None, :, :] - o[:, None, :]  # (n, k, 3)
+    t = np.clip(np.einsum("nkj,nj->nk", rel, d), 0.0, None)
+    closest = rel - t[..., None] * d[:, None, :]
+    return np.linalg.norm(closest, axis=2).min(axis=1)
+
+
+def hemisphere_directions(n: int, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """``n`` near-uniform unit directions on the hemisphere around ``up`` (Fibonacci lattice).
+
+    Equal-area: each direction stands for the same solid angle, so a count of blocked
+    directions is a fraction of the hemisphere's solid angle.  Returns (n, 3) float.
+    """
+    i = np.arange(n) + 0.5
+    cos_t = 1.0 - i / n  # uniform in cos(theta) on [0, 1): equal area
+    sin_t = np.sqrt(1.0 - cos_t**2)
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * i
+    local = np.column_stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t])  # around +z
+    up = np.asarray(up, float) / np.linalg.norm(up)
+    helper = np.array([1.0, 0, 0]) if abs(up[0]) < 0.9 else np.array([0, 0, 1.0])
+    e1 = np.cross(up, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    return local[:, :1] * e1 + local[:, 1:2] * e2 + local[:, 2:3] * up
