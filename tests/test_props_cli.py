@@ -228,3 +228,19 @@ def test_hammer_is_the_default_prop_and_custom_rigs(tmp_path, capsys):
     assert code == 0, err
     doc = json.loads((out2 / "placement.json").read_text())
     assert doc["rig"]["pairs"] == [[0, 1]] and doc["rig"]["cameras"][0]["fov_deg"] == 50
+
+
+def test_pictures_drawn_in_a_child_process_are_identical(tmp_path, capsys):
+    from starforge.props.mesh import load_prop
+    from starforge.props.placement import load_spec, place, with_overrides, write_outputs
+
+    out = tmp_path / "cli"
+    assert _run(["place", "shield", *FAST, "--seed", "6", "--out", str(out)], capsys)[0] == 0
+    spec = with_overrides(load_spec("default"), sites=250, resolution=2, restarts=2)
+    res = place(load_prop("shield"), spec, seed=6)
+    here = tmp_path / "here"
+    here.mkdir()
+    write_outputs(res, here)  # drawn in this process
+    for name in ("convergence.png", "layout.png", "markers.csv", "prop_markers.glb"):
+        assert (out / name).read_bytes() == (here / name).read_bytes(), name
+    assert not list(out.glob(".render*"))

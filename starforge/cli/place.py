@@ -96,44 +96,50 @@ def run_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
     from starforge.errors import StarforgeError
-    from starforge.io import check_writable, staged_output
-    from starforge.props.placement import place, summary_lines, write_outputs
+    from starforge.render.props import BackgroundRenderer
 
     if seed < 0:
         raise StarforgeError(f"seed must be >= 0, got {seed}")
-    out = Path(out)
-    p, s = _prop_and_spec(
-        prop,
-        units,
-        spec,
-        rig,
-        markers,
-        resolution,
-        orientations,
-        sites,
-        restarts,
-        forbid_mesh,
-        mask,
-        mesh_format,
-    )
-    names = [
-        "placement.json",
-        "markers.csv",
-        f"prop_markers.{s.mesh_format}",
-        "convergence.png",
-        "layout.png",
-    ]
-    check_writable(out, names, force)  # fail before the work, not after
-    with progress() as bar:
-        task = bar.add_task("visibility", total=None)
+    # fork the picture-drawing process first, so that its matplotlib import overlaps our work
+    with BackgroundRenderer() as renderer:
+        from starforge.io import check_writable, staged_output
+        from starforge.props.placement import place, write_outputs
 
-        def cb(stage, done, total):
-            bar.update(task, description=stage, completed=done, total=total)
+        out = Path(out)
+        p, s = _prop_and_spec(
+            prop,
+            units,
+            spec,
+            rig,
+            markers,
+            resolution,
+            orientations,
+            sites,
+            restarts,
+            forbid_mesh,
+            mask,
+            mesh_format,
+        )
+        names = [
+            "placement.json",
+            "markers.csv",
+            f"prop_markers.{s.mesh_format}",
+            "convergence.png",
+            "layout.png",
+        ]
+        check_writable(out, names, force)  # fail before the work, not after
+        with progress() as bar:
+            task = bar.add_task("visibility", total=None)
 
-        res = place(p, s, seed=seed, progress=cb)
-        bar.update(task, description="writing")
-        with staged_output(out, force) as stage:
-            write_outputs(res, stage)
+            def cb(stage, done, total):
+                bar.update(task, description=stage, completed=done, total=total)
+
+            res = place(p, s, seed=seed, progress=cb)
+            bar.update(task, description="writing")
+            with staged_output(out, force) as stage:
+                write_outputs(res, stage, renderer=renderer)
+    from starforge.props.placement import summary_lines
+
     if not quiet:
         con = console()
         for line in summary_lines(res):

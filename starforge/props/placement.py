@@ -406,12 +406,22 @@ def marker_mesh(prop_mesh, points, normals, diameter_m: float, fmt: str = "glb")
     return scene.export(file_type="glb")
 
 
-def write_outputs(res: PlacementResult, folder: Path, render: bool = True) -> list[str]:
-    """Write every output of a placement into ``folder`` (a staging folder); return the file names."""
+def write_outputs(res: PlacementResult, folder: Path, render: bool = True, renderer=None) -> list[str]:
+    """Write every output of a placement into ``folder`` (a staging folder); return the file names.
+
+    ``renderer``: a started :class:`starforge.render.props.BackgroundRenderer` to draw the
+    pictures in (default: drawn here when ``render``).
+    """
     from starforge.io import atomic_write_bytes, atomic_write_json, atomic_write_text
 
     t = time.perf_counter()
     folder = Path(folder)
+    if render and renderer is None:
+        from starforge.render.props import BackgroundRenderer
+
+        renderer = BackgroundRenderer(enabled=False)
+    if render:
+        renderer.submit(res, folder)
     names = []
     atomic_write_text(folder / "markers.csv", markers_csv(res.marker_points, res.marker_normals))
     names.append("markers.csv")
@@ -425,11 +435,7 @@ def write_outputs(res: PlacementResult, folder: Path, render: bool = True) -> li
     )
     names.append(mesh_name)
     if render:
-        from starforge.render.props import convergence_png, layout_png
-
-        convergence_png(res, folder / "convergence.png")
-        layout_png(res, folder / "layout.png")
-        names += ["convergence.png", "layout.png"]
+        names += renderer.wait()
     res.timings["write_s"] = round(time.perf_counter() - t, 4)
     doc = placement_json(res)
     atomic_write_json(folder / "placement.json", doc)
