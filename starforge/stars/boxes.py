@@ -33,7 +33,7 @@ def _face_flush_frames(P: np.ndarray):
     return out
 
 
-def star_box(P: np.ndarray, limit, method: str = "exact"):
+def star_box(P: np.ndarray, limit, method: str = "exact", mvb=None):
     """The box to report for sphere centres P (4, 3) against the sorted centre limit.
 
     ``exact``: the minimum-volume box if it fits, else the smallest fitting candidate box
@@ -44,7 +44,7 @@ def star_box(P: np.ndarray, limit, method: str = "exact"):
     if method == "covariance":
         R, c, e = covariance_box(P)
         return R, c, e, "covariance", _fits(e, limit)
-    R, c, e = min_volume_box(P)
+    R, c, e = min_volume_box(P) if mvb is None else mvb
     if _fits(e, limit):
         return R, c, e, "exact", True
     cands = [covariance_box(P), *_face_flush_frames(P)]
@@ -58,12 +58,27 @@ def star_box(P: np.ndarray, limit, method: str = "exact"):
     return R, c, e, "candidate", True
 
 
-def place_star(P: np.ndarray, limit, method: str = "exact"):
+def place_stars(P: np.ndarray, limit, method: str = "exact"):
+    """:func:`place_star` for many stars (n, 4, 3); the exact boxes are computed in one batch."""
+    if method == "exact" and len(P):
+        R, c, e = min_volume_box(P)
+        out = []
+        for i in range(len(P)):
+            if _fits(e[i], limit):
+                T, ext_xyz = placement_transform(P[i], R[i], c[i], e[i])
+                out.append((P[i] @ T[:3, :3].T + T[:3, 3], T, ext_xyz, "exact", True))
+            else:
+                out.append(place_star(P[i], limit, method, mvb=(R[i], c[i], e[i])))
+        return out
+    return [place_star(p, limit, method) for p in P]
+
+
+def place_star(P: np.ndarray, limit, method: str = "exact", mvb=None):
     """Sphere centres in the paper's placement frame.
 
     Returns (vertices (4, 3), T (4, 4), extents_xyz (3,), method, fits).
     """
-    R, c, e, how, fits = star_box(P, limit, method)
+    R, c, e, how, fits = star_box(P, limit, method, mvb)
     T, ext_xyz = placement_transform(P, R, c, e)
     V = P @ T[:3, :3].T + T[:3, 3]
     return V, T, ext_xyz, how, fits

@@ -8,7 +8,7 @@ import numpy as np
 
 from starforge.errors import StarforgeError
 from starforge.geometry.tetra import face_sides, vertices_from_lengths
-from starforge.stars.boxes import place_star
+from starforge.stars.boxes import place_stars
 from starforge.stars.enumerate import Candidates, enumerate_candidates
 from starforge.stars.model import Family, Star
 from starforge.stars.rules import grid_steps, internal_ok, window_rows
@@ -101,11 +101,14 @@ def make_family(spec: StarSpec, progress=None, candidates: Candidates | None = N
     P = vertices_from_lengths(L)
     limit = spec.centre_limit_mm
     stars = []
-    for i in range(len(L)):
-        V, T, ext, how, fits = place_star(P[i], limit, spec.box_method)
+    for i, (V, T, ext, how, fits) in enumerate(place_stars(P, limit, spec.box_method)):
         if not fits:  # cannot happen for enumerated candidates; guard the invariant loudly
             raise RuntimeError(f"internal error: selected star {L[i].tolist()} does not fit")
         stars.append(Star(id=i + 1, lengths=L[i], vertices=V, obb_extents=ext, obb_transform=T, obb_method=how, margins=marg[i]))
+    info = dict(sel.info)
+    timings = {k: info.pop(k) for k in list(info) if k.endswith("_s") and k != "time_limit_s"}
+    enum_stats = {k: v for k, v in cands.stats.items() if k != "seconds"}
+    timings.update(enumerate=round(t_enum, 3), select=round(t_sel, 3), total=round(time.perf_counter() - t0, 3))
     summary = {
         "size": len(stars),
         "rule": spec.rule,
@@ -113,11 +116,10 @@ def make_family(spec: StarSpec, progress=None, candidates: Candidates | None = N
         "tolerance_mm": spec.tol_mm,
         "pool_mm": [round(float(x), 9) for x in pool],
         "candidates": int(len(index)),
-        "enumeration": {k: (round(v, 4) if isinstance(v, float) else v) for k, v in cands.stats.items()},
+        "enumeration": enum_stats,
         "best_found": int(len(chosen)),
         "upper_bound": sel.upper_bound,
         "gap": (sel.upper_bound - len(chosen)) if sel.upper_bound is not None else None,
-        "selection": sel.info,
-        "seconds": {"enumerate": round(t_enum, 3), "select": round(t_sel, 3), "total": round(time.perf_counter() - t0, 3)},
+        "selection": info,
     }
-    return Family(spec=spec, stars=tuple(stars), summary=summary)
+    return Family(spec=spec, stars=tuple(stars), summary=summary, timings=timings)

@@ -106,6 +106,8 @@ class Family:
     spec: StarSpec
     stars: tuple[Star, ...]
     summary: dict = field(default_factory=dict)
+    #: wall-clock seconds per stage (not part of family.json, which depends only on the spec)
+    timings: dict = field(default_factory=dict, compare=False)
 
     def __len__(self) -> int:
         return len(self.stars)
@@ -146,7 +148,7 @@ def family_csv(family: Family) -> str:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["id", *LENGTH_NAMES, *[f"{c}{i}" for i in range(1, 5) for c in "xyz"]])
     for s in family.stars:
-        w.writerow([s.id, *[f"{x:.6f}" for x in s.lengths], *[f"{x:.6f}" for x in s.vertices.ravel()]])
+        w.writerow([s.id, *[f"{x + 0.0:.6f}" for x in s.lengths], *[f"{x:.6f}" for x in s.vertices.ravel() + 0.0]])
     return buf.getvalue()
 
 

@@ -36,6 +36,14 @@ def grid_steps(tolerance_mm: float, delta_mm: float) -> int:
     return max(1, math.ceil(tolerance_mm / delta_mm - 1e-9))
 
 
+def sort3(x: np.ndarray) -> np.ndarray:
+    """Sort the last axis of size 3 (faster than np.sort on tiny axes)."""
+    a, b, c = x[..., 0], x[..., 1], x[..., 2]
+    lo = np.minimum(np.minimum(a, b), c)
+    hi = np.maximum(np.maximum(a, b), c)
+    return np.stack([lo, a + b + c - lo - hi, hi], axis=-1)
+
+
 def key_triples(index: np.ndarray, rule: str) -> np.ndarray:
     """Sorted index triples of each star's keys: (n, 6) -> (n, k, 3); k = 4 (face) or 8 (pair).
 
@@ -43,19 +51,19 @@ def key_triples(index: np.ndarray, rule: str) -> np.ndarray:
     """
     idx = np.asarray(index)
     groups = [FACE_EDGES] if rule == "face" else [FACE_EDGES, VERTEX_EDGES]
-    return np.concatenate([np.sort(idx[:, g], axis=-1) for g in groups], axis=1)
+    return np.concatenate([sort3(idx[:, g]) for g in groups], axis=1)
 
 
 def internal_ok(index: np.ndarray, rule: str, m: int) -> np.ndarray:
     """Stars whose own keys do not conflict with each other (n,) bool.
 
-    All six lengths of a star are distinct pool values (>= 1 step apart); with ``m > 1`` they
-    must also be >= m steps apart, and no two of the star's own keys of one type may lie within
-    m - 1 steps in every side.
+    All six lengths of a star are distinct pool values, so they differ by >= delta and every
+    face is scalene; with ``m > 1`` no two of the star's own keys of one type may also lie
+    within m - 1 steps in every side (the face rule holds within one star too).
     """
     idx = np.asarray(index)
     srt = np.sort(idx, axis=1)
-    ok = (np.diff(srt, axis=1) >= m).all(axis=1)
+    ok = (np.diff(srt, axis=1) >= 1).all(axis=1)
     if m > 1:
         keys = key_triples(idx, rule)
         nk = keys.shape[1]
@@ -84,9 +92,10 @@ def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
     offs = np.array([(a, b, c) for a in range(m) for b in range(m) for c in range(m)], dtype=np.int64)
     anchors = keys[:, :, None, :].astype(np.int64) - offs[None, None] + m  # (n, k, m^3, 3)
     code = ((tag[None, :, None] * base + anchors[..., 0]) * base + anchors[..., 1]) * base + anchors[..., 2]
-    star = np.broadcast_to(np.arange(n)[:, None, None], code.shape).ravel()
+    star = np.broadcast_to(np.arange(n, dtype=np.int64)[:, None, None], code.shape).ravel()
     code = code.ravel()
-    # one entry per (star, row)
-    pairs = np.unique(np.stack([code, star], axis=1), axis=0)
-    uniq, row = np.unique(pairs[:, 0], return_inverse=True)
-    return pairs[:, 1], row, len(uniq)
+    # one entry per (star, row): unique on one combined int64 key (star-major)
+    both = np.unique(star * (2 * base**3) + code)
+    star_u, code_u = np.divmod(both, 2 * base**3)
+    uniq, row = np.unique(code_u, return_inverse=True)
+    return star_u.astype(np.intp), row.astype(np.intp), len(uniq)

@@ -4,14 +4,13 @@
   order of box volume (then total length) and keep each one that conflicts with none taken.
 * ``max``: as large a family as possible.  Greedy, then a deterministic (1,2)-swap local
   search (remove one star, insert two that only conflicted with it; the move that drives the
-  best maximum-independent-set heuristics), then, when the problem is small enough, the exact
-  MILP (HiGHS through ``scipy.optimize.milp``) under the time limit.  The proven upper bound is
+  best maximum-independent-set heuristics), then, when the candidates are few enough
+  (``MILP_MAX_COLUMNS``), the exact MILP (HiGHS through ``scipy.optimize.milp``) under the time
+  limit, whose optimum and dual bound are used only when it finishes.  The proven upper bound is
   the smaller of the block bound (each star needs 4 distinct face blocks of side m, so
   ``blocks // 4``) and the MILP's dual bound.
 
-Everything is deterministic: the same spec gives the same family (the MILP is only trusted
-when it finishes; a time-limited incomplete MILP result is used only if it beats the local
-search, and the report says so).
+Everything is deterministic: the same spec gives the same family.
 """
 
 from __future__ import annotations
@@ -49,12 +48,14 @@ def compactness_order(index: np.ndarray, pool: np.ndarray, volume: np.ndarray) -
 
 def greedy(order: np.ndarray, ptr: np.ndarray, rows: np.ndarray, n_rows: int) -> np.ndarray:
     """Take stars in ``order``; keep each whose rows are all still free."""
-    used = np.zeros(n_rows, dtype=bool)
+    used = bytearray(n_rows)
+    rl, pl = rows.tolist(), ptr.tolist()
     chosen = []
     for i in order.tolist():
-        r = rows[ptr[i] : ptr[i + 1]]
-        if not used[r].any():
-            used[r] = True
+        r = rl[pl[i] : pl[i + 1]]
+        if not any(used[x] for x in r):
+            for x in r:
+                used[x] = 1
             chosen.append(i)
     return np.array(chosen, dtype=np.intp)
 
@@ -171,35 +172,19 @@ def select_family(index, pool, volume, star_of, row, n_rows, spec: StarSpec) -> 
     t1 = time.perf_counter()
     chosen, swaps = local_search(chosen, order, ptr, rows, n_rows)
     info.update(local_search=int(len(chosen)), swaps=swaps, local_search_s=round(time.perf_counter() - t1, 3))
-    if len(chosen) < bound:
+    if len(chosen) < bound and n <= MILP_MAX_COLUMNS:
+        # exact set packing over every candidate; trusted only when HiGHS finishes, so that the
+        # same spec always gives the same family (a time-limited incumbent depends on timing)
         t2 = time.perf_counter()
-        complete = n <= MILP_MAX_COLUMNS
-        cols = np.arange(n) if complete else _neighbourhood(chosen, order, ptr, rows, n_rows)
-        m_chosen, dual, status, finished = milp(ptr, rows, n_rows, cols, spec.time_limit_s)
-        info.update(
-            milp_columns=int(len(cols)),
-            milp_scope="all candidates" if complete else "neighbourhood of the local-search family",
-            milp_found=int(len(m_chosen)),
-            milp_status=str(status),
-            milp_finished=bool(finished),
-            milp_s=round(time.perf_counter() - t2, 3),
-        )
-        if complete and dual is not None:
-            bound = min(bound, dual)
-        if len(m_chosen) > len(chosen):
+        m_chosen, dual, status, finished = milp(ptr, rows, n_rows, np.arange(n), spec.time_limit_s)
+        info.update(milp_columns=int(n), milp_status=str(status), milp_finished=bool(finished))
+        info["milp_s"] = round(time.perf_counter() - t2, 3)
+        if finished:
             chosen = np.sort(m_chosen)
+            if dual is not None:
+                bound = min(bound, dual)
+            bound = min(bound, len(chosen)) if finished else bound
+    elif len(chosen) < bound:
+        info["milp_skipped"] = f"{n} candidates > {MILP_MAX_COLUMNS}: family from greedy + local search"
     info["proven_optimal"] = bool(len(chosen) >= bound)
     return Selection(np.sort(chosen), bound, info)
-
-
-def _neighbourhood(chosen, order, ptr, rows, n_rows, limit: int = MILP_MAX_COLUMNS) -> np.ndarray:
-    """The family plus the most compact candidates that conflict with at most two of its stars."""
-    n = len(ptr) - 1
-    owner = np.full(n_rows, -1, dtype=np.intp)
-    for s in chosen.tolist():
-        owner[rows[ptr[s] : ptr[s + 1]]] = s
-    star_of_entry = np.repeat(np.arange(n), np.diff(ptr))
-    busy = np.bincount(star_of_entry, weights=(owner[rows] >= 0), minlength=n)
-    near = order[busy[order] <= 2]
-    cols = np.union1d(chosen, near[:limit])
-    return cols

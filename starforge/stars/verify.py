@@ -73,28 +73,32 @@ def check_family(data: dict, slack_mm: float = 1e-6) -> list[str]:
         R = T[:3, :3]
         if not (np.allclose(R @ R.T, np.eye(3), atol=1e-7) and abs(np.linalg.det(R) - 1) < 1e-7):
             problems.append(f"star {sid}: obb transform is not a proper rotation")
-    # 6. the rule across the family
+    # 6. the rule across the family (vectorised over pairs; the relabellings come from itertools)
     if rule == "face":
-        for (i, fi, a), (j, fj, b) in itertools.combinations(faces_all, 2):
-            if max(abs(x - y) for x, y in zip(a, b, strict=True)) < tol_mm - slack_mm:
+        F = np.array([f[2] for f in faces_all])  # (4n, 3)
+        if len(F) > 1:
+            d = np.abs(F[:, None, :] - F[None, :, :]).max(axis=2)
+            np.fill_diagonal(d, np.inf)
+            bad = np.argwhere(np.triu(d < tol_mm - slack_mm, 1))
+            for a, b in bad[:20]:
+                i, fi, _ = faces_all[a]
+                j, fj, _ = faces_all[b]
                 problems.append(f"faces {i}/{fi} and {j}/{fj} differ by less than {tol_mm} mm in every side")
     else:
-        for s1, s2 in itertools.combinations(stars, 2):
-            P1 = np.asarray(s1["vertices"], dtype=float)
-            P2 = np.asarray(s2["vertices"], dtype=float)
-            told_apart = True
-            for perm in itertools.permutations(range(4)):
-                Q = P2[list(perm)]
-                differs = False
-                for e1, e2 in _PAIRS:
-                    d1 = abs(_dist(P1, *e1) - _dist(Q, *e1))
-                    d2 = abs(_dist(P1, *e2) - _dist(Q, *e2))
-                    if d1 >= tol_mm - slack_mm and d2 >= tol_mm - slack_mm:
-                        differs = True
-                        break
-                if not differs:
-                    told_apart = False
-                    break
-            if not told_apart:
-                problems.append(f"stars {s1['id']} and {s2['id']} are not told apart by any opposite pair")
+        V = np.array([np.asarray(s["vertices"], dtype=float) for s in stars])  # (n, 4, 3)
+        perms = list(itertools.permutations(range(4)))
+        flat = [e for pair in _PAIRS for e in pair]  # 6 edges as vertex pairs, pair-major
+
+        def pair_lengths(X):  # (n, 4, 3) -> (n, 3, 2)
+            return np.stack([np.linalg.norm(X[:, a] - X[:, b], axis=-1) for a, b in flat], axis=1).reshape(-1, 3, 2)
+
+        base = pair_lengths(V)  # (n, 3, 2)
+        forms = np.stack([pair_lengths(V[:, list(p)]) for p in perms], axis=1)  # (n, 24, 3, 2)
+        for i in range(len(stars)):
+            d = np.abs(base[i][None, None] - forms)  # (n, 24, 3, 2)
+            both = (d >= tol_mm - slack_mm).all(axis=3).any(axis=2)  # some pair differs in both lengths
+            apart = both.all(axis=1)  # ... under every relabelling
+            apart[: i + 1] = True
+            for j in np.flatnonzero(~apart)[:5]:
+                problems.append(f"stars {stars[i]['id']} and {stars[j]['id']} are not told apart by any opposite pair")
     return problems

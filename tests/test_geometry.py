@@ -1,0 +1,162 @@
+"""Tetrahedra from lengths and back, canonical forms, widths and boxes: invariants + brute force."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from starforge.geometry.obb import apply_transform, covariance_box, min_volume_box, placement_transform
+from starforge.geometry.tetra import (
+    RELABELLINGS,
+    canonical_assignments,
+    canonical_lengths,
+    cayley_menger_volume2,
+    is_realisable,
+    lengths_from_vertices,
+    realisability,
+    tetra_width,
+    vertices_from_lengths,
+)
+
+coords = arrays(np.float64, (4, 3), elements=st.floats(-30, 30, allow_nan=False, width=64))
+
+
+def _well_shaped(P: np.ndarray) -> bool:
+    L = lengths_from_vertices(P)
+    vol = abs(np.linalg.det(np.stack([P[1] - P[0], P[2] - P[0], P[3] - P[0]]))) / 6
+    return L.min() > 0.5 and vol > 0.05 * L.max() ** 3 / 100
+
+
+@settings(max_examples=200, deadline=None)
+@given(coords)
+def test_trilateration_reproduces_all_six_lengths(P):
+    if not _well_shaped(P):
+        return
+    L = lengths_from_vertices(P)
+    Q = vertices_from_lengths(L)
+    assert np.abs(lengths_from_vertices(Q) - L).max() < 1e-9
+    # the paper's construction: A at the origin, B on +x, C in the xy-plane, D above it
+    assert np.allclose(Q[0], 0) and abs(Q[1, 1]) < 1e-12 and abs(Q[1, 2]) < 1e-12
+    assert abs(Q[2, 2]) < 1e-12 and Q[2, 1] > 0 and Q[3, 2] > 0
+
+
+@settings(max_examples=200, deadline=None)
+@given(coords)
+def test_cayley_menger_matches_triple_product(P):
+    L = lengths_from_vertices(P)
+    vol = abs(np.linalg.det(np.stack([P[1] - P[0], P[2] - P[0], P[3] - P[0]]))) / 6
+    assert cayley_menger_volume2(L) == pytest.approx(vol**2, rel=1e-6, abs=1e-6 * max(1.0, L.max() ** 6))
+
+
+@settings(max_examples=100, deadline=None)
+@given(coords, st.permutations(range(4)))
+def test_canonical_form_is_invariant_under_relabelling_and_mirroring(P, perm):
+    if not _well_shaped(P):
+        return
+    L = lengths_from_vertices(P)
+    relabelled = lengths_from_vertices(P[list(perm)])
+    mirrored = lengths_from_vertices(P * np.array([-1.0, 1.0, 1.0]))
+    c = canonical_lengths(L)
+    assert np.allclose(canonical_lengths(relabelled), c, atol=1e-9)
+    assert np.allclose(canonical_lengths(mirrored), c, atol=1e-9)
+
+
+def test_relabellings_are_the_24_vertex_permutations():
+    assert len({tuple(r) for r in RELABELLINGS}) == 24
+    rng = np.random.default_rng(0)
+    P = rng.normal(size=(4, 3))
+    L = lengths_from_vertices(P)
+    by_perm = {tuple(np.round(lengths_from_vertices(P[list(p)]), 12)) for p in itertools.permutations(range(4))}
+    by_table = {tuple(np.round(L[r], 12)) for r in RELABELLINGS}
+    assert by_perm == by_table
+
+
+def test_thirty_canonical_assignments_cover_every_labelling_once():
+    ca = canonical_assignments()
+    assert ca.shape == (30, 6)
+    # every one of the 720 assignments of six distinct values is a relabelling of exactly one row
+    values = np.array([1.0, 2.0, 3.5, 5.0, 7.0, 11.0])
+    classes = {tuple(canonical_lengths(values[row])) for row in ca}
+    assert len(classes) == 30
+    for perm in itertools.permutations(range(6)):
+        assert tuple(canonical_lengths(values[list(perm)])) in classes
+
+
+def test_realisability_names_the_reason():
+    r = realisability(np.array([[10, 10, 10, 10, 10, 10], [1, 1, 1, 1, 1, 5], [10, 10, 10, 10, 10, 19.99], [0, 1, 1, 1, 1, 1]]))
+    assert r[0] == ""
+    assert "triangle inequality" in r[1]
+    assert "Cayley-Menger" in r[2]
+    assert "not positive" in r[3]
+    assert is_realisable(np.array([[10, 10, 10, 10, 10, 10]]))[0]
+
+
+def test_width_is_the_brute_force_minimum_extent():
+    rng = np.random.default_rng(3)
+    P = rng.normal(size=(20, 4, 3)) * [2, 5, 9]
+    w = tetra_width(lengths_from_vertices(P))
+    dirs = rng.normal(size=(100000, 3))
+    dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+    from scipy.optimize import minimize
+
+    def extent(x, Pi):
+        n = np.array([np.sin(x[0]) * np.cos(x[1]), np.sin(x[0]) * np.sin(x[1]), np.cos(x[0])])
+        return np.ptp(Pi @ n)
+
+    for i in range(20):
+        spread = np.ptp(P[i] @ dirs.T, axis=0)
+        assert w[i] <= spread.min() + 1e-9  # no sampled direction is thinner than the width
+        best = np.inf
+        for d in dirs[np.argsort(spread)[:5]]:  # polish the thinnest sampled directions
+            x0 = [np.arccos(np.clip(d[2], -1, 1)), np.arctan2(d[1], d[0])]
+            best = min(best, minimize(extent, x0, args=(P[i],), method="Nelder-Mead", options={"xatol": 1e-12, "fatol": 1e-13}).fun)
+        assert w[i] <= best + 1e-9
+        assert best <= w[i] * (1 + 1e-6)  # and the width is attained
+
+
+def _brute_force_min_volume(P, starts=30, seed=0):
+    from scipy.optimize import minimize
+    from scipy.spatial.transform import Rotation
+
+    def vol(x):
+        return float(np.prod(np.ptp(P @ Rotation.from_rotvec(x).as_matrix(), axis=0)))
+
+    x0s = Rotation.random(starts, random_state=seed).as_rotvec()
+    opts = {"xatol": 1e-10, "fatol": 1e-12, "maxiter": 4000}
+    return min(minimize(vol, x0, method="Nelder-Mead", options=opts).fun for x0 in x0s)
+
+
+def test_min_volume_box_contains_points_is_proper_and_minimal():
+    rng = np.random.default_rng(1)
+    P = rng.normal(size=(12, 4, 3)) * np.array([1, 3, 8])
+    R, c, e = min_volume_box(P)
+    assert np.allclose(np.linalg.det(R), 1.0)
+    assert np.allclose(np.einsum("nij,nik->njk", R, R), np.eye(3), atol=1e-12)
+    local = np.einsum("nkj,nji->nki", P - c[:, None], R)
+    assert (np.abs(local) <= e[:, None] / 2 + 1e-9).all()
+    _, _, ec = covariance_box(P)
+    assert (np.prod(e, axis=1) <= np.prod(ec, axis=1) * (1 + 1e-9)).all()
+    for i in range(12):
+        assert np.prod(e[i]) <= _brute_force_min_volume(P[i]) * (1 + 1e-6)
+
+
+def test_placement_transform_is_the_papers_frame():
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        P = rng.normal(size=(4, 3)) * [1, 3, 8]
+        R, c, e = min_volume_box(P)
+        T, ext = placement_transform(P, R, c, e)
+        assert np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3)) and np.isclose(np.linalg.det(T[:3, :3]), 1)
+        Q = apply_transform(T, P)
+        assert np.allclose(lengths_from_vertices(Q), lengths_from_vertices(P))
+        # z along the longest side, y along the shortest, origin at the bottom-face centre
+        assert ext[2] >= ext[0] >= ext[1]
+        assert np.allclose(np.sort(ext), np.sort(e))
+        lo, hi = Q.min(axis=0), Q.max(axis=0)
+        assert np.allclose(hi - lo, ext, atol=1e-9)
+        assert np.isclose(lo[2], 0, atol=1e-9) and np.allclose(lo[:2] + hi[:2], 0, atol=1e-9)

@@ -1,0 +1,167 @@
+"""`starforge stars` end to end: the paper's case under both rules, files, errors, determinism."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from starforge import load_family
+from starforge.geometry.tetra import lengths_from_vertices
+from starforge.stars.verify import check_family
+from tests.conftest import FINGER, run_cli
+
+
+def test_paper_case_face_rule_beats_200_and_verifies(finger_face):
+    out, doc = finger_face
+    assert len(doc["stars"]) >= 200
+    assert check_family(doc) == []
+    sm = doc["summary"]
+    assert sm["upper_bound"] >= len(doc["stars"]) and sm["gap"] == sm["upper_bound"] - len(doc["stars"])
+
+
+def test_paper_case_pair_rule_beats_25_and_verifies(finger_pair):
+    out, doc = finger_pair
+    assert len(doc["stars"]) >= 25
+    assert check_family(doc) == []
+
+
+def test_family_json_round_trips_and_csv_matches(finger_face):
+    out, doc = finger_face
+    fam = load_family(out / "family.json")
+    assert fam.to_json()["stars"] == doc["stars"]
+    assert load_family(out).spec == fam.spec  # a folder works too
+    rows = list(csv.DictReader((out / "family.csv").read_text().splitlines()))
+    assert len(rows) == len(fam)
+    for row, star in zip(rows, fam.stars, strict=True):
+        assert int(row["id"]) == star.id
+        V = np.array([[float(row[f"{c}{i}"]) for c in "xyz"] for i in range(1, 5)])
+        assert np.allclose(V, star.vertices, atol=1e-6)
+        # the table's lengths are the distances between its own coordinates
+        L = [float(row[k]) for k in ("u", "U", "v", "V", "w", "W")]
+        assert np.allclose(lengths_from_vertices(V), L, atol=1e-5)
+
+
+def test_every_star_fits_the_size_limit_with_its_spheres(finger_face):
+    _, doc = finger_face
+    limit = np.sort(doc["spec"]["box_mm"])
+    d = doc["spec"]["marker_mm"]
+    for s in doc["stars"]:
+        V = np.array(s["vertices"])
+        ext = np.array(s["obb"]["extents"])
+        # the stored box really bounds the centres in the placement frame ...
+        assert np.allclose(V.min(axis=0), [-ext[0] / 2, -ext[1] / 2, 0], atol=1e-6)
+        assert np.allclose(V.max(axis=0), [ext[0] / 2, ext[1] / 2, ext[2]], atol=1e-6)
+        # ... z is the longest side, y the shortest, and with one sphere diameter it fits the limit
+        assert ext[2] >= ext[0] >= ext[1]
+        assert (np.sort(ext) + d <= limit + 1e-6).all()
+
+
+def test_margins_are_what_they_claim(finger_face):
+    _, doc = finger_face
+    tol_mm = doc["spec"]["delta_mm"]
+    for s in doc["stars"]:
+        L = sorted(s["lengths"].values())
+        assert s["margins"]["internal_mm"] == pytest.approx(min(np.diff(L)))
+        assert s["margins"]["family_face_mm"] >= tol_mm - 1e-9
+
+
+def test_same_spec_same_bytes(small_family, tmp_path):
+    out, _ = small_family
+    assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--out", tmp_path, "-q"]) == 0
+    assert (tmp_path / "family.json").read_bytes() == (out / "family.json").read_bytes()
+    assert (tmp_path / "family.csv").read_bytes() == (out / "family.csv").read_bytes()
+
+
+def test_count_picks_n_and_refuses_the_impossible(small_family, tmp_path, capsys):
+    _, doc = small_family
+    n = len(doc["stars"])
+    assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--count", 5, "--out", tmp_path / "a", "-q"]) == 0
+    five = json.loads((tmp_path / "a" / "family.json").read_text())
+    assert len(five["stars"]) == 5 and check_family(five) == []
+    code = run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--count", n + 50, "--out", tmp_path / "b"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert f"largest family found has {n} stars" in err
+    assert not (tmp_path / "b").exists()
+
+
+def test_greedy_and_covariance_options(tmp_path):
+    args = ["stars", "--box", 16, 12, 24, "--delta", 2, "--select", "greedy", "--box-method", "covariance"]
+    assert run_cli([*args, "--out", tmp_path, "-q"]) == 0
+    doc = json.loads((tmp_path / "family.json").read_text())
+    assert check_family(doc) == []
+    assert {s["obb"]["method"] for s in doc["stars"]} == {"covariance"}
+
+
+def test_template_spec_and_toml_path(tmp_path):
+    toml = tmp_path / "tiny.toml"
+    toml.write_text('box_mm = [16, 12, 24]\ndelta_mm = 2.0\nselect = "greedy"\n')
+    assert run_cli(["stars", "--spec", toml, "--out", tmp_path / "o", "-q"]) == 0
+    doc = json.loads((tmp_path / "o" / "family.json").read_text())
+    assert doc["spec"]["name"] == "tiny" and doc["spec"]["select"] == "greedy"
+
+
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["--box", 0, 12, 24], "box_mm[0] must be > 0"),
+        (["--box", 20, -1, 24], "box_mm[1] must be > 0"),
+        (["--box", 3, 3, 3], "too small for one 4.0 mm sphere"),
+        (["--box", 20, 20, 20, "--delta", 8], "delta_mm 8.0 is too large"),
+        (["--box", 20, 20, 20, "--delta", -1.5], "delta_mm must be > 0"),
+        (["--box", 20, 20, 20, "--rule", "edge"], "rule must be one of face, pair"),
+        (["--spec", "nosuchspec"], "unknown stars template 'nosuchspec'; known: finger"),
+        (["--box", 60, 60, 60, "--delta", 0.5], "too many to enumerate"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(tmp_path, capsys, args, needle):
+    out = tmp_path / "out"
+    assert run_cli(["stars", *args, "--out", out]) == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_unknown_toml_key_and_corrupt_toml(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("box_mm = [20, 20, 20]\ncolour = 'red'\n")
+    assert run_cli(["stars", "--spec", bad, "--out", tmp_path / "o"]) == 2
+    assert "unknown key 'colour'" in capsys.readouterr().err
+    bad.write_text("box_mm = [20, 20,\n")
+    assert run_cli(["stars", "--spec", bad, "--out", tmp_path / "o"]) == 2
+    assert "not valid TOML" in capsys.readouterr().err
+
+
+def test_existing_output_needs_force(small_family, capsys):
+    out, _ = small_family
+    before = (out / "family.json").read_bytes()
+    assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--out", out]) == 2
+    assert "--force" in capsys.readouterr().err
+    assert (out / "family.json").read_bytes() == before
+
+
+def test_load_family_rejects_other_versions_and_corrupt_files(small_family, tmp_path):
+    from starforge.errors import StarforgeError
+
+    _, doc = small_family
+    p = tmp_path / "family.json"
+    p.write_text(json.dumps({**doc, "version": 99}))
+    with pytest.raises(StarforgeError, match="version 99"):
+        load_family(p)
+    p.write_text("{not json")
+    with pytest.raises(StarforgeError, match="not valid JSON"):
+        load_family(p)
+    with pytest.raises(StarforgeError, match="not found"):
+        load_family(tmp_path / "missing.json")
+
+
+def test_finger_default_args_are_the_template():
+    from starforge.catalog import load_template
+
+    name, data = load_template("stars", "finger")
+    assert name == "finger"
+    assert [str(x) for x in data["box_mm"]] == FINGER[1:4]

@@ -1,0 +1,150 @@
+"""The key-window formulation of both rules against brute-force definitions."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from starforge.geometry.tetra import RELABELLINGS, face_sides
+from starforge.stars.enumerate import enumerate_candidates
+from starforge.stars.rules import grid_steps, internal_ok, window_rows
+from starforge.stars.select import block_bound, compactness_order, greedy, local_search, milp
+from starforge.stars.spec import StarSpec
+
+SPEC = StarSpec(box_mm=(16, 12, 24), delta_mm=2.0)
+
+
+@pytest.fixture(scope="module")
+def cands():
+    return enumerate_candidates(SPEC)
+
+
+@pytest.fixture(scope="module")
+def fine_cands():
+    return enumerate_candidates(StarSpec(box_mm=(16, 12, 24), delta_mm=1.0))
+
+
+def brute_pair_conflict(a: np.ndarray, b: np.ndarray, steps: int) -> bool:
+    """The paper's rule read literally: stars a and b (pool indices) are told apart iff under every
+    relabelling of b some opposite pair has both lengths differing by >= steps."""
+    for r in RELABELLINGS:
+        bb = b[r]
+        if not any(abs(a[2 * k] - bb[2 * k]) >= steps and abs(a[2 * k + 1] - bb[2 * k + 1]) >= steps for k in range(3)):
+            return True
+    return False
+
+
+def brute_face_conflict(a: np.ndarray, b: np.ndarray, steps: int) -> bool:
+    fa, fb = face_sides(a.astype(float)), face_sides(b.astype(float))
+    return any((np.abs(x - y) < steps).all() for x in fa for y in fb)
+
+
+def conflicts_from_rows(index, rule, m, pool_size):
+    star, row, _ = window_rows(index, rule, m, pool_size)
+    rows_of = [set() for _ in range(len(index))]
+    for s, r in zip(star.tolist(), row.tolist(), strict=True):
+        rows_of[s].add(r)
+    return rows_of
+
+
+@pytest.mark.parametrize("rule,m", [("face", 1), ("pair", 1), ("face", 2), ("pair", 2)])
+def test_window_conflicts_equal_brute_force(cands, fine_cands, rule, m):
+    if m > 1:
+        cands = fine_cands
+    rng = np.random.default_rng(7)
+    idx = cands.index[rng.choice(len(cands), 160, replace=False)].astype(int)
+    idx = idx[internal_ok(idx, rule, m)]
+    rows_of = conflicts_from_rows(idx, rule, m, len(cands.pool_mm))
+    brute = brute_pair_conflict if rule == "pair" else brute_face_conflict
+    checked = 0
+    for i, j in itertools.combinations(range(len(idx)), 2):
+        assert bool(rows_of[i] & rows_of[j]) == brute(idx[i], idx[j], m), (idx[i], idx[j])
+        checked += 1
+    assert checked > 1000
+
+
+def test_face_rule_is_implied_by_pair_rule(cands):
+    # a pair-rule conflict-free family never shares a face key, so pair families are face families
+    idx = cands.index[:300].astype(int)
+    pair_rows = conflicts_from_rows(idx, "pair", 1, len(cands.pool_mm))
+    face_rows = conflicts_from_rows(idx, "face", 1, len(cands.pool_mm))
+    for i, j in itertools.combinations(range(len(idx)), 2):
+        if face_rows[i] & face_rows[j]:
+            assert pair_rows[i] & pair_rows[j]
+
+
+def test_grid_steps():
+    assert grid_steps(1.5, 1.5) == 1
+    assert grid_steps(2.0, 1.5) == 2
+    assert grid_steps(3.0, 1.5) == 2
+    assert grid_steps(0.5, 1.5) == 1
+
+
+def _packing_ok(chosen, star, row):
+    used = {}
+    for s, r in zip(star.tolist(), row.tolist(), strict=True):
+        if s in set(chosen.tolist()):
+            if r in used and used[r] != s:
+                return False
+            used[r] = s
+    return True
+
+
+@pytest.mark.parametrize("rule", ["face", "pair"])
+def test_selection_is_a_packing_and_milp_is_optimal(cands, rule):
+    keep = np.random.default_rng(5).choice(len(cands), 200, replace=False)
+    idx = cands.index[np.sort(keep)]
+    star, row, n_rows = window_rows(idx, rule, 1, len(cands.pool_mm))
+    order_ = np.argsort(star, kind="stable")
+    ptr = np.concatenate([[0], np.cumsum(np.bincount(star, minlength=len(idx)))])
+    rows = row[order_]
+    order = compactness_order(idx, cands.pool_mm, cands.box_volume[np.sort(keep)])
+    g = greedy(order, ptr, rows, n_rows)
+    ls, _ = local_search(g, order, ptr, rows, n_rows)
+    opt, dual, _, finished = milp(ptr, rows, n_rows, np.arange(len(idx)), 60)
+    assert finished
+    for fam in (g, ls, opt):
+        assert _packing_ok(fam, star, row)
+    assert len(g) <= len(ls) <= len(opt) <= block_bound(idx, 1)
+    assert dual is None or len(opt) <= dual
+
+
+def test_milp_matches_exhaustive_search_on_a_tiny_instance(cands):
+    # 14 candidates: try every subset
+    idx = cands.index[::37][:14]
+    star, row, n_rows = window_rows(idx, "face", 1, len(cands.pool_mm))
+    ptr = np.concatenate([[0], np.cumsum(np.bincount(star, minlength=len(idx)))])
+    rows = row[np.argsort(star, kind="stable")]
+    sets = [set(rows[ptr[i] : ptr[i + 1]].tolist()) for i in range(len(idx))]
+    best = 0
+    for mask in range(1 << len(idx)):
+        members = [i for i in range(len(idx)) if mask >> i & 1]
+        if len(members) <= best:
+            continue
+        if all(not (sets[a] & sets[b]) for a, b in itertools.combinations(members, 2)):
+            best = len(members)
+    opt, _, _, finished = milp(ptr, rows, n_rows, np.arange(len(idx)), 60)
+    assert finished and len(opt) == best
+
+
+def test_enumeration_is_sound_and_covers_every_covariance_fit(cands):
+    """Brute force over every ordered 6-tuple of the pool: each realisable star whose covariance
+    box fits appears exactly once (canonically), and every enumerated star fits its box."""
+    from starforge.geometry.obb import covariance_box
+    from starforge.geometry.tetra import canonical_lengths, is_realisable, vertices_from_lengths
+
+    pool = cands.pool_mm
+    limit = np.array(SPEC.centre_limit_mm)
+    got = {tuple(np.round(canonical_lengths(pool[i]), 9)) for i in cands.index}
+    assert len(got) == len(cands)  # no star twice
+    perms = np.array(list(itertools.permutations(range(len(pool)), 6)))
+    L = pool[perms]
+    L = L[is_realisable(L)]
+    _, _, e = covariance_box(vertices_from_lengths(L))
+    fits = (np.sort(e, axis=1) <= limit + 1e-9).all(axis=1)
+    expected = {tuple(np.round(c, 9)) for c in canonical_lengths(L[fits])}
+    assert expected <= got
+    # and every enumerated star really fits in the extents recorded for it
+    assert (np.sort(cands.box_extents, axis=1) <= limit + 1e-9).all()
