@@ -1,0 +1,91 @@
+"""Tracking plots: identification rates against noise (``check.png``) and capacity curves
+(``sweep.png``); matplotlib with the Agg backend, imported inside the functions."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+_DPI = 100
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: Path) -> None:
+    import io
+
+    from starforge.io import atomic_write_bytes
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=_DPI, metadata={"Software": None})
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def rates_plot(check_doc: dict, path: Path) -> Path:
+    """Identification and mislabel rates against marker noise (sigma per axis, mm)."""
+    plt = _plt()
+    c = check_doc["curve"]
+    s = check_doc["settings"]
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    try:
+        ax.plot(c["noise_mm"], [100 * v for v in c["identification_rate"]], "o-", label="identified")
+        ax.plot(c["noise_mm"], [100 * v for v in c["mislabel_rate"]], "s-", color="C3",
+                label="confused (wrong body or flip)")
+        ax.axvline(s["noise_mm"], color="0.6", ls=":", lw=1)
+        ax.set_xlabel("marker noise sigma per axis [mm]")
+        ax.set_ylabel("share of bodies [%]")
+        ax.set_ylim(-2, 102)
+        ax.set_title(
+            f"{check_doc['input']['bodies']} bodies, drop {s['drop']}, ghosts {s['ghosts']}, "
+            f"match {s['match_mm']:g} mm, {c['frames']} frames/point",
+            fontsize=9,
+        )
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="center right")
+        fig.tight_layout()
+        _save(fig, Path(path))
+    finally:
+        plt.close(fig)
+    return Path(path)
+
+
+def sweep_plot(rows: list[dict], path: Path, marker_mm: float) -> Path:
+    """Number of stars against cube size, one line per minimal variation, one panel per rule.
+
+    Exhaustive cells are drawn with filled markers, sampled lower bounds with open markers.
+    """
+    plt = _plt()
+    rules = sorted({r["rule"] for r in rows})
+    fig, axes = plt.subplots(1, len(rules), figsize=(6.0 * len(rules), 4.4), squeeze=False)
+    try:
+        for ax, rule in zip(axes[0], rules, strict=True):
+            deltas = sorted({r["delta_mm"] for r in rows if r["rule"] == rule})
+            for k, d in enumerate(deltas):
+                rr = sorted((r for r in rows if r["rule"] == rule and r["delta_mm"] == d), key=lambda r: r["cube_mm"])
+                x = [r["cube_mm"] for r in rr]
+                y = [max(r["stars"], 0.8) for r in rr]
+                col = f"C{k % 10}"
+                ax.plot(x, y, "-", color=col, label=f"delta {d:g} mm")
+                ex = [(a, b) for a, b, r in zip(x, y, rr, strict=True) if r["method"] == "exhaustive"]
+                lb = [(a, b) for a, b, r in zip(x, y, rr, strict=True) if r["method"] != "exhaustive"]
+                if ex:
+                    ax.plot(*zip(*ex, strict=True), "o", color=col)
+                if lb:
+                    ax.plot(*zip(*lb, strict=True), "o", mfc="none", color=col)
+            ax.set_yscale("log")
+            ax.set_xlabel("cube side [mm]")
+            ax.set_ylabel("stars")
+            ax.set_title(f"{rule} rule, {marker_mm:g} mm markers (open: sampled lower bound)", fontsize=9)
+            ax.grid(alpha=0.3, which="both")
+            ax.legend(fontsize=7)
+        fig.tight_layout()
+        _save(fig, Path(path))
+    finally:
+        plt.close(fig)
+    return Path(path)
