@@ -149,7 +149,7 @@ def test_table_matches_brute_force_on_hammer():
     slow = _brute_force(mesh, sites.points, sites.normals, rig, poses, 80.0)
     assert fast.any() and not fast.all()
     # allow a handful of disagreements only where a ray grazes an edge (float32 embree vs float64)
-    assert (fast != slow).mean() < 0.005
+    assert (fast != slow).mean() < 0.001
 
 
 def test_rig_template_is_the_papers():
