@@ -284,5 +284,8 @@ def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
     raw = load_mesh_file(path, units)
     if not repair:
         return PropMesh(path.stem, text, units, raw, np.arange(len(raw.faces)), (), len(raw.faces))
-    mesh, origin, notes = repair_mesh(raw)
+    try:
+        mesh, origin, notes = repair_mesh(raw)
+    except StarforgeError as exc:
+        raise StarforgeError(f"{path}: {exc}") from None
     return PropMesh(path.stem, text, units, mesh, origin, tuple(notes), len(raw.faces))
