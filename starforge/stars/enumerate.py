@@ -94,25 +94,89 @@ def _subsets(n: int, k: int = 6) -> np.ndarray:
     ).reshape(-1, k)
 
 
-def _trilaterate(L: np.ndarray):
-    """Vertices and a realisable mask for (m, 6) lengths (mm)."""
-    u, U, v, V, w, W = L.T
+def _realisable(u, U, v, V, w, W):
+    """Trilaterate column arrays (mm); returns the mask of realisable rows and D's coordinates.
+
+    Realisable iff the Gram matrix at A is positive definite: triangle ABC valid (cy > 0) and
+    Cayley-Menger volume > 0 (dz > 0).  D is computed only where ABC is valid.
+    """
     cx = (u * u + w * w - v * v) / (2 * u)
     cy2 = w * w - cx * cx
     ok = cy2 > tol.volume_mm3
-    cy = np.sqrt(np.where(ok, cy2, 1.0))
-    dx = (u * u + V * V - W * W) / (2 * u)
-    dy = (V * V - U * U + w * w - 2 * dx * cx) / (2 * cy)
-    dz2 = V * V - dx * dx - dy * dy
-    ok &= dz2 > tol.volume_mm3
-    P = np.zeros((len(L), 4, 3))
-    P[:, 1, 0] = u
-    P[:, 2, 0] = cx
-    P[:, 2, 1] = cy
-    P[:, 3, 0] = dx
-    P[:, 3, 1] = dy
-    P[:, 3, 2] = np.sqrt(np.where(ok, dz2, 0.0))
-    return P, ok
+    k = np.flatnonzero(ok)
+    cx, cy = cx[k], np.sqrt(cy2[k])
+    uk, Uk, Vk, Wk, wk = u[k], U[k], V[k], W[k], w[k]
+    dx = (uk * uk + Vk * Vk - Wk * Wk) / (2 * uk)
+    dy = (Vk * Vk - Uk * Uk + wk * wk - 2 * dx * cx) / (2 * cy)
+    dz2 = Vk * Vk - dx * dx - dy * dy
+    good = dz2 > tol.volume_mm3
+    return k[good], cx[good], cy[good], dx[good], dy[good], np.sqrt(dz2[good])
+
+
+def _width(L: np.ndarray, vol6: np.ndarray) -> np.ndarray:
+    """Tetrahedron width from lengths (n, 6) and 6 x volume: min of vertex-face heights and
+    opposite-edge distances (``6V / |e x e'|`` with ``|e x e'|^2 = |e|^2 |e'|^2 - (e.e')^2``)."""
+    s = L * L
+    d01, d23, d12, d03, d02, d13 = s.T
+    width = np.full(len(L), np.inf)
+    for a, b, c in ((d01, d12, d02), (d01, d13, d03), (d02, d23, d03), (d12, d23, d13)):
+        area4sq = 4 * a * b - (a + b - c) ** 2  # (4 * area)^2 via Heron on squared sides
+        width = np.minimum(width, 2 * vol6 / np.sqrt(np.maximum(area4sq, tol.zero)))
+    for dd, p1, p2 in (
+        (0.5 * (d03 + d12 - d02 - d13), d01, d23),
+        (0.5 * (d01 + d23 - d02 - d13), d12, d03),
+        (0.5 * (d01 + d23 - d03 - d12), d02, d13),
+    ):
+        cross2 = p1 * p2 - dd * dd
+        width = np.minimum(width, vol6 / np.sqrt(np.maximum(cross2, tol.zero)))
+    return width
+
+
+def _process(subsets: np.ndarray, assign: np.ndarray, pool: np.ndarray, limit: np.ndarray, exact: bool):
+    """All stages for one batch of 6-subsets; returns (index (m, 6) int16, extents (m, 3), counts)."""
+    counts = dict.fromkeys(("realisable", "width_ok", "kyfan_ok", "fit_cov", "fit_face"), 0)
+    idx6 = np.ascontiguousarray(subsets[:, assign].reshape(-1, 6).T)  # (6, n) column-major
+    cols = [pool[i] for i in idx6]
+    k, cx, cy, dx, dy, dz = _realisable(*cols)
+    counts["realisable"] = len(k)
+    idx = idx6[:, k].T
+    L = pool[idx]
+    n = len(k)
+    P = np.zeros((n, 4, 3))
+    P[:, 1, 0] = L[:, 0]
+    P[:, 2, 0], P[:, 2, 1] = cx, cy
+    P[:, 3, 0], P[:, 3, 1], P[:, 3, 2] = dx, dy, dz
+    # necessary: the width fits the shortest limit side
+    ok = _width(L, L[:, 0] * cy * dz) <= limit[0] + tol.length_mm
+    idx, P = idx[ok], P[ok]
+    counts["width_ok"] = len(idx)
+    # necessary: Ky Fan bounds on the covariance eigenvalues
+    X = P - P.mean(axis=1, keepdims=True)
+    C = np.einsum("nki,nkj->nij", X, X) / 4
+    ev = sym3_eigvalsh(C)
+    kf1 = limit[0] ** 2 / 4
+    kf2 = (limit[0] ** 2 + limit[1] ** 2) / 4
+    ok = (ev[:, 0] <= kf1 + tol.length_mm) & (ev[:, 0] + ev[:, 1] <= kf2 + tol.length_mm)
+    idx, P = idx[ok], P[ok]
+    _, evec = np.linalg.eigh(C[ok])
+    counts["kyfan_ok"] = len(idx)
+    # sufficient: the covariance box, then O'Rourke's face-flush boxes
+    ext_cov = _span(np.swapaxes(P @ evec, 1, 2))
+    fit_cov = _fits(ext_cov, limit)
+    counts["fit_cov"] = int(fit_cov.sum())
+    best_ext = np.where(fit_cov[:, None], ext_cov, np.nan)
+    if exact:
+        rest = np.flatnonzero(~fit_cov)
+        if len(rest):
+            ext_f = face_flush_extents(P[rest])
+            fit_f = _fits(ext_f, limit) & np.isfinite(ext_f).all(axis=-1)
+            vol_f = np.where(fit_f, np.prod(ext_f, axis=-1), np.inf)
+            j = vol_f.argmin(axis=1)
+            hit = np.isfinite(vol_f[np.arange(len(rest)), j])
+            counts["fit_face"] = int(hit.sum())
+            best_ext[rest[hit]] = ext_f[np.flatnonzero(hit), j[hit]]
+    ok = np.isfinite(best_ext).all(axis=1)
+    return idx[ok].astype(np.int16), best_ext[ok], counts
 
 
 def _fits(ext: np.ndarray, limit: np.ndarray) -> np.ndarray:
@@ -183,17 +247,23 @@ def face_flush_extents(P: np.ndarray) -> np.ndarray:
     return ext.reshape(len(P), 24, 3)
 
 
-def enumerate_candidates(spec: StarSpec, chunk: int = 1 << 19, progress=None) -> Candidates:
+def enumerate_candidates(
+    spec: StarSpec, chunk: int = 1 << 19, progress=None, workers: int | None = None
+) -> Candidates:
     """Every star (up to relabelling and mirroring) whose centres fit ``spec``'s limit.
 
     Parameters
     ----------
     spec : StarSpec
     chunk : int
-        Labelled candidates processed per vectorised batch (memory bound).
+        Labelled candidates per vectorised batch (bounds memory, ~100 MB).
     progress : callable or None
-        ``progress(done, total)`` called after each batch.
+        ``progress(done, total)`` after each batch.
+    workers : int or None
+        Processes for large pools (default: every core); small pools run in-process.  The
+        result does not depend on it.
     """
+    import os
     import time
 
     t0 = time.perf_counter()
@@ -203,65 +273,36 @@ def enumerate_candidates(spec: StarSpec, chunk: int = 1 << 19, progress=None) ->
     subsets = _subsets(len(pool))
     assign = canonical_assignments()
     n_labelled = len(subsets) * len(assign)
-    stats = {"pool_size": len(pool), "subsets": len(subsets), "labelled": n_labelled}
-    counts = dict.fromkeys(("realisable", "width_ok", "kyfan_ok", "fit_cov", "fit_face"), 0)
-    kf1 = limit[0] ** 2 / 4
-    kf2 = (limit[0] ** 2 + limit[1] ** 2) / 4
-    out_idx, out_e = [], []
     per_chunk = max(1, chunk // len(assign))
-    for s0 in range(0, len(subsets), per_chunk):
-        idx = subsets[s0 : s0 + per_chunk][:, assign].reshape(-1, 6)
-        L = pool[idx]
-        P, ok = _trilaterate(L)
-        idx, L, P = idx[ok], L[ok], P[ok]
-        counts["realisable"] += len(idx)
-        # necessary: width (vertex-face heights and opposite-edge distances)
-        vol6 = P[:, 1, 0] * P[:, 2, 1] * P[:, 3, 2]  # 6 * volume
-        f = L[:, [[0, 2, 4], [0, 5, 3], [4, 1, 3], [2, 1, 5]]]
-        a, b, c = f[..., 0], f[..., 1], f[..., 2]
-        area4 = np.sqrt(np.maximum((a + b + c) * (-a + b + c) * (a - b + c) * (a + b - c), 0.0))
-        width = (2 * vol6[:, None] / area4).min(axis=1)  # 3V/area = 6V*2/(4*area)
-        for e1, e2 in ((0, 1), (2, 3), (4, 5)):
-            ea = P[:, 1] - P[:, 0] if e1 == 0 else (P[:, 2] - P[:, 1] if e1 == 2 else P[:, 2] - P[:, 0])
-            eb = P[:, 3] - P[:, 2] if e1 == 0 else (P[:, 3] - P[:, 0] if e1 == 2 else P[:, 3] - P[:, 1])
-            cr = np.linalg.norm(np.cross(ea, eb), axis=1)
-            width = np.minimum(width, vol6 / np.where(cr > 0, cr, np.inf))
-        ok = width <= limit[0] + tol.length_mm
-        idx, L, P = idx[ok], L[ok], P[ok]
-        counts["width_ok"] += len(idx)
-        # necessary: Ky Fan on the covariance eigenvalues
-        X = P - P.mean(axis=1, keepdims=True)
-        C = np.einsum("nki,nkj->nij", X, X) / 4
-        ev = sym3_eigvalsh(C)
-        ok = (ev[:, 0] <= kf1 + tol.length_mm) & (ev[:, 0] + ev[:, 1] <= kf2 + tol.length_mm)
-        idx, P = idx[ok], P[ok]
-        _, evec = np.linalg.eigh(C[ok])
-        counts["kyfan_ok"] += len(idx)
-        # sufficient: the covariance box, then O'Rourke's face-flush boxes
-        proj = P @ evec  # (n, 4, 3): coordinates along the eigenvectors
-        ext_cov = _span(np.swapaxes(proj, 1, 2))
-        fit_cov = _fits(ext_cov, limit)
-        counts["fit_cov"] += int(fit_cov.sum())
-        best_ext = np.where(fit_cov[:, None], ext_cov, np.nan)
-        if spec.box_method == "exact":
-            rest = np.flatnonzero(~fit_cov)
-            if len(rest):
-                ext_f = face_flush_extents(P[rest])
-                fit_f = _fits(ext_f, limit) & np.isfinite(ext_f).all(axis=-1)
-                vol_f = np.where(fit_f, np.prod(ext_f, axis=-1), np.inf)
-                j = vol_f.argmin(axis=1)
-                hit = np.isfinite(vol_f[np.arange(len(rest)), j])
-                counts["fit_face"] += int(hit.sum())
-                best_ext[rest[hit]] = ext_f[np.flatnonzero(hit), j[hit]]
-        ok = np.isfinite(best_ext).all(axis=1)
-        out_idx.append(idx[ok])
-        out_e.append(best_ext[ok])
-        if progress is not None:
-            progress(min(s0 + per_chunk, len(subsets)) * len(assign), n_labelled)
-    index = np.concatenate(out_idx).astype(np.int16)
-    ext = np.concatenate(out_e)
+    batches = [subsets[s0 : s0 + per_chunk] for s0 in range(0, len(subsets), per_chunk)]
+    exact = spec.box_method == "exact"
+    workers = (os.cpu_count() or 1) if workers is None else max(1, workers)
+    results = []
+    done = 0
+    if workers > 1 and len(batches) > 2:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        ctx = mp.get_context("forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn")
+        with ProcessPoolExecutor(max_workers=min(workers, len(batches)), mp_context=ctx) as ex:
+            futures = [ex.submit(_process, b, assign, pool, limit, exact) for b in batches]
+            for b, fut in zip(batches, futures, strict=True):
+                results.append(fut.result())
+                done += len(b)
+                if progress is not None:
+                    progress(done * len(assign), n_labelled)
+    else:
+        for b in batches:
+            results.append(_process(b, assign, pool, limit, exact))
+            done += len(b)
+            if progress is not None:
+                progress(done * len(assign), n_labelled)
+    stats = {"pool_size": len(pool), "subsets": len(subsets), "labelled": n_labelled}
+    for key in results[0][2]:
+        stats[key] = sum(r[2][key] for r in results)
+    index = np.concatenate([r[0] for r in results])
+    ext = np.concatenate([r[1] for r in results])
     order = np.lexsort(index.T[::-1])  # deterministic: lexicographic on pool indices
-    stats.update(counts)
     stats["fitting"] = int(len(index))
     stats["seconds"] = time.perf_counter() - t0
     return Candidates(pool_mm=pool, index=index[order], box_extents=ext[order], stats=stats)
