@@ -193,3 +193,16 @@ def test_pose_matrices_map_pivot_to_position():
         R = M[k, :3, :3]
         assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
         assert np.allclose(M[k] @ np.array([0.1, 0.2, 0.3, 1.0]), [*poses.translations[k], 1.0])
+
+
+def test_fallback_tracer_agrees_with_embree(box, monkeypatch):
+    import trimesh
+
+    rng = np.random.default_rng(0)
+    o = rng.uniform(-1, 1, (200, 3)) * [1, 1, 0.1] + [0, 0, 1.0]
+    t = rng.uniform(-1, 1, (200, 3)) * [1, 1, 0.1] - [0, 0, 1.0]
+    fast = segment_occluded(box, o, t)
+    monkeypatch.setattr(trimesh.ray, "has_embree", False)
+    slow = segment_occluded(box, o, t)
+    assert fast.any() and not fast.all()
+    assert np.array_equal(fast, slow)

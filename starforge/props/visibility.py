@@ -68,8 +68,9 @@ def segment_occluded(mesh, origins: np.ndarray, targets: np.ndarray) -> np.ndarr
     if len(origins) == 0:
         return np.zeros(0, dtype=bool)
     dirs = vec / np.where(dist > 0, dist, 1.0)[:, None]
-    if trimesh.ray.has_embree:
-        scene = mesh.ray._scene  # trimesh's scaled embreex scene (scale-aware float32 coordinates)
+    # trimesh's scaled embreex scene (private attribute; float32 coordinates scaled to ~100 units)
+    scene = getattr(mesh.ray, "_scene", None) if trimesh.ray.has_embree else None
+    if scene is not None and hasattr(scene, "scale"):
         hit = scene.run(origins, dirs, dists=(dist * scene.scale).astype(np.float32), query="OCCLUDED")
         return np.asarray(hit) != -1
     # fallback: first hit along the ray, compared with the segment length
