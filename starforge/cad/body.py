@@ -24,7 +24,7 @@ from typing import Literal
 import numpy as np
 
 from starforge.cad.mounts import Mount, mount_geometry
-from starforge.cad.primitives import Box, Cylinder, Sphere, point_segment_distance, segment_segment_distance
+from starforge.cad.primitives import Box, Cylinder, Sphere, segment_segment_distance
 from starforge.errors import StarforgeError
 from starforge.spec import in_range, require
 
@@ -81,8 +81,8 @@ class BodySpec:
     label_mm: float = 2.5
     label_depth_mm: float = 0.4
     min_visibility: float = 0.6
-    sphere_segments: int = 96
-    cylinder_segments: int = 48
+    sphere_segments: int = 64
+    cylinder_segments: int = 32
 
     def __post_init__(self) -> None:
         require(self.tip in ("sphere", "post"), f"tip must be sphere or post, got {self.tip!r}")
@@ -156,6 +156,14 @@ def _ring_offsets(max_r: float, step: float = 0.25, per_ring: int = 24) -> np.nd
     return np.vstack(out)
 
 
+def _point_to_segments(p, starts, end) -> np.ndarray:
+    """Distance from point ``p`` (3,) to each segment ``starts[k]`` -> ``end``, (k,)."""
+    ab = end[None, :] - starts
+    den = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+    t = np.clip(np.einsum("ij,ij->i", p[None, :] - starts, ab) / den, 0.0, 1.0)
+    return np.linalg.norm(p[None, :] - (starts + t[:, None] * ab), axis=1)
+
+
 def route_stems(
     centres,
     marker_radius_mm: float,
@@ -183,16 +191,18 @@ def route_stems(
         height = c[i, 1] - y_top
         max_off = height * math.tan(math.radians(max_tilt_deg))
         offsets = _ring_offsets(max_off) if max_off > 0 else np.zeros((1, 2))
+        cand = np.column_stack(
+            [c[i, 0] + offsets[:, 0], np.full(len(offsets), y_top), c[i, 2] + offsets[:, 1]]
+        )
+        ok = np.ones(len(cand), dtype=bool)
+        for j in range(n):
+            if j != i:
+                ok &= _point_to_segments(c[j], cand, c[i]) >= keep_sphere
         found = None
-        for dx, dz in offsets:
-            root = np.array([c[i, 0] + dx, y_top, c[i, 2] + dz])
-            others = [j for j in range(n) if j != i]
-            if others and point_segment_distance(c[others], root, c[i]).min() < keep_sphere:
-                continue
-            if any(segment_segment_distance(root, c[i], roots[k], c[k]) < keep_stem for k in placed):
-                continue
-            found = root
-            break
+        for root in cand[ok]:
+            if all(segment_segment_distance(root, c[i], roots[k], c[k]) >= keep_stem for k in placed):
+                found = root
+                break
         if found is None:
             raise StarforgeError(
                 f"no stem route for sphere {'ABCD'[i] if n == 4 else i} clear of the other spheres "
@@ -207,8 +217,17 @@ def route_stems(
 # Label: seven-segment digits (boxes), identical in both backends
 
 _SEGMENTS = {
-    "0": "abcdef", "1": "bc", "2": "abged", "3": "abgcd", "4": "fgbc",
-    "5": "afgcd", "6": "afgedc", "7": "abc", "8": "abcdefg", "9": "abcdfg", "-": "g",
+    "0": "abcdef",
+    "1": "bc",
+    "2": "abged",
+    "3": "abgcd",
+    "4": "fgbc",
+    "5": "afgcd",
+    "6": "afgedc",
+    "7": "abc",
+    "8": "abcdefg",
+    "9": "abcdfg",
+    "-": "g",
 }
 
 
@@ -223,9 +242,13 @@ def label_boxes(text: str, height_mm: float, centre_xz, y_top: float, depth_mm: 
     w, s, gap = 0.55 * h, 0.18 * h, 0.25 * h
     total = len(text) * w + (len(text) - 1) * gap
     seg = {
-        "a": (0.0, h / 2 - s / 2, w, s), "d": (0.0, -h / 2 + s / 2, w, s), "g": (0.0, 0.0, w, s),
-        "b": (w / 2 - s / 2, h / 4, s, h / 2), "c": (w / 2 - s / 2, -h / 4, s, h / 2),
-        "e": (-w / 2 + s / 2, -h / 4, s, h / 2), "f": (-w / 2 + s / 2, h / 4, s, h / 2),
+        "a": (0.0, h / 2 - s / 2, w, s),
+        "d": (0.0, -h / 2 + s / 2, w, s),
+        "g": (0.0, 0.0, w, s),
+        "b": (w / 2 - s / 2, h / 4, s, h / 2),
+        "c": (w / 2 - s / 2, -h / 4, s, h / 2),
+        "e": (-w / 2 + s / 2, -h / 4, s, h / 2),
+        "f": (-w / 2 + s / 2, h / 4, s, h / 2),
     }
     cx, cz = centre_xz
     boxes = []
@@ -266,8 +289,11 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
     rs = spec.stem_mm / 2
     if spec.tip == "sphere":
         printed = marker_mm - spec.coating_mm
-        require(printed > spec.stem_mm, f"coating_mm={spec.coating_mm} leaves a printed sphere of "
-                f"{printed:.2f} mm, not wider than the stem ({spec.stem_mm} mm)")
+        require(
+            printed > spec.stem_mm,
+            f"coating_mm={spec.coating_mm} leaves a printed sphere of "
+            f"{printed:.2f} mm, not wider than the stem ({spec.stem_mm} mm)",
+        )
     else:
         printed = None
         require(spec.post_mm < marker_mm, f"post_mm={spec.post_mm} must be < marker_mm={marker_mm}")

@@ -20,9 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from starforge.catalog import list_templates, load_template
 from starforge.cad.primitives import Box, Cylinder
-from starforge.errors import StarforgeError
+from starforge.catalog import list_templates, load_template
 from starforge.spec import in_range, require
 
 COMMON = ("thickness_mm", "margin_mm")
@@ -63,7 +62,10 @@ def mount_from_mapping(name: str, data: dict, overrides: dict | None = None) -> 
     """Validate a template mapping (plus ``overrides``, e.g. from ``--set``) into a :class:`Mount`."""
     where = f"mount {name}"
     unknown = sorted(set(data) - {"kind", "description", "params", "ranges"})
-    require(not unknown, f"unknown key(s) {', '.join(unknown)} in {where}; known: kind, description, params, ranges")
+    require(
+        not unknown,
+        f"unknown key(s) {', '.join(unknown)} in {where}; known: kind, description, params, ranges",
+    )
     kind = data.get("kind")
     require(kind in KINDS, f"{where}: kind must be one of {', '.join(KINDS)}, got {kind!r}")
     names = KINDS[kind]
@@ -71,9 +73,12 @@ def mount_from_mapping(name: str, data: dict, overrides: dict | None = None) -> 
     ranges = dict(data.get("ranges", {}))
     for k, v in (overrides or {}).items():
         params[k] = v
-    for label, table in (("params", params), ("ranges", ranges)):
+    for table in (params, ranges):
         bad = sorted(set(table) - set(names))
-        require(not bad, f"unknown {kind} mount parameter(s) {', '.join(bad)} in {where}; known: {', '.join(names)}")
+        require(
+            not bad,
+            f"unknown {kind} mount parameter(s) {', '.join(bad)} in {where}; known: {', '.join(names)}",
+        )
     missing = [n for n in names if n not in params or n not in ranges]
     require(not missing, f"{where}: parameter(s) {', '.join(missing)} need a value and a range")
     clean = {}
@@ -85,7 +90,9 @@ def mount_from_mapping(name: str, data: dict, overrides: dict | None = None) -> 
             v = int(v)
         clean[n] = v
         ranges[n] = (lo, hi)
-    return Mount(name=name, kind=kind, params=clean, ranges=ranges, description=str(data.get("description", "")))
+    return Mount(
+        name=name, kind=kind, params=clean, ranges=ranges, description=str(data.get("description", ""))
+    )
 
 
 def load_mount(name_or_path: str | Path, overrides: dict | None = None) -> Mount:
@@ -122,9 +129,10 @@ def find_spot(footprint, size_xz, circles, edge_mm: float, step_mm: float = 0.25
     size_xz : (w, h) mm
     circles : (n, 3) obstacles (x, z, radius) mm; the rectangle keeps out of them
     edge_mm : float, distance kept from the footprint's border
+    step_mm : float, grid step of the candidate centres
 
-    Returns the candidate with the largest clearance (ties: nearest the footprint's -z end,
-    then its centre line), or None when nothing fits.
+    Returns the candidate with the largest clearance (capped at 1 mm; ties: nearest the
+    footprint's -z end, then its centre line), or None when nothing fits.
     """
     x0, x1, z0, z1 = footprint
     w, h = size_xz
@@ -134,17 +142,23 @@ def find_spot(footprint, size_xz, circles, edge_mm: float, step_mm: float = 0.25
         return None
     xs = np.arange(xs_lo, xs_hi + 1e-9, step_mm) if xs_hi > xs_lo else np.array([xs_lo])
     zs = np.arange(zs_lo, zs_hi + 1e-9, step_mm) if zs_hi > zs_lo else np.array([zs_lo])
-    best, best_key = None, None
+    gx, gz = np.meshgrid(xs, zs)
+    cand = np.column_stack([gx.ravel(), gz.ravel()])
+    if len(circles) == 0:
+        clear = np.full(len(cand), np.inf)
+    else:
+        c = np.atleast_2d(np.asarray(circles, float))
+        d = np.maximum(np.abs(c[None, :, :2] - cand[:, None, :]) - np.array([w, h]) / 2, 0.0)
+        clear = (np.linalg.norm(d, axis=2) - c[None, :, 2]).min(axis=1)
+    ok = clear >= 0
+    if not ok.any():
+        return None
+    cand, clear = cand[ok], clear[ok]
     xm = (x0 + x1) / 2
-    for z in zs:
-        for x in xs:
-            c = rect_circle_clearance((x, z), (w, h), circles)
-            if c < 0:
-                continue
-            key = (min(c, 1.0), -abs(z - z0), -abs(x - xm))
-            if best_key is None or key > best_key:
-                best, best_key = (float(x), float(z)), key
-    return best
+    best = np.lexsort(
+        (np.abs(cand[:, 0] - xm), np.abs(cand[:, 1] - z0), -np.round(np.minimum(clear, 1.0), 9))
+    )[0]
+    return (float(cand[best, 0]), float(cand[best, 1]))
 
 
 def reserve(footprint, size_xz, circles, edge_mm: float):
@@ -209,8 +223,12 @@ def mount_geometry(
         roots[:, 1].max() + stem_radius_mm + m,
     )
     if min_footprint is not None:
-        fp = (min(fp[0], min_footprint[0]), max(fp[1], min_footprint[1]),
-              min(fp[2], min_footprint[2]), max(fp[3], min_footprint[3]))
+        fp = (
+            min(fp[0], min_footprint[0]),
+            max(fp[1], min_footprint[1]),
+            min(fp[2], min_footprint[2]),
+            max(fp[3], min_footprint[3]),
+        )
     circles = [(x, z, stem_radius_mm + 0.4) for x, z in roots]
     add, sub = [], []
     t = p["thickness_mm"]

@@ -147,7 +147,7 @@ def ray_hits_spheres(origins, dirs, centres, radii) -> np.ndarray:
     return hit
 
 
-def ray_segment_distance(origins, dirs, a, b, samples: int = 65) -> np.ndarray:
+def ray_segment_distance(origins, dirs, a, b, samples: int = 33) -> np.ndarray:
     """Smallest distance from each ray (t >= 0) to the segment ``a``-``b``, mm.
 
     Sampled along the segment (``samples`` points) and exact along each ray: accurate to

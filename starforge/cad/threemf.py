@@ -1,0 +1,63 @@
+"""A small, dependency-free 3MF writer (3MF Core 1.x: meshes, objects, build items; mm).
+
+trimesh's own 3MF exporter needs lxml; this writer needs only the standard library and
+gives byte-stable files (fixed zip timestamps).  Each mesh becomes one ``<object>`` with its
+name (the star id) and one build item.
+"""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+_CONTENT_TYPES = (
+    '<?xml version="1.0" encoding="UTF-8"?>\n'
+    '<Types xmlns="http://schemas.openxmlformats.org/package/2006/content-types">'
+    '<Default Extension="rels" ContentType="application/vnd.openxmlformats-package.relationships+xml"/>'
+    '<Default Extension="model" ContentType="application/vnd.ms-package.3dmanufacturing-3dmodel+xml"/>'
+    "</Types>\n"
+)
+_RELS = (
+    '<?xml version="1.0" encoding="UTF-8"?>\n'
+    '<Relationships xmlns="http://schemas.openxmlformats.org/package/2006/relationships">'
+    '<Relationship Target="/3D/3dmodel.model" Id="rel0" '
+    'Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/>'
+    "</Relationships>\n"
+)
+
+
+def threemf_bytes(meshes, names) -> bytes:
+    """A 3MF package holding ``meshes`` (trimesh.Trimesh, mm), one object each, named ``names``."""
+    out = io.StringIO()
+    out.write('<?xml version="1.0" encoding="UTF-8"?>\n')
+    out.write(
+        '<model unit="millimeter" xml:lang="en-US" '
+        'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02">\n'
+        '<metadata name="Application">starforge</metadata>\n<resources>\n'
+    )
+    for k, (m, name) in enumerate(zip(meshes, names, strict=True), start=1):
+        out.write(f'<object id="{k}" type="model" name={quoteattr(str(name))}><mesh><vertices>\n')
+        v = np.asarray(m.vertices, dtype=float)
+        # one %-format over the whole array: ~10x faster than a Python loop over rows
+        out.write(('<vertex x="%.5f" y="%.5f" z="%.5f"/>\n' * len(v)) % tuple(v.ravel().tolist()))
+        out.write("</vertices><triangles>\n")
+        f = np.asarray(m.faces, dtype=np.int64)
+        out.write(('<triangle v1="%d" v2="%d" v3="%d"/>\n' * len(f)) % tuple(f.ravel().tolist()))
+        out.write("</triangles></mesh></object>\n")
+    out.write("</resources>\n<build>\n")
+    out.write("".join(f'<item objectid="{k}"/>\n' for k in range(1, len(meshes) + 1)))
+    out.write("</build>\n</model>\n")
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as z:
+        for arc, text in (
+            ("[Content_Types].xml", _CONTENT_TYPES),
+            ("_rels/.rels", _RELS),
+            ("3D/3dmodel.model", out.getvalue()),
+        ):
+            info = zipfile.ZipInfo(arc, date_time=(2000, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            z.writestr(info, text.encode("utf-8"), compresslevel=1)
+    return buf.getvalue()

@@ -1,0 +1,231 @@
+"""``starforge export``: printable bodies (STEP, STL, 3MF, plate) and tracker rigid-body files.
+
+``FILE`` is a family.json (CAD and tracker formats) or a placement.json (tracker formats).
+CAD formats are built here (:mod:`starforge.cad`); tracker formats are routed to
+:func:`starforge.tracking.formats.write_rigid_bodies` inside the same staged output, so one
+run either publishes every file or none.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from starforge.cli._app import app, console, progress
+
+CAD_FORMATS = ("step", "stl", "3mf")
+TRACKER_FORMATS_DOC = ("qtm", "vsk", "atracsys", "csv")
+
+
+def split_formats(text: str) -> tuple[list[str], list[str]]:
+    """``"step,stl,qtm"`` -> (CAD formats, tracker formats); unknown ones list every known one."""
+    from starforge.errors import StarforgeError
+
+    try:
+        from starforge.tracking.formats import TRACKER_FORMATS
+    except ImportError:
+        TRACKER_FORMATS = TRACKER_FORMATS_DOC
+    cad, trk = [], []
+    for f in str(text).split(","):
+        f = f.strip().lower()
+        if not f:
+            continue
+        if f in CAD_FORMATS:
+            if f not in cad:
+                cad.append(f)
+        elif f in TRACKER_FORMATS:
+            if f not in trk:
+                trk.append(f)
+        else:
+            raise StarforgeError(
+                f"unknown format {f!r}; known: {', '.join(CAD_FORMATS)} (CAD), {', '.join(TRACKER_FORMATS)} (tracker)"
+            )
+    if not cad and not trk:
+        raise StarforgeError(f"no format given; known: {', '.join(CAD_FORMATS + tuple(TRACKER_FORMATS))}")
+    return cad, trk
+
+
+def parse_sets(items) -> dict:
+    """``["hole_mm=2.5", "holes=2"]`` -> {"hole_mm": 2.5, "holes": 2.0} (values are numbers)."""
+    from starforge.errors import StarforgeError
+
+    out = {}
+    for item in items or []:
+        key, sep, val = str(item).partition("=")
+        if not sep or not key.strip():
+            raise StarforgeError(f"--set takes KEY=VALUE (a mount parameter), got {item!r}")
+        try:
+            out[key.strip()] = float(val)
+        except ValueError:
+            raise StarforgeError(f"--set {key.strip()} needs a number, got {val!r}") from None
+    return out
+
+
+def parse_bed(text: str) -> tuple[float, float]:
+    """``"200x250"`` -> (200.0, 250.0) mm."""
+    from starforge.errors import StarforgeError
+
+    parts = str(text).lower().replace("*", "x").split("x")
+    try:
+        vals = tuple(float(p) for p in parts)
+    except ValueError:
+        vals = ()
+    if len(vals) != 2 or min(vals) <= 0:
+        raise StarforgeError(f"--bed must be WIDTHxDEPTH in mm, e.g. 200x250, got {text!r}")
+    return vals
+
+
+def body_spec_from_options(**kw):
+    """A validated BodySpec from CLI options (None = the default)."""
+    from starforge.cad.body import BodySpec
+    from starforge.spec import from_mapping
+
+    return from_mapping(BodySpec, {k: v for k, v in kw.items() if v is not None}, where="body options")
+
+
+def default_out(file: Path, cad: bool) -> Path:
+    """``<folder of FILE>/bodies`` for CAD formats, ``<folder of FILE>/tracker`` otherwise."""
+    folder = file.parent if file.suffix else file
+    return folder / ("bodies" if cad else "tracker")
+
+
+# options shared with `starforge preview`
+MOUNT = typer.Option("flat", "--mount", help="Mount template name (see `starforge mounts`) or a TOML path.")
+IDS = typer.Option(None, "--ids", help="Star ids, e.g. 1,2,5 or 1-4 (default: all).")
+SETS = typer.Option(
+    None, "--set", help="Mount parameter override KEY=VALUE (repeatable), e.g. --set holes=2."
+)
+TIP = typer.Option(None, "--tip", help="sphere (printed, default) or post (pin/stud for commercial markers).")
+COATING = typer.Option(
+    None, "--coating-mm", help="Coating allowance on the diameter (default 0.2: 3.8 printed, 4 finished)."
+)
+STEM = typer.Option(None, "--stem-mm", help="Stem diameter, mm (default 1.2).")
+MIN_STEM = typer.Option(None, "--min-stem-mm", help="Printable minimum stem diameter, mm (default 0.8).")
+POST = typer.Option(None, "--post-mm", help="Post diameter for --tip post, mm (default 1.5).")
+NO_LABEL = typer.Option(False, "--no-label", help="Do not engrave the star id.")
+
+
+_FILE = typer.Argument(..., help="family.json (or its folder), or a placement.json for tracker formats.")
+_OUT = typer.Option(None, "--out", help="Output folder (default: <FILE's folder>/bodies).")
+
+
+@app.command("export")
+def export_cmd(
+    file: Path = _FILE,
+    formats: str = typer.Option(
+        "step,stl,3mf",
+        "--format",
+        help="Comma list: step, stl, 3mf (CAD, family files) and qtm, vsk, atracsys, csv.",
+    ),
+    mount: str = MOUNT,
+    ids: str = IDS,
+    sets: list[str] = SETS,
+    tip: str = TIP,
+    coating_mm: float = COATING,
+    stem_mm: float = STEM,
+    min_stem_mm: float = MIN_STEM,
+    post_mm: float = POST,
+    no_label: bool = NO_LABEL,
+    bed: str = typer.Option("200x200", "--bed", help="Print bed WIDTHxDEPTH in mm for the plate."),
+    gap: float = typer.Option(5.0, "--gap", help="Gap between bodies on the plate, mm."),
+    no_plate: bool = typer.Option(False, "--no-plate", help="Skip plate.stl / plate.3mf."),
+    preview: bool = typer.Option(
+        False, "--preview", help="Also write preview/<star>.png and preview/sheet.png."
+    ),
+    allow_oversize: bool = typer.Option(
+        False,
+        "--allow-oversize",
+        help="Export bodies that exceed the family's size limit (recorded in bodies.json).",
+    ),
+    out: Path = _OUT,
+    force: bool = typer.Option(False, "--force", help="Overwrite existing outputs."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors and warnings."),
+) -> None:
+    """Write printable star bodies (one file per star per format, plus a print plate) and/or
+    tracker rigid-body files, all or nothing."""
+    from starforge.errors import StarforgeError
+    from starforge.io import read_json, staged_output
+
+    cad, trk = split_formats(formats)
+    src = file / "family.json" if file.is_dir() else file
+    out = out if out is not None else default_out(src, bool(cad))
+    family = None
+    if cad:
+        from starforge.stars.model import FORMAT, load_family
+
+        data = read_json(src, what="family file")
+        if data.get("format") != FORMAT:
+            raise StarforgeError(
+                f"CAD formats ({', '.join(cad)}) need a family.json; {src} is {data.get('format')!r}"
+            )
+        family = load_family(src)
+        from starforge.cad.export import check_fit, export_family, parse_ids
+        from starforge.cad.mounts import load_mount
+
+        m = load_mount(mount, parse_sets(sets))
+        spec = body_spec_from_options(
+            tip=tip,
+            coating_mm=coating_mm,
+            stem_mm=stem_mm,
+            min_stem_mm=min_stem_mm,
+            post_mm=post_mm,
+            label=False if no_label else None,
+        )
+        id_list = parse_ids(ids)
+        bed_mm = parse_bed(bed)
+        from starforge.cad.export import expected_files, family_bodies
+        from starforge.io import check_writable
+
+        # fail before the work, not after: ids, stems, mount, fit, existing files
+        bodies = family_bodies(family, id_list, m, spec)
+        check_fit(bodies, family.spec.box_mm, m.name, allow_oversize)
+        check_writable(out, expected_files(bodies, cad, not no_plate, preview), force)
+    elif ids or sets or preview:
+        raise StarforgeError("--ids, --set and --preview apply to CAD formats (step, stl, 3mf)")
+    write_rigid_bodies = None
+    if trk:
+        try:
+            from starforge.tracking.formats import write_rigid_bodies
+        except ImportError:
+            raise StarforgeError(
+                "tracker formats need starforge.tracking (not installed in this build)"
+            ) from None
+    rep = None
+    written: list = []
+    with staged_output(out, force) as stage:
+        if cad:
+            with progress() as bar:
+                n = len(family.stars) if id_list is None else len(id_list)
+                task = bar.add_task("bodies", total=n)
+                rep = export_family(
+                    family,
+                    stage,
+                    m,
+                    spec,
+                    formats=cad,
+                    ids=id_list,
+                    bed_mm=bed_mm,
+                    gap_mm=gap,
+                    plate=not no_plate,
+                    preview=preview,
+                    allow_oversize=allow_oversize,
+                    progress=lambda done, total: bar.update(task, completed=done, total=total),
+                )
+            written.extend(rep.files)
+        if trk:
+            paths = write_rigid_bodies(src, trk, stage)
+            written.extend(str(Path(p).relative_to(stage)) for p in paths)
+    err = console(stderr=True)
+    if rep is not None:
+        for w in rep.warnings:
+            err.print(f"warning: {w}")
+    if not quiet:
+        con = console()
+        if rep is not None:
+            fits = sum(b["fits"] for b in rep.bodies)
+            con.print(
+                f"{len(rep.bodies)} bodies with mount {m.name} ({m.kind}): {fits} within the family's size limit, "
+                f"{rep.timings['total_s']:.1f} s"
+            )
+        con.print(f"wrote {len(written)} files to {out}/")

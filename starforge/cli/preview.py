@@ -1,0 +1,66 @@
+"""``starforge preview``: pictures of the printable bodies, without writing the CAD files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from starforge.cli._app import app, console, progress
+from starforge.cli.export import COATING, IDS, MIN_STEM, MOUNT, NO_LABEL, POST, SETS, STEM, TIP
+
+_FILE = typer.Argument(..., help="family.json (or its folder).")
+_OUT = typer.Option(
+    None, "--out", help="Output folder (default: <FILE's folder>/bodies); PNGs go to preview/."
+)
+
+
+@app.command("preview")
+def preview_cmd(
+    file: Path = _FILE,
+    mount: str = MOUNT,
+    ids: str = IDS,
+    sets: list[str] = SETS,
+    tip: str = TIP,
+    coating_mm: float = COATING,
+    stem_mm: float = STEM,
+    min_stem_mm: float = MIN_STEM,
+    post_mm: float = POST,
+    no_label: bool = NO_LABEL,
+    allow_oversize: bool = typer.Option(
+        False, "--allow-oversize", help="Draw bodies that exceed the size limit."
+    ),
+    out: Path = _OUT,
+    force: bool = typer.Option(False, "--force", help="Overwrite existing pictures."),
+) -> None:
+    """Draw each body (preview/star_<id>.png) and a sheet of all of them with their ids (preview/sheet.png)."""
+    from starforge.cad.export import check_fit, family_bodies, parse_ids
+    from starforge.cad.mounts import load_mount
+    from starforge.cli.export import body_spec_from_options, default_out, parse_sets
+    from starforge.io import staged_output
+    from starforge.render.bodies import render_body_png, render_sheet_png
+    from starforge.stars.model import load_family
+
+    src = file / "family.json" if file.is_dir() else file
+    family = load_family(src)
+    m = load_mount(mount, parse_sets(sets))
+    spec = body_spec_from_options(
+        tip=tip,
+        coating_mm=coating_mm,
+        stem_mm=stem_mm,
+        min_stem_mm=min_stem_mm,
+        post_mm=post_mm,
+        label=False if no_label else None,
+    )
+    bodies = family_bodies(family, parse_ids(ids), m, spec)
+    check_fit(bodies, family.spec.box_mm, m.name, allow_oversize)
+    out = out if out is not None else default_out(src, True)
+    with staged_output(out, force) as stage:
+        (stage / "preview").mkdir()
+        with progress() as bar:
+            task = bar.add_task("pictures", total=len(bodies) + 1)
+            for b in bodies:
+                render_body_png(b, stage / "preview" / f"{b.name}.png")
+                bar.advance(task)
+            render_sheet_png(bodies, stage / "preview" / "sheet.png")
+    console().print(f"wrote {len(bodies) + 1} pictures to {out}/preview/")

@@ -1,0 +1,84 @@
+"""Pictures of printable star bodies: one PNG per body and a sheet of all of them with their ids.
+
+Drawn with matplotlib (Agg, imported inside the functions) from a coarse manifold3d mesh of
+the same body description the STL/3MF come from.  The body stands on its mount (+y up in the
+placement frame is up in the picture); the finished (coated) marker outlines are drawn as the
+printed spheres, the engraved id is visible on the plate.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+_DPI = 110
+
+
+def _view_triangles(body, segments: int = 20) -> np.ndarray:
+    """(m, 3, 3) triangles of a coarse mesh, in the picture frame (x, -z, y): +y up."""
+    from starforge.cad.mesh import body_manifold, manifold_arrays
+    from starforge.cad.plate import TO_BED
+
+    v, f = manifold_arrays(body_manifold(body, sphere_segments=segments, cylinder_segments=12))
+    return (v @ TO_BED.T)[f]
+
+
+def _draw(ax, tris: np.ndarray, title: str) -> None:
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    light = np.array([0.3, -0.5, 0.8])
+    light /= np.linalg.norm(light)
+    shade = 0.35 + 0.65 * np.clip(n @ light, 0, 1)
+    colors = np.column_stack([0.55 * shade, 0.62 * shade, 0.75 * shade, np.ones_like(shade)])
+    ax.add_collection3d(Poly3DCollection(tris, facecolors=colors, edgecolors="none"))
+    lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
+    mid, half = (lo + hi) / 2, (hi - lo).max() / 2
+    ax.set_xlim(mid[0] - half, mid[0] + half)
+    ax.set_ylim(mid[1] - half, mid[1] + half)
+    ax.set_zlim(mid[2] - half, mid[2] + half)
+    ax.set_box_aspect((1, 1, 1))
+    ax.view_init(elev=35, azim=-60)
+    ax.set_axis_off()
+    ax.set_title(title, fontsize=10)
+
+
+def render_body_png(body, path: str | Path, size_px: int = 480) -> Path:
+    """One body, three-quarter view, title ``star <id> (<mount>)``; written to ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(size_px / _DPI, size_px / _DPI), dpi=_DPI)
+    try:
+        ax = fig.add_subplot(projection="3d")
+        _draw(ax, _view_triangles(body), f"star {body.star_id} ({body.mount})")
+        fig.savefig(path, dpi=_DPI)
+    finally:
+        plt.close(fig)
+    return Path(path)
+
+
+def render_sheet_png(bodies, path: str | Path, cell_px: int = 240) -> Path:
+    """All bodies on one sheet, a grid of three-quarter views titled with their ids."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    n = len(bodies)
+    cols = min(n, 6)
+    rows = math.ceil(n / cols)
+    fig = plt.figure(figsize=(cols * cell_px / _DPI, rows * cell_px / _DPI), dpi=_DPI)
+    try:
+        for k, b in enumerate(bodies):
+            ax = fig.add_subplot(rows, cols, k + 1, projection="3d")
+            _draw(ax, _view_triangles(b, segments=12), f"star {b.star_id}")
+        fig.savefig(path, dpi=_DPI)
+    finally:
+        plt.close(fig)
+    return Path(path)
