@@ -16,12 +16,14 @@ import numpy as np
 _DPI = 110
 
 
-def _view_triangles(body, segments: int = 20) -> np.ndarray:
+def _view_triangles(body, segments: int = 20, edge_mm: float = 0.8) -> np.ndarray:
     """(m, 3, 3) triangles of a coarse mesh, in the picture frame (x, -z, y): +y up."""
     from starforge.cad.mesh import body_manifold, manifold_arrays
     from starforge.cad.plate import TO_BED
 
-    v, f = manifold_arrays(body_manifold(body, sphere_segments=segments, cylinder_segments=12))
+    # even-sized triangles: matplotlib sorts whole triangles by depth, long slivers misdraw
+    solid = body_manifold(body, sphere_segments=segments, cylinder_segments=12).refine_to_length(edge_mm)
+    v, f = manifold_arrays(solid)
     return (v @ TO_BED.T)[f]
 
 
@@ -41,7 +43,7 @@ def _draw(ax, tris: np.ndarray, title: str) -> None:
     ax.set_ylim(mid[1] - half, mid[1] + half)
     ax.set_zlim(mid[2] - half, mid[2] + half)
     ax.set_box_aspect((1, 1, 1))
-    ax.view_init(elev=35, azim=-60)
+    ax.view_init(elev=50, azim=-60)
     ax.set_axis_off()
     ax.set_title(title, fontsize=10)
 
@@ -77,7 +79,7 @@ def render_sheet_png(bodies, path: str | Path, cell_px: int = 240) -> Path:
     try:
         for k, b in enumerate(bodies):
             ax = fig.add_subplot(rows, cols, k + 1, projection="3d")
-            _draw(ax, _view_triangles(b, segments=12), f"star {b.star_id}")
+            _draw(ax, _view_triangles(b, segments=12, edge_mm=1.5), f"star {b.star_id}")
         fig.savefig(path, dpi=_DPI)
     finally:
         plt.close(fig)
