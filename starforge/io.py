@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import shutil
@@ -13,12 +14,25 @@ from pathlib import Path
 from starforge.errors import StarforgeError
 
 
+@functools.cache
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _file_mode() -> int:
+    """The mode ``open()`` gives a new file (0o666 less the umask); mkstemp would leave 0o600."""
+    return 0o666 & ~_umask()
+
+
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
     """Write ``data`` to ``path`` through a temp file in the same folder, then rename."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, _file_mode())
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
@@ -72,6 +86,8 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
     stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".staging", dir=parent))
     try:
         yield stage
+        for p in stage.rglob("*"):  # mkdtemp/mkstemp create 0o700/0o600; give outputs the usual modes
+            p.chmod(0o777 & ~_umask() if p.is_dir() else _file_mode())
         produced = sorted(p.relative_to(stage) for p in stage.rglob("*") if p.is_file())
         check_writable(out_dir, [str(p) for p in produced], force)
         out_dir.mkdir(parents=True, exist_ok=True)

@@ -135,11 +135,13 @@ def _width(L: np.ndarray, vol6: np.ndarray) -> np.ndarray:
 def _process(subsets: np.ndarray, assign: np.ndarray, pool: np.ndarray, limit: np.ndarray, exact: bool):
     """All stages for one batch of 6-subsets; returns (index (m, 6) int16, extents (m, 3), counts)."""
     counts = dict.fromkeys(("realisable", "width_ok", "kyfan_ok", "fit_cov", "fit_face"), 0)
-    idx6 = np.ascontiguousarray(subsets[:, assign].reshape(-1, 6).T)  # (6, n) column-major
-    cols = [pool[i] for i in idx6]
+    # one contiguous column per length; the pool is arithmetic, so lengths are lo + step * k
+    cols_idx = [subsets[:, assign[:, j]].ravel() for j in range(6)]
+    lo, step = pool[0], (pool[1] - pool[0]) if len(pool) > 1 else 0.0
+    cols = [lo + step * c.astype(np.float64) for c in cols_idx]
     k, cx, cy, dx, dy, dz = _realisable(*cols)
     counts["realisable"] = len(k)
-    idx = idx6[:, k].T
+    idx = np.stack([c[k] for c in cols_idx], axis=1)
     L = pool[idx]
     n = len(k)
     P = np.zeros((n, 4, 3))
