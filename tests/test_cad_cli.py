@@ -1,0 +1,187 @@
+"""``starforge export`` / ``mounts`` / ``preview``: files, reloads, one-line errors, nothing half-written."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from starforge.cli import main
+
+DATA = Path(__file__).parent / "data" / "cad" / "small_family.json"
+
+
+def _run(args, capsys):
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture
+def fam(tmp_path):
+    folder = tmp_path / "small"
+    folder.mkdir()
+    shutil.copy(DATA, folder / "family.json")
+    return folder / "family.json"
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """One full export of stars 1 and 3 (step, stl, 3mf, plate, preview), shared by the checks."""
+    folder = tmp_path_factory.mktemp("cli") / "small"
+    folder.mkdir()
+    shutil.copy(DATA, folder / "family.json")
+    code = main(
+        ["export", str(folder / "family.json"), "--ids", "1,3", "--preview", "--bed", "120x120", "-q"]
+    )
+    assert code == 0
+    return folder / "bodies"
+
+
+def test_export_writes_one_file_per_star_per_format(exported):
+    names = sorted(p.name for p in exported.iterdir() if p.is_file())
+    for sid in (1, 3):
+        for ext in ("step", "stl", "3mf"):
+            assert f"star_{sid:03d}.{ext}" in names
+    assert {"plate.stl", "plate.3mf", "bodies.json"} <= set(names)
+    assert (exported / "preview" / "star_001.png").stat().st_size > 1000
+    assert (exported / "preview" / "sheet.png").stat().st_size > 1000
+    assert not list(exported.parent.glob(".*staging"))  # no leftovers
+
+
+def test_exported_files_reload_with_centres(exported):
+    import trimesh
+
+    from starforge.cad.occ import read_step
+    from starforge.stars.model import load_family
+
+    fam = load_family(exported.parent / "family.json")
+    doc = json.loads((exported / "bodies.json").read_text())
+    assert [b["id"] for b in doc["bodies"]] == [1, 3]
+    for entry, star in zip(doc["bodies"], fam.by_id([1, 3]), strict=True):
+        stl = trimesh.load(exported / f"{entry['name']}.stl", force="mesh")
+        assert stl.is_watertight and stl.body_count == 1
+        step = read_step(exported / f"{entry['name']}.step")
+        assert len(step) == 1 and step[0].is_valid
+        assert stl.volume == pytest.approx(step[0].volume, rel=0.01)
+        # printed sphere surface: every family centre has mesh vertices at the printed radius
+        v = np.asarray(stl.vertices)
+        r = entry["printed_sphere_mm"] / 2
+        for c in star.vertices:
+            d = np.linalg.norm(v - c, axis=1)
+            shell = d[(d > 0.5 * r) & (d < 1.5 * r)]
+            assert len(shell) > 50 and np.abs(np.median(shell) - r) < 0.01
+        assert len(entry["visibility"]) == 4 and all(0 <= x <= 1 for x in entry["visibility"])
+
+
+def test_plate_holds_every_body_on_the_bed(exported):
+    import trimesh
+
+    pytest.importorskip("lxml")
+    scene = trimesh.load(exported / "plate.3mf")
+    assert sorted(scene.geometry) == ["star_001", "star_003"]
+    plate = trimesh.load(exported / "plate.stl", force="mesh")
+    assert plate.body_count == 2 and plate.is_watertight
+    lo, hi = plate.bounds
+    assert lo[2] == pytest.approx(0, abs=1e-6) and (lo[:2] >= 0).all() and (hi[:2] <= 120).all()
+    single = [trimesh.load(exported / f"star_00{i}.stl", force="mesh").volume for i in (1, 3)]
+    assert plate.volume == pytest.approx(sum(single), rel=1e-6)
+
+
+def test_refuses_to_overwrite_and_force_replaces(fam, capsys):
+    code, _, _ = _run(["export", fam, "--ids", "2", "--format", "stl", "--no-plate", "-q"], capsys)
+    assert code == 0
+    out = fam.parent / "bodies"
+    before = (out / "star_002.stl").stat().st_mtime_ns
+    code, _, err = _run(["export", fam, "--ids", "2", "--format", "stl", "--no-plate"], capsys)
+    assert code == 2 and "--force" in err and err.count("\n") == 1
+    assert (out / "star_002.stl").stat().st_mtime_ns == before
+    code, _, _ = _run(["export", fam, "--ids", "2", "--format", "stl", "--no-plate", "--force", "-q"], capsys)
+    assert code == 0
+
+
+def _bad_family(path: Path, kind: str) -> Path:
+    data = json.loads(DATA.read_text())
+    if kind == "corrupt":
+        path.write_text('{"format": "starforge.family", "vers')
+    elif kind == "version":
+        data["version"] = 99
+        path.write_text(json.dumps(data))
+    elif kind == "other":
+        path.write_text(json.dumps({"format": "starforge.placement", "version": 1}))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["missing"], "not found"),
+        (["corrupt"], "not valid JSON"),
+        (["version"], "version 99"),
+        (["other"], "need a family.json"),
+        (["ok", "--stem-mm", "0.5"], "printable minimum"),
+        (["ok", "--mount", "strap"], "mount strap does not fit: .* by 10"),
+        (["ok", "--mount", "bogus"], "known: adhesive, flat, magnet, saddle, strap"),
+        (["ok", "--format", "step,obj"], "unknown format 'obj'; known: step, stl, 3mf"),
+        (["ok", "--ids", "1,77"], "77 not in the family"),
+        (["ok", "--set", "hole_mm=99"], r"hole_mm must be in \[1.0, 4.5\]"),
+        (["ok", "--bed", "20x20"], "do not fit on a 20 x 20 mm bed"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys, args, message):
+    import re
+
+    path = tmp_path / "fam" / "family.json"
+    path.parent.mkdir()
+    kind, *rest = args
+    if kind == "ok":
+        shutil.copy(DATA, path)
+    elif kind != "missing":
+        _bad_family(path, kind)
+    out = tmp_path / "out"
+    code, _, err = _run(["export", path, "--out", out, *rest], capsys)
+    assert code == 2
+    assert err.startswith("error: ") and err.count("\n") == 1, err
+    assert re.search(message, err), err
+    assert not out.exists() or not any(out.rglob("*"))
+    assert not list(tmp_path.glob(".*staging"))
+
+
+def test_oversize_can_be_exported_on_request(fam, capsys):
+    code, _, err = _run(
+        ["export", fam, "--ids", "1", "--mount", "strap", "--format", "stl", "--allow-oversize", "-q"], capsys
+    )
+    assert code == 0
+    assert "warning: star_001: body" in err and "exceeds the size limit" in err
+    doc = json.loads((fam.parent / "bodies" / "bodies.json").read_text())
+    assert doc["bodies"][0]["fits"] is False and max(doc["bodies"][0]["excess_mm"]) > 9
+
+
+def test_tracker_formats_route_to_the_tracking_module(fam, capsys):
+    pytest.importorskip("starforge.tracking.formats")
+    code, _, err = _run(["export", fam, "--ids", "1", "--format", "stl,csv", "--no-plate", "-q"], capsys)
+    assert code == 0, err
+    out = fam.parent / "bodies"
+    assert (out / "star_001.stl").is_file()
+    assert list((out / "csv").glob("*.csv"))
+
+
+def test_mounts_lists_and_details(capsys):
+    code, out, _ = _run(["mounts"], capsys)
+    assert code == 0
+    for name in ("flat", "strap", "saddle", "adhesive", "magnet"):
+        assert name in out
+    code, out, _ = _run(["mounts", "saddle"], capsys)
+    assert code == 0 and "segment_mm" in out and "range" in out
+    code, _, err = _run(["mounts", "nope"], capsys)
+    assert code == 2 and "known: adhesive, flat, magnet, saddle, strap" in err
+
+
+def test_preview_command_draws_bodies_and_sheet(fam, capsys):
+    code, _, err = _run(["preview", fam, "--ids", "2", "--mount", "magnet"], capsys)
+    assert code == 0, err
+    pv = fam.parent / "bodies" / "preview"
+    assert sorted(p.name for p in pv.iterdir()) == ["sheet.png", "star_002.png"]
