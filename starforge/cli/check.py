@@ -23,6 +23,9 @@ def _tip(text: str | None):
     return v
 
 
+_FILES = typer.Argument(..., help="family.json, or one or more placement.json (or their folders).")
+
+
 @app.command(
     "check",
     help="Simulate tracker frames for a star family or prop placement(s) (noise, hidden markers, ghosts), "
@@ -30,16 +33,24 @@ def _tip(text: str | None):
     "confusions, flips, TRE) and check.png (rates against noise).",
 )
 def check_cmd(
-    files: list[str] = typer.Argument(..., help="family.json, or one or more placement.json (or their folders)."),
+    files: list[str] = _FILES,
     noise: float = typer.Option(0.2, "--noise", help="Marker centre noise, sigma per axis, mm (>= 0)."),
-    drop: int = typer.Option(1, "--drop", help="Up to this many markers hidden per body and frame (<= markers - 3)."),
+    drop: int = typer.Option(
+        1, "--drop", help="Up to this many markers hidden per body and frame (<= markers - 3)."
+    ),
     ghosts: int = typer.Option(2, "--ghosts", help="Random extra points near each body per frame."),
     frames: int = typer.Option(10000, "--frames", help="Simulated frames (every body in each)."),
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same result)."),
-    preset: str = typer.Option(None, "--preset", help="Vendor rules and tracker windows: art, ndi, qualisys, "
-                               "optitrack (or a TOML file)."),
-    match: float = typer.Option(None, "--match", help="Distance matching window, mm (default: the preset's, "
-                                "else the family tolerance, else 2)."),
+    preset: str = typer.Option(
+        None,
+        "--preset",
+        help="Vendor rules and tracker windows: art, ndi, qualisys, optitrack (or a TOML file).",
+    ),
+    match: float = typer.Option(
+        None,
+        "--match",
+        help="Distance matching window, mm (default: the preset's, else the family tolerance, else 2).",
+    ),
     residual: float = typer.Option(None, "--residual", help="Rigid-fit RMS limit, mm (default: match / 2)."),
     tip: str = typer.Option(None, "--tip", help="Target point x,y,z in the body frame, mm, for the TRE."),
     exact_drop: bool = typer.Option(False, "--exact-drop", help="Hide exactly --drop markers (not 0..drop)."),
@@ -55,9 +66,19 @@ def check_cmd(
 
     if seed < 0:
         raise StarforgeError(f"seed must be >= 0, got {seed}")
-    settings = CheckSettings(noise_mm=noise, drop=drop, ghosts=ghosts, frames=frames, seed=seed, match_mm=match,
-                             residual_mm=residual, tip_mm=_tip(tip), preset=preset, drop_exact=exact_drop,
-                             curve_points=curve)
+    settings = CheckSettings(
+        noise_mm=noise,
+        drop=drop,
+        ghosts=ghosts,
+        frames=frames,
+        seed=seed,
+        match_mm=match,
+        residual_mm=residual,
+        tip_mm=_tip(tip),
+        preset=preset,
+        drop_exact=exact_drop,
+        curve_points=curve,
+    )
     if preset is not None:
         from starforge.tracking.presets import load_preset
 

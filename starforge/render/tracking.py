@@ -35,8 +35,13 @@ def rates_plot(check_doc: dict, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     try:
         ax.plot(c["noise_mm"], [100 * v for v in c["identification_rate"]], "o-", label="identified")
-        ax.plot(c["noise_mm"], [100 * v for v in c["mislabel_rate"]], "s-", color="C3",
-                label="confused (wrong body or flip)")
+        ax.plot(
+            c["noise_mm"],
+            [100 * v for v in c["mislabel_rate"]],
+            "s-",
+            color="C3",
+            label="confused (wrong body or flip)",
+        )
         ax.axvline(s["noise_mm"], color="0.6", ls=":", lw=1)
         ax.set_xlabel("marker noise sigma per axis [mm]")
         ax.set_ylabel("share of bodies [%]")
@@ -67,7 +72,9 @@ def sweep_plot(rows: list[dict], path: Path, marker_mm: float) -> Path:
         for ax, rule in zip(axes[0], rules, strict=True):
             deltas = sorted({r["delta_mm"] for r in rows if r["rule"] == rule})
             for k, d in enumerate(deltas):
-                rr = sorted((r for r in rows if r["rule"] == rule and r["delta_mm"] == d), key=lambda r: r["cube_mm"])
+                rr = sorted(
+                    (r for r in rows if r["rule"] == rule and r["delta_mm"] == d), key=lambda r: r["cube_mm"]
+                )
                 x = [r["cube_mm"] for r in rr]
                 y = [max(r["stars"], 0.8) for r in rr]
                 col = f"C{k % 10}"

@@ -149,8 +149,9 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
     ident.check_settings(lib, s.noise_mm, s.drop, s.ghosts, s.frames, match, res)
     rng = np.random.default_rng(s.seed)
     cb = (lambda d, n: progress("frames", d, n)) if progress else None
-    tally = ident.run(lib, s.frames, s.noise_mm, s.drop, s.ghosts, rng, match, res, s.drop_exact, reflect,
-                      progress=cb)
+    tally = ident.run(
+        lib, s.frames, s.noise_mm, s.drop, s.ghosts, rng, match, res, s.drop_exact, reflect, progress=cb
+    )
     t_main = time.perf_counter() - t0
     curve = None
     if s.curve_points > 0:
@@ -205,8 +206,12 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
         from starforge.tracking.presets import check_rules
 
         viol = check_rules(names, points, preset)
-        doc["rules"] = {"preset": preset.name, "vendor": preset.vendor, "source": preset.source,
-                        "violations": [v.to_json() for v in viol]}
+        doc["rules"] = {
+            "preset": preset.name,
+            "vendor": preset.vendor,
+            "source": preset.source,
+            "violations": [v.to_json() for v in viol],
+        }
     if curve is not None:
         doc["curve"] = curve
     doc["seconds"] = {"main": round(t_main, 3), "total": round(time.perf_counter() - t0, 3)}

@@ -58,8 +58,16 @@ def qtm_xml(bodies, max_residual_mm: float = 10.0, bone_tolerance_mm: float = 5.
         ET.SubElement(b, "BoneLengthTolerance").text = _f(bone_tolerance_mm)
         pts = ET.SubElement(b, "Points")
         for i, p in enumerate(np.asarray(P, dtype=float)):
-            ET.SubElement(pts, "Point", X=_f(p[0]), Y=_f(p[1]), Z=_f(p[2]), Virtual="0",
-                          PhysicalId="0", Name=f"{name} - {i + 1}")
+            ET.SubElement(
+                pts,
+                "Point",
+                X=_f(p[0]),
+                Y=_f(p[1]),
+                Z=_f(p[2]),
+                Virtual="0",
+                PhysicalId="0",
+                Name=f"{name} - {i + 1}",
+            )
     return _xml_bytes(root)
 
 
@@ -69,8 +77,9 @@ def vsk_xml(name: str, P, marker_radius_mm: float = 2.0) -> bytes:
     root = ET.Element("KinematicModel")
     params = ET.SubElement(root, "Parameters")
     sk = ET.SubElement(root, "Skeleton")
-    seg = ET.SubElement(sk, "Segment", NAME=name, POSITION="0 0 0", ORIENTATION="0 0 0",
-                        BOUNDS="0 0 0 0 0 0", RGB="255 0 0")
+    seg = ET.SubElement(
+        sk, "Segment", NAME=name, POSITION="0 0 0", ORIENTATION="0 0 0", BOUNDS="0 0 0 0 0 0", RGB="255 0 0"
+    )
     ET.SubElement(seg, "JointFree", NAME=f"World_{name}")
     ms = ET.SubElement(root, "MarkerSet", NAME=name)
     mk = ET.SubElement(ms, "Markers")
@@ -78,14 +87,24 @@ def vsk_xml(name: str, P, marker_radius_mm: float = 2.0) -> bytes:
         m = f"M{i + 1}"
         for c, v in zip("xyz", p, strict=True):
             ET.SubElement(params, "Parameter", NAME=f"{name}_{m}_{c}", PRIOR=_f(v), VALUE=_f(v))
-        ET.SubElement(mk, "Marker", STATUS="required", NAME=m, POSITION=" ".join(_f(v) for v in p),
-                      SEGMENT=name, COVARIANCE="0 0 0 0 0 0", RADIUS=_f(marker_radius_mm), RGB="255 0 0")
+        ET.SubElement(
+            mk,
+            "Marker",
+            STATUS="required",
+            NAME=m,
+            POSITION=" ".join(_f(v) for v in p),
+            SEGMENT=name,
+            COVARIANCE="0 0 0 0 0 0",
+            RADIUS=_f(marker_radius_mm),
+            RGB="255 0 0",
+        )
     st = ET.SubElement(ms, "Sticks")
     for i in range(len(P)):
         j = (i + 1) % len(P)
         if len(P) > 2 or i == 0:
-            ET.SubElement(st, "Stick", MARKER1=f"M{i + 1}", MARKER2=f"M{j + 1}",
-                          RGB1="255 0 0", RGB2="255 0 0")
+            ET.SubElement(
+                st, "Stick", MARKER1=f"M{i + 1}", MARKER2=f"M{j + 1}", RGB1="255 0 0", RGB2="255 0 0"
+            )
     return _xml_bytes(root)
 
 
@@ -194,8 +213,11 @@ def read_qtm(path) -> dict[str, np.ndarray]:
 def read_vsk(path) -> dict[str, np.ndarray]:
     """Markers of a Vicon VSK: {marker set name: (n, 3) mm}; parameter names in POSITION resolved."""
     root = _parse_xml(path)
-    params = {p.attrib["NAME"]: float(p.attrib.get("VALUE", p.attrib.get("PRIOR", "nan")))
-              for p in root.iter("Parameter") if "NAME" in p.attrib}
+    params = {
+        p.attrib["NAME"]: float(p.attrib.get("VALUE", p.attrib.get("PRIOR", "nan")))
+        for p in root.iter("Parameter")
+        if "NAME" in p.attrib
+    }
     out = {}
     for ms in root.iter("MarkerSet"):
         pts = []
@@ -221,7 +243,9 @@ def read_atracsys(path) -> dict[str, np.ndarray]:
         n = cp.getint("geometry", "count")
         pts = [[cp.getfloat(f"fiducial{i}", c) for c in "xyz"] for i in range(n)]
     except (configparser.Error, ValueError) as exc:
-        raise StarforgeError(f"{path} is not an Atracsys geometry file ({exc.__class__.__name__}: {exc})") from None
+        raise StarforgeError(
+            f"{path} is not an Atracsys geometry file ({exc.__class__.__name__}: {exc})"
+        ) from None
     return {Path(path).stem: np.array(pts, dtype=float).reshape(-1, 3)}
 
 
@@ -230,7 +254,9 @@ def read_csv(path) -> dict[str, np.ndarray]:
     rows: dict[str, list] = {}
     with open(path, newline="", encoding="utf-8") as fh:
         for r in csv.DictReader(fh):
-            rows.setdefault(r["body"], []).append((int(r["marker"]), [float(r[c]) for c in ("x_mm", "y_mm", "z_mm")]))
+            rows.setdefault(r["body"], []).append(
+                (int(r["marker"]), [float(r[c]) for c in ("x_mm", "y_mm", "z_mm")])
+            )
     return {k: np.array([p for _, p in sorted(v)], dtype=float).reshape(-1, 3) for k, v in rows.items()}
 
 

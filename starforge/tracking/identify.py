@@ -38,7 +38,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from starforge.errors import StarforgeError
 from starforge.spec import non_negative, positive, require
 
 _PERMS = np.array(list(itertools.permutations(range(3))), dtype=np.intp)
@@ -178,8 +177,12 @@ def hypotheses(
     """Every accepted, de-duplicated hypothesis in scenes ``pts`` (S, P, 3) mm, NaN = no point."""
     S, P, _ = pts.shape
     nmax = lib.n_max
-    empty = Hypotheses(*(np.zeros(0, dtype=int) for _ in range(2)), np.zeros((0, nmax), dtype=int),
-                       np.zeros(0, dtype=int), np.zeros(0))
+    empty = Hypotheses(
+        *(np.zeros(0, dtype=int) for _ in range(2)),
+        np.zeros((0, nmax), dtype=int),
+        np.zeros(0, dtype=int),
+        np.zeros(0),
+    )
     if P < 3 or S == 0:
         return empty
     triples = np.array(list(itertools.combinations(range(P), 3)), dtype=np.intp)
@@ -422,8 +425,9 @@ def score(sc: Scenes, h: Hypotheses, chosen: np.ndarray, tally: Tally) -> None:
     tally.frames += S // tally.n_bodies
 
 
-def check_settings(lib: Library, noise_mm: float, drop: int, ghosts: int, frames: int,
-                   match_mm: float, residual_mm: float) -> None:
+def check_settings(
+    lib: Library, noise_mm: float, drop: int, ghosts: int, frames: int, match_mm: float, residual_mm: float
+) -> None:
     """Validate simulation settings with one-line errors naming the parameter and range."""
     non_negative("noise", noise_mm)
     require(isinstance(drop, int | np.integer) and drop >= 0, f"drop must be an integer >= 0, got {drop}")
@@ -433,8 +437,12 @@ def check_settings(lib: Library, noise_mm: float, drop: int, ghosts: int, frames
         f"drop must be <= markers - 3 = {most} (the smallest body has {int(lib.counts.min())} markers and "
         f"a tracker needs 3 to identify it), got {drop}",
     )
-    require(isinstance(ghosts, int | np.integer) and ghosts >= 0, f"ghosts must be an integer >= 0, got {ghosts}")
-    require(isinstance(frames, int | np.integer) and frames >= 1, f"frames must be an integer >= 1, got {frames}")
+    require(
+        isinstance(ghosts, int | np.integer) and ghosts >= 0, f"ghosts must be an integer >= 0, got {ghosts}"
+    )
+    require(
+        isinstance(frames, int | np.integer) and frames >= 1, f"frames must be an integer >= 1, got {frames}"
+    )
     positive("match_mm", match_mm)
     positive("residual_mm", residual_mm)
 

@@ -143,13 +143,20 @@ def check_body(name: str, P: np.ndarray, rules: Rules) -> list[Violation]:
         return out
     if rules.not_collinear and n >= 2 and line_deviation_mm(P) < rules.equal_mm:
         out.append(
-            Violation(name, "collinear", f"markers lie within {line_deviation_mm(P):.2f} mm of a line "
-                      f"(window {rules.equal_mm} mm)")
+            Violation(
+                name,
+                "collinear",
+                f"markers lie within {line_deviation_mm(P):.2f} mm of a line (window {rules.equal_mm} mm)",
+            )
         )
     ij, d = _pair_distances(P)
     if rules.min_distance_mm is not None and d.min() <= rules.min_distance_mm:
         out.append(
-            Violation(name, "min_distance", f"smallest distance {d.min():.2f} mm, must be over {rules.min_distance_mm} mm")
+            Violation(
+                name,
+                "min_distance",
+                f"smallest distance {d.min():.2f} mm, must be over {rules.min_distance_mm} mm",
+            )
         )
     if len(d) > 1:
         srt = np.sort(d)
@@ -157,21 +164,33 @@ def check_body(name: str, P: np.ndarray, rules: Rules) -> list[Violation]:
         k = int(gaps.argmin())
         if rules.distinct_mm is not None and gaps[k] < rules.distinct_mm:
             out.append(
-                Violation(name, "distinct_distances", f"distances {srt[k]:.2f} and {srt[k + 1]:.2f} mm differ by "
-                          f"{gaps[k]:.2f} mm, must differ by at least {rules.distinct_mm} mm")
+                Violation(
+                    name,
+                    "distinct_distances",
+                    f"distances {srt[k]:.2f} and {srt[k + 1]:.2f} mm differ by "
+                    f"{gaps[k]:.2f} mm, must differ by at least {rules.distinct_mm} mm",
+                )
             )
         if gaps[k] < rules.equal_mm:
             out.append(
-                Violation(name, "equal_distances", f"distances {srt[k]:.2f} and {srt[k + 1]:.2f} mm count as equal "
-                          f"(closer than {rules.equal_mm} mm)")
+                Violation(
+                    name,
+                    "equal_distances",
+                    f"distances {srt[k]:.2f} and {srt[k + 1]:.2f} mm count as equal "
+                    f"(closer than {rules.equal_mm} mm)",
+                )
             )
     if rules.asymmetric and n >= 3:
         flips = self_matches(P, rules.equal_mm, rules.equal_mm / 2, reflect=not rules.mirror_unique)
         if flips:
             rms, a = flips[0]
             out.append(
-                Violation(name, "symmetric", f"fits itself under the wrong correspondence {a.tolist()} with RMS "
-                          f"{rms:.3f} mm: the body can flip")
+                Violation(
+                    name,
+                    "symmetric",
+                    f"fits itself under the wrong correspondence {a.tolist()} with RMS "
+                    f"{rms:.3f} mm: the body can flip",
+                )
             )
     return out
 
@@ -210,8 +229,13 @@ def check_between(names, points, rules: Rules, limit: int = 1000) -> list[Violat
             seen.add(key)
             rule = "mirror_images" if reflect else "congruent"
             what = "mirror images of each other" if reflect else "congruent"
-            out.append(Violation(f"{names[key[0]]} / {names[key[1]]}", rule,
-                                 f"{what} within {w} mm: the tracker cannot tell them apart"))
+            out.append(
+                Violation(
+                    f"{names[key[0]]} / {names[key[1]]}",
+                    rule,
+                    f"{what} within {w} mm: the tracker cannot tell them apart",
+                )
+            )
     # triangles shared between bodies (bottleneck distance of sorted sides below the window)
     S = lib.tri_sorted
     tb = lib.tri_body
@@ -233,9 +257,14 @@ def check_between(names, points, rules: Rules, limit: int = 1000) -> list[Violat
     for (a, b), dv in sorted(pairs.items(), key=lambda kv: kv[1]):
         if tuple(sorted((a, b))) in seen:
             continue
-        out.append(Violation(f"{names[a]} / {names[b]}", "shared_triangle",
-                             f"three markers of each match within {dv:.2f} mm (window {w} mm): "
-                             f"confused when a marker is hidden"))
+        out.append(
+            Violation(
+                f"{names[a]} / {names[b]}",
+                "shared_triangle",
+                f"three markers of each match within {dv:.2f} mm (window {w} mm): "
+                f"confused when a marker is hidden",
+            )
+        )
     return out[:limit]
 
 

@@ -1,0 +1,135 @@
+"""``starforge check`` end to end: outputs, internal consistency, bad input -> one line, exit 2."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from starforge.cli import main
+from starforge.tracking.bodies import load_bodies
+from starforge.tracking.tre import fle_from_sigma, tre_rms
+
+
+@pytest.fixture(scope="module")
+def checked(small_family, tmp_path_factory):
+    fam, _ = small_family
+    out = tmp_path_factory.mktemp("check")
+    rc = main(
+        [
+            "check",
+            str(fam / "family.json"),
+            "--frames",
+            "150",
+            "--ghosts",
+            "0",
+            "--curve",
+            "3",
+            "--tip",
+            "0,0,60",
+            "--preset",
+            "art",
+            "--out",
+            str(out),
+            "-q",
+        ]
+    )
+    assert rc == 0
+    return fam, out, json.loads((out / "check.json").read_text())
+
+
+def test_check_writes_json_and_png(checked):
+    _, out, doc = checked
+    assert doc["format"] == "starforge.check" and doc["version"] == 1
+    assert (out / "check.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for k in (
+        "identification_rate",
+        "mislabel_rate",
+        "confusion",
+        "worst_pairs",
+        "accuracy",
+        "curve",
+        "rules",
+    ):
+        assert k in doc
+
+
+def test_check_counts_are_consistent(checked):
+    _, _, doc = checked
+    M = np.array(doc["confusion"]["matrix"])
+    frames = doc["settings"]["frames"]
+    # every body instance is correct, a wrong body, a flip or missed: rows add up to the frames
+    assert (M.sum(axis=1) + np.array(doc["flips"]) + np.array(doc["missed"]) == frames).all()
+    total = M.size // len(M) * frames
+    assert doc["instances"] == total
+    assert doc["identification_rate"] == pytest.approx(np.trace(M) / total)
+    assert doc["mislabel_rate"] == pytest.approx((M.sum() - np.trace(M) + sum(doc["flips"])) / total)
+    assert doc["identification_rate"] + doc["mislabel_rate"] + doc["missed_rate"] == pytest.approx(1.0)
+    assert doc["settings"]["match_mm"] == 2.0  # the ART window
+    assert len(doc["curve"]["noise_mm"]) == len(doc["curve"]["identification_rate"]) >= 3
+
+
+def test_check_accuracy_and_rules(checked):
+    fam, _, doc = checked
+    bs = load_bodies(fam / "family.json")
+    fle = fle_from_sigma(doc["settings"]["noise_mm"])
+    for row, b in zip(doc["accuracy"], bs.bodies, strict=True):
+        assert row["body"] == b.name
+        assert row["tre_centre_mm"] == pytest.approx(fle / np.sqrt(len(b.points_mm)))
+        assert row["tre_tip_mm"] > row["tre_centre_mm"]
+        assert row["tre_tip_mm"] == pytest.approx(tre_rms(b.points_mm, [0, 0, 60], fle))
+    # a 16 x 12 x 24 mm star cannot meet ART's 30 mm minimum distance: every body is named
+    named = {v["body"] for v in doc["rules"]["violations"] if v["rule"] == "min_distance"}
+    assert named == set(doc["confusion"]["labels"])
+
+
+def test_check_same_seed_same_result(small_family, tmp_path):
+    fam, _ = small_family
+    docs = []
+    for k in range(2):
+        out = tmp_path / f"o{k}"
+        assert (
+            main(
+                ["check", str(fam), "--frames", "40", "--curve", "0", "--seed", "3", "--out", str(out), "-q"]
+            )
+            == 0
+        )
+        d = json.loads((out / "check.json").read_text())
+        d.pop("seconds")
+        docs.append(d)
+    assert docs[0] == docs[1]
+
+
+def test_check_refuses_to_overwrite(checked, capsys):
+    fam, out, _ = checked
+    rc = main(["check", str(fam / "family.json"), "--frames", "5", "--out", str(out), "-q"])
+    assert rc == 2
+    assert "--force" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--noise", "-0.5"], "noise must be >= 0"),
+        (["--drop", "2"], "drop must be <= markers - 3"),
+        (["--preset", "nosuch"], "unknown presets template 'nosuch'"),
+        (["--frames", "0"], "frames must be >= 1"),
+        (["--tip", "1,2"], "tip must be three numbers"),
+    ],
+)
+def test_bad_options_one_line_exit_2(small_family, tmp_path, capsys, args, message):
+    fam, _ = small_family
+    rc = main(["check", str(fam / "family.json"), "--frames", "5", *args, "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert err.startswith("error: ") and message in err and err.count("\n") == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_corrupt_json_one_line_exit_2(tmp_path, capsys):
+    bad = tmp_path / "family.json"
+    bad.write_text('{"format": "starforge.family", "stars": [')
+    rc = main(["check", str(bad), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "not valid JSON" in err and err.count("\n") == 1
