@@ -175,3 +175,23 @@ def test_volumes_agree_for_every_star(family, tip):
     for s, name in itertools.product(family.stars, ["magnet"]):
         b = build_body(s.id, s.vertices, 4.0, load_mount(name), BodySpec(tip=tip))
         assert body_mesh(b).volume == pytest.approx(body_solid(b).volume, rel=0.01)
+
+
+def test_volume_matches_closed_form_for_a_simple_body():
+    """Isolated vertical stems, no hole, no label: plate + spheres + the stems' free parts."""
+    from starforge.cad.mesh import body_mesh
+    from starforge.cad.occ import body_solid
+    from starforge.cad.primitives import Box
+
+    c = np.array([[0, 0, 0], [20, 3, 0], [0, 1, 25], [20, 5, 25]], float)
+    spec = BodySpec(label=False)
+    b = build_body(9, c, 4.0, load_mount("flat", {"holes": 0}), spec)
+    plate = [p for p in b.add if isinstance(p, Box)][0]
+    y_top = plate.bounds()[1, 1]
+    R, a = (4.0 - spec.coating_mm) / 2, spec.stem_mm / 2
+    inside_sphere = 2 * np.pi / 3 * (R**3 - (R**2 - a**2) ** 1.5)  # stem ending at the centre
+    expected = plate.volume() + sum(
+        4 / 3 * np.pi * R**3 + np.pi * a**2 * (ci[1] - y_top) - inside_sphere for ci in c
+    )
+    assert body_solid(b).volume == pytest.approx(expected, rel=1e-6)
+    assert body_mesh(b).volume == pytest.approx(expected, rel=1e-3)
