@@ -133,7 +133,7 @@ def _brute_force_min_volume(P, starts=30, seed=0):
 
 def test_min_volume_box_contains_points_is_proper_and_minimal():
     rng = np.random.default_rng(1)
-    P = rng.normal(size=(12, 4, 3)) * np.array([1, 3, 8])
+    P = rng.normal(size=(8, 4, 3)) * np.array([1, 3, 8])
     R, c, e = min_volume_box(P)
     assert np.allclose(np.linalg.det(R), 1.0)
     assert np.allclose(np.einsum("nij,nik->njk", R, R), np.eye(3), atol=1e-12)
@@ -141,8 +141,8 @@ def test_min_volume_box_contains_points_is_proper_and_minimal():
     assert (np.abs(local) <= e[:, None] / 2 + 1e-9).all()
     _, _, ec = covariance_box(P)
     assert (np.prod(e, axis=1) <= np.prod(ec, axis=1) * (1 + 1e-9)).all()
-    for i in range(12):
-        assert np.prod(e[i]) <= _brute_force_min_volume(P[i]) * (1 + 1e-6)
+    for i in range(8):
+        assert np.prod(e[i]) <= _brute_force_min_volume(P[i], starts=12) * (1 + 1e-6)
 
 
 def test_placement_transform_is_the_papers_frame():
