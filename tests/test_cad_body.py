@@ -329,3 +329,22 @@ def test_plate_too_small_says_how_many_do_not_fit():
     bounds = np.array([[[0, 0, 0], [40, 10, 40]]] * 10, float)
     with pytest.raises(StarforgeError, match=r"of 10 bodies do not fit on a 100 x 100 mm bed"):
         layout_plate(bounds, (100, 100), 5.0)
+
+
+def test_screw_holes_clear_stems_and_label(family):
+    m = load_mount("flat", {"holes": 2})
+    for s in family.stars:
+        b = build_body(s.id, s.vertices, 4.0, m, BodySpec())
+        holes = [p for p in b.subtract if isinstance(p, Cylinder)]
+        assert len(holes) == 2
+        labels = [p for p in b.subtract if isinstance(p, Box)]
+        for h in holes:
+            hxz = np.array(h.p0)[[0, 2]]
+            for stem in b.stems:
+                gap = np.linalg.norm(hxz - np.array(stem.p0)[[0, 2]]) - h.radius_mm - stem.radius_mm
+                assert gap >= m["hole_wall_mm"] - 1e-9
+            for box in labels:
+                d = np.maximum(np.abs(hxz - np.array(box.centre)[[0, 2]]) - np.array(box.size)[[0, 2]] / 2, 0)
+                assert np.linalg.norm(d) >= h.radius_mm
+        a, c = (np.array(h.p0)[[0, 2]] for h in holes)
+        assert np.linalg.norm(a - c) >= 2 * (m["hole_mm"] / 2 + m["hole_wall_mm"]) - 1e-9

@@ -287,6 +287,10 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
     require(c.ndim == 2 and c.shape[1] == 3 and np.isfinite(c).all(), "centres must be (n, 3) finite mm")
     rf = marker_mm / 2
     rs = spec.stem_mm / 2
+    require(
+        spec.coating_mm <= marker_mm / 2,
+        f"coating_mm must be in [0, {marker_mm / 2:g}] (half the marker diameter), got {spec.coating_mm}",
+    )
     if spec.tip == "sphere":
         printed = marker_mm - spec.coating_mm
         require(
@@ -318,6 +322,7 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
         rs,
         y_top,
         label_size(text, spec.label_mm) if spec.label else None,
+        overhead_xz=np.column_stack([c[:, 0], c[:, 2], np.full(len(c), rf)]),
     )
     adds: list = []
     stems = []

@@ -207,11 +207,14 @@ def mount_geometry(
     y_top: float,
     label_size_xz=None,
     min_footprint=None,
+    overhead_xz=None,
 ) -> MountGeometry:
     """The mount under stems rooted at ``roots_xz`` (n, 2) mm, its top face at ``y_top`` mm.
 
     ``label_size_xz`` (w, h) reserves room for the id label on the top face (None: no label);
-    ``min_footprint`` (x0, x1, z0, z1) is a footprint the plate covers at least.
+    ``min_footprint`` (x0, x1, z0, z1) is a footprint the plate covers at least;
+    ``overhead_xz`` (n, 3) circles (x, z, radius) of what hangs over the plate (the spheres):
+    screw holes avoid them when they can, so a screwdriver reaches the screw from above.
     """
     p = mount.params
     roots = np.atleast_2d(np.asarray(roots_xz, float))
@@ -253,7 +256,12 @@ def mount_geometry(
         r = p["hole_mm"] / 2
         for _ in range(int(p["holes"])):
             s = 2 * (r + p["hole_wall_mm"])
-            (hx, hz), fp = reserve(fp, (s, s), circles, edge_mm=0.0)
+            spot = None
+            if overhead_xz is not None and len(overhead_xz):
+                spot = find_spot(fp, (s, s), [*circles, *map(tuple, np.asarray(overhead_xz, float))], 0.0)
+            if spot is None:
+                spot, fp = reserve(fp, (s, s), circles, edge_mm=0.0)
+            hx, hz = spot
             sub.append(Cylinder((hx, y_top - t - 1.0, hz), (hx, y_top + 0.1, hz), r))
             circles.append((hx, hz, s / 2))
     if kind == "strap":

@@ -228,4 +228,11 @@ def export_cmd(
                 f"{len(rep.bodies)} bodies with mount {m.name} ({m.kind}): {fits} within the family's size limit, "
                 f"{rep.timings['total_s']:.1f} s"
             )
+            worst = min(
+                ((v, b["name"], "ABCD"[i]) for b in rep.bodies for i, v in enumerate(b["visibility"]))
+            )
+            con.print(
+                f"least visible sphere: {worst[1]} {worst[2]}, {worst[0]:.2f} of its upper hemisphere free "
+                "(per sphere in bodies.json)"
+            )
         con.print(f"wrote {len(written)} files to {out}/")
