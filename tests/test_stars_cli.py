@@ -165,3 +165,12 @@ def test_finger_default_args_are_the_template():
     name, data = load_template("stars", "finger")
     assert name == "finger"
     assert [str(x) for x in data["box_mm"]] == FINGER[1:4]
+
+
+def test_preview_draws_a_png_sheet(tmp_path):
+    args = ["stars", "--box", 16, 12, 24, "--delta", 2, "--select", "greedy", "--preview", "--out", tmp_path, "-q"]
+    assert run_cli(args) == 0
+    png = (tmp_path / "family.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
+    assert width > 400 and height > 200

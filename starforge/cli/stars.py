@@ -27,6 +27,7 @@ def stars_cmd(
     out: Path = typer.Option(None, "--out", help="Output folder (default: out/<name>)."),
     force: bool = typer.Option(False, "--force", help="Overwrite existing outputs."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No table, just the summary line."),
+    preview: bool = typer.Option(False, "--preview", help="Also draw family.png (the first 40 stars)."),
 ) -> None:
     """Generate a family of unique marker stars; writes family.json (source of truth) and family.csv.
 
@@ -75,7 +76,8 @@ def stars_cmd(
     out_dir = out if out is not None else Path("out") / s.name
     from starforge.io import check_writable
 
-    check_writable(out_dir, ["family.json", "family.csv", "run.json"], force)  # fail before the long work
+    names = ["family.json", "family.csv", "run.json"] + (["family.png"] if preview else [])
+    check_writable(out_dir, names, force)  # fail before the long work
 
     with progress() as bar:
         task = bar.add_task("enumerating", total=None)
@@ -93,6 +95,10 @@ def stars_cmd(
         (stage / "family.csv").write_text(family_csv(family), encoding="utf-8")
         run = {"seconds": family.timings, "verified": True, "starforge": __version__}
         (stage / "run.json").write_text(json.dumps(run, indent=2) + "\n", encoding="utf-8")
+        if preview:
+            from starforge.render.stars import family_sheet
+
+            family_sheet(family, stage / "family.png")
     _report(family, out_dir, time.perf_counter() - t0, quiet)
 
 
