@@ -132,7 +132,8 @@ def _report(family, out_dir: Path, seconds: float, quiet: bool) -> None:
     en = sm["enumeration"]
     c.print(
         f"{len(family)} stars, rule {family.spec.rule}, select {family.spec.select}{gap}; "
-        f"{en['labelled']:,} labelled candidates, {sm['candidates']:,} fit; "
+        f"{en['labelled']:,} labelled candidates: {en['realisable']:,} realisable, {en['width_ok']:,} thin enough, "
+        f"{en['kyfan_ok']:,} pass Ky Fan, {sm['candidates']:,} fit; "
         f"enumerate {family.timings['enumerate']:.2f} s, select {family.timings['select']:.2f} s, "
         f"total {seconds:.2f} s; verified independently"
     )
