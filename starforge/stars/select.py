@@ -4,7 +4,9 @@
   order of box volume (then total length) and keep each one that conflicts with none taken.
 * ``max``: as large a family as possible.  Greedy, then a deterministic (1,2)-swap local
   search (remove one star, insert two that only conflicted with it; the move that drives the
-  best maximum-independent-set heuristics), then, when the candidates are few enough
+  best maximum-independent-set heuristics), then an iterated local search (``ils``: random
+  plateau/uphill perturbations + incremental (1,2)-swaps, Andrade-Resende-Werneck style, with a
+  fixed seed and an iteration budget ``ILS_ITERATIONS``), then, when the candidates are few enough
   (``MILP_MAX_COLUMNS``), the exact MILP (HiGHS through ``scipy.optimize.milp``) under the time
   limit, whose optimum and dual bound are used only when it finishes.  The proven upper bound is
   the smaller of the block bound (each star needs 4 distinct face blocks of side m, so
@@ -131,6 +133,206 @@ def local_search(
     return np.flatnonzero(in_fam), swaps
 
 
+#: default iteration budget of the iterated local search (``ils``); the stopping rule is this
+#: count, never wall time, so the same candidates always give the same family
+ILS_ITERATIONS = 1500
+#: seed of the ILS random generator (fixed: nothing time-dependent)
+ILS_SEED = 0
+
+
+class _Packing:
+    """Incremental set-packing state for :func:`ils`.
+
+    ``owner[r]`` is the family star holding row r (-1 free).  Per candidate c, over its rows held
+    by family stars: ``cnt`` (how many), ``s1`` (sum of owner ids) and ``s2`` (sum of squares).
+    c is free iff ``cnt == 0``; its held rows all belong to ONE star t iff
+    ``cnt * s2 == s1**2`` (zero variance), and then ``t = s1 // cnt``.  Inserting or removing a
+    star only updates the candidates sharing a row with it (row -> candidates index, CSC).
+    """
+
+    def __init__(self, chosen, ptr, rows, n_rows, rank):
+        n = len(ptr) - 1
+        self.n, self.ptr, self.rows, self.rank = n, ptr, rows, rank
+        star_of_entry = np.repeat(np.arange(n, dtype=np.int64), np.diff(ptr))
+        key = rows.astype(np.int16) if n_rows < 2**15 else rows  # int16: radix sort
+        by_row = np.argsort(key, kind="stable")
+        rptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n_rows))])
+        cands = star_of_entry[by_row]
+        self.row_cands = [cands[rptr[r] : rptr[r + 1]] for r in range(n_rows)]
+        # padded rows per candidate (pad = sentinel row n_rows, never owned) for batch checks
+        counts = np.diff(ptr)
+        width = int(counts.max()) if n else 0
+        self.padded = np.full((n, width), n_rows, dtype=np.int32 if n_rows < 2**31 - 1 else np.int64)
+        self.padded[star_of_entry, np.arange(len(rows)) - np.repeat(ptr[:-1], counts)] = rows
+        self.owner = np.full(n_rows + 1, -1, dtype=np.int64)
+        self.in_fam = np.zeros(n, dtype=bool)
+        self.cnt = np.zeros(n, dtype=np.int64)
+        self.s1 = np.zeros(n, dtype=np.int64)
+        self.s2 = np.zeros(n, dtype=np.int64)
+        self.tight = np.full(n, -1, dtype=np.int64)  # t if 1-tight with family star t, else -1
+        self.size = 0
+        self.log: list[tuple[int, int]] | None = None  # (+1 insert / -1 remove, star)
+        for s in np.asarray(chosen).tolist():
+            self.insert(s)
+
+    def rows_of(self, s: int) -> np.ndarray:
+        return self.rows[self.ptr[s] : self.ptr[s + 1]]
+
+    def touched(self, s: int) -> np.ndarray:
+        """Candidates sharing a row with s, once per shared row."""
+        rc = self.row_cands
+        parts = [rc[r] for r in self.rows_of(s).tolist()]
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+
+    def _update(self, s: int, sign: int) -> np.ndarray:
+        ent = self.touched(s)
+        old = self.cnt[ent]
+        np.add.at(self.cnt, ent, sign)  # the one unbuffered add (ent repeats a candidate per row)
+        c = self.cnt[ent]
+        k = c - old  # per entry: the candidate's whole change, so buffered writes are exact
+        s1 = self.s1[ent] + k * s
+        s2 = self.s2[ent] + k * (s * s)
+        self.s1[ent] = s1
+        self.s2[ent] = s2
+        one = (c > 0) & (c * s2 == s1 * s1) & ~self.in_fam[ent]
+        self.tight[ent] = np.where(one, s1 // np.maximum(c, 1), -1)
+        return ent
+
+    def insert(self, s: int) -> np.ndarray:
+        self.owner[self.rows_of(s)] = s
+        self.in_fam[s] = True
+        self.size += 1
+        if self.log is not None:
+            self.log.append((1, s))
+        return self._update(s, 1)
+
+    def remove(self, s: int) -> np.ndarray:
+        self.owner[self.rows_of(s)] = -1
+        self.in_fam[s] = False
+        self.size -= 1
+        if self.log is not None:
+            self.log.append((-1, s))
+        return self._update(s, -1)
+
+    def undo(self) -> None:
+        log, self.log = self.log, None
+        for op, s in reversed(log):
+            if op > 0:
+                self.remove(s)
+            else:
+                self.insert(s)
+        self.log = []
+
+    def fill(self, aff: np.ndarray) -> list[np.ndarray]:
+        """Insert the free candidates among ``aff``, most compact first; returns touched sets."""
+        free = np.unique(aff[(self.cnt[aff] == 0) & ~self.in_fam[aff]])
+        out = []
+        if len(free):
+            for c in free[np.argsort(self.rank[free], kind="stable")].tolist():
+                if self.cnt[c] == 0 and not self.in_fam[c]:
+                    out.append(self.insert(c))
+        return out
+
+    def tight_owners(self, aff: np.ndarray) -> np.ndarray:
+        """Family stars t that some candidate in ``aff`` conflicts with alone (1-tight)."""
+        t = self.tight[aff]
+        return np.unique(t[t >= 0])
+
+    def two_swap(self, t: int):
+        """Best (1,2)-swap for family star t: two disjoint candidates whose only conflict is t,
+        most compact first; None if none."""
+        u = self.touched(t)
+        L = np.unique(u[self.tight[u] == t])
+        if len(L) < 2:
+            return None
+        L = L[np.argsort(self.rank[L], kind="stable")]
+        ptr, rows = self.ptr, self.rows
+        sets = [frozenset(rows[ptr[x] : ptr[x + 1]].tolist()) for x in L.tolist()]
+        for i in range(len(L) - 1):
+            a = sets[i]
+            for j in range(i + 1, len(L)):
+                if a.isdisjoint(sets[j]):
+                    return int(L[i]), int(L[j])
+        return None
+
+    def descend(self, queue: set[int]) -> None:
+        """(1,2)-swaps (and free insertions) until none is left for the queued stars."""
+        while queue:
+            t = min(queue, key=lambda x: self.rank[x])
+            queue.discard(t)
+            if not self.in_fam[t]:
+                continue
+            pair = self.two_swap(t)
+            if pair is None:
+                continue
+            touched = [self.remove(t), self.insert(pair[0]), self.insert(pair[1])]
+            touched += self.fill(touched[0])
+            for aff in touched:
+                queue.update(self.tight_owners(aff).tolist())
+
+
+def ils(
+    chosen: np.ndarray,
+    order: np.ndarray,
+    ptr: np.ndarray,
+    rows: np.ndarray,
+    n_rows: int,
+    iterations: int = ILS_ITERATIONS,
+    bound: int | None = None,
+    seed: int = ILS_SEED,
+) -> tuple[np.ndarray, int]:
+    """Iterated local search for set packing (Andrade, Resende & Werneck style).
+
+    Each iteration force-inserts a random candidate whose held rows belong to one or two family
+    stars (removing those), refills free candidates, runs (1,2)-swaps around the change, and
+    keeps the result if the family is no smaller (plateau moves walk), else reverts it.
+    Deterministic: the only randomness is ``np.random.default_rng(seed)`` and the budget is an
+    iteration count.  Stops early at ``bound``.  Returns (family, iterations used).
+    """
+    n = len(ptr) - 1
+    rank = np.empty(n, dtype=np.int64)
+    rank[order] = np.arange(n)
+    P = _Packing(chosen, ptr, rows, n_rows, rank)
+    # start from a local optimum w.r.t. free insertions and (1,2)-swaps
+    P.fill(np.arange(n))
+    P.descend(set(np.flatnonzero(P.in_fam).tolist()))
+    rng = np.random.default_rng(seed)
+    owner = P.owner
+    it = 0
+    if n == 0:
+        return np.flatnonzero(P.in_fam), 0
+    while it < iterations and (bound is None or P.size < bound):
+        it += 1
+        # perturbation: a random outside candidate held by one or two family stars
+        s = -1
+        for _ in range(64):
+            batch = rng.integers(0, n, size=1024)
+            own = np.sort(owner[P.padded[batch]], axis=1)  # -1 = free row or pad
+            distinct = (own[:, :1] >= 0).sum(axis=1) + ((own[:, 1:] != own[:, :-1]) & (own[:, 1:] >= 0)).sum(axis=1)
+            ok = np.flatnonzero((distinct >= 1) & (distinct <= 2) & ~P.in_fam[batch])
+            if len(ok):
+                s = int(batch[ok[0]])
+                held = np.unique(own[ok[0]])
+                held = held[held >= 0]
+                break
+        if s < 0:
+            break
+        before = P.size
+        P.log = []
+        touched = [P.remove(t) for t in held.tolist()]
+        touched.append(P.insert(s))
+        for aff in touched[: len(held)]:
+            touched += P.fill(aff)
+        queue: set[int] = set()
+        for aff in touched:
+            queue.update(P.tight_owners(aff).tolist())
+        P.descend(queue)
+        if P.size < before:
+            P.undo()
+        P.log = None
+    return np.flatnonzero(P.in_fam), it
+
+
 def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float):
     """Exact set packing over ``cols`` with HiGHS; returns (chosen, dual_bound, status, complete)."""
     import scipy.sparse as sp
@@ -155,8 +357,14 @@ def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float):
     return chosen, dual, res.message, res.status == 0
 
 
-def select_family(index, pool, volume, star_of, row, n_rows, spec: StarSpec) -> Selection:
-    """Choose the family among the candidates (see module docstring)."""
+def select_family(
+    index, pool, volume, star_of, row, n_rows, spec: StarSpec, ils_iterations: int | None = None
+) -> Selection:
+    """Choose the family among the candidates (see module docstring).
+
+    ``ils_iterations``: iteration budget of the iterated local search (default
+    :data:`ILS_ITERATIONS`; 0 skips it).
+    """
     from starforge.stars.rules import grid_steps
 
     n = len(index)
@@ -172,6 +380,13 @@ def select_family(index, pool, volume, star_of, row, n_rows, spec: StarSpec) -> 
     t1 = time.perf_counter()
     chosen, swaps = local_search(chosen, order, ptr, rows, n_rows)
     info.update(local_search=int(len(chosen)), swaps=swaps, local_search_s=round(time.perf_counter() - t1, 3))
+    budget = ILS_ITERATIONS if ils_iterations is None else int(ils_iterations)
+    if budget > 0 and len(chosen) < bound:
+        t3 = time.perf_counter()
+        chosen, used = ils(chosen, order, ptr, rows, n_rows, iterations=budget, bound=bound)
+        info.update(ils=int(len(chosen)), ils_iterations=int(used), ils_s=round(time.perf_counter() - t3, 3))
+    else:
+        info.update(ils=int(len(chosen)), ils_iterations=0)
     if len(chosen) < bound and n <= MILP_MAX_COLUMNS:
         # exact set packing over every candidate; trusted only when HiGHS finishes, so that the
         # same spec always gives the same family (a time-limited incumbent depends on timing)
