@@ -6,7 +6,8 @@ documented where the values are edited).  Every mount is a plate under the star 
 (the star lies flat; +y is up, see :mod:`starforge.cad.primitives`) plus kind-specific features:
 
 - ``flat``: screw holes through the plate, placed clear of the stems;
-- ``strap``: two slots at the ends for a Velcro strap of a given width;
+- ``strap``: a slot at each side (x) for a Velcro strap of a given width that wraps around the
+  limb, whose axis runs along the star's long side (z);
 - ``saddle``: a concave underside that sits on a cylinder (a finger segment) of a given diameter;
 - ``adhesive``: a shallow recess underneath for a double-sided adhesive pad;
 - ``magnet``: a blind pocket from below for a disc magnet.
@@ -244,7 +245,7 @@ def mount_geometry(
         d = p["magnet_mm"] + 2 * p["wall_mm"]
         fp = _at_least(fp, d, d)
     if kind == "strap":
-        fp = _at_least(fp, p["strap_width_mm"] + 2 * p["wall_mm"], 0.0)
+        fp = _at_least(fp, 0.0, p["strap_width_mm"] + 2 * p["wall_mm"])
 
     label_centre = None
     if label_size_xz is not None:
@@ -265,12 +266,14 @@ def mount_geometry(
             sub.append(Cylinder((hx, y_top - t - 1.0, hz), (hx, y_top + 0.1, hz), r))
             circles.append((hx, hz, s / 2))
     if kind == "strap":
+        # the strap wraps around the limb (whose axis runs along z): it crosses the plate along x
+        # and passes through a slot at each x end; the slots are strap_width_mm long along z
         ext = p["slot_mm"] + 2 * p["wall_mm"]
         x0, x1, z0, z1 = fp
-        fp = (x0, x1, z0 - ext, z1 + ext)
-        xm = (x0 + x1) / 2
-        for zc in (z0 - ext / 2, z1 + ext / 2):
-            sub.append(Box((xm, y_top - t / 2 - 0.45, zc), (p["strap_width_mm"], t + 1.1, p["slot_mm"])))
+        fp = (x0 - ext, x1 + ext, z0, z1)
+        zm = (z0 + z1) / 2
+        for xc in (x0 - ext / 2, x1 + ext / 2):
+            sub.append(Box((xc, y_top - t / 2 - 0.45, zm), (p["slot_mm"], t + 1.1, p["strap_width_mm"])))
     x0, x1, z0, z1 = fp
     xm, zm, w, ln = (x0 + x1) / 2, (z0 + z1) / 2, x1 - x0, z1 - z0
     y_bottom = y_top - t
