@@ -61,7 +61,8 @@ def rates_plot(check_doc: dict, path: Path) -> Path:
 
 
 def sweep_plot(rows: list[dict], path: Path, marker_mm: float) -> Path:
-    """Number of stars against cube size, one line per minimal variation, one panel per rule.
+    """Number of stars against cube size, one line per minimal variation, one panel per rule
+    (cells with no star are left out of the log plot).
 
     Exhaustive cells are drawn with filled markers, sampled lower bounds with open markers.
     """
@@ -73,10 +74,13 @@ def sweep_plot(rows: list[dict], path: Path, marker_mm: float) -> Path:
             deltas = sorted({r["delta_mm"] for r in rows if r["rule"] == rule})
             for k, d in enumerate(deltas):
                 rr = sorted(
-                    (r for r in rows if r["rule"] == rule and r["delta_mm"] == d), key=lambda r: r["cube_mm"]
+                    (r for r in rows if r["rule"] == rule and r["delta_mm"] == d and r["stars"] > 0),
+                    key=lambda r: r["cube_mm"],
                 )
+                if not rr:
+                    continue
                 x = [r["cube_mm"] for r in rr]
-                y = [max(r["stars"], 0.8) for r in rr]
+                y = [r["stars"] for r in rr]
                 col = f"C{k % 10}"
                 ax.plot(x, y, "-", color=col, label=f"delta {d:g} mm")
                 ex = [(a, b) for a, b, r in zip(x, y, rr, strict=True) if r["method"] == "exhaustive"]

@@ -43,26 +43,31 @@ COLUMNS = (
 )
 
 
+def _num(tok: str, name: str, text: str) -> float:
+    try:
+        return float(tok)
+    except ValueError:
+        raise StarforgeError(f"{name} must be numbers like 0.5:3:0.5 or 1,2,5, got {text!r}") from None
+
+
 def parse_range(text: str, name: str) -> list[float]:
     """``"0.5:3:0.5"`` (start:stop:step, stop included), ``"1,2,5"`` or ``"2"`` -> sorted values."""
     text = str(text).strip()
-    try:
-        if ":" in text:
-            parts = [float(x) for x in text.split(":")]
-            require(len(parts) == 3, f"{name} range must be start:stop:step, got {text!r}")
-            a, b, s = parts
-            require(s > 0, f"{name} step must be > 0, got {text!r}")
-            require(b >= a, f"{name} range stop must be >= start, got {text!r}")
-            n = int(math.floor((b - a) / s + 1e-9)) + 1
-            vals = [round(a + i * s, 9) for i in range(n)]
-        else:
-            vals = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise StarforgeError(f"{name} must be numbers like 0.5:3:0.5 or 1,2,5, got {text!r}") from None
+    if ":" in text:
+        parts = [_num(x, name, text) for x in text.split(":")]
+        require(len(parts) == 3, f"{name} range must be start:stop:step, got {text!r}")
+        a, b, s = parts
+        require(s > 0, f"{name} step must be > 0, got {text!r}")
+        require(b >= a, f"{name} range stop must be >= start, got {text!r}")
+        n = int(math.floor((b - a) / s + 1e-9)) + 1
+        require(n <= 200, f"{name} has {n} values; at most 200")
+        vals = [round(a + i * s, 9) for i in range(n)]
+    else:
+        vals = [_num(x, name, text) for x in text.split(",") if x.strip()]
     require(len(vals) >= 1, f"{name} is empty: {text!r}")
+    require(len(vals) <= 200, f"{name} has {len(vals)} values; at most 200")
     for v in vals:
         positive(name, v)
-    require(len(vals) <= 200, f"{name} has {len(vals)} values; at most 200")
     return sorted(set(vals))
 
 
@@ -204,7 +209,7 @@ def run_cell(args: tuple) -> list[dict]:
                 "stars": 0,
                 "upper_bound": 0,
                 "method": "none",
-                "stop": str(exc).split(" (")[0][:80],
+                "stop": f"no star: {exc}",
                 "seconds": 0.0,
             }
             for r in rules
