@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from starforge.geometry.tetra import canonical_assignments
 from starforge.errors import StarforgeError
+from starforge.geometry.tetra import canonical_assignments
 from starforge.stars.spec import StarSpec
 from starforge.tol import tol
 
