@@ -1,0 +1,126 @@
+"""Capacity sweep: ranges, sampled lower bounds re-verified by brute force, exhaustive vs
+sampled labelling, the CLI's CSV and plot."""
+
+from __future__ import annotations
+
+import csv
+import itertools
+
+import numpy as np
+import pytest
+
+from starforge.cli import main
+from starforge.errors import StarforgeError
+from starforge.geometry.tetra import FACE_EDGES, RELABELLINGS, lengths_from_vertices, vertices_from_lengths
+from starforge.stars.boxes import star_box
+from starforge.stars.spec import StarSpec
+from starforge.tracking.sweep import parse_range, run_cell, sampled_lower_bound, sweep
+
+
+def test_parse_range():
+    assert parse_range("0.5:3:0.5", "delta") == [0.5, 1.0, 1.5, 2.0, 2.5, 3.0]
+    assert parse_range("10:50:5", "cube")[-1] == 50.0
+    assert parse_range("3,1,2", "cube") == [1.0, 2.0, 3.0]
+    for bad, msg in [
+        ("3:1:1", "stop must be >= start"),
+        ("1:2", "start:stop:step"),
+        ("a,b", "numbers"),
+        ("0:2:1", "must be > 0"),
+        ("1:2:0", "step must be > 0"),
+    ]:
+        with pytest.raises(StarforgeError, match=msg):
+            parse_range(bad, "delta")
+
+
+def face_rule_ok(L, tol):
+    F = np.sort(L[:, FACE_EDGES], axis=2).reshape(-1, 3)
+    for i, j in itertools.combinations(range(len(F)), 2):
+        if np.abs(F[i] - F[j]).max() < tol - 1e-9:
+            return False
+    return True
+
+
+def pair_rule_ok(L, tol):
+    # the paper: however the second star is relabelled, both lengths of some opposite pair differ
+    for a, b in itertools.combinations(range(len(L)), 2):
+        worst = min(
+            max(
+                min(abs(L[a][2 * k] - L[b][r][2 * k]), abs(L[a][2 * k + 1] - L[b][r][2 * k + 1]))
+                for k in range(3)
+            )
+            for r in RELABELLINGS
+        )
+        if worst < tol - 1e-9:
+            return False
+    return True
+
+
+@pytest.mark.parametrize("rule", ["face", "pair"])
+def test_sampled_lower_bound_is_a_valid_family(rule):
+    spec = StarSpec(box_mm=(22.0, 22.0, 22.0), marker_mm=4.0, delta_mm=2.0, rule=rule, select="greedy")
+    L, stop = sampled_lower_bound(spec, np.random.default_rng(1), seconds=20, samples=60_000)
+    assert stop == "samples" and len(L) >= 5
+    limit = np.array(spec.centre_limit_mm)
+    lo, hi = spec.pool_bounds_mm
+    for row in L:
+        assert len(set(row.round(9))) == 6 and row.min() >= lo - 1e-9 and row.max() <= hi + 1e-9
+        P = vertices_from_lengths(row[None])[0]
+        assert np.allclose(lengths_from_vertices(P), row, atol=1e-6)  # realisable
+        assert star_box(P, limit, "exact")[4]  # fits the cube
+    assert (face_rule_ok if rule == "face" else pair_rule_ok)(L, spec.tol_mm)
+
+
+def test_sampled_never_beats_the_proven_bound():
+    exhaustive = run_cell((4.0, 2.0, 22.0, ("face",), 40, 10.0, 0))[0]
+    assert exhaustive["method"] == "exhaustive" and exhaustive["stars"] <= exhaustive["upper_bound"]
+    spec = StarSpec(box_mm=(22.0, 22.0, 22.0), marker_mm=4.0, delta_mm=2.0, select="greedy")
+    L, _ = sampled_lower_bound(spec, np.random.default_rng(2), seconds=20, samples=60_000)
+    assert len(L) <= exhaustive["upper_bound"]
+
+
+def test_cells_are_labelled_by_pool_size():
+    rows = sweep(4.0, [2.0], [12.0, 22.0], rules=("face",), exhaustive_pool=12, cell_seconds=2.0, workers=1)
+    by_cube = {r["cube_mm"]: r for r in rows}
+    for r in rows:
+        if r["pool_size"] == 0:
+            assert r["method"] == "none" and r["stars"] == 0
+        elif r["pool_size"] <= 12:
+            assert r["method"] == "exhaustive"
+        else:
+            assert r["method"] == "sampled lower bound" and r["upper_bound"] is None
+    assert by_cube[22.0]["method"] == "sampled lower bound"
+
+
+def test_sweep_cli_writes_csv_and_png(tmp_path):
+    out = tmp_path / "sw"
+    rc = main(
+        [
+            "sweep",
+            "--delta",
+            "2,3",
+            "--cube",
+            "18,24",
+            "--exhaustive-pool",
+            "14",
+            "--cell-seconds",
+            "2",
+            "--workers",
+            "2",
+            "--out",
+            str(out),
+            "-q",
+        ]
+    )
+    assert rc == 0
+    with (out / "sweep.csv").open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 2 * 2 * 2  # deltas x cubes x rules
+    assert {r["rule"] for r in rows} == {"face", "pair"}
+    assert {r["method"] for r in rows} <= {"exhaustive", "sampled lower bound", "none"}
+    assert (out / "sweep.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_sweep_cli_bad_range(tmp_path, capsys):
+    rc = main(["sweep", "--delta", "3:1:0.5", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "delta range stop must be >= start" in err and err.count("\n") == 1
