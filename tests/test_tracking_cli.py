@@ -133,3 +133,35 @@ def test_corrupt_json_one_line_exit_2(tmp_path, capsys):
     rc = main(["check", str(bad), "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert rc == 2 and "not valid JSON" in err and err.count("\n") == 1
+
+
+def test_check_on_two_placements(tmp_path):
+    pos = np.array(
+        [[0.0123, -0.0456, 0.1], [0.0781, 0.0029, 0.0333], [-0.05, 0.0611, 0.0207], [0.0017, 0.0091, -0.0642]]
+    )
+
+    def placement(path, p, name):
+        markers = [
+            {"position": list(x), "normal": [0, 0, 1], "site": i, "visibility": 1.0} for i, x in enumerate(p)
+        ]
+        doc = {
+            "format": "starforge.placement",
+            "version": 1,
+            "prop": {"name": name},
+            "markers": markers,
+            "marker_diameter_m": 0.01,
+        }
+        path.write_text(json.dumps(doc))
+        return path
+
+    a = placement(tmp_path / "a.json", pos, "wand")
+    b = placement(tmp_path / "b.json", pos[[0, 2, 1, 3]] * [1.0, -1.2, 0.9], "probe")
+    out = tmp_path / "o"
+    rc = main(["check", str(a), str(b), "--frames", "60", "--curve", "0", "--out", str(out), "-q"])
+    assert rc == 0
+    doc = json.loads((out / "check.json").read_text())
+    assert doc["input"]["kind"] == "placement" and doc["confusion"]["labels"] == ["wand", "probe"]
+    assert doc["settings"]["match_mm"] == 2.0  # no family tolerance: the default window
+    # placements are metres: the TRE at the centre uses the mm layout (4 markers)
+    assert doc["accuracy"][0]["tre_centre_mm"] == pytest.approx(np.sqrt(3) * 0.2 / 2)
+    assert doc["identification_rate"] > 0.9
