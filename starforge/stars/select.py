@@ -135,7 +135,7 @@ def local_search(
 
 #: default iteration budget of the iterated local search (``ils``); the stopping rule is this
 #: count, never wall time, so the same candidates always give the same family
-ILS_ITERATIONS = 1500
+ILS_ITERATIONS = 800
 #: seed of the ILS random generator (fixed: nothing time-dependent)
 ILS_SEED = 0
 
@@ -151,19 +151,24 @@ class _Packing:
     """
 
     def __init__(self, chosen, ptr, rows, n_rows, rank):
+        import scipy.sparse as sp
+
         n = len(ptr) - 1
         self.n, self.ptr, self.rows, self.rank = n, ptr, rows, rank
-        star_of_entry = np.repeat(np.arange(n, dtype=np.int64), np.diff(ptr))
-        key = rows.astype(np.int16) if n_rows < 2**15 else rows  # int16: radix sort
-        by_row = np.argsort(key, kind="stable")
-        rptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n_rows))])
-        cands = star_of_entry[by_row]
+        # row -> candidates (CSC of the incidence), candidates ascending within a row
+        inc = sp.csr_matrix((np.ones(len(rows), dtype=np.int8), rows, ptr), shape=(n, n_rows)).tocsc()
+        cands, rptr = inc.indices.astype(np.int64), inc.indptr.tolist()
         self.row_cands = [cands[rptr[r] : rptr[r + 1]] for r in range(n_rows)]
-        # padded rows per candidate (pad = sentinel row n_rows, never owned) for batch checks
+        # rows per candidate padded with the sentinel row n_rows (never owned), for batch checks
         counts = np.diff(ptr)
         width = int(counts.max()) if n else 0
-        self.padded = np.full((n, width), n_rows, dtype=np.int32 if n_rows < 2**31 - 1 else np.int64)
-        self.padded[star_of_entry, np.arange(len(rows)) - np.repeat(ptr[:-1], counts)] = rows
+        dtype = np.int32 if n_rows < 2**31 - 1 else np.int64
+        if n and (counts == width).all():
+            self.padded = rows.reshape(n, width).astype(dtype)
+        else:
+            star_of_entry = np.repeat(np.arange(n, dtype=np.int64), counts)
+            self.padded = np.full((n, width), n_rows, dtype=dtype)
+            self.padded[star_of_entry, np.arange(len(rows)) - np.repeat(ptr[:-1], counts)] = rows
         self.owner = np.full(n_rows + 1, -1, dtype=np.int64)
         self.in_fam = np.zeros(n, dtype=bool)
         self.cnt = np.zeros(n, dtype=np.int64)
@@ -299,16 +304,15 @@ def ils(
     rng = np.random.default_rng(seed)
     owner = P.owner
     it = 0
-    if n == 0:
-        return np.flatnonzero(P.in_fam), 0
-    while it < iterations and (bound is None or P.size < bound):
+    while n and it < iterations and (bound is None or P.size < bound):
         it += 1
         # perturbation: a random outside candidate held by one or two family stars
         s = -1
         for _ in range(64):
             batch = rng.integers(0, n, size=1024)
             own = np.sort(owner[P.padded[batch]], axis=1)  # -1 = free row or pad
-            distinct = (own[:, :1] >= 0).sum(axis=1) + ((own[:, 1:] != own[:, :-1]) & (own[:, 1:] >= 0)).sum(axis=1)
+            new = np.concatenate([own[:, :1] >= 0, (own[:, 1:] != own[:, :-1]) & (own[:, 1:] >= 0)], axis=1)
+            distinct = new.sum(axis=1)  # family stars holding the candidate's rows
             ok = np.flatnonzero((distinct >= 1) & (distinct <= 2) & ~P.in_fam[batch])
             if len(ok):
                 s = int(batch[ok[0]])
