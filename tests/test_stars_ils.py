@@ -93,9 +93,8 @@ def test_ils_reaches_milp_optimum(cands):
     index, _, _, _, n_rows, ptr, rows, order = instance(cands, rule)
     g = greedy(order, ptr, rows, n_rows)
     ls, _ = local_search(g, order, ptr, rows, n_rows)
-    opt, dual, _, finished = milp(ptr, rows, n_rows, np.arange(len(index)), 20.0)
-    if not finished:
-        pytest.skip("HiGHS did not prove optimality in time")
+    opt, dual, status, _ = milp(ptr, rows, n_rows, np.arange(len(index)), 60.0, node_limit=100000)
+    assert status == "optimal"
     best, used = ils(ls, order, ptr, rows, n_rows, iterations=2000, bound=len(opt))
     assert_packing(best, ptr, rows, n_rows)
     assert len(best) == len(opt)

@@ -103,8 +103,8 @@ def test_selection_is_a_packing_and_milp_is_optimal(cands, rule):
     order = compactness_order(idx, cands.pool_mm, cands.box_volume[np.sort(keep)])
     g = greedy(order, ptr, rows, n_rows)
     ls, _ = local_search(g, order, ptr, rows, n_rows)
-    opt, dual, _, finished = milp(ptr, rows, n_rows, np.arange(len(idx)), 60)
-    assert finished
+    opt, dual, status, _ = milp(ptr, rows, n_rows, np.arange(len(idx)), 60, node_limit=100000)
+    assert status == "optimal"
     for fam in (g, ls, opt):
         assert _packing_ok(fam, star, row)
     assert len(g) <= len(ls) <= len(opt) <= block_bound(idx, 1)
@@ -125,8 +125,8 @@ def test_milp_matches_exhaustive_search_on_a_tiny_instance(cands):
             continue
         if all(not (sets[a] & sets[b]) for a, b in itertools.combinations(members, 2)):
             best = len(members)
-    opt, _, _, finished = milp(ptr, rows, n_rows, np.arange(len(idx)), 60)
-    assert finished and len(opt) == best
+    opt, _, status, _ = milp(ptr, rows, n_rows, np.arange(len(idx)), 60, node_limit=100000)
+    assert status == "optimal" and len(opt) == best
 
 
 def test_enumeration_is_sound_and_covers_every_covariance_fit(cands):

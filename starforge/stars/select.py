@@ -337,8 +337,17 @@ def ils(
     return np.flatnonzero(P.in_fam), it
 
 
-def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float):
-    """Exact set packing over ``cols`` with HiGHS; returns (chosen, dual_bound, status, complete)."""
+#: HiGHS branch-and-bound node budget: a deterministic effort limit (the time limit is only a safety net)
+MILP_NODE_LIMIT = 500
+
+
+def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float, node_limit: int = MILP_NODE_LIMIT):
+    """Exact set packing over ``cols`` with HiGHS.
+
+    Returns (chosen, dual_bound, status, reproducible): ``reproducible`` is True when HiGHS
+    stopped at optimality or at the node limit (the same input gives the same answer), False
+    when the wall-clock time limit stopped it (the incumbent and bound then depend on timing).
+    """
     import scipy.sparse as sp
     from scipy.optimize import Bounds, LinearConstraint
     from scipy.optimize import milp as _milp
@@ -353,12 +362,15 @@ def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float):
         constraints=LinearConstraint(A, -np.inf, 1),
         integrality=np.ones(len(cols)),
         bounds=Bounds(0, 1),
-        options={"time_limit": float(time_limit), "disp": False},
+        options={"time_limit": float(time_limit), "node_limit": int(node_limit), "disp": False},
     )
     chosen = cols[np.flatnonzero(res.x > 0.5)] if res.x is not None else np.zeros(0, dtype=np.intp)
     dual = getattr(res, "mip_dual_bound", None)
     dual = int(np.floor(-dual + 1e-6)) if dual is not None and np.isfinite(dual) else None
-    return chosen, dual, res.message, res.status == 0
+    timed_out = "time limit" in str(res.message).lower()
+    reproducible = res.x is not None and (res.status == 0 or not timed_out)
+    status = "optimal" if res.status == 0 else ("time limit" if timed_out else "node limit")
+    return chosen, dual, status, reproducible
 
 
 def select_family(
@@ -392,17 +404,21 @@ def select_family(
     else:
         info.update(ils=int(len(chosen)), ils_iterations=0)
     if len(chosen) < bound and n <= MILP_MAX_COLUMNS:
-        # exact set packing over every candidate; trusted only when HiGHS finishes, so that the
-        # same spec always gives the same family (a time-limited incumbent depends on timing)
+        # exact set packing over every candidate under a deterministic node budget; a run cut
+        # by the wall-clock safety limit is not used, so the same spec gives the same family
         t2 = time.perf_counter()
-        m_chosen, dual, status, finished = milp(ptr, rows, n_rows, np.arange(n), spec.time_limit_s)
-        info.update(milp_columns=int(n), milp_status=str(status), milp_finished=bool(finished))
+        m_chosen, dual, status, reproducible = milp(ptr, rows, n_rows, np.arange(n), spec.time_limit_s)
+        info.update(milp_columns=int(n), milp_status=status, milp_used=bool(reproducible))
         info["milp_s"] = round(time.perf_counter() - t2, 3)
-        if finished:
-            chosen = np.sort(m_chosen)
+        if reproducible:
+            if len(m_chosen) > len(chosen):
+                chosen = np.sort(m_chosen)
             if dual is not None:
                 bound = min(bound, dual)
-            bound = min(bound, len(chosen)) if finished else bound
+            if status == "optimal":
+                bound = min(bound, len(m_chosen))
+        else:
+            info["milp_note"] = "stopped by --time-limit before its node budget: not used, so runs stay reproducible"
     elif len(chosen) < bound:
         info["milp_skipped"] = f"{n} candidates > {MILP_MAX_COLUMNS}: family from greedy + local search"
     info["proven_optimal"] = bool(len(chosen) >= bound)
