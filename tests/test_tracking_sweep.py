@@ -124,3 +124,45 @@ def test_sweep_cli_bad_range(tmp_path, capsys):
     rc = main(["sweep", "--delta", "3:1:0.5", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert rc == 2 and "delta range stop must be >= start" in err and err.count("\n") == 1
+
+
+def test_sampled_bounds_never_fall_below_a_smaller_cube():
+    rows = [
+        {
+            "rule": "face",
+            "delta_mm": 1.0,
+            "cube_mm": 40.0,
+            "stars": 800,
+            "method": "sampled lower bound",
+            "stop": "time",
+        },
+        {
+            "rule": "face",
+            "delta_mm": 1.0,
+            "cube_mm": 45.0,
+            "stars": 600,
+            "method": "sampled lower bound",
+            "stop": "time",
+        },
+        {
+            "rule": "face",
+            "delta_mm": 1.0,
+            "cube_mm": 35.0,
+            "stars": 400,
+            "method": "exhaustive",
+            "stop": "done",
+        },
+        {
+            "rule": "pair",
+            "delta_mm": 1.0,
+            "cube_mm": 45.0,
+            "stars": 10,
+            "method": "sampled lower bound",
+            "stop": "time",
+        },
+    ]
+    from starforge.tracking.sweep import carry_bounds
+
+    out = {(r["rule"], r["cube_mm"]): r for r in carry_bounds(rows)}
+    assert out[("face", 45.0)]["stars"] == 800 and "40 mm cube" in out[("face", 45.0)]["stop"]
+    assert out[("face", 40.0)]["stars"] == 800 and out[("pair", 45.0)]["stars"] == 10

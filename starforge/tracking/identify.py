@@ -34,6 +34,7 @@ Flips and mislabels are both confusions.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -467,7 +468,12 @@ def run(
     """
     check_settings(lib, noise_mm, drop, ghosts, n_frames, match_mm, residual_mm)
     B = lib.n_bodies
-    per = max(1, chunk_scenes // B)
+    # bound the candidate (observed triangle, library triangle) pairs per batch to ~4 million
+    span = float(np.ptp(lib.tri_sorted[:, 2])) + 1e-9
+    density = min(len(lib.tri_body), len(lib.tri_body) * 2 * match_mm / span + 1)
+    tris = math.comb(lib.n_max + ghosts, 3)
+    scenes = int(np.clip(4e6 / (tris * density), 200, chunk_scenes))
+    per = max(1, scenes // B)
     tally = Tally(B)
     done = 0
     while done < n_frames:

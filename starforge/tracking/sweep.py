@@ -16,7 +16,9 @@ Each (delta, cube) cell is computed one of two ways, and the CSV says which:
   enumeration's sufficient test); then the greedy over them, most compact first.  The family
   found is re-verified with :func:`starforge.stars.family.margins`, so the count is a sound
   lower bound on what fits (not an estimate of the maximum).  Each such cell draws a fixed
-  number of samples (same seed, same count) unless ``cell_seconds`` runs out first.
+  number of samples (same seed, same count) unless ``cell_seconds`` runs out first.  A family
+  that fits a cube fits every larger one, so a sampled cell is raised to the best count of any
+  smaller cube of the same delta (its ``stop`` says so).
 """
 
 from __future__ import annotations
@@ -321,6 +323,21 @@ def sweep(
                 if progress:
                     progress(i + 1, len(cells))
     rows.sort(key=lambda r: (r["rule"], r["delta_mm"], r["cube_mm"]))
+    return carry_bounds(rows)
+
+
+def carry_bounds(rows: list[dict]) -> list[dict]:
+    """A family that fits a cube fits every larger cube (same marker and delta: the pool only
+    grows), so a sampled lower bound is raised to the best count of any smaller cube."""
+    best: dict = {}
+    for r in sorted(rows, key=lambda r: (r["rule"], r["delta_mm"], r["cube_mm"])):
+        key = (r["rule"], r["delta_mm"])
+        prev = best.get(key)
+        if r["method"] == "sampled lower bound" and prev is not None and prev[0] > r["stars"]:
+            r["stars"] = prev[0]
+            r["stop"] = f"{r['stop']}; carried from the {prev[1]:g} mm cube"
+        if prev is None or r["stars"] > prev[0]:
+            best[key] = (r["stars"], r["cube_mm"])
     return rows
 
 
