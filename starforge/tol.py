@@ -23,6 +23,9 @@ class Tolerance:
         Trilateration must reproduce edge lengths to within this.
     box_rel : float
         Relative tolerance when comparing box extents against a size limit.
+    compare_mm : float
+        Slack when comparing lengths computed from stored coordinates (rounded to 1e-9 mm in
+        the JSON files) against a rule's threshold: far below any physical meaning.
     """
 
     length_mm: float = 1e-9
@@ -31,6 +34,7 @@ class Tolerance:
     zero: float = 1e-12
     reproduce_mm: float = 1e-9
     box_rel: float = 1e-9
+    compare_mm: float = 1e-6
 
 
 tol = Tolerance()

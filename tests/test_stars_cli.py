@@ -174,3 +174,16 @@ def test_preview_draws_a_png_sheet(tmp_path):
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
     assert width > 400 and height > 200
+
+
+def test_family_made_under_a_preset_passes_that_presets_rules(tmp_path):
+    fam = tmp_path / "art"
+    args = ["stars", "--preset", "art", "--box", 70, 50, 80, "--marker", 10, "--select", "greedy", "--out", fam, "-q"]
+    assert run_cli(args) == 0
+    doc = json.loads((fam / "family.json").read_text())
+    assert doc["spec"]["delta_mm"] == 5.0 and doc["spec"]["l_min_mm"] > 30.0
+    assert len(doc["stars"]) >= 2 and check_family(doc) == []
+    chk = tmp_path / "check"
+    assert run_cli(["check", fam / "family.json", "--preset", "art", "--frames", 50, "--ghosts", 0, "--out", chk, "-q"]) == 0
+    report = json.loads((chk / "check.json").read_text())
+    assert report["rules"]["violations"] == []

@@ -41,7 +41,7 @@ def test_art_published_numbers():
         30.0,
         5.0,
     )
-    assert star_spec_overrides("art") == {"tolerance_mm": 5.0, "l_min_mm": 30.0}
+    assert star_spec_overrides("art") == {"delta_mm": 5.0, "tolerance_mm": 5.0, "l_min_mm": 31.0}
 
 
 def test_unknown_preset_lists_known():

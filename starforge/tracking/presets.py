@@ -22,6 +22,7 @@ import numpy as np
 from starforge.catalog import list_templates, load_template
 from starforge.errors import StarforgeError
 from starforge.spec import from_mapping, positive, require
+from starforge.tol import tol
 
 
 @dataclass(frozen=True)
@@ -110,7 +111,7 @@ def load_preset(name_or_path: str) -> Preset:
 def star_spec_overrides(preset_name: str) -> dict:
     """StarSpec field overrides that generate a family under the preset's tolerances.
 
-    E.g. ``star_spec_overrides("art") == {"tolerance_mm": 5.0, "l_min_mm": 30.0}``.
+    E.g. ``star_spec_overrides("art") == {"delta_mm": 5.0, "tolerance_mm": 5.0, "l_min_mm": 31.0}``.
     """
     return dict(load_preset(preset_name).stars)
 
@@ -162,7 +163,7 @@ def check_body(name: str, P: np.ndarray, rules: Rules) -> list[Violation]:
         srt = np.sort(d)
         gaps = np.diff(srt)
         k = int(gaps.argmin())
-        if rules.distinct_mm is not None and gaps[k] < rules.distinct_mm:
+        if rules.distinct_mm is not None and gaps[k] < rules.distinct_mm - tol.compare_mm:
             out.append(
                 Violation(
                     name,
