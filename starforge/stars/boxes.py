@@ -58,19 +58,59 @@ def star_box(P: np.ndarray, limit, method: str = "exact", mvb=None):
     return R, c, e, "candidate", True
 
 
+def _face_flush_frame(P: np.ndarray, j: int):
+    """Frame j (= face * 6 + edge, the order of ``face_flush_extents``) of one tetrahedron."""
+    faces = list(itertools.combinations(range(4), 3))
+    edges = list(itertools.combinations(range(4), 2))
+    f, (a, b) = faces[j // 6], edges[j % 6]
+    n = np.cross(P[f[1]] - P[f[0]], P[f[2]] - P[f[0]])
+    n /= np.linalg.norm(n)
+    e = P[b] - P[a]
+    a2 = e - np.dot(e, n) * n
+    a2 /= np.linalg.norm(a2)
+    R = np.stack([n, a2, np.cross(n, a2)], axis=1)
+    q = P @ R
+    lo, hi = q.min(axis=0), q.max(axis=0)
+    return R, R @ (0.5 * (lo + hi)), hi - lo
+
+
 def place_stars(P: np.ndarray, limit, method: str = "exact"):
-    """:func:`place_star` for many stars (n, 4, 3); the exact boxes are computed in one batch."""
-    if method == "exact" and len(P):
-        R, c, e = min_volume_box(P)
-        out = []
-        for i in range(len(P)):
-            if _fits(e[i], limit):
-                T, ext_xyz = placement_transform(P[i], R[i], c[i], e[i])
-                out.append((P[i] @ T[:3, :3].T + T[:3, 3], T, ext_xyz, "exact", True))
-            else:
-                out.append(place_star(P[i], limit, method, mvb=(R[i], c[i], e[i])))
-        return out
-    return [place_star(p, limit, method) for p in P]
+    """:func:`place_star` for many stars (n, 4, 3), batched: the exact boxes in one call, and for
+    stars whose exact box does not fit, the fitting covariance / face-flush box of least volume."""
+    if method != "exact" or not len(P):
+        return [place_star(p, limit, method) for p in P]
+    from starforge.stars.enumerate import face_flush_extents
+
+    R, c, e = min_volume_box(P)
+    bad = [i for i in range(len(P)) if not _fits(e[i], limit)]
+    fallback = {}
+    if bad:
+        ext = face_flush_extents(P[bad])  # (b, 24, 3)
+        for k, i in enumerate(bad):
+            cands = [covariance_box(P[i])]
+            vols = np.where([_fits(x, limit) for x in ext[k]], np.prod(ext[k], axis=1), np.inf)
+            if np.isfinite(vols).any():
+                cands.append(_face_flush_frame(P[i], int(np.nanargmin(vols))))
+            fitting = [b for b in cands if _fits(b[2], limit)]
+            if fitting:
+                Rb, cb, eb = min(fitting, key=lambda b: float(np.prod(b[2])))
+                if np.linalg.det(Rb) < 0:
+                    Rb = Rb.copy()
+                    Rb[:, 2] *= -1
+                fallback[i] = (Rb, cb, eb)
+    out = []
+    for i in range(len(P)):
+        if i in fallback or not _fits(e[i], limit):
+            if i not in fallback:
+                out.append((P[i], np.eye(4), e[i], "exact", False))
+                continue
+            Rb, cb, eb = fallback[i]
+            how = "candidate"
+        else:
+            Rb, cb, eb, how = R[i], c[i], e[i], "exact"
+        T, ext_xyz = placement_transform(P[i], Rb, cb, eb)
+        out.append((P[i] @ T[:3, :3].T + T[:3, 3], T, ext_xyz, how, True))
+    return out
 
 
 def place_star(P: np.ndarray, limit, method: str = "exact", mvb=None):

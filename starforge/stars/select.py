@@ -66,7 +66,9 @@ def block_bound(index: np.ndarray, m: int) -> int:
     """Proven upper bound: face keys in one block of side m (grid steps) conflict pairwise and a
     star's four faces lie in four different blocks, so a family has at most blocks // 4 stars."""
     faces = key_triples(index, "face")[:, :4] // m
-    blocks = np.unique(faces.reshape(-1, 3), axis=0)
+    f = faces.reshape(-1, 3).astype(np.int64)
+    base = int(f.max()) + 1 if len(f) else 1
+    blocks = np.unique((f[:, 0] * base + f[:, 1]) * base + f[:, 2])  # one int64 per block
     return len(blocks) // 4
 
 
