@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from starforge.render._mpl import pyplot, save_png
+
 _DPI = 100
 
 
@@ -64,29 +66,10 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
     )
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig, path: Path) -> None:
-    import io
-
-    from starforge.io import atomic_write_bytes
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=_DPI, metadata={"Software": None})
-    atomic_write_bytes(path, buf.getvalue())
-
-
 def convergence_png(res, path: str | Path) -> Path:
     """Total cost per iteration for every restart (best run highlighted), temperature and marker count."""
     d = plot_data(res)
-    plt = _plt()
+    plt = pyplot()
     fig, (ax, ax2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     for k, (cost, _, _) in enumerate(d.run_costs):
         if k != d.best:
@@ -107,7 +90,7 @@ def convergence_png(res, path: str | Path) -> Path:
     ax2.set_xlabel("iteration")
     ax2.grid(alpha=0.3)
     fig.subplots_adjust(left=0.1, right=0.9, top=0.92, bottom=0.1, hspace=0.08)
-    _save(fig, Path(path))
+    save_png(fig, path, dpi=_DPI)
     plt.close(fig)
     return Path(path)
 
@@ -128,7 +111,7 @@ def layout_png(res, path: str | Path) -> Path:
     than matplotlib's 3D axes; hidden markers are drawn hollow.
     """
     d = plot_data(res)
-    plt = _plt()
+    plt = pyplot()
     from matplotlib.collections import PolyCollection
 
     pts = d.marker_points
@@ -189,7 +172,7 @@ def layout_png(res, path: str | Path) -> Path:
     fig.suptitle(
         f"{d.name}: {len(pts)} markers, mean visibility {d.mean_visibility:.2f} (hollow: on the far side)"
     )
-    _save(fig, Path(path))
+    save_png(fig, path, dpi=_DPI)
     plt.close(fig)
     return Path(path)
 
@@ -268,7 +251,7 @@ def _child(read_fd: int) -> None:
     """Body of the render process: import matplotlib, wait for a job, draw it, exit."""
     code = 1
     try:
-        _plt()
+        pyplot()
         with os.fdopen(read_fd, "rb") as fh:
             message = fh.read()
         if not message:

@@ -19,11 +19,11 @@ def family_sheet(family, path: str | Path, limit: int = 40, cols: int = 8) -> Pa
     limit : int  how many stars (the most compact come first in a family)
     cols : int   stars per row
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.patches import Circle, Rectangle
+
+    from starforge.render._mpl import pyplot, save_png
+
+    plt = pyplot()
 
     stars = family.stars[:limit]
     rows = max(1, int(np.ceil(len(stars) / cols)))
@@ -56,7 +56,6 @@ def family_sheet(family, path: str | Path, limit: int = 40, cols: int = 8) -> Pa
         fontsize=9,
     )
     fig.tight_layout(rect=(0, 0, 1, 0.97))
-    path = Path(path)
-    fig.savefig(path, dpi=110)
+    save_png(fig, path, dpi=110)
     plt.close(fig)
-    return path
+    return Path(path)

@@ -5,31 +5,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from starforge.render._mpl import pyplot, save_png
+
 _DPI = 100
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig, path: Path) -> None:
-    import io
-
-    from starforge.io import atomic_write_bytes
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=_DPI, metadata={"Software": None})
-    atomic_write_bytes(path, buf.getvalue())
 
 
 def rates_plot(check_doc: dict, path: Path) -> Path:
     """Identification and mislabel rates against marker noise (sigma per axis, mm)."""
-    plt = _plt()
+    plt = pyplot()
     c = check_doc["curve"]
     s = check_doc["settings"]
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
@@ -54,7 +37,7 @@ def rates_plot(check_doc: dict, path: Path) -> Path:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="center right")
         fig.tight_layout()
-        _save(fig, Path(path))
+        save_png(fig, path, dpi=_DPI)
     finally:
         plt.close(fig)
     return Path(path)
@@ -66,7 +49,7 @@ def sweep_plot(rows: list[dict], path: Path, marker_mm: float) -> Path:
 
     Exhaustive cells are drawn with filled markers, sampled lower bounds with open markers.
     """
-    plt = _plt()
+    plt = pyplot()
     rules = sorted({r["rule"] for r in rows})
     fig, axes = plt.subplots(1, len(rules), figsize=(6.0 * len(rules), 4.4), squeeze=False)
     try:
@@ -96,7 +79,7 @@ def sweep_plot(rows: list[dict], path: Path, marker_mm: float) -> Path:
             ax.grid(alpha=0.3, which="both")
             ax.legend(fontsize=7)
         fig.tight_layout()
-        _save(fig, Path(path))
+        save_png(fig, path, dpi=_DPI)
     finally:
         plt.close(fig)
     return Path(path)
