@@ -22,6 +22,9 @@ def stars_cmd(
     tolerance: float = typer.Option(None, "--tolerance", help="Face/edge tolerance, mm (default: delta)."),
     box_method: str = typer.Option(None, "--box-method", help="exact (default) or covariance (the paper's OBB)."),
     time_limit: float = typer.Option(None, "--time-limit", help="MILP time limit, s."),
+    reserve: tuple[float, float, float] = typer.Option(
+        None, "--reserve", help="mm kept free for a mount on the shortest, middle, longest side (flat: 3 1.2 1.2)."
+    ),
     preset: str = typer.Option(None, "--preset", help="Apply a tracker preset's tolerances (art, ndi, ...)."),
     name: str = typer.Option(None, "--name", help="Family name (default: the spec's name)."),
     out: Path = typer.Option(None, "--out", help="Output folder (default: out/<name>)."),
@@ -68,6 +71,7 @@ def stars_cmd(
         "tolerance_mm": tolerance,
         "box_method": box_method,
         "time_limit_s": time_limit,
+        "reserve_mm": list(reserve) if reserve is not None else None,
         "name": name,
     }
     data.update({k: v for k, v in overrides.items() if v is not None})

@@ -44,6 +44,11 @@ class StarSpec:
         reported); "covariance": the paper's covariance OBB must fit.
     time_limit_s : float
         Time limit for the MILP.
+    reserve_mm : (3,) float
+        Millimetres of the size limit kept free for a mount, along its shortest, middle and
+        longest side.  Printed bodies stack their mount on the star's shortest side and the
+        plate overhangs the spheres a little; for the default flat mount (1 mm standoff, 2 mm
+        plate, margins) ``(3, 1.2, 1.2)`` leaves room so every body fits the limit too.
     name : str
         Family name; the default output folder is ``out/<name>``.
     description : str
@@ -62,6 +67,7 @@ class StarSpec:
     count: int | None = None
     box_method: BoxMethod = "exact"
     time_limit_s: float = 5.0
+    reserve_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     name: str = "custom"
     description: str = ""
 
@@ -82,6 +88,20 @@ class StarSpec:
             small > self.marker_mm,
             f"box_mm {list(self.box_mm)} is too small for one {self.marker_mm} mm sphere "
             f"(smallest side {small} mm must exceed marker_mm)",
+        )
+        require(len(self.reserve_mm) == 3, f"reserve_mm needs 3 values, got {len(self.reserve_mm)}")
+        for i, r in enumerate(self.reserve_mm):
+            require(math.isfinite(r) and r >= 0, f"reserve_mm[{i}] must be >= 0, got {r}")
+        lim = [x - self.marker_mm - r for x, r in zip(sorted(self.box_mm), self.reserve_mm, strict=True)]
+        require(
+            lim[0] > 0,
+            f"reserve_mm[0] {self.reserve_mm[0]} leaves no room on the shortest side "
+            f"({small:g} mm less one {self.marker_mm:g} mm sphere)",
+        )
+        require(
+            lim[0] <= lim[1] <= lim[2],
+            f"reserve_mm {list(self.reserve_mm)} reorders the sides of box_mm {list(self.box_mm)}: "
+            f"keep the reserved box's shortest, middle and longest sides in order",
         )
         if self.l_min_mm is not None:
             positive("l_min_mm", self.l_min_mm)
@@ -106,8 +126,10 @@ class StarSpec:
 
     @property
     def centre_limit_mm(self) -> tuple[float, float, float]:
-        """Sorted (ascending) box that the sphere centres must fit, mm."""
-        return tuple(sorted(b - self.marker_mm for b in self.box_mm))
+        """Sorted (ascending) box that the sphere centres must fit, mm: the limit less one marker
+        diameter, and its shortest side less ``reserve_mm``."""
+        a, b, c = (x - self.marker_mm - r for x, r in zip(sorted(self.box_mm), self.reserve_mm, strict=True))
+        return (a, b, c)
 
     @property
     def pool_bounds_mm(self) -> tuple[float, float]:

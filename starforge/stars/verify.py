@@ -27,6 +27,7 @@ def check_family(data: dict, slack_mm: float = 1e-6) -> list[str]:
     tol_mm = float(spec["tolerance_mm"]) if spec.get("tolerance_mm") is not None else delta
     marker = float(spec["marker_mm"])
     limit = sorted(float(b) for b in spec["box_mm"])
+    reserve = [float(r) for r in (spec.get("reserve_mm") or (0.0, 0.0, 0.0))]  # kept free for a mount
     rule = spec.get("rule", "face")
     problems: list[str] = []
     stars = data["stars"]
@@ -65,6 +66,7 @@ def check_family(data: dict, slack_mm: float = 1e-6) -> list[str]:
         if not ((P >= lo).all() and (P <= hi).all()):
             problems.append(f"star {sid}: a sphere centre lies outside its reported box")
         phys = sorted(float(e) + marker for e in ext)
+        phys = [p + r for p, r in zip(phys, reserve, strict=True)]
         for e, lim in zip(phys, limit, strict=True):
             if e > lim + slack_mm:
                 problems.append(f"star {sid}: box {phys} (with spheres) does not fit the limit {limit}")
