@@ -306,6 +306,8 @@ def enumerate_candidates(
         from concurrent.futures import ProcessPoolExecutor
 
         ctx = mp.get_context("forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn")
+        if ctx.get_start_method() == "forkserver":
+            ctx.set_forkserver_preload([__name__])  # workers fork with numpy and this module loaded
         with ProcessPoolExecutor(
             max_workers=min(workers, len(batches)), mp_context=ctx, initializer=_worker_init
         ) as ex:
