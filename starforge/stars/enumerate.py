@@ -164,14 +164,14 @@ def _process(subsets: np.ndarray, assign: np.ndarray, pool: np.ndarray, limit: n
     counts["kyfan_ok"] = len(idx)
     # sufficient: the covariance box, then O'Rourke's face-flush boxes
     ext_cov = _span(np.swapaxes(P @ evec, 1, 2))
-    fit_cov = _fits(ext_cov, limit)
+    fit_cov = fits_limit(ext_cov, limit)
     counts["fit_cov"] = int(fit_cov.sum())
     best_ext = np.where(fit_cov[:, None], ext_cov, np.nan)
     if exact:
         rest = np.flatnonzero(~fit_cov)
         if len(rest):
             ext_f = face_flush_extents(P[rest])
-            fit_f = _fits(ext_f, limit) & np.isfinite(ext_f).all(axis=-1)
+            fit_f = fits_limit(ext_f, limit) & np.isfinite(ext_f).all(axis=-1)
             vol_f = np.where(fit_f, np.prod(ext_f, axis=-1), np.inf)
             j = vol_f.argmin(axis=1)
             hit = np.isfinite(vol_f[np.arange(len(rest)), j])
@@ -181,7 +181,7 @@ def _process(subsets: np.ndarray, assign: np.ndarray, pool: np.ndarray, limit: n
     return idx[ok].astype(np.int16), best_ext[ok], counts
 
 
-def _fits(ext: np.ndarray, limit: np.ndarray) -> np.ndarray:
+def fits_limit(ext, limit) -> np.ndarray:
     """Sorted extents (..., 3) within the sorted limit (3,) (sorting 3 values without np.sort)."""
     a, b, c = ext[..., 0], ext[..., 1], ext[..., 2]
     lo = np.minimum(np.minimum(a, b), c)
