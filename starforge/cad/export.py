@@ -114,10 +114,13 @@ def export_family(
     preview: bool = False,
     allow_oversize: bool = False,
     progress=None,
+    bodies=None,
 ) -> ExportReport:
     """Write the bodies of a family into ``stage`` (see the module docstring for the files).
 
-    ``progress(done, total)`` is called after each star.
+    ``progress(done, total)`` is called after each star.  ``bodies``: the descriptions from
+    :func:`family_bodies` for the same family, ids, mount and spec, when the caller already has
+    them (they are described here otherwise).
     """
     from starforge.cad.mesh import body_mesh
     from starforge.cad.plate import layout_plate, plate_mesh
@@ -131,7 +134,8 @@ def export_family(
     stage = Path(stage)
     rep = ExportReport()
     t0 = time.perf_counter()
-    bodies = family_bodies(family, ids, mount, spec)
+    if bodies is None:
+        bodies = family_bodies(family, ids, mount, spec)
     fits = check_fit(bodies, family.spec.box_mm, mount.name, allow_oversize)
     layout = layout_plate([body_bounds(b, finished=True) for b in bodies], bed_mm, gap_mm) if plate else None
     rep.timings["describe_s"] = time.perf_counter() - t0

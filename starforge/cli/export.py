@@ -84,6 +84,24 @@ def body_spec_from_options(**kw):
     return from_mapping(BodySpec, {k: v for k, v in kw.items() if v is not None}, where="body options")
 
 
+def describe_bodies(family, mount, sets, ids, allow_oversize, **body_options):
+    """The CAD options of ``export`` and ``preview`` -> (mount, body spec, id list, bodies).
+
+    Every check that can fail runs here, before any file is written: the mount and its
+    parameters, the body options (stems thinner than printable, ...), the ids, and the fit of
+    every body against the family's size limit (unless ``allow_oversize``).
+    """
+    from starforge.cad.export import check_fit, family_bodies, parse_ids
+    from starforge.cad.mounts import load_mount
+
+    m = load_mount(mount, parse_sets(sets))
+    spec = body_spec_from_options(**body_options)
+    id_list = parse_ids(ids)
+    bodies = family_bodies(family, id_list, m, spec)
+    check_fit(bodies, family.spec.box_mm, m.name, allow_oversize)
+    return m, spec, id_list, bodies
+
+
 def default_out(file: Path, cad: bool) -> Path:
     """``<folder of FILE>/bodies`` for CAD formats, ``<folder of FILE>/tracker`` otherwise."""
     folder = file.parent if file.suffix else file
@@ -160,11 +178,17 @@ def export_cmd(
                 f"CAD formats ({', '.join(cad)}) need a family.json; {src} is {data.get('format')!r}"
             )
         family = load_family(src)
-        from starforge.cad.export import check_fit, export_family, parse_ids
-        from starforge.cad.mounts import load_mount
+        from starforge.cad.export import expected_files, export_family
+        from starforge.io import check_writable
 
-        m = load_mount(mount, parse_sets(sets))
-        spec = body_spec_from_options(
+        bed_mm = parse_bed(bed)
+        # fail before the work, not after: mount, stems, ids, fit, existing files
+        m, spec, id_list, bodies = describe_bodies(
+            family,
+            mount,
+            sets,
+            ids,
+            allow_oversize,
             tip=tip,
             coating_mm=coating_mm,
             stem_mm=stem_mm,
@@ -172,14 +196,6 @@ def export_cmd(
             post_mm=post_mm,
             label=False if no_label else None,
         )
-        id_list = parse_ids(ids)
-        bed_mm = parse_bed(bed)
-        from starforge.cad.export import expected_files, family_bodies
-        from starforge.io import check_writable
-
-        # fail before the work, not after: ids, stems, mount, fit, existing files
-        bodies = family_bodies(family, id_list, m, spec)
-        check_fit(bodies, family.spec.box_mm, m.name, allow_oversize)
         check_writable(out, expected_files(bodies, cad, not no_plate, preview), force)
     elif ids or sets or preview:
         raise StarforgeError("--ids, --set and --preview apply to CAD formats (step, stl, 3mf)")
@@ -196,8 +212,7 @@ def export_cmd(
     with staged_output(out, force) as stage:
         if cad:
             with progress() as bar:
-                n = len(family.stars) if id_list is None else len(id_list)
-                task = bar.add_task("bodies", total=n)
+                task = bar.add_task("bodies", total=len(bodies))
                 rep = export_family(
                     family,
                     stage,
@@ -211,6 +226,7 @@ def export_cmd(
                     preview=preview,
                     allow_oversize=allow_oversize,
                     progress=lambda done, total: bar.update(task, completed=done, total=total),
+                    bodies=bodies,
                 )
             written.extend(rep.files)
         if trk:

@@ -34,17 +34,19 @@ def preview_cmd(
     force: bool = typer.Option(False, "--force", help="Overwrite existing pictures."),
 ) -> None:
     """Draw each body (preview/star_<id>.png) and a sheet of all of them with their ids (preview/sheet.png)."""
-    from starforge.cad.export import check_fit, family_bodies, parse_ids
-    from starforge.cad.mounts import load_mount
-    from starforge.cli.export import body_spec_from_options, default_out, parse_sets
+    from starforge.cli.export import default_out, describe_bodies
     from starforge.io import staged_output
     from starforge.render.bodies import render_body_png, render_sheet_png
     from starforge.stars.model import load_family
 
     src = file / "family.json" if file.is_dir() else file
     family = load_family(src)
-    m = load_mount(mount, parse_sets(sets))
-    spec = body_spec_from_options(
+    _, _, _, bodies = describe_bodies(
+        family,
+        mount,
+        sets,
+        ids,
+        allow_oversize,
         tip=tip,
         coating_mm=coating_mm,
         stem_mm=stem_mm,
@@ -52,8 +54,6 @@ def preview_cmd(
         post_mm=post_mm,
         label=False if no_label else None,
     )
-    bodies = family_bodies(family, parse_ids(ids), m, spec)
-    check_fit(bodies, family.spec.box_mm, m.name, allow_oversize)
     out = out if out is not None else default_out(src, True)
     with staged_output(out, force) as stage:
         (stage / "preview").mkdir()
