@@ -41,7 +41,7 @@ def stars_cmd(
 
     from starforge import __version__
     from starforge.catalog import load_template
-    from starforge.io import staged_output
+    from starforge.io import check_writable, staged_output
     from starforge.stars.family import make_family
     from starforge.stars.model import family_csv
     from starforge.stars.spec import spec_from_mapping
@@ -78,8 +78,6 @@ def stars_cmd(
     data.setdefault("name", spec_name)
     s = spec_from_mapping(data)
     out_dir = out if out is not None else Path("out") / s.name
-    from starforge.io import check_writable
-
     names = ["family.json", "family.csv", "run.json"] + (["family.png"] if preview else [])
     check_writable(out_dir, names, force)  # fail before the long work
 
