@@ -3,10 +3,24 @@
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from starforge.cli import main
+
+# One fixed hypothesis profile: the same examples on every run and machine (derandomize), no
+# example database carried between runs, no wall-clock deadlines on a loaded CI machine.
+settings.register_profile(
+    "ci",
+    derandomize=True,
+    database=None,
+    deadline=None,
+    print_blob=True,
+    suppress_health_check=[HealthCheck.too_slow],
+)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 FINGER = ["--box", "20.8", "12.6", "48.3", "--marker", "4", "--delta", "1.5"]
 
