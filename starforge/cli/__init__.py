@@ -32,6 +32,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rv = app(args=argv, prog_name="starforge", standalone_mode=False)
         code = rv if isinstance(rv, int) else 0
+    except KeyboardInterrupt:
+        print("interrupted; no output was changed", file=sys.stderr)
+        code = 130
+    except MemoryError:
+        # every large allocation is estimated first (starforge.budget); this is the last resort
+        print("error: out of memory; lower the problem size or the memory others use (--max-memory)",
+              file=sys.stderr)
+        code = 2
     except (ValueError, OSError) as exc:  # StarforgeError is a ValueError
         msg = str(exc) or exc.__class__.__name__
         if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
@@ -42,8 +50,8 @@ def main(argv: list[str] | None = None) -> int:
         # click's (or typer's vendored click's) control-flow exceptions, matched by shape so
         # that both layouts work: Exit carries exit_code, usage errors also know how to show().
         name = type(exc).__name__
-        if name == "Abort":
-            print("aborted", file=sys.stderr)
+        if name == "Abort":  # click turns Ctrl-C (KeyboardInterrupt) into Abort
+            print("interrupted; no output was changed", file=sys.stderr)
             code = 130
         elif hasattr(exc, "show") and hasattr(exc, "exit_code"):
             exc.show()

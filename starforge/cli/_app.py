@@ -57,9 +57,22 @@ def progress(transient: bool = True, disable: bool | None = None):
 def _root(
     ctx: typer.Context,
     version: bool = typer.Option(False, "--version", help="Print the version and exit.", is_eager=True),
+    max_memory: str = typer.Option(
+        None, "--max-memory", help="Memory any command may plan to use, e.g. 2G (default: half this machine's)."
+    ),
+    max_seconds: float = typer.Option(None, "--max-seconds", help="Time any command may plan to take, s (default 7200)."),
 ) -> None:
     """Design optical motion-capture markers: unique marker-star families, printable bodies,
     prop marker placement and the files trackers load."""
+    import os
+
+    from starforge import budget
+
+    if max_memory is not None:
+        os.environ[budget.ENV_MEMORY] = str(budget.parse_bytes(max_memory, "--max-memory"))
+    if max_seconds is not None:
+        os.environ[budget.ENV_SECONDS] = repr(float(max_seconds))
+        budget.time_limit_s()  # validates
     if version:
         from starforge import __version__
 
