@@ -31,9 +31,9 @@ def list_templates(kind: str) -> list[str]:
 
 def read_toml(path: str | Path) -> dict:
     """Parse a TOML file with one-line errors for missing or corrupt files."""
-    path = Path(path)
-    if not path.is_file():
-        raise StarforgeError(f"spec file not found: {path}")
+    from starforge.io import check_input_file
+
+    path = check_input_file(path, "spec file")
     try:
         return tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import os
+import re
 import shutil
+import signal
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -54,15 +58,116 @@ def atomic_write_json(path: str | Path, obj) -> Path:
     return atomic_write_text(path, json.dumps(obj, indent=2, allow_nan=False) + "\n")
 
 
+def check_name(name: str, what: str = "name") -> str:
+    """A name that becomes a file or folder name: letters, digits, ``._-``, not starting with a dot,
+    so that it can never leave the output folder (``../x``) or hide itself."""
+    if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9._-]{0,99}", name):
+        raise StarforgeError(
+            f"{what} must be 1-100 letters, digits, '.', '_' or '-' and not start with '.' or '-', got {name!r}"
+        )
+    return name
+
+
+def _nearest_existing(path: Path) -> Path:
+    path = Path(os.path.abspath(path))
+    while not os.path.lexists(path) and path != path.parent:
+        path = path.parent
+    return path
+
+
 def check_writable(out_dir: str | Path, names: Iterable[str], force: bool) -> None:
-    """Refuse (StarforgeError) when any of ``names`` already exists in ``out_dir`` and not ``force``."""
+    """Before the work starts: refuse (StarforgeError) when ``out_dir`` cannot be written or when
+    any of ``names`` already exists there and not ``force``.
+
+    ``out_dir`` may not exist yet; its nearest existing ancestor must be a folder in which a
+    file can really be created (probed with a temp file, so read-only mounts and permissions
+    are caught even for root).  Nothing is left behind by the check.
+    """
     out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
+    if os.path.lexists(out_dir) and not out_dir.is_dir():
         raise StarforgeError(f"output path {out_dir} exists and is not a folder")
-    existing = [n for n in names if (out_dir / n).exists()]
+    base = _nearest_existing(out_dir)
+    if not base.is_dir():
+        raise StarforgeError(f"cannot create output folder {out_dir}: {base} is not a folder")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".starforge-probe.", dir=base)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise StarforgeError(f"cannot write to {out_dir}: {exc.strerror or exc} ({base})") from None
+    names = list(names)
+    for n in names:
+        dst = out_dir / n
+        if dst.is_dir():
+            raise StarforgeError(f"{dst} is a folder where an output file goes; move it away first")
+        for anc in Path(n).parents:
+            a = out_dir / anc
+            if anc != Path(".") and os.path.lexists(a) and not a.is_dir():
+                raise StarforgeError(f"{a} is a file where an output folder goes; move it away first")
+    existing = [n for n in names if os.path.lexists(out_dir / n)]
     if existing and not force:
         shown = ", ".join(existing[:3]) + (" ..." if len(existing) > 3 else "")
         raise StarforgeError(f"{out_dir} already holds {shown}; pass --force to overwrite")
+
+
+@contextmanager
+def _sigint_blocked():
+    """Hold Ctrl-C (delivered afterwards) while a few renames run, so they finish or roll back."""
+    blockable = threading.current_thread() is threading.main_thread() and hasattr(signal, "pthread_sigmask")
+    if blockable:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
+    finally:
+        if blockable:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def publish(stage: Path, out_dir: Path, force: bool) -> list[Path]:
+    """Move every file of ``stage`` into ``out_dir`` all or nothing; returns the relative paths.
+
+    A new ``out_dir`` is the stage folder renamed (one atomic step).  Into an existing folder,
+    old files of the same names are moved aside first, then the new ones in; if any step fails
+    every move is undone, so ``out_dir`` is exactly as it was.  Other files there stay.
+    """
+    stage, out_dir = Path(stage), Path(out_dir)
+    produced = sorted(p.relative_to(stage) for p in stage.rglob("*") if p.is_file())
+    check_writable(out_dir, [str(p) for p in produced], force)
+    with _sigint_blocked():
+        if not os.path.lexists(out_dir):
+            out_dir.parent.mkdir(parents=True, exist_ok=True)
+            os.rename(stage, out_dir)
+            return produced
+        backup = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".old", dir=out_dir.parent))
+        saved: list[Path] = []
+        moved: list[Path] = []
+        made: list[Path] = []
+        try:
+            for rel in produced:
+                dst = out_dir / rel
+                if os.path.lexists(dst):
+                    (backup / rel).parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(dst, backup / rel)
+                    saved.append(rel)
+                for anc in reversed(rel.parents):
+                    d = out_dir / anc
+                    if not d.exists():
+                        d.mkdir()
+                        made.append(d)
+                os.replace(stage / rel, dst)
+                moved.append(rel)
+        except BaseException:
+            for rel in reversed(moved):
+                os.replace(out_dir / rel, stage / rel)
+            for rel in reversed(saved):
+                os.replace(backup / rel, out_dir / rel)
+            for d in reversed(made):
+                with contextlib.suppress(OSError):
+                    d.rmdir()
+            raise
+        finally:
+            shutil.rmtree(backup, ignore_errors=True)
+    return produced
 
 
 @contextmanager
@@ -73,43 +178,56 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
 
         with staged_output(out, force) as stage:
             (stage / "family.json").write_text(...)
-        # now out/family.json exists; on any exception nothing in ``out`` changed
+        # now out/family.json exists; on any exception (Ctrl-C included) nothing in ``out`` changed
 
-    Files are moved in with ``os.replace`` (atomic per file).  Existing files of the same
-    names are refused unless ``force``; other files in ``out_dir`` are left alone.
+    Publishing is all or nothing (:func:`publish`).  Existing files of the same names are
+    refused unless ``force``; other files in ``out_dir`` are left alone.
     """
     out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
+    if os.path.lexists(out_dir) and not out_dir.is_dir():
         raise StarforgeError(f"output path {out_dir} exists and is not a folder")
-    parent = out_dir.parent
-    parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".staging", dir=parent))
+    # stage in the nearest folder that exists, so a failure creates no folder either
+    stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".staging",
+                                  dir=_nearest_existing(out_dir.parent)))
     try:
         yield stage
-        for p in stage.rglob("*"):  # mkdtemp/mkstemp create 0o700/0o600; give outputs the usual modes
+        for p in [stage, *stage.rglob("*")]:  # mkdtemp/mkstemp create 0o700/0o600; use the usual modes
             p.chmod(0o777 & ~_umask() if p.is_dir() else _file_mode())
-        produced = sorted(p.relative_to(stage) for p in stage.rglob("*") if p.is_file())
-        check_writable(out_dir, [str(p) for p in produced], force)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        for rel in produced:
-            dst = out_dir / rel
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(stage / rel, dst)
+        publish(stage, out_dir, force)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
 
 
-def read_json(path: str | Path, what: str = "file") -> dict:
-    """Read a JSON object with clear errors for a missing or corrupt file."""
+def check_input_file(path: str | Path, what: str = "file") -> Path:
+    """A readable regular file, or StarforgeError saying what is wrong with it (missing, a folder,
+    a device such as /dev/null, empty, unreadable)."""
     path = Path(path)
-    if not path.exists():
+    if not os.path.lexists(path):
         raise StarforgeError(f"{what} not found: {path}")
     if path.is_dir():
-        raise StarforgeError(f"{what} {path} is a folder, expected a JSON file")
+        raise StarforgeError(f"{what} {path} is a folder, expected a file")
+    if not path.is_file():
+        raise StarforgeError(f"{what} {path} is not a regular file")
+    try:
+        size = path.stat().st_size
+        with open(path, "rb"):
+            pass
+    except OSError as exc:
+        raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+    if size == 0:
+        raise StarforgeError(f"{what} {path} is empty")
+    return path
+
+
+def read_json(path: str | Path, what: str = "file") -> dict:
+    """Read a JSON object with clear errors for a missing, empty or corrupt file."""
+    path = check_input_file(path, what)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise StarforgeError(f"{what} {path} is not valid JSON ({exc.__class__.__name__}: {exc})") from None
+    except RecursionError:
+        raise StarforgeError(f"{what} {path} is nested too deeply to be a starforge file") from None
     if not isinstance(data, dict):
         raise StarforgeError(f"{what} {path} must hold a JSON object, got {type(data).__name__}")
     return data
