@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from starforge.cli import main
+from starforge.geometry.rigid import fle_from_sigma, tre_rms
 from starforge.tracking.bodies import load_bodies
-from starforge.tracking.tre import fle_from_sigma, tre_rms
 
 
 @pytest.fixture(scope="module")

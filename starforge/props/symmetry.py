@@ -18,6 +18,8 @@ import math
 
 import numpy as np
 
+from starforge.geometry.rigid import kabsch
+
 _AXES = np.eye(3)
 
 
@@ -101,31 +103,6 @@ def is_symmetric(points: np.ndarray, k: int = 8, tol_m: float = 0.002) -> bool:
     return False
 
 
-def _kabsch(a: np.ndarray, b: np.ndarray):
-    """Proper rotation R and translation t minimising |R a + t - b| (rows are points)."""
-    ca, cb = a.mean(axis=0), b.mean(axis=0)
-    H = (a - ca).T @ (b - cb)
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-    D = np.diag([1.0, 1.0, d])
-    R = Vt.T @ D @ U.T
-    return R, cb - R @ ca
-
-
-def _kabsch_batch(a: np.ndarray, b: np.ndarray):
-    """Batched Kabsch: a, b (m, k, 3) -> R (m, 3, 3), t (m, 3) with R a + t ~ b."""
-    ca, cb = a.mean(axis=1), b.mean(axis=1)
-    H = np.einsum("mki,mkj->mij", a - ca[:, None], b - cb[:, None])
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.einsum("mji,mkj->mik", Vt, U)))
-    d[d == 0] = 1.0
-    D = np.zeros((len(a), 3, 3))
-    D[:, 0, 0] = D[:, 1, 1] = 1.0
-    D[:, 2, 2] = d
-    R = np.einsum("mji,mjk,mlk->mil", Vt, D, U)
-    return R, cb - np.einsum("mij,mj->mi", R, ca)
-
-
 def near_symmetry_margin(points: np.ndarray, refine: int = 24, cap: float = math.inf) -> float:
     """Smallest RMS residual (m) of a non-identity rigid self-match of the point set.
 
@@ -163,7 +140,7 @@ def near_symmetry_margin(points: np.ndarray, refine: int = 24, cap: float = math
     A, B, C = A[keep], B[keep], C[keep]
     src = np.broadcast_to(p[[i0, j0, k0]], (len(A), 3, 3))
     dst = np.stack([p[A], p[B], p[C]], axis=1)
-    R, t = _kabsch_batch(src, dst)
+    R, t = kabsch(src, dst)
     moved = np.einsum("mij,nj->mni", R, p) + t[:, None]
     d2 = ((moved[:, :, None, :] - p[None, None]) ** 2).sum(axis=3)  # (m, n, n)
     nearest = d2.argmin(axis=2)
@@ -183,7 +160,7 @@ def near_symmetry_margin(points: np.ndarray, refine: int = 24, cap: float = math
             _, perm = linear_sum_assignment(cost.sum(axis=2))
             if np.array_equal(perm, idx):
                 break
-            Rm, tm = _kabsch(p, p[perm])
+            Rm, tm = (x[0] for x in kabsch(p[None], p[perm][None]))
         if np.array_equal(perm, idx):
             continue
         rms = math.sqrt(float(((p @ Rm.T + tm - p[perm]) ** 2).sum(axis=1).mean()))

@@ -3,7 +3,7 @@
 * :mod:`~starforge.tracking.bodies`: rigid bodies (mm) from family.json / placement.json
 * :mod:`~starforge.tracking.identify`: vectorised tracker-style identification and simulation
 * :mod:`~starforge.tracking.check`: the ``starforge check`` report (check.json)
-* :mod:`~starforge.tracking.tre`: expected target registration error (Fitzpatrick)
+* accuracy (TRE, rotation error) and Kabsch fits live in :mod:`starforge.geometry.rigid`
 * :mod:`~starforge.tracking.presets`: vendor presets (templates/presets) and named rule checks
 * :mod:`~starforge.tracking.formats`: QTM / VSK / Atracsys / CSV writers and readers
 * :mod:`~starforge.tracking.sweep`: capacity curves (``starforge sweep``)

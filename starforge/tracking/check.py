@@ -129,8 +129,8 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
 
     ``progress(stage, done, total)`` is called as frames are processed.
     """
+    from starforge.geometry.rigid import fle_from_sigma, tre_rms
     from starforge.tracking import identify as ident
-    from starforge.tracking.tre import fle_from_sigma, tre_rms
 
     t0 = time.perf_counter()
     preset = None

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from starforge.geometry.rigid import kabsch
 from starforge.spec import non_negative, positive, require
 
 _PERMS = np.array(list(itertools.permutations(range(3))), dtype=np.intp)
@@ -118,36 +119,6 @@ def build_library(points_list, names=None) -> Library:
         sides[order],
         srt[order],
     )
-
-
-def kabsch(model: np.ndarray, observed: np.ndarray, weight: np.ndarray | None = None, reflect: bool = False):
-    """Batched least-squares rigid fit ``observed ~ R @ model + t``.
-
-    model, observed : (H, k, 3); weight : (H, k) 0/1 or None.  NaN rows must have weight 0.
-    Returns R (H, 3, 3) (proper rotations unless ``reflect``), t (H, 3).
-    """
-    if weight is None:
-        weight = np.ones(model.shape[:2])
-    w = weight[..., None]
-    m = np.where(w > 0, model, 0.0)
-    o = np.where(w > 0, observed, 0.0)
-    ws = w.sum(axis=1)
-    mc = (m * w).sum(axis=1) / ws
-    oc = (o * w).sum(axis=1) / ws
-    X = (m - mc[:, None]) * w
-    Y = (o - oc[:, None]) * w
-    Hm = np.einsum("hki,hkj->hij", X, Y)
-    U, _, Vt = np.linalg.svd(Hm)
-    V = np.swapaxes(Vt, 1, 2)
-    Ut = np.swapaxes(U, 1, 2)
-    if not reflect:
-        d = np.sign(np.linalg.det(V @ Ut))
-        d[d == 0] = 1.0
-        V = V.copy()
-        V[:, :, 2] *= d[:, None]
-    R = V @ Ut
-    t = oc - np.einsum("hij,hj->hi", R, mc)
-    return R, t
 
 
 @dataclass(frozen=True)
