@@ -68,6 +68,16 @@ def kabsch(model: np.ndarray, observed: np.ndarray, weight: np.ndarray | None = 
     return R, t
 
 
+def default_tip_mm(limit_mm) -> np.ndarray:
+    """The default target point of a star, in its placement frame (mm).
+
+    On the star's long axis (placement z), one limit length below the bottom face of the box,
+    where the mount is: the tip of a tool as long again as the star, or a joint under a
+    finger star.  ``limit_mm`` is the size limit (any order); the long side sets the distance.
+    """
+    return np.array([0.0, 0.0, -float(max(limit_mm))])
+
+
 def fle_from_sigma(sigma: float) -> float:
     """RMS 3D localisation error for isotropic noise of ``sigma`` per axis."""
     return float(np.sqrt(3.0) * non_negative("noise", sigma))
