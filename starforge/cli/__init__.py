@@ -54,8 +54,15 @@ def main(argv: list[str] | None = None) -> int:
             print("interrupted; no output was changed", file=sys.stderr)
             code = 130
         elif hasattr(exc, "show") and hasattr(exc, "exit_code"):
-            exc.show()
-            code = 2 if exc.exit_code not in (0,) else 0
+            if exc.exit_code == 0:
+                exc.show()
+                code = 0
+            else:  # a usage error: one line, naming the option and where to read more
+                ctx = getattr(exc, "ctx", None)
+                where = f" (see `{ctx.command_path} --help`)" if ctx is not None else ""
+                text = " ".join(str(exc.format_message()).split())
+                print(f"error: {text}{where}", file=sys.stderr)
+                code = 2
         elif name == "Exit" and hasattr(exc, "exit_code"):
             code = exc.exit_code
         else:
