@@ -1,0 +1,386 @@
+"""Does a small point set fit a box of given sides in some orientation?  Decided by
+branch-and-bound over directions, sound always and complete up to a stated slack.
+
+The question.  Points ``P`` (k, 3) and a limit ``l_1 <= l_2 <= l_3``: is there a rotation whose
+axis-aligned box around the rotated points has sides ``<= l`` (sorted against sorted)?  That is
+the same as an orthonormal right-handed frame ``(a_1, a_2, a_3)`` with ``w(a_k) <= l_k``, where
+``w(a) = max_ij |(p_i - p_j) . a|`` is the width of the set along a.  (If the sorted sides fit,
+the frame in sorted order does; the converse is immediate.)
+
+The search is over the direction ``a_1`` of the shortest side only, up to sign (cube-map cells
+on the faces +x, +y, +z); for each ``a_1`` the other two axes are found **exactly**:
+
+*Inner problem.*  In the plane orthogonal to ``a_1`` with basis (u, v), put
+``a_2 = cos(psi) u + sin(psi) v`` and ``a_3 = a_1 x a_2``.  For a pair vector d with in-plane
+coordinates ``(x, y) = A (cos phi, sin phi)``, ``d . a_2 = A cos(psi - phi)`` and
+``d . a_3 = A sin(phi - psi)``; ``|d . a_2| <= L`` allows ``psi - phi`` (mod pi) on the interval
+``[acos(L/A), pi - acos(L/A)]``, ``|d . a_3| <= L`` on ``[-asin(L/A), asin(L/A)]``.  A non-empty
+intersection of such sets is the whole circle or begins at one of these endpoints, so testing
+``psi = 0`` and every endpoint decides the 1-D problem exactly (to ``1e-9`` mm of float noise).
+The endpoints are computed algebraically (no trigonometry).
+
+*Cells.*  A spherical square of angular radius theta (its centre-to-corner angle: it is convex,
+so the corners are the farthest points) around ``a_1`` is
+
+* **pruned** when no direction in it is thin enough: for each pair d at angle ``psi_d <= pi/2``
+  (modulo sign) from ``a_1``, every direction in the cell has ``|d . a| >= |d| cos(min(psi_d +
+  theta, pi/2))``, and the largest of these exceeds ``l_1``; or when the inner problem at the
+  centre has no solution even with each pair's limits raised by
+  ``s_d = sin(theta) |d . a_1| + (1 - cos(theta)) |d_perp|``.  Why that suffices: if a frame
+  ``(a_1', a_2', a_3')`` with ``a_1'`` in the cell fits, let Q be the smallest rotation taking
+  ``a_1`` to ``a_1'`` (angle <= theta, about an axis n orthogonal to both).  ``b = Q^T a_2'`` is
+  orthogonal to ``a_1``, and ``b - a_2'`` only involves the component of ``a_2'`` along
+  ``m' = Q (n x a_1)`` (``a_2'`` has none along ``a_1'``), giving
+  ``|d . b - d . a_2'| <= sin(theta) |d . a_1| + (1 - cos(theta)) |d . m| <= s_d``; the same holds
+  for ``a_3'``.  So ``(a_1, Q^T a_2', Q^T a_3')`` solves the relaxed inner problem.
+* **accepted** when ``a_1`` at its centre is thin enough and the exact inner problem has a
+  solution: that frame is returned (sound; callers re-check it).
+* otherwise split into four.
+
+*Completeness up to ``slack``.*  Refinement stops once ``D theta <= slack`` (D: the diameter).
+If a frame fits with ``slack`` to spare in every side and its ``a_1'`` lies in such a cell, the
+centre is thin enough (``w`` is D-Lipschitz) and the turned frame above fits exactly (``s_d <=
+|d| theta <= slack``), so the cell is accepted.  A set whose cells are all pruned **provably does
+not fit**; a set left with open cells at that size is **undecided**: it fits, if at all, with
+less than ``slack`` to spare.  Families use only sets that fit; certified upper bounds count the
+undecided ones too.
+
+Before the search, the seven directions where the width of a tetrahedron has its local minima
+(the four face normals and the three common normals of opposite edges) are tried as ``a_1``:
+most sets that fit are accepted there.
+
+The kernel is compiled with numba (parallel over sets, each set independent, so results do not
+depend on the thread count).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+FIT, NO_FIT, UNDECIDED = 1, 0, -1
+
+#: default completeness slack, mm
+SLACK_MM = 0.01
+#: cells a single set may use before it is reported undecided (a work cap, never a silent drop)
+MAX_CELLS = 100_000
+_EPS = 1e-9
+
+
+import numba  # noqa: E402  (compiled kernels; this module is imported only where fits are decided)
+
+_jit = numba.njit(cache=True, nogil=True)
+
+
+@_jit
+def dot3(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@_jit
+def plane_basis(a, u, v):
+    # u orthogonal to a (crossed with the least aligned axis), v = a x u
+    ax, ay, az = abs(a[0]), abs(a[1]), abs(a[2])
+    if ax <= ay and ax <= az:
+        u[0], u[1], u[2] = 0.0, a[2], -a[1]
+    elif ay <= az:
+        u[0], u[1], u[2] = -a[2], 0.0, a[0]
+    else:
+        u[0], u[1], u[2] = a[1], -a[0], 0.0
+    nu = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+    u[0] /= nu
+    u[1] /= nu
+    u[2] /= nu
+    v[0] = a[1] * u[2] - a[2] * u[1]
+    v[1] = a[2] * u[0] - a[0] * u[2]
+    v[2] = a[0] * u[1] - a[1] * u[0]
+
+
+@_jit
+def try_candidate(c, s, x, y, L2, L3, npair):
+    for j in range(npair):
+        if abs(x[j] * c + y[j] * s) > L2[j] + 1e-9:
+            return False
+        if abs(y[j] * c - x[j] * s) > L3[j] + 1e-9:
+            return False
+    return True
+
+
+@_jit
+def inner(D, npair, a1, L2, L3, u, v, x, y, out):
+    """Exact inner problem; on success writes (cos psi, sin psi) into out and returns True."""
+    plane_basis(a1, u, v)
+    for j in range(npair):
+        x[j] = dot3(D[j], u)
+        y[j] = dot3(D[j], v)
+    if try_candidate(1.0, 0.0, x, y, L2, L3, npair):
+        out[0], out[1] = 1.0, 0.0
+        return True
+    for j in range(npair):
+        A = math.sqrt(x[j] * x[j] + y[j] * y[j])
+        if A <= 1e-300:
+            continue
+        cf, sf = x[j] / A, y[j] / A
+        if A > L2[j]:
+            ca = L2[j] / A
+            sa = math.sqrt(max(0.0, 1.0 - ca * ca))
+            # psi = phi + alpha and psi = phi + pi - alpha
+            c1, s1 = cf * ca - sf * sa, sf * ca + cf * sa
+            if try_candidate(c1, s1, x, y, L2, L3, npair):
+                out[0], out[1] = c1, s1
+                return True
+            c2, s2 = -(cf * ca + sf * sa), -(sf * ca - cf * sa)
+            if try_candidate(c2, s2, x, y, L2, L3, npair):
+                out[0], out[1] = c2, s2
+                return True
+        if A > L3[j]:
+            sb = L3[j] / A
+            cb = math.sqrt(max(0.0, 1.0 - sb * sb))
+            c1, s1 = cf * cb - sf * sb, sf * cb + cf * sb
+            if try_candidate(c1, s1, x, y, L2, L3, npair):
+                out[0], out[1] = c1, s1
+                return True
+            c2, s2 = cf * cb + sf * sb, sf * cb - cf * sb
+            if try_candidate(c2, s2, x, y, L2, L3, npair):
+                out[0], out[1] = c2, s2
+                return True
+    return False
+
+
+@_jit
+def cube_dir(f, s, t, a):
+    if f == 0:
+        a[0], a[1], a[2] = 1.0, s, t
+    elif f == 1:
+        a[0], a[1], a[2] = t, 1.0, s
+    else:
+        a[0], a[1], a[2] = s, t, 1.0
+    n = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    a[0] /= n
+    a[1] /= n
+    a[2] /= n
+
+
+@_jit
+def accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
+    """Try a1 as the shortest axis with the exact limits; on success fill R (rows)."""
+    w1 = 0.0
+    for j in range(npair):
+        w1 = max(w1, abs(dot3(D[j], a1)))
+    if w1 > lim[0] + 1e-9:
+        return False
+    for j in range(npair):
+        L2[j] = lim[1]
+        L3[j] = lim[2]
+    if not inner(D, npair, a1, L2, L3, u, v, x, y, cs):
+        return False
+    c, s = cs[0], cs[1]
+    for i in range(3):
+        R[0, i] = a1[i]
+        R[1, i] = c * u[i] + s * v[i]
+    R[2, 0] = a1[1] * R[1, 2] - a1[2] * R[1, 1]
+    R[2, 1] = a1[2] * R[1, 0] - a1[0] * R[1, 2]
+    R[2, 2] = a1[0] * R[1, 1] - a1[1] * R[1, 0]
+    return True
+
+
+@_jit
+def decide_one(P, lim, slack, start, max_cells, R):
+    k = P.shape[0]
+    npair = k * (k - 1) // 2
+    D = np.empty((npair, 3))
+    dn = np.empty(npair)
+    q = 0
+    diam = 0.0
+    for i in range(k):
+        for j in range(i + 1, k):
+            for c in range(3):
+                D[q, c] = P[j, c] - P[i, c]
+            dn[q] = math.sqrt(dot3(D[q], D[q]))
+            diam = max(diam, dn[q])
+            q += 1
+    u = np.empty(3)
+    v = np.empty(3)
+    x = np.empty(npair)
+    y = np.empty(npair)
+    L2 = np.empty(npair)
+    L3 = np.empty(npair)
+    cs = np.empty(2)
+    a1 = np.empty(3)
+    # 1. the critical directions of a tetrahedron's width (face normals, opposite edges)
+    if k == 4:
+        for f in range(7):
+            if f < 4:
+                i0, i1, i2 = (
+                    (0, 1, 2) if f == 0 else ((0, 1, 3) if f == 1 else ((0, 2, 3) if f == 2 else (1, 2, 3)))
+                )
+                e1 = P[i1] - P[i0]
+                e2 = P[i2] - P[i0]
+            else:
+                if f == 4:
+                    e1 = P[1] - P[0]
+                    e2 = P[3] - P[2]
+                elif f == 5:
+                    e1 = P[2] - P[0]
+                    e2 = P[3] - P[1]
+                else:
+                    e1 = P[3] - P[0]
+                    e2 = P[2] - P[1]
+            a1[0] = e1[1] * e2[2] - e1[2] * e2[1]
+            a1[1] = e1[2] * e2[0] - e1[0] * e2[2]
+            a1[2] = e1[0] * e2[1] - e1[1] * e2[0]
+            nn = math.sqrt(dot3(a1, a1))
+            if nn <= 1e-12:
+                continue
+            a1 /= nn
+            if accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
+                return 1, 7
+    theta_min = slack / max(diam, 1e-12)
+    # 2. branch and bound over cube-map cells, depth first, best child first
+    cap = 64 + 3 * 64
+    Sf = np.empty(cap, np.int64)
+    Ss = np.empty(cap)
+    St = np.empty(cap)
+    Sh = np.empty(cap)
+    top = 0
+    n0 = 2**start
+    h0 = 1.0 / n0
+    for f in range(3):
+        for i in range(n0):
+            for j in range(n0):
+                Sf[top] = f
+                Ss[top] = -1.0 + h0 * (2 * i + 1)
+                St[top] = -1.0 + h0 * (2 * j + 1)
+                Sh[top] = h0
+                top += 1
+    cells = 7
+    open_small = False
+    corner = np.empty(3)
+    kid_w = np.empty(4)
+    kid_s = np.empty(4)
+    kid_t = np.empty(4)
+    while top > 0:
+        top -= 1
+        f, s, t, h = Sf[top], Ss[top], St[top], Sh[top]
+        cells += 1
+        if cells > max_cells:
+            return -1, cells
+        cube_dir(f, s, t, a1)
+        cosmin = 1.0
+        for dx in (-1.0, 1.0):
+            for dy in (-1.0, 1.0):
+                cube_dir(f, s + dx * h, t + dy * h, corner)
+                cosmin = min(cosmin, dot3(a1, corner))
+        theta = math.acos(max(-1.0, min(1.0, cosmin)))
+        ct, st = math.cos(theta), math.sin(theta)
+        # axis 1: lower bound of the width over the cell
+        low = 0.0
+        for j in range(npair):
+            p = abs(dot3(D[j], a1))
+            cp = p / dn[j] if dn[j] > 0 else 0.0
+            sp = math.sqrt(max(0.0, 1.0 - cp * cp))
+            # |d| cos(psi + theta), clipped at 0 when psi + theta >= pi/2
+            val = dn[j] * (cp * ct - sp * st)
+            if cp * ct - sp * st > 0 and val > low:
+                low = val
+        if low > lim[0]:
+            continue
+        if accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
+            return 1, cells
+        for j in range(npair):
+            along = abs(dot3(D[j], a1))
+            perp = math.sqrt(max(0.0, dn[j] * dn[j] - along * along))
+            sj = st * along + (1.0 - ct) * perp
+            L2[j] = lim[1] + sj
+            L3[j] = lim[2] + sj
+        if not inner(D, npair, a1, L2, L3, u, v, x, y, cs):
+            continue
+        if theta <= theta_min:
+            open_small = True
+            continue
+        hh = h / 2
+        for c in range(4):
+            kid_s[c] = s + (-hh if c < 2 else hh)
+            kid_t[c] = t + (-hh if c % 2 == 0 else hh)
+            cube_dir(f, kid_s[c], kid_t[c], corner)
+            w = 0.0
+            for j in range(npair):
+                w = max(w, abs(dot3(D[j], corner)))
+            kid_w[c] = w
+        order = np.argsort(-kid_w)  # push the thinnest last so it is explored first
+        if top + 4 > cap:
+            return -1, cells
+        for c in order:
+            Sf[top] = f
+            Ss[top] = kid_s[c]
+            St[top] = kid_t[c]
+            Sh[top] = hh
+            top += 1
+    return (-1 if open_small else 0), cells
+
+
+@numba.njit(cache=True, parallel=True)
+def decide_many(P, lim, slack, start, max_cells, status, R, work):
+    for i in numba.prange(P.shape[0]):
+        st, c = decide_one(P[i], lim, slack, start, max_cells, R[i])
+        status[i] = st
+        work[i] = c
+
+
+def _kernels():
+    return decide_many
+
+
+def fits_limit(ext, limit) -> np.ndarray:
+    """Box sides (..., 3) within the limit (3,), both compared sorted (float noise allowed:
+    1e-9 relative and 1e-9 mm)."""
+    ext = np.asarray(ext, dtype=float)
+    a, b, c = ext[..., 0], ext[..., 1], ext[..., 2]
+    lo = np.minimum(np.minimum(a, b), c)
+    hi = np.maximum(np.maximum(a, b), c)
+    mid = a + b + c - lo - hi
+    lim = np.sort(np.asarray(limit, dtype=float)) * (1 + 1e-9) + 1e-9
+    return (lo <= lim[0]) & (mid <= lim[1]) & (hi <= lim[2])
+
+
+def decide_fit(points, limit, slack: float = SLACK_MM, start: int = 1, max_cells: int = MAX_CELLS):
+    """Decide, for each point set, whether some rotation fits it in the box ``limit``.
+
+    Parameters
+    ----------
+    points : (n, k, 3) float
+        Point sets (here: sphere centres of stars), mm; k >= 2.
+    limit : (3,) float
+        Box sides the points' box must fit, mm (any order; sorted here).
+    slack : float
+        Completeness slack, mm (see the module docstring).
+    max_cells : int
+        Work cap per set; past it a set is reported undecided.
+
+    Returns
+    -------
+    status : (n,) int8
+        :data:`FIT`, :data:`NO_FIT` or :data:`UNDECIDED`.
+    R : (n, 3, 3) float
+        For FIT rows, a proper rotation whose rows are the box axes matched to the sorted limit:
+        ``points @ R.T`` has extents ``<= sorted(limit)`` column by column.  NaN elsewhere.
+    cells : (n,) int
+        Directions evaluated per set (the work done).
+    """
+    P = np.ascontiguousarray(points, dtype=float)
+    if P.ndim != 3 or P.shape[2] != 3 or P.shape[1] < 2:
+        raise ValueError(f"points must be (n, k >= 2, 3), got shape {P.shape}")
+    lim = np.sort(np.asarray(limit, dtype=float))
+    if not (lim.shape == (3,) and np.isfinite(lim).all() and lim[0] >= 0):
+        raise ValueError(f"limit must be 3 finite sizes >= 0, got {limit!r}")
+    if not slack > 0:
+        raise ValueError(f"slack must be > 0, got {slack}")
+    n = len(P)
+    status = np.zeros(n, dtype=np.int8)
+    R = np.full((n, 3, 3), np.nan)
+    work = np.zeros(n, dtype=np.int64)
+    if n:
+        _kernels()(P, lim, float(slack), int(start), int(max_cells), status, R, work)
+        R[status != FIT] = np.nan
+    return status, R, work
