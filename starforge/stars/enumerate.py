@@ -1,52 +1,70 @@
-"""Enumerate every star of an edge-length pool that fits a size limit, vectorised.
+"""Enumerate every star of an edge-length pool that fits a size limit, compiled and streamed.
 
-Pipeline (each stage runs only on what the previous stages kept; no Python loop per star):
+Pipeline, per labelled candidate (no Python loop per star; numba, parallel over subsets):
 
 1. pool: ``l_min + k * delta`` (mm);
-2. every 6-subset of the pool, each put on the tetrahedron in its 30 distinct ways
-   (:func:`starforge.geometry.tetra.canonical_assignments`): one entry per star up to
-   relabelling and mirroring;
-3. realisable: the Gram matrix at A is positive definite (triangle ABC valid and
-   Cayley-Menger volume > 0), read off the trilateration itself;
-4. necessary fit conditions: the tetrahedron's width <= the shortest limit side, and Ky Fan's
-   bounds on the covariance eigenvalues (the k smallest sum to at most the sum of the k
-   shortest limit sides squared over 4);
-5. sufficient fit: some candidate box orientation fits the limit: the covariance axes, then
-   the 24 face-flush frames of O'Rourke's first case (a box face on a tetrahedron face, a side
-   along a projected edge).  ``box_method="covariance"`` uses the covariance box alone (the
-   paper's test).  O'Rourke's edge-edge frames are not tried here (too costly per candidate),
-   so a star that fits only in such an orientation is missed: the enumeration is sound (every
-   star kept fits, re-checked) but not complete.
+2. every 6-subset of the pool whose lengths differ pairwise by at least the tolerance (so that
+   the tolerance holds within a star and within each face), each put on the tetrahedron in its
+   30 distinct ways (:func:`starforge.geometry.tetra.canonical_assignments`): one entry per star up
+   to relabelling and mirroring;
+3. realisable: the trilateration of the paper (A at the origin, B on +x, C in the xy-plane, D
+   above it) succeeds: triangle ABC valid and Cayley-Menger volume > 0;
+4. deep enough: the tetrahedron's width (the smallest side of any box around its centres, in any
+   orientation) is at least ``min_depth``;
+5. necessary fit conditions: the width is at most the shortest limit side, and Ky Fan's bounds on
+   the covariance eigenvalues (the k smallest sum to at most the sum of the k shortest limit sides
+   squared over 4; variance along a direction is at most a quarter of the width squared);
+6. the fit decision (:mod:`starforge.geometry.fit`): proven to fit (a rotation is found), proven
+   not to fit, or undecided (fits, if at all, with less than :data:`~starforge.geometry.fit.SLACK_MM`
+   to spare).  ``box_method="covariance"`` replaces it with the paper's test (the covariance box
+   must fit).
+
+Candidates are the stars proven to fit.  The undecided ones are counted, and kept apart for
+certified upper bounds (a bound over fitting + undecided covers every star that really fits).
 """
 
 from __future__ import annotations
 
-import itertools
+import math
+import time
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from starforge.errors import StarforgeError
+from starforge.geometry.fit import SLACK_MM, decide_one
 from starforge.geometry.tetra import canonical_assignments
 from starforge.stars.spec import StarSpec
-from starforge.tol import tol
+
+#: outcome codes per labelled candidate (int8)
+UNREALISABLE, TOO_THIN, TOO_WIDE, KY_FAN, NO_FIT, UNDECIDED, FIT, NECESSARY_OK = 0, 1, 2, 3, 4, 5, 6, 7
+STAGES = ("unrealisable", "too_thin", "too_wide", "ky_fan", "no_fit", "undecided", "fit")
+#: subsets per compiled batch (bounds the working memory: 30 codes + 30 volumes each)
+BATCH_SUBSETS = 1 << 17
+#: seconds per labelled candidate on one core, measured on the finger case (for time estimates)
+SECONDS_PER_LABELLED = 4e-8
+#: bytes kept per fitting candidate (index, status, volume) and a generous share of fits
+BYTES_PER_CANDIDATE = 32
 
 
 @dataclass(frozen=True)
 class Candidates:
-    """Every star that fits, as arrays (row i is one star).
+    """Stars that fit (and those undecided), as arrays (row i is one star).
 
     Attributes
     ----------
     pool_mm : (p,) float         the edge-length pool, mm
-    index : (m, 6) int16         pool indices of (u, U, v, V, w, W)
-    box_extents : (m, 3) float   sides of the smallest fitting candidate box found, mm
+    index : (m, 6) int16         pool indices of (u, U, v, V, w, W) of the stars proven to fit
+    box_volume : (m,) float      volume of the fitting box found for each, mm^3
+    undecided : (q, 6) int16     pool indices of the undecided stars (kept for upper bounds)
     stats : dict                 counts per stage and seconds
     """
 
     pool_mm: np.ndarray
     index: np.ndarray
-    box_extents: np.ndarray
+    box_volume: np.ndarray
+    undecided: np.ndarray
     stats: dict
 
     def __len__(self) -> int:
@@ -57,11 +75,6 @@ class Candidates:
         """(m, 6) float, mm."""
         return self.pool_mm[self.index]
 
-    @property
-    def box_volume(self) -> np.ndarray:
-        """(m,) float, mm^3."""
-        return np.prod(self.box_extents, axis=1)
-
 
 def edge_pool(spec: StarSpec) -> np.ndarray:
     """The pool of edge lengths, mm: ``l_min + k * delta`` up to ``l_max``."""
@@ -69,268 +82,284 @@ def edge_pool(spec: StarSpec) -> np.ndarray:
     return lo + spec.delta_mm * np.arange(spec.pool_size)
 
 
-#: the most labelled candidates enumerated exhaustively (about a minute on 2 cores)
-MAX_LABELLED = 150_000_000
+def labelled_count(spec: StarSpec) -> int:
+    """Labelled candidates the enumeration will look at: 30 per admissible 6-subset."""
+    return 30 * admissible_subsets(spec.pool_size, spec.grid_steps)
+
+
+def admissible_subsets(n: int, m: int) -> int:
+    """6-subsets of range(n) whose elements differ pairwise by >= m (stars-and-bars)."""
+    k = 6
+    free = n - (m - 1) * (k - 1)
+    return math.comb(free, k) if free >= k else 0
+
+
+def estimate(spec: StarSpec) -> dict:
+    """Labelled candidates, seconds (2 cores) and bytes the enumeration of ``spec`` needs."""
+    import os
+
+    labelled = labelled_count(spec)
+    cores = max(1, min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS))
+    seconds = labelled * SECONDS_PER_LABELLED / cores
+    # working memory: one batch of codes and volumes, the subsets of a batch, and the kept fits
+    # (at most a quarter of the labelled candidates, a generous bound seen on every spec tried)
+    nbytes = BATCH_SUBSETS * 30 * 5 + labelled / 4 * BYTES_PER_CANDIDATE + 200e6
+    return {"labelled": labelled, "seconds": seconds, "bytes": nbytes}
 
 
 def check_size(spec: StarSpec) -> None:
-    """Refuse pools too large for exhaustive enumeration, with what to change."""
-    from math import comb
+    """Refuse, before any work, an enumeration past the memory or time limit (one line)."""
+    from starforge.budget import require_memory, require_time
 
-    n = spec.pool_size
-    labelled = comb(n, 6) * 30
-    if labelled > MAX_LABELLED:
-        lo, hi = spec.pool_bounds_mm
-        raise StarforgeError(
-            f"the edge-length pool holds {n} lengths ({lo:.2f}..{hi:.2f} mm in {spec.delta_mm} mm steps): "
-            f"{labelled:,} candidates is too many to enumerate exhaustively (limit {MAX_LABELLED:,}); "
-            f"raise delta_mm, gap_mm or l_min_mm, or lower l_max_mm"
-        )
-
-
-def _subsets(n: int, k: int = 6) -> np.ndarray:
-    return np.fromiter(
-        itertools.chain.from_iterable(itertools.combinations(range(n), k)), dtype=np.int16
-    ).reshape(-1, k)
+    est = estimate(spec)
+    lo, hi = spec.pool_bounds_mm
+    what = (
+        f"enumerating {est['labelled']:,} labelled candidates (a pool of {spec.pool_size} lengths, "
+        f"{lo:.2f}..{hi:.2f} mm in {spec.delta_mm:g} mm steps)"
+    )
+    advice = "raise delta_mm, gap_mm, l_min_mm or tolerance_mm, or lower l_max_mm"
+    require_memory(est["bytes"], what, advice)
+    require_time(est["seconds"], what, advice)
 
 
-def _realisable(u, U, v, V, w, W):
-    """Trilaterate column arrays (mm); returns the mask of realisable rows and D's coordinates.
+@numba.njit(cache=True)
+def _subsets_from(n: int, m: int, start: np.ndarray, count: int) -> np.ndarray:
+    """``count`` admissible 6-subsets of range(n) (elements >= m apart) in lexicographic order,
+    starting from ``start`` (6,); the last row returned is followed by ``start`` updated in place."""
+    out = np.empty((count, 6), dtype=np.int16)
+    c = start.copy()
+    got = 0
+    while got < count:
+        if c[0] < 0:
+            break
+        for j in range(6):
+            out[got, j] = c[j]
+        got += 1
+        # next admissible combination: bump the rightmost element that can move
+        i = 5
+        while i >= 0 and c[i] >= n - 1 - (5 - i) * m:
+            i -= 1
+        if i < 0:
+            c[0] = -1
+            break
+        c[i] += 1
+        for j in range(i + 1, 6):
+            c[j] = c[j - 1] + m
+    for j in range(6):
+        start[j] = c[j]
+    return out[:got]
 
-    Realisable iff the Gram matrix at A is positive definite: triangle ABC valid (cy > 0) and
-    Cayley-Menger volume > 0 (dz > 0).  D is computed only where ABC is valid.
-    """
-    cx = (u * u + w * w - v * v) / (2 * u)
-    cy2 = w * w - cx * cx
-    ok = cy2 > tol.volume_mm3
-    k = np.flatnonzero(ok)
-    cx, cy = cx[k], np.sqrt(cy2[k])
-    uk, Uk, Vk, Wk, wk = u[k], U[k], V[k], W[k], w[k]
-    dx = (uk * uk + Vk * Vk - Wk * Wk) / (2 * uk)
-    dy = (Vk * Vk - Uk * Uk + wk * wk - 2 * dx * cx) / (2 * cy)
-    dz2 = Vk * Vk - dx * dx - dy * dy
-    good = dz2 > tol.volume_mm3
-    return k[good], cx[good], cy[good], dx[good], dy[good], np.sqrt(dz2[good])
 
-
-def _width(L: np.ndarray, vol6: np.ndarray) -> np.ndarray:
-    """Tetrahedron width from lengths (n, 6) and 6 x volume: min of vertex-face heights and
-    opposite-edge distances (``6V / |e x e'|`` with ``|e x e'|^2 = |e|^2 |e'|^2 - (e.e')^2``)."""
-    s = L * L
-    d01, d23, d12, d03, d02, d13 = s.T
-    width = np.full(len(L), np.inf)
+@numba.njit(cache=True, nogil=True)
+def _width(L0, L1, L2, L3, L4, L5, vol6):
+    """Tetrahedron width from lengths (u, U, v, V, w, W) and 6 x volume: the smallest of the four
+    vertex-face heights and the three opposite-edge distances."""
+    d01, d23, d12, d03, d02, d13 = L0 * L0, L1 * L1, L2 * L2, L3 * L3, L4 * L4, L5 * L5
+    w = 1e300
     for a, b, c in ((d01, d12, d02), (d01, d13, d03), (d02, d23, d03), (d12, d23, d13)):
-        area4sq = 4 * a * b - (a + b - c) ** 2  # (4 * area)^2 via Heron on squared sides
-        width = np.minimum(width, 2 * vol6 / np.sqrt(np.maximum(area4sq, tol.zero)))
+        area4sq = 4 * a * b - (a + b - c) ** 2  # (4 * area)^2 (Heron on squared sides)
+        w = min(w, 2 * vol6 / math.sqrt(max(area4sq, 1e-12)))
     for dd, p1, p2 in (
         (0.5 * (d03 + d12 - d02 - d13), d01, d23),
         (0.5 * (d01 + d23 - d02 - d13), d12, d03),
         (0.5 * (d01 + d23 - d03 - d12), d02, d13),
     ):
         cross2 = p1 * p2 - dd * dd
-        width = np.minimum(width, vol6 / np.sqrt(np.maximum(cross2, tol.zero)))
-    return width
+        w = min(w, vol6 / math.sqrt(max(cross2, 1e-12)))
+    return w
 
 
-def _process(subsets: np.ndarray, assign: np.ndarray, pool: np.ndarray, limit: np.ndarray, exact: bool):
-    """All stages for one batch of 6-subsets; returns (index (m, 6) int16, extents (m, 3), counts)."""
-    counts = dict.fromkeys(("realisable", "width_ok", "kyfan_ok", "fit_cov", "fit_face"), 0)
-    # one contiguous column per length; the pool is arithmetic, so lengths are lo + step * k
-    cols_idx = [subsets[:, assign[:, j]].ravel() for j in range(6)]
-    lo, step = pool[0], (pool[1] - pool[0]) if len(pool) > 1 else 0.0
-    cols = [lo + step * c.astype(np.float64) for c in cols_idx]
-    k, cx, cy, dx, dy, dz = _realisable(*cols)
-    counts["realisable"] = len(k)
-    idx = np.stack([c[k] for c in cols_idx], axis=1)
-    L = pool[idx]
-    n = len(k)
-    P = np.zeros((n, 4, 3))
-    P[:, 1, 0] = L[:, 0]
-    P[:, 2, 0], P[:, 2, 1] = cx, cy
-    P[:, 3, 0], P[:, 3, 1], P[:, 3, 2] = dx, dy, dz
-    # necessary: the width fits the shortest limit side
-    ok = _width(L, L[:, 0] * cy * dz) <= limit[0] + tol.length_mm
-    idx, P = idx[ok], P[ok]
-    counts["width_ok"] = len(idx)
-    # necessary: Ky Fan bounds on the covariance eigenvalues
-    X = P - P.mean(axis=1, keepdims=True)
-    C = np.einsum("nki,nkj->nij", X, X) / 4
-    ev = sym3_eigvalsh(C)
-    kf1 = limit[0] ** 2 / 4
-    kf2 = (limit[0] ** 2 + limit[1] ** 2) / 4
-    ok = (ev[:, 0] <= kf1 + tol.length_mm) & (ev[:, 0] + ev[:, 1] <= kf2 + tol.length_mm)
-    idx, P = idx[ok], P[ok]
-    _, evec = np.linalg.eigh(C[ok])
-    counts["kyfan_ok"] = len(idx)
-    # sufficient: the covariance box, then O'Rourke's face-flush boxes
-    ext_cov = _span(np.swapaxes(P @ evec, 1, 2))
-    fit_cov = fits_limit(ext_cov, limit)
-    counts["fit_cov"] = int(fit_cov.sum())
-    best_ext = np.where(fit_cov[:, None], ext_cov, np.nan)
-    if exact:
-        rest = np.flatnonzero(~fit_cov)
-        if len(rest):
-            ext_f = face_flush_extents(P[rest])
-            fit_f = fits_limit(ext_f, limit) & np.isfinite(ext_f).all(axis=-1)
-            vol_f = np.where(fit_f, np.prod(ext_f, axis=-1), np.inf)
-            j = vol_f.argmin(axis=1)
-            hit = np.isfinite(vol_f[np.arange(len(rest)), j])
-            counts["fit_face"] = int(hit.sum())
-            best_ext[rest[hit]] = ext_f[np.flatnonzero(hit), j[hit]]
-    ok = np.isfinite(best_ext).all(axis=1)
-    return idx[ok].astype(np.int16), best_ext[ok], counts
-
-
-def fits_limit(ext, limit) -> np.ndarray:
-    """Sorted extents (..., 3) within the sorted limit (3,) (sorting 3 values without np.sort)."""
-    a, b, c = ext[..., 0], ext[..., 1], ext[..., 2]
-    lo = np.minimum(np.minimum(a, b), c)
-    hi = np.maximum(np.maximum(a, b), c)
-    mid = a + b + c - lo - hi
-    lim = limit * (1 + tol.box_rel) + tol.length_mm
-    return (lo <= lim[0]) & (mid <= lim[1]) & (hi <= lim[2])
-
-
-def _span(d: np.ndarray) -> np.ndarray:
-    """Extent of the projections (..., 4) of four points: max - min over the last axis."""
-    a, b, c, e = d[..., 0], d[..., 1], d[..., 2], d[..., 3]
-    return np.maximum(np.maximum(a, b), np.maximum(c, e)) - np.minimum(np.minimum(a, b), np.minimum(c, e))
-
-
-def sym3_eigvalsh(C: np.ndarray) -> np.ndarray:
-    """Ascending eigenvalues of symmetric 3x3 matrices (n, 3, 3) in closed form (trigonometric)."""
-    a, b, c = C[:, 0, 0], C[:, 1, 1], C[:, 2, 2]
-    d, e, f = C[:, 0, 1], C[:, 1, 2], C[:, 0, 2]
+@numba.njit(cache=True, nogil=True)
+def _sym3_eigvals(a, b, c, d, e, f):
+    """Ascending eigenvalues of [[a, d, f], [d, b, e], [f, e, c]] (closed form)."""
     q = (a + b + c) / 3
     p1 = d * d + e * e + f * f
     p2 = (a - q) ** 2 + (b - q) ** 2 + (c - q) ** 2 + 2 * p1
-    p = np.sqrt(p2 / 6)
-    ps = np.where(p > 0, p, 1.0)
-    A, B, Cc = (a - q) / ps, (b - q) / ps, (c - q) / ps
-    D, E, F = d / ps, e / ps, f / ps
-    detB = A * (B * Cc - E * E) - D * (D * Cc - E * F) + F * (D * E - B * F)
-    phi = np.arccos(np.clip(detB / 2, -1.0, 1.0)) / 3
-    l3 = q + 2 * p * np.cos(phi)
-    l1 = q + 2 * p * np.cos(phi + 2 * np.pi / 3)
-    l2 = 3 * q - l1 - l3
-    return np.stack([l1, l2, l3], axis=1)
+    p = math.sqrt(p2 / 6)
+    if p <= 0:
+        return q, q, q
+    A, B, C = (a - q) / p, (b - q) / p, (c - q) / p
+    D, E, F = d / p, e / p, f / p
+    detB = A * (B * C - E * E) - D * (D * C - E * F) + F * (D * E - B * F)
+    phi = math.acos(min(1.0, max(-1.0, detB / 2))) / 3
+    l3 = q + 2 * p * math.cos(phi)
+    l1 = q + 2 * p * math.cos(phi + 2 * math.pi / 3)
+    return l1, 3 * q - l1 - l3, l3
 
 
-_EDGES = np.array(list(itertools.combinations(range(4), 2)), dtype=np.intp)
-_FACES = np.array(list(itertools.combinations(range(4), 3)), dtype=np.intp)
+@numba.njit(cache=True, parallel=True)
+def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode, codes, volumes):
+    """Outcome code and fitting-box volume of every labelled candidate of ``subsets``.
 
-
-def face_flush_extents(P: np.ndarray) -> np.ndarray:
-    """Box extents for O'Rourke's face-flush candidates: 4 face normals x 6 projected edges.
-
-    Computed from dot-product tables without building frames: along the face normal F the
-    projections are F.p; along a2 = (E - (E.F) F)/|..| they are (E.p - (E.F)(F.p))/|..|; along
-    a3 = F x a2 they are (F x E).p/|..|.
-
-    P : (n, 4, 3) -> (n, 24, 3) float, mm (NaN where an edge is parallel to the normal).
+    mode 0: the exact fit decision; mode 1: stop after the necessary tests (NECESSARY_OK).
     """
-    E = P[:, _EDGES[:, 1]] - P[:, _EDGES[:, 0]]
-    E /= np.linalg.norm(E, axis=-1, keepdims=True)
-    F = np.cross(P[:, _FACES[:, 1]] - P[:, _FACES[:, 0]], P[:, _FACES[:, 2]] - P[:, _FACES[:, 0]])
-    F /= np.linalg.norm(F, axis=-1, keepdims=True)
-    Pt = np.swapaxes(P, 1, 2)  # (n, 3, 4)
-    FP = F @ Pt  # (n, 4f, 4k)
-    EP = E @ Pt  # (n, 6e, 4k)
-    EF = E @ np.swapaxes(F, 1, 2)  # (n, 6e, 4f)
-    norm = np.sqrt(np.maximum(1.0 - EF**2, 0.0))  # |E - (E.F)F|
-    good = norm > 1e-9
-    inv = np.where(good, 1.0 / np.where(good, norm, 1.0), np.nan)  # (n, e, f)
-    # (n, f, e, k)
-    a2 = (EP[:, None, :, :] - np.swapaxes(EF, 1, 2)[..., None] * FP[:, :, None, :]) * np.swapaxes(inv, 1, 2)[..., None]
-    FxE = np.cross(F[:, :, None, :], E[:, None, :, :])  # (n, f, e, 3)
-    a3 = (FxE @ Pt[:, None]) * np.swapaxes(inv, 1, 2)[..., None]
-    e1 = np.broadcast_to(_span(FP)[:, :, None], a2.shape[:3])
-    ext = np.stack([e1, _span(a2), _span(a3)], axis=-1)
-    return ext.reshape(len(P), 24, 3)
+    eps = 1e-9
+    for s in numba.prange(subsets.shape[0]):
+        P = np.zeros((4, 3))
+        R = np.empty((3, 3))
+        L = np.empty(6)
+        for a in range(assign.shape[0]):
+            for j in range(6):
+                L[j] = lo + step * subsets[s, assign[a, j]]
+            u, U, v, V, w, W = L[0], L[1], L[2], L[3], L[4], L[5]
+            volumes[s, a] = np.nan
+            cx = (u * u + w * w - v * v) / (2 * u)
+            cy2 = w * w - cx * cx
+            if cy2 <= 1e-9:
+                codes[s, a] = 0
+                continue
+            cy = math.sqrt(cy2)
+            dx = (u * u + V * V - W * W) / (2 * u)
+            dy = (V * V - U * U + w * w - 2 * dx * cx) / (2 * cy)
+            dz2 = V * V - dx * dx - dy * dy
+            if dz2 <= 1e-9:
+                codes[s, a] = 0
+                continue
+            dz = math.sqrt(dz2)
+            width = _width(u, U, v, V, w, W, u * cy * dz)
+            if width < min_depth - eps:
+                codes[s, a] = 1
+                continue
+            if width > lim[0] + eps:
+                codes[s, a] = 2
+                continue
+            # Ky Fan on the covariance (1/4 normalisation) of the four centres
+            mx, my, mz = (u + cx + dx) / 4, (cy + dy) / 4, dz / 4
+            P[1, 0] = u
+            P[2, 0], P[2, 1] = cx, cy
+            P[3, 0], P[3, 1], P[3, 2] = dx, dy, dz
+            sxx = syy = szz = sxy = syz = sxz = 0.0
+            for i in range(4):
+                X, Y, Z = P[i, 0] - mx, P[i, 1] - my, P[i, 2] - mz
+                sxx += X * X
+                syy += Y * Y
+                szz += Z * Z
+                sxy += X * Y
+                syz += Y * Z
+                sxz += X * Z
+            e1, e2, e3 = _sym3_eigvals(sxx / 4, syy / 4, szz / 4, sxy / 4, syz / 4, sxz / 4)
+            if (
+                e1 > lim[0] ** 2 / 4 + eps
+                or e1 + e2 > (lim[0] ** 2 + lim[1] ** 2) / 4 + eps
+                or e1 + e2 + e3 > (lim[0] ** 2 + lim[1] ** 2 + lim[2] ** 2) / 4 + eps
+            ):
+                codes[s, a] = 3
+                continue
+            if mode == 1:
+                codes[s, a] = 7
+                continue
+            st, _ = decide_one(P, lim, slack, 1, max_cells, R)
+            if st == 1:
+                codes[s, a] = 6
+                vol = 1.0
+                for k in range(3):
+                    hi = -1e300
+                    lo_ = 1e300
+                    for i in range(4):
+                        p = R[k, 0] * P[i, 0] + R[k, 1] * P[i, 1] + R[k, 2] * P[i, 2]
+                        hi = max(hi, p)
+                        lo_ = min(lo_, p)
+                    vol *= hi - lo_
+                volumes[s, a] = vol
+            elif st == 0:
+                codes[s, a] = 4
+            else:
+                codes[s, a] = 5
 
 
-def _worker_init() -> None:
-    """Keep large temporaries in the heap inside worker processes (glibc only, else no-op).
+def _covariance_fits(P: np.ndarray, limit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's test: the covariance box fits (sorted against sorted).  Returns (fits, volume)."""
+    from starforge.geometry.obb import covariance_box
 
-    Each batch allocates and frees arrays of tens of MB; with glibc's default mmap threshold
-    every one is returned to the kernel and page-faulted in again, which costs about as much as
-    the arithmetic.  Raising the thresholds (only in these short-lived workers) halves a batch.
-    """
-    import ctypes
-    import ctypes.util
-
-    name = ctypes.util.find_library("c")
-    try:
-        libc = ctypes.CDLL(name) if name else None
-        if libc is not None and hasattr(libc, "mallopt"):
-            libc.mallopt(-3, 1 << 30)  # M_MMAP_THRESHOLD
-            libc.mallopt(-1, 1 << 30)  # M_TRIM_THRESHOLD
-    except OSError:
-        pass
+    if not len(P):
+        return np.zeros(0, dtype=bool), np.zeros(0)
+    _, _, ext = covariance_box(P)
+    e = np.sort(ext, axis=1)
+    lim = np.sort(limit) * (1 + 1e-9) + 1e-9
+    return (e <= lim).all(axis=1), np.prod(ext, axis=1)
 
 
-def enumerate_candidates(
-    spec: StarSpec, chunk: int = 1 << 18, progress=None, workers: int | None = None
-) -> Candidates:
-    """Every star (up to relabelling and mirroring) whose centres fit ``spec``'s limit.
+def enumerate_candidates(spec: StarSpec, progress=None, workers: int | None = None) -> Candidates:
+    """Every star (up to relabelling and mirroring) whose centres provably fit ``spec``'s limit.
 
     Parameters
     ----------
     spec : StarSpec
-    chunk : int
-        Labelled candidates per vectorised batch (bounds memory, ~100 MB).
     progress : callable or None
-        ``progress(done, total)`` after each batch.
+        ``progress(done, total)`` in labelled candidates, after each batch.
     workers : int or None
-        Processes for large pools (default: every core); small pools run in-process.  The
-        result does not depend on it.
+        Threads (default: every core).  The result does not depend on it.
     """
-    import os
-    import time
-
     t0 = time.perf_counter()
     check_size(spec)
     pool = edge_pool(spec)
-    limit = np.array(spec.centre_limit_mm)
-    subsets = _subsets(len(pool))
-    assign = canonical_assignments()
-    n_labelled = len(subsets) * len(assign)
-    per_chunk = max(1, chunk // len(assign))
-    batches = [subsets[s0 : s0 + per_chunk] for s0 in range(0, len(subsets), per_chunk)]
-    exact = spec.box_method == "exact"
-    workers = (os.cpu_count() or 1) if workers is None else max(1, workers)
-    results = []
+    lo = float(pool[0])
+    step = float(spec.delta_mm)
+    limit = np.sort(np.array(spec.centre_limit_mm, dtype=float))
+    m = spec.grid_steps
+    assign = canonical_assignments().astype(np.int64)
+    total = labelled_count(spec)
+    mode = 0 if spec.box_method == "exact" else 1
+    if workers is not None:
+        numba.set_num_threads(max(1, min(int(workers), numba.config.NUMBA_NUM_THREADS)))
+    counts = np.zeros(8, dtype=np.int64)
+    fit_idx, fit_vol, und_idx = [], [], []
+    start = np.array([k * m for k in range(6)], dtype=np.int64)
+    if 5 * m > len(pool) - 1:
+        start[0] = -1
     done = 0
-    if workers > 1 and len(batches) > 2:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
+    while start[0] >= 0:
+        sub = _subsets_from(len(pool), m, start, BATCH_SUBSETS)
+        if not len(sub):
+            break
+        codes = np.empty((len(sub), len(assign)), dtype=np.int8)
+        vols = np.empty((len(sub), len(assign)))
+        _classify(sub, assign, lo, step, limit, spec.depth_mm, SLACK_MM, 100_000, mode, codes, vols)
+        counts += np.bincount(codes.ravel(), minlength=8)
+        if mode == 1:
+            s, a = np.nonzero(codes == NECESSARY_OK)
+            idx = np.take_along_axis(sub[s], assign[a], axis=1)
+            from starforge.geometry.tetra import vertices_from_lengths
 
-        ctx = mp.get_context("forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn")
-        if ctx.get_start_method() == "forkserver":
-            ctx.set_forkserver_preload([__name__])  # workers fork with numpy and this module loaded
-        with ProcessPoolExecutor(
-            max_workers=min(workers, len(batches)), mp_context=ctx, initializer=_worker_init
-        ) as ex:
-            # later subsets hold the longer, costlier edges: submit those first so both workers
-            # stay busy to the end (the result is sorted afterwards, so order does not matter)
-            futures = [ex.submit(_process, b, assign, pool, limit, exact) for b in batches[::-1]]
-            for b, fut in zip(batches[::-1], futures, strict=True):
-                results.append(fut.result())
-                done += len(b)
-                if progress is not None:
-                    progress(done * len(assign), n_labelled)
-    else:
-        for b in batches:
-            results.append(_process(b, assign, pool, limit, exact))
-            done += len(b)
-            if progress is not None:
-                progress(done * len(assign), n_labelled)
-    stats = {"pool_size": len(pool), "subsets": len(subsets), "labelled": n_labelled}
-    for key in results[0][2]:
-        stats[key] = sum(r[2][key] for r in results)
-    index = np.concatenate([r[0] for r in results])
-    ext = np.concatenate([r[1] for r in results])
+            fits, vol = _covariance_fits(vertices_from_lengths(pool[idx]), limit)
+            counts[FIT] += int(fits.sum())
+            counts[NO_FIT] += int((~fits).sum())
+            fit_idx.append(idx[fits].astype(np.int16))
+            fit_vol.append(vol[fits])
+        else:
+            s, a = np.nonzero(codes == FIT)
+            fit_idx.append(np.take_along_axis(sub[s], assign[a], axis=1).astype(np.int16))
+            fit_vol.append(vols[s, a])
+            s, a = np.nonzero(codes == UNDECIDED)
+            und_idx.append(np.take_along_axis(sub[s], assign[a], axis=1).astype(np.int16))
+        done += len(sub) * len(assign)
+        if progress is not None:
+            progress(done, total)
+    index = np.concatenate(fit_idx) if fit_idx else np.zeros((0, 6), np.int16)
+    volume = np.concatenate(fit_vol) if fit_vol else np.zeros(0)
+    undecided = np.concatenate(und_idx) if und_idx else np.zeros((0, 6), np.int16)
     order = np.lexsort(index.T[::-1])  # deterministic: lexicographic on pool indices
-    stats["fitting"] = int(len(index))
+    stats = {
+        "pool_size": len(pool),
+        "tolerance_steps": m,
+        "labelled": int(done),
+        "realisable": int(done - counts[UNREALISABLE]),
+        "deep_enough": int(done - counts[: TOO_THIN + 1].sum()),
+        "width_ok": int(done - counts[: TOO_WIDE + 1].sum()),
+        "kyfan_ok": int(done - counts[: KY_FAN + 1].sum()),
+        "no_fit": int(counts[NO_FIT]),
+        "undecided": int(counts[UNDECIDED]),
+        "fitting": int(len(index)),
+        "fit_test": "exact" if mode == 0 else "covariance",
+        "fit_slack_mm": SLACK_MM if mode == 0 else None,
+    }
     stats["seconds"] = time.perf_counter() - t0
-    return Candidates(pool_mm=pool, index=index[order], box_extents=ext[order], stats=stats)
+    if not len(index) and not stats["labelled"]:
+        raise StarforgeError(
+            f"the edge-length pool ({len(pool)} lengths) holds no 6 lengths that differ pairwise by the "
+            f"tolerance {spec.tol_mm:g} mm; lower tolerance_mm or enlarge the box"
+        )
+    undecided = undecided[np.lexsort(undecided.T[::-1])] if len(undecided) else undecided
+    return Candidates(
+        pool_mm=pool, index=index[order], box_volume=volume[order], undecided=undecided, stats=stats
+    )

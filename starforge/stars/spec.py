@@ -36,14 +36,25 @@ class StarSpec:
     tolerance_mm : float or None
         Two faces (or edges) closer than this are indistinguishable; defaults to ``delta_mm``.
     select : "max" or "greedy"
-        Exact set packing (HiGHS MILP, time-limited) or the paper's greedy growth.
+        As large a family as can be found (exact set packing where it can be proven, with a
+        certified upper bound) or the paper's greedy growth.
     count : int or None
-        Return exactly this many stars (most compact, widest margins first).
+        Return exactly this many stars: the most accurate (smallest predicted tip error with one
+        marker hidden) that are mutually distinguishable.
     box_method : "exact" or "covariance"
-        "exact": a star fits when some box around its centres fits (minimum-volume box
-        reported); "covariance": the paper's covariance OBB must fit.
+        "exact": a star fits when some rotation puts its centres' box inside the limit (decided
+        by branch and bound, complete up to 0.01 mm; :mod:`starforge.geometry.fit`);
+        "covariance": the paper's covariance OBB must fit.
+    min_depth_mm : float or None
+        Smallest allowed depth of a star: its width, the smallest side of any box around its
+        centres in any orientation.  Default half the marker diameter; 0 allows flat stars.
+    tip_mm : (3,) float or None
+        Target point for the predicted accuracy, in each star's placement frame; default
+        :func:`starforge.geometry.rigid.default_tip_mm` (long axis, one limit length below).
+    noise_mm : float
+        Marker-centre noise (sigma per axis) for the predicted accuracy, mm.
     time_limit_s : float
-        Time limit for the MILP.
+        Wall-clock safety limit for the exact solver; its deterministic work budget decides.
     reserve_mm : (3,) float
         Millimetres of the size limit kept free for a mount, along its shortest, middle and
         longest side.  Printed bodies stack their mount on the star's shortest side and the
@@ -66,7 +77,10 @@ class StarSpec:
     select: Select = "max"
     count: int | None = None
     box_method: BoxMethod = "exact"
-    time_limit_s: float = 5.0
+    min_depth_mm: float | None = None
+    tip_mm: tuple[float, float, float] | None = None
+    noise_mm: float = 0.2
+    time_limit_s: float = 60.0
     reserve_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     name: str = "custom"
     description: str = ""
@@ -77,6 +91,23 @@ class StarSpec:
             positive(f"box_mm[{i}]", b)
         positive("marker_mm", self.marker_mm)
         positive("delta_mm", self.delta_mm)
+        require(
+            self.delta_mm >= 1e-3,
+            f"delta_mm must be >= 0.001 mm (a length variation no printer or tracker resolves below that), "
+            f"got {self.delta_mm}",
+        )
+        for i, b in enumerate(self.box_mm):
+            require(b <= 10_000, f"box_mm[{i}] must be <= 10000 mm (a star of 4 markers), got {b}")
+        if self.min_depth_mm is not None:
+            require(
+                math.isfinite(self.min_depth_mm) and self.min_depth_mm >= 0,
+                f"min_depth_mm must be >= 0, got {self.min_depth_mm}",
+            )
+        if self.tip_mm is not None:
+            require(len(self.tip_mm) == 3, f"tip_mm needs 3 coordinates, got {len(self.tip_mm)}")
+            for i, t in enumerate(self.tip_mm):
+                require(math.isfinite(t) and abs(t) <= 1e5, f"tip_mm[{i}] must be within 100 m, got {t}")
+        require(math.isfinite(self.noise_mm) and self.noise_mm > 0, f"noise_mm must be > 0, got {self.noise_mm}")
         require(self.gap_mm >= 0 and math.isfinite(self.gap_mm), f"gap_mm must be >= 0, got {self.gap_mm}")
         positive("time_limit_s", self.time_limit_s)
         if self.tolerance_mm is not None:
@@ -118,11 +149,31 @@ class StarSpec:
             f"delta_mm {self.delta_mm} is too large: the pool [{lo:.2f}, {hi:.2f}] mm holds only "
             f"{self.pool_size} lengths and a star needs 6 different ones (delta_mm <= {(hi - lo) / 5:.3f})",
         )
+        require(
+            (hi - lo) >= 5 * self.tol_mm - 1e-9,
+            f"tolerance_mm {self.tol_mm:g} is too large for the pool [{lo:.2f}, {hi:.2f}] mm: a star needs six "
+            f"lengths that differ pairwise by the tolerance, so it must be <= {(hi - lo) / 5:.3f} mm",
+        )
+        require(
+            self.depth_mm < self.centre_limit_mm[0],
+            f"min_depth_mm {self.depth_mm:g} leaves no star: the centres' box is at most "
+            f"{self.centre_limit_mm[0]:.3g} mm deep inside this limit",
+        )
 
     @property
     def tol_mm(self) -> float:
         """The face/edge tolerance in effect, mm."""
         return self.delta_mm if self.tolerance_mm is None else self.tolerance_mm
+
+    @property
+    def grid_steps(self) -> int:
+        """m: two pool lengths are told apart iff they differ by >= m pool steps (>= tolerance)."""
+        return max(1, math.ceil(self.tol_mm / self.delta_mm - 1e-9))
+
+    @property
+    def depth_mm(self) -> float:
+        """The minimum depth in effect, mm (default half the marker diameter)."""
+        return self.marker_mm / 2 if self.min_depth_mm is None else float(self.min_depth_mm)
 
     @property
     def centre_limit_mm(self) -> tuple[float, float, float]:
@@ -143,7 +194,10 @@ class StarSpec:
     @property
     def pool_size(self) -> int:
         lo, hi = self.pool_bounds_mm
-        return int(math.floor((hi - lo) / self.delta_mm + 1e-9)) + 1 if hi >= lo else 0
+        if not hi >= lo:
+            return 0
+        n = (hi - lo) / self.delta_mm + 1e-9
+        return int(math.floor(n)) + 1 if n < 1e9 else 10**9  # capped: bounded-cost checks refuse it
 
 
 def spec_from_mapping(data: dict, name: str | None = None) -> StarSpec:
