@@ -1,4 +1,4 @@
-"""From a spec to a verified family: enumerate, select, place, measure margins."""
+"""From a spec to a verified family: enumerate, select, place, measure margins and accuracy."""
 
 from __future__ import annotations
 
@@ -7,12 +7,20 @@ import time
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.geometry.tetra import face_sides, vertices_from_lengths
+from starforge.geometry.rigid import (
+    default_tip_mm,
+    fle_from_sigma,
+    rotation_error_deg,
+    rotation_error_hidden_deg,
+    tre_hidden,
+    tre_rms,
+)
+from starforge.geometry.tetra import face_sides, tetra_width, vertices_from_lengths
 from starforge.stars.boxes import place_stars
 from starforge.stars.enumerate import Candidates, enumerate_candidates
 from starforge.stars.model import Family, Star
-from starforge.stars.rules import grid_steps, internal_ok, window_rows
-from starforge.stars.select import select_family
+from starforge.stars.rules import internal_ok, window_rows
+from starforge.stars.select import block_bound, greedy, select_family
 from starforge.stars.spec import StarSpec
 
 
@@ -34,10 +42,13 @@ def margins(lengths: np.ndarray) -> list[dict]:
     internal = np.diff(srt, axis=1).min(axis=1)
     F = face_sides(L).reshape(-1, 3)  # (4n, 3)
     owner = np.repeat(np.arange(n), 4)
-    diff = np.abs(F[:, None, :] - F[None, :, :]).max(axis=2)
-    np.fill_diagonal(diff, np.inf)
     face_m = np.full(n, np.inf)
-    np.minimum.at(face_m, owner, diff.min(axis=1))
+    if len(F) > 1:
+        from scipy.spatial import cKDTree
+
+        # the nearest other face in the Chebyshev metric (largest sorted-side difference)
+        d, _ = cKDTree(F).query(F, k=2, p=np.inf)
+        np.minimum.at(face_m, owner, d[:, 1])
     pair_m = np.full(n, np.inf)
     if n > 1:
         forms = L[:, RELABELLINGS]  # (n, 24, 6)
@@ -50,76 +61,230 @@ def margins(lengths: np.ndarray) -> list[dict]:
             worst[i] = np.inf
             pair_m[i] = worst.min()
     return [
-        {"internal_mm": float(internal[i]), "family_face_mm": float(face_m[i]), "family_pair_mm": float(pair_m[i])}
+        {
+            "internal_mm": float(internal[i]),
+            "family_face_mm": float(face_m[i]),
+            "family_pair_mm": float(pair_m[i]),
+        }
         for i in range(n)
     ]
 
 
-def make_family(spec: StarSpec, progress=None, candidates: Candidates | None = None) -> Family:
+def avoid_mask(
+    index: np.ndarray, pool: np.ndarray, avoid_faces_mm: np.ndarray | None, tol_mm: float
+) -> np.ndarray:
+    """Candidates none of whose faces is within ``tol_mm`` (every sorted side) of an avoided
+    triangle (k, 3): the face rule against bodies a lab already owns.  (n,) bool."""
+    if avoid_faces_mm is None or not len(avoid_faces_mm) or not len(index):
+        return np.ones(len(index), dtype=bool)
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(np.sort(np.asarray(avoid_faces_mm, dtype=float), axis=1))
+    F = np.sort(face_sides(pool[index]), axis=2).reshape(-1, 3)
+    # Chebyshev distance < tol  <=>  every sorted side within the tolerance: indistinguishable
+    d, _ = tree.query(F, k=1, p=np.inf, distance_upper_bound=tol_mm)
+    clash = (d < tol_mm - 1e-9).reshape(len(index), 4).any(axis=1)
+    return ~clash
+
+
+def accuracy(vertices: np.ndarray, tip_mm: np.ndarray, sigma_mm: float) -> list[dict]:
+    """Predicted accuracy of stars (n, 4, 3) in their placement frames, under isotropic marker
+    noise ``sigma_mm`` per axis: rotation error (deg) and TRE at the tip (mm), with all four
+    markers and in the worst case with one hidden."""
+    fle = fle_from_sigma(sigma_mm)
+    rot = np.atleast_1d(rotation_error_deg(vertices, sigma_mm))
+    rot_h = rotation_error_hidden_deg(vertices, sigma_mm).max(axis=1)
+    tre = np.atleast_1d(tre_rms(vertices, tip_mm, fle))
+    tre_h = tre_hidden(vertices, tip_mm, fle)
+    return [
+        {
+            "rotation_deg": float(rot[i]),
+            "rotation_hidden_deg": float(rot_h[i]),
+            "tip_tre_mm": float(tre[i]),
+            "tip_tre_hidden_mm": float(tre_h[i].max()),
+            "worst_hidden_marker": "ABCD"[int(tre_h[i].argmax())],
+        }
+        for i in range(len(vertices))
+    ]
+
+
+def _count_order(index: np.ndarray, pool: np.ndarray, sigma_mm: float) -> np.ndarray:
+    """Candidates from most to least accurate: worst-case rotation error with one marker hidden
+    (frame-free; it drives the error at any tip away from the centroid), then pool indices."""
+    P = vertices_from_lengths(pool[index])
+    score = rotation_error_hidden_deg(P, sigma_mm).max(axis=1)
+    keys = [index[:, k] for k in range(5, -1, -1)]
+    return np.lexsort((*keys, np.round(score, 9)))
+
+
+def make_family(
+    spec: StarSpec,
+    progress=None,
+    candidates: Candidates | None = None,
+    avoid_faces_mm: np.ndarray | None = None,
+    avoid_sources: list[dict] | None = None,
+    milp_work: int | None = None,
+) -> Family:
     """Enumerate, select and place a family for ``spec``.
 
+    ``avoid_faces_mm`` (k, 3): triangles of bodies the lab already owns; no face of a new star
+    comes within the tolerance of one (``avoid_sources`` describes them for family.json).
+    ``milp_work``: the exact solver's deterministic work budget (nonzeros x nodes; default
+    :data:`starforge.stars.select.MILP_WORK`).
+
     Raises StarforgeError when no star fits, or when ``spec.count`` exceeds what is achievable
-    (naming the largest family found and the proven bound).
+    (naming the largest family found and the certified bound).
     """
+    from starforge.stars.select import MILP_WORK
+
+    work = MILP_WORK if milp_work is None else int(milp_work)
     t0 = time.perf_counter()
     cands = candidates if candidates is not None else enumerate_candidates(spec, progress=progress)
     t_enum = time.perf_counter() - t0
-    m = grid_steps(spec.tol_mm, spec.delta_mm)
-    ok = internal_ok(cands.index, spec.rule, m)
+    m = spec.grid_steps
+    pool = cands.pool_mm
+    ok = internal_ok(cands.index, spec.rule, m) & avoid_mask(cands.index, pool, avoid_faces_mm, spec.tol_mm)
     index = cands.index[ok]
     volume = cands.box_volume[ok]
+    und = cands.undecided
+    und = (
+        und[internal_ok(und, spec.rule, m) & avoid_mask(und, pool, avoid_faces_mm, spec.tol_mm)]
+        if len(und)
+        else und
+    )
     if len(index) == 0:
         raise StarforgeError(
-            f"no star fits: box_mm {list(spec.box_mm)} with {spec.marker_mm} mm markers and delta_mm "
-            f"{spec.delta_mm} admits no tetrahedron of 6 different pool lengths (try a smaller delta_mm or a larger box)"
+            f"no star fits: box_mm {list(spec.box_mm)} with {spec.marker_mm:g} mm markers, delta_mm "
+            f"{spec.delta_mm:g}, tolerance {spec.tol_mm:g} mm and min_depth_mm {spec.depth_mm:g} admits no "
+            f"tetrahedron (try a smaller delta_mm, tolerance or min_depth_mm, or a larger box)"
         )
-    star_of, row, n_rows = window_rows(index, spec.rule, m, len(cands.pool_mm))
+    # certified: every star that really fits is proven to fit here or undecided
+    bound_set = np.concatenate([index, und]) if len(und) else index
+    bound = block_bound(bound_set, m)
+    if spec.count is not None and spec.count > bound:
+        raise StarforgeError(
+            f"count {spec.count} is not achievable: no family of this spec can hold more than {bound} stars "
+            f"(certified upper bound)"
+        )
+    star_of, row, n_rows = window_rows(index, spec.rule, m, len(pool))
     t1 = time.perf_counter()
-    pool = cands.pool_mm
-    sel = select_family(index, pool, volume, star_of, row, n_rows, spec)
-    t_sel = time.perf_counter() - t1
-    chosen = sel.chosen
     if spec.count is not None:
-        if spec.count > len(chosen):
-            bound = f"; proven upper bound {sel.upper_bound}" if sel.upper_bound is not None else ""
-            raise StarforgeError(
-                f"count {spec.count} is not achievable: the largest family found has {len(chosen)} stars{bound}"
+        from starforge.stars.select import Selection, _csr
+
+        ptr, rows = _csr(star_of, row, len(index))
+        order = _count_order(index, pool, spec.noise_mm)
+        chosen = greedy(order, ptr, rows, n_rows)
+        info = {"greedy_by_accuracy": int(len(chosen))}
+        if len(chosen) >= spec.count:
+            chosen = chosen[: spec.count]
+            sel = Selection(chosen, bound, info)
+        else:  # the most accurate greedy family is too small: take the largest family instead
+            sel = select_family(
+                index,
+                pool,
+                volume,
+                star_of,
+                row,
+                n_rows,
+                spec,
+                bound=bound,
+                n_undecided=len(und),
+                milp_work=work,
             )
-    L = pool[index[chosen]]
-    marg = margins(L)
-    # most compact first, then widest margins
-    tol_key = np.array([mm["family_face_mm"] if spec.rule == "face" else mm["family_pair_mm"] for mm in marg])
-    order = np.lexsort((-tol_key, L.sum(axis=1), volume[chosen]))
-    if spec.count is not None:
-        order = order[: spec.count]
-        L = L[order]
-        marg = margins(L)
-        order = np.arange(len(L))
+            info.update(sel.info)
+            if len(sel.chosen) < spec.count:
+                raise StarforgeError(
+                    f"count {spec.count} is not achievable: the largest family found has {len(sel.chosen)} stars "
+                    f"(certified upper bound {sel.upper_bound})"
+                )
+            keep = np.isin(order, sel.chosen)
+            chosen = order[keep][: spec.count]
+            sel = Selection(chosen, sel.upper_bound, info)
     else:
-        L = L[order]
-        marg = [marg[i] for i in order]
+        sel = select_family(
+            index, pool, volume, star_of, row, n_rows, spec, bound=bound, n_undecided=len(und), milp_work=work
+        )
+    ub = sel.upper_bound
+    if len(und) and sel.info.get("milp_status") == "optimal" and ub > len(sel.chosen):
+        # the solver proved its optimum over the stars that fit; the undecided ones may fit too,
+        # so solve once more with them for a bound that covers every star that really fits
+        from starforge.stars.select import _csr, milp, node_budget
+
+        both = np.concatenate([index, und])
+        s2, r2, n2 = window_rows(both, spec.rule, m, len(pool))
+        p2, rows2 = _csr(s2, r2, len(both))
+        opt, dual, status, reproducible = milp(
+            p2, rows2, n2, np.arange(len(both)), spec.time_limit_s, node_budget(len(rows2), work)
+        )
+        if reproducible:
+            b2 = len(opt) if status == "optimal" else dual
+            if b2 is not None and b2 < ub:
+                ub = int(b2)
+                sel.info["bound_from"] = "solver"
+        sel.info["bound_solve_with_undecided"] = status
+    t_sel = time.perf_counter() - t1
+    chosen = np.sort(sel.chosen)
+    L = pool[index[chosen]]
     P = vertices_from_lengths(L)
     limit = spec.centre_limit_mm
-    stars = []
-    for i, (V, T, ext, how, fits) in enumerate(place_stars(P, limit, spec.box_method)):
-        if not fits:  # cannot happen for enumerated candidates; guard the invariant loudly
+    placed = place_stars(P, limit, spec.box_method)
+    for i, item in enumerate(placed):
+        if not item[4]:  # cannot happen for enumerated candidates; guard the invariant loudly
             raise RuntimeError(f"internal error: selected star {L[i].tolist()} does not fit")
-        stars.append(Star(id=i + 1, lengths=L[i], vertices=V, obb_extents=ext, obb_transform=T, obb_method=how, margins=marg[i]))
+    V = np.array([item[0] for item in placed])
+    tip = np.asarray(spec.tip_mm if spec.tip_mm is not None else default_tip_mm(spec.box_mm), dtype=float)
+    acc = accuracy(V, tip, spec.noise_mm)
+    # most accurate first (worst-case tip error with one marker hidden), then pool indices
+    keys = [index[chosen][:, k] for k in range(5, -1, -1)]
+    order = np.lexsort((*keys, np.round([a["tip_tre_hidden_mm"] for a in acc], 9)))
+    marg = margins(L[order])
+    depth = tetra_width(L[order])
+    stars = []
+    for new_id, i in enumerate(order.tolist(), start=1):
+        Vi, T, ext, how, _, min_ext = placed[i]
+        stars.append(
+            Star(
+                id=new_id,
+                lengths=L[i],
+                vertices=Vi,
+                obb_extents=ext,
+                obb_transform=T,
+                obb_method=how,
+                margins=marg[new_id - 1],
+                min_box_extents=min_ext,
+                depth_mm=float(depth[new_id - 1]),
+                accuracy=acc[i],
+            )
+        )
     info = dict(sel.info)
+    info["proven_optimal"] = bool(spec.count is None and len(sel.chosen) >= ub)
     timings = {k: info.pop(k) for k in list(info) if k.endswith("_s") and k != "time_limit_s"}
     enum_stats = {k: v for k, v in cands.stats.items() if k != "seconds"}
-    timings.update(enumerate=round(t_enum, 3), select=round(t_sel, 3), total=round(time.perf_counter() - t0, 3))
+    timings.update(
+        enumerate=round(t_enum, 3), select=round(t_sel, 3), total=round(time.perf_counter() - t0, 3)
+    )
     summary = {
         "size": len(stars),
         "rule": spec.rule,
-        "select": spec.select,
+        "select": spec.select if spec.count is None else f"count {spec.count} (most accurate)",
         "tolerance_mm": spec.tol_mm,
+        "min_depth_mm": spec.depth_mm,
         "pool_mm": [round(float(x), 9) for x in pool],
         "candidates": int(len(index)),
+        "undecided": int(len(und)),
         "enumeration": enum_stats,
-        "best_found": int(len(chosen)),
-        "upper_bound": sel.upper_bound,
-        "gap": (sel.upper_bound - len(chosen)) if sel.upper_bound is not None else None,
+        "best_found": int(len(sel.chosen)) if spec.count is None else None,
+        "upper_bound": ub,
+        "upper_bound_basis": (
+            "face-block count over every star that fits or is undecided (a superset of all fitting stars)"
+            + (", tightened by the exact solver's dual bound" if info.get("bound_from") == "solver" else "")
+        ),
+        "gap": (ub - len(stars)) if ub is not None and spec.count is None else None,
+        "optimal": bool(spec.count is None and ub is not None and len(stars) >= ub),
+        "tip_mm": [float(x) for x in tip],
+        "noise_mm": spec.noise_mm,
         "selection": info,
     }
+    if avoid_sources:
+        summary["avoid"] = avoid_sources
     return Family(spec=spec, stars=tuple(stars), summary=summary, timings=timings)

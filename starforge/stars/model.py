@@ -1,24 +1,32 @@
 """Star and family values, and ``family.json`` / ``family.csv`` I/O (the source of truth).
 
-``family.json`` layout (version 1)::
+``family.json`` layout (version 2; version 1 files are still read)::
 
     {
-      "format": "starforge.family", "version": 1,
+      "format": "starforge.family", "version": 2,
       "spec": {...StarSpec fields...},
       "units": "mm",
-      "summary": {"size": 333, "rule": "face", "select": "max", "upper_bound": 410, ...},
+      "summary": {"size": .., "rule": "face", "upper_bound": .., "optimal": false, ...},
       "stars": [
         {"id": 1,
          "lengths": {"u": .., "U": .., "v": .., "V": .., "w": .., "W": ..},   # mm
          "vertices": [[x, y, z] x 4],        # A, B, C, D sphere centres, mm, placement frame
-         "obb": {"extents": [x, y, z],        # box sides along placement x, y, z, mm
+         "obb": {"extents": [x, y, z],        # the fitting box's sides along placement x, y, z, mm
                  "transform": 4x4,            # construction frame -> placement frame
-                 "method": "exact" | "candidate" | "covariance"},
+                 "method": "minimum" | "fitting" | "covariance",
+                 "min_extents": [a, b, c]},   # the minimum-volume box's sides, sorted, mm
+         "depth_mm": ..,                      # width: smallest box side in any orientation, mm
          "faces": [[a, b, c] x 4],            # sorted sides of ABC, ABD, ACD, BCD, mm
-         "margins": {"internal_mm": .., "family_face_mm": .., "family_pair_mm": ..}},
+         "margins": {"internal_mm": .., "family_face_mm": .., "family_pair_mm": ..},
+         "accuracy": {"rotation_deg": .., "rotation_hidden_deg": .., "tip_tre_mm": ..,
+                      "tip_tre_hidden_mm": .., "worst_hidden_marker": "A"}},
         ...
       ]
     }
+
+``obb.method``: ``minimum`` when the minimum-volume box fits the limit, ``fitting`` when only
+another orientation does (found by the fit decision), ``covariance`` for the paper's box.
+Accuracy is predicted for the spec's ``noise_mm`` at the summary's ``tip_mm``.
 
 Vertices are in the paper's placement frame: z along the longest box side, y along the
 shortest, origin at the centre of the bottom face, so the box spans
@@ -41,7 +49,9 @@ from starforge.spec import to_mapping
 from starforge.stars.spec import StarSpec, spec_from_mapping
 
 FORMAT = "starforge.family"
-VERSION = 1
+VERSION = 2
+#: versions this starforge reads
+READABLE = (1, 2)
 
 
 @dataclass(frozen=True)
@@ -55,8 +65,11 @@ class Star:
     vertices : (4, 3) float, mm       sphere centres A, B, C, D in the placement frame
     obb_extents : (3,) float, mm      box sides along placement x, y, z
     obb_transform : (4, 4) float      construction frame -> placement frame
-    obb_method : str                  "exact", "candidate" or "covariance"
+    obb_method : str                  "minimum", "fitting" or "covariance"
     margins : dict                    internal_mm, family_face_mm (and family_pair_mm)
+    min_box_extents : (3,) float, mm  sides of the minimum-volume box, sorted (NaN if unknown)
+    depth_mm : float or None          the star's width (smallest box side in any orientation)
+    accuracy : dict                   predicted rotation error and tip TRE (see the module doc)
     """
 
     id: int
@@ -64,11 +77,24 @@ class Star:
     vertices: np.ndarray
     obb_extents: np.ndarray
     obb_transform: np.ndarray
-    obb_method: str = "exact"
+    obb_method: str = "minimum"
     margins: dict = field(default_factory=dict)
+    min_box_extents: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    depth_mm: float | None = None
+    accuracy: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        for name, shape in (("lengths", (6,)), ("vertices", (4, 3)), ("obb_extents", (3,)), ("obb_transform", (4, 4))):
+        arr = np.array(self.min_box_extents, dtype=float)
+        if arr.shape != (3,):
+            raise StarforgeError(f"star {self.id}: min_box_extents must be 3 numbers")
+        arr.setflags(write=False)
+        object.__setattr__(self, "min_box_extents", arr)
+        for name, shape in (
+            ("lengths", (6,)),
+            ("vertices", (4, 3)),
+            ("obb_extents", (3,)),
+            ("obb_transform", (4, 4)),
+        ):
             arr = np.array(getattr(self, name), dtype=float)
             if arr.shape != shape or not np.isfinite(arr).all():
                 raise StarforgeError(f"star {self.id}: {name} must be {shape} finite numbers")
@@ -85,18 +111,28 @@ class Star:
         return {k: float(v) for k, v in zip(LENGTH_NAMES, self.lengths, strict=True)}
 
     def to_json(self) -> dict:
-        return {
+        obb = {
+            "extents": _rounded(self.obb_extents),
+            "transform": _rounded(self.obb_transform),
+            "method": self.obb_method,
+        }
+        if np.isfinite(self.min_box_extents).all():
+            obb["min_extents"] = _rounded(self.min_box_extents)
+        out = {
             "id": int(self.id),
             "lengths": {k: round(v, 9) for k, v in self.lengths_dict.items()},
             "vertices": _rounded(self.vertices),
-            "obb": {
-                "extents": _rounded(self.obb_extents),
-                "transform": _rounded(self.obb_transform),
-                "method": self.obb_method,
-            },
-            "faces": _rounded(self.faces),
-            "margins": {k: round(float(v), 9) for k, v in self.margins.items()},
+            "obb": obb,
         }
+        if self.depth_mm is not None:
+            out["depth_mm"] = round(float(self.depth_mm), 9)
+        out["faces"] = _rounded(self.faces)
+        out["margins"] = {k: round(float(v), 9) for k, v in self.margins.items()}
+        if self.accuracy:
+            out["accuracy"] = {
+                k: (round(float(v), 9) if not isinstance(v, str) else v) for k, v in self.accuracy.items()
+            }
+        return out
 
 
 @dataclass(frozen=True)
@@ -148,23 +184,39 @@ def family_csv(family: Family) -> str:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["id", *LENGTH_NAMES, *[f"{c}{i}" for i in range(1, 5) for c in "xyz"]])
     for s in family.stars:
-        w.writerow([s.id, *[f"{x + 0.0:.6f}" for x in s.lengths], *[f"{x:.6f}" for x in s.vertices.ravel() + 0.0]])
+        w.writerow(
+            [s.id, *[f"{x + 0.0:.6f}" for x in s.lengths], *[f"{x:.6f}" for x in s.vertices.ravel() + 0.0]]
+        )
     return buf.getvalue()
 
 
-def family_from_json(data: dict, where: str = "family.json") -> Family:
-    """Parse family.json data with one-line errors for a wrong format, version or content."""
+def family_from_json(data: dict, where: str = "family.json", verify: bool = True) -> Family:
+    """Parse family.json data with one-line errors for a wrong format, version or content.
+
+    With ``verify`` (the default) the family is re-checked before anything uses it: units,
+    lengths against vertices, distinct non-overlapping markers, depth, every star inside its
+    box and the box inside the size limit, and the uniqueness rule
+    (:func:`starforge.stars.verify.check_family`).  A file edited by hand cannot slip through.
+    """
     if data.get("format") != FORMAT:
         raise StarforgeError(f"{where} is not a starforge family file (format {data.get('format')!r})")
-    if data.get("version") != VERSION:
+    if data.get("version") not in READABLE:
         raise StarforgeError(
-            f"{where} has family format version {data.get('version')!r}; this starforge reads version {VERSION}"
+            f"{where} has family format version {data.get('version')!r}; this starforge reads versions "
+            f"{', '.join(map(str, READABLE))}"
+        )
+    if data.get("units", "mm") != "mm":
+        raise StarforgeError(
+            f'{where} gives units {data.get("units")!r}; family files are in millimetres ("mm")'
         )
     try:
         spec = spec_from_mapping(data["spec"])
+        if not isinstance(data["stars"], list):
+            raise TypeError("stars must be a list")
         stars = []
         for s in data["stars"]:
             L = s["lengths"]
+            acc = s.get("accuracy", {})
             stars.append(
                 Star(
                     id=int(s["id"]),
@@ -172,22 +224,36 @@ def family_from_json(data: dict, where: str = "family.json") -> Family:
                     vertices=s["vertices"],
                     obb_extents=s["obb"]["extents"],
                     obb_transform=s["obb"]["transform"],
-                    obb_method=str(s["obb"].get("method", "exact")),
+                    obb_method=str(s["obb"].get("method", "minimum")),
                     margins=dict(s.get("margins", {})),
+                    min_box_extents=s["obb"].get("min_extents", [np.nan] * 3),
+                    depth_mm=float(s["depth_mm"]) if "depth_mm" in s else None,
+                    accuracy=dict(acc) if isinstance(acc, dict) else {},
                 )
             )
-    except (KeyError, TypeError, IndexError) as exc:
-        raise StarforgeError(f"{where} is missing or has malformed data ({exc.__class__.__name__}: {exc})") from None
+    except (KeyError, TypeError, IndexError, ValueError) as exc:
+        if isinstance(exc, StarforgeError):
+            raise StarforgeError(f"{where}: {exc}") from None
+        raise StarforgeError(
+            f"{where} is missing or has malformed data ({exc.__class__.__name__}: {exc})"
+        ) from None
     if not stars:
         raise StarforgeError(f"{where} holds no stars")
     ids = [s.id for s in stars]
     if len(set(ids)) != len(ids):
         raise StarforgeError(f"{where} has duplicate star ids")
+    if verify:
+        from starforge.stars.verify import check_family
+
+        problems = check_family(data)
+        if problems:
+            more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+            raise StarforgeError(f"{where} fails verification: {problems[0]}{more}; was it edited by hand?")
     return Family(spec=spec, stars=tuple(stars), summary=dict(data.get("summary", {})))
 
 
 def load_family(path: str | Path) -> Family:
-    """Read ``family.json`` (or a folder holding one) back into a :class:`Family`."""
+    """Read ``family.json`` (or a folder holding one) back into a verified :class:`Family`."""
     path = Path(path)
     if path.is_dir():
         path = path / "family.json"

@@ -3,20 +3,21 @@
 * ``greedy``: the paper's way, growing a family from the most compact star: take stars in
   order of box volume (then total length) and keep each one that conflicts with none taken.
 * ``max``: as large a family as possible.  Greedy, then a deterministic (1,2)-swap local
-  search (remove one star, insert two that only conflicted with it; the move that drives the
-  best maximum-independent-set heuristics), then an iterated local search (``ils``: random
-  plateau/uphill perturbations + incremental (1,2)-swaps, Andrade-Resende-Werneck style, with a
-  fixed seed and an iteration budget ``ILS_ITERATIONS``), then, when the candidates are few enough
-  (``MILP_MAX_COLUMNS``), the exact MILP (HiGHS through ``scipy.optimize.milp``) under the time
-  limit, whose optimum and dual bound are used only when it finishes.  The proven upper bound is
-  the smaller of the block bound (each star needs 4 distinct face blocks of side m, so
-  ``blocks // 4``) and the MILP's dual bound.
+  search (remove one star, insert two that only conflicted with it), then an iterated local
+  search (``ils``: Andrade-Resende-Werneck style, fixed seed, iteration budget
+  ``ILS_ITERATIONS``), then, when the window matrix is small enough (``MILP_MAX_NONZEROS``), the
+  exact MILP (HiGHS through ``scipy.optimize.milp``) under a deterministic node budget
+  (:func:`node_budget`); a run cut by the wall-clock safety limit is not used.
+
+Upper bounds are certified: the caller's block bound over every star that may fit, tightened by
+the solver's dual bound (plus the undecided stars it did not see) when it ran.
 
 Everything is deterministic: the same spec gives the same family.
 """
 
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass, field
 
@@ -24,9 +25,6 @@ import numpy as np
 
 from starforge.stars.rules import key_triples
 from starforge.stars.spec import StarSpec
-
-#: largest candidate count handed whole to the MILP
-MILP_MAX_COLUMNS = 20000
 
 
 @dataclass(frozen=True)
@@ -64,12 +62,43 @@ def greedy(order: np.ndarray, ptr: np.ndarray, rows: np.ndarray, n_rows: int) ->
 
 def block_bound(index: np.ndarray, m: int) -> int:
     """Proven upper bound: face keys in one block of side m (grid steps) conflict pairwise and a
-    star's four faces lie in four different blocks, so a family has at most blocks // 4 stars."""
-    faces = key_triples(index, "face")[:, :4] // m
-    f = faces.reshape(-1, 3).astype(np.int64)
-    base = int(f.max()) + 1 if len(f) else 1
-    blocks = np.unique((f[:, 0] * base + f[:, 1]) * base + f[:, 2])  # one int64 per block
-    return len(blocks) // 4
+    star's four faces lie in four different blocks, so a family has at most blocks // 4 stars.
+    Every placement of the block grid gives a bound; the smallest of the m^3 is returned."""
+    faces = key_triples(index, "face")[:, :4].reshape(-1, 3).astype(np.int64)
+    if not len(faces):
+        return 0
+    best = None
+    for o in np.ndindex(m, m, m):
+        f = (faces + np.array(o)) // m
+        base = int(f.max()) + 1
+        blocks = len(np.unique((f[:, 0] * base + f[:, 1]) * base + f[:, 2]))  # one int64 per block
+        best = blocks // 4 if best is None else min(best, blocks // 4)
+    return int(best)
+
+
+def pool_face_bound(pool_mm: np.ndarray, m: int, diagonal_mm: float) -> int:
+    """Certified upper bound without enumerating stars: every face of a star is a triangle of
+    pool lengths whose sides differ by >= m steps (the tolerance within a star), obeys the
+    triangle inequality and is no longer than the centres' box diagonal; the block bound over all
+    such triangles covers every family (it counts what any star could use, not what fits)."""
+    n = len(pool_mm)
+    i, j, k = np.array(list(itertools.combinations(range(n), 3)), dtype=np.int64).reshape(-1, 3).T
+    ok = (
+        (j - i >= m)
+        & (k - j >= m)
+        & (pool_mm[i] + pool_mm[j] > pool_mm[k] + 1e-9)
+        & (pool_mm[k] <= diagonal_mm + 1e-9)
+    )
+    faces = np.stack([i[ok], j[ok], k[ok]], axis=1)
+    if not len(faces):
+        return 0
+    best = None
+    for o in np.ndindex(m, m, m):
+        f = (faces + np.array(o)) // m
+        base = int(f.max()) + 1
+        blocks = len(np.unique((f[:, 0] * base + f[:, 1]) * base + f[:, 2]))
+        best = blocks // 4 if best is None else min(best, blocks // 4)
+    return int(best)
 
 
 def local_search(
@@ -339,8 +368,18 @@ def ils(
     return np.flatnonzero(P.in_fam), it
 
 
-#: HiGHS branch-and-bound node budget: a deterministic effort limit (the time limit is only a safety net)
-MILP_NODE_LIMIT = 500
+#: HiGHS branch-and-bound work budget, in nonzeros x nodes: a deterministic effort limit (the
+#: wall-clock limit is only a safety net; a run it cuts is not used, so results stay reproducible)
+MILP_WORK = 8_000_000
+MILP_NODE_LIMIT = 6000
+#: largest set packing (nonzeros of the window matrix) handed to the exact solver; past it the
+#: root relaxation alone takes tens of seconds (measured: 83,544 nonzeros, 10 s)
+MILP_MAX_NONZEROS = 40_000
+
+
+def node_budget(nonzeros: int, work: int = MILP_WORK) -> int:
+    """Nodes HiGHS may explore for a problem with ``nonzeros`` entries (at least 20)."""
+    return int(max(20, min(MILP_NODE_LIMIT, work // max(1, nonzeros))))
 
 
 def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float, node_limit: int = MILP_NODE_LIMIT):
@@ -357,7 +396,9 @@ def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float, node_limit: int
     cols = np.asarray(cols)
     counts = ptr[cols + 1] - ptr[cols]
     col_idx = np.repeat(np.arange(len(cols)), counts)
-    row_idx = np.concatenate([rows[ptr[c] : ptr[c + 1]] for c in cols.tolist()]) if len(cols) else np.zeros(0, int)
+    row_idx = (
+        np.concatenate([rows[ptr[c] : ptr[c + 1]] for c in cols.tolist()]) if len(cols) else np.zeros(0, int)
+    )
     A = sp.csr_matrix((np.ones(len(col_idx)), (row_idx, col_idx)), shape=(n_rows, len(cols)))
     res = _milp(
         -np.ones(len(cols)),
@@ -376,23 +417,37 @@ def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float, node_limit: int
 
 
 def select_family(
-    index, pool, volume, star_of, row, n_rows, spec: StarSpec, ils_iterations: int | None = None
+    index,
+    pool,
+    volume,
+    star_of,
+    row,
+    n_rows,
+    spec: StarSpec,
+    ils_iterations: int | None = None,
+    bound: int | None = None,
+    n_undecided: int = 0,
+    milp_work: int = MILP_WORK,
 ) -> Selection:
     """Choose the family among the candidates (see module docstring).
 
     ``ils_iterations``: iteration budget of the iterated local search (default
-    :data:`ILS_ITERATIONS`; 0 skips it).
+    :data:`ILS_ITERATIONS`; 0 skips it).  ``bound``: a certified upper bound computed by the
+    caller over a superset of every fitting star (default: the block bound over ``index``).
+    ``n_undecided``: stars left out of ``index`` that might fit; the solver's dual bound covers
+    ``index`` only, so it certifies ``dual + n_undecided`` (an optimal family over a superset
+    loses at most those stars when they are removed).
     """
-    from starforge.stars.rules import grid_steps
-
     n = len(index)
     ptr, rows = _csr(star_of, row, n)
     order = compactness_order(index, pool, volume)
     t0 = time.perf_counter()
     chosen = greedy(order, ptr, rows, n_rows)
     info: dict = {"greedy": int(len(chosen)), "greedy_s": round(time.perf_counter() - t0, 3)}
-    bound = block_bound(index, grid_steps(spec.tol_mm, spec.delta_mm))
+    if bound is None:
+        bound = block_bound(index, spec.grid_steps)
     info["block_bound"] = bound
+    info["bound_from"] = "blocks"
     if spec.select == "greedy":
         return Selection(chosen, bound, info)
     t1 = time.perf_counter()
@@ -405,23 +460,35 @@ def select_family(
         info.update(ils=int(len(chosen)), ils_iterations=int(used), ils_s=round(time.perf_counter() - t3, 3))
     else:
         info.update(ils=int(len(chosen)), ils_iterations=0)
-    if len(chosen) < bound and n <= MILP_MAX_COLUMNS:
+    nnz = int(len(rows))
+    if len(chosen) < bound and nnz <= MILP_MAX_NONZEROS:
         # exact set packing over every candidate under a deterministic node budget; a run cut
         # by the wall-clock safety limit is not used, so the same spec gives the same family
         t2 = time.perf_counter()
-        m_chosen, dual, status, reproducible = milp(ptr, rows, n_rows, np.arange(n), spec.time_limit_s)
-        info.update(milp_columns=int(n), milp_status=status, milp_used=bool(reproducible))
+        nodes = node_budget(nnz, milp_work)
+        m_chosen, dual, status, reproducible = milp(ptr, rows, n_rows, np.arange(n), spec.time_limit_s, nodes)
+        info.update(
+            milp_columns=int(n), milp_node_budget=nodes, milp_status=status, milp_used=bool(reproducible)
+        )
         info["milp_s"] = round(time.perf_counter() - t2, 3)
         if reproducible:
             if len(m_chosen) > len(chosen):
                 chosen = np.sort(m_chosen)
+            solver_bound = None
             if dual is not None:
-                bound = min(bound, dual)
+                solver_bound = dual + n_undecided
             if status == "optimal":
-                bound = min(bound, len(m_chosen))
+                solver_bound = min(solver_bound or len(m_chosen) + n_undecided, len(m_chosen) + n_undecided)
+            if solver_bound is not None and solver_bound < bound:
+                bound = solver_bound
+                info["bound_from"] = "solver"
         else:
-            info["milp_note"] = "stopped by --time-limit before its node budget: not used, so runs stay reproducible"
+            info["milp_note"] = (
+                "stopped by --time-limit before its node budget: not used, so runs stay reproducible"
+            )
     elif len(chosen) < bound:
-        info["milp_skipped"] = f"{n} candidates > {MILP_MAX_COLUMNS}: family from greedy + local search"
+        info["milp_skipped"] = (
+            f"{nnz:,} nonzeros > {MILP_MAX_NONZEROS:,}: family from greedy + local search, bound from blocks"
+        )
     info["proven_optimal"] = bool(len(chosen) >= bound)
     return Selection(np.sort(chosen), bound, info)

@@ -26,6 +26,11 @@ def check_family(data: dict, slack_mm: float = 1e-6) -> list[str]:
     delta = float(spec["delta_mm"])
     tol_mm = float(spec["tolerance_mm"]) if spec.get("tolerance_mm") is not None else delta
     marker = float(spec["marker_mm"])
+    # version 2 families keep the tolerance within a star and a face too, and a minimum depth
+    version = int(data.get("version", 1))
+    within = tol_mm if version >= 2 else delta
+    depth = spec.get("min_depth_mm")
+    depth = (marker / 2 if depth is None else float(depth)) if version >= 2 else 0.0
     limit = sorted(float(b) for b in spec["box_mm"])
     reserve = [float(r) for r in (spec.get("reserve_mm") or (0.0, 0.0, 0.0))]  # kept free for a mount
     rule = spec.get("rule", "face")
@@ -45,18 +50,35 @@ def check_family(data: dict, slack_mm: float = 1e-6) -> list[str]:
             d = _dist(P, *edges[k])
             if abs(d - float(s["lengths"][k])) > slack_mm:
                 problems.append(f"star {sid}: |{k}| is {d:.6f} mm at the vertices, {s['lengths'][k]} stored")
-        # 2. all six lengths differ by >= delta
+        if not np.isfinite(P).all() or np.abs(P).max() > 1e5:
+            problems.append(f"star {sid}: vertices are not finite coordinates within 100 m")
+            continue
+        # 2. all six lengths differ by >= the tolerance (delta for version 1 files)
         ls = sorted(_dist(P, a, b) for a, b in itertools.combinations(range(4), 2))
         for a, b in itertools.pairwise(ls):
-            if b - a < delta - slack_mm:
-                problems.append(f"star {sid}: two edge lengths differ by {b - a:.6f} < delta {delta}")
+            if b - a < within - slack_mm:
+                problems.append(f"star {sid}: two edge lengths differ by {b - a:.6f} mm < {within} mm")
+        # 2b. deep enough: the smallest width over directions, brute force over the candidates of
+        # a tetrahedron (vertex-face heights and opposite-edge distances)
+        if depth > 0:
+            heights = []
+            for a, b, c in _FACES:
+                (d,) = {0, 1, 2, 3} - {a, b, c}
+                nrm = np.cross(P[b] - P[a], P[c] - P[a])
+                heights.append(abs(np.dot(P[d] - P[a], nrm)) / max(np.linalg.norm(nrm), 1e-300))
+            for (a, b), (c, d) in _PAIRS:
+                nrm = np.cross(P[b] - P[a], P[d] - P[c])
+                if np.linalg.norm(nrm) > 1e-12:
+                    heights.append(abs(np.dot(P[c] - P[a], nrm)) / np.linalg.norm(nrm))
+            if min(heights) < depth - slack_mm:
+                problems.append(f"star {sid}: depth {min(heights):.4f} mm < min_depth {depth} mm")
         # 3. spheres do not overlap
         if ls[0] < marker - slack_mm:
             problems.append(f"star {sid}: two sphere centres are {ls[0]:.4f} mm apart (< marker {marker})")
         # 4. every face is scalene
         for fi, (a, b, c) in enumerate(_FACES):
             sides = sorted([_dist(P, a, b), _dist(P, b, c), _dist(P, a, c)])
-            if min(sides[1] - sides[0], sides[2] - sides[1]) < delta - slack_mm:
+            if min(sides[1] - sides[0], sides[2] - sides[1]) < within - slack_mm:
                 problems.append(f"star {sid}: face {fi} is not scalene")
             faces_all.append((sid, fi, sides))
         # 5. the fit: vertices inside the stored box (placement frame), box + one marker inside the limit
@@ -78,21 +100,26 @@ def check_family(data: dict, slack_mm: float = 1e-6) -> list[str]:
     # 6. the rule across the family (vectorised over pairs; the relabellings come from itertools)
     if rule == "face":
         F = np.array([f[2] for f in faces_all])  # (4n, 3)
-        if len(F) > 1:
-            d = np.abs(F[:, None, :] - F[None, :, :]).max(axis=2)
-            np.fill_diagonal(d, np.inf)
-            bad = np.argwhere(np.triu(d < tol_mm - slack_mm, 1))
-            for a, b in bad[:20]:
-                i, fi, _ = faces_all[a]
-                j, fj, _ = faces_all[b]
-                problems.append(f"faces {i}/{fi} and {j}/{fj} differ by less than {tol_mm} mm in every side")
+        for lo in range(0, len(F), 512):  # every pair, in blocks of rows (bounded memory)
+            d = np.abs(F[lo : lo + 512, None, :] - F[None, :, :]).max(axis=2)
+            d[np.arange(len(d)), lo + np.arange(len(d))] = np.inf
+            bad = np.argwhere(d < tol_mm - slack_mm)
+            for a, b in bad:
+                if lo + a < b and len(problems) < 40:
+                    i, fi, _ = faces_all[lo + a]
+                    j, fj, _ = faces_all[b]
+                    problems.append(
+                        f"faces {i}/{fi} and {j}/{fj} differ by less than {tol_mm} mm in every side"
+                    )
     else:
         V = np.array([np.asarray(s["vertices"], dtype=float) for s in stars])  # (n, 4, 3)
         perms = list(itertools.permutations(range(4)))
         flat = [e for pair in _PAIRS for e in pair]  # 6 edges as vertex pairs, pair-major
 
         def pair_lengths(X):  # (n, 4, 3) -> (n, 3, 2)
-            return np.stack([np.linalg.norm(X[:, a] - X[:, b], axis=-1) for a, b in flat], axis=1).reshape(-1, 3, 2)
+            return np.stack([np.linalg.norm(X[:, a] - X[:, b], axis=-1) for a, b in flat], axis=1).reshape(
+                -1, 3, 2
+            )
 
         base = pair_lengths(V)  # (n, 3, 2)
         forms = np.stack([pair_lengths(V[:, list(p)]) for p in perms], axis=1)  # (n, 24, 3, 2)
@@ -102,5 +129,7 @@ def check_family(data: dict, slack_mm: float = 1e-6) -> list[str]:
             apart = both.all(axis=1)  # ... under every relabelling
             apart[: i + 1] = True
             for j in np.flatnonzero(~apart)[:5]:
-                problems.append(f"stars {stars[i]['id']} and {stars[j]['id']} are not told apart by any opposite pair")
+                problems.append(
+                    f"stars {stars[i]['id']} and {stars[j]['id']} are not told apart by any opposite pair"
+                )
     return problems
