@@ -11,19 +11,51 @@ from starforge.cli._app import app, console, progress
 
 @app.command("stars")
 def stars_cmd(
-    spec: str = typer.Option(None, "--spec", help="Template name (see `starforge templates stars`) or a TOML path."),
-    box: tuple[float, float, float] = typer.Option(None, "--box", help="Size limit X Y Z in mm (physical star)."),
+    spec: str = typer.Option(
+        None, "--spec", help="Template name (see `starforge templates stars`) or a TOML path."
+    ),
+    box: tuple[float, float, float] = typer.Option(
+        None, "--box", help="Size limit X Y Z in mm (physical star)."
+    ),
     marker: float = typer.Option(None, "--marker", help="Marker sphere diameter, mm."),
     delta: float = typer.Option(None, "--delta", help="Minimal length variation (pool step), mm."),
     gap: float = typer.Option(None, "--gap", help="Minimum clear gap between spheres, mm."),
     rule: str = typer.Option(None, "--rule", help="face (default) or pair (the paper's)."),
     select: str = typer.Option(None, "--select", help="max (default) or greedy (the paper's)."),
-    count: int = typer.Option(None, "--count", help="Exactly N stars (most compact, widest margins)."),
+    count: int = typer.Option(
+        None, "--count", help="Exactly N stars: the most accurate distinguishable ones."
+    ),
     tolerance: float = typer.Option(None, "--tolerance", help="Face/edge tolerance, mm (default: delta)."),
-    box_method: str = typer.Option(None, "--box-method", help="exact (default) or covariance (the paper's OBB)."),
-    time_limit: float = typer.Option(None, "--time-limit", help="MILP time limit, s."),
+    box_method: str = typer.Option(
+        None,
+        "--box-method",
+        help="exact (default: some rotation fits, decided to 0.01 mm) or covariance (the paper's OBB).",
+    ),
+    min_depth: float = typer.Option(
+        None,
+        "--min-depth",
+        help="Smallest star depth (width of the centres), mm (default: half the marker; 0: flat stars allowed).",
+    ),
+    tip: tuple[float, float, float] = typer.Option(
+        None,
+        "--tip",
+        help="Tip X Y Z in the placement frame, mm, for the predicted accuracy (default 0 0 -longest side).",
+    ),
+    noise: float = typer.Option(
+        None, "--noise", help="Marker noise sigma per axis for the predicted accuracy, mm (default 0.2)."
+    ),
+    avoid: list[Path] = typer.Option(
+        None,
+        "--avoid",
+        help="Bodies the lab already owns (family.json, placement.json, ...): no new face comes within the tolerance of theirs.",
+    ),
+    time_limit: float = typer.Option(
+        None, "--time-limit", help="Wall-clock safety limit of the exact solver, s."
+    ),
     reserve: tuple[float, float, float] = typer.Option(
-        None, "--reserve", help="mm kept free for a mount on the shortest, middle, longest side (flat: 3 1.2 1.2)."
+        None,
+        "--reserve",
+        help="mm kept free for a mount on the shortest, middle, longest side (flat: 3 1.2 1.2).",
     ),
     preset: str = typer.Option(None, "--preset", help="Apply a tracker preset's tolerances (art, ndi, ...)."),
     name: str = typer.Option(None, "--name", help="Family name (default: the spec's name)."),
@@ -41,7 +73,8 @@ def stars_cmd(
 
     from starforge import __version__
     from starforge.catalog import load_template
-    from starforge.io import check_writable, staged_output
+    from starforge.io import check_name, check_writable, staged_output
+    from starforge.stars.enumerate import check_size
     from starforge.stars.family import make_family
     from starforge.stars.model import family_csv
     from starforge.stars.spec import spec_from_mapping
@@ -70,6 +103,9 @@ def stars_cmd(
         "count": count,
         "tolerance_mm": tolerance,
         "box_method": box_method,
+        "min_depth_mm": min_depth,
+        "tip_mm": list(tip) if tip is not None else None,
+        "noise_mm": noise,
         "time_limit_s": time_limit,
         "reserve_mm": list(reserve) if reserve is not None else None,
         "name": name,
@@ -77,9 +113,16 @@ def stars_cmd(
     data.update({k: v for k, v in overrides.items() if v is not None})
     data.setdefault("name", spec_name)
     s = spec_from_mapping(data)
+    check_name(s.name, "--name")
     out_dir = out if out is not None else Path("out") / s.name
     names = ["family.json", "family.csv", "run.json"] + (["family.png"] if preview else [])
     check_writable(out_dir, names, force)  # fail before the long work
+    check_size(s)  # memory and time estimated before the long work
+    avoid_faces, avoid_sources = None, None
+    if avoid:
+        from starforge.stars.avoid import faces_to_avoid
+
+        avoid_faces, avoid_sources = faces_to_avoid(avoid)
 
     with progress() as bar:
         task = bar.add_task("enumerating", total=None)
@@ -87,7 +130,7 @@ def stars_cmd(
         def tick(done, total):
             bar.update(task, completed=done, total=total)
 
-        family = make_family(s, progress=tick)
+        family = make_family(s, progress=tick, avoid_faces_mm=avoid_faces, avoid_sources=avoid_sources)
     doc = family.to_json()
     problems = check_family(json.loads(json.dumps(doc)))
     if problems:  # the generator and the independent checker disagree: a bug, never a user error
@@ -110,32 +153,50 @@ def _report(family, out_dir: Path, seconds: float, quiet: bool) -> None:
     c = console()
     sm = family.summary
     if not quiet:
-        t = Table(title=f"{family.spec.name}: {len(family)} stars", show_lines=False)
-        for col in ("id", "u", "U", "v", "V", "w", "W", "box x*y*z mm", "face margin", "pair margin"):
+        t = Table(title=f"{family.spec.name}: {len(family)} stars, most accurate first", show_lines=False)
+        for col in (
+            "id",
+            "u",
+            "U",
+            "v",
+            "V",
+            "w",
+            "W",
+            "box x*y*z mm",
+            "depth",
+            "face margin",
+            "tip TRE 1 hidden",
+        ):
             t.add_column(col, justify="right")
         shown = family.stars if len(family) <= 30 else family.stars[:25]
         for st in shown:
-            L = st.lengths
             e = st.obb_extents
             t.add_row(
                 str(st.id),
-                *[f"{x:.2f}" for x in L],
+                *[f"{x:.2f}" for x in st.lengths],
                 f"{e[0]:.1f} x {e[1]:.1f} x {e[2]:.1f}",
+                f"{st.depth_mm:.2f}" if st.depth_mm is not None else "",
                 f"{st.margins['family_face_mm']:.2f}",
-                f"{st.margins['family_pair_mm']:.2f}",
+                f"{st.accuracy.get('tip_tre_hidden_mm', float('nan')):.2f}",
             )
         if len(family) > len(shown):
-            t.add_row("...", *[""] * 9)
+            t.add_row("...", *[""] * 10)
         c.print(t)
         if len(family) > len(shown):
             c.print(f"({len(family) - len(shown)} more stars in family.csv)")
     ub = sm.get("upper_bound")
-    gap = f", proven upper bound {ub} (gap {sm['gap']})" if ub is not None and family.spec.count is None else ""
+    if family.spec.count is not None:
+        bound = f" (any family of this spec has at most {ub})" if ub is not None else ""
+    elif sm.get("optimal"):
+        bound = f", optimal: proven upper bound {ub}"
+    else:
+        bound = f", certified upper bound {ub} (gap {sm['gap']})" if ub is not None else ""
     en = sm["enumeration"]
+    und = f", {en['undecided']:,} undecided (fit within 0.01 mm, if at all)" if en.get("undecided") else ""
     c.print(
-        f"{len(family)} stars, rule {family.spec.rule}, select {family.spec.select}{gap}; "
-        f"{en['labelled']:,} labelled candidates: {en['realisable']:,} realisable, {en['width_ok']:,} thin enough, "
-        f"{en['kyfan_ok']:,} pass Ky Fan, {sm['candidates']:,} fit; "
+        f"{len(family)} stars, rule {family.spec.rule}, select {sm['select']}{bound}; "
+        f"{en['labelled']:,} labelled candidates: {en['realisable']:,} realisable, {en['deep_enough']:,} at least "
+        f"{sm['min_depth_mm']:g} mm deep, {en['kyfan_ok']:,} pass the necessary fit tests, {sm['candidates']:,} fit{und}; "
         f"enumerate {family.timings['enumerate']:.2f} s, select {family.timings['select']:.2f} s, "
         f"total {seconds:.2f} s; verified independently"
     )

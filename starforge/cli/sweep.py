@@ -13,7 +13,8 @@ from starforge.cli._app import app, console, progress
     "sweep",
     help="Capacity curves (the family paper's Fig. 8): the number of stars against the minimal length "
     "variation and the cube side, for both rules; writes sweep.csv and sweep.png.  Small pools are "
-    "enumerated exhaustively; large ones get a sampled, verified lower bound (the CSV says which).",
+    "enumerated exhaustively (maximum family and certified bound); large ones get a certified interval "
+    "(a verified family and an upper bound; the CSV says which).",
 )
 def sweep_cmd(
     marker: float = typer.Option(4.0, "--marker", help="Marker sphere diameter, mm."),
@@ -22,10 +23,11 @@ def sweep_cmd(
     ),
     cube: str = typer.Option("10:50:5", "--cube", help="Cube sides, mm: start:stop:step or a,b,c."),
     rule: str = typer.Option("face,pair", "--rule", help="Rules: face, pair or face,pair."),
-    exhaustive_pool: int = typer.Option(
-        26, "--exhaustive-pool", help="Largest pool (lengths) enumerated exhaustively; larger: sampled bound."
+    exhaustive: int = typer.Option(
+        20_000_000, "--exhaustive", help="Largest cell (labelled candidates) enumerated exhaustively; larger: an interval."
     ),
-    cell_seconds: float = typer.Option(20.0, "--cell-seconds", help="Time cap per sampled cell and rule, s."),
+    samples: int = typer.Option(200_000, "--samples", help="Random candidates per interval cell (its verified family)."),
+    min_depth: float = typer.Option(None, "--min-depth", help="Smallest star depth, mm (default: half the marker)."),
     workers: int = typer.Option(0, "--workers", help="Processes (0: every core)."),
     seed: int = typer.Option(0, "--seed", help="Random seed for the sampled cells."),
     out: str = typer.Option("out/sweep", "--out", help="Output folder."),
@@ -57,10 +59,11 @@ def sweep_cmd(
             deltas,
             cubes,
             tuple(rules),
-            exhaustive_pool,
-            cell_seconds,
+            exhaustive,
+            samples,
             workers or None,
             seed,
+            min_depth,
             progress=lambda d, t: bar.update(task, completed=d, total=t),
         )
     with staged_output(out, force) as stage:
@@ -72,12 +75,12 @@ def sweep_cmd(
         return
     con = console()
     ex = sum(r["method"] == "exhaustive" for r in rows)
-    lb = sum(r["method"] == "sampled lower bound" for r in rows)
-    con.print(f"{n} cells x {len(rules)} rules: {ex} exhaustive, {lb} sampled lower bounds")
+    lb = sum(r["method"] == "interval" for r in rows)
+    con.print(f"{n} cells x {len(rules)} rules: {ex} exhaustive, {lb} certified intervals")
     for r in rules:
         best = max((x for x in rows if x["rule"] == r), key=lambda x: x["stars"])
         con.print(
-            f"  {r}: most stars {best['stars']} (delta {best['delta_mm']:g} mm, cube {best['cube_mm']:g} mm, "
-            f"{best['method']})"
+            f"  {r}: most stars found {best['stars']} (delta {best['delta_mm']:g} mm, cube {best['cube_mm']:g} mm, "
+            f"{best['method']}, upper bound {best['upper_bound']})"
         )
     con.print(f"wrote {out}/: {', '.join(names)}")

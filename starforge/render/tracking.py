@@ -44,10 +44,11 @@ def rates_plot(check_doc: dict, path: Path) -> Path:
 
 
 def sweep_plot(rows: list[dict], path: Path, marker_mm: float) -> Path:
-    """Number of stars against cube size, one line per minimal variation, one panel per rule
+    """Number of stars against cube size, one colour per minimal variation, one panel per rule
     (cells with no star are left out of the log plot).
 
-    Exhaustive cells are drawn with filled markers, sampled lower bounds with open markers.
+    Exhaustive cells are points joined by lines; interval cells are vertical bars from the
+    verified family (lower end) to the certified upper bound, never joined into a curve.
     """
     plt = pyplot()
     rules = sorted({r["rule"] for r in rows})
@@ -62,20 +63,31 @@ def sweep_plot(rows: list[dict], path: Path, marker_mm: float) -> Path:
                 )
                 if not rr:
                     continue
-                x = [r["cube_mm"] for r in rr]
-                y = [r["stars"] for r in rr]
                 col = f"C{k % 10}"
-                ax.plot(x, y, "-", color=col, label=f"delta {d:g} mm")
-                ex = [(a, b) for a, b, r in zip(x, y, rr, strict=True) if r["method"] == "exhaustive"]
-                lb = [(a, b) for a, b, r in zip(x, y, rr, strict=True) if r["method"] != "exhaustive"]
+                ex = [r for r in rr if r["method"] == "exhaustive"]
+                iv = [r for r in rr if r["method"] == "interval"]
                 if ex:
-                    ax.plot(*zip(*ex, strict=True), "o", color=col)
-                if lb:
-                    ax.plot(*zip(*lb, strict=True), "o", mfc="none", color=col)
+                    ax.plot(
+                        [r["cube_mm"] for r in ex],
+                        [r["stars"] for r in ex],
+                        "o-",
+                        color=col,
+                        label=f"delta {d:g} mm",
+                    )
+                for j, r in enumerate(iv):
+                    ax.vlines(
+                        r["cube_mm"],
+                        r["stars"],
+                        r["upper_bound"],
+                        color=col,
+                        lw=2,
+                        label=None if ex or j else f"delta {d:g} mm",
+                    )
+                    ax.plot([r["cube_mm"]], [r["stars"]], "_", color=col, ms=8)
             ax.set_yscale("log")
             ax.set_xlabel("cube side [mm]")
             ax.set_ylabel("stars")
-            ax.set_title(f"{rule} rule, {marker_mm:g} mm markers (open: sampled lower bound)", fontsize=9)
+            ax.set_title(f"{rule} rule, {marker_mm:g} mm markers (bars: certified intervals)", fontsize=9)
             ax.grid(alpha=0.3, which="both")
             ax.legend(fontsize=7)
         fig.tight_layout()

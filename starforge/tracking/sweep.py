@@ -1,24 +1,25 @@
 """Capacity curves (the family paper's Fig. 8): how many stars fit a cubic box, against the
 minimal length variation delta and the cube side, for both uniqueness rules.
 
-Each (delta, cube) cell is computed one of two ways, and the CSV says which:
+Every (delta, cube) cell is honest about what it knows, and the CSV says which:
 
-* ``exhaustive``: the pool is small enough (``pool_size <= exhaustive_pool``) to enumerate
-  every fitting star (:func:`starforge.stars.enumerate.enumerate_candidates`), then the
-  paper's greedy selection (:func:`starforge.stars.family.make_family`, ``select="greedy"``);
-  ``upper_bound`` is the selection's proven bound.
-* ``sampled lower bound``: larger pools (C(pool, 6) subsets explode) use a randomised
-  constructive greedy: random tetrahedra inside random sub-cubes of the centre cube, their
-  six distances snapped to the pool grid, alternating with random 6-sets of pool lengths below
-  a random cap (compact stars), kept when realisable, distinct by the tolerance,
-  free of conflicts with the stars kept so far (same window rule as the exhaustive engine,
-  :mod:`starforge.stars.rules`), and fitting the cube (covariance or face-flush box, the
-  enumeration's sufficient test); then the greedy over them, most compact first.  The family
-  found is re-verified with :func:`starforge.stars.family.margins`, so the count is a sound
-  lower bound on what fits (not an estimate of the maximum).  Each such cell draws a fixed
-  number of samples (same seed, same count) unless ``cell_seconds`` runs out first.  A family
-  that fits a cube fits every larger one, so a sampled cell is raised to the best count of any
-  smaller cube of the same delta (its ``stop`` says so).
+* ``exhaustive``: the pool is small enough (at most ``exhaustive_labelled`` labelled candidates)
+  to enumerate every star that fits (:func:`starforge.stars.enumerate.enumerate_candidates`, the
+  exact fit decision) and select a maximum family (:func:`starforge.stars.family.make_family`);
+  ``stars`` is that family, ``upper_bound`` its certified bound (equal when proven optimal).
+* ``interval``: larger pools get a certified interval.  The lower end is a verified family from
+  a randomised constructive greedy with a fixed number of samples (same seed, same family; no
+  time cap): random tetrahedra inside random sub-cubes of the centre cube and random compact
+  6-sets of pool lengths, kept when realisable, deep enough, distinct by the tolerance, free of
+  conflicts with the stars kept so far (the window rule, :mod:`starforge.stars.rules`), and
+  proven to fit by the exact fit decision; the family is re-checked by
+  :func:`starforge.stars.family.margins`.  A family that fits a cube fits every larger one, so
+  the lower end is raised to the best family of any smaller cube of the same delta.  The upper
+  end is :func:`starforge.stars.select.pool_face_bound`: a block bound over every triangle a star
+  could use, valid without enumerating.
+
+The plot draws exhaustive cells as points and intervals as bars, never a sampled count as a
+curve point.
 """
 
 from __future__ import annotations
@@ -37,12 +38,20 @@ COLUMNS = (
     "cube_mm",
     "rule",
     "pool_size",
+    "labelled",
     "stars",
     "upper_bound",
+    "optimal",
     "method",
-    "stop",
+    "note",
     "seconds",
 )
+#: labelled candidates up to which a cell is enumerated exhaustively (about 2-5 s on one core)
+EXHAUSTIVE_LABELLED = 20_000_000
+#: random candidates drawn per interval cell (fixed: the same seed gives the same family)
+SAMPLES = 200_000
+#: the exact solver's work budget per exhaustive cell (a tenth of a stars run's)
+SWEEP_MILP_WORK = 800_000
 
 
 def _num(tok: str, name: str, text: str) -> float:
@@ -81,42 +90,35 @@ def _conflicts(key: np.ndarray, chosen: np.ndarray, m: int) -> bool:
 
 
 def fitting_box_volume(P: np.ndarray, limit: np.ndarray, box_method: str = "exact") -> np.ndarray:
-    """Volume (mm^3) of the smallest candidate box that fits the sorted ``limit``, inf if none.
+    """Volume (mm^3) of a box that fits the sorted ``limit`` (the exact fit decision's rotation,
+    or the paper's covariance box), inf where none does.  ``P`` : (n, 4, 3) mm."""
+    from starforge.geometry.fit import FIT, decide_fit, fits_limit
+    from starforge.geometry.obb import covariance_box
 
-    Candidates: the covariance box, and (``exact``) O'Rourke's 24 face-flush boxes (the same
-    sufficient test as the exhaustive enumeration).  ``P`` : (n, 4, 3) mm.
-    """
-    from starforge.stars.enumerate import face_flush_extents
-    from starforge.tol import tol
-
-    lim = np.sort(limit) * (1 + tol.box_rel) + tol.length_mm
-
-    def fits(ext):
-        return (np.sort(ext, axis=-1) <= lim).all(axis=-1)
-
-    X = P - P.mean(axis=1, keepdims=True)
-    _, evec = np.linalg.eigh(np.einsum("nki,nkj->nij", X, X))
-    proj = X @ evec
-    ext = proj.max(axis=1) - proj.min(axis=1)
-    vol = np.where(fits(ext), np.prod(ext, axis=1), np.inf)
-    if box_method == "exact" and len(P):
-        ef = face_flush_extents(P)
-        vf = np.where(fits(ef) & np.isfinite(ef).all(axis=-1), np.prod(ef, axis=-1), np.inf)
-        vol = np.minimum(vol, vf.min(axis=1))
-    return vol
+    if not len(P):
+        return np.zeros(0)
+    if box_method == "covariance":
+        _, _, ext = covariance_box(P)
+        return np.where(fits_limit(ext, limit), np.prod(ext, axis=1), np.inf)
+    status, R, _ = decide_fit(P, limit)
+    q = np.einsum("nkj,nij->nki", P, np.nan_to_num(R))
+    vol = np.prod(q.max(axis=1) - q.min(axis=1), axis=1)
+    return np.where(status == FIT, vol, np.inf)
 
 
-def sampled_lower_bound(
-    spec, rng: np.random.Generator, seconds: float = 20.0, samples: int = 1_000_000, batch: int = 8192
-):
+def sampled_lower_bound(spec, rng: np.random.Generator, samples: int = SAMPLES, batch: int = 8192):
     """A verified family for ``spec`` found by a randomised constructive greedy (module docstring).
 
-    Phase 1 draws up to ``samples`` random tetrahedra and keeps
-    the distinct ones that fit (or until half of ``seconds``); phase 2 runs the paper's greedy over them, most compact first.
-    Returns ``(lengths (n, 6) mm, stop reason)``; the stop reason is ``"samples"`` (the same
-    seed gives the same family) or ``"time"``.
+    Phase 1 draws ``samples`` random tetrahedra and keeps the distinct ones that fit; phase 2
+    runs the paper's greedy over them, most compact first.  Returns lengths (n, 6), mm.  The
+    same seed gives the same family.
     """
-    from starforge.geometry.tetra import is_realisable, lengths_from_vertices, vertices_from_lengths
+    from starforge.geometry.tetra import (
+        is_realisable,
+        lengths_from_vertices,
+        tetra_width,
+        vertices_from_lengths,
+    )
     from starforge.stars.enumerate import edge_pool
     from starforge.stars.family import margins
     from starforge.stars.rules import grid_steps, internal_ok, key_triples
@@ -125,14 +127,9 @@ def sampled_lower_bound(
     p, lmin, d = len(pool), float(pool[0]), spec.delta_mm
     m = grid_steps(spec.tol_mm, d)
     limit = np.array(spec.centre_limit_mm)
-    t0 = time.perf_counter()
     found_idx, found_vol = [], []
     drawn = 0
-    stop = "samples"
     while drawn < samples:
-        if time.perf_counter() - t0 > 0.5 * seconds:
-            stop = "time"
-            break
         k = min(batch, samples - drawn)
         drawn += k
         if (drawn // batch) % 2:
@@ -147,6 +144,8 @@ def sampled_lower_bound(
             idx = np.argsort(r, axis=1)[:, :6].astype(np.int64)
         idx = idx[(idx >= 0).all(axis=1) & (idx < p).all(axis=1)]
         idx = idx[internal_ok(idx, spec.rule, m) & is_realisable(pool[idx])]
+        idx = idx[(np.diff(np.sort(idx, axis=1), axis=1) >= m).all(axis=1)]  # tolerance within a star
+        idx = idx[tetra_width(pool[idx]) >= spec.depth_mm] if len(idx) else idx
         if len(idx) == 0:
             continue
         P = vertices_from_lengths(pool[idx])
@@ -157,7 +156,7 @@ def sampled_lower_bound(
         found_idx.append(idx[ok])
         found_vol.append(vol[ok])
     if not found_idx or sum(len(x) for x in found_idx) == 0:
-        return np.zeros((0, 6)), stop
+        return np.zeros((0, 6))
     idx = np.concatenate(found_idx)
     vol = np.concatenate(found_vol)
     idx, first = np.unique(idx, axis=0, return_index=True)
@@ -168,9 +167,6 @@ def sampled_lower_bound(
     kf = np.zeros((0, 3), dtype=np.int64)
     kv = np.zeros((0, 3), dtype=np.int64)
     for j, row in enumerate(order):
-        if time.perf_counter() - t0 > seconds:
-            stop = "time"
-            break
         kk = keys[j]
         if any(_conflicts(q, kf, m) for q in kk[:4]):
             continue
@@ -190,36 +186,41 @@ def sampled_lower_bound(
             raise RuntimeError(
                 f"internal error: sampled family breaks the {spec.rule} rule at stars {bad[:5]}"
             )
-    return L, stop
+    return L
 
 
 def run_cell(args: tuple) -> list[dict]:
     """One (marker, delta, cube) cell for every rule in ``rules``: rows for the CSV."""
-    marker, delta, cube, rules, exhaustive_pool, cell_seconds, seed = args
+    marker, delta, cube, rules, exhaustive_labelled, samples, seed, min_depth = args
+    from dataclasses import replace
+
+    from starforge.stars.enumerate import edge_pool, labelled_count
+    from starforge.stars.select import pool_face_bound
     from starforge.stars.spec import StarSpec
 
     rows = []
     base = {"marker_mm": marker, "delta_mm": delta, "cube_mm": cube}
     try:
-        spec0 = StarSpec(box_mm=(cube, cube, cube), marker_mm=marker, delta_mm=delta, select="greedy")
+        spec0 = StarSpec(box_mm=(cube, cube, cube), marker_mm=marker, delta_mm=delta, min_depth_mm=min_depth)
     except StarforgeError as exc:
         return [
             {
                 **base,
                 "rule": r,
                 "pool_size": 0,
+                "labelled": 0,
                 "stars": 0,
                 "upper_bound": 0,
+                "optimal": True,
                 "method": "none",
-                "stop": f"no star: {exc}",
+                "note": f"no star: {exc}",
                 "seconds": 0.0,
             }
             for r in rules
         ]
     pool = spec0.pool_size
-    if pool <= exhaustive_pool:
-        from dataclasses import replace
-
+    labelled = labelled_count(spec0)
+    if labelled <= exhaustive_labelled:
         from starforge.stars.enumerate import enumerate_candidates
         from starforge.stars.family import make_family
 
@@ -228,44 +229,67 @@ def run_cell(args: tuple) -> list[dict]:
         t_enum = time.perf_counter() - t0
         for r in rules:
             t1 = time.perf_counter()
-            spec = replace(spec0, rule=r)
             try:
-                fam = make_family(spec, candidates=cands)
-                n, ub = len(fam.stars), fam.summary.get("upper_bound")
+                fam = make_family(replace(spec0, rule=r), candidates=cands, milp_work=SWEEP_MILP_WORK)
+                n, ub, opt = len(fam.stars), fam.summary["upper_bound"], bool(fam.summary["optimal"])
             except StarforgeError:
-                n, ub = 0, 0
+                n, ub, opt = 0, 0, True
             rows.append(
                 {
                     **base,
                     "rule": r,
                     "pool_size": pool,
+                    "labelled": labelled,
                     "stars": n,
                     "upper_bound": ub,
+                    "optimal": opt,
                     "method": "exhaustive",
-                    "stop": "done",
+                    "note": "",
                     "seconds": round(t_enum + time.perf_counter() - t1, 3),
                 }
             )
         return rows
-    from dataclasses import replace
-
+    ub = pool_face_bound(edge_pool(spec0), spec0.grid_steps, float(np.linalg.norm(spec0.centre_limit_mm)))
     for k, r in enumerate(rules):
         t1 = time.perf_counter()
         rng = np.random.default_rng([seed, int(round(delta * 1000)), int(round(cube * 1000)), k])
-        L, stop = sampled_lower_bound(replace(spec0, rule=r), rng, cell_seconds)
+        L = sampled_lower_bound(replace(spec0, rule=r), rng, samples)
         rows.append(
             {
                 **base,
                 "rule": r,
                 "pool_size": pool,
+                "labelled": labelled,
                 "stars": len(L),
-                "upper_bound": None,
-                "method": "sampled lower bound",
-                "stop": stop,
+                "upper_bound": ub,
+                "optimal": len(L) >= ub,
+                "method": "interval",
+                "note": f"{samples:,} samples",
                 "seconds": round(time.perf_counter() - t1, 3),
             }
         )
     return rows
+
+
+def estimate_seconds(marker_mm: float, deltas, cubes, rules, exhaustive_labelled: int, samples: int) -> float:
+    """Rough single-core seconds for a sweep (for the bounded-cost check)."""
+    from starforge.stars.enumerate import SECONDS_PER_LABELLED, labelled_count
+    from starforge.stars.spec import StarSpec
+
+    total = 0.0
+    for d in deltas:
+        for c in cubes:
+            try:
+                spec = StarSpec(box_mm=(c, c, c), marker_mm=marker_mm, delta_mm=d)
+            except StarforgeError:
+                continue
+            n = labelled_count(spec)
+            total += (
+                (n * SECONDS_PER_LABELLED * 4 + 1.0)
+                if n <= exhaustive_labelled
+                else len(rules) * samples * 2e-5
+            )
+    return total
 
 
 def sweep(
@@ -273,10 +297,11 @@ def sweep(
     deltas,
     cubes,
     rules=("face", "pair"),
-    exhaustive_pool: int = 26,
-    cell_seconds: float = 20.0,
+    exhaustive_labelled: int = EXHAUSTIVE_LABELLED,
+    samples: int = SAMPLES,
     workers: int | None = None,
     seed: int = 0,
+    min_depth_mm: float | None = None,
     progress=None,
 ) -> list[dict]:
     """Every (delta, cube) cell on ``workers`` processes (default: every core); rows sorted.
@@ -286,26 +311,38 @@ def sweep(
     import os
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
+    from starforge.budget import require_time
+
     positive("marker_mm", marker_mm)
-    positive("cell_seconds", cell_seconds)
-    require(exhaustive_pool >= 6, f"exhaustive_pool must be >= 6, got {exhaustive_pool}")
-    require(exhaustive_pool <= 40, f"exhaustive_pool must be <= 40 (C(40, 6) subsets), got {exhaustive_pool}")
+    require(exhaustive_labelled >= 0, f"exhaustive_labelled must be >= 0, got {exhaustive_labelled}")
+    require(
+        exhaustive_labelled <= 300_000_000,
+        f"exhaustive_labelled must be <= 300,000,000, got {exhaustive_labelled:,}",
+    )
+    require(100 <= samples <= 10_000_000, f"samples must be in [100, 10000000], got {samples}")
     for r in rules:
         require(r in ("face", "pair"), f"rule must be face or pair, got {r!r}")
+    workers = workers or os.cpu_count() or 1
+    est = estimate_seconds(marker_mm, deltas, cubes, rules, exhaustive_labelled, samples) / max(1, workers)
+    require_time(
+        est,
+        f"a sweep of {len(deltas) * len(cubes)} cells",
+        "use fewer --delta/--cube values or lower --exhaustive",
+    )
     cells = [
         (
             float(marker_mm),
             float(d),
             float(c),
             tuple(rules),
-            int(exhaustive_pool),
-            float(cell_seconds),
+            int(exhaustive_labelled),
+            int(samples),
             int(seed),
+            min_depth_mm,
         )
         for d in deltas
         for c in cubes
     ]
-    workers = workers or os.cpu_count() or 1
     rows: list[dict] = []
     if workers == 1:
         for i, cell in enumerate(cells):
@@ -333,9 +370,10 @@ def carry_bounds(rows: list[dict]) -> list[dict]:
     for r in sorted(rows, key=lambda r: (r["rule"], r["delta_mm"], r["cube_mm"])):
         key = (r["rule"], r["delta_mm"])
         prev = best.get(key)
-        if r["method"] == "sampled lower bound" and prev is not None and prev[0] > r["stars"]:
+        if r["method"] == "interval" and prev is not None and prev[0] > r["stars"]:
             r["stars"] = prev[0]
-            r["stop"] = f"{r['stop']}; carried from the {prev[1]:g} mm cube"
+            r["note"] = f"{r['note']}; lower end carried from the {prev[1]:g} mm cube"
+            r["optimal"] = r["stars"] >= (r["upper_bound"] or 0)
         if prev is None or r["stars"] > prev[0]:
             best[key] = (r["stars"], r["cube_mm"])
     return rows
