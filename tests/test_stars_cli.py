@@ -84,7 +84,7 @@ def test_count_picks_n_and_refuses_the_impossible(small_family, tmp_path, capsys
     code = run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--count", n + 50, "--out", tmp_path / "b"])
     assert code == 2
     err = capsys.readouterr().err
-    assert f"largest family found has {n} stars" in err
+    assert f"count {n + 50} is not achievable" in err and "certified upper bound" in err
     assert not (tmp_path / "b").exists()
 
 
@@ -114,7 +114,12 @@ def test_template_spec_and_toml_path(tmp_path):
         (["--box", 20, 20, 20, "--delta", -1.5], "delta_mm must be > 0"),
         (["--box", 20, 20, 20, "--rule", "edge"], "rule must be one of face, pair"),
         (["--spec", "nosuchspec"], "unknown stars template 'nosuchspec'; known: finger"),
-        (["--box", 60, 60, 60, "--delta", 0.5], "too many to enumerate"),
+        (["--box", 60, 60, 60, "--delta", 0.5], "1,489,131,909,720 labelled candidates"),
+        (["--delta", "1e-310"], "delta_mm must be >= 0.001"),
+        (["--tolerance", 1000], "tolerance_mm 1000 is too large"),
+        (["--min-depth", 9], "min_depth_mm 9 leaves no star"),
+        (["--name", "../x"], "--name must be"),
+        (["--box", 16, 12, 24, "--delta", 2, "--count", 100000], "count 100000 is not achievable"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_writes_nothing(tmp_path, capsys, args, needle):

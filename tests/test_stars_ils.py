@@ -160,7 +160,7 @@ def test_packing_bookkeeping_matches_recount(cands):
 
 def test_select_family_records_ils(cands, monkeypatch):
     index, volume, star_of, row, n_rows, ptr, rows, order = instance(cands, "face")
-    monkeypatch.setattr(sel, "MILP_MAX_COLUMNS", 0)  # ILS result is final
+    monkeypatch.setattr(sel, "MILP_MAX_NONZEROS", 0)  # ILS result is final
     spec = StarSpec(box_mm=(16, 12, 24), delta_mm=2.0)
     a = select_family(index, cands.pool_mm, volume, star_of, row, n_rows, spec)
     b = select_family(index, cands.pool_mm, volume, star_of, row, n_rows, spec)

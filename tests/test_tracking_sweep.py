@@ -1,5 +1,5 @@
-"""Capacity sweep: ranges, sampled lower bounds re-verified by brute force, exhaustive vs
-sampled labelling, the CLI's CSV and plot."""
+"""Capacity sweep: ranges, sampled lower bounds re-verified by brute force, exhaustive cells vs
+certified intervals (the upper end checked against exhaustive maxima), the CLI's CSV and plot."""
 
 from __future__ import annotations
 
@@ -58,37 +58,52 @@ def pair_rule_ok(L, tol):
 @pytest.mark.parametrize("rule", ["face", "pair"])
 def test_sampled_lower_bound_is_a_valid_family(rule):
     spec = StarSpec(box_mm=(22.0, 22.0, 22.0), marker_mm=4.0, delta_mm=2.0, rule=rule, select="greedy")
-    L, stop = sampled_lower_bound(spec, np.random.default_rng(1), seconds=20, samples=60_000)
-    assert stop == "samples" and len(L) >= 5
+    L = sampled_lower_bound(spec, np.random.default_rng(1), samples=60_000)
+    assert len(L) >= 5
+    again = sampled_lower_bound(spec, np.random.default_rng(1), samples=60_000)
+    assert np.array_equal(L, again)  # a fixed sample count: same seed, same family
     limit = np.array(spec.centre_limit_mm)
     lo, hi = spec.pool_bounds_mm
     for row in L:
         assert len(set(row.round(9))) == 6 and row.min() >= lo - 1e-9 and row.max() <= hi + 1e-9
         P = vertices_from_lengths(row[None])[0]
         assert np.allclose(lengths_from_vertices(P), row, atol=1e-6)  # realisable
-    assert all(fits for *_, fits in place_stars(vertices_from_lengths(L), limit, "exact"))  # all fit the cube
+    assert all(item[4] for item in place_stars(vertices_from_lengths(L), limit, "exact"))  # all fit the cube
     assert (face_rule_ok if rule == "face" else pair_rule_ok)(L, spec.tol_mm)
 
 
-def test_sampled_never_beats_the_proven_bound():
-    exhaustive = run_cell((4.0, 2.0, 22.0, ("face",), 40, 10.0, 0))[0]
-    assert exhaustive["method"] == "exhaustive" and exhaustive["stars"] <= exhaustive["upper_bound"]
-    spec = StarSpec(box_mm=(22.0, 22.0, 22.0), marker_mm=4.0, delta_mm=2.0, select="greedy")
-    L, _ = sampled_lower_bound(spec, np.random.default_rng(2), seconds=20, samples=60_000)
-    assert len(L) <= exhaustive["upper_bound"]
+def test_interval_ends_bracket_the_exhaustive_maximum():
+    """For cells small enough to solve exhaustively, the interval's certified upper end is at
+    least the exhaustive family and the sampled lower end at most its certified bound."""
+    from starforge.stars.enumerate import edge_pool
+    from starforge.stars.select import pool_face_bound
+
+    for cube in (16.0, 18.0):
+        exhaustive = run_cell((4.0, 2.0, cube, ("face",), 10**9, 1000, 0, None))[0]
+        assert exhaustive["method"] == "exhaustive" and exhaustive["stars"] <= exhaustive["upper_bound"]
+        spec = StarSpec(box_mm=(cube, cube, cube), marker_mm=4.0, delta_mm=2.0)
+        ub = pool_face_bound(edge_pool(spec), spec.grid_steps, float(np.linalg.norm(spec.centre_limit_mm)))
+        assert ub >= exhaustive["stars"]
+        L = sampled_lower_bound(spec, np.random.default_rng(2), samples=60_000)
+        assert len(L) <= exhaustive["upper_bound"]
+        interval = run_cell((4.0, 2.0, cube, ("face",), 0, 20_000, 0, None))[0]
+        assert interval["method"] == "interval" and interval["upper_bound"] == ub
+        assert interval["stars"] <= exhaustive["upper_bound"] and interval["stars"] <= ub
 
 
-def test_cells_are_labelled_by_pool_size():
-    rows = sweep(4.0, [2.0], [12.0, 22.0], rules=("face",), exhaustive_pool=12, cell_seconds=2.0, workers=1)
+def test_cells_are_labelled_by_size():
+    rows = sweep(
+        4.0, [2.0], [12.0, 22.0], rules=("face",), exhaustive_labelled=10_000, samples=5_000, workers=1
+    )
     by_cube = {r["cube_mm"]: r for r in rows}
     for r in rows:
         if r["pool_size"] == 0:
             assert r["method"] == "none" and r["stars"] == 0
-        elif r["pool_size"] <= 12:
+        elif r["labelled"] <= 10_000:
             assert r["method"] == "exhaustive"
         else:
-            assert r["method"] == "sampled lower bound" and r["upper_bound"] is None
-    assert by_cube[22.0]["method"] == "sampled lower bound"
+            assert r["method"] == "interval" and r["upper_bound"] >= r["stars"]
+    assert by_cube[22.0]["method"] == "interval"
 
 
 def test_sweep_cli_writes_csv_and_png(tmp_path):
@@ -100,10 +115,10 @@ def test_sweep_cli_writes_csv_and_png(tmp_path):
             "2,3",
             "--cube",
             "18,24",
-            "--exhaustive-pool",
-            "14",
-            "--cell-seconds",
-            "2",
+            "--exhaustive",
+            "200000",
+            "--samples",
+            "3000",
             "--workers",
             "2",
             "--out",
@@ -116,7 +131,10 @@ def test_sweep_cli_writes_csv_and_png(tmp_path):
         rows = list(csv.DictReader(fh))
     assert len(rows) == 2 * 2 * 2  # deltas x cubes x rules
     assert {r["rule"] for r in rows} == {"face", "pair"}
-    assert {r["method"] for r in rows} <= {"exhaustive", "sampled lower bound", "none"}
+    assert {r["method"] for r in rows} <= {"exhaustive", "interval", "none"}
+    for r in rows:
+        if r["method"] != "none":
+            assert int(r["stars"]) <= int(r["upper_bound"])
     assert (out / "sweep.png").read_bytes()[:4] == b"\x89PNG"
 
 
@@ -126,23 +144,25 @@ def test_sweep_cli_bad_range(tmp_path, capsys):
     assert rc == 2 and "delta range stop must be >= start" in err and err.count("\n") == 1
 
 
-def test_sampled_bounds_never_fall_below_a_smaller_cube():
+def test_interval_lower_ends_never_fall_below_a_smaller_cube():
     rows = [
         {
             "rule": "face",
             "delta_mm": 1.0,
             "cube_mm": 40.0,
             "stars": 800,
-            "method": "sampled lower bound",
-            "stop": "time",
+            "method": "interval",
+            "upper_bound": 5000,
+            "note": "",
         },
         {
             "rule": "face",
             "delta_mm": 1.0,
             "cube_mm": 45.0,
             "stars": 600,
-            "method": "sampled lower bound",
-            "stop": "time",
+            "method": "interval",
+            "upper_bound": 5000,
+            "note": "",
         },
         {
             "rule": "face",
@@ -150,19 +170,21 @@ def test_sampled_bounds_never_fall_below_a_smaller_cube():
             "cube_mm": 35.0,
             "stars": 400,
             "method": "exhaustive",
-            "stop": "done",
+            "upper_bound": 400,
+            "note": "",
         },
         {
             "rule": "pair",
             "delta_mm": 1.0,
             "cube_mm": 45.0,
             "stars": 10,
-            "method": "sampled lower bound",
-            "stop": "time",
+            "method": "interval",
+            "upper_bound": 5000,
+            "note": "",
         },
     ]
     from starforge.tracking.sweep import carry_bounds
 
     out = {(r["rule"], r["cube_mm"]): r for r in carry_bounds(rows)}
-    assert out[("face", 45.0)]["stars"] == 800 and "40 mm cube" in out[("face", 45.0)]["stop"]
+    assert out[("face", 45.0)]["stars"] == 800 and "40 mm cube" in out[("face", 45.0)]["note"]
     assert out[("face", 40.0)]["stars"] == 800 and out[("pair", 45.0)]["stars"] == 10

@@ -1,0 +1,292 @@
+"""Issue 9: the exact fit decision against an independent dense rotation search (both ways),
+complete enumeration, certified bounds and the proven maximum, depth, tolerance, accuracy, avoid."""
+
+from __future__ import annotations
+
+import itertools
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from starforge.geometry.fit import FIT, NO_FIT, SLACK_MM, UNDECIDED, decide_fit
+from starforge.geometry.tetra import (
+    canonical_assignments,
+    canonical_lengths,
+    is_realisable,
+    tetra_width,
+    vertices_from_lengths,
+)
+from starforge.stars.enumerate import edge_pool, enumerate_candidates
+from starforge.stars.spec import StarSpec
+from starforge.stars.verify import check_family
+from tests.conftest import run_cli
+
+FINGER_LIMIT = np.array([12.6 - 4, 20.8 - 4, 48.3 - 4])
+
+
+def _slack(P: np.ndarray, R: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    """min_k (l_k - e_k) with the box sides e of ``P`` (n, 4, 3) under rotations R (n, r, 3, 3),
+    sorted against the sorted limit: >= 0 means the box fits."""
+    q = np.einsum("nkj,nrij->nrki", P, R)
+    e = np.sort(q.max(axis=2) - q.min(axis=2), axis=-1)
+    return (np.sort(limit) - e).min(axis=-1)
+
+
+def dense_best_slack(
+    P: np.ndarray, limit: np.ndarray, seed: int = 0, n_rot: int = 3000, keep: int = 6, iters: int = 70
+):
+    """Independent search: many uniform random rotations, then hill climbing from the best few.
+
+    Returns the best slack found per set (mm) and its rotation.  It knows nothing of the
+    branch and bound; it can miss a fit (then it only under-reports), never invent one.
+    """
+    rng = np.random.default_rng(seed)
+    best_s = np.full(len(P), -np.inf)
+    best_R = np.zeros((len(P), 3, 3))
+    for lo in range(0, len(P), 50):
+        Pc = P[lo : lo + 50]
+        Rs = Rotation.random(n_rot, random_state=rng).as_matrix()
+        s = _slack(Pc, np.broadcast_to(Rs, (len(Pc), *Rs.shape)), limit)
+        top = np.argsort(-s, axis=1)[:, :keep]
+        cur = Rs[top]  # (c, keep, 3, 3)
+        cur_s = np.take_along_axis(s, top, axis=1)
+        step = 0.2
+        for _ in range(iters):
+            kick = Rotation.from_rotvec(rng.normal(0, step, size=(cur.shape[0] * keep * 8, 3))).as_matrix()
+            trial = np.einsum(
+                "abcij,abcjk->abcik", kick.reshape(len(Pc), keep, 8, 3, 3), cur[:, :, None].repeat(8, 2)
+            )
+            trial = trial.reshape(len(Pc), keep * 8, 3, 3)
+            ts = _slack(Pc, trial, limit).reshape(len(Pc), keep, 8)
+            j = ts.argmax(axis=2)
+            better = np.take_along_axis(ts, j[..., None], axis=2)[..., 0] > cur_s
+            pick = np.take_along_axis(
+                trial.reshape(len(Pc), keep, 8, 3, 3), j[..., None, None, None], axis=2
+            )[:, :, 0]
+            cur = np.where(better[..., None, None], pick, cur)
+            cur_s = np.where(better, np.take_along_axis(ts, j[..., None], axis=2)[..., 0], cur_s)
+            step *= 0.93
+        k = cur_s.argmax(axis=1)
+        best_s[lo : lo + 50] = cur_s[np.arange(len(Pc)), k]
+        best_R[lo : lo + 50] = cur[np.arange(len(Pc)), k]
+    return best_s, best_R
+
+
+@pytest.fixture(scope="module")
+def finger_sample():
+    """1,200 finger-case stars that pass the necessary fit tests (thin enough), fits and misses."""
+    spec = StarSpec(box_mm=(20.8, 12.6, 48.3), marker_mm=4, delta_mm=1.5, min_depth_mm=0)
+    pool = edge_pool(spec)
+    rng = np.random.default_rng(7)
+    assign = canonical_assignments()
+    subs = np.sort(np.array([rng.choice(len(pool), 6, replace=False) for _ in range(40_000)]), axis=1)
+    L = pool[subs[np.arange(len(subs))[:, None], assign[rng.integers(0, 30, len(subs))]]]
+    L = L[is_realisable(L)]
+    L = L[(tetra_width(L) <= FINGER_LIMIT[0]) & (tetra_width(L) > 0.2)][:1200]
+    return vertices_from_lengths(L)
+
+
+def test_decision_agrees_with_a_dense_independent_search_both_ways(finger_sample):
+    P = finger_sample
+    status, R, _ = decide_fit(P, FINGER_LIMIT)
+    dense, _ = dense_best_slack(P, FINGER_LIMIT)
+    # sound: every rotation returned really fits (checked here with its own extents)
+    f = status == FIT
+    assert f.sum() > 200 and (status == NO_FIT).sum() > 200  # both outcomes are exercised
+    assert (_slack(P[f], R[f][:, None], FINGER_LIMIT)[:, 0] >= -1e-7).all()
+    assert np.allclose(np.linalg.det(R[f]), 1.0)
+    # never contradicted: a set proven not to fit has no fitting rotation in the dense search
+    assert (dense[status == NO_FIT] < 0).all()
+    # complete up to the slack: whatever the dense search fits with 0.01 mm to spare is found
+    assert (status[dense >= SLACK_MM] == FIT).all()
+    # and the undecided ones are the near-misses, within the slack either way
+    und = status == UNDECIDED
+    assert (dense[und] < SLACK_MM).all()
+
+
+def test_the_star_the_old_test_dropped_fits():
+    """(u, U, v, V, w, W) = (14, 29, 17, 26, 18.5, 33.5): 12.24 x 20.31 x 33.86 mm with its
+    spheres in a good orientation; the covariance and face-flush boxes miss it."""
+    P = vertices_from_lengths(np.array([[14, 29, 17, 26, 18.5, 33.5]], dtype=float))
+    status, R, _ = decide_fit(P, FINGER_LIMIT)
+    assert status[0] == FIT
+    q = P[0] @ R[0].T
+    ext = q.max(axis=0) - q.min(axis=0)
+    assert (ext + 4 <= np.array([12.6, 20.8, 48.3]) + 1e-9).all()
+
+
+def test_edge_cases_of_the_decision():
+    cube = (
+        np.array(list(itertools.product([0, 1], repeat=3)), dtype=float)[[0, 3, 5, 6]] * 10
+    )  # regular tetra
+    st, _, _ = decide_fit(cube[None], [10, 10, 10])  # its own cube fits exactly (zero slack)
+    assert st[0] in (FIT, UNDECIDED)
+    st, _, _ = decide_fit(cube[None], [10.02, 10.02, 10.02])
+    assert st[0] == FIT
+    # its width is the distance between opposite edges, the cube's side: 10 mm
+    st, _, _ = decide_fit(cube[None], [10.05, 30, 30])
+    assert st[0] == FIT
+    st, _, _ = decide_fit(cube[None], [9.9, 30, 30])
+    assert st[0] == NO_FIT
+    with pytest.raises(ValueError):
+        decide_fit(np.zeros((1, 4)), [1, 1, 1])
+
+
+@pytest.fixture(scope="module")
+def small():
+    spec = StarSpec(box_mm=(14, 10, 24), marker_mm=4, delta_mm=2)
+    return spec, enumerate_candidates(spec)
+
+
+def test_enumeration_is_complete_against_a_dense_search(small):
+    """Every labelled star of the pool, classified by the independent dense search: each one it
+    fits with the slack to spare is a candidate, and every candidate fits."""
+    spec, cands = small
+    pool = cands.pool_mm
+    L = pool[np.array(list(itertools.permutations(range(len(pool)), 6)))]
+    L = np.unique(canonical_lengths(L[is_realisable(L)]), axis=0)
+    L = L[tetra_width(L) >= spec.depth_mm - 1e-9]
+    limit = np.array(spec.centre_limit_mm)
+    dense, _ = dense_best_slack(vertices_from_lengths(L), limit, n_rot=1500, keep=4, iters=50)
+    got = {tuple(x) for x in np.round(canonical_lengths(cands.lengths), 9)}
+    und = (
+        {tuple(x) for x in np.round(canonical_lengths(pool[cands.undecided]), 9)}
+        if len(cands.undecided)
+        else set()
+    )
+    must = {tuple(x) for x in np.round(L[dense >= SLACK_MM], 9)}
+    assert must <= got
+    may = {tuple(x) for x in np.round(L[dense >= -1e-9], 9)}
+    assert may <= got | und
+    # every candidate fits: its fitting rotation re-found and checked here
+    st, R, _ = decide_fit(vertices_from_lengths(cands.lengths), limit)
+    assert (st == FIT).all()
+
+
+def _face_conflicts(L: np.ndarray, tol: float) -> list[tuple[int, int]]:
+    from starforge.geometry.tetra import face_sides
+
+    F = np.sort(face_sides(L), axis=2)
+    out = []
+    for i, j in itertools.combinations(range(len(L)), 2):
+        d = np.abs(F[i][:, None, :] - F[j][None, :, :]).max(axis=2)
+        if (d < tol - 1e-9).any():
+            out.append((i, j))
+    return out
+
+
+def test_small_case_is_the_proven_maximum_by_an_independent_formulation(small, tmp_path):
+    """Maximum family by a MILP over pairwise conflicts found by brute force (no key windows)."""
+    import scipy.sparse as sp
+    from scipy.optimize import Bounds, LinearConstraint, milp
+
+    spec, cands = small
+    L = cands.lengths
+    pairs = np.array(_face_conflicts(L, spec.tol_mm))
+    A = sp.csr_matrix(
+        (np.ones(2 * len(pairs)), (np.repeat(np.arange(len(pairs)), 2), pairs.ravel())),
+        shape=(len(pairs), len(L)),
+    )
+    res = milp(
+        -np.ones(len(L)),
+        constraints=LinearConstraint(A, -np.inf, 1),
+        integrality=np.ones(len(L)),
+        bounds=Bounds(0, 1),
+    )
+    assert res.status == 0
+    best = int(round(-res.fun))
+    out = tmp_path / "s"
+    assert run_cli(["stars", "--box", 14, 10, 24, "--marker", 4, "--delta", 2, "--out", out, "-q"]) == 0
+    doc = json.loads((out / "family.json").read_text())
+    sm = doc["summary"]
+    assert len(doc["stars"]) == best
+    assert sm["optimal"] is True and sm["upper_bound"] == best
+    assert check_family(doc) == []
+
+
+def test_bounds_are_certified_and_depth_is_kept(finger_face):
+    _, doc = finger_face
+    sm = doc["summary"]
+    n = len(doc["stars"])
+    assert sm["upper_bound"] >= n and sm["gap"] == sm["upper_bound"] - n
+    assert sm["gap"] <= 0.05 * n  # the issue's target: within 5 % of the certified bound
+    assert sm["optimal"] == (sm["gap"] == 0)
+    assert min(s["depth_mm"] for s in doc["stars"]) >= 2.0 - 1e-9
+    # the reported depth is the width, recomputed here by dense directions (an upper estimate)
+    rng = np.random.default_rng(1)
+    dirs = rng.normal(size=(20_000, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    for s in doc["stars"][:20]:
+        q = np.asarray(s["vertices"]) @ dirs.T
+        assert (q.max(axis=0) - q.min(axis=0)).min() >= s["depth_mm"] - 1e-9
+
+
+def test_flat_stars_come_back_with_min_depth_0(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--out", a, "-q"]) == 0
+    assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--min-depth", 0, "--out", b, "-q"]) == 0
+    da, db = (json.loads((p / "family.json").read_text()) for p in (a, b))
+    assert db["summary"]["enumeration"]["fitting"] > da["summary"]["enumeration"]["fitting"]
+    assert min(s["depth_mm"] for s in db["stars"]) < 2.0 <= min(s["depth_mm"] for s in da["stars"])
+    assert check_family(da) == [] and check_family(db) == []
+
+
+def test_tolerance_holds_within_a_star_a_face_and_between_faces(tmp_path):
+    out = tmp_path / "t"
+    assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 1, "--tolerance", 2, "--out", out, "-q"]) == 0
+    doc = json.loads((out / "family.json").read_text())
+    assert check_family(doc) == []
+    L = np.array([[s["lengths"][k] for k in "uUvVwW"] for s in doc["stars"]])
+    assert (np.diff(np.sort(L, axis=1), axis=1) >= 2 - 1e-9).all()  # within a star (so within a face)
+    assert _face_conflicts(L, 2.0) == []  # between faces of different stars
+    F = np.array([s["faces"] for s in doc["stars"]])
+    for f in F:  # between faces of one star
+        d = np.abs(f[:, None, :] - f[None, :, :]).max(axis=2) + np.eye(4) * 99
+        assert (d >= 2 - 1e-9).all()
+
+
+def test_accuracy_is_reported_and_count_takes_the_most_accurate(tmp_path):
+    from starforge.geometry.rigid import simulate_fit_errors
+
+    out = tmp_path / "c"
+    assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--count", 4, "--out", out, "-q"]) == 0
+    doc = json.loads((out / "family.json").read_text())
+    assert len(doc["stars"]) == 4 and check_family(doc) == []
+    tip = np.array(doc["summary"]["tip_mm"])
+    assert np.allclose(tip, [0, 0, -24])
+    s = doc["stars"][0]
+    V = np.asarray(s["vertices"])
+    tre, rot = simulate_fit_errors(V, tip, 0.2, 30_000, np.random.default_rng(0))
+    assert s["accuracy"]["tip_tre_mm"] == pytest.approx(tre, rel=0.06)
+    assert s["accuracy"]["rotation_deg"] == pytest.approx(rot, rel=0.06)
+    hidden = []
+    for i in range(4):
+        Q = V.copy()
+        Q[i] = np.nan
+        hidden.append(simulate_fit_errors(Q, tip, 0.2, 20_000, np.random.default_rng(i))[0])
+    assert s["accuracy"]["tip_tre_hidden_mm"] == pytest.approx(max(hidden), rel=0.08)
+    # the most accurate candidate of the whole spec leads the greedy pick, so it is in the four
+    full = tmp_path / "full"
+    assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--out", full, "-q"]) == 0
+    best = min(
+        json.loads((full / "family.json").read_text())["stars"],
+        key=lambda t: t["accuracy"]["rotation_hidden_deg"],
+    )
+    picked = [t["accuracy"]["rotation_hidden_deg"] for t in doc["stars"]]
+    assert min(picked) <= best["accuracy"]["rotation_hidden_deg"] + 1e-9
+
+
+def test_avoid_keeps_new_stars_apart_from_bodies_a_lab_owns(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 1, "--count", 12, "--out", a, "-q"]) == 0
+    args = ["stars", "--box", 16, 12, 24, "--delta", 1, "--avoid", a / "family.json", "--select", "greedy"]
+    assert run_cli([*args, "--out", b, "-q"]) == 0
+    da, db = (json.loads((p / "family.json").read_text()) for p in (a, b))
+    Fa = np.array([f for s in da["stars"] for f in s["faces"]])
+    Fb = np.array([f for s in db["stars"] for f in s["faces"]])
+    d = np.abs(Fa[:, None, :] - Fb[None, :, :]).max(axis=2)
+    assert (d >= 1.0 - 1e-9).all()
+    assert db["summary"]["avoid"][0]["triangles"] == 4 * 12
+    assert len(db["stars"]) > 0
