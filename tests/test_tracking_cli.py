@@ -74,11 +74,21 @@ def test_check_accuracy_and_rules(checked):
     fam, _, doc = checked
     bs = load_bodies(fam / "family.json")
     fle = fle_from_sigma(doc["settings"]["noise_mm"])
-    for row, b in zip(doc["accuracy"], bs.bodies, strict=True):
+    acc = doc["accuracy"]
+    tip = np.array(acc["tip_mm"])
+    assert np.allclose(tip, [0, 0, 60])
+    for row, b in zip(acc["bodies"], bs.bodies, strict=True):
         assert row["body"] == b.name
-        assert row["tre_centre_mm"] == pytest.approx(fle / np.sqrt(len(b.points_mm)))
-        assert row["tre_tip_mm"] > row["tre_centre_mm"]
-        assert row["tre_tip_mm"] == pytest.approx(tre_rms(b.points_mm, [0, 0, 60], fle))
+        assert row["tip_tre_mm"] == pytest.approx(tre_rms(b.points_mm, tip, fle))
+        # with one marker hidden the error only grows, and the worst marker is named
+        assert row["tip_tre_hidden_mm"] >= row["tip_tre_mm"]
+        hid = []
+        for i in range(4):
+            Q = b.points_mm.copy()
+            Q[i] = np.nan
+            hid.append(tre_rms(Q, tip, fle))
+        assert row["tip_tre_hidden_mm"] == pytest.approx(max(hid)) and row["worst_hidden_marker"] == 1 + int(np.argmax(hid))
+    assert acc["family"]["tip_tre_hidden_mm_worst"] == pytest.approx(max(r["tip_tre_hidden_mm"] for r in acc["bodies"]))
     # a 16 x 12 x 24 mm star cannot meet ART's 30 mm minimum distance: every body is named
     named = {v["body"] for v in doc["rules"]["violations"] if v["rule"] == "min_distance"}
     assert named == set(doc["confusion"]["labels"])
@@ -162,6 +172,8 @@ def test_check_on_two_placements(tmp_path):
     doc = json.loads((out / "check.json").read_text())
     assert doc["input"]["kind"] == "placement" and doc["confusion"]["labels"] == ["wand", "probe"]
     assert doc["settings"]["match_mm"] == 2.0  # no family tolerance: the default window
-    # placements are metres: the TRE at the centre uses the mm layout (4 markers)
-    assert doc["accuracy"][0]["tre_centre_mm"] == pytest.approx(np.sqrt(3) * 0.2 / 2)
+    # placements are metres: the TRE uses the mm layout, at the prop's origin by default
+    assert doc["accuracy"]["tip_mm"] == [0.0, 0.0, 0.0]
+    wand = pos * 1000.0
+    assert doc["accuracy"]["bodies"][0]["tip_tre_mm"] == pytest.approx(tre_rms(wand, [0, 0, 0], fle_from_sigma(0.2)))
     assert doc["identification_rate"] > 0.9

@@ -8,7 +8,8 @@ The document (``format: starforge.check``, version 1, all lengths mm)::
      "flips": [...], "missed": [...],              per body
      "worst_pairs": [...],                          most frequent confusions in the simulation
      "closest_triangles": [...],                    smallest geometric margins (drop-1 confusions)
-     "accuracy": [{"body", "markers", "tre_centre_mm", "tre_tip_mm"}],
+     "accuracy": {"tip_mm", "noise_mm", "bodies": [{"body", "markers", "tip_tre_mm",
+                  "tip_tre_hidden_mm", "worst_hidden_marker", "rotation_deg"}], "family": {...}},
      "rules": {"preset", "violations": [...]},      with --preset
      "curve": {"noise_mm": [...], "identification_rate": [...], "mislabel_rate": [...]}}
 """
@@ -33,19 +34,23 @@ class CheckSettings:
     noise_mm : per-axis Gaussian sigma of marker centres, mm
     drop : markers hidden per body per frame (uniform 0..drop; exactly drop if drop_exact)
     ghosts : random extra points near each body per frame
-    frames : simulated frames (every body appears in each)
+    frames : simulated frames
     seed : random seed
     match_mm : distance matching window (None: the preset's, else the family tolerance, else 2 mm)
     residual_mm : rigid-fit RMS limit (None: the preset's, else match_mm / 2)
-    tip_mm : (3,) target point in each body's frame for the TRE, mm (None: only the centre)
+    tip_mm : (3,) target point in each body's frame for the TRE, mm (None: the family's default
+        tip, :func:`starforge.geometry.rigid.default_tip_mm`; the prop's origin for placements)
     preset : vendor preset name or None
     curve_points : noise levels on the rates-vs-noise curve (0: no curve)
     curve_frames : frames per curve point (None: max(100, frames // 10))
+    world : "open" (each cluster identified on its own; default) or "closed" (each label once
+        per frame: assumes every body is in every frame)
+    presence : probability that a body is in a frame (bodies come and go)
     """
 
     noise_mm: float = 0.2
     drop: int = 1
-    ghosts: int = 2
+    ghosts: int = 0
     frames: int = 10000
     seed: int = 0
     match_mm: float | None = None
@@ -55,8 +60,13 @@ class CheckSettings:
     drop_exact: bool = False
     curve_points: int = 7
     curve_frames: int | None = None
+    world: str = "open"
+    presence: float = 1.0
 
     def __post_init__(self):
+        require(self.world in ("open", "closed"), f"world must be open or closed, got {self.world!r}")
+        require(0 < self.presence <= 1, f"presence must be in (0, 1], got {self.presence}")
+        require(self.curve_points <= 50, f"curve must be at most 50 noise levels, got {self.curve_points}")
         non_negative("noise", self.noise_mm)
         require(self.drop >= 0, f"drop must be >= 0, got {self.drop}")
         require(self.ghosts >= 0, f"ghosts must be >= 0, got {self.ghosts}")
@@ -124,12 +134,57 @@ def resolve_windows(bodyset, s: CheckSettings, preset=None) -> tuple[float, floa
     return match, res, reflect
 
 
+def accuracy_report(bodyset, s: CheckSettings) -> dict:
+    """Predicted accuracy of every body at the tip, with all markers and with the worst single
+    marker hidden (:mod:`starforge.geometry.rigid`), and the family's worst and median."""
+    from starforge.geometry.rigid import (
+        fle_from_sigma,
+        rotation_error_deg,
+        rotation_error_hidden_deg,
+        tre_hidden,
+        tre_rms,
+    )
+
+    tip = np.asarray(s.tip_mm if s.tip_mm is not None else bodyset.default_tip_mm, dtype=float)
+    fle = fle_from_sigma(max(s.noise_mm, 1e-12))
+    rows = []
+    for b in bodyset.bodies:
+        P = b.points_mm
+        hid = tre_hidden(P, tip, fle) if len(P) > 3 else np.full(len(P), np.inf)
+        rows.append(
+            {
+                "body": b.name,
+                "markers": len(P),
+                "tip_tre_mm": float(tre_rms(P, tip, fle)),
+                "tip_tre_hidden_mm": float(hid.max()),
+                "worst_hidden_marker": int(hid.argmax()) + 1,
+                "rotation_deg": float(rotation_error_deg(P, s.noise_mm)),
+                "rotation_hidden_deg": float(rotation_error_hidden_deg(P, s.noise_mm).max())
+                if len(P) > 3
+                else None,
+            }
+        )
+    allm = np.array([r["tip_tre_mm"] for r in rows])
+    hidm = np.array([r["tip_tre_hidden_mm"] for r in rows])
+    return {
+        "tip_mm": [float(x) for x in tip],
+        "tip_source": "--tip" if s.tip_mm is not None else bodyset.tip_source,
+        "noise_mm": s.noise_mm,
+        "bodies": rows,
+        "family": {
+            "tip_tre_mm_median": float(np.median(allm)),
+            "tip_tre_mm_worst": float(allm.max()),
+            "tip_tre_hidden_mm_median": float(np.median(hidm)),
+            "tip_tre_hidden_mm_worst": float(hidm.max()),
+        },
+    }
+
+
 def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
     """The check document for ``bodyset`` (see module docstring).
 
     ``progress(stage, done, total)`` is called as frames are processed.
     """
-    from starforge.geometry.rigid import fle_from_sigma, tre_rms
     from starforge.tracking import identify as ident
 
     t0 = time.perf_counter()
@@ -149,8 +204,25 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
     ident.check_settings(lib, s.noise_mm, s.drop, s.ghosts, s.frames, match, res)
     rng = np.random.default_rng(s.seed)
     cb = (lambda d, n: progress("frames", d, n)) if progress else None
+    min_markers = preset.tracker.identify_markers if preset is not None else 3
+    require(
+        min_markers <= lib.counts.min() - s.drop or not s.drop_exact,
+        f"drop {s.drop} leaves fewer than the {min_markers} markers the preset identifies from",
+    )
+    world = {"world": s.world, "presence": s.presence, "min_markers": min_markers}
     tally = ident.run(
-        lib, s.frames, s.noise_mm, s.drop, s.ghosts, rng, match, res, s.drop_exact, reflect, progress=cb
+        lib,
+        s.frames,
+        s.noise_mm,
+        s.drop,
+        s.ghosts,
+        rng,
+        match,
+        res,
+        s.drop_exact,
+        reflect,
+        progress=cb,
+        **world,
     )
     t_main = time.perf_counter() - t0
     curve = None
@@ -160,20 +232,16 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
         levels = np.unique(np.round(np.concatenate([np.linspace(0.0, top, s.curve_points), [s.noise_mm]]), 9))
         idr, mis = [], []
         for i, nz in enumerate(levels):
-            t = ident.run(lib, cf, float(nz), s.drop, s.ghosts, rng, match, res, s.drop_exact, reflect)
+            t = ident.run(
+                lib, cf, float(nz), s.drop, s.ghosts, rng, match, res, s.drop_exact, reflect, **world
+            )
             r = t.rates()
             idr.append(r["identification_rate"])
             mis.append(r["mislabel_rate"])
             if progress:
                 progress("curve", i + 1, len(levels))
         curve = {"noise_mm": levels.tolist(), "frames": cf, "identification_rate": idr, "mislabel_rate": mis}
-    fle = fle_from_sigma(s.noise_mm)
-    acc = []
-    for nm, P in zip(names, points, strict=True):
-        row = {"body": nm, "markers": len(P), "tre_centre_mm": tre_rms(P, P.mean(axis=0), fle)}
-        if s.tip_mm is not None:
-            row["tre_tip_mm"] = tre_rms(P, np.asarray(s.tip_mm, dtype=float), fle)
-        acc.append(row)
+    acc = accuracy_report(bodyset, s)
     doc = {
         "format": FORMAT,
         "version": VERSION,
@@ -190,7 +258,10 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
             "residual_mm": res,
             "mirror_blind": reflect,
             "preset": s.preset,
-            "tip_mm": list(s.tip_mm) if s.tip_mm is not None else None,
+            "world": s.world,
+            "presence": s.presence,
+            "identify_from_markers": min_markers,
+            "tip_mm": acc["tip_mm"],
         },
         **tally.rates(),
         "instances": tally.instances,
@@ -210,6 +281,7 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
             "preset": preset.name,
             "vendor": preset.vendor,
             "source": preset.source,
+            "sources": dict(preset.sources),
             "violations": [v.to_json() for v in viol],
         }
     if curve is not None:
