@@ -58,10 +58,14 @@ class TrackerSettings:
     match_mm: float = 2.0
     residual_mm: float = 1.0
     reflect: bool = False
+    identify_markers: int = 3  # matched markers a reported identification needs
 
     def __post_init__(self):
         positive("tracker.match_mm", self.match_mm)
         positive("tracker.residual_mm", self.residual_mm)
+        require(
+            self.identify_markers >= 3, f"tracker.identify_markers must be >= 3, got {self.identify_markers}"
+        )
 
 
 @dataclass(frozen=True)
@@ -72,6 +76,9 @@ class Preset:
     rules: Rules = field(default_factory=Rules)
     tracker: TrackerSettings = field(default_factory=TrackerSettings)
     stars: dict = field(default_factory=dict)
+    #: where every number comes from: {"rules.min_markers": "URL: what it says", ...}; a number
+    #: with no entry is starforge's own choice (its TOML comment says so)
+    sources: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
