@@ -156,6 +156,11 @@ def export_cmd(
         "--allow-oversize",
         help="Export bodies that exceed the family's size limit (recorded in bodies.json).",
     ),
+    id_start: int = typer.Option(
+        1,
+        "--id-start",
+        help="First Atracsys geometry id (ids run on from it; give each family its own range).",
+    ),
     out: Path = _OUT,
     force: bool = typer.Option(False, "--force", help="Overwrite existing outputs."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors and warnings."),
@@ -199,14 +204,18 @@ def export_cmd(
         check_writable(out, expected_files(bodies, cad, not no_plate, preview), force)
     elif ids or sets or preview:
         raise StarforgeError("--ids, --set and --preview apply to CAD formats (step, stl, 3mf)")
-    write_rigid_bodies = None
     if trk:
-        try:
-            from starforge.tracking.formats import write_rigid_bodies
-        except ImportError:
-            raise StarforgeError(
-                "tracker formats need starforge.tracking (not installed in this build)"
-            ) from None
+        from starforge.tracking.bodies import load_bodies
+        from starforge.tracking.formats import parse_formats, write_bodies
+
+        trk = parse_formats(trk)
+        bodyset = load_bodies(src)  # read and checked before any file is written
+        if not cad:
+            from starforge.io import check_writable
+
+            check_writable(
+                out, [f"{f}/{b.name}" for f in trk for b in bodyset.bodies] + ["trackers.json"], force
+            )
     rep = None
     written: list = []
     with staged_output(out, force) as stage:
@@ -230,8 +239,18 @@ def export_cmd(
                 )
             written.extend(rep.files)
         if trk:
-            paths = write_rigid_bodies(src, trk, stage)
-            written.extend(str(Path(p).relative_to(stage)) for p in paths)
+            import json
+
+            summary = write_bodies(bodyset, trk, stage, id_start)
+            summary = {
+                "format": "starforge.trackers",
+                "version": 1,
+                "input": str(src),
+                "id_start": id_start,
+                **summary,
+            }
+            (stage / "trackers.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+            written.extend([*summary["files"], "trackers.json"])
     err = console(stderr=True)
     if rep is not None:
         for w in rep.warnings:

@@ -1,8 +1,11 @@
-"""Rigid bodies as a tracker sees them: named marker sets in mm, read from family or placement JSON.
+"""Rigid bodies as a tracker sees them: named marker sets in mm, read from starforge's JSON files
+or from the tracker files a lab already has.
 
 A star family (``family.json``, mm) gives one body per star: its four sphere centres in the
 family's placement frame.  A prop placement (``placement.json``, metres) gives one body: its
 markers in the prop frame, converted to mm here (tracker files and the simulation work in mm).
+QTM (6DOF settings or body files), Vicon VSK, Atracsys ``.ini`` and starforge's body CSV give
+their bodies as written (mm), so a lab's existing bodies can be checked beside new ones.
 """
 
 from __future__ import annotations
@@ -58,6 +61,8 @@ class BodySet:
     bodies : tuple of Body
     tolerance_mm : float or None    the family's design tolerance (faces/edges differ by this), mm
     marker_mm : float or None       marker sphere diameter, mm
+    default_tip_mm : (3,) float     the tip for accuracy reports when none is given, mm
+    tip_source : str                where that default comes from
     """
 
     kind: str
@@ -65,6 +70,8 @@ class BodySet:
     bodies: tuple[Body, ...]
     tolerance_mm: float | None = None
     marker_mm: float | None = None
+    default_tip_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    tip_source: str = "the bodies' own origin"
 
     @property
     def names(self) -> list[str]:
@@ -82,13 +89,50 @@ def safe_name(text: str) -> str:
 
 
 def _family_bodies(path: Path, data: dict) -> BodySet:
+    from starforge.geometry.rigid import default_tip_mm
     from starforge.stars.model import family_from_json
 
     fam = family_from_json(data, where=str(path))
     base = safe_name(fam.spec.name)
     width = max(3, len(str(max(s.id for s in fam.stars))))
     bodies = tuple(Body(f"{base}_{s.id:0{width}d}", int(s.id), s.vertices) for s in fam.stars)
-    return BodySet("family", (str(path),), bodies, float(fam.spec.tol_mm), float(fam.spec.marker_mm))
+    tip = fam.spec.tip_mm if fam.spec.tip_mm is not None else tuple(default_tip_mm(fam.spec.box_mm))
+    return BodySet(
+        "family",
+        (str(path),),
+        bodies,
+        float(fam.spec.tol_mm),
+        float(fam.spec.marker_mm),
+        tuple(float(x) for x in tip),
+        "the family's tip (placement frame: long axis, one limit length below the mount face)",
+    )
+
+
+#: marker spreads a rigid body can have, mm (a body outside these is in other units or corrupt)
+SPREAD_MM = (1.0, 20_000.0)
+
+
+def _check_spread(path, name: str, P: np.ndarray) -> None:
+    if len(P) < 2:
+        return
+    spread = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
+    if not SPREAD_MM[0] <= spread <= SPREAD_MM[1]:
+        raise StarforgeError(
+            f"{path}: body {name} spans {spread:.4g} mm; a marker body spans {SPREAD_MM[0]:g} to {SPREAD_MM[1]:g} mm "
+            f"(is the file in other units?)"
+        )
+
+
+def _tracker_bodies(path: Path, fmt: str) -> list[Body]:
+    from starforge.tracking.formats import READERS
+
+    bodies = []
+    for k, (name, P) in enumerate(READERS[fmt](path).items()):
+        if len(P) < 3:
+            raise StarforgeError(f"{path}: body {name} has {len(P)} markers; a rigid body needs at least 3")
+        _check_spread(path, name, P)
+        bodies.append(Body(safe_name(name), k + 1, P))
+    return bodies
 
 
 def _placement_body(path: Path, data: dict, index: int) -> tuple[Body, float]:
@@ -108,23 +152,32 @@ def _placement_body(path: Path, data: dict, index: int) -> tuple[Body, float]:
 
 
 def load_bodies(paths) -> BodySet:
-    """Read a family JSON, or one or more placement JSONs (a folder means the JSON inside it).
+    """Read a family JSON, or one or more placement JSONs or tracker files (QTM, VSK, Atracsys,
+    body CSV); a folder means the JSON inside it.
 
-    Raises StarforgeError for a missing or corrupt file, a format it does not know, or a mix
-    of a family with other files.
+    Raises StarforgeError for a missing or corrupt file, a format it does not know, a body in
+    other units, or a mix of a family with other files.
     """
+    from starforge.io import check_input_file
+    from starforge.tracking.formats import sniff_format
+
     if isinstance(paths, str | Path):
         paths = [paths]
     paths = [Path(p) for p in paths]
     if not paths:
         raise StarforgeError("no input file given")
-    docs = []
+    docs, tracker = [], []
     for p in paths:
         if p.is_dir():
             for cand in ("family.json", "placement.json"):
                 if (p / cand).exists():
                     p = p / cand
                     break
+        check_input_file(p, "input file")
+        fmt = sniff_format(p)
+        if fmt is not None and p.suffix.lower() != ".json":
+            tracker.append((p, fmt))
+            continue
         data = read_json(p, what="input file")
         docs.append((p, data))
     kinds = [d.get("format") for _, d in docs]
@@ -132,20 +185,32 @@ def load_bodies(paths) -> BodySet:
         if k not in (FAMILY_FORMAT, PLACEMENT_FORMAT):
             raise StarforgeError(
                 f"{p} is neither a star family nor a prop placement (format {k!r}; "
-                f"expected {FAMILY_FORMAT!r} or {PLACEMENT_FORMAT!r})"
+                f"expected {FAMILY_FORMAT!r} or {PLACEMENT_FORMAT!r}) nor a QTM, VSK, Atracsys or body CSV file"
             )
     if FAMILY_FORMAT in kinds:
-        if len(docs) > 1:
-            raise StarforgeError("give one family file, or one or more placement files (not a mix)")
+        if len(docs) > 1 or tracker:
+            raise StarforgeError("give one family file, or placement and tracker files (not a mix)")
         return _family_bodies(*docs[0])
     bodies, diameters, seen = [], [], {}
-    for i, (p, data) in enumerate(docs):
-        b, d = _placement_body(p, data, i + 1)
+
+    def add(b: Body) -> None:
         n = seen.get(b.name, 0)
         seen[b.name] = n + 1
-        if n:
-            b = Body(f"{b.name}_{n + 1}", b.id, b.points_mm)
-        bodies.append(b)
+        bodies.append(
+            Body(f"{b.name}_{n + 1}", len(bodies) + 1, b.points_mm)
+            if n
+            else Body(b.name, len(bodies) + 1, b.points_mm)
+        )
+
+    for i, (p, data) in enumerate(docs):
+        b, d = _placement_body(p, data, i + 1)
+        _check_spread(p, b.name, b.points_mm)
+        add(b)
         diameters.append(d)
+    for p, fmt in tracker:
+        for b in _tracker_bodies(p, fmt):
+            add(b)
     marker = max(diameters) if diameters and max(diameters) > 0 else None
-    return BodySet("placement", tuple(str(p) for p, _ in docs), tuple(bodies), None, marker)
+    kind = "placement" if docs and not tracker else ("tracker" if tracker and not docs else "mixed")
+    sources = tuple(str(p) for p, _ in docs) + tuple(str(p) for p, _ in tracker)
+    return BodySet(kind, sources, tuple(bodies), None, marker)
