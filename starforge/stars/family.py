@@ -117,6 +117,38 @@ def _count_order(index: np.ndarray, pool: np.ndarray, sigma_mm: float) -> np.nda
     return np.lexsort((*keys, np.round(score, 9)))
 
 
+#: candidates the --count pick looks at: the most accurate ones
+COUNT_POOL = 100_000
+
+
+def _spread_count(index: np.ndarray, order: np.ndarray, spec: StarSpec, pool_size: int):
+    """The ``spec.count`` most accurate stars, as far apart as the count allows.
+
+    A few stars out of hundreds can keep their faces much further apart than the tolerance,
+    which is what keeps a tracker from confusing them under noise.  Among the
+    :data:`COUNT_POOL` most accurate candidates, the face separation is raised one pool step at
+    a time (up to twice the tolerance) while a greedy pick in accuracy order still reaches the
+    count; the largest separation that does is used.  Returns (chosen, steps used).
+    """
+    from starforge.stars.select import _csr
+
+    top = order[:COUNT_POOL]
+    m = spec.grid_steps
+    best = None
+    for m2 in range(2 * m, m - 1, -1):
+        s2, r2, n2 = window_rows(index[top], spec.rule, m2, pool_size)
+        ptr, rows = _csr(s2, r2, len(top))
+        got = top[greedy(np.arange(len(top)), ptr, rows, n2)]
+        if len(got) >= spec.count or m2 == m:
+            best = (got, m2)
+            break
+    if len(best[0]) < spec.count:  # even the tolerance itself is too tight among the top: use all
+        s2, r2, n2 = window_rows(index, spec.rule, m, pool_size)
+        ptr, rows = _csr(s2, r2, len(index))
+        best = (greedy(order, ptr, rows, n2), m)
+    return best
+
+
 def make_family(
     spec: StarSpec,
     progress=None,
@@ -171,10 +203,9 @@ def make_family(
     if spec.count is not None:
         from starforge.stars.select import Selection, _csr
 
-        ptr, rows = _csr(star_of, row, len(index))
         order = _count_order(index, pool, spec.noise_mm)
-        chosen = greedy(order, ptr, rows, n_rows)
-        info = {"greedy_by_accuracy": int(len(chosen))}
+        chosen, m_used = _spread_count(index, order, spec, len(pool))
+        info = {"greedy_by_accuracy": int(len(chosen)), "face_separation_mm": round(m_used * spec.delta_mm, 9)}
         if len(chosen) >= spec.count:
             chosen = chosen[: spec.count]
             sel = Selection(chosen, bound, info)
