@@ -12,7 +12,7 @@ from pathlib import Path
 
 from starforge.errors import StarforgeError
 
-KINDS = ("stars", "mounts", "rigs", "place", "presets")
+KINDS = ("stars", "mounts", "rigs", "place", "presets", "markers")
 
 
 def _kind_dir(kind: str):

@@ -40,26 +40,36 @@ class BodySpec:
     coating_mm : float
         Coating allowance on the diameter: printed sphere = marker_mm - coating_mm
         (paper: 3.8 mm printed, 4 mm finished -> 0.2).  Range [0, marker_mm / 2].
-    tip : "sphere" or "post"
-        Printed spheres, or posts (a pin or threaded stud) for commercial markers.
+    tip : "sphere", "post", "glue", "screw" or "insert"
+        Printed spheres, or a seat for a bought marker: a post with a shoulder (a hole in the
+        marker's base), a pad (a flat base glued on), a bore (a threaded stud screwed in) or a
+        heat-set insert hole.  ``marker`` sets it from the catalogue.
+    marker : str or None
+        A catalogue marker (``starforge.markers``: name or TOML file); its attachment, base and
+        centre height shape the seat, and its diameter must be the family's.
     post_mm : float
-        Post diameter (a pin, or a stud's major diameter), range [0.8, 4].
+        Post diameter for ``tip = "post"`` without a catalogue marker, range [0.8, 4].
     post_length_mm : float
-        How far the post reaches into the marker from its surface, range [0.5, 6].
-    stem_mm : float
-        Stem diameter; must be >= ``min_stem_mm``.  Range [min_stem_mm, 4].
+        How far that post reaches into the marker from its seat, range [0.5, 6].
+    stem_mm : float or None
+        Stem diameter; None scales it with the marker (0.45 x, within [min_stem_mm, 4]).
     min_stem_mm : float
         Printable minimum stem diameter (SLS nylon: about 0.8 mm).  Range [0.3, 4].
+    fillet_mm : float or None
+        A cone flaring the stem's root into the plate (radius added at the plate); None: half the
+        stem diameter.  [0, 4].
     standoff_mm : float
         Gap between the lowest finished sphere and the plate (room for the foil), [0.2, 10].
     clearance_mm : float
         Least gap between a stem and another (finished) sphere or stem, [0, 2].
     max_tilt_deg : float
-        A stem leans at most this far from vertical, [0, 60].
+        A stem leans at most this far from vertical, [0, 60] (FDM: keep it <= 45).
+    nozzle_mm : float
+        The printer's nozzle: engraved strokes are at least 1.5 x as wide, [0.1, 1.2].
     label : bool
         Engrave the star id on the plate.
     label_mm : float
-        Digit height, [1.5, 8].
+        Digit height (raised when the nozzle needs wider strokes), [1.5, 8].
     label_depth_mm : float
         Engraving depth, [0.2, 1.5].
     min_visibility : float
@@ -69,40 +79,64 @@ class BodySpec:
     """
 
     coating_mm: float = 0.2
-    tip: Literal["sphere", "post"] = "sphere"
+    tip: Literal["sphere", "post", "glue", "screw", "insert"] = "sphere"
+    marker: str | None = None
     post_mm: float = 1.5
     post_length_mm: float = 2.0
-    stem_mm: float = 1.2
+    stem_mm: float | None = None
     min_stem_mm: float = 0.8
+    fillet_mm: float | None = None
     standoff_mm: float = 1.0
     clearance_mm: float = 0.3
     max_tilt_deg: float = 40.0
+    nozzle_mm: float = 0.4
     label: bool = True
     label_mm: float = 2.5
-    label_depth_mm: float = 0.4
+    label_depth_mm: float = 0.6
     min_visibility: float = 0.6
     sphere_segments: int = 64
-    cylinder_segments: int = 32
+    cylinder_segments: int = 48
 
     def __post_init__(self) -> None:
-        require(self.tip in ("sphere", "post"), f"tip must be sphere or post, got {self.tip!r}")
+        require(
+            self.tip in ("sphere", "post", "glue", "screw", "insert"),
+            f"tip must be sphere, post, glue, screw or insert, got {self.tip!r}",
+        )
         in_range("coating_mm", self.coating_mm, 0.0, 10.0)
         in_range("post_mm", self.post_mm, 0.8, 4.0)
         in_range("post_length_mm", self.post_length_mm, 0.5, 6.0)
         in_range("min_stem_mm", self.min_stem_mm, 0.3, 4.0)
-        require(
-            math.isfinite(float(self.stem_mm)) and self.stem_mm >= self.min_stem_mm,
-            f"stem_mm must be >= the printable minimum min_stem_mm={self.min_stem_mm}, got {self.stem_mm}",
-        )
-        in_range("stem_mm", self.stem_mm, self.min_stem_mm, 4.0)
+        if self.stem_mm is not None:
+            require(
+                math.isfinite(float(self.stem_mm)) and self.stem_mm >= self.min_stem_mm,
+                f"stem_mm must be >= the printable minimum min_stem_mm={self.min_stem_mm}, got {self.stem_mm}",
+            )
+            in_range("stem_mm", self.stem_mm, self.min_stem_mm, 4.0)
+        if self.fillet_mm is not None:
+            in_range("fillet_mm", self.fillet_mm, 0.0, 4.0)
         in_range("standoff_mm", self.standoff_mm, 0.2, 10.0)
         in_range("clearance_mm", self.clearance_mm, 0.0, 2.0)
         in_range("max_tilt_deg", self.max_tilt_deg, 0.0, 60.0)
+        in_range("nozzle_mm", self.nozzle_mm, 0.1, 1.2)
         in_range("label_mm", self.label_mm, 1.5, 8.0)
         in_range("label_depth_mm", self.label_depth_mm, 0.2, 1.5)
         in_range("min_visibility", self.min_visibility, 0.0, 1.0)
         in_range("sphere_segments", self.sphere_segments, 16, 256)
         in_range("cylinder_segments", self.cylinder_segments, 16, 256)
+
+    def stem_for(self, marker_mm: float) -> float:
+        """The stem diameter in effect for ``marker_mm`` markers, mm."""
+        if self.stem_mm is not None:
+            return float(self.stem_mm)
+        return float(min(4.0, max(self.min_stem_mm, 0.45 * marker_mm)))
+
+    def fillet_for(self, marker_mm: float) -> float:
+        """The fillet (radius added at the stem root) in effect, mm."""
+        return self.stem_for(marker_mm) / 2 if self.fillet_mm is None else float(self.fillet_mm)
+
+    def label_height(self) -> float:
+        """Digit height in effect: strokes (0.18 x height) at least 1.5 nozzle widths wide."""
+        return float(max(self.label_mm, 1.5 * self.nozzle_mm / 0.18))
 
 
 @dataclass(frozen=True)
@@ -272,6 +306,81 @@ def label_size(text: str, height_mm: float) -> tuple[float, float]:
 # ---------------------------------------------------------------------------------------------
 
 
+def _seat(spec: BodySpec, marker_mm: float):
+    """(tip kind, marker type or None) for a body: the catalogue entry, when given, decides."""
+    if spec.marker is None:
+        return spec.tip, None
+    from starforge.markers import load_marker
+
+    mt = load_marker(spec.marker)
+    require(
+        abs(mt.diameter_mm - marker_mm) <= 0.05,
+        f"marker {mt.name} is {mt.diameter_mm:g} mm; this family is designed for {marker_mm:g} mm markers",
+    )
+    return mt.attach, mt
+
+
+def _seat_depth(kind: str, mt, spec: BodySpec, marker_mm: float) -> float:
+    """How far below the marker centre the seat's parts reach (the plate stays below them), mm."""
+    rf = marker_mm / 2
+    if kind == "sphere":
+        return rf
+    if mt is None:
+        return rf + 1.0
+    if kind in ("post", "glue"):
+        return mt.centre_height_mm + 1.0
+    from starforge.markers import THREADS
+
+    bore, insert_d, insert_len = THREADS[mt.thread]
+    hole_len = mt.stud_length_mm + 0.5 if kind == "screw" else max(insert_len, mt.stud_length_mm) + 0.5
+    return mt.centre_height_mm + hole_len + 1.0
+
+
+def _tip_parts(kind: str, mt, spec: BodySpec, cen, u, marker_mm: float, stem_r: float):
+    """(what the stem runs to, parts added, parts cut) for one marker's seat.
+
+    ``cen`` is the marker centre, ``u`` the unit stem direction (root -> centre).  Bought markers
+    sit on a seat whose top lies ``centre_height`` below the centre along the stem, so the marker
+    ends up exactly where family.json puts it.
+    """
+    rf = marker_mm / 2
+    if kind == "sphere":
+        printed = marker_mm - spec.coating_mm
+        return cen, [Sphere(cen, printed / 2)], []
+    if mt is None:  # a plain post: a shoulder at the marker's surface, the pin into its base
+        h_c, base, pin, depth = (
+            rf,
+            max(spec.post_mm * 1.8, 2 * stem_r + 0.8),
+            spec.post_mm,
+            spec.post_length_mm,
+        )
+    else:
+        h_c, base = mt.centre_height_mm, mt.base_mm
+        pin = (mt.hole_mm - mt.fit_mm) if mt.hole_mm is not None else None
+        depth = mt.hole_depth_mm
+    seat = cen - h_c * u  # the marker's base plane meets the stem axis here
+    adds, cuts = [], []
+    if kind in ("post", "glue"):
+        pad = Cylinder(seat - 1.0 * u, seat, max(base, 2 * stem_r + 0.4) / 2)
+        adds.append(pad)
+        if kind == "post":
+            adds.append(Cylinder(seat - 0.2 * u, seat + depth * u, pin / 2))
+        return seat - 0.5 * u, adds, cuts  # the stem runs into the pad: one piece
+    from starforge.markers import THREADS
+
+    bore, insert_d, insert_len = THREADS[mt.thread]
+    hole_d, hole_len = (
+        (bore, mt.stud_length_mm + 0.5)
+        if kind == "screw"
+        else (insert_d, max(insert_len, mt.stud_length_mm) + 0.5)
+    )
+    boss_d = max(hole_d + 2.4, 2 * stem_r + 0.4)
+    boss_len = hole_len + 1.0
+    adds.append(Cylinder(seat - boss_len * u, seat, boss_d / 2))
+    cuts.append(Cylinder(seat - hole_len * u, seat + 0.5 * u, hole_d / 2))
+    return seat - (boss_len - 0.5) * u, adds, cuts  # into the boss, below the hole
+
+
 def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: BodySpec) -> Body:
     """The body description of one star (pure: no CAD kernel involved).
 
@@ -286,22 +395,24 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
     c = np.asarray(centres, float)
     require(c.ndim == 2 and c.shape[1] == 3 and np.isfinite(c).all(), "centres must be (n, 3) finite mm")
     rf = marker_mm / 2
-    rs = spec.stem_mm / 2
+    stem_mm = spec.stem_for(marker_mm)
+    rs = stem_mm / 2
+    kind, mt = _seat(spec, marker_mm)
     require(
         spec.coating_mm <= marker_mm / 2,
         f"coating_mm must be in [0, {marker_mm / 2:g}] (half the marker diameter), got {spec.coating_mm}",
     )
-    if spec.tip == "sphere":
+    printed = None
+    if kind == "sphere":
         printed = marker_mm - spec.coating_mm
         require(
-            printed > spec.stem_mm,
-            f"coating_mm={spec.coating_mm} leaves a printed sphere of "
-            f"{printed:.2f} mm, not wider than the stem ({spec.stem_mm} mm)",
+            printed > stem_mm,
+            f"coating_mm={spec.coating_mm} leaves a printed sphere of {printed:.2f} mm, not wider than the stem ({stem_mm:g} mm)",
         )
-    else:
-        printed = None
+    elif kind == "post" and mt is None:
         require(spec.post_mm < marker_mm, f"post_mm={spec.post_mm} must be < marker_mm={marker_mm}")
-    y_top = float(c[:, 1].min() - rf - spec.standoff_mm)
+    below = max(rf + spec.standoff_mm, _seat_depth(kind, mt, spec, marker_mm) + 0.5)
+    y_top = float(c[:, 1].min() - below)
     roots = route_stems(c, rf, rs, y_top, spec.clearance_mm, spec.max_tilt_deg)
     # the material under the label: thinner mounts cannot take a deep engraving
     floor = mount["thickness_mm"]
@@ -310,38 +421,41 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
     elif mount.kind == "adhesive":
         floor = mount["thickness_mm"] - mount["recess_mm"]
     text = str(int(star_id))
+    label_h = spec.label_height()
     if spec.label:
         require(
             spec.label_depth_mm <= floor - 0.3,
             f"label_depth_mm={spec.label_depth_mm} leaves less than 0.3 mm of the {mount.name} mount "
             f"({floor:.2f} mm under the label)",
         )
+    fillet = spec.fillet_for(marker_mm)
     mg = mount_geometry(
         mount,
         roots[:, [0, 2]],
-        rs,
+        rs + fillet,
         y_top,
-        label_size(text, spec.label_mm) if spec.label else None,
+        label_size(text, label_h) if spec.label else None,
         overhead_xz=np.column_stack([c[:, 0], c[:, 2], np.full(len(c), rf)]),
     )
     adds: list = []
+    subs: list = []
     stems = []
     for root, cen in zip(roots, c, strict=True):
         u = (cen - root) / np.linalg.norm(cen - root)
         start = root - u * (0.3 / max(u[1], 1e-6))  # 0.3 mm into the plate
-        if spec.tip == "sphere":
-            adds.append(Sphere(cen, printed / 2))
-            stem = Cylinder(start, cen, rs)
-        else:
-            surf = cen - rf * u
-            stem = Cylinder(start, surf, rs)
-            adds.append(Cylinder(surf - 0.2 * u, surf + spec.post_length_mm * u, spec.post_mm / 2))
+        end, parts, cuts = _tip_parts(kind, mt, spec, cen, u, marker_mm, rs)
+        stem = Cylinder(start, end, rs)
         stems.append(stem)
         adds.append(stem)
+        if fillet > 0:  # a cone flaring the root into the plate: no notch where the stem meets it
+            flare = min(2.0 * fillet, 0.6 * float(np.linalg.norm(end - root)))
+            adds.append(Cylinder(start, root + flare * u, rs + fillet, rs))
+        adds.extend(parts)
+        subs.extend(cuts)
     adds.extend(mg.add)
-    subs = list(mg.subtract)
+    subs.extend(mg.subtract)
     if spec.label:
-        subs.extend(label_boxes(text, spec.label_mm, mg.label_centre, y_top, spec.label_depth_mm))
+        subs.extend(label_boxes(text, label_h, mg.label_centre, y_top, spec.label_depth_mm))
     return Body(
         star_id=int(star_id),
         name=body_name(star_id),

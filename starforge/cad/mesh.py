@@ -60,8 +60,8 @@ def primitive_manifold(p, sphere_segments: int = 64, cylinder_segments: int = 32
     if isinstance(p, Cylinder):
         p0, p1 = np.array(p.p0), np.array(p.p1)
         h = float(np.linalg.norm(p1 - p0))
-        r = p.radius_mm * _circle_scale(cylinder_segments)
-        cyl = Manifold.cylinder(h, r, r, int(cylinder_segments))
+        k = _circle_scale(cylinder_segments)
+        cyl = Manifold.cylinder(h, p.radius_mm * k, p.r1 * k, int(cylinder_segments))
         m = np.zeros((3, 4))
         m[:, :3] = _frame(p1 - p0)
         m[:, 3] = p0

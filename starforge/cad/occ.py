@@ -29,7 +29,10 @@ def primitive_solid(p):
         p0, p1 = np.array(p.p0), np.array(p.p1)
         axis = p1 - p0
         h = float(np.linalg.norm(axis))
-        return bd.Solid.make_cylinder(p.radius_mm, h, plane=bd.Plane(origin=tuple(p0), z_dir=tuple(axis / h)))
+        plane = bd.Plane(origin=tuple(p0), z_dir=tuple(axis / h))
+        if abs(p.r1 - p.radius_mm) > 1e-12:
+            return bd.Solid.make_cone(p.radius_mm, p.r1, h, plane=plane)
+        return bd.Solid.make_cylinder(p.radius_mm, h, plane=plane)
     raise TypeError(f"unknown primitive {type(p).__name__}")
 
 
@@ -51,6 +54,32 @@ def body_solid(body: Body):
     solid = bd.Solid(solid.wrapped)
     solid.label = body.name
     return solid
+
+
+def placed(solid, T, name: str, colour) -> object:
+    """``solid`` moved by the rigid transform ``T`` (4, 4) (a rotation about x by +90 deg plus a
+    translation, as :func:`starforge.cad.plate.print_transform` makes), named and coloured."""
+    import build123d as bd
+
+    R = np.asarray(T, float)[:3, :3]
+    if not np.allclose(R, [[1, 0, 0], [0, 0, -1], [0, 1, 0]]):
+        raise ValueError("placed() takes the printing rotation (+90 deg about x) only")
+    out = bd.Solid(solid.rotate(bd.Axis.X, 90).translate(tuple(np.asarray(T, float)[:3, 3])).wrapped)
+    out.label = name
+    out.color = bd.Color(*(c / 255 for c in colour))
+    return out
+
+
+def assembly(solids, translations, name: str):
+    """A STEP assembly: copies of named, coloured ``solids`` moved by ``translations`` (4, 4)."""
+    import build123d as bd
+
+    children = []
+    for s, T in zip(solids, translations, strict=True):
+        c = bd.Solid(s.translate(tuple(np.asarray(T, float)[:3, 3])).wrapped)
+        c.label, c.color = s.label, s.color
+        children.append(c)
+    return bd.Compound(children=children, label=name)
 
 
 def write_step(solid, path) -> None:

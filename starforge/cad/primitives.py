@@ -37,15 +37,22 @@ class Sphere:
 
 @dataclass(frozen=True)
 class Cylinder:
-    """A solid cylinder (flat ends) from ``p0`` to ``p1`` (3,) mm, ``radius_mm``."""
+    """A solid cylinder (flat ends) from ``p0`` to ``p1`` (3,) mm, ``radius_mm``; a cone frustum
+    when ``radius1_mm`` (the radius at ``p1``) is given."""
 
     p0: tuple[float, float, float]
     p1: tuple[float, float, float]
     radius_mm: float
+    radius1_mm: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "p0", _vec(self.p0))
         object.__setattr__(self, "p1", _vec(self.p1))
+
+    @property
+    def r1(self) -> float:
+        """Radius at ``p1``, mm."""
+        return self.radius_mm if self.radius1_mm is None else float(self.radius1_mm)
 
     @property
     def length_mm(self) -> float:
@@ -54,11 +61,13 @@ class Cylinder:
     def bounds(self) -> np.ndarray:
         p0, p1 = np.array(self.p0), np.array(self.p1)
         d = (p1 - p0) / max(self.length_mm, 1e-12)
-        ext = self.radius_mm * np.sqrt(np.clip(1.0 - d**2, 0.0, 1.0))
-        return np.array([np.minimum(p0, p1) - ext, np.maximum(p0, p1) + ext])
+        s = np.sqrt(np.clip(1.0 - d**2, 0.0, 1.0))
+        e0, e1 = self.radius_mm * s, self.r1 * s
+        return np.array([np.minimum(p0 - e0, p1 - e1), np.maximum(p0 + e0, p1 + e1)])
 
     def volume(self) -> float:
-        return np.pi * self.radius_mm**2 * self.length_mm
+        a, b = self.radius_mm, self.r1
+        return np.pi * self.length_mm * (a * a + a * b + b * b) / 3.0
 
 
 @dataclass(frozen=True)
