@@ -194,22 +194,30 @@ def test_family_made_under_a_preset_passes_that_presets_rules(tmp_path):
     assert report["rules"]["violations"] == []
 
 
-def test_reserve_leaves_room_for_the_flat_mount(tmp_path):
+def test_mount_reserves_its_room_and_every_body_fits(tmp_path):
+    from starforge.cad.reserve import mount_reserve_mm
+
     fam = tmp_path / "fam"
-    args = ["stars", "--box", 16, 12, 24, "--delta", 2, "--reserve", 3, 1.2, 3, "--select", "greedy", "--out", fam, "-q"]
+    args = ["stars", "--box", 16, 12, 24, "--delta", 2, "--mount", "flat", "--select", "greedy", "--out", fam, "-q"]
     assert run_cli(args) == 0
     doc = json.loads((fam / "family.json").read_text())
-    assert doc["spec"]["reserve_mm"] == [3.0, 1.2, 3.0]
+    assert doc["spec"]["mount"] == "flat"
+    assert doc["spec"]["reserve_mm"] == list(mount_reserve_mm("flat", 4.0))
     assert len(doc["stars"]) >= 3 and check_family(doc) == []
-    # every printed body, mount included, fits the limit: export refuses any that does not
-    code = run_cli(["export", fam / "family.json", "--mount", "flat", "--format", "stl", "--no-plate", "--out", tmp_path / "b"])
+    # every printed body, mount included, fits the limit: export (the family's mount by default)
+    # refuses any that does not
+    code = run_cli(["export", fam / "family.json", "--format", "stl", "--no-plate", "--out", tmp_path / "b"])
     assert code == 0
     assert len(list((tmp_path / "b").glob("star_*.stl"))) == len(doc["stars"])
+    # a manual reserve still overrides
+    args = ["stars", "--box", 16, 12, 24, "--delta", 2, "--reserve", 3, 1.2, 3, "--out", tmp_path / "m", "-q"]
+    assert run_cli(args) == 0
+    assert json.loads((tmp_path / "m" / "family.json").read_text())["spec"]["reserve_mm"] == [3.0, 1.2, 3.0]
 
 
 @pytest.mark.parametrize(
     "reserve,needle",
-    [((-1, 0, 0), "reserve_mm[0] must be >= 0"), ((9, 0, 0), "leaves no room"), ((3, 12, 0), "reorders the sides")],
+    [((-1, 0, 0), "reserve_mm[0] must be >= 0"), ((9, 0, 0), "leaves no room"), ((3, 12, 0), "out of order")],
 )
 def test_bad_reserve(tmp_path, capsys, reserve, needle):
     assert run_cli(["stars", "--box", 16, 12, 24, "--reserve", *reserve, "--out", tmp_path / "o"]) == 2

@@ -8,7 +8,9 @@ documented where the values are edited).  Every mount is a plate under the star 
 - ``flat``: screw holes through the plate, placed clear of the stems;
 - ``strap``: a slot at each side (x) for a Velcro strap of a given width that wraps around the
   limb, whose axis runs along the star's long side (z);
-- ``saddle``: a concave underside that sits on a cylinder (a finger segment) of a given diameter;
+- ``saddle``: a concave channel underneath that sits on a cylinder (a finger segment) of a given
+  diameter, between two flat rails that the body prints on (no region starts in mid-air: the
+  channel's roof is a short bridge between the rails);
 - ``adhesive``: a shallow recess underneath for a double-sided adhesive pad;
 - ``magnet``: a blind pocket from below for a disc magnet.
 """
@@ -29,7 +31,7 @@ COMMON = ("thickness_mm", "margin_mm")
 KINDS: dict[str, tuple[str, ...]] = {
     "flat": (*COMMON, "holes", "hole_mm", "hole_wall_mm"),
     "strap": (*COMMON, "strap_width_mm", "slot_mm", "wall_mm"),
-    "saddle": (*COMMON, "segment_mm"),
+    "saddle": (*COMMON, "segment_mm", "channel_mm", "land_mm"),
     "adhesive": (*COMMON, "pad_width_mm", "pad_length_mm", "recess_mm", "rim_mm"),
     "magnet": (*COMMON, "magnet_mm", "magnet_height_mm", "floor_mm", "wall_mm"),
 }
@@ -246,6 +248,8 @@ def mount_geometry(
         fp = _at_least(fp, d, d)
     if kind == "strap":
         fp = _at_least(fp, 0.0, p["strap_width_mm"] + 2 * p["wall_mm"])
+    if kind == "saddle":
+        fp = _at_least(fp, p["channel_mm"] + 2 * p["land_mm"], 0.0)
 
     label_centre = None
     if label_size_xz is not None:
@@ -278,18 +282,13 @@ def mount_geometry(
     xm, zm, w, ln = (x0 + x1) / 2, (z0 + z1) / 2, x1 - x0, z1 - z0
     y_bottom = y_top - t
     if kind == "saddle":
-        R = p["segment_mm"] / 2
-        half = w / 2
-        sag = R - math.sqrt(R * R - half * half) if half < R else R
+        sag, half_c = saddle_profile(p)
         y_bottom = y_top - t - sag
-        # axis at y_top - t - R: the plate is t thick above the segment's top line
+        # the channel: the segment's cylinder, its top line t below the plate's top face, cut
+        # only between the rails (its chord at the bottom face is channel_mm wide)
+        R = p["segment_mm"] / 2
         yc = y_top - t - R
         sub.append(Cylinder((xm, yc, z0 - 1.0), (xm, yc, z1 + 1.0), R))
-        require(
-            half < R * 0.999,
-            f"saddle: plate width {w:.2f} mm must be < segment_mm {2 * R:.2f} mm "
-            "(the base would wrap past the segment's widest point)",
-        )
     if kind == "adhesive":
         rd = p["recess_mm"]
         sub.append(Box((xm, y_bottom + rd / 2 - 0.5, zm), (p["pad_width_mm"], rd + 1.0, p["pad_length_mm"])))
@@ -299,6 +298,15 @@ def mount_geometry(
         sub.append(Cylinder((xm, y_bottom - 1.0, zm), (xm, y_bottom + h, zm), r))
     add.append(Box((xm, (y_top + y_bottom) / 2, zm), (w, y_top - y_bottom, ln)))
     return MountGeometry(tuple(add), tuple(sub), (x0, x1, z0, z1), y_bottom, label_centre)
+
+
+def saddle_profile(p) -> tuple[float, float]:
+    """(channel depth below the plate, channel half-width), mm: the segment's circle cut at the
+    chord ``channel_mm`` wide, so each rail keeps a flat land on the bed."""
+    R = p["segment_mm"] / 2
+    half = p["channel_mm"] / 2
+    require(half < R, f"saddle: channel_mm {p['channel_mm']:g} must be < segment_mm {p['segment_mm']:g}")
+    return R - math.sqrt(R * R - half * half), half
 
 
 def _at_least(fp, w_min: float, l_min: float):

@@ -58,6 +58,11 @@ def stars_cmd(
         help="mm kept free for a mount on the shortest, middle, longest side (flat: 3 1.2 1.2).",
     ),
     preset: str = typer.Option(None, "--preset", help="Apply a tracker preset's tolerances (art, ndi, ...)."),
+    mount: str = typer.Option(
+        None,
+        "--mount",
+        help="Design for this mount (see `starforge mounts`): reserve its room, check every body.",
+    ),
     name: str = typer.Option(None, "--name", help="Family name (default: the spec's name)."),
     out: Path = typer.Option(None, "--out", help="Output folder (default: out/<name>)."),
     force: bool = typer.Option(False, "--force", help="Overwrite existing outputs."),
@@ -108,10 +113,23 @@ def stars_cmd(
         "noise_mm": noise,
         "time_limit_s": time_limit,
         "reserve_mm": list(reserve) if reserve is not None else None,
+        "mount": mount,
         "name": name,
     }
     data.update({k: v for k, v in overrides.items() if v is not None})
     data.setdefault("name", spec_name)
+    star_filter = None
+    if data.get("mount") is not None:
+        from starforge.cad.mounts import load_mount
+        from starforge.cad.reserve import bodies_fit, mount_reserve_mm
+
+        m = load_mount(data["mount"])
+        if reserve is None:
+            data["reserve_mm"] = list(mount_reserve_mm(m, float(data.get("marker_mm", 4.0))))
+
+        def star_filter(V, _m=m, _d=data):
+            return bodies_fit(V, float(_d.get("marker_mm", 4.0)), _d["box_mm"], _m)
+
     s = spec_from_mapping(data)
     check_name(s.name, "--name")
     out_dir = out if out is not None else Path("out") / s.name
@@ -130,7 +148,9 @@ def stars_cmd(
         def tick(done, total):
             bar.update(task, completed=done, total=total)
 
-        family = make_family(s, progress=tick, avoid_faces_mm=avoid_faces, avoid_sources=avoid_sources)
+        family = make_family(
+            s, progress=tick, avoid_faces_mm=avoid_faces, avoid_sources=avoid_sources, star_filter=star_filter
+        )
     doc = family.to_json()
     problems = check_family(json.loads(json.dumps(doc)))
     if problems:  # the generator and the independent checker disagree: a bug, never a user error

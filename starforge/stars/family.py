@@ -149,57 +149,10 @@ def _spread_count(index: np.ndarray, order: np.ndarray, spec: StarSpec, pool_siz
     return best
 
 
-def make_family(
-    spec: StarSpec,
-    progress=None,
-    candidates: Candidates | None = None,
-    avoid_faces_mm: np.ndarray | None = None,
-    avoid_sources: list[dict] | None = None,
-    milp_work: int | None = None,
-) -> Family:
-    """Enumerate, select and place a family for ``spec``.
-
-    ``avoid_faces_mm`` (k, 3): triangles of bodies the lab already owns; no face of a new star
-    comes within the tolerance of one (``avoid_sources`` describes them for family.json).
-    ``milp_work``: the exact solver's deterministic work budget (nonzeros x nodes; default
-    :data:`starforge.stars.select.MILP_WORK`).
-
-    Raises StarforgeError when no star fits, or when ``spec.count`` exceeds what is achievable
-    (naming the largest family found and the certified bound).
-    """
-    from starforge.stars.select import MILP_WORK
-
-    work = MILP_WORK if milp_work is None else int(milp_work)
-    t0 = time.perf_counter()
-    cands = candidates if candidates is not None else enumerate_candidates(spec, progress=progress)
-    t_enum = time.perf_counter() - t0
+def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
+    """Select the family among ``index`` (see :func:`make_family`); returns (Selection, bound)."""
     m = spec.grid_steps
-    pool = cands.pool_mm
-    ok = internal_ok(cands.index, spec.rule, m) & avoid_mask(cands.index, pool, avoid_faces_mm, spec.tol_mm)
-    index = cands.index[ok]
-    volume = cands.box_volume[ok]
-    und = cands.undecided
-    und = (
-        und[internal_ok(und, spec.rule, m) & avoid_mask(und, pool, avoid_faces_mm, spec.tol_mm)]
-        if len(und)
-        else und
-    )
-    if len(index) == 0:
-        raise StarforgeError(
-            f"no star fits: box_mm {list(spec.box_mm)} with {spec.marker_mm:g} mm markers, delta_mm "
-            f"{spec.delta_mm:g}, tolerance {spec.tol_mm:g} mm and min_depth_mm {spec.depth_mm:g} admits no "
-            f"tetrahedron (try a smaller delta_mm, tolerance or min_depth_mm, or a larger box)"
-        )
-    # certified: every star that really fits is proven to fit here or undecided
-    bound_set = np.concatenate([index, und]) if len(und) else index
-    bound = block_bound(bound_set, m)
-    if spec.count is not None and spec.count > bound:
-        raise StarforgeError(
-            f"count {spec.count} is not achievable: no family of this spec can hold more than {bound} stars "
-            f"(certified upper bound)"
-        )
     star_of, row, n_rows = window_rows(index, spec.rule, m, len(pool))
-    t1 = time.perf_counter()
     if spec.count is not None:
         from starforge.stars.select import Selection, _csr
 
@@ -253,12 +206,84 @@ def make_family(
                 ub = int(b2)
                 sel.info["bound_from"] = "solver"
         sel.info["bound_solve_with_undecided"] = status
+    return sel, ub
+
+
+def make_family(
+    spec: StarSpec,
+    progress=None,
+    candidates: Candidates | None = None,
+    avoid_faces_mm: np.ndarray | None = None,
+    avoid_sources: list[dict] | None = None,
+    milp_work: int | None = None,
+    star_filter=None,
+) -> Family:
+    """Enumerate, select and place a family for ``spec``.
+
+    ``avoid_faces_mm`` (k, 3): triangles of bodies the lab already owns; no face of a new star
+    comes within the tolerance of one (``avoid_sources`` describes them for family.json).
+    ``milp_work``: the exact solver's deterministic work budget (nonzeros x nodes; default
+    :data:`starforge.stars.select.MILP_WORK`).  ``star_filter(vertices (n, 4, 3)) -> (n,) bool``
+    keeps only stars it accepts (e.g. whose printed body with its mount fits the limit): the
+    ones it rejects are replaced by selecting again without them.
+
+    Raises StarforgeError when no star fits, or when ``spec.count`` exceeds what is achievable
+    (naming the largest family found and the certified bound).
+    """
+    from starforge.stars.select import MILP_WORK
+
+    work = MILP_WORK if milp_work is None else int(milp_work)
+    t0 = time.perf_counter()
+    cands = candidates if candidates is not None else enumerate_candidates(spec, progress=progress)
+    t_enum = time.perf_counter() - t0
+    m = spec.grid_steps
+    pool = cands.pool_mm
+    ok = internal_ok(cands.index, spec.rule, m) & avoid_mask(cands.index, pool, avoid_faces_mm, spec.tol_mm)
+    index = cands.index[ok]
+    volume = cands.box_volume[ok]
+    und = cands.undecided
+    und = (
+        und[internal_ok(und, spec.rule, m) & avoid_mask(und, pool, avoid_faces_mm, spec.tol_mm)]
+        if len(und)
+        else und
+    )
+    if len(index) == 0:
+        raise StarforgeError(
+            f"no star fits: box_mm {list(spec.box_mm)} with {spec.marker_mm:g} mm markers, delta_mm "
+            f"{spec.delta_mm:g}, tolerance {spec.tol_mm:g} mm and min_depth_mm {spec.depth_mm:g} admits no "
+            f"tetrahedron (try a smaller delta_mm, tolerance or min_depth_mm, or a larger box)"
+        )
+    # certified: every star that really fits is proven to fit here or undecided
+    bound_set = np.concatenate([index, und]) if len(und) else index
+    bound = block_bound(bound_set, m)
+    if spec.count is not None and spec.count > bound:
+        raise StarforgeError(
+            f"count {spec.count} is not achievable: no family of this spec can hold more than {bound} stars "
+            f"(certified upper bound)"
+        )
+    t1 = time.perf_counter()
+    excluded = np.zeros(len(index), dtype=bool)
+    rounds = 0
+    while True:
+        keep = np.flatnonzero(~excluded)
+        sel, ub = _choose(index[keep], volume[keep], und, bound, spec, pool, work)
+        chosen = keep[np.sort(sel.chosen)]
+        L = pool[index[chosen]]
+        placed = place_stars(vertices_from_lengths(L), spec.centre_limit_mm, spec.box_method)
+        if star_filter is None:
+            break
+        ok = np.asarray(star_filter(np.array([item[0] for item in placed])), dtype=bool)
+        rounds += 1
+        if ok.all() or rounds >= 6:
+            if not ok.all():  # still misfits after the rounds: leave them out
+                chosen, placed = chosen[ok], [x for x, k in zip(placed, ok, strict=True) if k]
+                L = pool[index[chosen]]
+            break
+        excluded[chosen[~ok]] = True
+    sel.info["filtered_out"] = int(excluded.sum())
+    if excluded.any():  # the solver's bound was over a reduced set: keep the block bound only
+        ub = bound
     t_sel = time.perf_counter() - t1
-    chosen = np.sort(sel.chosen)
-    L = pool[index[chosen]]
-    P = vertices_from_lengths(L)
-    limit = spec.centre_limit_mm
-    placed = place_stars(P, limit, spec.box_method)
     for i, item in enumerate(placed):
         if not item[4]:  # cannot happen for enumerated candidates; guard the invariant loudly
             raise RuntimeError(f"internal error: selected star {L[i].tolist()} does not fit")
@@ -288,7 +313,7 @@ def make_family(
             )
         )
     info = dict(sel.info)
-    info["proven_optimal"] = bool(spec.count is None and len(sel.chosen) >= ub)
+    info["proven_optimal"] = bool(spec.count is None and len(chosen) >= ub)
     timings = {k: info.pop(k) for k in list(info) if k.endswith("_s") and k != "time_limit_s"}
     enum_stats = {k: v for k, v in cands.stats.items() if k != "seconds"}
     timings.update(
@@ -304,7 +329,7 @@ def make_family(
         "candidates": int(len(index)),
         "undecided": int(len(und)),
         "enumeration": enum_stats,
-        "best_found": int(len(sel.chosen)) if spec.count is None else None,
+        "best_found": int(len(chosen)) if spec.count is None else None,
         "upper_bound": ub,
         "upper_bound_basis": (
             "face-block count over every star that fits or is undecided (a superset of all fitting stars)"

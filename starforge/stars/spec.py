@@ -57,9 +57,11 @@ class StarSpec:
         Wall-clock safety limit for the exact solver; its deterministic work budget decides.
     reserve_mm : (3,) float
         Millimetres of the size limit kept free for a mount, along its shortest, middle and
-        longest side.  Printed bodies stack their mount on the star's shortest side and the
-        plate overhangs the spheres a little; for the default flat mount (1 mm standoff, 2 mm
-        plate, margins) ``(3, 1.2, 1.2)`` leaves room so every body fits the limit too.
+        longest side (a manual override; ``mount`` computes it).
+    mount : str or None
+        The mount the family is printed with (``starforge mounts``): its room is reserved from
+        its geometry (:func:`starforge.cad.reserve.mount_reserve_mm`) and every star's printed
+        body is checked against the limit, so ``export`` with this mount never refuses.
     name : str
         Family name; the default output folder is ``out/<name>``.
     description : str
@@ -82,6 +84,7 @@ class StarSpec:
     noise_mm: float = 0.2
     time_limit_s: float = 60.0
     reserve_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mount: str | None = None
     name: str = "custom"
     description: str = ""
 
@@ -126,13 +129,15 @@ class StarSpec:
         lim = [x - self.marker_mm - r for x, r in zip(sorted(self.box_mm), self.reserve_mm, strict=True)]
         require(
             lim[0] > 0,
-            f"reserve_mm[0] {self.reserve_mm[0]} leaves no room on the shortest side "
+            f"{'mount ' + self.mount + ' needs ' if self.mount else 'reserve_mm[0] '}{self.reserve_mm[0]} mm, which leaves no room on the shortest side "
             f"({small:g} mm less one {self.marker_mm:g} mm sphere)",
         )
+        why = f"mount {self.mount} needs" if self.mount else "reserve_mm"
         require(
             lim[0] <= lim[1] <= lim[2],
-            f"reserve_mm {list(self.reserve_mm)} reorders the sides of box_mm {list(self.box_mm)}: "
-            f"keep the reserved box's shortest, middle and longest sides in order",
+            f"{why} {list(self.reserve_mm)} mm of the sorted sides of box_mm {list(self.box_mm)}, leaving "
+            f"{[round(x, 3) for x in lim]} mm for the sphere centres out of order: the body no longer lies flat "
+            f"in this limit (choose another mount or a larger box)",
         )
         if self.l_min_mm is not None:
             positive("l_min_mm", self.l_min_mm)
