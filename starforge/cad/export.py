@@ -1,19 +1,24 @@
-"""Family -> printable files: one STEP / STL / 3MF per star, a print plate, a manifest.
+"""Family -> printable files: one STEP / STL / 3MF per star, print plates, a manifest.
 
 Writes into a folder the caller stages (:func:`starforge.io.staged_output`), so a failure
-leaves nothing half-written.  Files (``<name>`` = ``star_<id>``, id zero-padded to 3)::
+leaves nothing half-written.  Every file is ready as written: each body lies in its printing
+orientation (plate down on Z = 0, the body's up along +Z, centred on the Z axis;
+:func:`starforge.cad.plate.print_transform`), and ``bodies.json`` records, per body, the
+transform from that orientation back to family.json's placement frame.  Files (``<name>`` =
+``star_<id>``, id zero-padded to 3)::
 
-    <name>.step   one solid named <name> (build123d / OpenCascade)
+    <name>.step   one solid named <name>, coloured (build123d / OpenCascade)
     <name>.stl    one watertight shell (manifold3d), binary STL, mm
-    <name>.3mf    the same mesh, one named object, mm
-    plate.stl, plate.3mf   every selected body on one bed (bodies standing on their mounts)
-    bodies.json   per star: size, fit against the family limit, visibility, volumes, files
-    preview/<name>.png, preview/sheet.png   with ``preview=True``
+    <name>.3mf    the same mesh, one named, coloured object, with a thumbnail, mm
+    plate.step / .stl / .3mf   every selected body on one bed (an assembly of named, coloured
+                  solids in the STEP); plate_1, plate_2, ... when one bed cannot hold them
+    bodies.json   per star: size, fit against the family limit, visibility, volumes, transforms
+    preview/<name>.png, preview/sheet.png   with ``preview=True`` (one scale throughout)
 
 Fit policy: every body (finished spheres included) is compared with the family's size limit
 before any CAD work; one that does not fit stops the export (StarforgeError naming the worst
 body and by how much) unless ``allow_oversize``, which exports anyway and records the excess
-in bodies.json: a lab can then decide to print a star that sticks out a millimetre.
+in bodies.json.  A family made with ``starforge stars --mount NAME`` never needs it.
 """
 
 from __future__ import annotations
@@ -91,11 +96,30 @@ def check_fit(bodies, limit_mm, mount_name: str, allow_oversize: bool) -> list:
     return reports
 
 
-def expected_files(bodies, formats, plate: bool = True, preview: bool = False) -> list[str]:
+def plate_names(n_beds: int) -> list[str]:
+    """``["plate"]`` for one bed, ``["plate_1", "plate_2", ...]`` for several."""
+    return ["plate"] if n_beds == 1 else [f"plate_{k + 1}" for k in range(n_beds)]
+
+
+def print_layout(bodies, bed_mm, gap_mm):
+    """(print transforms (one per body), bed layouts) from the bodies' geometry (no CAD kernel)."""
+    from starforge.cad.plate import layout_plates, print_transform
+
+    transforms = [print_transform(body_bounds(b, finished=True)) for b in bodies]
+    bounds = []
+    for b, T in zip(bodies, transforms, strict=True):
+        bb = body_bounds(b, finished=True)
+        corners = np.array([[bb[i, 0], bb[j, 1], bb[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+        q = corners @ T[:3, :3].T + T[:3, 3]
+        bounds.append([q.min(axis=0), q.max(axis=0)])
+    return transforms, layout_plates(bounds, bed_mm, gap_mm)
+
+
+def expected_files(bodies, formats, plate: bool = True, preview: bool = False, n_beds: int = 1) -> list[str]:
     """The file names :func:`export_family` writes (to refuse overwrites before the work)."""
     names = [f"{b.name}.{f}" for b in bodies for f in formats]
     if plate:
-        names += [f"plate.{f}" for f in ("stl", "3mf") if f in formats]
+        names += [f"{p}.{f}" for p in plate_names(n_beds) for f in formats]
     if preview:
         names += [f"preview/{b.name}.png" for b in bodies] + ["preview/sheet.png"]
     return names + ["bodies.json"]
@@ -123,9 +147,11 @@ def export_family(
     them (they are described here otherwise).
     """
     from starforge.cad.mesh import body_mesh
-    from starforge.cad.plate import layout_plate, plate_mesh
+    from starforge.cad.plate import plate_mesh
     from starforge.cad.threemf import threemf_bytes
     from starforge.cad.visibility import sphere_visibility
+    from starforge.colours import body_colour
+    from starforge.render.bodies import thumbnail_png
 
     formats = tuple(formats)
     bad = [f for f in formats if f not in CAD_FORMATS]
@@ -137,14 +163,17 @@ def export_family(
     if bodies is None:
         bodies = family_bodies(family, ids, mount, spec)
     fits = check_fit(bodies, family.spec.box_mm, mount.name, allow_oversize)
-    layout = layout_plate([body_bounds(b, finished=True) for b in bodies], bed_mm, gap_mm) if plate else None
+    to_print, beds = print_layout(bodies, bed_mm, gap_mm)
     rep.timings["describe_s"] = time.perf_counter() - t0
-    meshes = []
+    meshes, solids = [], []
+    coarse_meshes: dict = {}
     t_mesh = t_step = 0.0
-    for k, (b, fit) in enumerate(zip(bodies, fits, strict=True)):
+    for k, (b, fit, T) in enumerate(zip(bodies, fits, to_print, strict=True)):
         t1 = time.perf_counter()
         mesh = body_mesh(b, spec.sphere_segments, spec.cylinder_segments)
+        mesh.apply_transform(T)  # printing orientation: plate down on Z = 0
         meshes.append(mesh)
+        colour = body_colour(b.star_id - 1)
         entry = {
             "id": b.star_id,
             "name": b.name,
@@ -155,6 +184,10 @@ def export_family(
             "centres_mm": [list(c) for c in b.centres],
             "stem_roots_mm": [list(s.p0) for s in b.stems],
             "label": b.label,
+            "colour_rgb": list(colour),
+            "print_height_mm": round(float(mesh.bounds[1, 2]), 6),
+            "placement_to_print": np.round(T, 9).tolist(),
+            "print_to_placement": np.round(np.linalg.inv(T), 9).tolist(),
             "mesh_volume_mm3": round(float(mesh.volume), 6),
             "files": [],
         }
@@ -171,14 +204,19 @@ def export_family(
             (stage / f"{b.name}.stl").write_bytes(mesh.export(file_type="stl"))
             entry["files"].append(f"{b.name}.stl")
         if "3mf" in formats:
-            (stage / f"{b.name}.3mf").write_bytes(threemf_bytes([mesh], [b.name]))
+            coarse = body_mesh(b, 16, 12)
+            coarse.apply_transform(T)
+            coarse_meshes[k] = coarse
+            thumb = thumbnail_png(coarse.vertices, coarse.faces)
+            (stage / f"{b.name}.3mf").write_bytes(threemf_bytes([mesh], [b.name], thumb, [colour]))
             entry["files"].append(f"{b.name}.3mf")
         t_mesh += time.perf_counter() - t1
         if "step" in formats:
-            from starforge.cad.occ import body_solid, write_step
+            from starforge.cad.occ import body_solid, placed, write_step
 
             t2 = time.perf_counter()
-            solid = body_solid(b)
+            solid = placed(body_solid(b), T, b.name, colour)
+            solids.append(solid)
             write_step(solid, stage / f"{b.name}.step")
             entry["step_volume_mm3"] = round(float(solid.volume), 6)
             entry["files"].append(f"{b.name}.step")
@@ -188,26 +226,48 @@ def export_family(
             progress(k + 1, len(bodies))
     rep.timings["mesh_s"] = t_mesh
     rep.timings["step_s"] = t_step
-    plate_doc = None
-    plate_formats = [f for f in ("stl", "3mf") if f in formats]
-    if layout is not None and plate_formats:
+    plate_docs = []
+    if plate:
         t3 = time.perf_counter()
-        if "stl" in plate_formats:
-            (stage / "plate.stl").write_bytes(plate_mesh(meshes, layout).export(file_type="stl"))
-        if "3mf" in plate_formats:
-            moved = []
-            for m, T in zip(meshes, layout.transforms, strict=True):
-                c = m.copy()
-                c.apply_transform(T)
-                moved.append(c)
-            (stage / "plate.3mf").write_bytes(threemf_bytes(moved, [b.name for b in bodies]))
-        plate_doc = {
-            "bed_mm": list(layout.bed_mm),
-            "gap_mm": layout.gap_mm,
-            "footprints_mm": np.round(layout.footprints, 6).tolist(),
-            "transforms": [np.round(T, 9).tolist() for T in layout.transforms],
-            "files": [f"plate.{f}" for f in plate_formats],
-        }
+        for name, lay in zip(plate_names(len(beds)), beds, strict=True):
+            files = []
+            if "stl" in formats:
+                (stage / f"{name}.stl").write_bytes(plate_mesh(meshes, lay).export(file_type="stl"))
+                files.append(f"{name}.stl")
+            if "3mf" in formats:
+                moved = []
+                for i, T in zip(lay.members, lay.transforms, strict=True):
+                    c = meshes[i].copy()
+                    c.apply_transform(T)
+                    moved.append(c)
+                whole = plate_mesh(coarse_meshes, lay)
+                (stage / f"{name}.3mf").write_bytes(
+                    threemf_bytes(
+                        moved,
+                        [bodies[i].name for i in lay.members],
+                        thumbnail_png(whole.vertices, whole.faces),
+                        [body_colour(bodies[i].star_id - 1) for i in lay.members],
+                    )
+                )
+                files.append(f"{name}.3mf")
+            if "step" in formats:
+                from starforge.cad.occ import assembly, write_step
+
+                write_step(
+                    assembly([solids[i] for i in lay.members], lay.transforms, name), stage / f"{name}.step"
+                )
+                files.append(f"{name}.step")
+            plate_docs.append(
+                {
+                    "name": name,
+                    "bed_mm": list(lay.bed_mm),
+                    "gap_mm": lay.gap_mm,
+                    "bodies": [bodies[i].name for i in lay.members],
+                    "footprints_mm": np.round(lay.footprints, 6).tolist(),
+                    "print_to_bed": [np.round(T, 9).tolist() for T in lay.transforms],
+                    "files": files,
+                }
+            )
         rep.timings["plate_s"] = time.perf_counter() - t3
     if preview:
         from starforge.render.bodies import render_body_png, render_sheet_png
@@ -220,7 +280,7 @@ def export_family(
         rep.timings["preview_s"] = time.perf_counter() - t4
     doc = {
         "format": "starforge.bodies",
-        "version": 1,
+        "version": 2,
         "units": "mm",
         "family": {
             "name": family.spec.name,
@@ -229,9 +289,12 @@ def export_family(
         },
         "mount": {"name": mount.name, "kind": mount.kind, "params": mount.params},
         "body_spec": to_mapping(spec),
-        "frame": "placement frame of family.json; +y up (mount below), sphere centres unchanged",
+        "frame": (
+            "files: printing orientation (plate down on Z = 0, the body's up along +Z); per body, "
+            "print_to_placement maps them back to family.json's placement frame (+y up, centres unchanged)"
+        ),
         "bodies": rep.bodies,
-        "plate": plate_doc,
+        "plates": plate_docs,
         "warnings": rep.warnings,
     }
     atomic_write_json(stage / "bodies.json", doc)

@@ -18,19 +18,30 @@ _CONTENT_TYPES = (
     '<Types xmlns="http://schemas.openxmlformats.org/package/2006/content-types">'
     '<Default Extension="rels" ContentType="application/vnd.openxmlformats-package.relationships+xml"/>'
     '<Default Extension="model" ContentType="application/vnd.ms-package.3dmanufacturing-3dmodel+xml"/>'
+    '<Default Extension="png" ContentType="image/png"/>'
     "</Types>\n"
 )
-_RELS = (
-    '<?xml version="1.0" encoding="UTF-8"?>\n'
-    '<Relationships xmlns="http://schemas.openxmlformats.org/package/2006/relationships">'
-    '<Relationship Target="/3D/3dmodel.model" Id="rel0" '
-    'Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/>'
-    "</Relationships>\n"
+_THUMB_REL = (
+    '<Relationship Target="/Metadata/thumbnail.png" Id="rel1" '
+    'Type="http://schemas.openxmlformats.org/package/2006/relationships/metadata/thumbnail"/>'
 )
 
 
-def threemf_bytes(meshes, names) -> bytes:
-    """A 3MF package holding ``meshes`` (trimesh.Trimesh, mm), one object each, named ``names``."""
+def _rels(thumbnail: bool) -> str:
+    return (
+        '<?xml version="1.0" encoding="UTF-8"?>\n'
+        '<Relationships xmlns="http://schemas.openxmlformats.org/package/2006/relationships">'
+        '<Relationship Target="/3D/3dmodel.model" Id="rel0" '
+        'Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/>'
+        + (_THUMB_REL if thumbnail else "")
+        + "</Relationships>\n"
+    )
+
+
+def threemf_bytes(meshes, names, thumbnail_png: bytes | None = None, colours=None) -> bytes:
+    """A 3MF package holding ``meshes`` (trimesh.Trimesh, mm), one object each, named ``names``,
+    with an optional package thumbnail (PNG bytes) and per-object colours ((r, g, b) 0..255,
+    the 3MF core ``basematerials``)."""
     out = io.StringIO()
     out.write('<?xml version="1.0" encoding="UTF-8"?>\n')
     out.write(
@@ -38,8 +49,19 @@ def threemf_bytes(meshes, names) -> bytes:
         'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02">\n'
         '<metadata name="Application">starforge</metadata>\n<resources>\n'
     )
+    base = len(meshes) + 1
+    if colours is not None:
+        out.write(f'<basematerials id="{base}">')
+        out.write(
+            "".join(
+                f'<base name="c{i}" displaycolor="#{r:02X}{g:02X}{b:02X}"/>'
+                for i, (r, g, b) in enumerate(colours)
+            )
+        )
+        out.write("</basematerials>\n")
     for k, (m, name) in enumerate(zip(meshes, names, strict=True), start=1):
-        out.write(f'<object id="{k}" type="model" name={quoteattr(str(name))}><mesh><vertices>\n')
+        mat = f' pid="{base}" pindex="{k - 1}"' if colours is not None else ""
+        out.write(f'<object id="{k}" type="model" name={quoteattr(str(name))}{mat}><mesh><vertices>\n')
         v = np.asarray(m.vertices, dtype=float)
         # one %-format over the whole array: ~10x faster than a Python loop over rows
         out.write(('<vertex x="%.5f" y="%.5f" z="%.5f"/>\n' * len(v)) % tuple(v.ravel().tolist()))
@@ -52,12 +74,15 @@ def threemf_bytes(meshes, names) -> bytes:
     out.write("</build>\n</model>\n")
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as z:
-        for arc, text in (
-            ("[Content_Types].xml", _CONTENT_TYPES),
-            ("_rels/.rels", _RELS),
-            ("3D/3dmodel.model", out.getvalue()),
-        ):
+        parts = [
+            ("[Content_Types].xml", _CONTENT_TYPES.encode("utf-8")),
+            ("_rels/.rels", _rels(thumbnail_png is not None).encode("utf-8")),
+            ("3D/3dmodel.model", out.getvalue().encode("utf-8")),
+        ]
+        if thumbnail_png is not None:
+            parts.append(("Metadata/thumbnail.png", thumbnail_png))
+        for arc, data in parts:
             info = zipfile.ZipInfo(arc, date_time=(2000, 1, 1, 0, 0, 0))
             info.compress_type = zipfile.ZIP_DEFLATED
-            z.writestr(info, text.encode("utf-8"), compresslevel=1)
+            z.writestr(info, data, compresslevel=1)
     return buf.getvalue()

@@ -94,7 +94,7 @@ def describe_bodies(family, mount, sets, ids, allow_oversize, **body_options):
     from starforge.cad.export import check_fit, family_bodies, parse_ids
     from starforge.cad.mounts import load_mount
 
-    m = load_mount(mount, parse_sets(sets))
+    m = load_mount(mount or family.spec.mount or "flat", parse_sets(sets))
     spec = body_spec_from_options(**body_options)
     id_list = parse_ids(ids)
     bodies = family_bodies(family, id_list, m, spec)
@@ -109,16 +109,30 @@ def default_out(file: Path, cad: bool) -> Path:
 
 
 # options shared with `starforge preview`
-MOUNT = typer.Option("flat", "--mount", help="Mount template name (see `starforge mounts`) or a TOML path.")
+MOUNT = typer.Option(
+    None,
+    "--mount",
+    help="Mount template name (see `starforge mounts`) or a TOML path (default: the family's, else flat).",
+)
 IDS = typer.Option(None, "--ids", help="Star ids, e.g. 1,2,5 or 1-4 (default: all).")
 SETS = typer.Option(
     None, "--set", help="Mount parameter override KEY=VALUE (repeatable), e.g. --set holes=2."
 )
-TIP = typer.Option(None, "--tip", help="sphere (printed, default) or post (pin/stud for commercial markers).")
+TIP = typer.Option(
+    None, "--tip", help="sphere (printed, default), post, glue, screw or insert (a seat for a bought marker)."
+)
+MARKER = typer.Option(
+    None,
+    "--marker",
+    help="A bought marker from the catalogue (see `starforge templates markers`) or a TOML file.",
+)
+NOZZLE = typer.Option(
+    None, "--nozzle-mm", help="Printer nozzle, mm: engraved strokes are 1.5 x wider (default 0.4)."
+)
 COATING = typer.Option(
     None, "--coating-mm", help="Coating allowance on the diameter (default 0.2: 3.8 printed, 4 finished)."
 )
-STEM = typer.Option(None, "--stem-mm", help="Stem diameter, mm (default 1.2).")
+STEM = typer.Option(None, "--stem-mm", help="Stem diameter, mm (default: 0.45 x the marker, at least 0.8).")
 MIN_STEM = typer.Option(None, "--min-stem-mm", help="Printable minimum stem diameter, mm (default 0.8).")
 POST = typer.Option(None, "--post-mm", help="Post diameter for --tip post, mm (default 1.5).")
 NO_LABEL = typer.Option(False, "--no-label", help="Do not engrave the star id.")
@@ -140,6 +154,8 @@ def export_cmd(
     ids: str = IDS,
     sets: list[str] = SETS,
     tip: str = TIP,
+    marker: str = MARKER,
+    nozzle_mm: float = NOZZLE,
     coating_mm: float = COATING,
     stem_mm: float = STEM,
     min_stem_mm: float = MIN_STEM,
@@ -183,7 +199,7 @@ def export_cmd(
                 f"CAD formats ({', '.join(cad)}) need a family.json; {src} is {data.get('format')!r}"
             )
         family = load_family(src)
-        from starforge.cad.export import expected_files, export_family
+        from starforge.cad.export import expected_files, export_family, print_layout
         from starforge.io import check_writable
 
         bed_mm = parse_bed(bed)
@@ -195,13 +211,16 @@ def export_cmd(
             ids,
             allow_oversize,
             tip=tip,
+            marker=marker,
+            nozzle_mm=nozzle_mm,
             coating_mm=coating_mm,
             stem_mm=stem_mm,
             min_stem_mm=min_stem_mm,
             post_mm=post_mm,
             label=False if no_label else None,
         )
-        check_writable(out, expected_files(bodies, cad, not no_plate, preview), force)
+        _, beds = print_layout(bodies, bed_mm, gap)
+        check_writable(out, expected_files(bodies, cad, not no_plate, preview, len(beds)), force)
     elif ids or sets or preview:
         raise StarforgeError("--ids, --set and --preview apply to CAD formats (step, stl, 3mf)")
     if trk:

@@ -7,7 +7,19 @@ from pathlib import Path
 import typer
 
 from starforge.cli._app import app, console, progress
-from starforge.cli.export import COATING, IDS, MIN_STEM, MOUNT, NO_LABEL, POST, SETS, STEM, TIP
+from starforge.cli.export import (
+    COATING,
+    IDS,
+    MARKER,
+    MIN_STEM,
+    MOUNT,
+    NO_LABEL,
+    NOZZLE,
+    POST,
+    SETS,
+    STEM,
+    TIP,
+)
 
 _FILE = typer.Argument(..., help="family.json (or its folder).")
 _OUT = typer.Option(
@@ -22,6 +34,8 @@ def preview_cmd(
     ids: str = IDS,
     sets: list[str] = SETS,
     tip: str = TIP,
+    marker: str = MARKER,
+    nozzle_mm: float = NOZZLE,
     coating_mm: float = COATING,
     stem_mm: float = STEM,
     min_stem_mm: float = MIN_STEM,
@@ -48,6 +62,8 @@ def preview_cmd(
         ids,
         allow_oversize,
         tip=tip,
+        marker=marker,
+        nozzle_mm=nozzle_mm,
         coating_mm=coating_mm,
         stem_mm=stem_mm,
         min_stem_mm=min_stem_mm,

@@ -27,7 +27,8 @@ def _view_triangles(body, segments: int = 20, edge_mm: float = 0.8) -> np.ndarra
     return (v @ TO_BED.T)[f]
 
 
-def _draw(ax, tris: np.ndarray, title: str) -> None:
+def _draw(ax, tris: np.ndarray, title: str, half: float | None = None) -> None:
+    """Shaded triangles; ``half`` is the half-size of the view cube, mm (one scale for a sheet)."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
@@ -38,7 +39,8 @@ def _draw(ax, tris: np.ndarray, title: str) -> None:
     colors = np.column_stack([0.55 * shade, 0.62 * shade, 0.75 * shade, np.ones_like(shade)])
     ax.add_collection3d(Poly3DCollection(tris, facecolors=colors, edgecolors="none"))
     lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
-    mid, half = (lo + hi) / 2, (hi - lo).max() / 2
+    mid = (lo + hi) / 2
+    half = (hi - lo).max() / 2 if half is None else half
     ax.set_xlim(mid[0] - half, mid[0] + half)
     ax.set_ylim(mid[1] - half, mid[1] + half)
     ax.set_zlim(mid[2] - half, mid[2] + half)
@@ -50,37 +52,77 @@ def _draw(ax, tris: np.ndarray, title: str) -> None:
 
 def render_body_png(body, path: str | Path, size_px: int = 480) -> Path:
     """One body, three-quarter view, title ``star <id> (<mount>)``; written to ``path``."""
-    import matplotlib
+    from starforge.render._mpl import pyplot, save_png
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig = plt.figure(figsize=(size_px / _DPI, size_px / _DPI), dpi=_DPI)
     try:
         ax = fig.add_subplot(projection="3d")
         _draw(ax, _view_triangles(body), f"star {body.star_id} ({body.mount})")
-        fig.savefig(path, dpi=_DPI)
+        save_png(fig, path, dpi=_DPI)
     finally:
         plt.close(fig)
     return Path(path)
 
 
 def render_sheet_png(bodies, path: str | Path, cell_px: int = 240) -> Path:
-    """All bodies on one sheet, a grid of three-quarter views titled with their ids."""
-    import matplotlib
+    """All bodies on one sheet at one scale (the largest body fills its cell), titled with ids."""
+    from starforge.render._mpl import pyplot, save_png
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     n = len(bodies)
     cols = min(n, 6)
     rows = math.ceil(n / cols)
+    tris = [_view_triangles(b, segments=12, edge_mm=1.5) for b in bodies]
+    half = max(float((t.reshape(-1, 3).max(0) - t.reshape(-1, 3).min(0)).max()) for t in tris) / 2
     fig = plt.figure(figsize=(cols * cell_px / _DPI, rows * cell_px / _DPI), dpi=_DPI)
     try:
-        for k, b in enumerate(bodies):
+        for k, (b, t) in enumerate(zip(bodies, tris, strict=True)):
             ax = fig.add_subplot(rows, cols, k + 1, projection="3d")
-            _draw(ax, _view_triangles(b, segments=12, edge_mm=1.5), f"star {b.star_id}")
-        fig.savefig(path, dpi=_DPI)
+            _draw(ax, t, f"star {b.star_id}", half=half)
+        fig.text(0.01, 0.01, f"one scale: each cell spans {2 * half:.1f} mm", fontsize=7)
+        save_png(fig, path, dpi=_DPI)
     finally:
         plt.close(fig)
     return Path(path)
+
+
+def thumbnail_png(vertices: np.ndarray, faces: np.ndarray, size_px: int = 256) -> bytes:
+    """A small shaded three-quarter picture of a mesh as it lies on the bed (Z up), PNG bytes
+    (the 3MF thumbnail).  Flat 2-D polygons painted back to front: fast, and enough for an icon."""
+    import io
+
+    from matplotlib.collections import PolyCollection
+
+    from starforge.render._mpl import pyplot
+
+    plt = pyplot()
+    v = np.asarray(vertices, dtype=float)
+    f = np.asarray(faces)
+    az, el = np.radians(-60.0), np.radians(35.0)
+    Rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
+    Rx = np.array([[1, 0, 0], [0, np.cos(el), -np.sin(el)], [0, np.sin(el), np.cos(el)]])
+    q = v @ (Rx @ Rz).T  # view frame: x right, z up on screen, y into the screen
+    tris = q[f]
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    front = n[:, 1] < 0
+    tris, n = tris[front], n[front]
+    order = np.argsort(-tris[:, :, 1].mean(axis=1))  # far first
+    shade = 0.35 + 0.65 * np.clip(n[order] @ np.array([0.3, -0.8, 0.5]), 0, 1)
+    colours = np.column_stack([0.55 * shade, 0.62 * shade, 0.75 * shade, np.ones_like(shade)])
+    fig = plt.figure(figsize=(size_px / _DPI, size_px / _DPI), dpi=_DPI)
+    try:
+        ax = fig.add_axes((0, 0, 1, 1))
+        ax.add_collection(PolyCollection(tris[order][:, :, [0, 2]], facecolors=colours, edgecolors="none"))
+        lo, hi = q[:, [0, 2]].min(axis=0), q[:, [0, 2]].max(axis=0)
+        mid, half = (lo + hi) / 2, (hi - lo).max() / 2 * 1.05
+        ax.set_xlim(mid[0] - half, mid[0] + half)
+        ax.set_ylim(mid[1] - half, mid[1] + half)
+        ax.set_aspect("equal")
+        ax.set_axis_off()
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=_DPI, metadata={"Software": None})
+    finally:
+        plt.close(fig)
+    return buf.getvalue()

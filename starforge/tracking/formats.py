@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from starforge.colours import body_colour
 from starforge.errors import StarforgeError
 
 TRACKER_FORMATS = ("qtm", "vsk", "atracsys", "csv")
@@ -50,15 +51,6 @@ def _f(x: float) -> str:
 def _xml_bytes(root: ET.Element) -> bytes:
     ET.indent(root, space="  ")
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True) + b"\n"
-
-
-def _colour(k: int) -> tuple[int, int, int]:
-    """A distinct colour per body: hues spread by the golden angle, full saturation."""
-    import colorsys
-
-    h = (k * 0.618033988749895) % 1.0
-    r, g, b = colorsys.hsv_to_rgb(h, 0.85, 0.95)
-    return int(round(255 * r)), int(round(255 * g)), int(round(255 * b))
 
 
 def qtm_tolerances(tolerance_mm: float | None) -> tuple[float, float]:
@@ -86,7 +78,7 @@ def qtm_xml(
         b = ET.SubElement(the6d, "Body")
         ET.SubElement(b, "Name").text = name
         ET.SubElement(b, "Enabled").text = "true"
-        r, g, bl = _colour(first_colour + k)
+        r, g, bl = body_colour(first_colour + k)
         ET.SubElement(b, "Color", R=str(r), G=str(g), B=str(bl))
         ET.SubElement(b, "MaximumResidual").text = _f(max_residual_mm)
         ET.SubElement(b, "MinimumMarkersInBody").text = str(int(min_markers))
@@ -221,7 +213,7 @@ def write_bodies(bodyset, formats, out_dir: Path, id_start: int = 1) -> dict:
             if fmt == "qtm":
                 atomic_write_bytes(path, qtm_xml([(b.name, b.points_mm)], bone, resid, first_colour=k))
             elif fmt == "vsk":
-                atomic_write_bytes(path, vsk_xml(b.name, b.points_mm, radius, _colour(k)))
+                atomic_write_bytes(path, vsk_xml(b.name, b.points_mm, radius, body_colour(k)))
             elif fmt == "atracsys":
                 atomic_write_text(path, atracsys_ini(ids[b.name], b.points_mm))
             else:
