@@ -121,11 +121,11 @@ def test_every_mount_builds_in_both_backends(family, mount_name, which):
         assert np.linalg.norm(occ - c, axis=1).min() < 0.01
 
 
-def test_saddle_narrower_than_the_body_is_refused(family):
+def test_saddle_channel_wider_than_the_segment_is_refused(family):
     from starforge.errors import StarforgeError
 
     s = family.stars[2]
-    with pytest.raises(StarforgeError, match="saddle: plate width .* must be < segment_mm"):
+    with pytest.raises(StarforgeError, match="channel_mm 12 must be < segment_mm 10"):
         build_body(s.id, s.vertices, 4.0, load_mount("saddle", {"segment_mm": 10}), BodySpec())
 
 
@@ -204,11 +204,11 @@ def test_volume_matches_closed_form_for_a_simple_body():
     from starforge.cad.primitives import Box
 
     c = np.array([[0, 0, 0], [20, 3, 0], [0, 1, 25], [20, 5, 25]], float)
-    spec = BodySpec(label=False)
+    spec = BodySpec(label=False, fillet_mm=0.0)
     b = build_body(9, c, 4.0, load_mount("flat", {"holes": 0}), spec)
     plate = [p for p in b.add if isinstance(p, Box)][0]
     y_top = plate.bounds()[1, 1]
-    R, a = (4.0 - spec.coating_mm) / 2, spec.stem_mm / 2
+    R, a = (4.0 - spec.coating_mm) / 2, spec.stem_for(4.0) / 2
     inside_sphere = 2 * np.pi / 3 * (R**3 - (R**2 - a**2) ** 1.5)  # stem ending at the centre
     expected = plate.volume() + sum(
         4 / 3 * np.pi * R**3 + np.pi * a**2 * (ci[1] - y_top) - inside_sphere for ci in c

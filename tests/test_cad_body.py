@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from starforge.cad.body import BodySpec, body_bounds, build_body, fit_report, label_boxes, route_stems
 from starforge.cad.export import parse_ids
 from starforge.cad.mounts import KINDS, list_mounts, load_mount
-from starforge.cad.plate import layout_plate
+from starforge.cad.plate import layout_plates
 from starforge.cad.primitives import (
     Box,
     Cylinder,
@@ -296,39 +296,37 @@ def test_visibility_matches_mesh_ray_casts():
 
 
 @settings(max_examples=30, deadline=None)
-@given(st.lists(st.tuples(st.floats(2, 30), st.floats(2, 30), st.floats(2, 30)), min_size=1, max_size=25))
-def test_plate_layout_is_on_the_bed_without_overlaps(sizes):
+@given(st.lists(st.tuples(st.floats(2, 30), st.floats(2, 30), st.floats(2, 30)), min_size=1, max_size=40))
+def test_plate_layout_is_on_the_beds_without_overlaps(sizes):
     rng = np.random.default_rng(len(sizes))
     bounds = []
     for s in sizes:
         lo = rng.uniform(-10, 10, 3)
+        lo[2] = 0.0  # bodies arrive in their printing orientation: on Z = 0
         bounds.append([lo, lo + np.array(s)])
     bounds = np.array(bounds)
-    try:
-        lay = layout_plate(bounds, (250, 250), 3.0)
-    except StarforgeError as exc:
-        assert "do not fit" in str(exc)
-        return
-    boxes = []
-    for b, T in zip(bounds, lay.transforms, strict=True):
-        corners = np.array([[x, y, z] for x in b[:, 0] for y in b[:, 1] for z in b[:, 2]])
-        p = corners @ T[:3, :3].T + T[:3, 3]
-        lo, hi = p.min(0), p.max(0)
-        assert lo[2] == pytest.approx(0, abs=1e-9)  # standing on the bed
-        assert (lo[:2] >= 3.0 - 1e-9).all() and (hi[:2] <= 250 - 3.0 + 1e-9).all()
-        assert np.isclose(np.linalg.det(T[:3, :3]), 1)
-        boxes.append((lo, hi))
-    for i in range(len(boxes)):
-        for j in range(i):
-            (a0, a1), (b0, b1) = boxes[i], boxes[j]
-            sep = np.maximum(b0[:2] - a1[:2], a0[:2] - b1[:2]).max()
-            assert sep >= 3.0 - 1e-9
+    beds = layout_plates(bounds, (100, 100), 3.0)
+    assert sorted(i for lay in beds for i in lay.members) == list(range(len(bounds)))  # each body once
+    for lay in beds:
+        boxes = []
+        for i, T in zip(lay.members, lay.transforms, strict=True):
+            assert np.allclose(T[:3, :3], np.eye(3))  # a layout only translates
+            lo, hi = bounds[i, 0] + T[:3, 3], bounds[i, 1] + T[:3, 3]
+            assert lo[2] == pytest.approx(0, abs=1e-9)  # standing on the bed
+            assert (lo[:2] >= 3.0 - 1e-9).all() and (hi[:2] <= 100 - 3.0 + 1e-9).all()
+            boxes.append((lo, hi))
+        for i in range(len(boxes)):
+            for j in range(i):
+                (a0, a1), (b0, b1) = boxes[i], boxes[j]
+                sep = np.maximum(b0[:2] - a1[:2], a0[:2] - b1[:2]).max()
+                assert sep >= 3.0 - 1e-9
 
 
-def test_plate_too_small_says_how_many_do_not_fit():
-    bounds = np.array([[[0, 0, 0], [40, 10, 40]]] * 10, float)
-    with pytest.raises(StarforgeError, match=r"of 10 bodies do not fit on a 100 x 100 mm bed"):
-        layout_plate(bounds, (100, 100), 5.0)
+def test_a_body_larger_than_the_bed_is_refused():
+    bounds = np.array([[[0, 0, 0], [40, 10, 40]]] * 9 + [[[0, 0, 0], [140, 10, 4]]], float)
+    with pytest.raises(StarforgeError, match=r"body 10 is 140.0 x 10.0 mm, larger than the 100 x 100 mm bed"):
+        layout_plates(bounds, (100, 100), 5.0)
+    assert len(layout_plates(bounds[:9].repeat(3, axis=0), (100, 100), 5.0)) > 1  # 27 bodies: several beds
 
 
 def test_screw_holes_clear_stems_and_label(family):

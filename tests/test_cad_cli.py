@@ -85,10 +85,16 @@ def test_exported_files_reload_with_centres(exported):
         step = read_step(exported / f"{entry['name']}.step")
         assert len(step) == 1 and step[0].is_valid
         assert stl.volume == pytest.approx(step[0].volume, rel=0.01)
-        # printed sphere surface: every family centre has mesh vertices at the printed radius
+        # the file lies in its printing orientation: plate down on Z = 0
+        assert stl.bounds[0, 2] == pytest.approx(0.0, abs=1e-6)
+        assert entry["print_height_mm"] == pytest.approx(stl.bounds[1, 2], abs=1e-6)
+        T = np.array(entry["placement_to_print"])
+        assert np.allclose(np.linalg.inv(T), entry["print_to_placement"], atol=1e-8)
+        # printed sphere surface: every family centre, carried into the printing orientation,
+        # has mesh vertices at the printed radius
         v = np.asarray(stl.vertices)
         r = entry["printed_sphere_mm"] / 2
-        for c in star.vertices:
+        for c in star.vertices @ T[:3, :3].T + T[:3, 3]:
             d = np.linalg.norm(v - c, axis=1)
             shell = d[(d > 0.5 * r) & (d < 1.5 * r)]
             assert len(shell) > 50 and np.abs(np.median(shell) - r) < 0.01
@@ -146,7 +152,7 @@ def _bad_family(path: Path, kind: str) -> Path:
         (["ok", "--format", "step,obj"], "unknown format 'obj'; known: step, stl, 3mf"),
         (["ok", "--ids", "1,77"], "77 not in the family"),
         (["ok", "--set", "hole_mm=99"], r"hole_mm must be in \[1.0, 4.5\]"),
-        (["ok", "--bed", "20x20"], "do not fit on a 20 x 20 mm bed"),
+        (["ok", "--bed", "20x20"], "larger than the 20 x 20 mm bed"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys, args, message):
@@ -199,7 +205,7 @@ def test_mounts_lists_and_details(capsys):
 
 
 def test_preview_command_draws_bodies_and_sheet(fam, capsys):
-    code, _, err = _run(["preview", fam, "--ids", "2", "--mount", "magnet"], capsys)
+    code, _, err = _run(["preview", fam, "--ids", "2", "--mount", "magnet", "--allow-oversize"], capsys)
     assert code == 0, err
     pv = fam.parent / "bodies" / "preview"
     assert sorted(p.name for p in pv.iterdir()) == ["sheet.png", "star_002.png"]
