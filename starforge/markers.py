@@ -47,6 +47,7 @@ class MarkerType:
     fit_mm: float = 0.1
     thread: str | None = None
     stud_length_mm: float | None = None
+    dimensions: Literal["vendor", "default"] = "default"
 
     def __post_init__(self) -> None:
         in_range("diameter_mm", self.diameter_mm, 1.0, 50.0)
@@ -55,6 +56,11 @@ class MarkerType:
             f"attach must be glue, post, screw or insert, got {self.attach!r}",
         )
         require(bool(self.source.strip()), f"marker {self.name}: a source is required for its numbers")
+        require(
+            self.dimensions in ("vendor", "default"),
+            f"marker {self.name}: dimensions must be vendor (published) or default (starforge's), "
+            f"got {self.dimensions!r}",
+        )
         in_range("base_mm", self.base_mm, 0.5, 50.0)
         in_range("centre_height_mm", self.centre_height_mm, 0.0, self.diameter_mm)
         if self.attach == "post":
@@ -75,21 +81,32 @@ class MarkerType:
 
 
 def marker_names() -> list[str]:
+    """Names of the catalogue's markers, sorted."""
     return list_templates("markers")
 
 
 def load_marker(name_or_path: str | Path) -> MarkerType:
     """A catalogue entry by name (``9.5mm-m3``) or TOML path; an unknown name lists the known."""
+    text = str(name_or_path)
+    if not (text.endswith(".toml") or "/" in text or "\\" in text) and text not in marker_names():
+        raise StarforgeError(f"unknown marker {text!r}; known: {', '.join(marker_names())} (or a TOML file)")
     name, data = load_template("markers", name_or_path)
     return from_mapping(MarkerType, {"name": name, **data}, where=f"marker {name}")
 
 
 def marker_diameter_mm(text: str | float) -> float:
-    """A marker diameter from a number (mm) or a catalogue name: ``"12.7"`` or ``"12.7mm-m3"``."""
+    """A finished marker diameter, mm, from a number or a catalogue entry.
+
+    ``12.7``, ``"12.7"`` and ``"12.7mm-m3"`` all give 12.7; a TOML path reads that file.  An
+    unknown name raises StarforgeError listing the catalogue; a number outside [1, 50] mm (or
+    not finite) is refused naming the range.
+    """
+    if isinstance(text, bool):
+        raise StarforgeError(f"marker must be a diameter in mm or a catalogue name, got {text!r}")
     try:
-        v = float(text)
+        v = float(str(text).strip().removesuffix("mm"))
     except (TypeError, ValueError):
-        return load_marker(str(text)).diameter_mm
+        return load_marker(str(text).strip()).diameter_mm
     if not (math.isfinite(v) and 1.0 <= v <= 50.0):
         raise StarforgeError(f"marker diameter must be in [1, 50] mm, got {text}")
     return v

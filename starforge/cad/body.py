@@ -29,6 +29,9 @@ from starforge.errors import StarforgeError
 from starforge.spec import in_range, require
 
 UP = np.array([0.0, 1.0, 0.0])
+#: a post's pin is this much shorter than the hole in the marker's base, so the marker seats on
+#: the shoulder (its designed centre), never on the pin's end
+POST_PLAY_MM = 0.3
 
 
 @dataclass(frozen=True)
@@ -352,7 +355,7 @@ def _tip_parts(kind: str, mt, spec: BodySpec, cen, u, marker_mm: float, stem_r: 
             rf,
             max(spec.post_mm * 1.8, 2 * stem_r + 0.8),
             spec.post_mm,
-            spec.post_length_mm,
+            spec.post_length_mm + POST_PLAY_MM,  # the hole this pin of post_length_mm needs
         )
     else:
         h_c, base = mt.centre_height_mm, mt.base_mm
@@ -363,8 +366,8 @@ def _tip_parts(kind: str, mt, spec: BodySpec, cen, u, marker_mm: float, stem_r: 
     if kind in ("post", "glue"):
         pad = Cylinder(seat - 1.0 * u, seat, max(base, 2 * stem_r + 0.4) / 2)
         adds.append(pad)
-        if kind == "post":
-            adds.append(Cylinder(seat - 0.2 * u, seat + depth * u, pin / 2))
+        if kind == "post":  # the pin stops short of the hole's bottom: the base seats on the shoulder
+            adds.append(Cylinder(seat - 0.2 * u, seat + (depth - POST_PLAY_MM) * u, pin / 2))
         return seat - 0.5 * u, adds, cuts  # the stem runs into the pad: one piece
     from starforge.markers import THREADS
 
