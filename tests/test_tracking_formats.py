@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import configparser
 import csv
+import itertools
 import json
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -119,15 +120,32 @@ def test_family_round_trips_in_every_format(small_family, tmp_path):
         assert np.array_equal(b.points_mm, truth[key])
 
 
+def brute_margin(points_list) -> float:
+    """The one-marker-hidden margin by brute force: every pair of different triangles (sorted
+    sides, max difference) and every triangle's closest two sides."""
+    tri = []
+    for P in points_list:
+        for a, b, c in itertools.combinations(range(len(P)), 3):
+            tri.append(sorted([np.linalg.norm(P[a] - P[b]), np.linalg.norm(P[b] - P[c]), np.linalg.norm(P[a] - P[c])]))
+    T = np.array(tri)
+    best = np.diff(T, axis=1).min()
+    for i, j in itertools.combinations(range(len(T)), 2):
+        best = min(best, np.abs(T[i] - T[j]).max())
+    return float(best)
+
+
 def test_qtm_files_hold_what_the_settings_parser_requires(small_family, tmp_path):
     out, doc = small_family
-    write_rigid_bodies(out / "family.json", ["qtm"], tmp_path)
-    tol = doc["spec"]["tolerance_mm"] or doc["spec"]["delta_mm"]
+    summary = write_rigid_bodies(out / "family.json", ["qtm"], tmp_path)
+    bs = load_bodies(out / "family.json")
+    margin = brute_margin([b.points_mm for b in bs.bodies])
+    assert summary["qtm"]["margin_mm"] == pytest.approx(margin, abs=1e-6)
     colours = set()
     for f in sorted((tmp_path / "qtm").glob("*.xml")):
         (body,) = qtm_6dof_bodies(f)
-        assert body["bone_tolerance"] == pytest.approx(tol / 2)  # from the family, not a constant
-        assert body["max_residual"] == pytest.approx(tol / 4)
+        # from the bodies' own margin (the midpoint between matching itself and another body)
+        assert body["bone_tolerance"] == pytest.approx(margin / 2, abs=1e-6)
+        assert body["max_residual"] == pytest.approx(margin / 4, abs=1e-6)
         assert body["min_markers"] == 3 and len(body["points"]) == 4
         colours.add(body["color"])
     assert len(colours) == len(doc["stars"])  # every body its own colour
@@ -139,6 +157,53 @@ def test_vsk_follows_vicons_layout(tmp_path):
     v = vicon_markers(tmp_path / "out" / "vsk" / "wand.vsk")
     assert v["segment"] == "wand" and v["markers"] == ["M1", "M2", "M3", "M4"]
     assert np.array_equal(v["points"], np.array(POS_M) * 1000.0)
+
+
+def atracsys_geometry(text: str) -> tuple[int, np.ndarray]:
+    """An Atracsys geometry the way Atracsys' own INI code (as kept in PlusLib) reads it: a line
+    holding [ and ] opens a section; otherwise a line with = is key=value inside the current
+    section, the key taken verbatim (no trimming); anything else must be blank or a ; comment.
+    [geometry] needs count and id; then [fiducial0].. each with x, y, z.  The SDK's geometry
+    holds at most 6 fiducials (FTK_MAX_FIDUCIALS)."""
+    sections: dict = {}
+    current = ""
+    for line in text.replace("\r", "").split("\n"):
+        if "[" in line and "]" in line:
+            current = line[line.index("[") + 1 : line.rindex("]")]
+            sections[current] = {}
+        elif "=" in line and current:
+            key, _, value = line.partition("=")
+            sections[current][key] = value
+        else:
+            assert line.replace(" ", "").replace("\t", "") == "" or line.lstrip().startswith(";"), line
+    geometry = sections["geometry"]
+    count, gid = int(geometry["count"]), int(geometry["id"])
+    assert 1 <= count <= 6 and 0 <= gid < 2**32
+    pts = np.array([[float(sections[f"fiducial{i}"][c]) for c in "xyz"] for i in range(count)])
+    return gid, pts
+
+
+def test_atracsys_files_parse_the_way_atracsys_reads_them(small_family, tmp_path):
+    out, _ = small_family
+    summary = write_rigid_bodies(out / "family.json", ["atracsys"], tmp_path, id_start=40)
+    truth = {b.name: b.points_mm for b in load_bodies(out / "family.json").bodies}
+    ids = []
+    for f in sorted((tmp_path / "atracsys").glob("*.ini")):
+        gid, pts = atracsys_geometry(f.read_text())
+        assert np.array_equal(pts, truth[f.stem])
+        assert gid == summary["atracsys_ids"][f.stem]
+        ids.append(gid)
+    assert sorted(ids) == list(range(40, 40 + len(truth)))
+
+
+def test_atracsys_refuses_bodies_its_geometry_cannot_hold(tmp_path):
+    seven = [[0.0, 0, 0], [0.05, 0, 0], [0, 0.06, 0], [0, 0, 0.07], [0.04, 0.05, 0], [0.03, 0, 0.08], [0.09, 0.02, 0.03]]
+    src = placement_json(tmp_path / "placement.json", seven)
+    with pytest.raises(StarforgeError, match="at most 6 fiducials"):
+        write_rigid_bodies(src, ["qtm", "atracsys"], tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    rc = run_cli(["export", src, "--format", "atracsys", "--out", tmp_path / "cli"])
+    assert rc == 2 and not (tmp_path / "cli").exists()
 
 
 def test_atracsys_ids_are_unique_across_families_and_csv_parses(tmp_path):
@@ -230,3 +295,119 @@ def test_export_command_writes_tracker_files_and_a_summary(small_family, tmp_pat
     assert len(list((tmp_path / "exp" / "qtm").glob("*.xml"))) == n
     summary = json.loads((tmp_path / "exp" / "trackers.json").read_text())
     assert sorted(summary["atracsys_ids"].values()) == list(range(500, 500 + n))
+
+
+def _vsk_skeleton(path: Path) -> Path:
+    """A VSK laid out as Vicon software writes a skeleton (cf. the VSK kept in the DART project):
+    parameters by name, nested segments with joints, markers in their segment's frame."""
+    params = {"W": 40.0, "L": 300.0, "A_X": 12.0, "A_Y": -5.5, "B_Z": 33.0}
+    ptxt = "".join(f'<Parameter NAME="{k}" VALUE="{v}" PRIOR="0"/>' for k, v in params.items())
+    cov36 = " ".join(["1.000000"] * 36)
+    path.write_text(
+        '<?xml version="1.0" standalone="yes"?>\n<KinematicModel><Parameters>' + ptxt + "</Parameters>"
+        '<Skeleton><Segment NAME="Root" POSITION="0 0 0" ORIENTATION="0 0 0" BOUNDS="0 0 0 0 0 0" RGB="0 128 0">'
+        f'<JointFree MEAN="0 0 0 0 0 0 " COVARIANCE="{cov36}"/>'
+        '<Segment NAME="Arm" POSITION="W 0 0" ORIENTATION="0 0 0.5" BOUNDS="0 0 0 0 0 0" RGB="0 128 0">'
+        '<JointBall MEAN="0 0 0" COVARIANCE="1 0 0 0 1 0 0 0 1"/>'
+        '<Segment NAME="Hand" POSITION="0 -L 0" ORIENTATION="0 0 0" BOUNDS="0 0 0 0 0 0" RGB="0 128 0">'
+        '<JointHinge AXIS="1 0 0" MEAN="0" COVARIANCE="1"/></Segment></Segment></Segment></Skeleton>'
+        '<MarkerSet NAME="subject"><Markers>'
+        '<Marker NAME="R1" SEGMENT="Root" POSITION="A_X A_Y 0" RADIUS="7"/>'
+        '<Marker NAME="R2" SEGMENT="Root" POSITION="-W 0 10"/>'
+        '<Marker NAME="R3" SEGMENT="Root" POSITION="0 25 -B_Z"/>'
+        '<Marker NAME="A1" SEGMENT="Arm" POSITION="0 -L 0"/>'
+        '<Marker NAME="A2" SEGMENT="Arm" POSITION="10 -120 4"/>'
+        '<Marker NAME="A3" SEGMENT="Arm" POSITION="-8 -60 12"/>'
+        '<Marker NAME="A4" SEGMENT="Arm" POSITION="0 -200 -15"/>'
+        '<Marker NAME="H1" SEGMENT="Hand" POSITION="0 -40 0"/>'
+        "</Markers><Sticks/></MarkerSet></KinematicModel>\n"
+    )
+    return path
+
+
+def test_vicon_skeleton_gives_one_body_per_segment(tmp_path):
+    bs = load_bodies(_vsk_skeleton(tmp_path / "subject.vsk"))
+    # each segment's markers are in that segment's frame: one rigid body per segment
+    assert bs.names == ["subject_Root", "subject_Arm"]
+    assert np.array_equal(bs.bodies[0].points_mm, [[12.0, -5.5, 0], [-40.0, 0, 10], [0, 25.0, -33.0]])
+    assert np.array_equal(bs.bodies[1].points_mm[0], [0, -300.0, 0])
+    # the one-marker hand is no rigid body: skipped, and said so
+    assert any("Hand (1)" in n for n in bs.notes)
+    assert bs.kind == "tracker" and bs.tips_mm().tolist() == [[0, 0, 0], [0, 0, 0]]
+
+
+def test_older_qtm_layouts_and_metre_csv_are_read(tmp_path):
+    old = tmp_path / "bodies.xml"
+    old.write_text(
+        "<QTM_Body_File_Ver_1.00><Bodies><Body><Name>probe</Name><Points>"
+        '<Point X="0" Y="0" Z="0" Virtual="0"/><Point X="50" Y="0" Z="0"/><Point X="0" Y="35" Z="0"/>'
+        '<Point X="10" Y="10" Z="0" Virtual="1"/><Point X="0" Y="0" Z="22"/></Points></Body>'
+        "<Body><Name>wand</Name><Bone><X>0</X><Y>0</Y><Z>0</Z></Bone><Bone><X>60</X><Y>0</Y><Z>0</Z></Bone>"
+        "<Bone><X>0</X><Y>41</Y><Z>0</Z></Bone></Body></Bodies></QTM_Body_File_Ver_1.00>"
+    )
+    bs = load_bodies(old)
+    assert bs.names == ["probe", "wand"]
+    assert len(bs.bodies[0].points_mm) == 4  # the virtual point carries no marker
+    assert np.array_equal(bs.bodies[1].points_mm, [[0, 0, 0], [60, 0, 0], [0, 41, 0]])
+    csv_m = tmp_path / "lab.csv"
+    csv_m.write_text("body,marker,x_m,y_m,z_m\ntool,2,0.05,0,0\ntool,1,0,0,0\ntool,3,0,0.031,0.012\n")
+    (b,) = load_bodies(csv_m).bodies
+    assert np.allclose(b.points_mm, [[0, 0, 0], [50, 0, 0], [0, 31, 12]])
+
+
+def test_a_labs_bodies_beside_a_family_and_a_placement(small_family, tmp_path):
+    out, _ = small_family
+    write_rigid_bodies(placement_json(tmp_path / "p.json", POS_M), ["qtm"], tmp_path / "lab")
+    prop = placement_json(tmp_path / "prop.json", np.array(POS_M) * [1.1, 0.9, 1.2], name="sword")
+    doc = json.loads(prop.read_text())
+    doc["prop"]["bounds_m"] = [[-0.06, -0.05, -0.07], [0.09, 0.07, 0.4]]
+    prop.write_text(json.dumps(doc))
+    bs = load_bodies([out / "family.json", tmp_path / "lab" / "qtm" / "wand.xml", prop])
+    fam = load_bodies(out / "family.json")
+    assert bs.kind == "mixed" and len(bs.bodies) == len(fam.bodies) + 2
+    assert bs.tolerance_mm == fam.tolerance_mm and len(set(bs.names)) == len(bs.names)
+    tips = bs.tips_mm()
+    assert np.array_equal(tips[0], fam.default_tip_mm)  # the family's tip
+    assert np.array_equal(tips[-2], [0, 0, 0])  # a tracker file: its origin
+    # the prop: the bounding-box corner with the largest predicted TRE, checked on a dense grid
+    from starforge.geometry.rigid import tre_rms
+
+    P = bs.bodies[-1].points_mm
+    lo, hi = np.array(doc["prop"]["bounds_m"]) * 1000
+    grid = np.stack(np.meshgrid(*[np.linspace(a, b, 9) for a, b in zip(lo, hi, strict=True)]), -1).reshape(-1, 3)
+    worst = max(tre_rms(P, g, 1.0) for g in grid)
+    assert tre_rms(P, tips[-1], 1.0) == pytest.approx(worst, rel=1e-9)
+    assert any(np.allclose(tips[-1], c) for c in itertools.product(*zip(lo, hi, strict=True)))
+
+
+@pytest.mark.parametrize(
+    "name, text, message",
+    [
+        ("nan.csv", "body,marker,x_mm,y_mm,z_mm\nt,1,0,0,0\nt,2,nan,0,0\nt,3,0,9,0\n", "not finite"),
+        ("twice.csv", "body,marker,x_mm,y_mm,z_mm\nt,1,0,0,0\nt,2,0,0,0\nt,3,0,9,0\n", "two markers"),
+        ("two.csv", "body,marker,x_mm,y_mm,z_mm\nt,1,0,0,0\nt,2,20,0,0\n", "at least 3"),
+        ("same.csv", "body,marker,x_mm,y_mm,z_mm\nt,1,0,0,0\nt,1,20,0,0\nt,3,0,9,0\n", "numbers a marker twice"),
+        ("m.csv", "body,marker,x_mm,y_mm,z_mm\nt,1,0,0,0\nt,2,0.02,0,0\nt,3,0,0.03,0\n", "other units"),
+        ("huge.ini", "[geometry]\ncount=1000000\nid=3\n", "outside 3..64"),
+        ("bad.vsk", '<KinematicModel><MarkerSet NAME="x"><Markers><Marker NAME="a" POSITION="1 2"/>', "not valid XML"),
+        ("tok.vsk", '<KinematicModel><MarkerSet><Markers><Marker NAME="a" POSITION="Q 0 0"/></Markers>'
+         "</MarkerSet></KinematicModel>", "POSITION token"),
+        ("empty.xml", "<QTM_Settings><The_6D/></QTM_Settings>", "holds no QTM Body"),
+    ],
+)
+def test_corrupt_tracker_files_give_one_line(tmp_path, name, text, message):
+    path = tmp_path / name
+    path.write_text(text)
+    with pytest.raises(StarforgeError, match=message) as exc:
+        load_bodies(path)
+    assert "\n" not in str(exc.value)
+
+
+def test_oversized_tracker_file_is_refused_before_parsing(tmp_path, monkeypatch):
+    from starforge.tracking import formats
+
+    monkeypatch.setattr(formats, "MAX_FILE_BYTES", 100)
+    path = tmp_path / "big.xml"
+    path.write_text("<QTM_Settings><The_6D>" + " " * 200 + "</The_6D></QTM_Settings>")
+    with pytest.raises(StarforgeError, match="at most 100 B"):
+        load_bodies(path)

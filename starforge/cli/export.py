@@ -225,10 +225,11 @@ def export_cmd(
         raise StarforgeError("--ids, --set and --preview apply to CAD formats (step, stl, 3mf)")
     if trk:
         from starforge.tracking.bodies import load_bodies
-        from starforge.tracking.formats import parse_formats, write_bodies
+        from starforge.tracking.formats import check_exportable, parse_formats, write_bodies
 
         trk = parse_formats(trk)
         bodyset = load_bodies(src)  # read and checked before any file is written
+        check_exportable(bodyset, trk, id_start)
         if not cad:
             from starforge.io import check_writable
 

@@ -1,15 +1,28 @@
 """Rigid bodies as a tracker sees them: named marker sets in mm, read from starforge's JSON files
 or from the tracker files a lab already has.
 
-A star family (``family.json``, mm) gives one body per star: its four sphere centres in the
-family's placement frame.  A prop placement (``placement.json``, metres) gives one body: its
-markers in the prop frame, converted to mm here (tracker files and the simulation work in mm).
-QTM (6DOF settings or body files), Vicon VSK, Atracsys ``.ini`` and starforge's body CSV give
-their bodies as written (mm), so a lab's existing bodies can be checked beside new ones.
+* A star family (``family.json``, mm) gives one body per star: its four sphere centres in the
+  family's placement frame; its tip is the family's (``summary.tip_mm``, by default
+  :func:`starforge.geometry.rigid.default_tip_mm`).
+* A prop placement (``placement.json``, metres) gives one body: its markers in the prop frame,
+  converted to mm here.  Its tip is the corner of the prop's bounding box where the predicted
+  target registration error is largest (TRE^2 is a convex quadratic in the target point, so its
+  maximum over the box is at a corner): the worst point of the prop.
+* QTM (6DOF settings or body files), Vicon VSK, Atracsys ``.ini`` and starforge's body CSV give
+  their bodies as written, in mm (:mod:`starforge.tracking.formats`); their tip is the body's
+  origin, the point trackers report (a tool's tip is usually defined there).
+
+Any mix of these may be read together (a lab's existing bodies beside new ones): names are made
+unique, the match window defaults to the smallest family tolerance.  Every body is checked for
+truth before use: at least 3 markers, finite coordinates, no two markers closer than 0.1 mm, a
+spread that a marker body can have (:data:`SPREAD_MM`, else "other units?"), and bounded size
+(:data:`MAX_MARKERS` per body, :data:`MAX_TRIANGLES` in all).
 """
 
 from __future__ import annotations
 
+import itertools
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +35,15 @@ from starforge.io import read_json
 PLACEMENT_FORMAT = "starforge.placement"
 FAMILY_FORMAT = "starforge.family"
 
+#: marker spreads a rigid body can have, mm (a body outside these is in other units or corrupt)
+SPREAD_MM = (1.0, 20_000.0)
+#: markers closer than this are one marker twice, mm
+MIN_SEPARATION_MM = 0.1
+#: markers per body at most (a tracker identifies from marker triples: C(n, 3) of them)
+MAX_MARKERS = 64
+#: marker triangles of all bodies together at most (what identification and --avoid index)
+MAX_TRIANGLES = 2_000_000
+
 
 @dataclass(frozen=True)
 class Body:
@@ -30,13 +52,18 @@ class Body:
     Attributes
     ----------
     name : str              safe for file names (letters, digits, ``_``, ``-``, ``.``)
-    id : int                numeric id (star id, or 1.. for placements)
+    id : int                numeric id (star id, or 1.. in reading order)
     points_mm : (n, 3) float, mm   marker centres in the body's own frame
+    tip_mm : (3,) float or None, mm   the body's target point for accuracy reports (None: the
+        body set's default)
+    source : str            the file it was read from
     """
 
     name: str
     id: int
     points_mm: np.ndarray
+    tip_mm: tuple[float, float, float] | None = None
+    source: str = ""
 
     def __post_init__(self) -> None:
         p = np.array(self.points_mm, dtype=float)
@@ -52,17 +79,18 @@ class Body:
 
 @dataclass(frozen=True)
 class BodySet:
-    """Bodies read from one or more JSON files.
+    """Bodies read from one or more files.
 
     Attributes
     ----------
-    kind : "family" or "placement"
+    kind : "family", "placement", "tracker" (vendor or CSV files) or "mixed"
     sources : tuple of str          the files read
     bodies : tuple of Body
-    tolerance_mm : float or None    the family's design tolerance (faces/edges differ by this), mm
+    tolerance_mm : float or None    the smallest family design tolerance (faces differ by this), mm
     marker_mm : float or None       marker sphere diameter, mm
-    default_tip_mm : (3,) float     the tip for accuracy reports when none is given, mm
-    tip_source : str                where that default comes from
+    default_tip_mm : (3,) float     the tip of bodies that carry none, mm
+    tip_source : str                where the tips come from
+    notes : tuple of str            what reading skipped or assumed
     """
 
     kind: str
@@ -72,6 +100,7 @@ class BodySet:
     marker_mm: float | None = None
     default_tip_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     tip_source: str = "the bodies' own origin"
+    notes: tuple[str, ...] = ()
 
     @property
     def names(self) -> list[str]:
@@ -81,6 +110,12 @@ class BodySet:
     def min_markers(self) -> int:
         return min(b.n_markers for b in self.bodies)
 
+    def tips_mm(self) -> np.ndarray:
+        """(B, 3) target point of every body, mm."""
+        return np.array(
+            [b.tip_mm if b.tip_mm is not None else self.default_tip_mm for b in self.bodies], float
+        )
+
 
 def safe_name(text: str) -> str:
     """``text`` reduced to characters safe in file names and XML attribute values."""
@@ -88,129 +123,185 @@ def safe_name(text: str) -> str:
     return s or "body"
 
 
-def _family_bodies(path: Path, data: dict) -> BodySet:
+TIP_SOURCES = {
+    "family": "the family's tip (placement frame: long axis, one limit length below the mount face)",
+    "placement": "the prop's bounding-box corner with the largest predicted TRE",
+    "tracker": "the body's origin (the point a tracker reports)",
+}
+
+
+def check_body(where, name: str, P: np.ndarray) -> None:
+    """One-line refusal of a body a tracker could not hold (see the module docstring)."""
+    if len(P) < 3:
+        raise StarforgeError(f"{where}: body {name} has {len(P)} markers; a rigid body needs at least 3")
+    if len(P) > MAX_MARKERS:
+        raise StarforgeError(f"{where}: body {name} has {len(P)} markers; at most {MAX_MARKERS} per body")
+    if not np.isfinite(P).all():
+        raise StarforgeError(f"{where}: body {name} has coordinates that are not finite numbers")
+    spread = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
+    if not SPREAD_MM[0] <= spread <= SPREAD_MM[1]:
+        raise StarforgeError(
+            f"{where}: body {name} spans {spread:.4g} mm; a marker body spans {SPREAD_MM[0]:g} to "
+            f"{SPREAD_MM[1]:g} mm (is the file in other units?)"
+        )
+    d = np.linalg.norm(P[:, None] - P[None], axis=2)[np.triu_indices(len(P), 1)]
+    if d.min() < MIN_SEPARATION_MM:
+        raise StarforgeError(
+            f"{where}: body {name} has two markers {d.min():.3g} mm apart (one marker given twice?)"
+        )
+
+
+def _family_bodies(path: Path, data: dict) -> tuple[list[Body], float, float]:
     from starforge.geometry.rigid import default_tip_mm
     from starforge.stars.model import family_from_json
 
     fam = family_from_json(data, where=str(path))
     base = safe_name(fam.spec.name)
     width = max(3, len(str(max(s.id for s in fam.stars))))
-    bodies = tuple(Body(f"{base}_{s.id:0{width}d}", int(s.id), s.vertices) for s in fam.stars)
-    tip = fam.spec.tip_mm if fam.spec.tip_mm is not None else tuple(default_tip_mm(fam.spec.box_mm))
-    return BodySet(
-        "family",
-        (str(path),),
-        bodies,
-        float(fam.spec.tol_mm),
-        float(fam.spec.marker_mm),
-        tuple(float(x) for x in tip),
-        "the family's tip (placement frame: long axis, one limit length below the mount face)",
-    )
+    tip = fam.spec.tip_mm if fam.spec.tip_mm is not None else default_tip_mm(fam.spec.box_mm)
+    tip = tuple(float(x) for x in tip)
+    bodies = [Body(f"{base}_{s.id:0{width}d}", int(s.id), s.vertices, tip, str(path)) for s in fam.stars]
+    for b in bodies:
+        check_body(path, b.name, b.points_mm)
+    return bodies, float(fam.spec.tol_mm), float(fam.spec.marker_mm)
 
 
-#: marker spreads a rigid body can have, mm (a body outside these is in other units or corrupt)
-SPREAD_MM = (1.0, 20_000.0)
+def prop_tip_mm(points_mm: np.ndarray, bounds_mm: np.ndarray) -> tuple[float, float, float]:
+    """The corner of the box ``bounds_mm`` (2, 3) where the predicted TRE of a fit on
+    ``points_mm`` is largest (the worst target on the prop)."""
+    from starforge.geometry.rigid import tre_rms
+
+    corners = np.array(list(itertools.product(*bounds_mm.T)), dtype=float)  # (8, 3)
+    tre = tre_rms(np.broadcast_to(points_mm, (8, *points_mm.shape)), corners, 1.0)
+    return tuple(float(x) for x in corners[int(np.argmax(tre))])
 
 
-def _check_spread(path, name: str, P: np.ndarray) -> None:
-    if len(P) < 2:
-        return
-    spread = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
-    if not SPREAD_MM[0] <= spread <= SPREAD_MM[1]:
-        raise StarforgeError(
-            f"{path}: body {name} spans {spread:.4g} mm; a marker body spans {SPREAD_MM[0]:g} to {SPREAD_MM[1]:g} mm "
-            f"(is the file in other units?)"
-        )
-
-
-def _tracker_bodies(path: Path, fmt: str) -> list[Body]:
-    from starforge.tracking.formats import READERS
-
-    bodies = []
-    for k, (name, P) in enumerate(READERS[fmt](path).items()):
-        if len(P) < 3:
-            raise StarforgeError(f"{path}: body {name} has {len(P)} markers; a rigid body needs at least 3")
-        _check_spread(path, name, P)
-        bodies.append(Body(safe_name(name), k + 1, P))
-    return bodies
-
-
-def _placement_body(path: Path, data: dict, index: int) -> tuple[Body, float]:
+def _placement_body(path: Path, data: dict, notes: list) -> tuple[Body, float]:
     if data.get("version") != 1:
         raise StarforgeError(f"{path}: unsupported placement version {data.get('version')!r}, expected 1")
     try:
         pos = np.array([m["position"] for m in data["markers"]], dtype=float).reshape(-1, 3)
-        name = str(data.get("prop", {}).get("name", path.parent.name or path.stem))
+        prop = data.get("prop", {}) or {}
+        name = str(prop.get("name", path.parent.name or path.stem))
         diameter_m = float(data.get("marker_diameter_m", 0.0))
+        bounds = prop.get("bounds_m")
+        bounds = None if bounds is None else np.array(bounds, dtype=float).reshape(2, 3) * 1000.0
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise StarforgeError(f"{path} has malformed markers ({exc.__class__.__name__}: {exc})") from None
     if len(pos) == 0:
         raise StarforgeError(f"{path} holds no markers")
-    if not np.isfinite(pos).all():
-        raise StarforgeError(f"{path}: marker positions must be finite numbers")
-    return Body(safe_name(name), index, pos * 1000.0), diameter_m * 1000.0
+    P = pos * 1000.0
+    check_body(path, name, P)
+    if bounds is not None and np.isfinite(bounds).all() and (bounds[1] >= bounds[0]).all():
+        tip = prop_tip_mm(P, bounds)
+    else:
+        tip = (0.0, 0.0, 0.0)
+        notes.append(f"{path}: no prop bounds_m; its tip is the prop frame's origin")
+    return Body(safe_name(name), 0, P, tip, str(path)), diameter_m * 1000.0
+
+
+def _tracker_bodies(path: Path, fmt: str, notes: list) -> list[Body]:
+    from starforge.tracking.formats import READERS
+
+    bodies = []
+    skipped = []
+    items = list(READERS[fmt](path).items())
+    for name, P in items:
+        if len(P) < 3 and len(items) > 1:
+            skipped.append(f"{name} ({len(P)})")  # a skeleton segment with 1-2 markers is no rigid body
+            continue
+        check_body(path, name, P)
+        bodies.append(Body(safe_name(name), 0, P, (0.0, 0.0, 0.0), str(path)))
+    if not bodies:
+        raise StarforgeError(f"{path}: no body with 3 or more markers (a rigid body needs at least 3)")
+    if skipped:
+        notes.append(
+            f"{path}: skipped {len(skipped)} bodies with fewer than 3 markers: {', '.join(skipped[:5])}"
+        )
+    return bodies
+
+
+def _resolve(p: Path) -> Path:
+    if p.is_dir():
+        for cand in ("family.json", "placement.json"):
+            if (p / cand).exists():
+                return p / cand
+    return p
 
 
 def load_bodies(paths) -> BodySet:
-    """Read a family JSON, or one or more placement JSONs or tracker files (QTM, VSK, Atracsys,
-    body CSV); a folder means the JSON inside it.
+    """Read star families, prop placements and tracker files (QTM, VSK, Atracsys, body CSV), in
+    any mix; a folder means the family.json or placement.json inside it.
 
-    Raises StarforgeError for a missing or corrupt file, a format it does not know, a body in
-    other units, or a mix of a family with other files.
+    Raises StarforgeError (one line) for a missing or corrupt file, a format it does not know,
+    or a body that is not a rigid body a tracker could hold (see the module docstring).
     """
     from starforge.io import check_input_file
     from starforge.tracking.formats import sniff_format
 
     if isinstance(paths, str | Path):
         paths = [paths]
-    paths = [Path(p) for p in paths]
+    paths = [_resolve(Path(p)) for p in paths]
     if not paths:
         raise StarforgeError("no input file given")
-    docs, tracker = [], []
+    raw: list[Body] = []
+    kinds, sources, notes = [], [], []
+    tolerances, markers = [], []
     for p in paths:
-        if p.is_dir():
-            for cand in ("family.json", "placement.json"):
-                if (p / cand).exists():
-                    p = p / cand
-                    break
         check_input_file(p, "input file")
         fmt = sniff_format(p)
         if fmt is not None and p.suffix.lower() != ".json":
-            tracker.append((p, fmt))
-            continue
-        data = read_json(p, what="input file")
-        docs.append((p, data))
-    kinds = [d.get("format") for _, d in docs]
-    for (p, _), k in zip(docs, kinds, strict=True):
-        if k not in (FAMILY_FORMAT, PLACEMENT_FORMAT):
+            raw.extend(_tracker_bodies(p, fmt, notes))
+            kinds.append("tracker")
+        else:
+            data = read_json(p, what="input file")
+            k = data.get("format")
+            if k == FAMILY_FORMAT:
+                bodies, tol, marker = _family_bodies(p, data)
+                raw.extend(bodies)
+                tolerances.append(tol)
+                markers.append(marker)
+                kinds.append("family")
+            elif k == PLACEMENT_FORMAT:
+                b, d = _placement_body(p, data, notes)
+                raw.append(b)
+                if d > 0:
+                    markers.append(d)
+                kinds.append("placement")
+            else:
+                raise StarforgeError(
+                    f"{p} is neither a star family nor a prop placement (format {k!r}; expected "
+                    f"{FAMILY_FORMAT!r} or {PLACEMENT_FORMAT!r}) nor a QTM, VSK, Atracsys or body CSV file"
+                )
+        sources.append(str(p))
+        triangles = sum(math.comb(b.n_markers, 3) for b in raw)
+        if triangles > MAX_TRIANGLES:
             raise StarforgeError(
-                f"{p} is neither a star family nor a prop placement (format {k!r}; "
-                f"expected {FAMILY_FORMAT!r} or {PLACEMENT_FORMAT!r}) nor a QTM, VSK, Atracsys or body CSV file"
+                f"the input files hold {triangles:,} marker triangles (over {len(raw):,} bodies); at most "
+                f"{MAX_TRIANGLES:,}: give fewer or smaller bodies"
             )
-    if FAMILY_FORMAT in kinds:
-        if len(docs) > 1 or tracker:
-            raise StarforgeError("give one family file, or placement and tracker files (not a mix)")
-        return _family_bodies(*docs[0])
-    bodies, diameters, seen = [], [], {}
-
-    def add(b: Body) -> None:
+    seen: dict[str, int] = {}
+    bodies = []
+    for b in raw:
         n = seen.get(b.name, 0)
         seen[b.name] = n + 1
-        bodies.append(
-            Body(f"{b.name}_{n + 1}", len(bodies) + 1, b.points_mm)
-            if n
-            else Body(b.name, len(bodies) + 1, b.points_mm)
-        )
-
-    for i, (p, data) in enumerate(docs):
-        b, d = _placement_body(p, data, i + 1)
-        _check_spread(p, b.name, b.points_mm)
-        add(b)
-        diameters.append(d)
-    for p, fmt in tracker:
-        for b in _tracker_bodies(p, fmt):
-            add(b)
-    marker = max(diameters) if diameters and max(diameters) > 0 else None
-    kind = "placement" if docs and not tracker else ("tracker" if tracker and not docs else "mixed")
-    sources = tuple(str(p) for p, _ in docs) + tuple(str(p) for p, _ in tracker)
-    return BodySet(kind, sources, tuple(bodies), None, marker)
+        name = f"{b.name}_{n + 1}" if n else b.name
+        ident = b.id if kinds == ["family"] else len(bodies) + 1
+        bodies.append(Body(name, ident, b.points_mm, b.tip_mm, b.source))
+    kind = kinds[0] if len(set(kinds)) == 1 else "mixed"
+    if kind == "family" and len(kinds) > 1:
+        kind = "mixed"
+    tip_source = TIP_SOURCES.get(
+        kind, "per body: " + "; ".join(f"{k}: {TIP_SOURCES[k]}" for k in sorted(set(kinds)))
+    )
+    default_tip = bodies[0].tip_mm if bodies[0].tip_mm is not None else (0.0, 0.0, 0.0)
+    return BodySet(
+        kind,
+        tuple(sources),
+        tuple(bodies),
+        min(tolerances) if tolerances else None,
+        max(markers) if markers else None,
+        default_tip,
+        tip_source,
+        tuple(notes),
+    )
