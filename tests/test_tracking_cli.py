@@ -126,6 +126,12 @@ def test_check_refuses_to_overwrite(checked, capsys):
         (["--preset", "nosuch"], "unknown presets template 'nosuch'"),
         (["--frames", "0"], "frames must be >= 1"),
         (["--tip", "1,2"], "tip must be three numbers"),
+        (["--ghosts", "200", "--frames", "1"], "ghosts must be at most 20"),
+        (["--ghosts", "1000000"], "ghosts must be at most 20"),
+        (["--frames", "1e20"], "--frames"),
+        (["--frames", "9000000", "--ghosts", "20"], "would take about"),
+        (["--world", "flat"], "world must be open or closed"),
+        (["--choose", "best"], "choose must be one of fit, window"),
     ],
 )
 def test_bad_options_one_line_exit_2(small_family, tmp_path, capsys, args, message):
@@ -177,3 +183,23 @@ def test_check_on_two_placements(tmp_path):
     wand = pos * 1000.0
     assert doc["accuracy"]["bodies"][0]["tip_tre_mm"] == pytest.approx(tre_rms(wand, [0, 0, 0], fle_from_sigma(0.2)))
     assert doc["identification_rate"] > 0.9
+
+
+def test_check_a_labs_files_beside_a_family(small_family, tmp_path):
+    """The question a lab asks: do my existing bodies and these new stars get along?"""
+    from starforge.tracking.formats import write_rigid_bodies
+
+    fam, _ = small_family
+    lab = tmp_path / "lab"
+    write_rigid_bodies(fam / "family.json", ["vsk", "atracsys"], lab)
+    first = sorted((lab / "vsk").glob("*.vsk"))[0]
+    out = tmp_path / "o"
+    args = ["check", fam / "family.json", first, "--frames", 30, "--curve", 0, "--out", out, "-q"]
+    assert main([str(a) for a in args]) == 0
+    doc = json.loads((out / "check.json").read_text())
+    assert doc["input"]["kind"] == "mixed" and doc["input"]["files"][1] == str(first)
+    # the lab's copy of star 1 is congruent with star 1: an open-world tracker confuses them
+    M = np.array(doc["confusion"]["matrix"])
+    assert M[0, -1] + M[-1, 0] > 0.3 * 2 * 30
+    assert M[1:-1, :].sum() == M[1:-1, 1:-1].sum()  # the other stars are not involved
+    assert doc["closest_triangles"][0]["margin_mm"] == 0.0

@@ -145,3 +145,20 @@ def test_settings_are_validated():
         ident.run(lib, 10, 0.1, 0, -1, rng, 1.0, 0.5)
     with pytest.raises(ValueError, match="at least 3"):
         ident.build_library([ASYM[:2]])
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10_000), bodies=st.integers(1, 4), n=st.integers(3, 6))
+def test_close_pairs_and_margin_match_brute_force(seed, bodies, n):
+    rng = np.random.default_rng(seed)
+    pts = [np.round(rng.uniform(-30, 30, size=(n, 3)), 1) for _ in range(bodies)]
+    lib = ident.build_library(pts)
+    S = lib.tri_sorted
+    D = np.abs(S[:, None] - S[None]).max(axis=2)
+    for window in (0.5, 3.0):
+        i, j, d = ident.close_triangle_pairs(lib, window, chunk=7)
+        want = {(a, b) for a, b in zip(*np.nonzero(D < window), strict=True) if a < b}
+        assert set(zip(i.tolist(), j.tolist(), strict=True)) == want
+        assert np.allclose(d, D[i, j])
+    np.fill_diagonal(D, np.inf)
+    assert ident.drop1_margin_mm(lib) == pytest.approx(min(D.min(), np.diff(S, axis=1).min()))

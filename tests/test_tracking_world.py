@@ -91,25 +91,65 @@ def test_art_preset_simulation_agrees_with_its_rules(small_family, tmp_path):
     assert doc["rules"]["sources"]["rules.distinct_mm"].startswith("https://www.ar-tracking.com")
 
 
-def test_qualisys_preset_rate_is_consistent_with_its_rule_check(tmp_path):
-    """A preset whose rule check finds shared triangles must not simulate a perfect family."""
-    preset = load_preset("qualisys")
-    viol = check_rules(["a", "b"], SHARED, preset)
-    assert any(v.rule == "shared_triangle" for v in viol)
-    lib = ident.build_library(SHARED, ["a", "b"])
-    t = ident.run(
-        lib,
-        2000,
-        0.1,
-        1,
-        0,
-        np.random.default_rng(0),
-        preset.tracker.match_mm,
-        preset.tracker.residual_mm,
-        world="open",
-        min_markers=preset.tracker.identify_markers,
+# two chiral bodies whose triangles differ by 6.4 mm (more than every preset's window), ART-clean
+CLEAN = [
+    np.array([[27.6, -31.3, -37.5], [-7.7, 9.3, -37.2], [17.6, 31.3, -44.5], [-21.2, 25.6, 31.8]]),
+    np.array([[-35.5, -23.6, 28.7], [-19.5, 17.4, 27.9], [24.4, 38.3, -23.2], [-9.6, 41.7, -15.2]]),
+]
+# a body with a half-turn symmetry (A<->B, C<->D) beside a clean one
+SYMMETRIC = [np.array([[30.0, 0.0, 5.0], [-30.0, 0.0, 5.0], [0.0, 20.0, -5.0], [0.0, -20.0, -5.0]]), CLEAN[0]]
+CONFUSIONS = {"symmetric", "congruent", "mirror_images", "shared_triangle", "own_triangles", "shared_markers"}
+
+
+def _bodyset(points):
+    from starforge.tracking.bodies import Body, BodySet
+
+    return BodySet("tracker", ("test",), tuple(Body(f"b{i}", i + 1, P, (0.0, 0.0, 0.0)) for i, P in enumerate(points)))
+
+
+@pytest.mark.parametrize("preset", ["art", "ndi", "qualisys", "optitrack"])
+@pytest.mark.parametrize("bodies", ["clean", "symmetric", "shared"])
+def test_preset_simulation_agrees_with_its_own_rule_check(preset, bodies):
+    """The rule check names a confusion exactly when the preset's simulated tracker makes one:
+    both use the same window, marker count and mirror rule."""
+    from starforge.tracking.check import CheckSettings, run_check
+
+    points = {"clean": CLEAN, "symmetric": SYMMETRIC, "shared": SHARED}[bodies]
+    p = load_preset(preset)
+    exact = p.tracker.identify_markers == 3  # hide exactly one marker where three identify
+    s = CheckSettings(
+        noise_mm=0.02, drop=1, drop_exact=exact, frames=400, curve_points=0, preset=preset, seed=1
     )
-    assert t.rates()["identification_rate"] < 0.95
+    doc = run_check(_bodyset(points), s)
+    listed = {v["rule"] for v in doc["rules"]["violations"]} & CONFUSIONS
+    confused = doc["flip_rate"] + doc["wrong_body_rate"]
+    assert doc["rules"]["window_mm"] == doc["settings"]["match_mm"]
+    if listed:
+        assert confused > 0.02, (listed, doc["identification_rate"])
+    else:
+        assert confused == 0.0 and doc["identification_rate"] > 0.45, doc["identification_rate"]
+
+
+def test_qualisys_simulates_the_tolerances_its_files_carry(small_family, tmp_path):
+    from starforge.tracking.formats import write_rigid_bodies
+
+    fam, _ = small_family
+    summary = write_rigid_bodies(fam / "family.json", ["qtm"], tmp_path / "files")
+    out = tmp_path / "check"
+    args = ["check", fam / "family.json", "--preset", "qualisys", "--frames", 50, "--curve", 0, "--out", out, "-q"]
+    assert run_cli(args) == 0
+    doc = json.loads((out / "check.json").read_text())
+    assert doc["settings"]["match_mm"] == summary["qtm"]["bone_length_tolerance_mm"]
+    assert doc["settings"]["residual_mm"] == summary["qtm"]["maximum_residual_mm"]
+    assert doc["settings"]["choose"] == "window"
+
+
+def test_art_exact_drop_below_four_markers_is_refused(small_family, tmp_path, capsys):
+    fam, _ = small_family
+    args = ["check", fam, "--preset", "art", "--drop", 1, "--exact-drop", "--out", tmp_path / "o"]
+    assert run_cli(args) == 2
+    err = capsys.readouterr().err
+    assert "fewer than the 4" in err and err.count("\n") == 1 and not (tmp_path / "o").exists()
 
 
 def test_every_preset_cites_or_owns_its_numbers():

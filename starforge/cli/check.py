@@ -23,12 +23,17 @@ def _tip(text: str | None):
     return v
 
 
-_FILES = typer.Argument(..., help="family.json, or one or more placement.json (or their folders).")
+_FILES = typer.Argument(
+    ...,
+    help="Star families, prop placements (or their folders) and a lab's tracker files (QTM .xml, Vicon .vsk, "
+    "Atracsys .ini, body .csv), in any mix.",
+)
 
 
 @app.command(
     "check",
-    help="Simulate tracker frames for a star family or prop placement(s) (noise, hidden markers, ghosts), "
+    help="Simulate tracker frames for star families, prop placements and a lab's tracker files (noise, hidden "
+    "markers, ghosts), "
     "identify the bodies the way trackers do, and write check.json (identification and mislabel rates, "
     "confusions, flips, TRE) and check.png (rates against noise).",
 )
@@ -46,7 +51,18 @@ def check_cmd(
         help="open: each point cluster identified on its own, as a tracker must when bodies come and go; "
         "closed: each label once per frame (assumes every body is in every frame).",
     ),
-    presence: float = typer.Option(1.0, "--presence", help="Probability that a body is in a frame (0..1]."),
+    presence: float = typer.Option(
+        1.0,
+        "--presence",
+        help="Probability that a body is in a frame (0..1]; changes rates only in the closed world.",
+    ),
+    choose: str = typer.Option(
+        None,
+        "--choose",
+        help="How matches inside the window are ranked: fit (lowest residual wins) or window (a tracker "
+        "that treats every distance inside its window as equal takes one at random). Default: the "
+        "preset's, else fit.",
+    ),
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same result)."),
     preset: str = typer.Option(
         None,
@@ -91,6 +107,7 @@ def check_cmd(
         curve_points=curve,
         world=world,
         presence=presence,
+        choose=choose,
     )
     if preset is not None:
         from starforge.tracking.presets import load_preset
@@ -120,8 +137,11 @@ def check_cmd(
     con.print(
         f"{doc['input']['bodies']} bodies, {s['frames']} frames, {s['world']} world, presence {s['presence']:g}, "
         f"noise {s['noise_mm']} mm, drop {s['drop']} ({s['drop_mode']}), ghosts {s['ghosts']}, "
-        f"match {s['match_mm']:g} mm, residual {s['residual_mm']:g} mm, identify from {s['identify_from_markers']} markers"
+        f"match {s['match_mm']:g} mm ({s['window_source']}), residual {s['residual_mm']:g} mm, "
+        f"identify from {s['identify_from_markers']} markers, choose {s['choose']} ({s['choose_means']})"
     )
+    for note in doc["input"]["notes"]:
+        con.print(f"note: {note}")
     con.print(
         f"identified {100 * doc['identification_rate']:.3f} %, confused {100 * doc['mislabel_rate']:.3f} % "
         f"(flips {100 * doc['flip_rate']:.3f} %, wrong body {100 * doc['wrong_body_rate']:.3f} %), "
@@ -130,9 +150,10 @@ def check_cmd(
     for w in doc["worst_pairs"][:5]:
         con.print(f"  {w['kind']}: {w['true']} -> {w['reported']}: {w['count']} ({100 * w['rate']:.3f} %)")
     fam = doc["accuracy"]["family"]
-    tip = ", ".join(f"{x:g}" for x in doc["accuracy"]["tip_mm"])
+    at = doc["accuracy"]["tip_mm"]
+    tip = "(" + ", ".join(f"{x:g}" for x in at) + ") mm" if at is not None else "each body's tip"
     con.print(
-        f"TRE at tip ({tip}) mm: median {fam['tip_tre_mm_median']:.3f} mm, worst {fam['tip_tre_mm_worst']:.3f} mm; "
+        f"TRE at {tip} ({doc['accuracy']['tip_source']}): median {fam['tip_tre_mm_median']:.3f} mm, worst {fam['tip_tre_mm_worst']:.3f} mm; "
         f"one marker hidden: median {fam['tip_tre_hidden_mm_median']:.3f} mm, worst {fam['tip_tre_hidden_mm_worst']:.3f} mm"
     )
     if "rules" in doc:

@@ -46,6 +46,8 @@ class CheckSettings:
     world : "open" (each cluster identified on its own; default) or "closed" (each label once
         per frame: assumes every body is in every frame)
     presence : probability that a body is in a frame (bodies come and go)
+    choose : how matches inside the window are ranked, ``fit`` or ``window``
+        (:data:`starforge.tracking.identify.CHOOSE`); None: the preset's, else ``fit``
     """
 
     noise_mm: float = 0.2
@@ -62,8 +64,13 @@ class CheckSettings:
     curve_frames: int | None = None
     world: str = "open"
     presence: float = 1.0
+    choose: str | None = None
 
     def __post_init__(self):
+        from starforge.tracking.identify import CHOOSE
+
+        if self.choose is not None:
+            require(self.choose in CHOOSE, f"choose must be one of {', '.join(CHOOSE)}, got {self.choose!r}")
         require(self.world in ("open", "closed"), f"world must be open or closed, got {self.world!r}")
         require(0 < self.presence <= 1, f"presence must be in (0, 1], got {self.presence}")
         require(self.curve_points <= 50, f"curve must be at most 50 noise levels, got {self.curve_points}")
@@ -81,18 +88,11 @@ class CheckSettings:
 def closest_triangles(lib, window_mm: float, k: int = 10) -> list[dict]:
     """The ``k`` body pairs (a body with itself included: two of its own triangles) whose
     triangles come closest: bottleneck distance of sorted sides, mm (below ``window_mm`` only)."""
-    S, tb = lib.tri_sorted, lib.tri_body
+    from starforge.tracking.identify import close_triangle_pairs
+
+    qi, qj, d = close_triangle_pairs(lib, window_mm)
     best: dict = {}
-    lo = np.searchsorted(S[:, 2], S[:, 2] - window_mm, side="left")
-    hi = np.searchsorted(S[:, 2], S[:, 2] + window_mm, side="right")
-    cnt = hi - lo
-    q = np.repeat(np.arange(len(S)), cnt)
-    j = lo[q] + (np.arange(len(q)) - np.repeat(np.cumsum(cnt) - cnt, cnt))
-    keep = j > q
-    q, j = q[keep], j[keep]
-    d = np.abs(S[q] - S[j]).max(axis=1)
-    keep = d < window_mm
-    for a, b, dv in zip(tb[q[keep]], tb[j[keep]], d[keep], strict=True):
+    for a, b, dv in zip(lib.tri_body[qi], lib.tri_body[qj], d, strict=True):
         key = (min(a, b), max(a, b))
         if key not in best or dv < best[key]:
             best[key] = float(dv)
@@ -114,29 +114,49 @@ def _worst_pairs(tally, names, k: int = 10) -> list[dict]:
     return [{"true": t, "reported": r, "kind": kind, "count": c, "rate": c / n} for c, t, r, kind in rows[:k]]
 
 
-def resolve_windows(bodyset, s: CheckSettings, preset=None) -> tuple[float, float, bool]:
-    """(match_mm, residual_mm, reflect) in effect."""
+def resolve_windows(bodyset, s: CheckSettings, preset=None) -> dict:
+    """The tracker in effect: ``match_mm``, ``residual_mm``, ``reflect``, ``choose``,
+    ``min_markers`` and where the window comes from (``window_source``).
+
+    The window is ``--match`` if given, else the preset's (fixed, or for QTM the tolerance
+    starforge writes into QTM files for these bodies), else the smallest family tolerance, else
+    2 mm; the residual limit ``--residual``, else the preset's, else half the window.
+    """
+    from starforge.tracking.formats import qtm_tolerances
+
     reflect = bool(preset.tracker.reflect) if preset is not None else False
+    choose = s.choose or (preset.tracker.choose if preset is not None else "fit")
+    res = None
     if s.match_mm is not None:
-        match = s.match_mm
+        match, source = s.match_mm, "--match"
+    elif preset is not None and preset.tracker.window == "qtm_export":
+        q = qtm_tolerances([b.points_mm for b in bodyset.bodies])
+        match, res = q["bone_length_tolerance_mm"], q["maximum_residual_mm"]
+        source = f"preset {preset.name}: QTM BoneLengthTolerance for these bodies (half their margin {q['margin_mm']:g} mm)"
     elif preset is not None:
-        match = preset.tracker.match_mm
+        match, res, source = preset.tracker.match_mm, preset.tracker.residual_mm, f"preset {preset.name}"
     elif bodyset.tolerance_mm is not None:
-        match = float(bodyset.tolerance_mm)
+        match, source = float(bodyset.tolerance_mm), "the family tolerance"
     else:
-        match = 2.0
+        match, source = 2.0, "starforge's default for bodies without a family tolerance"
     if s.residual_mm is not None:
         res = s.residual_mm
-    elif preset is not None and s.match_mm is None:
-        res = preset.tracker.residual_mm
-    else:
+    elif res is None:
         res = match / 2
-    return match, res, reflect
+    return {
+        "match_mm": float(match),
+        "residual_mm": float(res),
+        "reflect": reflect,
+        "choose": choose,
+        "min_markers": preset.tracker.identify_markers if preset is not None else 3,
+        "window_source": source,
+    }
 
 
 def accuracy_report(bodyset, s: CheckSettings) -> dict:
-    """Predicted accuracy of every body at the tip, with all markers and with the worst single
-    marker hidden (:mod:`starforge.geometry.rigid`), and the family's worst and median."""
+    """Predicted accuracy of every body at its tip (``--tip``, else the body's own tip: see
+    :mod:`starforge.tracking.bodies`), with all markers and with the worst single marker
+    hidden (:mod:`starforge.geometry.rigid`), and the family's median and worst."""
     from starforge.geometry.rigid import (
         fle_from_sigma,
         rotation_error_deg,
@@ -145,16 +165,21 @@ def accuracy_report(bodyset, s: CheckSettings) -> dict:
         tre_rms,
     )
 
-    tip = np.asarray(s.tip_mm if s.tip_mm is not None else bodyset.default_tip_mm, dtype=float)
-    fle = fle_from_sigma(max(s.noise_mm, 1e-12))
+    tips = (
+        np.broadcast_to(np.asarray(s.tip_mm, dtype=float), (len(bodyset.bodies), 3))
+        if s.tip_mm is not None
+        else bodyset.tips_mm()
+    )
+    fle = fle_from_sigma(s.noise_mm)
     rows = []
-    for b in bodyset.bodies:
+    for b, tip in zip(bodyset.bodies, tips, strict=True):
         P = b.points_mm
         hid = tre_hidden(P, tip, fle) if len(P) > 3 else np.full(len(P), np.inf)
         rows.append(
             {
                 "body": b.name,
                 "markers": len(P),
+                "tip_mm": [float(x) for x in tip],
                 "tip_tre_mm": float(tre_rms(P, tip, fle)),
                 "tip_tre_hidden_mm": float(hid.max()),
                 "worst_hidden_marker": int(hid.argmax()) + 1,
@@ -166,8 +191,9 @@ def accuracy_report(bodyset, s: CheckSettings) -> dict:
         )
     allm = np.array([r["tip_tre_mm"] for r in rows])
     hidm = np.array([r["tip_tre_hidden_mm"] for r in rows])
+    same_tip = bool((tips == tips[0]).all())
     return {
-        "tip_mm": [float(x) for x in tip],
+        "tip_mm": [float(x) for x in tips[0]] if same_tip else None,
         "tip_source": "--tip" if s.tip_mm is not None else bodyset.tip_source,
         "noise_mm": s.noise_mm,
         "bodies": rows,
@@ -200,30 +226,26 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
         f"every body needs at least 3 markers to be identified; the smallest has {min(len(p) for p in points)}",
     )
     lib = ident.build_library(points, names)
-    match, res, reflect = resolve_windows(bodyset, s, preset)
+    tr = resolve_windows(bodyset, s, preset)
+    match, res = tr["match_mm"], tr["residual_mm"]
     ident.check_settings(lib, s.noise_mm, s.drop, s.ghosts, s.frames, match, res)
+    most = int(lib.counts.min()) - s.drop
+    require(
+        not s.drop_exact or tr["min_markers"] <= most,
+        f"--drop {s.drop} --exact-drop leaves {most} markers, fewer than the {tr['min_markers']} "
+        f"the tracker identifies from",
+    )
     rng = np.random.default_rng(s.seed)
     cb = (lambda d, n: progress("frames", d, n)) if progress else None
-    min_markers = preset.tracker.identify_markers if preset is not None else 3
-    require(
-        min_markers <= lib.counts.min() - s.drop or not s.drop_exact,
-        f"drop {s.drop} leaves fewer than the {min_markers} markers the preset identifies from",
-    )
-    world = {"world": s.world, "presence": s.presence, "min_markers": min_markers}
-    tally = ident.run(
-        lib,
-        s.frames,
-        s.noise_mm,
-        s.drop,
-        s.ghosts,
-        rng,
-        match,
-        res,
-        s.drop_exact,
-        reflect,
-        progress=cb,
-        **world,
-    )
+    kw = {
+        "world": s.world,
+        "presence": s.presence,
+        "min_markers": tr["min_markers"],
+        "choose": tr["choose"],
+        "drop_exact": s.drop_exact,
+        "reflect": tr["reflect"],
+    }
+    tally = ident.run(lib, s.frames, s.noise_mm, s.drop, s.ghosts, rng, match, res, progress=cb, **kw)
     t_main = time.perf_counter() - t0
     curve = None
     if s.curve_points > 0:
@@ -232,9 +254,7 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
         levels = np.unique(np.round(np.concatenate([np.linspace(0.0, top, s.curve_points), [s.noise_mm]]), 9))
         idr, mis = [], []
         for i, nz in enumerate(levels):
-            t = ident.run(
-                lib, cf, float(nz), s.drop, s.ghosts, rng, match, res, s.drop_exact, reflect, **world
-            )
+            t = ident.run(lib, cf, float(nz), s.drop, s.ghosts, rng, match, res, **kw)
             r = t.rates()
             idr.append(r["identification_rate"])
             mis.append(r["mislabel_rate"])
@@ -246,7 +266,12 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
         "format": FORMAT,
         "version": VERSION,
         "units": "mm",
-        "input": {"kind": bodyset.kind, "files": list(bodyset.sources), "bodies": len(names)},
+        "input": {
+            "kind": bodyset.kind,
+            "files": list(bodyset.sources),
+            "bodies": len(names),
+            "notes": list(bodyset.notes),
+        },
         "settings": {
             "noise_mm": s.noise_mm,
             "drop": s.drop,
@@ -256,11 +281,14 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
             "seed": s.seed,
             "match_mm": match,
             "residual_mm": res,
-            "mirror_blind": reflect,
+            "window_source": tr["window_source"],
+            "mirror_blind": tr["reflect"],
             "preset": s.preset,
             "world": s.world,
             "presence": s.presence,
-            "identify_from_markers": min_markers,
+            "identify_from_markers": tr["min_markers"],
+            "choose": tr["choose"],
+            "choose_means": ident.CHOOSE[tr["choose"]],
             "tip_mm": acc["tip_mm"],
         },
         **tally.rates(),
@@ -271,17 +299,19 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
         "phantoms": tally.phantoms.tolist(),
         "worst_pairs": _worst_pairs(tally, names),
         "closest_triangles": closest_triangles(lib, 2 * match),
+        "drop1_margin_mm": ident.drop1_margin_mm(lib),
         "accuracy": acc,
     }
     if preset is not None:
         from starforge.tracking.presets import check_rules
 
-        viol = check_rules(names, points, preset)
+        viol = check_rules(names, points, preset, window_mm=match, identify_markers=tr["min_markers"])
         doc["rules"] = {
             "preset": preset.name,
             "vendor": preset.vendor,
             "source": preset.source,
             "sources": dict(preset.sources),
+            "window_mm": match,
             "violations": [v.to_json() for v in viol],
         }
     if curve is not None:

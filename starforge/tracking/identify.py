@@ -127,6 +127,58 @@ def build_library(points_list, names=None) -> Library:
     )
 
 
+def close_triangle_pairs(lib: Library, window_mm: float, chunk: int = 4096):
+    """Pairs of different library triangles whose sorted sides all differ by less than
+    ``window_mm`` (the bottleneck distance: some vertex correspondence matches that closely).
+
+    Returns ``(i, j, d)``: triangle indices ``i < j`` into the library's arrays and their
+    bottleneck distances, mm.  Triangles of one body are paired too (a hidden marker can leave
+    either).  Work is chunked over ``i``; memory grows with the pairs found.
+    """
+    S = lib.tri_sorted
+    lo = np.searchsorted(S[:, 2], S[:, 2] - window_mm, side="left")
+    hi = np.searchsorted(S[:, 2], S[:, 2] + window_mm, side="right")
+    out_i, out_j, out_d = [], [], []
+    for a in range(0, len(S), chunk):
+        q0 = np.arange(a, min(a + chunk, len(S)))
+        cnt = hi[q0] - lo[q0]
+        q = np.repeat(q0, cnt)
+        j = lo[q] + (np.arange(len(q)) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+        keep = j > q
+        q, j = q[keep], j[keep]
+        d = np.abs(S[q] - S[j]).max(axis=1)
+        keep = d < window_mm
+        out_i.append(q[keep])
+        out_j.append(j[keep])
+        out_d.append(d[keep])
+    if not out_i:
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), np.zeros(0)
+    return np.concatenate(out_i), np.concatenate(out_j), np.concatenate(out_d)
+
+
+def drop1_margin_mm(lib: Library) -> float:
+    """The bodies' identification margin with one marker hidden, mm: the smallest difference a
+    tracker's distance window must stay under so that no three markers it may see match a
+    wrong body or a wrong correspondence.
+
+    The minimum of (a) the bottleneck distance between any two different triangles (of two
+    bodies, or of one body) and (b) the smallest gap between two sides of one triangle (under
+    which the triangle matches itself with two vertices swapped).
+    """
+    S = lib.tri_sorted
+    self_gap = float(np.min(np.diff(S, axis=1))) if len(S) else np.inf
+    best = self_gap
+    window = 1.0
+    while window < 4 * max(float(S[:, 2].max()), 1.0):
+        _, _, d = close_triangle_pairs(lib, min(window, best + 1e-9))
+        if len(d):
+            return float(min(best, d.min()))
+        if window >= best:
+            return best
+        window *= 4.0
+    return best
+
+
 @dataclass(frozen=True)
 class Hypotheses:
     """Accepted rigid-fit hypotheses (one row each).
@@ -243,16 +295,20 @@ def hypotheses(
     return Hypotheses(scene[first], body[first], assign[first], n[first], rms[first])
 
 
-def resolve(h: Hypotheses, frame_of_scene: np.ndarray, n_points: int, n_bodies: int) -> np.ndarray:
-    """Indices of the hypotheses a tracker reports: greedy by (more markers, lower RMS), each
-    observed point (``scene * n_points + slot``) and each (group, body label) used once.
+def resolve(
+    h: Hypotheses, frame_of_scene: np.ndarray, n_points: int, n_bodies: int, key: np.ndarray | None = None
+) -> np.ndarray:
+    """Indices of the hypotheses a tracker reports: greedy by (more markers, then ``key``,
+    lowest first; default the RMS residual), each observed point (``scene * n_points + slot``)
+    and each (group, body label) used once.
 
     ``frame_of_scene`` groups the scenes whose labels exclude each other: the frame in the
-    closed world, the scene itself in the open world (each cluster on its own)."""
+    closed world, the scene itself in the open world (each cluster on its own).  A tracker that
+    cannot rank matches inside its window passes a random ``key`` (see :data:`CHOOSE`)."""
     H = len(h.scene)
     if H == 0:
         return np.zeros(0, dtype=np.intp)
-    order = np.lexsort((h.rms, -h.n))
+    order = np.lexsort((h.rms if key is None else key, -h.n))
     rank = np.empty(H, dtype=np.int64)
     rank[order] = np.arange(H)
     pt = np.where(h.assign >= 0, h.scene[:, None] * n_points + h.assign, -1)
@@ -451,6 +507,15 @@ def check_settings(
     )
 
 
+#: how a tracker picks among a cluster's accepted matches with equally many markers:
+#: ``fit``: the lowest RMS residual (a tracker that ranks by its rigid fit);
+#: ``window``: any of them, at random (a tracker that, as its vendor documents, treats every
+#: distance inside its window as the same and so cannot rank matches inside it)
+CHOOSE = {
+    "fit": "the lowest rigid-fit residual wins",
+    "window": "matches inside the window are equal; one is taken at random",
+}
+
 #: caps on what ``check`` simulates, whatever the machine
 MAX_GHOSTS = 20
 MAX_FRAMES = 10_000_000
@@ -481,17 +546,21 @@ def run(
     world: str = "open",
     presence: float = 1.0,
     min_markers: int = 3,
+    choose: str = "fit",
 ) -> Tally:
     """Simulate ``n_frames`` frames and identify them; returns the :class:`Tally`.
 
     ``world``: "open" (each cluster on its own) or "closed" (each label once per frame);
     ``presence``: probability that a body is in a frame; ``min_markers``: matched markers a
-    reported identification needs.  ``progress(done_frames, total_frames)`` after each batch.
+    reported identification needs; ``choose``: how a cluster's accepted matches with equally
+    many markers are ranked (:data:`CHOOSE`).  ``progress(done_frames, total_frames)`` after
+    each batch.
     """
     check_settings(lib, noise_mm, drop, ghosts, n_frames, match_mm, residual_mm)
     require(world in ("open", "closed"), f"world must be open or closed, got {world!r}")
     require(0.0 < presence <= 1.0, f"presence must be in (0, 1], got {presence}")
     require(3 <= min_markers, f"min_markers must be >= 3, got {min_markers}")
+    require(choose in CHOOSE, f"choose must be one of {', '.join(CHOOSE)}, got {choose!r}")
     B = lib.n_bodies
     # bound the candidate (observed triangle, library triangle) pairs per batch to ~4 million
     pairs, _ = cost(lib, ghosts, match_mm)
@@ -507,7 +576,8 @@ def run(
             keep = h.n >= min_markers
             h = Hypotheses(h.scene[keep], h.body[keep], h.assign[keep], h.n[keep], h.rms[keep])
         group = sc.frame if world == "closed" else np.arange(len(sc.body))
-        chosen = resolve(h, group, sc.pts.shape[1], B)
+        key = rng.random(len(h.scene)) if choose == "window" else None
+        chosen = resolve(h, group, sc.pts.shape[1], B, key)
         score(sc, h, chosen, tally)
         tally.frames += f
         done += f

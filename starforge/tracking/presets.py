@@ -8,7 +8,12 @@ inside a body), ``distinct_distances`` (two distances of one body closer than ``
 (the body fits itself under a wrong correspondence: it flips), ``congruent`` (two bodies fit
 each other within the window), ``mirror_images`` (they fit only mirrored, and the vendor
 treats mirror images as the same), ``shared_triangle`` (three markers of one body match three
-of another: confused when a marker is hidden).
+of another: confused when a marker is hidden), ``own_triangles`` (two triangles of one body
+match: it flips when a marker is hidden), ``shared_markers`` (for a tracker that identifies
+from 4 or more markers: that many markers of two bodies match).
+
+The window-dependent rules are checked at the window the simulation uses, so the rule check
+names exactly the confusions ``starforge check`` can simulate.
 """
 
 from __future__ import annotations
@@ -51,20 +56,39 @@ class Rules:
                 positive(f"rules.{name}", getattr(self, name))
 
 
+#: where a preset's distance window comes from
+WINDOWS = {
+    "fixed": "the preset's match_mm and residual_mm",
+    "qtm_export": "the BoneLengthTolerance and MaximumResidual starforge writes into QTM files for these bodies",
+}
+
+
 @dataclass(frozen=True)
 class TrackerSettings:
-    """How the preset's tracker identifies: distance window, fit limit (mm), mirror-blind or not."""
+    """How the preset's tracker identifies: distance window and fit limit (mm), where the window
+    comes from (:data:`WINDOWS`), mirror-blind or not, markers needed, and how it picks among
+    matches inside the window (:data:`starforge.tracking.identify.CHOOSE`)."""
 
     match_mm: float = 2.0
     residual_mm: float = 1.0
     reflect: bool = False
     identify_markers: int = 3  # matched markers a reported identification needs
+    window: str = "fixed"
+    choose: str = "window"
 
     def __post_init__(self):
+        from starforge.tracking.identify import CHOOSE
+
         positive("tracker.match_mm", self.match_mm)
         positive("tracker.residual_mm", self.residual_mm)
         require(
             self.identify_markers >= 3, f"tracker.identify_markers must be >= 3, got {self.identify_markers}"
+        )
+        require(
+            self.window in WINDOWS, f"tracker.window must be one of {', '.join(WINDOWS)}, got {self.window!r}"
+        )
+        require(
+            self.choose in CHOOSE, f"tracker.choose must be one of {', '.join(CHOOSE)}, got {self.choose!r}"
         )
 
 
@@ -136,10 +160,12 @@ def line_deviation_mm(P: np.ndarray) -> float:
     return float(np.linalg.norm(d, axis=1).max())
 
 
-def check_body(name: str, P: np.ndarray, rules: Rules) -> list[Violation]:
-    """Single-body rules."""
+def check_body(name: str, P: np.ndarray, rules: Rules, window_mm: float | None = None) -> list[Violation]:
+    """Single-body rules.  ``window_mm``: the tracker's distance window for the equality and
+    symmetry checks (default ``rules.equal_mm``)."""
     from starforge.tracking.identify import self_matches
 
+    w = rules.equal_mm if window_mm is None else float(window_mm)
     P = np.asarray(P, dtype=float)
     out: list[Violation] = []
     n = len(P)
@@ -149,12 +175,12 @@ def check_body(name: str, P: np.ndarray, rules: Rules) -> list[Violation]:
         out.append(Violation(name, "too_many_markers", f"{n} markers, allows at most {rules.max_markers}"))
     if n < 2:
         return out
-    if rules.not_collinear and n >= 2 and line_deviation_mm(P) < rules.equal_mm:
+    if rules.not_collinear and n >= 2 and line_deviation_mm(P) < w:
         out.append(
             Violation(
                 name,
                 "collinear",
-                f"markers lie within {line_deviation_mm(P):.2f} mm of a line (window {rules.equal_mm} mm)",
+                f"markers lie within {line_deviation_mm(P):.2f} mm of a line (window {w:g} mm)",
             )
         )
     ij, d = _pair_distances(P)
@@ -179,17 +205,16 @@ def check_body(name: str, P: np.ndarray, rules: Rules) -> list[Violation]:
                     f"{gaps[k]:.2f} mm, must differ by at least {rules.distinct_mm} mm",
                 )
             )
-        if gaps[k] < rules.equal_mm:
+        if gaps[k] < w:
             out.append(
                 Violation(
                     name,
                     "equal_distances",
-                    f"distances {srt[k]:.2f} and {srt[k + 1]:.2f} mm count as equal "
-                    f"(closer than {rules.equal_mm} mm)",
+                    f"distances {srt[k]:.2f} and {srt[k + 1]:.2f} mm count as equal (closer than {w:g} mm)",
                 )
             )
     if rules.asymmetric and n >= 3:
-        flips = self_matches(P, rules.equal_mm, rules.equal_mm / 2, reflect=not rules.mirror_unique)
+        flips = self_matches(P, w, w / 2, reflect=not rules.mirror_unique)
         if flips:
             rms, a = flips[0]
             out.append(
@@ -203,83 +228,129 @@ def check_body(name: str, P: np.ndarray, rules: Rules) -> list[Violation]:
     return out
 
 
-def check_between(names, points, rules: Rules, limit: int = 1000) -> list[Violation]:
-    """Rules between bodies: congruent / mirror images / shared triangles (at most ``limit`` reported)."""
-    from starforge.tracking.identify import build_library, hypotheses
+def check_between(
+    names,
+    points,
+    rules: Rules,
+    limit: int = 1000,
+    window_mm: float | None = None,
+    identify_markers: int = 3,
+) -> list[Violation]:
+    """Rules between bodies, and between a body's own marker subsets, at the tracker's window
+    ``window_mm`` (default ``rules.equal_mm``), at most ``limit`` reported:
 
+    * ``congruent`` / ``mirror_images``: two bodies fit each other with every marker;
+    * with ``identify_markers`` = 3: ``shared_triangle`` (three markers of one body match three of
+      another: confused when the others are hidden) and ``own_triangles`` (two of a body's own
+      triangles, or one triangle with two vertices swapped, match: it flips when a marker is
+      hidden);
+    * with ``identify_markers`` >= 4: ``shared_markers`` (that many markers of one body match as
+      many of another).
+    """
+    from starforge.tracking.identify import build_library, close_triangle_pairs, hypotheses
+
+    w = rules.equal_mm if window_mm is None else float(window_mm)
     out: list[Violation] = []
     B = len(points)
-    if B < 2:
-        return out
     usable = [i for i in range(B) if len(points[i]) >= 3]
-    if len(usable) < 2:
+    if not usable:
         return out
     lib = build_library([points[i] for i in usable], [names[i] for i in usable])
     nmax = max(len(points[i]) for i in usable)
     pts = np.full((len(usable), nmax, 3), np.nan)
-    for s, i in enumerate(usable):
-        pts[s, : len(points[i])] = points[i]
-    w = rules.equal_mm
-    seen = set()
+    for k, i in enumerate(usable):
+        pts[k, : len(points[i])] = points[i]
+    seen: set = set()
+    shared: dict = {}
     for reflect in (False, True):
         if reflect and rules.mirror_unique:
             break
         h = hypotheses(lib, pts, w, w / 2, reflect=reflect)
-        for s, c, n in zip(h.scene, h.body, h.n, strict=True):
-            if s == c:
+        for sc, c, n in zip(h.scene, h.body, h.n, strict=True):
+            if sc == c:
                 continue
-            a, b = usable[s], usable[c]
-            if n < min(len(points[a]), len(points[b])):
-                continue
+            a, b = usable[sc], usable[c]
             key = tuple(sorted((a, b)))
-            if key in seen:
-                continue
-            seen.add(key)
-            rule = "mirror_images" if reflect else "congruent"
-            what = "mirror images of each other" if reflect else "congruent"
+            if n >= min(len(points[a]), len(points[b])):
+                if key in seen:
+                    continue
+                seen.add(key)
+                rule = "mirror_images" if reflect else "congruent"
+                what = "mirror images of each other" if reflect else "congruent"
+                out.append(
+                    Violation(
+                        f"{names[key[0]]} / {names[key[1]]}",
+                        rule,
+                        f"{what} within {w:g} mm: the tracker cannot tell them apart",
+                    )
+                )
+            elif identify_markers >= 4 and n >= identify_markers:
+                shared[key] = max(shared.get(key, 0), int(n))
+    if identify_markers >= 4:
+        for (a, b), n in sorted(shared.items()):
+            if (a, b) not in seen:
+                out.append(
+                    Violation(
+                        f"{names[a]} / {names[b]}",
+                        "shared_markers",
+                        f"{n} markers of each match within {w:g} mm: confused when the others are hidden",
+                    )
+                )
+        return out[:limit]
+    # triangles (identification from three markers): between bodies, and within one body
+    qi, qj, d = close_triangle_pairs(lib, w)
+    pairs: dict = {}
+    for ti, tj, dv in zip(qi, qj, d, strict=True):
+        key = tuple(sorted((usable[lib.tri_body[ti]], usable[lib.tri_body[tj]])))
+        if key not in pairs or dv < pairs[key]:
+            pairs[key] = float(dv)
+    gap = np.diff(lib.tri_sorted, axis=1).min(axis=1)
+    for t in np.flatnonzero(gap < w):
+        a = usable[lib.tri_body[t]]
+        if (a, a) not in pairs or gap[t] < pairs[(a, a)]:
+            pairs[(a, a)] = float(gap[t])
+    for (a, b), dv in sorted(pairs.items(), key=lambda kv: kv[1]):
+        if a == b:
             out.append(
                 Violation(
-                    f"{names[key[0]]} / {names[key[1]]}",
-                    rule,
-                    f"{what} within {w} mm: the tracker cannot tell them apart",
+                    names[a],
+                    "own_triangles",
+                    f"two of its marker triangles (or one with two vertices swapped) match within {dv:.2f} mm "
+                    f"(window {w:g} mm): it can flip when a marker is hidden",
                 )
             )
-    # triangles shared between bodies (bottleneck distance of sorted sides below the window)
-    S = lib.tri_sorted
-    tb = lib.tri_body
-    pairs: dict = {}
-    for i0 in range(0, len(S), 2048):
-        blk = S[i0 : i0 + 2048]
-        lo = np.searchsorted(S[:, 2], blk[:, 2] - w, side="left")
-        hi = np.searchsorted(S[:, 2], blk[:, 2] + w, side="right")
-        for k in range(len(blk)):
-            j = np.arange(lo[k], hi[k])
-            j = j[tb[j] > tb[i0 + k]]
-            if len(j) == 0:
-                continue
-            dd = np.abs(S[j] - blk[k]).max(axis=1)
-            for jj, dv in zip(j[dd < w], dd[dd < w], strict=True):
-                key = (usable[tb[i0 + k]], usable[tb[jj]])
-                if key not in pairs or dv < pairs[key]:
-                    pairs[key] = float(dv)
-    for (a, b), dv in sorted(pairs.items(), key=lambda kv: kv[1]):
-        if tuple(sorted((a, b))) in seen:
-            continue
-        out.append(
-            Violation(
-                f"{names[a]} / {names[b]}",
-                "shared_triangle",
-                f"three markers of each match within {dv:.2f} mm (window {w} mm): "
-                f"confused when a marker is hidden",
+        elif (a, b) not in seen:
+            out.append(
+                Violation(
+                    f"{names[a]} / {names[b]}",
+                    "shared_triangle",
+                    f"three markers of each match within {dv:.2f} mm (window {w:g} mm): "
+                    f"confused when a marker is hidden",
+                )
             )
-        )
     return out[:limit]
 
 
-def check_rules(names, points, preset: Preset) -> list[Violation]:
-    """Every violation of ``preset``'s rules by bodies ``points`` (list of (n, 3) mm arrays)."""
+def check_rules(
+    names, points, preset: Preset, window_mm: float | None = None, identify_markers: int | None = None
+) -> list[Violation]:
+    """Every violation of ``preset``'s rules by bodies ``points`` (list of (n, 3) mm arrays).
+
+    ``window_mm``: the distance window the tracker simulation uses (default the preset's
+    ``rules.equal_mm``), so that the rule check names exactly the confusions the simulation can
+    make; ``identify_markers``: markers an identification needs (default the preset's).
+    """
+    k = preset.tracker.identify_markers if identify_markers is None else int(identify_markers)
     out: list[Violation] = []
     for nm, P in zip(names, points, strict=True):
-        out.extend(check_body(nm, P, preset.rules))
-    out.extend(check_between(list(names), [np.asarray(p, dtype=float) for p in points], preset.rules))
+        out.extend(check_body(nm, P, preset.rules, window_mm))
+    out.extend(
+        check_between(
+            list(names),
+            [np.asarray(p, dtype=float) for p in points],
+            preset.rules,
+            window_mm=window_mm,
+            identify_markers=k,
+        )
+    )
     return out
