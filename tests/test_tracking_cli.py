@@ -87,8 +87,12 @@ def test_check_accuracy_and_rules(checked):
             Q = b.points_mm.copy()
             Q[i] = np.nan
             hid.append(tre_rms(Q, tip, fle))
-        assert row["tip_tre_hidden_mm"] == pytest.approx(max(hid)) and row["worst_hidden_marker"] == 1 + int(np.argmax(hid))
-    assert acc["family"]["tip_tre_hidden_mm_worst"] == pytest.approx(max(r["tip_tre_hidden_mm"] for r in acc["bodies"]))
+        assert row["tip_tre_hidden_mm"] == pytest.approx(max(hid)) and row["worst_hidden_marker"] == 1 + int(
+            np.argmax(hid)
+        )
+    assert acc["family"]["tip_tre_hidden_mm_worst"] == pytest.approx(
+        max(r["tip_tre_hidden_mm"] for r in acc["bodies"])
+    )
     # a 16 x 12 x 24 mm star cannot meet ART's 30 mm minimum distance: every body is named
     named = {v["body"] for v in doc["rules"]["violations"] if v["rule"] == "min_distance"}
     assert named == set(doc["confusion"]["labels"])
@@ -181,7 +185,9 @@ def test_check_on_two_placements(tmp_path):
     # placements are metres: the TRE uses the mm layout, at the prop's origin by default
     assert doc["accuracy"]["tip_mm"] == [0.0, 0.0, 0.0]
     wand = pos * 1000.0
-    assert doc["accuracy"]["bodies"][0]["tip_tre_mm"] == pytest.approx(tre_rms(wand, [0, 0, 0], fle_from_sigma(0.2)))
+    assert doc["accuracy"]["bodies"][0]["tip_tre_mm"] == pytest.approx(
+        tre_rms(wand, [0, 0, 0], fle_from_sigma(0.2))
+    )
     assert doc["identification_rate"] > 0.9
 
 

@@ -126,7 +126,11 @@ def brute_margin(points_list) -> float:
     tri = []
     for P in points_list:
         for a, b, c in itertools.combinations(range(len(P)), 3):
-            tri.append(sorted([np.linalg.norm(P[a] - P[b]), np.linalg.norm(P[b] - P[c]), np.linalg.norm(P[a] - P[c])]))
+            tri.append(
+                sorted(
+                    [np.linalg.norm(P[a] - P[b]), np.linalg.norm(P[b] - P[c]), np.linalg.norm(P[a] - P[c])]
+                )
+            )
     T = np.array(tri)
     best = np.diff(T, axis=1).min()
     for i, j in itertools.combinations(range(len(T)), 2):
@@ -197,7 +201,15 @@ def test_atracsys_files_parse_the_way_atracsys_reads_them(small_family, tmp_path
 
 
 def test_atracsys_refuses_bodies_its_geometry_cannot_hold(tmp_path):
-    seven = [[0.0, 0, 0], [0.05, 0, 0], [0, 0.06, 0], [0, 0, 0.07], [0.04, 0.05, 0], [0.03, 0, 0.08], [0.09, 0.02, 0.03]]
+    seven = [
+        [0.0, 0, 0],
+        [0.05, 0, 0],
+        [0, 0.06, 0],
+        [0, 0, 0.07],
+        [0.04, 0.05, 0],
+        [0.03, 0, 0.08],
+        [0.09, 0.02, 0.03],
+    ]
     src = placement_json(tmp_path / "placement.json", seven)
     with pytest.raises(StarforgeError, match="at most 6 fiducials"):
         write_rigid_bodies(src, ["qtm", "atracsys"], tmp_path / "out")
@@ -374,7 +386,9 @@ def test_a_labs_bodies_beside_a_family_and_a_placement(small_family, tmp_path):
 
     P = bs.bodies[-1].points_mm
     lo, hi = np.array(doc["prop"]["bounds_m"]) * 1000
-    grid = np.stack(np.meshgrid(*[np.linspace(a, b, 9) for a, b in zip(lo, hi, strict=True)]), -1).reshape(-1, 3)
+    grid = np.stack(np.meshgrid(*[np.linspace(a, b, 9) for a, b in zip(lo, hi, strict=True)]), -1).reshape(
+        -1, 3
+    )
     worst = max(tre_rms(P, g, 1.0) for g in grid)
     assert tre_rms(P, tips[-1], 1.0) == pytest.approx(worst, rel=1e-9)
     assert any(np.allclose(tips[-1], c) for c in itertools.product(*zip(lo, hi, strict=True)))
@@ -386,12 +400,24 @@ def test_a_labs_bodies_beside_a_family_and_a_placement(small_family, tmp_path):
         ("nan.csv", "body,marker,x_mm,y_mm,z_mm\nt,1,0,0,0\nt,2,nan,0,0\nt,3,0,9,0\n", "not finite"),
         ("twice.csv", "body,marker,x_mm,y_mm,z_mm\nt,1,0,0,0\nt,2,0,0,0\nt,3,0,9,0\n", "two markers"),
         ("two.csv", "body,marker,x_mm,y_mm,z_mm\nt,1,0,0,0\nt,2,20,0,0\n", "at least 3"),
-        ("same.csv", "body,marker,x_mm,y_mm,z_mm\nt,1,0,0,0\nt,1,20,0,0\nt,3,0,9,0\n", "numbers a marker twice"),
+        (
+            "same.csv",
+            "body,marker,x_mm,y_mm,z_mm\nt,1,0,0,0\nt,1,20,0,0\nt,3,0,9,0\n",
+            "numbers a marker twice",
+        ),
         ("m.csv", "body,marker,x_mm,y_mm,z_mm\nt,1,0,0,0\nt,2,0.02,0,0\nt,3,0,0.03,0\n", "other units"),
         ("huge.ini", "[geometry]\ncount=1000000\nid=3\n", "outside 3..64"),
-        ("bad.vsk", '<KinematicModel><MarkerSet NAME="x"><Markers><Marker NAME="a" POSITION="1 2"/>', "not valid XML"),
-        ("tok.vsk", '<KinematicModel><MarkerSet><Markers><Marker NAME="a" POSITION="Q 0 0"/></Markers>'
-         "</MarkerSet></KinematicModel>", "POSITION token"),
+        (
+            "bad.vsk",
+            '<KinematicModel><MarkerSet NAME="x"><Markers><Marker NAME="a" POSITION="1 2"/>',
+            "not valid XML",
+        ),
+        (
+            "tok.vsk",
+            '<KinematicModel><MarkerSet><Markers><Marker NAME="a" POSITION="Q 0 0"/></Markers>'
+            "</MarkerSet></KinematicModel>",
+            "POSITION token",
+        ),
         ("empty.xml", "<QTM_Settings><The_6D/></QTM_Settings>", "holds no QTM Body"),
     ],
 )

@@ -11,7 +11,7 @@ import pytest
 
 from starforge.errors import StarforgeError
 from starforge.tracking import identify as ident
-from starforge.tracking.presets import check_rules, load_preset
+from starforge.tracking.presets import load_preset
 from tests.conftest import run_cli
 
 # two bodies sharing a triangle exactly (A, B, C), differing only in the fourth marker: a
@@ -104,7 +104,9 @@ CONFUSIONS = {"symmetric", "congruent", "mirror_images", "shared_triangle", "own
 def _bodyset(points):
     from starforge.tracking.bodies import Body, BodySet
 
-    return BodySet("tracker", ("test",), tuple(Body(f"b{i}", i + 1, P, (0.0, 0.0, 0.0)) for i, P in enumerate(points)))
+    return BodySet(
+        "tracker", ("test",), tuple(Body(f"b{i}", i + 1, P, (0.0, 0.0, 0.0)) for i, P in enumerate(points))
+    )
 
 
 @pytest.mark.parametrize("preset", ["art", "ndi", "qualisys", "optitrack"])
@@ -136,7 +138,19 @@ def test_qualisys_simulates_the_tolerances_its_files_carry(small_family, tmp_pat
     fam, _ = small_family
     summary = write_rigid_bodies(fam / "family.json", ["qtm"], tmp_path / "files")
     out = tmp_path / "check"
-    args = ["check", fam / "family.json", "--preset", "qualisys", "--frames", 50, "--curve", 0, "--out", out, "-q"]
+    args = [
+        "check",
+        fam / "family.json",
+        "--preset",
+        "qualisys",
+        "--frames",
+        50,
+        "--curve",
+        0,
+        "--out",
+        out,
+        "-q",
+    ]
     assert run_cli(args) == 0
     doc = json.loads((out / "check.json").read_text())
     assert doc["settings"]["match_mm"] == summary["qtm"]["bone_length_tolerance_mm"]
