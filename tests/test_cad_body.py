@@ -346,3 +346,22 @@ def test_screw_holes_clear_stems_and_label(family):
                 assert np.linalg.norm(d) >= h.radius_mm
         a, c = (np.array(h.p0)[[0, 2]] for h in holes)
         assert np.linalg.norm(a - c) >= 2 * (m["hole_mm"] / 2 + m["hole_wall_mm"]) - 1e-9
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-5, 5), min_size=12, max_size=12))
+def test_ray_segment_distance_is_exact(xs):
+    """Against brute force: dense points on the segment, each one's exact distance to the ray."""
+    from starforge.cad.primitives import ray_segment_distance
+
+    o, d, a, b = np.array(xs).reshape(4, 3)
+    if np.linalg.norm(d) < 1e-3:
+        return
+    d = d / np.linalg.norm(d)
+    got = ray_segment_distance(o[None], d[None], a, b)[0]
+    q = a + np.linspace(0, 1, 4001)[:, None] * (b - a)
+    rel = q - o
+    t = np.clip(rel @ d, 0, None)
+    brute = np.linalg.norm(rel - t[:, None] * d, axis=1).min()
+    assert got <= brute + 1e-9  # never more than a point of the segment shows
+    assert got >= brute - np.linalg.norm(b - a) / 4000 - 1e-9  # nor less than the sampling allows

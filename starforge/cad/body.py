@@ -24,7 +24,7 @@ from typing import Literal
 import numpy as np
 
 from starforge.cad.mounts import Mount, mount_geometry
-from starforge.cad.primitives import Box, Cylinder, Sphere, segment_segment_distance
+from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere, fillet_profile, segment_segment_distance
 from starforge.errors import StarforgeError
 from starforge.spec import in_range, require
 
@@ -32,6 +32,8 @@ UP = np.array([0.0, 1.0, 0.0])
 #: a post's pin is this much shorter than the hole in the marker's base, so the marker seats on
 #: the shoulder (its designed centre), never on the pin's end
 POST_PLAY_MM = 0.3
+#: a stem's root fillet reaches this far into the plate below its face (one solid, no seam)
+FILLET_BURIED_MM = 0.3
 
 
 @dataclass(frozen=True)
@@ -59,8 +61,9 @@ class BodySpec:
     min_stem_mm : float
         Printable minimum stem diameter (SLS nylon: about 0.8 mm).  Range [0.3, 4].
     fillet_mm : float or None
-        A cone flaring the stem's root into the plate (radius added at the plate); None: half the
-        stem diameter.  [0, 4].
+        Radius of the concave fillet rounding each stem's root into the plate (about the plate's
+        normal, 6 facets; it adds this much to the root's radius at the plate); None: half the
+        stem diameter.  Kept below the lowest marker (at most standoff - 0.1).  [0, 4].
     standoff_mm : float
         Gap between the lowest finished sphere and the plate (room for the foil), [0.2, 10].
     clearance_mm : float
@@ -339,6 +342,19 @@ def _seat_depth(kind: str, mt, spec: BodySpec, marker_mm: float) -> float:
     return mt.centre_height_mm + hole_len + 1.0
 
 
+def plate_gap_mm(spec: BodySpec, marker_mm: float) -> float:
+    """How far the plate's top face lies below the lowest finished marker's surface, mm: the
+    standoff, or more where a bought marker's seat reaches further down."""
+    kind, mt = _seat(spec, marker_mm)
+    rf = marker_mm / 2
+    return max(spec.standoff_mm, _seat_depth(kind, mt, spec, marker_mm) + 0.5 - rf)
+
+
+def root_fillet_mm(spec: BodySpec, marker_mm: float) -> float:
+    """The stem-root fillet radius in effect, mm: ``spec``'s, kept 0.1 mm below the lowest marker."""
+    return float(min(spec.fillet_for(marker_mm), plate_gap_mm(spec, marker_mm) - 0.1))
+
+
 def _tip_parts(kind: str, mt, spec: BodySpec, cen, u, marker_mm: float, stem_r: float):
     """(what the stem runs to, parts added, parts cut) for one marker's seat.
 
@@ -414,7 +430,7 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
         )
     elif kind == "post" and mt is None:
         require(spec.post_mm < marker_mm, f"post_mm={spec.post_mm} must be < marker_mm={marker_mm}")
-    below = max(rf + spec.standoff_mm, _seat_depth(kind, mt, spec, marker_mm) + 0.5)
+    below = plate_gap_mm(spec, marker_mm) + rf
     y_top = float(c[:, 1].min() - below)
     roots = route_stems(c, rf, rs, y_top, spec.clearance_mm, spec.max_tilt_deg)
     # the material under the label: thinner mounts cannot take a deep engraving
@@ -431,7 +447,7 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
             f"label_depth_mm={spec.label_depth_mm} leaves less than 0.3 mm of the {mount.name} mount "
             f"({floor:.2f} mm under the label)",
         )
-    fillet = spec.fillet_for(marker_mm)
+    fillet = root_fillet_mm(spec, marker_mm)
     mg = mount_geometry(
         mount,
         roots[:, [0, 2]],
@@ -450,9 +466,10 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
         stem = Cylinder(start, end, rs)
         stems.append(stem)
         adds.append(stem)
-        if fillet > 0:  # a cone flaring the root into the plate: no notch where the stem meets it
-            flare = min(2.0 * fillet, 0.6 * float(np.linalg.norm(end - root)))
-            adds.append(Cylinder(start, root + flare * u, rs + fillet, rs))
+        if fillet > 0:  # a fillet round the root, about the plate's normal: no notch at the plate
+            adds.append(
+                Revolved(root - FILLET_BURIED_MM * UP, root + fillet * UP, fillet_profile(rs, fillet, FILLET_BURIED_MM))
+            )
         adds.extend(parts)
         subs.extend(cuts)
     adds.extend(mg.add)

@@ -146,12 +146,13 @@ def export_family(
     :func:`family_bodies` for the same family, ids, mount and spec, when the caller already has
     them (they are described here otherwise).
     """
+    from trimesh.util import concatenate as trimesh_concatenate
+
     from starforge.cad.mesh import body_mesh
-    from starforge.cad.plate import plate_mesh
     from starforge.cad.threemf import threemf_bytes
     from starforge.cad.visibility import sphere_visibility
     from starforge.colours import body_colour
-    from starforge.render.bodies import thumbnail_png
+    from starforge.render.raster import thumbnail_png
 
     formats = tuple(formats)
     bad = [f for f in formats if f not in CAD_FORMATS]
@@ -166,7 +167,6 @@ def export_family(
     to_print, beds = print_layout(bodies, bed_mm, gap_mm)
     rep.timings["describe_s"] = time.perf_counter() - t0
     meshes, solids = [], []
-    coarse_meshes: dict = {}
     t_mesh = t_step = 0.0
     for k, (b, fit, T) in enumerate(zip(bodies, fits, to_print, strict=True)):
         t1 = time.perf_counter()
@@ -204,10 +204,7 @@ def export_family(
             (stage / f"{b.name}.stl").write_bytes(mesh.export(file_type="stl"))
             entry["files"].append(f"{b.name}.stl")
         if "3mf" in formats:
-            coarse = body_mesh(b, 16, 12)
-            coarse.apply_transform(T)
-            coarse_meshes[k] = coarse
-            thumb = thumbnail_png(coarse.vertices, coarse.faces)
+            thumb = thumbnail_png(mesh.vertices, mesh.faces, colour=colour)
             (stage / f"{b.name}.3mf").write_bytes(threemf_bytes([mesh], [b.name], thumb, [colour]))
             entry["files"].append(f"{b.name}.3mf")
         t_mesh += time.perf_counter() - t1
@@ -231,23 +228,19 @@ def export_family(
         t3 = time.perf_counter()
         for name, lay in zip(plate_names(len(beds)), beds, strict=True):
             files = []
+            moved = [meshes[i].copy().apply_transform(T) for i, T in zip(lay.members, lay.transforms, strict=True)]
             if "stl" in formats:
-                (stage / f"{name}.stl").write_bytes(plate_mesh(meshes, lay).export(file_type="stl"))
+                (stage / f"{name}.stl").write_bytes(trimesh_concatenate(moved).export(file_type="stl"))
                 files.append(f"{name}.stl")
             if "3mf" in formats:
-                moved = []
-                for i, T in zip(lay.members, lay.transforms, strict=True):
-                    c = meshes[i].copy()
-                    c.apply_transform(T)
-                    moved.append(c)
-                whole = plate_mesh(coarse_meshes, lay)
+                cols = [body_colour(bodies[i].star_id - 1) for i in lay.members]
+                v = np.concatenate([m.vertices for m in moved])
+                offsets = np.cumsum([0] + [len(m.vertices) for m in moved[:-1]])
+                f = np.concatenate([m.faces + o for m, o in zip(moved, offsets, strict=True)])
+                face_cols = np.repeat(np.array(cols, float), [len(m.faces) for m in moved], axis=0)
+                thumb = thumbnail_png(v, f, colour=face_cols)
                 (stage / f"{name}.3mf").write_bytes(
-                    threemf_bytes(
-                        moved,
-                        [bodies[i].name for i in lay.members],
-                        thumbnail_png(whole.vertices, whole.faces),
-                        [body_colour(bodies[i].star_id - 1) for i in lay.members],
-                    )
+                    threemf_bytes(moved, [bodies[i].name for i in lay.members], thumb, cols)
                 )
                 files.append(f"{name}.3mf")
             if "step" in formats:

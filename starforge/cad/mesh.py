@@ -14,7 +14,7 @@ from functools import lru_cache
 import numpy as np
 
 from starforge.cad.body import Body
-from starforge.cad.primitives import Box, Cylinder, Sphere
+from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere
 from starforge.errors import StarforgeError
 
 
@@ -37,6 +37,29 @@ def _sphere_scale(segments: int) -> float:
     return float((4.0 / 3.0 * np.pi / v) ** (1.0 / 3.0))
 
 
+def _placement(axis, origin) -> np.ndarray:
+    """(3, 4) affine map taking +z to ``axis``'s direction and the origin to ``origin``."""
+    m = np.zeros((3, 4))
+    m[:, :3] = _frame(np.asarray(axis, float))
+    m[:, 3] = origin
+    return m
+
+
+#: largest gap (mm) between a tessellated circle and the exact one, for large radii (a saddle's
+#: 11 mm channel): a fixed segment count is too coarse for them to keep volumes within 0.01 %
+MAX_SAGITTA_MM = 0.002
+
+
+def circle_segments(radius_mm: float, minimum: int) -> int:
+    """Segments for a circle of ``radius_mm``: at least ``minimum``, more where a chord would
+    stray more than :data:`MAX_SAGITTA_MM` from the circle (at most 720)."""
+    r = float(radius_mm)
+    if r <= MAX_SAGITTA_MM:
+        return int(minimum)
+    n = int(np.ceil(np.pi / np.arccos(1.0 - MAX_SAGITTA_MM / r)))
+    return int(min(720, max(int(minimum), n)))
+
+
 def _circle_scale(segments: int) -> float:
     """Radius factor giving a regular ``segments``-gon the area of its circle."""
     n = int(segments)
@@ -50,7 +73,7 @@ def primitive_manifold(p, sphere_segments: int = 64, cylinder_segments: int = 32
     that a sphere (cylinder) mesh holds the exact sphere's (cylinder's) volume; the surface
     stays within ``radius * (1 - cos(pi / segments))`` of the exact one.
     """
-    from manifold3d import Manifold
+    from manifold3d import CrossSection, Manifold
 
     if isinstance(p, Sphere):
         r = p.radius_mm * _sphere_scale(sphere_segments)
@@ -60,12 +83,15 @@ def primitive_manifold(p, sphere_segments: int = 64, cylinder_segments: int = 32
     if isinstance(p, Cylinder):
         p0, p1 = np.array(p.p0), np.array(p.p1)
         h = float(np.linalg.norm(p1 - p0))
-        k = _circle_scale(cylinder_segments)
-        cyl = Manifold.cylinder(h, p.radius_mm * k, p.r1 * k, int(cylinder_segments))
-        m = np.zeros((3, 4))
-        m[:, :3] = _frame(p1 - p0)
-        m[:, 3] = p0
-        return cyl.transform(m)
+        n = circle_segments(p.radius_mm, cylinder_segments)
+        r = p.radius_mm * _circle_scale(n)
+        return Manifold.cylinder(h, r, r, n).transform(_placement(p1 - p0, p0))
+    if isinstance(p, Revolved):
+        n = circle_segments(max(r for _, r in p.profile), cylinder_segments)
+        k = _circle_scale(n)
+        pts = [(0.0, p.profile[0][0]), *((r * k, t) for t, r in p.profile), (0.0, p.profile[-1][0])]
+        solid = CrossSection([pts]).revolve(n)
+        return solid.transform(_placement(np.subtract(p.p1, p.p0), np.array(p.p0)))
     raise TypeError(f"unknown primitive {type(p).__name__}")
 
 

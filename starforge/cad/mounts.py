@@ -6,8 +6,10 @@ documented where the values are edited).  Every mount is a plate under the star 
 (the star lies flat; +y is up, see :mod:`starforge.cad.primitives`) plus kind-specific features:
 
 - ``flat``: screw holes through the plate, placed clear of the stems;
-- ``strap``: a slot at each side (x) for a Velcro strap of a given width that wraps around the
-  limb, whose axis runs along the star's long side (z);
+- ``strap``: a tunnel through the base, crossing it along x, for a Velcro strap that wraps around
+  the limb (whose axis runs along the star's long side, z): the strap presses the tunnel's floor
+  onto the limb and adds nothing to the body's width; printed plate-down the floor is the first
+  layer and the roof is a short bridge across the strap;
 - ``saddle``: a concave channel underneath that sits on a cylinder (a finger segment) of a given
   diameter, between two flat rails that the body prints on (no region starts in mid-air: the
   channel's roof is a short bridge between the rails);
@@ -28,9 +30,11 @@ from starforge.catalog import list_templates, load_template
 from starforge.spec import in_range, require
 
 COMMON = ("thickness_mm", "margin_mm")
+#: the strap tunnel is this much wider than the strap (mm)
+STRAP_PLAY_MM = 0.5
 KINDS: dict[str, tuple[str, ...]] = {
     "flat": (*COMMON, "holes", "hole_mm", "hole_wall_mm"),
-    "strap": (*COMMON, "strap_width_mm", "slot_mm", "wall_mm"),
+    "strap": (*COMMON, "strap_width_mm", "slot_mm", "floor_mm", "wall_mm"),
     "saddle": (*COMMON, "segment_mm", "channel_mm", "land_mm"),
     "adhesive": (*COMMON, "pad_width_mm", "pad_length_mm", "recess_mm", "rim_mm"),
     "magnet": (*COMMON, "magnet_mm", "magnet_height_mm", "floor_mm", "wall_mm"),
@@ -247,7 +251,8 @@ def mount_geometry(
         d = p["magnet_mm"] + 2 * p["wall_mm"]
         fp = _at_least(fp, d, d)
     if kind == "strap":
-        fp = _at_least(fp, 0.0, p["strap_width_mm"] + 2 * p["wall_mm"])
+        t = p["thickness_mm"] + p["slot_mm"] + p["floor_mm"]  # roof, tunnel, floor
+        fp = _at_least(fp, 0.0, p["strap_width_mm"] + STRAP_PLAY_MM + 2 * p["wall_mm"])
     if kind == "saddle":
         fp = _at_least(fp, p["channel_mm"] + 2 * p["land_mm"], 0.0)
 
@@ -269,15 +274,6 @@ def mount_geometry(
             hx, hz = spot
             sub.append(Cylinder((hx, y_top - t - 1.0, hz), (hx, y_top + 0.1, hz), r))
             circles.append((hx, hz, s / 2))
-    if kind == "strap":
-        # the strap wraps around the limb (whose axis runs along z): it crosses the plate along x
-        # and passes through a slot at each x end; the slots are strap_width_mm long along z
-        ext = p["slot_mm"] + 2 * p["wall_mm"]
-        x0, x1, z0, z1 = fp
-        fp = (x0 - ext, x1 + ext, z0, z1)
-        zm = (z0 + z1) / 2
-        for xc in (x0 - ext / 2, x1 + ext / 2):
-            sub.append(Box((xc, y_top - t / 2 - 0.45, zm), (p["slot_mm"], t + 1.1, p["strap_width_mm"])))
     x0, x1, z0, z1 = fp
     xm, zm, w, ln = (x0 + x1) / 2, (z0 + z1) / 2, x1 - x0, z1 - z0
     y_bottom = y_top - t
@@ -289,6 +285,16 @@ def mount_geometry(
         R = p["segment_mm"] / 2
         yc = y_top - t - R
         sub.append(Cylinder((xm, yc, z0 - 1.0), (xm, yc, z1 + 1.0), R))
+    if kind == "strap":
+        # the tunnel: through along x, strap_width (+ play) wide along z at the plate's middle,
+        # slot_mm high above a floor_mm floor; the roof above it is thickness_mm thick
+        y0 = y_bottom + p["floor_mm"]
+        sub.append(
+            Box(
+                (xm, y0 + p["slot_mm"] / 2, zm),
+                (w + 2.0, p["slot_mm"], p["strap_width_mm"] + STRAP_PLAY_MM),
+            )
+        )
     if kind == "adhesive":
         rd = p["recess_mm"]
         sub.append(Box((xm, y_bottom + rd / 2 - 0.5, zm), (p["pad_width_mm"], rd + 1.0, p["pad_length_mm"])))

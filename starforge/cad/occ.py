@@ -11,16 +11,22 @@ from __future__ import annotations
 import numpy as np
 
 from starforge.cad.body import Body
-from starforge.cad.primitives import Box, Cylinder, Sphere
+from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere
 from starforge.errors import StarforgeError
 
 
-def primitive_solid(p):
-    """One primitive as a build123d Solid."""
+def primitive_solid(p, axis=None):
+    """One primitive as a build123d Solid.
+
+    ``axis`` (3,) orients a sphere's pole along a stem: the stem then meets the sphere on one of
+    its parallels (an iso-parametric circle), which OCCT intersects several times faster than a
+    circle across the sphere's parametrisation.  The solid is the same either way.
+    """
     import build123d as bd
 
     if isinstance(p, Sphere):
-        return bd.Solid.make_sphere(p.radius_mm, plane=bd.Plane(origin=p.centre))
+        z = (0.0, 0.0, 1.0) if axis is None else tuple(np.asarray(axis, float) / np.linalg.norm(axis))
+        return bd.Solid.make_sphere(p.radius_mm, plane=bd.Plane(origin=p.centre, z_dir=z))
     if isinstance(p, Box):
         sx, sy, sz = p.size
         c = np.array(p.centre) - np.array(p.size) / 2
@@ -29,21 +35,80 @@ def primitive_solid(p):
         p0, p1 = np.array(p.p0), np.array(p.p1)
         axis = p1 - p0
         h = float(np.linalg.norm(axis))
-        plane = bd.Plane(origin=tuple(p0), z_dir=tuple(axis / h))
-        if abs(p.r1 - p.radius_mm) > 1e-12:
-            return bd.Solid.make_cone(p.radius_mm, p.r1, h, plane=plane)
-        return bd.Solid.make_cylinder(p.radius_mm, h, plane=plane)
+        return bd.Solid.make_cylinder(p.radius_mm, h, plane=bd.Plane(origin=tuple(p0), z_dir=tuple(axis / h)))
+    if isinstance(p, Revolved):
+        return _revolved_solid(p)
     raise TypeError(f"unknown primitive {type(p).__name__}")
 
 
+def _revolved_solid(p: Revolved):
+    """The profile polygon (axis, polyline, axis) in a plane through the axis, turned 360 deg."""
+    import build123d as bd
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace, BRepBuilderAPI_MakePolygon
+    from OCP.BRepPrimAPI import BRepPrimAPI_MakeRevol
+    from OCP.gp import gp_Ax1, gp_Dir, gp_Pnt
+
+    u = p.axis
+    helper = np.array([1.0, 0, 0]) if abs(u[0]) < 0.9 else np.array([0, 1.0, 0])
+    w = np.cross(u, helper)
+    w /= np.linalg.norm(w)
+    o = np.array(p.p0)
+    pts = [o + p.profile[0][0] * u, *(o + t * u + r * w for t, r in p.profile), o + p.profile[-1][0] * u]
+    poly = BRepBuilderAPI_MakePolygon()
+    for q in pts:
+        poly.Add(gp_Pnt(*map(float, q)))
+    poly.Close()
+    face = BRepBuilderAPI_MakeFace(poly.Wire(), True).Face()
+    solid = BRepPrimAPI_MakeRevol(face, gp_Ax1(gp_Pnt(*map(float, o)), gp_Dir(*map(float, u))), 2 * np.pi).Shape()
+    return bd.Solid(solid)
+
+
+def _sphere_axes(body: Body) -> dict:
+    """{index in body.add of a sphere: its stem's direction} (stems end at their sphere's centre)."""
+    out = {}
+    ends = {tuple(np.round(s.p1, 9)): np.subtract(s.p1, s.p0) for s in body.stems}
+    for i, p in enumerate(body.add):
+        if isinstance(p, Sphere):
+            u = ends.get(tuple(np.round(p.centre, 9)))
+            if u is not None:
+                out[i] = u
+    return out
+
+
+def _disjoint(a, b) -> bool:
+    """Whether two (2, 3) bounds are apart (a positive gap on some axis)."""
+    return bool((a[0] > b[1] + 1e-6).any() or (b[0] > a[1] + 1e-6).any())
+
+
 def body_solid(body: Body):
-    """The body as one valid build123d Solid, its ``label`` set to ``body.name``."""
+    """The body as one valid build123d Solid, its ``label`` set to ``body.name``.
+
+    (union of ``add``) minus (union of ``subtract``), evaluated in the order that is fastest
+    for OCCT and gives the same solid: a cut whose bounds meet only a plate's is made on that
+    plate before the union ((A u B) - C = (A - C) u B when C misses B).
+    """
     import build123d as bd
 
-    adds = [primitive_solid(p) for p in body.add]
+    axes = _sphere_axes(body)
+    adds = [primitive_solid(p, axes.get(i)) for i, p in enumerate(body.add)]
+    plates = [i for i, p in enumerate(body.add) if isinstance(p, Box)]
+    others = [i for i in range(len(body.add)) if i not in plates]
+    other_bounds = [body.add[i].bounds() for i in others]
+    early: dict[int, list] = {i: [] for i in plates}
+    late = []
+    for c in body.subtract:
+        cb = c.bounds()
+        hit = [i for i in plates if not _disjoint(cb, body.add[i].bounds())]
+        if len(hit) == 1 and all(_disjoint(cb, ob) for ob in other_bounds):
+            early[hit[0]].append(primitive_solid(c))
+        else:
+            late.append(primitive_solid(c))
+    for i in plates:
+        if early[i]:
+            adds[i] = adds[i].cut(*early[i])
     shape = adds[0].fuse(*adds[1:]) if len(adds) > 1 else adds[0]
-    if body.subtract:
-        shape = shape.cut(*[primitive_solid(p) for p in body.subtract])
+    if late:
+        shape = shape.cut(*late)
     shape = shape.clean()
     solids = shape.solids()
     if len(solids) != 1:

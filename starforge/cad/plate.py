@@ -1,4 +1,4 @@
-"""Lay printed bodies out on print beds (pure shelf packing) and merge their meshes per bed.
+"""Lay printed bodies out on print beds (pure shelf packing).
 
 Bodies arrive in their printing orientation (:func:`print_transform`: plate down, the body's
 up (+y in the placement frame) along the bed's +Z, lowest point on Z = 0, centred on the Z
@@ -97,15 +97,3 @@ def layout_plates(bounds, bed_mm=(200.0, 200.0), gap_mm: float = 5.0) -> list[Pl
             fps.append([bed[i][0], bed[i][1], bed[i][0] + size[i, 0], bed[i][1] + size[i, 1]])
         out.append(PlateLayout((bx, by), gap, members, tuple(transforms), np.array(fps).reshape(-1, 4)))
     return out
-
-
-def plate_mesh(meshes, layout: PlateLayout):
-    """The member meshes (printing orientation) moved to their slots, one trimesh (a shell each)."""
-    import trimesh
-
-    moved = []
-    for i, T in zip(layout.members, layout.transforms, strict=True):
-        c = meshes[i].copy()
-        c.apply_transform(T)
-        moved.append(c)
-    return trimesh.util.concatenate(moved)

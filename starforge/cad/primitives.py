@@ -37,22 +37,15 @@ class Sphere:
 
 @dataclass(frozen=True)
 class Cylinder:
-    """A solid cylinder (flat ends) from ``p0`` to ``p1`` (3,) mm, ``radius_mm``; a cone frustum
-    when ``radius1_mm`` (the radius at ``p1``) is given."""
+    """A solid cylinder (flat ends) from ``p0`` to ``p1`` (3,) mm, ``radius_mm``."""
 
     p0: tuple[float, float, float]
     p1: tuple[float, float, float]
     radius_mm: float
-    radius1_mm: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "p0", _vec(self.p0))
         object.__setattr__(self, "p1", _vec(self.p1))
-
-    @property
-    def r1(self) -> float:
-        """Radius at ``p1``, mm."""
-        return self.radius_mm if self.radius1_mm is None else float(self.radius1_mm)
 
     @property
     def length_mm(self) -> float:
@@ -61,13 +54,11 @@ class Cylinder:
     def bounds(self) -> np.ndarray:
         p0, p1 = np.array(self.p0), np.array(self.p1)
         d = (p1 - p0) / max(self.length_mm, 1e-12)
-        s = np.sqrt(np.clip(1.0 - d**2, 0.0, 1.0))
-        e0, e1 = self.radius_mm * s, self.r1 * s
-        return np.array([np.minimum(p0 - e0, p1 - e1), np.maximum(p0 + e0, p1 + e1)])
+        ext = self.radius_mm * np.sqrt(np.clip(1.0 - d**2, 0.0, 1.0))
+        return np.array([np.minimum(p0, p1) - ext, np.maximum(p0, p1) + ext])
 
     def volume(self) -> float:
-        a, b = self.radius_mm, self.r1
-        return np.pi * self.length_mm * (a * a + a * b + b * b) / 3.0
+        return np.pi * self.radius_mm**2 * self.length_mm
 
 
 @dataclass(frozen=True)
@@ -89,7 +80,54 @@ class Box:
         return float(np.prod(self.size))
 
 
-Primitive = Sphere | Cylinder | Box
+@dataclass(frozen=True)
+class Revolved:
+    """A solid of revolution about the axis ``p0`` -> ``p1`` (3,) mm: the region between the axis
+    and the polyline ``profile`` of ``(t_mm, r_mm)`` points (``t`` from 0 at ``p0`` to the axis
+    length at ``p1``, increasing), closed by flat ends.  Both backends revolve the same polyline,
+    so a fillet's arc is the same facets in the STEP and the mesh."""
+
+    p0: tuple[float, float, float]
+    p1: tuple[float, float, float]
+    profile: tuple
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "p0", _vec(self.p0))
+        object.__setattr__(self, "p1", _vec(self.p1))
+        object.__setattr__(self, "profile", tuple((float(t), float(r)) for t, r in self.profile))
+
+    @property
+    def axis(self) -> np.ndarray:
+        d = np.subtract(self.p1, self.p0)
+        return d / np.linalg.norm(d)
+
+    def bounds(self) -> np.ndarray:
+        u = self.axis
+        s = np.sqrt(np.clip(1.0 - u**2, 0.0, 1.0))
+        pts = [np.array(self.p0) + t * u for t, _ in self.profile]
+        lo = np.min([p - r * s for p, (_, r) in zip(pts, self.profile, strict=True)], axis=0)
+        hi = np.max([p + r * s for p, (_, r) in zip(pts, self.profile, strict=True)], axis=0)
+        return np.array([lo, hi])
+
+    def volume(self) -> float:
+        pr = np.array(self.profile)
+        h = np.diff(pr[:, 0])
+        a, b = pr[:-1, 1], pr[1:, 1]
+        return float(np.pi * (h * (a * a + a * b + b * b) / 3.0).sum())
+
+
+def fillet_profile(stem_radius_mm: float, fillet_mm: float, buried_mm: float, facets: int = 6) -> tuple:
+    """``(t, r)`` profile of a stem root filleted into a plate: ``buried_mm`` inside the plate at the
+    full radius, then a concave quarter circle of radius ``fillet_mm`` from ``stem + fillet`` at the
+    plate's face (t = ``buried_mm``) up to the stem's radius, as ``facets`` chords."""
+    rs, f, e = float(stem_radius_mm), float(fillet_mm), float(buried_mm)
+    a = np.linspace(0.0, np.pi / 2, int(facets) + 1)
+    # arc centre (r, t) = (rs + f, e + f): from angle pi (r = rs + f... ) round to the stem
+    arc = [(e + f - f * np.cos(x), rs + f - f * np.sin(x)) for x in a]
+    return ((0.0, rs + f), *arc)
+
+
+Primitive = Sphere | Cylinder | Box | Revolved
 
 
 def point_segment_distance(points, a, b) -> np.ndarray:
@@ -156,19 +194,41 @@ def ray_hits_spheres(origins, dirs, centres, radii) -> np.ndarray:
     return hit
 
 
-def ray_segment_distance(origins, dirs, a, b, samples: int = 33) -> np.ndarray:
-    """Smallest distance from each ray (t >= 0) to the segment ``a``-``b``, mm.
+def ray_segment_distance(origins, dirs, a, b) -> np.ndarray:
+    """Exact smallest distance from each ray (t >= 0) to each segment, mm.
 
-    Sampled along the segment (``samples`` points) and exact along each ray: accurate to
-    about ``|b - a| / (2 (samples - 1))``, far below a stem's radius.
+    Parameters
+    ----------
+    origins, dirs : (n, 3) float (dirs unit length)
+    a, b : (k, 3) or (3,) float, segment ends
+
+    Returns
+    -------
+    (n, k) float, or (n,) for one segment.  Closest points of the ray and the segment (the
+    clamped two-step solve of Ericson, *Real-Time Collision Detection* 5.1.9, with the ray's
+    parameter clamped below only).
     """
-    o, d = np.atleast_2d(origins), np.atleast_2d(dirs)
-    s = np.linspace(0.0, 1.0, samples)
-    pts = np.asarray(a, float)[None] + s[:, None] * (np.asarray(b, float) - np.asarray(a, float))[None]
-    rel = pts[None, :, :] - o[:, None, :]  # (n, k, 3)
-    t = np.clip(np.einsum("nkj,nj->nk", rel, d), 0.0, None)
-    closest = rel - t[..., None] * d[:, None, :]
-    return np.linalg.norm(closest, axis=2).min(axis=1)
+    o, d = np.atleast_2d(origins)[:, None, :], np.atleast_2d(dirs)[:, None, :]
+    one = np.ndim(a) == 1
+    A, B = np.atleast_2d(a)[None], np.atleast_2d(b)[None]
+    e = B - A  # (1, k, 3)
+    r = o - A  # (n, k, 3)
+    dd = np.einsum("nkj,nkj->nk", d, d)
+    ee = np.einsum("nkj,nkj->nk", e, e)
+    de = np.einsum("nkj,nkj->nk", d, e)
+    dr = np.einsum("nkj,nkj->nk", d, r)
+    er = np.einsum("nkj,nkj->nk", e, r)
+    den = dd * ee - de * de
+    safe_ee = np.where(ee > 0, ee, 1.0)
+    # segment parameter from the unclamped solve (parallel: the segment's start)
+    s = np.where(den > 1e-12, (de * (-dr) - (-er) * dd) / np.where(den > 1e-12, den, 1.0), 0.0)
+    s = np.clip(np.where(ee > 0, s, 0.0), 0.0, 1.0)
+    t = np.maximum((de * s - dr) / dd, 0.0)  # the ray's closest parameter to that segment point
+    s = np.where(ee > 0, np.clip((de * t + er) / safe_ee, 0.0, 1.0), 0.0)
+    p_ray = o + t[..., None] * d
+    p_seg = A + s[..., None] * e
+    dist = np.linalg.norm(p_ray - p_seg, axis=2)
+    return dist[:, 0] if one else dist
 
 
 def hemisphere_directions(n: int, up=(0.0, 1.0, 0.0)) -> np.ndarray:

@@ -5,10 +5,9 @@ up is the box's shortest side, the plate lies under the star, the star's long si
 the plate's length.  Against the sorted size limit the mount costs:
 
 * shortest side: the standoff under the lowest sphere plus the mount's depth (plate thickness;
-  the saddle's rails, the magnet's pocket and floor), exactly;
+  the saddle's rails, the magnet's pocket and floor, the strap's roof, tunnel and floor), exactly;
 * middle and longest sides: the plate's edge beyond the outer spheres, twice: stem radius +
-  root fillet + margin - sphere radius when positive; the strap's slots add their width and
-  walls on the middle side.
+  root fillet + margin - sphere radius when positive.
 
 These are what every body needs.  Some bodies need more (a label or a screw hole that finds no
 free spot grows the plate; a pad or magnet wider than the star): :func:`bodies_fit` builds the
@@ -31,6 +30,8 @@ def mount_depth_mm(mount: Mount) -> float:
     t = p["thickness_mm"]
     if mount.kind == "magnet":
         return max(t, p["magnet_height_mm"] + p["floor_mm"])
+    if mount.kind == "strap":
+        return t + p["slot_mm"] + p["floor_mm"]
     if mount.kind == "saddle":
         from starforge.cad.mounts import saddle_profile
 
@@ -44,17 +45,13 @@ def mount_reserve_mm(
     """Millimetres of the size limit's shortest, middle and longest side the mount needs."""
     m = load_mount(mount) if isinstance(mount, str) else mount
     spec = spec or BodySpec()
+    from starforge.cad.body import plate_gap_mm, root_fillet_mm
+
     rf = marker_mm / 2
     rs = spec.stem_for(marker_mm) / 2
-    edge = max(0.0, rs + spec.fillet_for(marker_mm) + m["margin_mm"] - rf)
-    from starforge.cad.body import _seat, _seat_depth
-
-    kind, mt = _seat(spec, marker_mm)
-    below = max(rf + spec.standoff_mm, _seat_depth(kind, mt, spec, marker_mm) + 0.5)
-    short = below - rf + mount_depth_mm(m)
+    edge = max(0.0, rs + root_fillet_mm(spec, marker_mm) + m["margin_mm"] - rf)
+    short = plate_gap_mm(spec, marker_mm) + mount_depth_mm(m)
     middle = 2 * edge
-    if m.kind == "strap":
-        middle += 2 * (m["slot_mm"] + 2 * m["wall_mm"])
     longest = 2 * edge
     return (round(short, 6), round(middle, 6), round(longest, 6))
 

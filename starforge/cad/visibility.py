@@ -27,6 +27,7 @@ def sphere_visibility(body: Body, directions: int = 400) -> np.ndarray:
         o = ci + r * dirs * (1 + 1e-9)
         others = [j for j in range(len(c)) if j != i]
         blocked = ray_hits_spheres(o, dirs, c[others], np.full(len(others), r))
+        starts, ends, radii = [], [], []
         for cyl in blockers:
             a, b = np.array(cyl.p0), np.array(cyl.p1)
             # only the part outside sphere i can block its own surface
@@ -41,6 +42,11 @@ def sphere_visibility(body: Body, directions: int = 400) -> np.ndarray:
                 qa, qb, qc = u @ u, 2 * f @ u, f @ f - r * r
                 t = (-qb - np.sqrt(max(qb * qb - 4 * qa * qc, 0.0))) / (2 * qa)
                 a, b = keep, keep + np.clip(t, 0.0, 1.0) * u
-            blocked |= ray_segment_distance(o, dirs, a, b) < cyl.radius_mm
+            starts.append(a)
+            ends.append(b)
+            radii.append(cyl.radius_mm)
+        if starts:
+            dist = ray_segment_distance(o, dirs, np.array(starts), np.array(ends))
+            blocked |= (dist < np.array(radii)[None, :]).any(axis=1)
         out[i] = 1.0 - blocked.mean()
     return out
