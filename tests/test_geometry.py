@@ -170,3 +170,40 @@ def test_placement_transform_is_the_papers_frame():
         lo, hi = Q.min(axis=0), Q.max(axis=0)
         assert np.allclose(hi - lo, ext, atol=1e-9)
         assert np.isclose(lo[2], 0, atol=1e-9) and np.allclose(lo[:2] + hi[:2], 0, atol=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(-1e3, 1e3), min_size=6, max_size=6), st.integers(0, 3))
+def test_closed_form_sym3_eigenvalues_match_lapack(entries, degenerate):
+    from starforge.geometry.sym3 import sym3_eigvals
+
+    a, b, c, d, e, f = entries
+    if degenerate == 1:  # a repeated eigenvalue
+        d = e = f = 0.0
+        b = a
+    elif degenerate == 2:  # rank one
+        v = np.array([a, b, c])
+        m = np.outer(v, v)
+        a, b, c, d, e, f = m[0, 0], m[1, 1], m[2, 2], m[0, 1], m[1, 2], m[0, 2]
+    m = np.array([[a, d, f], [d, b, e], [f, e, c]])
+    ours = np.array(sym3_eigvals(a, b, c, d, e, f))
+    scale = max(1.0, np.abs(m).max())
+    assert np.allclose(ours, np.linalg.eigvalsh(m), atol=1e-6 * scale)
+
+
+def test_line_spread_from_running_sums_matches_the_point_set():
+    from starforge.geometry.sym3 import line_spread2_many, moments
+
+    rng = np.random.default_rng(3)
+    sets = [rng.normal(size=(n, 3)) * rng.uniform(0.1, 10, 3) for n in (1, 2, 3, 5, 40)]
+    sets.append(np.outer(np.linspace(0, 1, 6), [1.0, 2.0, -1.0]) + 5.0)  # collinear: spread 0
+    cnt = np.array([len(p) for p in sets], dtype=float)
+    s1 = np.array([p.sum(axis=0) for p in sets])
+    s2 = np.array([moments(p).sum(axis=0) for p in sets])
+    got = line_spread2_many(cnt, s1, s2)
+    for g, p in zip(got, sets, strict=True):
+        # independent: mean squared distance from the principal line through the centroid
+        q = p - p.mean(axis=0)
+        axis = np.linalg.svd(q, full_matrices=False)[2][0] if len(p) > 1 else np.array([1.0, 0, 0])
+        want = np.mean(np.sum((q - np.outer(q @ axis, axis)) ** 2, axis=1))
+        assert g == pytest.approx(want, abs=1e-9)

@@ -34,6 +34,7 @@ import numpy as np
 
 from starforge.errors import StarforgeError
 from starforge.geometry.fit import SLACK_MM, decide_one
+from starforge.geometry.sym3 import sym3_eigvals
 from starforge.geometry.tetra import canonical_assignments
 from starforge.stars.spec import StarSpec
 
@@ -169,24 +170,6 @@ def _width(L0, L1, L2, L3, L4, L5, vol6):
     return w
 
 
-@numba.njit(cache=True, nogil=True)
-def _sym3_eigvals(a, b, c, d, e, f):
-    """Ascending eigenvalues of [[a, d, f], [d, b, e], [f, e, c]] (closed form)."""
-    q = (a + b + c) / 3
-    p1 = d * d + e * e + f * f
-    p2 = (a - q) ** 2 + (b - q) ** 2 + (c - q) ** 2 + 2 * p1
-    p = math.sqrt(p2 / 6)
-    if p <= 0:
-        return q, q, q
-    A, B, C = (a - q) / p, (b - q) / p, (c - q) / p
-    D, E, F = d / p, e / p, f / p
-    detB = A * (B * C - E * E) - D * (D * C - E * F) + F * (D * E - B * F)
-    phi = math.acos(min(1.0, max(-1.0, detB / 2))) / 3
-    l3 = q + 2 * p * math.cos(phi)
-    l1 = q + 2 * p * math.cos(phi + 2 * math.pi / 3)
-    return l1, 3 * q - l1 - l3, l3
-
-
 @numba.njit(cache=True, parallel=True)
 def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode, codes, volumes):
     """Outcome code and fitting-box volume of every labelled candidate of ``subsets``.
@@ -237,7 +220,7 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode,
                 sxy += X * Y
                 syz += Y * Z
                 sxz += X * Z
-            e1, e2, e3 = _sym3_eigvals(sxx / 4, syy / 4, szz / 4, sxy / 4, syz / 4, sxz / 4)
+            e1, e2, e3 = sym3_eigvals(sxx / 4, syy / 4, szz / 4, sxy / 4, syz / 4, sxz / 4)
             if (
                 e1 > lim[0] ** 2 / 4 + eps
                 or e1 + e2 > (lim[0] ** 2 + lim[1] ** 2) / 4 + eps
