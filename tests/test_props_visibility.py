@@ -70,6 +70,23 @@ def test_occluded_by_the_prop_itself():
     # the same cameras see it once the wall is gone (so the wall, not the field of view, blocked it)
     seen_open = compute_table(slab, site, up, rig, _identity_pose(), grazing_limit_deg=89).seen[0, 0]
     assert seen_open.tolist() == [True, True]
+    # with occlusion switched off the wall is see-through: the frustum-and-facing model
+    no_occ = compute_table(prop, site, up, rig, _identity_pose(), grazing_limit_deg=89, occlusion=False)
+    assert no_occ.seen[0, 0].tolist() == [True, True] and no_occ.rays == 0
+
+
+def test_switching_occlusion_off_only_adds_visibility():
+    from starforge.props.builtin import builtin_mesh
+    from starforge.props.sites import sample_sites
+
+    rng = np.random.default_rng(0)
+    mesh = builtin_mesh("hammer")
+    rig = load_rig("default")
+    sites = sample_sites(mesh, 120, rng)
+    poses = make_poses(rig.volume, 2, 6, mesh.bounds.mean(axis=0), rng)
+    on = compute_table(mesh, sites.points, sites.normals, rig, poses, 80.0).seen
+    off = compute_table(mesh, sites.points, sites.normals, rig, poses, 80.0, occlusion=False).seen
+    assert (off >= on).all() and off.sum() > on.sum()
 
 
 def test_grazing_limit(box):

@@ -47,6 +47,7 @@ class PropMesh:
     face_origin: np.ndarray = field(repr=False)
     notes: tuple[str, ...] = ()
     source_faces: int = 0
+    timings: dict = field(default_factory=dict, compare=False)
 
     @property
     def extents_m(self) -> np.ndarray:
@@ -77,6 +78,12 @@ def load_mesh_file(path: str | Path, units: str = "m"):
         raise StarforgeError(f"prop mesh {path} is a folder, expected a mesh file")
     if path.stat().st_size == 0:
         raise StarforgeError(f"prop mesh {path} is empty (0 bytes)")
+    from starforge.budget import require_memory
+
+    # a mesh in memory takes about 10-20 x its file size (vertices, faces, adjacency, repair)
+    require_memory(
+        path.stat().st_size * 20.0, f"the prop mesh {path} ({path.stat().st_size / 1e6:.0f} MB)", "simplify the mesh first"
+    )
     try:
         loaded = trimesh.load(str(path), force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files
@@ -267,25 +274,38 @@ def _nearest_origin(raw, origin, new):
 
 
 def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
-    """A built-in prop name (``hammer``) or a mesh file path -> repaired :class:`PropMesh` in metres."""
+    """A built-in prop name (``hammer``) or a mesh file path -> repaired :class:`PropMesh` in metres.
+    ``timings`` holds the seconds spent loading and repairing."""
+    import time
+
     from starforge.props.builtin import BUILTIN, builtin_mesh
 
+    t0 = time.perf_counter()
     units_scale(units)  # validate even for built-ins (which are in metres)
     text = str(prop)
     if text in BUILTIN and not Path(text).exists():
         mesh = builtin_mesh(text)
         n = len(mesh.faces)
-        return PropMesh(text, "builtin", "m", mesh, np.arange(n), (), n)
+        return PropMesh(text, "builtin", "m", mesh, np.arange(n), (), n, {"load_s": round(time.perf_counter() - t0, 4)})
     path = Path(text)
     if not path.exists() and path.suffix.lower() not in MESH_SUFFIXES:
         raise StarforgeError(
             f"unknown prop {text!r}: not a file and not a built-in; built-ins: {', '.join(BUILTIN)}"
         )
     raw = load_mesh_file(path, units)
+    if len(raw.faces) > MAX_FACES:
+        raise StarforgeError(f"prop mesh {path} has {len(raw.faces):,} faces; at most {MAX_FACES:,} (simplify it first)")
+    t1 = time.perf_counter()
+    timings = {"load_s": round(t1 - t0, 4)}
     if not repair:
-        return PropMesh(path.stem, text, units, raw, np.arange(len(raw.faces)), (), len(raw.faces))
+        return PropMesh(path.stem, text, units, raw, np.arange(len(raw.faces)), (), len(raw.faces), timings)
     try:
         mesh, origin, notes = repair_mesh(raw)
     except StarforgeError as exc:
         raise StarforgeError(f"{path}: {exc}") from None
-    return PropMesh(path.stem, text, units, mesh, origin, tuple(notes), len(raw.faces))
+    timings["repair_s"] = round(time.perf_counter() - t1, 4)
+    return PropMesh(path.stem, text, units, mesh, origin, tuple(notes), len(raw.faces), timings)
+
+
+#: faces a prop mesh may have (a 5 M-face mesh takes about 2 GB while it is repaired)
+MAX_FACES = 5_000_000

@@ -124,6 +124,8 @@ def compute_table(
     grazing_limit_deg: float = 80.0,
     max_batch: int = 1_000_000,
     progress=None,
+    radius_m: float = 0.0,
+    occlusion: bool = True,
 ) -> VisibilityTable:
     """Build the (sites x poses x pairs) visibility table.
 
@@ -142,6 +144,12 @@ def compute_table(
         Camera-site tests per batch (bounds memory).
     progress : callable, optional
         Called as ``progress(done_poses, total_poses)``.
+    radius_m : float
+        Marker ball radius: a marker is seen when the segment from its centre (``radius_m`` off
+        the surface along the normal) to the camera misses the prop.
+    occlusion : bool
+        Test the segments against the prop (False: field of view and facing only, a model that
+        lets a camera see through the prop; for comparison with published figures).
     """
     grazing = in_range("grazing_limit_deg", grazing_limit_deg, 1e-6, 180.0)
     cos_lim = math.cos(math.radians(grazing))
@@ -155,7 +163,8 @@ def compute_table(
     R, T, pivot = poses.rotations, poses.translations, poses.pivot
     check_rig_sees_volume(rig, T)
     offset = ray_offset(mesh)
-    origins_all = pts + offset * nrm
+    origins_all = pts + (radius_m + offset) * nrm
+    pts = pts + radius_m * nrm  # field of view and facing are tested at the ball's centre
     seen = np.zeros((s, P, len(pairs)), dtype=bool)
     step = max(1, int(max_batch // max(1, s * c)))
     rays = 0
@@ -174,7 +183,7 @@ def compute_table(
         facing = -np.einsum("kcsj,sj->kcs", d, nrm) >= cos_lim * dist
         ok &= facing
         idx = np.nonzero(ok)
-        if len(idx[0]):
+        if occlusion and len(idx[0]):
             kk, cc, ss = idx
             blocked = segment_occluded(mesh, origins_all[ss], q[kk, cc])
             ok[kk[blocked], cc[blocked], ss[blocked]] = False
