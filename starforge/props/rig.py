@@ -193,18 +193,36 @@ def grid_positions(volume: Volume, resolution: int) -> np.ndarray:
     return np.column_stack([gx.ravel(), gy.ravel(), gz.ravel()])
 
 
-def orientation_set(count: int, rng: np.random.Generator) -> np.ndarray:
-    """(count, 3, 3) rotations: the identity (the paper only translated props) then random ones.
-
-    The extra rotations are uniform on SO(3) (``scipy.spatial.transform.Rotation.random``).
-    """
-    from scipy.spatial.transform import Rotation
-
+def orientation_set(count: int, rng: np.random.Generator | None = None) -> np.ndarray:
+    """(count, 3, 3) rotations spread over the rotation group: the identity (the prop as modelled,
+    upright), then the first ``count - 1`` points of a super-Fibonacci spiral on the unit
+    quaternions (Alexa, CVPR 2022), so the set is deterministic and evenly spread for every count
+    with no random draws.  ``rng`` is accepted for compatibility and not used."""
     count = int(in_range("orientations", count, 1, 1000))
     rots = [np.eye(3)]
     if count > 1:
-        rots.extend(Rotation.random(count - 1, random_state=rng).as_matrix())
+        n = count - 1
+        psi = 1.533751168755204288  # the real root of psi^4 = psi + 4
+        s = np.arange(n) + 0.5
+        r, big_r = np.sqrt(s / n), np.sqrt(1.0 - s / n)
+        alpha, beta = 2 * np.pi * s / np.sqrt(2.0), 2 * np.pi * s / psi
+        w, x, y, z = r * np.sin(alpha), r * np.cos(alpha), big_r * np.sin(beta), big_r * np.cos(beta)
+        rots.extend(quaternion_matrices(w, x, y, z))
     return np.array(rots)
+
+
+def quaternion_matrices(w: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotation matrices of unit quaternions w + xi + yj + zk (normalised here)."""
+    norm = np.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / norm, x / norm, y / norm, z / norm
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
 
 
 def make_poses(volume: Volume, resolution: int, orientations: int, pivot, rng: np.random.Generator) -> Poses:
