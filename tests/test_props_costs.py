@@ -16,6 +16,7 @@ from starforge.props.costs import (
     count_cost,
     coverage_cost,
     evaluate,
+    lower_bound,
     overlap_cost,
     overlapping_pairs,
     visibility_cost,
@@ -180,3 +181,35 @@ def test_coverage_cost_by_hand():
     assert c.total == pytest.approx(cs.w_count * c.count + 0.5 * 0.75)
     with pytest.raises(StarforgeError, match="coverage"):
         evaluate(pts, np.ones(3), cs)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(st.floats(0, 1), min_size=1, max_size=9),
+    st.floats(0, 1),
+    st.integers(1, 6),
+    st.integers(1, 4),
+    st.integers(0, 5),
+)
+def test_lower_bound_against_every_subset(vis, target_vis, target_n, lo, extra):
+    """Brute force over every subset of a few sites: no layout costs less than the bound, and with
+    the layout-dependent terms switched off some subset attains it when the target is 1 (the paper's)."""
+    v = np.array(vis)
+    hi = lo + extra
+    target_n = min(max(target_n, lo), hi)
+    s = CostSettings(target_visibility=target_vis, target_markers=target_n, min_markers=lo, max_markers=hi,
+                     w_overlap=0.0, w_symmetry=0.0)
+    bound, n_at = lower_bound(v, s)
+    costs = {}
+    for n in range(lo, min(hi, len(v)) + 1):
+        for sub in itertools.combinations(range(len(v)), n):
+            c = s.w_visibility * visibility_cost(v[list(sub)], target_vis) + s.w_count * count_cost(n, target_n)
+            costs[sub] = c
+    if not costs:
+        assert math.isinf(bound)
+        return
+    best = min(costs.values())
+    assert bound <= best + 1e-12
+    if target_vis == 1.0:
+        assert bound == pytest.approx(best, abs=1e-12)
+        assert lo <= n_at <= hi

@@ -141,6 +141,28 @@ def count_cost(n: int, target: float, sigma: float = 1.0) -> float:
     return 1.0 - math.exp(-((n - target) ** 2) / (2.0 * sigma * sigma))
 
 
+def lower_bound(site_visibility: np.ndarray, s: CostSettings) -> tuple[float, int]:
+    """A lower bound on eq. 1 over every layout of the candidate sites, and the count that attains it.
+
+    For ``n`` markers the mean visibility lies between the mean of the ``n`` least and the ``n``
+    most visible sites, so the visibility term is at least its distance from that interval; the
+    count term is exact, and the overlap, symmetry and optional terms are >= 0.  The bound is
+    reached when the ``n`` most visible sites (with ``target_visibility`` = 1) neither overlap nor
+    form a symmetric set, which makes it the optimum of the paper's cost in the usual case.
+    """
+    v = np.sort(np.asarray(site_visibility, dtype=float))
+    best, best_n = math.inf, 0
+    csum_hi = np.concatenate([[0.0], np.cumsum(v[::-1])])
+    csum_lo = np.concatenate([[0.0], np.cumsum(v)])
+    for n in range(s.min_markers, min(s.max_markers, len(v)) + 1):
+        hi, lo = csum_hi[n] / n, csum_lo[n] / n
+        gap = max(0.0, s.target_visibility - hi, lo - s.target_visibility)
+        c = s.w_visibility * gap + s.w_count * count_cost(n, s.target_markers, s.sigma_markers)
+        if c < best - 1e-15:
+            best, best_n = c, n
+    return float(best), best_n
+
+
 def overlapping_pairs(points: np.ndarray, diameter_m: float) -> int:
     """Unordered marker pairs whose spheres intersect (centre distance < diameter)."""
     p = np.asarray(points, dtype=float)
