@@ -48,18 +48,24 @@ def test_place_default_command_writes_everything(tmp_path, capsys):
     assert doc["format"] == "starforge.placement" and doc["version"] == 1 and doc["seed"] == 4
     assert doc["prop"]["name"] == "hammer" and doc["prop"]["units"] == "m"
     assert len(doc["rig"]["cameras"]) == 8 and len(doc["rig"]["pairs"]) == 4
-    assert doc["poses"]["count"] == 8 and len(doc["poses"]["matrices"]) == 8
-    assert doc["marker_diameter_m"] == pytest.approx(0.004)
+    # the default models a prop in use: positions x orientations spread over the rotation group
+    assert doc["poses"]["count"] == 8 * 24 and len(doc["poses"]["matrices"]) == 8 * 24
+    assert doc["objective"] == "tracked" and doc["marker_diameter_m"] == pytest.approx(0.0095)
     assert doc["history"]["restarts"] == 2 and len(doc["history"]["run_costs"]) == 2
     for k in ("total", "visibility", "count", "overlap", "symmetry", "near_symmetry"):
         assert k in doc["cost"]
+    tr = doc["tracked"]
+    # never worse than the baselines it reports
+    assert tr["cost"] <= tr["baselines"]["greedy_local_search"] + 1e-12
+    assert tr["cost"] <= tr["baselines"]["best_of_random"] + 1e-12
     n = len(doc["markers"])
     assert 4 <= n <= 20
     rows = list(csv.reader((out / "markers.csv").read_text().splitlines()))
     assert rows[0] == ["id", "x_m", "y_m", "z_m", "nx", "ny", "nz"] and len(rows) == n + 1
     pl = load_placement(out)
     assert np.allclose(pl.positions_m, [[float(v) for v in r[1:4]] for r in rows[1:]])
-    # re-check: markers lie on the hammer's surface with unit normals, visibility in [0, 1]
+    # re-check: markers lie on the hammer's surface with unit normals, visibility in [0, 1];
+    # the balls' centres one radius off it
     from starforge.props.builtin import builtin_mesh
 
     _, dist, _ = builtin_mesh("hammer").nearest.on_surface(pl.positions_m)
@@ -67,6 +73,8 @@ def test_place_default_command_writes_everything(tmp_path, capsys):
     assert np.allclose(np.linalg.norm(pl.normals, axis=1), 1)
     assert np.all((pl.visibility >= 0) & (pl.visibility <= 1))
     assert pl.total_cost == pytest.approx(doc["cost"]["total"])
+    centres = np.array(tr["marker_centres_m"])
+    assert np.allclose(centres, pl.positions_m + 0.00475 * pl.normals, atol=1e-9)
 
 
 def test_same_seed_same_bytes(tmp_path, capsys):

@@ -40,7 +40,8 @@ app.add_typer(place_app, name="place")
 
 
 def _prop_and_spec(
-    prop, units, spec, rig, markers, resolution, orientations, sites, restarts, forbid_mesh, mask, mesh_format
+    prop, units, spec, rig, markers, resolution, orientations, sites, restarts, forbid_mesh, mask, mesh_format,
+    marker_mm=None,
 ):
     from dataclasses import replace
 
@@ -65,6 +66,7 @@ def _prop_and_spec(
         rig=rig,
         constraints=cons,
         mesh_format=mesh_format,
+        marker_mm=marker_mm,
     )
     return load_prop(prop, units), s
 
@@ -86,6 +88,12 @@ def run_cmd(
     orientations: int = typer.Option(None, "--orientations", help="Prop orientations per position (K)."),
     sites: int = typer.Option(None, "--sites", help="Candidate sites (Poisson-disk samples, default 1000)."),
     restarts: int = typer.Option(None, "--restarts", help="Independent annealing runs; the best is kept."),
+    marker_mm: str = typer.Option(
+        None, "--marker-mm", help="Marker ball diameter, mm, or a catalogue name (e.g. 9.5mm-m3; default: the spec's)."
+    ),
+    avoid: list[Path] = typer.Option(
+        None, "--avoid", help="Placements, star families or tracker files of bodies already in the room."
+    ),
     units: str = typer.Option("m", "--units", help="Units of a mesh file: m, cm or mm."),
     forbid_mesh: str = typer.Option(None, "--forbid-mesh", help="Mesh of a constrained area (no markers)."),
     mask: str = typer.Option(None, "--mask", help="Per-face mask file (1 = no markers on that face)."),
@@ -119,7 +127,13 @@ def run_cmd(
             forbid_mesh,
             mask,
             mesh_format,
+            marker_mm,
         )
+        avoid_faces = None
+        if avoid:
+            from starforge.stars.avoid import faces_to_avoid
+
+            avoid_faces = faces_to_avoid(avoid)[0] / 1000.0  # mm -> m
         names = [
             "placement.json",
             "markers.csv",
@@ -134,18 +148,22 @@ def run_cmd(
             def cb(stage, done, total):
                 bar.update(task, description=stage, completed=done, total=total)
 
-            res = place(p, s, seed=seed, progress=cb)
+            res = place(p, s, seed=seed, progress=cb, avoid=avoid_faces)
             bar.update(task, description="writing")
             with staged_output(out, force) as stage:
                 write_outputs(res, stage, renderer=renderer)
     from starforge.props.placement import summary_lines
 
+    err = console(stderr=True)
+    for w in res.warnings:
+        err.print(f"warning: {w}")
     if not quiet:
         con = console()
         for line in summary_lines(res):
             con.print(line)
         t = res.timings
-        con.print(f"time: visibility {t['visibility_s']:.2f} s, optimization {t['optimize_s']:.2f} s")
+        load = t.get("load_s", 0.0) + t.get("repair_s", 0.0)
+        con.print(f"time: load {load:.2f} s, visibility {t['visibility_s']:.2f} s, optimization {t['optimize_s']:.2f} s")
         con.print(f"wrote {out}/: {', '.join(names)}")
 
 
@@ -169,13 +187,16 @@ def score_cmd(
         prop, units, spec, rig, None, resolution, orientations, None, None, None, None, None
     )
     pts, nrm = read_markers_csv(markers_csv)
-    cost, vis = score_layout(p, pts, nrm, s, seed=seed)
-    doc = {**cost.to_json(), "marker_visibility": [round(float(v), 9) for v in vis]}
+    cost, vis, extra = score_layout(p, pts, nrm, s, seed=seed)
+    doc = {**cost.to_json(), "marker_visibility": [round(float(v), 9) for v in vis], **extra}
     if as_json:
         sys.stdout.write(json.dumps(doc, indent=2) + "\n")
         return
     con = console()
     con.print(f"{p.name}: {cost.markers} markers, cost {cost.total:.4f}")
+    if "tracked_fraction" in extra:
+        con.print(f"  tracked at {100 * extra['tracked_fraction']:.1f} % of the poses, mean visibility {cost.mean_visibility:.3f}")
+        return
     con.print(
         f"  visibility {cost.visibility:.4f} (mean {cost.mean_visibility:.3f}), count {cost.count:.4f}, "
         f"overlap {cost.overlap:.4f} ({cost.overlapping_pairs} pairs), symmetry {cost.symmetry:.0f}"

@@ -180,8 +180,11 @@ def _placement_body(path: Path, data: dict, notes: list) -> tuple[Body, float]:
     if data.get("version") != 1:
         raise StarforgeError(f"{path}: unsupported placement version {data.get('version')!r}, expected 1")
     try:
-        pos = np.array([m["position"] for m in data["markers"]], dtype=float).reshape(-1, 3)
         prop = data.get("prop", {}) or {}
+        # a tracker sees the balls' centres: one radius off the surface (placements that record them)
+        centres = (data.get("tracked", {}) or {}).get("marker_centres_m")
+        src = centres if centres is not None else [m["position"] for m in data["markers"]]
+        pos = np.array(src, dtype=float).reshape(-1, 3)
         name = str(prop.get("name", path.parent.name or path.stem))
         diameter_m = float(data.get("marker_diameter_m", 0.0))
         bounds = prop.get("bounds_m")

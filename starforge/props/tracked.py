@@ -1,0 +1,464 @@
+"""Marker layouts that keep a prop tracked while it is handled: objective, baselines, optimizer.
+
+A pose is **tracked** when at least three markers are each seen by a camera pair of the rig and
+the seen markers are not nearly collinear: their spread across their best-fit line (RMS
+distance from it) is at least that of a triangle ``min_height_mm`` high (``sqrt(2) / 3`` of the
+height).  The cost of a layout, lowest best, is led by the fraction of poses not tracked::
+
+    C = w_untracked * untracked + w_visibility * (1 - mean visibility)
+      + w_spread * max(0, 1 - spread / spread_target) + w_near_symmetry * max(0, 1 - margin / target)
+      + w_spacing * pairs closer than the spacing + w_count * (1 - exp(-(n - n0)^2 / 2))
+      + w_avoid * triangles within the tolerance of another prop's
+
+with *visibility* the fraction of (pose, pair) combinations that see a marker (the paper's
+eq. 2 quantity), *spread* the markers' RMS distance from their best-fit line (a layout on one
+line cannot give an orientation), *margin* the near-symmetry margin
+(:func:`starforge.props.symmetry.near_symmetry_margin`).
+
+Per pose the optimizer keeps the count, sum and second moments of the seen markers, so a move
+updates every pose in O(poses) and the collinearity test is a closed-form 3 x 3 eigenvalue.
+
+Optimizer: the paper's reversible-jump annealing (add / remove / modify, the eq. 7-9 acceptance
+with Z = ``max_markers``), started from the greedy layout, with half of the modify moves going to
+one of the 8 nearest sites (a local move; its proposal ratio is taken as 1, which is exact for a
+symmetric neighbourhood and an annealing heuristic otherwise), a geometric cooling and a
+convergence stop (no improvement of the best for ``stall`` iterations).  The result is the best
+of the chains, the greedy layout after swap local search, and the best of ``random_layouts``
+random layouts, polished by the same swap local search: it is never worse than either baseline,
+and placement.json reports what each gave.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+
+from starforge.geometry.sym3 import line_spread2, line_spread2_many, moments
+from starforge.spec import in_range, non_negative, positive
+
+TRIANGLE_SPREAD = math.sqrt(2.0) / 3.0  # RMS distance from the base line of a triangle of height 1
+
+
+@dataclass(frozen=True)
+class TrackSettings:
+    """The tracked objective and its optimizer (lengths in mm unless named ``_m``)."""
+
+    marker_mm: float = 9.5
+    gap_px: float = 2.0
+    min_height_mm: float = 15.0
+    target_markers: int = 7
+    min_markers: int = 4
+    max_markers: int = 12
+    w_untracked: float = 10.0
+    w_visibility: float = 1.0
+    w_spread: float = 0.5
+    w_near_symmetry: float = 1.0
+    w_spacing: float = 2.0
+    w_count: float = 0.2
+    w_avoid: float = 5.0
+    near_symmetry_target_mm: float = 5.0
+    spread_fraction: float = 0.2
+    avoid_tolerance_mm: float = 2.0
+    iterations: int = 4000
+    stall: int = 1000
+    restarts: int = 1
+    t0: float = 0.05
+    random_layouts: int = 1000
+
+    def __post_init__(self):
+        in_range("marker_mm", self.marker_mm, 1.0, 50.0)
+        in_range("gap_px", self.gap_px, 0.0, 50.0)
+        in_range("min_height_mm", self.min_height_mm, 0.0, 1000.0)
+        in_range("min_markers", self.min_markers, 3, 100)
+        in_range("max_markers", self.max_markers, self.min_markers, 100)
+        in_range("markers (target_markers)", self.target_markers, self.min_markers, self.max_markers)
+        for n in ("w_untracked", "w_visibility", "w_spread", "w_near_symmetry", "w_spacing", "w_count", "w_avoid"):
+            non_negative(n, getattr(self, n))
+        positive("near_symmetry_target_mm", self.near_symmetry_target_mm)
+        in_range("spread_fraction", self.spread_fraction, 0.0, 1.0)
+        positive("avoid_tolerance_mm", self.avoid_tolerance_mm)
+        in_range("iterations", self.iterations, 0, 10**7)
+        in_range("stall", self.stall, 1, 10**7)
+        in_range("restarts", self.restarts, 0, 1000)
+        non_negative("t0", self.t0)
+        in_range("random_layouts", self.random_layouts, 0, 10**6)
+
+
+def spacing_m(marker_mm: float, rig, gap_px: float) -> float:
+    """Least centre distance of two markers, m: one diameter plus ``gap_px`` pixels at the farthest
+    camera-to-volume distance of the rig (so two markers stay apart in every camera image)."""
+    corners = np.array(
+        [[c + s * (i - 0.5) for c, s, i in zip(rig.volume.center, rig.volume.size, idx, strict=True)]
+         for idx in np.ndindex(2, 2, 2)]
+    )
+    worst = 0.0
+    for cam in rig.cameras:
+        d = float(np.linalg.norm(corners - np.asarray(cam.position), axis=1).max())
+        pixel = math.radians(cam.fov_deg) / cam.resolution[0]
+        worst = max(worst, d * pixel)
+    return marker_mm / 1000.0 + gap_px * worst
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _screen_tracked(cnt0, s10, s20, seen_c, pts_c, mom_c, min_spread2):
+    """(k,) fraction of poses tracked when candidate c joins a layout whose seen markers per pose
+    have counts ``cnt0`` (P,), coordinate sums ``s10`` (P, 3) and product sums ``s20`` (P, 6);
+    ``seen_c`` (k, P) bool, ``pts_c`` (k, 3), ``mom_c`` (k, 6) describe the candidates.  Only the
+    poses that see a candidate change, so the others keep the layout's own verdict."""
+    k, P = seen_c.shape
+    base = np.zeros(P, dtype=np.bool_)
+    for p in range(P):
+        if cnt0[p] >= 3:
+            d2 = line_spread2(cnt0[p], s10[p, 0], s10[p, 1], s10[p, 2], s20[p, 0], s20[p, 1], s20[p, 2], s20[p, 3], s20[p, 4], s20[p, 5])
+            base[p] = d2 >= min_spread2
+    base_good = base.sum()
+    out = np.empty(k)
+    for i in numba.prange(k):
+        good = base_good
+        x, y, z = pts_c[i, 0], pts_c[i, 1], pts_c[i, 2]
+        for p in range(P):
+            if not seen_c[i, p]:
+                continue
+            n = cnt0[p] + 1.0
+            ok = False
+            if n >= 3:
+                d2 = line_spread2(
+                    n, s10[p, 0] + x, s10[p, 1] + y, s10[p, 2] + z,
+                    s20[p, 0] + mom_c[i, 0], s20[p, 1] + mom_c[i, 1], s20[p, 2] + mom_c[i, 2],
+                    s20[p, 3] + mom_c[i, 3], s20[p, 4] + mom_c[i, 4], s20[p, 5] + mom_c[i, 5],
+                )  # fmt: skip
+                ok = d2 >= min_spread2
+            good += int(ok) - int(base[p])
+        out[i] = good / P
+    return out
+
+
+@dataclass
+class Problem:
+    """Everything the objective needs (metres inside): sites, per-pose visibility, settings."""
+
+    points: np.ndarray  # (s, 3) marker centres (the site one radius off the surface), m
+    pose_seen: np.ndarray  # (s, P) bool: some pair sees the marker at the pose
+    visibility: np.ndarray  # (s,) fraction of (pose, pair) combinations that see it
+    settings: TrackSettings
+    spacing: float  # m
+    spread_target: float  # m
+    avoid_faces: np.ndarray | None = None  # (k, 3) sorted triangle sides of other props, m
+    moments: np.ndarray = field(init=False, repr=False)
+    neighbours: list = field(init=False, repr=False)
+    knn: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self):
+        from scipy.spatial import cKDTree
+
+        self.moments = moments(self.points)
+        tree = cKDTree(self.points)
+        pairs = tree.query_pairs(np.nextafter(self.spacing, 0.0), output_type="ndarray")
+        nb = [[] for _ in range(len(self.points))]
+        for a, b in pairs:
+            nb[a].append(int(b))
+            nb[b].append(int(a))
+        self.neighbours = [np.array(x, dtype=np.int64) for x in nb]
+        k = min(9, len(self.points))
+        self.knn = tree.query(self.points, k=k)[1][:, 1:] if k > 1 else np.zeros((len(self.points), 0), int)
+        self.seen_f = self.pose_seen.astype(np.float64)
+        self.min_spread2 = (TRIANGLE_SPREAD * self.settings.min_height_mm / 1000.0) ** 2
+        self._avoid_tree = None
+        if self.avoid_faces is not None and len(self.avoid_faces):
+            self._avoid_tree = cKDTree(np.sort(np.asarray(self.avoid_faces, float), axis=1))
+
+    @property
+    def poses(self) -> int:
+        return self.pose_seen.shape[1]
+
+    # --- the exact cost of a layout -----------------------------------------------------------
+    def terms(self, sites, symmetry: bool = True) -> dict:
+        """Every term of the cost of ``sites`` (list of site indices), and the total.  Without
+        ``symmetry`` the near-symmetry term is left out: a lower bound on the total (the term is
+        >= 0), which spares its search for proposals that lose anyway."""
+        from starforge.props.symmetry import near_symmetry_margin
+
+        s = self.settings
+        idx = np.asarray(sites, dtype=np.int64)
+        n = len(idx)
+        seen = self.seen_f[idx]
+        cnt = seen.sum(axis=0)
+        s1 = seen.T @ self.points[idx]
+        s2 = seen.T @ self.moments[idx]
+        tracked = (cnt >= 3) & (line_spread2_many(cnt, s1, s2) >= self.min_spread2)
+        untracked = 1.0 - float(tracked.mean())
+        vis = float(self.visibility[idx].mean()) if n else 0.0
+        P = self.points[idx]
+        spread = math.sqrt(line_spread2(n, *P.sum(0), *self.moments[idx].sum(0))) if n >= 2 else 0.0
+        close = 0
+        if n >= 2:
+            d = np.linalg.norm(P[:, None] - P[None], axis=2)
+            close = int((d[np.triu_indices(n, 1)] < self.spacing).sum())
+        cap = s.near_symmetry_target_mm / 1000.0
+        margin = near_symmetry_margin(P, refine=4, cap=cap) if (n >= 3 and symmetry and s.w_near_symmetry > 0) else (cap if not symmetry else math.inf)
+        avoid = self._avoid_count(P)
+        out = {
+            "untracked": untracked,
+            "mean_visibility": vis,
+            "spread_m": spread,
+            "near_symmetry_margin_m": margin,
+            "close_pairs": close,
+            "markers": n,
+            "avoid_conflicts": avoid,
+        }
+        out["total"] = (
+            s.w_untracked * untracked
+            + s.w_visibility * (1.0 - vis)
+            + s.w_spread * max(0.0, 1.0 - spread / self.spread_target)
+            + s.w_near_symmetry * max(0.0, 1.0 - margin * 1000.0 / s.near_symmetry_target_mm)
+            + s.w_spacing * close
+            + s.w_count * (1.0 - math.exp(-((n - s.target_markers) ** 2) / 2.0))
+            + s.w_avoid * avoid
+        )
+        return out
+
+    def cost(self, sites, bound: float = math.inf) -> float:
+        """The total cost; when even its lower bound exceeds ``bound`` that bound is returned
+        (the caller only needs to know the layout loses)."""
+        if bound < math.inf:
+            lower = self.terms(sites, symmetry=False)["total"]
+            if lower > bound:
+                return lower
+        return self.terms(sites)["total"]
+
+    def _avoid_count(self, P: np.ndarray) -> int:
+        if self._avoid_tree is None or len(P) < 3:
+            return 0
+        from starforge.stars.avoid import body_triangles
+
+        tri = body_triangles(P * 1000.0) / 1000.0
+        d, _ = self._avoid_tree.query(tri, k=1, p=np.inf, distance_upper_bound=self.settings.avoid_tolerance_mm / 1000.0)
+        return int((d < self.settings.avoid_tolerance_mm / 1000.0).sum())
+
+    # --- cheap screening of many candidate additions at once ------------------------------------
+    def screen_additions(self, sites, candidates: np.ndarray) -> np.ndarray:
+        """An approximate cost (no near-symmetry, no avoid) of ``sites + [c]`` for each candidate c."""
+        s = self.settings
+        idx = np.asarray(sites, dtype=np.int64)
+        base_seen = self.seen_f[idx]
+        cnt0 = base_seen.sum(axis=0)
+        s10 = base_seen.T @ self.points[idx] if len(idx) else np.zeros((self.poses, 3))
+        s20 = base_seen.T @ self.moments[idx] if len(idx) else np.zeros((self.poses, 6))
+        cand = np.asarray(candidates, dtype=np.int64)
+        tracked = _screen_tracked(cnt0, s10, s20, self.pose_seen[cand], self.points[cand], self.moments[cand], self.min_spread2)
+        n = len(idx) + 1
+        vis = (self.visibility[idx].sum() + self.visibility[candidates]) / n
+        P = self.points[idx]
+        if len(idx):
+            d = np.linalg.norm(self.points[candidates][:, None] - P[None], axis=2)
+            close = (d < self.spacing).sum(axis=1)
+        else:
+            close = np.zeros(len(candidates))
+        allm = self.moments[idx].sum(0)[None] + self.moments[candidates]
+        alls = P.sum(0)[None] + self.points[candidates]
+        spread = np.sqrt(line_spread2_many(np.full(len(candidates), float(n)), alls, allm)) if n >= 2 else np.zeros(len(candidates))
+        return (
+            s.w_untracked * (1.0 - tracked)
+            + s.w_visibility * (1.0 - vis)
+            + s.w_spread * np.maximum(0.0, 1.0 - spread / self.spread_target)
+            + s.w_spacing * close
+        )
+
+
+#: candidate sites screened per greedy or swap step: a fixed spread subset plus the neighbours of
+#: the current markers (screening all of a dense site set costs more than it finds)
+SCREEN = 400
+
+
+def _screen_pool(prob: Problem, sites) -> np.ndarray:
+    S = len(prob.points)
+    if S <= SCREEN:
+        return np.arange(S)
+    spread = np.arange(0, S, max(1, S // SCREEN))
+    near = prob.knn[np.asarray(sites, dtype=np.int64)].ravel() if len(sites) else np.zeros(0, np.int64)
+    return np.unique(np.concatenate([spread, near]))
+
+
+def greedy_local_search(prob: Problem, candidates_top: int = 12) -> list[int]:
+    """Greedy: add the best site until ``target_markers``; then swaps (one marker for another
+    site) while they lower the exact cost."""
+    sites: list[int] = []
+    while len(sites) < prob.settings.target_markers:
+        free = np.setdiff1d(_screen_pool(prob, sites), sites)
+        approx = prob.screen_additions(sites, free)
+        top = free[np.argsort(approx, kind="stable")[:candidates_top]]
+        best = min(top.tolist(), key=lambda c: (prob.cost([*sites, c]), c))
+        sites.append(int(best))
+    return local_search(prob, sites)
+
+
+def local_search(prob: Problem, sites: list[int], rounds: int = 20, candidates_top: int = 12) -> list[int]:
+    """Swap one marker for another site (screened, then exact) while it lowers the cost."""
+    sites = list(sites)
+    cur = prob.cost(sites)
+    for _ in range(rounds):
+        improved = False
+        for k in range(len(sites)):
+            rest = sites[:k] + sites[k + 1 :]
+            free = np.setdiff1d(_screen_pool(prob, sites), rest)
+            approx = prob.screen_additions(rest, free)
+            for c in free[np.argsort(approx, kind="stable")[:candidates_top]].tolist():
+                if c == sites[k]:
+                    continue
+                trial = rest[:k] + [c] + rest[k:]
+                tc = prob.cost(trial, bound=cur)
+                if tc < cur - 1e-12:
+                    sites, cur, improved = trial, tc, True
+                    break
+        if not improved:
+            break
+    return sites
+
+
+def random_layouts(prob: Problem, count: int, rng: np.random.Generator) -> tuple[list[int] | None, float, list[float]]:
+    """The best of ``count`` random layouts of ``target_markers`` sites (spacing respected when
+    possible): (sites, exact cost of the best, the lower bounds of all).
+
+    Every layout gets the cost without its near-symmetry term, a lower bound; the exact cost is
+    computed in that order until the next lower bound exceeds the best exact cost, so the best
+    is exact without a symmetry search for every layout."""
+    S = len(prob.points)
+    n = min(prob.settings.target_markers, S)
+    layouts, lower = [], []
+    for _ in range(count):
+        order = rng.permutation(S)
+        taken: list[int] = []
+        blocked = np.zeros(S, dtype=bool)
+        for s in order.tolist():
+            if not blocked[s]:
+                taken.append(s)
+                blocked[prob.neighbours[s]] = True
+                if len(taken) == n:
+                    break
+        if len(taken) < n:
+            taken = order[:n].tolist()
+        layouts.append(taken)
+        lower.append(prob.terms(taken, symmetry=False)["total"])
+    best, best_c = None, math.inf
+    for k in np.argsort(lower, kind="stable").tolist():
+        if lower[k] > best_c:
+            break
+        c = prob.terms(layouts[k])["total"]
+        if c < best_c:
+            best, best_c = layouts[k], c
+    return best, best_c, lower
+
+
+@dataclass(frozen=True)
+class ChainRun:
+    sites: tuple[int, ...]
+    cost: float
+    iterations: int
+    history: np.ndarray = field(repr=False)  # best cost after each iteration
+    accepted: int = 0
+
+
+def chain(prob: Problem, start: list[int], rng: np.random.Generator) -> ChainRun:
+    """One annealed reversible-jump chain from ``start`` (see the module docstring)."""
+    s = prob.settings
+    S = len(prob.points)
+    Z, lo = s.max_markers, s.min_markers
+    sites = list(start)
+    cur = prob.cost(sites)
+    best, best_sites = cur, tuple(sites)
+    hist = np.empty(max(1, s.iterations))
+    last_gain = 0
+    accepted = 0
+    decay = (1e-4 / s.t0) ** (1.0 / max(1, s.iterations)) if s.t0 > 0 else 0.0
+    t = s.t0
+    i = 0
+    for i in range(s.iterations):
+        u = rng.random()
+        n = len(sites)
+        if u < 0.3 and n < Z:
+            c = int(rng.integers(S))
+            if c in sites:
+                hist[i] = best
+                continue
+            new, factor = sites + [c], 0.3 * (Z - n) / (0.3 * (n + 1))
+        elif u < 0.6 and n > lo:
+            k = int(rng.integers(n))
+            new, factor = sites[:k] + sites[k + 1 :], 0.3 * n / (0.3 * (Z - (n - 1)))
+        else:
+            k = int(rng.integers(n))
+            if rng.random() < 0.5 and prob.knn.shape[1]:
+                c = int(prob.knn[sites[k], rng.integers(prob.knn.shape[1])])
+            else:
+                c = int(rng.integers(S))
+            if c in sites:
+                hist[i] = best
+                continue
+            new, factor = sites[:k] + [c] + sites[k + 1 :], 1.0
+        # accept iff new cost <= cur + t (log factor - log u): the bound that decides it
+        lu = math.log(max(rng.random(), 1e-300))
+        limit = cur + t * (math.log(factor) - lu) if t > 0 else cur
+        nc = prob.cost(new, bound=limit)
+        ok = nc <= limit if t > 0 else nc < cur
+        if ok:
+            sites, cur = new, nc
+            accepted += 1
+            if cur < best - 1e-12:
+                best, best_sites, last_gain = cur, tuple(sites), i
+        hist[i] = best
+        t *= decay
+        if i - last_gain > s.stall:
+            break
+    n_it = i + 1 if s.iterations else 0
+    return ChainRun(best_sites, float(best), n_it, hist[:n_it].copy(), accepted)
+
+
+@dataclass(frozen=True)
+class Optimized:
+    """The chosen layout and everything that competed with it."""
+
+    sites: tuple[int, ...]
+    terms: dict
+    baselines: dict
+    runs: tuple[ChainRun, ...]
+    seconds: dict
+
+
+def optimize(prob: Problem, rng: np.random.Generator, progress=None) -> Optimized:
+    """Baselines, chains from the greedy layout, the best polished (see the module docstring)."""
+    s = prob.settings
+    sec = {}
+    t = time.perf_counter()
+    greedy = greedy_local_search(prob)
+    g_cost = prob.cost(greedy)
+    sec["greedy_local_search_s"] = round(time.perf_counter() - t, 3)
+    t = time.perf_counter()
+    r_sites, r_cost, r_costs = random_layouts(prob, s.random_layouts, rng)
+    sec["random_s"] = round(time.perf_counter() - t, 3)
+    t = time.perf_counter()
+    runs = []
+    for k in range(s.restarts):
+        runs.append(chain(prob, greedy if k == 0 or r_sites is None else r_sites, rng))
+        if progress is not None:
+            progress(k + 1, s.restarts)
+    sec["chains_s"] = round(time.perf_counter() - t, 3)
+    t = time.perf_counter()
+    cands = [(g_cost, tuple(greedy))] + [(r.cost, r.sites) for r in runs]
+    if r_sites is not None:
+        cands.append((r_cost, tuple(r_sites)))
+    best = list(min(cands)[1])
+    best = local_search(prob, best)
+    sec["polish_s"] = round(time.perf_counter() - t, 3)
+    baselines = {
+        "greedy_local_search": {"cost": g_cost, "sites": [int(x) for x in greedy]},
+        "best_of_random": {
+            "layouts": s.random_layouts,
+            "cost": None if r_sites is None else r_cost,
+            "median_cost": float(np.median(r_costs)) if r_costs else None,
+        },
+        "chains": [{"cost": r.cost, "iterations": r.iterations, "accepted": r.accepted} for r in runs],
+    }
+    return Optimized(tuple(int(x) for x in best), prob.terms(best), baselines, tuple(runs), sec)

@@ -1,0 +1,203 @@
+"""Issue 10: the tracked objective re-checked independently, markers as balls, the optimizer
+against its baselines, distinct props, and props in the wrong units."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from starforge.props.tracked import (
+    TRIANGLE_SPREAD,
+    Problem,
+    TrackSettings,
+    local_search,
+    random_layouts,
+    spacing_m,
+)
+from tests.conftest import run_cli
+
+FAST = ["--sites", "250", "--resolution", "2", "--orientations", "12"]
+
+
+def _problem(seed=0, sites=60, poses=40, avoid=None):
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-0.1, 0.1, size=(sites, 3))
+    seen = rng.random((sites, poses)) < 0.45
+    vis = rng.random(sites)
+    return Problem(pts, seen, vis, TrackSettings(), 0.02, 0.03, avoid)
+
+
+def test_tracked_poses_match_a_brute_force_recount():
+    prob = _problem()
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        sites = rng.choice(len(prob.points), 7, replace=False).tolist()
+        t = prob.terms(sites)
+        tracked = []
+        for p in range(prob.poses):
+            P = prob.points[[s for s in sites if prob.pose_seen[s, p]]]
+            if len(P) < 3:
+                tracked.append(False)
+                continue
+            X = P - P.mean(axis=0)
+            sv = np.linalg.svd(X, compute_uv=False)
+            perp = math.sqrt(float((sv[1:] ** 2).sum()) / len(P))  # RMS distance from the best-fit line
+            tracked.append(perp >= TRIANGLE_SPREAD * prob.settings.min_height_mm / 1000.0)
+        assert t["untracked"] == pytest.approx(1.0 - np.mean(tracked))
+
+
+def test_a_thin_triangle_does_not_track_and_a_fat_one_does():
+    pts = np.array([[0.0, 0, 0], [0.1, 0, 0], [0.05, 0.005, 0], [0.05, 0.05, 0]])
+    seen = np.array([[True, True], [True, True], [True, False], [False, True]])
+    prob = Problem(pts, seen, np.ones(4), TrackSettings(), 0.001, 0.01)
+    t = prob.terms([0, 1, 2, 3])
+    # pose 0 sees a triangle 5 mm high (thin), pose 1 one 50 mm high
+    assert t["untracked"] == pytest.approx(0.5)
+
+
+def test_best_of_random_is_the_exact_minimum_of_the_layouts_drawn():
+    prob = _problem(1)
+    best, cost, lower = random_layouts(prob, 200, np.random.default_rng(5))
+    rng = np.random.default_rng(5)
+    exact = []
+    for _ in range(200):  # the same draws, exact cost for every one
+        order = rng.permutation(len(prob.points))
+        taken, blocked = [], np.zeros(len(prob.points), bool)
+        for s in order.tolist():
+            if not blocked[s]:
+                taken.append(s)
+                blocked[prob.neighbours[s]] = True
+                if len(taken) == 7:
+                    break
+        exact.append(prob.cost(taken))
+    assert cost == pytest.approx(min(exact)) and prob.cost(best) == pytest.approx(cost)
+    assert all(lo <= e + 1e-12 for lo, e in zip(lower, exact, strict=True))  # lower bounds really are
+
+
+def test_local_search_never_worsens():
+    prob = _problem(2)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        start = rng.choice(len(prob.points), 7, replace=False).tolist()
+        assert prob.cost(local_search(prob, start)) <= prob.cost(start) + 1e-12
+
+
+def test_spacing_keeps_marker_images_apart():
+    from starforge.props.rig import load_rig
+
+    rig = load_rig("default")
+    s = spacing_m(9.5, rig, 2.0)
+    # independent: the farthest camera-to-corner distance times two pixels' angle
+    corners = [np.array(rig.volume.center) + np.array(rig.volume.size) * (np.array(k) - 0.5) for k in np.ndindex(2, 2, 2)]
+    far = max(np.linalg.norm(c - np.array(cam.position)) for cam in rig.cameras for c in corners)
+    pix = math.radians(rig.cameras[0].fov_deg) / rig.cameras[0].resolution[0]
+    assert s == pytest.approx(0.0095 + 2 * far * pix)
+    assert 0.015 < s < 0.03
+
+
+def test_orientations_spread_over_the_rotation_group():
+    from scipy.spatial.transform import Rotation
+
+    from starforge.props.rig import orientation_set, quaternion_matrices
+
+    probe = Rotation.random(300, random_state=np.random.default_rng(0))
+    worst = []
+    for n in (8, 24, 96):
+        R = orientation_set(n)
+        assert len(R) == n and np.allclose(R[0], np.eye(3))
+        assert np.allclose(np.linalg.det(R), 1) and np.allclose(R @ R.transpose(0, 2, 1), np.eye(3), atol=1e-12)
+        # independent check: scipy's own quaternion map agrees with ours (scipy stores x, y, z, w)
+        q = np.random.default_rng(n).normal(size=(5, 4))
+        assert np.allclose(quaternion_matrices(*q.T), Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_matrix())
+        tr = np.einsum("pij,nij->pn", probe.as_matrix(), R)  # trace(P^T R)
+        angles = np.arccos(np.clip((tr - 1) / 2, -1, 1))
+        worst.append(angles.min(axis=1).max())
+    assert worst[0] > worst[1] > worst[2]  # more orientations, no rotation left far from the set
+    assert worst[2] < np.radians(50)  # measured 46 deg (an unscrambled Sobol set: 52 deg)
+
+
+def test_visibility_is_tested_at_the_ball_centre(tmp_path):
+    """An independent re-check with trimesh's own ray tracer (not embree) on the hammer."""
+    from trimesh.ray.ray_triangle import RayMeshIntersector
+
+    out = tmp_path / "o"
+    assert run_cli(["place", "hammer", *FAST, "--out", out, "-q"]) == 0
+    doc = json.loads((out / "placement.json").read_text())
+    from starforge.props.builtin import builtin_mesh
+    from starforge.props.rig import load_rig
+    from starforge.props.visibility import in_view
+
+    mesh = builtin_mesh("hammer")
+    rig = load_rig("default")
+    centres = np.array(doc["tracked"]["marker_centres_m"])
+    poses = np.array(doc["poses"]["matrices"])
+    cams = np.array([c.position for c in rig.cameras])
+    pairs = np.array(rig.pairs)
+    inter = RayMeshIntersector(mesh)
+    seen = np.zeros((len(centres), len(poses)), bool)
+    for k, T in enumerate(poses):
+        world = centres @ T[:3, :3].T + T[:3, 3]
+        fov = in_view(world, rig)
+        # cameras into the prop frame, rays from the ball centres
+        cam_prop = (cams - T[:3, 3]) @ T[:3, :3]
+        ok = np.zeros((len(centres), len(cams)), bool)
+        for i, c in enumerate(centres):
+            d = cam_prop - c
+            dist = np.linalg.norm(d, axis=1)
+            hits = inter.intersects_location(np.repeat(c[None], len(cams), 0), d / dist[:, None])
+            loc, ray = hits[0], hits[1]
+            blocked = np.zeros(len(cams), bool)
+            for L, r in zip(loc, ray, strict=True):
+                if np.linalg.norm(L - c) < dist[r]:
+                    blocked[r] = True
+            ok[i] = fov[i] & ~blocked
+        seen[:, k] = (ok[:, pairs[:, 0]] & ok[:, pairs[:, 1]]).any(axis=1)
+    ours = np.array([m["seen_fraction"] for m in doc["markers"]])
+    assert np.abs(seen.mean(axis=1) - ours).max() <= 0.02
+    assert doc["tracked"]["tracked_fraction"] >= 0.9
+
+
+def test_avoid_keeps_a_new_prop_apart_from_one_in_the_room(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert run_cli(["place", "racket", *FAST, "--out", a, "-q"]) == 0
+    assert run_cli(["place", "racket", *FAST, "--seed", "1", "--avoid", a / "placement.json", "--out", b, "-q"]) == 0
+    from starforge.stars.avoid import body_triangles
+
+    # the tracker sees the balls' centres
+    pa = np.array(json.loads((a / "placement.json").read_text())["tracked"]["marker_centres_m"]) * 1000
+    db = json.loads((b / "placement.json").read_text())
+    pb = np.array(db["tracked"]["marker_centres_m"]) * 1000
+    ta, tb = body_triangles(pa), body_triangles(pb)
+    d = np.abs(ta[:, None, :] - tb[None, :, :]).max(axis=2)
+    assert (d >= 2.0 - 1e-6).all() and db["tracked"]["avoid_conflicts"] == 0
+
+
+@pytest.mark.parametrize(
+    "scale,units,needle",
+    [(1000.0, "m", "--units mm"), (1e-4, "m", "smaller than four markers")],
+)
+def test_a_prop_in_the_wrong_units_is_refused_with_the_units_that_fit(tmp_path, capsys, scale, units, needle):
+    import trimesh
+
+    f = tmp_path / "box.stl"
+    trimesh.creation.box(extents=np.array([0.1, 0.2, 0.05]) * scale).export(f)
+    out = tmp_path / "o"
+    assert run_cli(["place", f, *FAST, "--units", units, "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count("\n") == 1 and not out.exists()
+
+
+def test_score_refuses_markers_off_the_surface(tmp_path, capsys):
+    (tmp_path / "far.csv").write_text("id,x_m,y_m,z_m\n0,100,0,0\n1,100,0.1,0\n2,100,0,0.1\n3,100.1,0,0\n")
+    assert run_cli(["place", "score", "hammer", tmp_path / "far.csv", "--resolution", "2"]) == 2
+    assert "from the prop's surface" in capsys.readouterr().err
+
+
+def test_the_paper_setting_stays_available():
+    from starforge.props.placement import load_spec
+
+    s = load_spec("paper")
+    assert s.objective == "paper" and s.orientations == 1 and s.costs.marker_diameter_m == pytest.approx(0.004)
