@@ -44,15 +44,15 @@ def check_family(data: dict, slack_mm: float = 1e-6) -> list[str]:
         if P.shape != (4, 3):
             problems.append(f"star {sid}: vertices are not 4 x 3")
             continue
+        if not np.isfinite(P).all() or np.abs(P).max() > 1e5:
+            problems.append(f"star {sid}: vertices are not finite coordinates within 100 m")
+            continue
         # 1. stored lengths match the vertices
         edges = {"u": (0, 1), "U": (2, 3), "v": (1, 2), "V": (0, 3), "w": (0, 2), "W": (1, 3)}
         for k in names:
             d = _dist(P, *edges[k])
             if abs(d - float(s["lengths"][k])) > slack_mm:
                 problems.append(f"star {sid}: |{k}| is {d:.6f} mm at the vertices, {s['lengths'][k]} stored")
-        if not np.isfinite(P).all() or np.abs(P).max() > 1e5:
-            problems.append(f"star {sid}: vertices are not finite coordinates within 100 m")
-            continue
         # 2. all six lengths differ by >= the tolerance (delta for version 1 files)
         ls = sorted(_dist(P, a, b) for a, b in itertools.combinations(range(4), 2))
         for a, b in itertools.pairwise(ls):

@@ -271,12 +271,18 @@ def run_cell(args: tuple) -> list[dict]:
     return rows
 
 
-def estimate_seconds(marker_mm: float, deltas, cubes, rules, exhaustive_labelled: int, samples: int) -> float:
-    """Rough single-core seconds for a sweep (for the bounded-cost check)."""
+#: bytes per pool triple while the face bound is built (a Python tuple, then index arrays)
+BYTES_PER_TRIPLE = 150.0
+
+
+def estimate_cells(marker_mm: float, deltas, cubes, rules, exhaustive_labelled: int, samples: int) -> tuple[float, float]:
+    """Rough single-core seconds for a whole sweep and the peak bytes of its largest cell
+    (for the bounded-cost check)."""
     from starforge.stars.enumerate import SECONDS_PER_LABELLED, labelled_count
+    from starforge.stars.enumerate import estimate as enum_estimate
     from starforge.stars.spec import StarSpec
 
-    total = 0.0
+    total, peak = 0.0, 0.0
     for d in deltas:
         for c in cubes:
             try:
@@ -284,12 +290,14 @@ def estimate_seconds(marker_mm: float, deltas, cubes, rules, exhaustive_labelled
             except StarforgeError:
                 continue
             n = labelled_count(spec)
-            total += (
-                (n * SECONDS_PER_LABELLED * 4 + 1.0)
-                if n <= exhaustive_labelled
-                else len(rules) * samples * 2e-5
-            )
-    return total
+            if n <= exhaustive_labelled:
+                total += n * SECONDS_PER_LABELLED * 4 + 1.0
+                peak = max(peak, enum_estimate(spec)["bytes"])
+            else:
+                triples = math.comb(spec.pool_size, 3)
+                total += len(rules) * samples * 2e-5 + triples * 2e-7 * spec.grid_steps**3
+                peak = max(peak, triples * BYTES_PER_TRIPLE + 100e6)
+    return total, peak
 
 
 def sweep(
@@ -311,7 +319,7 @@ def sweep(
     import os
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    from starforge.budget import require_time
+    from starforge.budget import require_memory, require_time
 
     positive("marker_mm", marker_mm)
     require(exhaustive_labelled >= 0, f"exhaustive_labelled must be >= 0, got {exhaustive_labelled}")
@@ -323,12 +331,12 @@ def sweep(
     for r in rules:
         require(r in ("face", "pair"), f"rule must be face or pair, got {r!r}")
     workers = workers or os.cpu_count() or 1
-    est = estimate_seconds(marker_mm, deltas, cubes, rules, exhaustive_labelled, samples) / max(1, workers)
-    require_time(
-        est,
-        f"a sweep of {len(deltas) * len(cubes)} cells",
-        "use fewer --delta/--cube values or lower --exhaustive",
-    )
+    seconds, cell_bytes = estimate_cells(marker_mm, deltas, cubes, rules, exhaustive_labelled, samples)
+    what = f"a sweep of {len(deltas) * len(cubes)} cells"
+    advice = "use a larger --delta, smaller --cube values or fewer of them, or lower --exhaustive"
+    workers = max(1, min(workers, len(deltas) * len(cubes)))
+    require_memory(cell_bytes * workers, f"{what} on {workers} processes", advice)
+    require_time(seconds / workers, what, advice)
     cells = [
         (
             float(marker_mm),

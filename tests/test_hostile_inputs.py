@@ -1,0 +1,294 @@
+"""Hostile inputs across every command: one clear line, exit 2, nothing written, bounded memory.
+
+Each case runs the real CLI in a child process whose address space is capped at 2 GiB
+(``resource.setrlimit``) with starforge's own memory limit at 1 GiB and a 60 s wall clock, so a
+case that tried to allocate or loop without bound would fail here instead of passing by
+accident.  Each case asserts:
+
+* the exit code (2 for a refusal; a few inputs are legitimate and give 0 with a correct result),
+* stderr: exactly one line, ``error: ...``, matching the case's pattern, and no traceback,
+* the output folder: byte-for-byte as it was (a sentinel file and an old output stay), and no
+  stage or temp folder left beside it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import run_cli
+
+CHILD = textwrap.dedent(
+    """
+    import resource, sys
+    cap = 2 * 1024 ** 3
+    resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
+    from starforge.cli import main
+    sys.exit(main(sys.argv[1:]))
+    """
+)
+LIMIT_S = 60
+
+
+@dataclass(frozen=True)
+class Case:
+    id: str
+    args: tuple
+    pattern: str
+    code: int = 2
+    uses_out: bool = True
+    env: dict = field(default_factory=dict)
+
+
+def _snapshot(folder: Path) -> dict:
+    return {
+        str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else None)
+        for p in sorted(folder.rglob("*"))
+    }
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory, small_family):
+    """Hostile input files, made once: families edited by hand, meshes in the wrong units..."""
+    d = tmp_path_factory.mktemp("hostile")
+    _, fam = small_family
+
+    def family(name, edit):
+        doc = json.loads(json.dumps(fam))
+        edit(doc)
+        p = d / f"{name}.json"
+        p.write_text(json.dumps(doc))
+        return p
+
+    def scale(k):
+        def edit(doc):
+            s = doc["stars"][0]
+            s["vertices"] = (np.asarray(s["vertices"]) * k).tolist()
+            s["lengths"] = {n: v * k for n, v in s["lengths"].items()}
+
+        return edit
+
+    def contradict(doc):
+        doc["stars"][0]["vertices"][3][2] += 5.0
+
+    def coincide(doc):
+        s = doc["stars"][0]
+        s["vertices"][1] = list(s["vertices"][0])
+
+    def inch(doc):
+        doc["units"] = "inch"
+
+    out = {
+        "good": family("good", lambda doc: None),
+        "x300": family("x300", scale(300.0)),
+        "x1e6": family("x1e6", scale(1e6)),
+        "contradict": family("contradict", contradict),
+        "coincident": family("coincident", coincide),
+        "inch": family("inch", inch),
+        "no_stars": family("no_stars", lambda doc: doc.update(stars=[])),
+    }
+    (d / "corrupt.json").write_text('{"format": "starforge.family", "stars": [')
+    out["corrupt"] = d / "corrupt.json"
+    (d / "list.json").write_text("[1, 2, 3]")
+    out["list"] = d / "list.json"
+    (d / "garbage.stl").write_bytes(b"solid x\nthis is not an stl\n" * 10)
+    out["garbage_stl"] = d / "garbage.stl"
+    (d / "empty.obj").write_text("")
+    out["empty_obj"] = d / "empty.obj"
+    (d / "bad.toml").write_text("box_mm = [20.8, 12.6\n")
+    out["bad_toml"] = d / "bad.toml"
+    (d / "wrongtype.toml").write_text('box_mm = [20.8, 12.6, 48.3]\ncount = "many"\n')
+    out["wrongtype_toml"] = d / "wrongtype.toml"
+    (d / "unknownkey.toml").write_text("box_mm = [20.8, 12.6, 48.3]\nsize = 3\n")
+    out["unknownkey_toml"] = d / "unknownkey.toml"
+
+    import trimesh
+
+    # a 100 x 200 x 50 mm box saved in millimetres (read as metres unless --units mm)
+    trimesh.creation.box(extents=(100.0, 200.0, 50.0)).export(d / "box_mm.stl")
+    out["box_mm"] = d / "box_mm.stl"
+    trimesh.creation.box(extents=(0.16e-3, 0.1e-3, 0.1e-3)).export(d / "speck.stl")
+    out["speck"] = d / "speck.stl"
+    (d / "far.csv").write_text("id,x_m,y_m,z_m\n1,100,0,0\n2,100,0.1,0\n3,100,0,0.1\n4,100.1,0,0\n")
+    out["far_csv"] = d / "far.csv"
+    return out
+
+
+def _cases(f) -> list[Case]:
+    fam = str(f["good"])
+    return [
+        # stars
+        Case("stars-delta-denormal", ("stars", "--delta", "1e-310"), r"delta"),
+        Case("stars-delta-negative", ("stars", "--delta", "-1.5"), r"delta_mm must be > 0"),
+        Case("stars-delta-nan", ("stars", "--delta", "nan"), r"delta"),
+        Case("stars-delta-tiny", ("stars", "--delta", "0.01"), r"(memory|would take|pool)"),
+        Case("stars-box-too-small", ("stars", "--box", "3", "3", "3"), r"too small"),
+        Case("stars-box-huge", ("stars", "--box", "1e300", "1e300", "1e300"), r"(box|pool|memory|would take)"),
+        Case("stars-marker-zero", ("stars", "--marker", "0"), r"marker"),
+        Case("stars-name-escapes", ("stars", "--name", "../x"), r"name must be"),
+        Case("stars-tolerance-huge", ("stars", "--tolerance", "1000"), r"tolerance"),
+        Case("stars-count-impossible", ("stars", "--count", "100000"), r"count"),
+        Case("stars-spec-devnull", ("stars", "--spec", "/dev/null"), r"not a regular file"),
+        Case("stars-spec-missing", ("stars", "--spec", "nope/missing.toml"), r"not found"),
+        Case("stars-spec-corrupt", ("stars", "--spec", str(f["bad_toml"])), r"not valid TOML"),
+        Case("stars-spec-wrong-type", ("stars", "--spec", str(f["wrongtype_toml"])), r"count"),
+        Case("stars-spec-unknown-key", ("stars", "--spec", str(f["unknownkey_toml"])), r"size"),
+        Case("stars-rule-unknown", ("stars", "--rule", "triangle"), r"rule"),
+        Case("stars-unknown-template", ("stars", "--spec", "thumb"), r"unknown stars template"),
+        Case("stars-count-not-int", ("stars", "--count", "lots"), r"count"),
+        # export (CAD and tracker files)
+        Case("export-missing", ("export", "nope.json"), r"not found"),
+        Case("export-corrupt", ("export", str(f["corrupt"])), r"not valid JSON"),
+        Case("export-not-object", ("export", str(f["list"])), r"JSON object"),
+        Case("export-inch", ("export", str(f["inch"])), r"units"),
+        Case("export-contradicting-vertices", ("export", str(f["contradict"])), r"(vertices|lengths)"),
+        Case("export-coincident-markers", ("export", str(f["coincident"])), r"(coincid|overlap|distinct|lengths)"),
+        Case("export-scaled-x300", ("export", str(f["x300"])), r"(size limit|box|memory|lengths)"),
+        Case("export-scaled-x1e6", ("export", str(f["x1e6"])), r"within 100 m"),
+        Case("export-no-stars", ("export", str(f["no_stars"])), r"no stars"),
+        Case("export-unknown-format", ("export", fam, "--format", "dwg"), r"format"),
+        Case("export-unknown-mount", ("export", fam, "--mount", "velcro"), r"mount"),
+        Case("export-unknown-id", ("export", fam, "--ids", "999"), r"999"),
+        # check
+        Case("check-ghosts-200", ("check", fam, "--ghosts", "200", "--frames", "1"), r"ghosts"),
+        Case("check-ghosts-million", ("check", fam, "--ghosts", "1000000"), r"ghosts"),
+        Case("check-frames-1e20", ("check", fam, "--frames", "100000000000000000000"), r"frames"),
+        Case("check-frames-float", ("check", fam, "--frames", "1e20"), r"frames"),
+        Case("check-noise-negative", ("check", fam, "--noise", "-1"), r"noise"),
+        Case("check-inch-family", ("check", str(f["inch"])), r"units"),
+        Case("check-not-a-body-file", ("check", str(f["list"])), r"JSON object"),
+        # place
+        Case("place-missing-mesh", ("place", "run", "nope.stl"), r"(not found|unknown)"),
+        Case("place-garbage-mesh", ("place", "run", str(f["garbage_stl"])), r"(mesh|read|load|faces)"),
+        Case("place-empty-mesh", ("place", "run", str(f["empty_obj"])), r"(empty|mesh|faces)"),
+        Case("place-mm-as-metres", ("place", "run", str(f["box_mm"])), r"--units mm"),
+        Case("place-speck", ("place", "run", str(f["speck"])), r"(--units|smaller than)"),
+        Case("place-units-unknown", ("place", "run", "--units", "furlong"), r"units"),
+        Case("place-huge-table", ("place", "run", "--resolution", "64", "--orientations", "1000"), r"memory"),
+        Case("place-markers-zero", ("place", "run", "--markers", "0"), r"markers"),
+        Case("place-score-far", ("place", "score", "hammer", str(f["far_csv"])), r"(surface|off)", uses_out=False),
+        # sweep, templates, mounts, global limits
+        Case("sweep-huge", ("sweep", "--delta", "0.01:0.02:0.01", "--cube", "10:2000:1"), r"cube has 1991 values; at most"),
+        Case("sweep-pool-memory", ("sweep", "--delta", "0.01:0.02:0.01", "--cube", "40:60:20"), r"memory"),
+        Case("templates-unknown-kind", ("templates", "wands"), r"unknown template kind", uses_out=False),
+        Case("mounts-unknown", ("mounts", "velcro"), r"velcro", uses_out=False),
+        Case("max-memory-garbage", ("--max-memory", "lots", "stars"), r"--max-memory", uses_out=False),
+    ]
+
+
+def _case_ids():
+    return [c.id for c in _cases({k: Path(k) for k in _FILE_KEYS})]
+
+
+_FILE_KEYS = (
+    "good x300 x1e6 contradict coincident inch no_stars corrupt list garbage_stl empty_obj bad_toml "
+    "wrongtype_toml unknownkey_toml box_mm speck far_csv"
+).split()
+
+
+@pytest.mark.parametrize("case_id", _case_ids())
+def test_hostile_input(case_id, files, tmp_path):
+    case = {c.id: c for c in _cases(files)}[case_id]
+    work = tmp_path / "work"
+    out = work / "out"
+    out.mkdir(parents=True)
+    (out / "keep.txt").write_text("a file the user had")
+    (out / "mine").mkdir()
+    (out / "mine" / "notes.txt").write_text("more of the user's files")
+    before = _snapshot(work)
+    args = list(case.args)
+    if case.uses_out:
+        args += ["--out", str(out)]
+    env = {
+        **os.environ,
+        "STARFORGE_MAX_MEMORY": "1G",
+        "OPENBLAS_NUM_THREADS": "1",
+        "OMP_NUM_THREADS": "1",
+        **case.env,
+    }
+    t0 = time.perf_counter()
+    res = subprocess.run(
+        [sys.executable, "-c", CHILD, *args],
+        cwd=work,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=LIMIT_S,
+    )
+    print(case.id, f"{time.perf_counter() - t0:.2f} s")
+    err = res.stderr.strip()
+    assert "Traceback" not in res.stderr, res.stderr
+    assert res.returncode == case.code, (res.returncode, err)
+    if case.code == 2:
+        lines = err.splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: "), err
+        import re
+
+        assert re.search(case.pattern, lines[0]), lines[0]
+    assert _snapshot(work) == before
+
+
+def test_a_good_family_still_exports_under_the_same_limits(files, tmp_path):
+    """The limits refuse what is absurd, not what is normal (same child settings)."""
+    out = tmp_path / "out"
+    res = subprocess.run(
+        [sys.executable, "-c", CHILD, "export", str(files["good"]), "--ids", "1", "--format", "stl,qtm", "--allow-oversize", "--out", str(out)],
+        env={**os.environ, "STARFORGE_MAX_MEMORY": "1G", "OPENBLAS_NUM_THREADS": "1"},
+        capture_output=True,
+        text=True,
+        timeout=LIMIT_S,
+    )
+    assert res.returncode == 0, res.stderr
+    assert any(p.suffix == ".stl" for p in out.rglob("*"))
+
+
+def test_cli_in_process_agrees(files, tmp_path):
+    """The in-process entry point used by the other tests reports the same refusal."""
+    assert run_cli(["export", files["inch"], "--out", tmp_path / "o"]) == 2
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("stars",),
+        ("place", "run", "hammer", "--orientations", "64"),
+        ("check", "{family}", "--frames", "200000"),
+    ],
+    ids=["stars", "place", "check"],
+)
+def test_ctrl_c_exits_130_and_leaves_the_output_as_it_was(args, files, tmp_path):
+    """SIGINT in the middle of the work (after start-up, long before the end): exit 130, one
+    line, the old outputs untouched (even with --force) and no staging folder left."""
+    import signal
+
+    work = tmp_path / "work"
+    out = work / "out"
+    out.mkdir(parents=True)
+    (out / "keep.txt").write_text("a file the user had")
+    before = _snapshot(work)
+    argv = [a.format(family=files["good"]) for a in args] + ["--out", str(out), "--force"]
+    proc = subprocess.Popen(
+        [sys.executable, "-c", CHILD, *argv],
+        cwd=work,
+        env={**os.environ, "OPENBLAS_NUM_THREADS": "1"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(4.0)
+    assert proc.poll() is None, "the work ended before it could be interrupted"
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=LIMIT_S)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert _snapshot(work) == before
