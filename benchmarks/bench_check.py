@@ -36,7 +36,9 @@ def _bodyset(fam):
 def _run(bodyset, frames, seed, **kw) -> dict:
     from starforge.tracking.check import CheckSettings, run_check
 
-    s = CheckSettings(frames=frames, seed=seed, curve_points=0, drop=1, drop_exact=True, **kw)
+    s = CheckSettings(
+        **{"frames": frames, "seed": seed, "curve_points": 0, "drop": 1, "drop_exact": True, **kw}
+    )
     doc = run_check(bodyset, s)
     st = doc["settings"]
     row = {

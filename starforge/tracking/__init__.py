@@ -1,6 +1,7 @@
 """What a tracker sees.
 
-* :mod:`~starforge.tracking.bodies`: rigid bodies (mm) from family.json / placement.json
+* :mod:`~starforge.tracking.bodies`: rigid bodies (mm) from families, placements and a lab's
+  tracker files (``load_bodies``, also behind ``stars --avoid`` and ``place --avoid``)
 * :mod:`~starforge.tracking.identify`: vectorised tracker-style identification and simulation
 * :mod:`~starforge.tracking.check`: the ``starforge check`` report (check.json)
 * accuracy (TRE, rotation error) and Kabsch fits live in :mod:`starforge.geometry.rigid`

@@ -2,15 +2,22 @@
 
 The document (``format: starforge.check``, version 1, all lengths mm)::
 
-    {"identification_rate", "mislabel_rate" (flips + wrong bodies), "flip_rate",
+    {"input": {"kind", "files", "bodies", "notes"},
+     "settings": {... every setting a rate depends on: noise, drop (mode), ghosts, frames, seed,
+                  match_mm / residual_mm and where they come from, world, presence,
+                  identify_from_markers, choose, preset, tip_mm},
+     "identification_rate", "mislabel_rate" (flips + wrong bodies), "flip_rate",
      "wrong_body_rate", "missed_rate", "phantom_rate",
      "confusion": {"labels": [...], "matrix": B x B (true row, reported column; diagonal correct)},
      "flips": [...], "missed": [...],              per body
      "worst_pairs": [...],                          most frequent confusions in the simulation
      "closest_triangles": [...],                    smallest geometric margins (drop-1 confusions)
-     "accuracy": {"tip_mm", "noise_mm", "bodies": [{"body", "markers", "tip_tre_mm",
-                  "tip_tre_hidden_mm", "worst_hidden_marker", "rotation_deg"}], "family": {...}},
-     "rules": {"preset", "violations": [...]},      with --preset
+     "drop1_margin_mm",                             the smallest of them (and of own-triangle flips)
+     "accuracy": {"tip_mm" (or null: per body), "tip_source", "noise_mm",
+                  "bodies": [{"body", "markers", "tip_mm", "tip_tre_mm", "tip_tre_hidden_mm",
+                              "worst_hidden_marker", "rotation_deg", "rotation_hidden_deg"}],
+                  "family": {median and worst, all markers and worst one hidden}},
+     "rules": {"preset", "window_mm", "violations": [...]},   with --preset
      "curve": {"noise_mm": [...], "identification_rate": [...], "mislabel_rate": [...]}}
 """
 

@@ -14,15 +14,19 @@ Pipeline (no Python loop per frame or per body):
 4. **Rigid fit**: Kabsch on the 3 points, predict the body's other markers, take the nearest
    observed point within ``match_mm`` for each, refit on all matched points; accept when the
    RMS residual is within ``residual_mm``.
-5. **Conflicts**: hypotheses ranked by (more markers, lower RMS); greedy acceptance, each
-   observed point used at most once (done in parallel rounds: a hypothesis that is the best
-   user of all its resources is accepted; the result equals the sequential greedy).  Hypotheses
+5. **Conflicts**: hypotheses ranked by (more markers, then lower RMS, or at random for a
+   tracker that treats every match inside its window as equal: :data:`CHOOSE`); greedy
+   acceptance, each observed point used at most once (done in parallel rounds: a hypothesis
+   that is the best user of all its resources is accepted; the result equals the sequential
+   greedy).  Hypotheses
    with fewer than ``min_markers`` matched markers are not reported (a vendor that identifies
    from 4-marker subsets only, like ART, never reports a 3-marker match).
 6. **Worlds**: in the *open world* (the default, and what a tracker must assume when bodies
    come and go) each point cluster is identified on its own: a label may be reported on two
-   clusters of one frame.  The *closed world* assumes every body is in every frame and uses
-   each body label at most once per frame, which hides confusions a real tracker makes.
+   clusters of one frame.  The *closed world* uses each body label at most once per frame (as
+   QTM documents: one solution per body); with every body in every frame (``presence`` 1) that
+   hides the confusions a body's absence exposes.  The open world is the closed world's worst
+   case over which bodies are absent, so ``presence`` changes only closed-world rates.
 
 Simulation: in every frame each body is present with probability ``presence`` and sits at a
 random pose (uniform rotation), far from the others (farther than the longest library
