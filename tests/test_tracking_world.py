@@ -191,3 +191,14 @@ def test_settings_have_bounded_cost(kw, needle):
     args = {"noise_mm": 0.1, "drop": 1, "ghosts": 0, "frames": 10, "match_mm": 1.0, "residual_mm": 0.5, **kw}
     with pytest.raises(StarforgeError, match=needle):
         ident.check_settings(lib, **args)
+
+
+def test_mirror_blind_tracker_tries_both_fits_of_three_points():
+    """Three points fit their mirror image as well as themselves; a mirror-blind tracker that
+    kept only one of the two would predict the fourth marker on the wrong side in about half
+    the triangles and miss bodies it sees whole."""
+    lib = ident.build_library(CLEAN, ["a", "b"])
+    t = ident.run(
+        lib, 500, 0.05, 0, 0, np.random.default_rng(2), 2.0, 1.0, reflect=True, min_markers=4, choose="fit"
+    )
+    assert t.correct == t.instances

@@ -248,11 +248,24 @@ def hypotheses(
     slots = triples[t_idx[q]]  # (H, 3) observed slots of vertices 0, 1, 2
     body = lib.tri_body[li]
     markers = np.take_along_axis(lib.tri_verts[li], perm, axis=1)  # model marker of each vertex
-    H = len(scene)
-    model_all = lib.points[body]  # (H, nmax, 3)
     obs3 = pts[scene[:, None], slots]
-    mod3 = model_all[np.arange(H)[:, None], markers]
-    R, t = kabsch(mod3, obs3, reflect=reflect)
+    model_all = lib.points[body]  # (H, nmax, 3)
+    mod3 = model_all[np.arange(len(scene))[:, None], markers]
+    R, t = kabsch(mod3, obs3)
+    if reflect:
+        # three points fit their mirror image as well as themselves (they span a plane): a
+        # mirror-blind tracker tries both, so every hypothesis gets its mirrored twin, the proper
+        # fit reflected through the plane of the three observed points
+        c = obs3.mean(axis=1)
+        nrm = np.cross(obs3[:, 1] - obs3[:, 0], obs3[:, 2] - obs3[:, 0])
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+        M = np.eye(3) - 2.0 * nrm[:, :, None] * nrm[:, None, :]
+        Rm = M @ R
+        tm = np.einsum("hij,hj->hi", M, t - c) + c
+        scene, slots, body, markers = (np.concatenate([x, x]) for x in (scene, slots, body, markers))
+        model_all = np.concatenate([model_all, model_all])
+        R, t = np.concatenate([R, Rm]), np.concatenate([t, tm])
+    H = len(scene)
     pred = np.einsum("hij,hkj->hki", R, model_all) + t[:, None, :]
     assign = np.full((H, nmax), -1, dtype=np.intp)
     np.put_along_axis(assign, markers, slots, axis=1)

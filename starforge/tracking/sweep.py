@@ -330,6 +330,9 @@ def sweep(
     require(100 <= samples <= 10_000_000, f"samples must be in [100, 10000000], got {samples}")
     for r in rules:
         require(r in ("face", "pair"), f"rule must be face or pair, got {r!r}")
+    require(
+        workers is None or 0 <= workers <= 256, f"workers must be in [0, 256] (0: every core), got {workers}"
+    )
     workers = workers or os.cpu_count() or 1
     seconds, cell_bytes = estimate_cells(marker_mm, deltas, cubes, rules, exhaustive_labelled, samples)
     what = f"a sweep of {len(deltas) * len(cubes)} cells"
