@@ -30,9 +30,10 @@ def rates_plot(check_doc: dict, path: Path) -> Path:
         ax.set_ylabel("share of bodies [%]")
         ax.set_ylim(-2, 102)
         ax.set_title(
-            f"{check_doc['input']['bodies']} bodies, drop {s['drop']}, ghosts {s['ghosts']}, "
-            f"match {s['match_mm']:g} mm, {c['frames']} frames/point",
-            fontsize=9,
+            f"{check_doc['input']['bodies']} bodies, {s.get('world', 'open')} world, drop {s['drop']} "
+            f"({s['drop_mode']}), ghosts {s['ghosts']}, match {s['match_mm']:g} mm, "
+            f"choose {s.get('choose', 'fit')}, {c['frames']} frames/point",
+            fontsize=8,
         )
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="center right")
