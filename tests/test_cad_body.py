@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from starforge.cad.body import BodySpec, body_bounds, build_body, fit_report, label_boxes, route_stems
 from starforge.cad.export import parse_ids
-from starforge.cad.mounts import KINDS, list_mounts, load_mount
+from starforge.cad.mounts import KINDS, MAX_GRID, find_spot, list_mounts, load_mount
 from starforge.cad.plate import layout_plates
 from starforge.cad.primitives import (
     Box,
@@ -365,3 +365,24 @@ def test_ray_segment_distance_is_exact(xs):
     brute = np.linalg.norm(rel - t[:, None] * d, axis=1).min()
     assert got <= brute + 1e-9  # never more than a point of the segment shows
     assert got >= brute - np.linalg.norm(b - a) / 4000 - 1e-9  # nor less than the sampling allows
+
+
+def test_find_spot_cost_is_bounded_on_a_large_footprint():
+    """A 4 m footprint (stars may have 10 m limits) is searched on at most MAX_GRID^2 candidates:
+    the spot found is clear of every circle (checked directly) and the search stays small."""
+    import tracemalloc
+
+    circles = np.array([[0.0, 0.0, 300.0], [900.0, -1500.0, 200.0], [-1200.0, 1000.0, 400.0]])
+    tracemalloc.start()
+    spot = find_spot((-2000.0, 2000.0, -2000.0, 2000.0), (30.0, 10.0), circles, 5.0)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    # 0.25 mm steps would be 16000^2 candidates (GBs); MAX_GRID^2 x 3 circles x 2 floats is ~8 MB
+    assert peak < 40 * MAX_GRID**2 * len(circles) * 8, peak
+    assert spot is not None
+    x, z = spot
+    assert -2000 + 5 + 15 <= x <= 2000 - 5 - 15 and -2000 + 5 + 5 <= z <= 2000 - 5 - 5
+    for cx, cz, r in circles:  # nearest point of the rectangle to the circle's centre
+        dx = max(abs(cx - x) - 15.0, 0.0)
+        dz = max(abs(cz - z) - 5.0, 0.0)
+        assert np.hypot(dx, dz) >= r - 1e-9

@@ -30,6 +30,8 @@ from starforge.catalog import list_templates, load_template
 from starforge.spec import in_range, require
 
 COMMON = ("thickness_mm", "margin_mm")
+#: candidate spots per side of a footprint at most (a label or hole spot search stays bounded)
+MAX_GRID = 400
 #: the strap tunnel is this much wider than the strap (mm)
 STRAP_PLAY_MM = 0.5
 KINDS: dict[str, tuple[str, ...]] = {
@@ -136,7 +138,8 @@ def find_spot(footprint, size_xz, circles, edge_mm: float, step_mm: float = 0.25
     size_xz : (w, h) mm
     circles : (n, 3) obstacles (x, z, radius) mm; the rectangle keeps out of them
     edge_mm : float, distance kept from the footprint's border
-    step_mm : float, grid step of the candidate centres
+    step_mm : float, grid step of the candidate centres (coarsened so that a side holds at most
+        :data:`MAX_GRID` candidates: the cost stays bounded however large the footprint)
 
     Returns the candidate with the largest clearance (capped at 1 mm; ties: nearest the
     footprint's -z end, then its centre line), or None when nothing fits.
@@ -147,6 +150,7 @@ def find_spot(footprint, size_xz, circles, edge_mm: float, step_mm: float = 0.25
     zs_lo, zs_hi = z0 + edge_mm + h / 2, z1 - edge_mm - h / 2
     if xs_lo > xs_hi + 1e-9 or zs_lo > zs_hi + 1e-9:
         return None
+    step_mm = max(step_mm, (xs_hi - xs_lo) / MAX_GRID, (zs_hi - zs_lo) / MAX_GRID)
     xs = np.arange(xs_lo, xs_hi + 1e-9, step_mm) if xs_hi > xs_lo else np.array([xs_lo])
     zs = np.arange(zs_lo, zs_hi + 1e-9, step_mm) if zs_hi > zs_lo else np.array([zs_lo])
     gx, gz = np.meshgrid(xs, zs)
