@@ -204,6 +204,27 @@ def test_mounts_lists_and_details(capsys):
     assert code == 2 and "known: adhesive, flat, magnet, saddle, strap" in err
 
 
+@pytest.mark.parametrize("marker", [4.0, 6.4])
+def test_mounts_show_the_room_stars_mount_reserves(marker, capsys):
+    """The room `mounts` shows is the reserve `stars --mount` computes, rounded up (never less)."""
+    import re
+
+    from starforge.cad.mounts import list_mounts
+    from starforge.cad.reserve import mount_reserve_mm
+
+    code, out, _ = _run(["mounts", "--marker", marker], capsys)
+    assert code == 0
+    text = " ".join(out.split())  # the console wraps long lines
+    for m in list_mounts():
+        hit = re.search(rf"\b{m.name} \({m.kind}\): [^;]*; room ([0-9.]+) ([0-9.]+) ([0-9.]+) mm", text)
+        assert hit, m.name
+        shown = np.array([float(v) for v in hit.groups()])
+        exact = np.array(mount_reserve_mm(m, marker))
+        assert np.all(shown >= exact - 1e-12) and np.all(shown - exact < 0.01 + 1e-9), (m.name, shown, exact)
+    code, _, err = _run(["mounts", "--marker", 0], capsys)
+    assert code == 2 and "--marker" in err and len(err.strip().splitlines()) == 1
+
+
 def test_preview_command_draws_bodies_and_sheet(fam, capsys):
     code, _, err = _run(["preview", fam, "--ids", "2", "--mount", "magnet", "--allow-oversize"], capsys)
     assert code == 0, err

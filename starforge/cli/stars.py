@@ -55,7 +55,7 @@ def stars_cmd(
     reserve: tuple[float, float, float] = typer.Option(
         None,
         "--reserve",
-        help="mm kept free for a mount on the shortest, middle, longest side (flat: 3 1.2 1.2).",
+        help="mm kept free for a mount on the shortest, middle, longest side, by hand (--mount computes it; `starforge mounts` lists each mount's).",
     ),
     preset: str = typer.Option(None, "--preset", help="Apply a tracker preset's tolerances (art, ndi, ...)."),
     mount: str = typer.Option(
