@@ -92,10 +92,20 @@ def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
     offs = np.array([(a, b, c) for a in range(m) for b in range(m) for c in range(m)], dtype=np.int64)
     anchors = keys[:, :, None, :].astype(np.int64) - offs[None, None] + m  # (n, k, m^3, 3)
     code = ((tag[None, :, None] * base + anchors[..., 0]) * base + anchors[..., 1]) * base + anchors[..., 2]
-    star = np.broadcast_to(np.arange(n, dtype=np.int64)[:, None, None], code.shape).ravel()
-    code = code.ravel()
-    # one entry per (star, row): unique on one combined int64 key (star-major)
-    both = np.unique(star * (2 * base**3) + code)
-    star_u, code_u = np.divmod(both, 2 * base**3)
-    uniq, row = np.unique(code_u, return_inverse=True)
-    return star_u.astype(np.intp), row.astype(np.intp), len(uniq)
+    # one entry per (star, row), each star's rows in ascending code order: sort within the star
+    # and drop repeats (two keys of one star in one window; none after internal_ok)
+    code = np.sort(code.reshape(n, k * len(offs)), axis=1)
+    keep = np.ones(code.shape, dtype=bool)
+    keep[:, 1:] = code[:, 1:] != code[:, :-1]
+    star = np.broadcast_to(np.arange(n, dtype=np.intp)[:, None], code.shape)[keep]
+    code = code[keep]
+    # rows numbered by ascending code: a dense table when the code space is small (no sort;
+    # at most 16 M entries, about 150 MB with the ranks)
+    span = 2 * base**3
+    if span <= 1 << 24:
+        used = np.zeros(span, dtype=bool)
+        used[code] = True
+        rank = np.cumsum(used, dtype=np.intp) - 1
+        return star, rank[code], int(rank[-1] + 1) if len(code) else 0
+    uniq, row = np.unique(code, return_inverse=True)
+    return star, row.astype(np.intp), len(uniq)

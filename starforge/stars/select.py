@@ -21,6 +21,7 @@ import itertools
 import time
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from starforge.stars.rules import key_triples
@@ -48,16 +49,44 @@ def compactness_order(index: np.ndarray, pool: np.ndarray, volume: np.ndarray) -
 
 def greedy(order: np.ndarray, ptr: np.ndarray, rows: np.ndarray, n_rows: int) -> np.ndarray:
     """Take stars in ``order``; keep each whose rows are all still free."""
-    used = bytearray(n_rows)
-    rl, pl = rows.tolist(), ptr.tolist()
-    chosen = []
-    for i in order.tolist():
-        r = rl[pl[i] : pl[i + 1]]
-        if not any(used[x] for x in r):
-            for x in r:
-                used[x] = 1
-            chosen.append(i)
-    return np.array(chosen, dtype=np.intp)
+    return _greedy(np.asarray(order, dtype=np.int64), np.asarray(ptr, dtype=np.int64),
+                   np.asarray(rows, dtype=np.int64), int(n_rows)).astype(np.intp)
+
+
+@numba.njit(cache=True)
+def _greedy(order, ptr, rows, n_rows):
+    used = np.zeros(n_rows, dtype=np.bool_)
+    out = np.empty(len(order), dtype=np.int64)
+    k = 0
+    for i in order:
+        free = True
+        for j in range(ptr[i], ptr[i + 1]):
+            if used[rows[j]]:
+                free = False
+                break
+        if free:
+            for j in range(ptr[i], ptr[i + 1]):
+                used[rows[j]] = True
+            out[k] = i
+            k += 1
+    return out[:k]
+
+
+def _count_blocks(faces: np.ndarray, m: int) -> int:
+    """Fewest distinct face blocks of side m over the m^3 placements of the block grid."""
+    best = None
+    for o in np.ndindex(m, m, m):
+        f = (faces + np.array(o)) // m
+        base = int(f.max()) + 1
+        code = (f[:, 0] * base + f[:, 1]) * base + f[:, 2]  # one int64 per block
+        if base**3 <= 1 << 26:
+            used = np.zeros(base**3, dtype=bool)
+            used[code] = True
+            blocks = int(used.sum())
+        else:
+            blocks = len(np.unique(code))
+        best = blocks if best is None else min(best, blocks)
+    return int(best)
 
 
 def block_bound(index: np.ndarray, m: int) -> int:
@@ -67,13 +96,7 @@ def block_bound(index: np.ndarray, m: int) -> int:
     faces = key_triples(index, "face")[:, :4].reshape(-1, 3).astype(np.int64)
     if not len(faces):
         return 0
-    best = None
-    for o in np.ndindex(m, m, m):
-        f = (faces + np.array(o)) // m
-        base = int(f.max()) + 1
-        blocks = len(np.unique((f[:, 0] * base + f[:, 1]) * base + f[:, 2]))  # one int64 per block
-        best = blocks // 4 if best is None else min(best, blocks // 4)
-    return int(best)
+    return _count_blocks(faces, m) // 4
 
 
 def pool_face_bound(pool_mm: np.ndarray, m: int, diagonal_mm: float) -> int:
@@ -92,13 +115,7 @@ def pool_face_bound(pool_mm: np.ndarray, m: int, diagonal_mm: float) -> int:
     faces = np.stack([i[ok], j[ok], k[ok]], axis=1)
     if not len(faces):
         return 0
-    best = None
-    for o in np.ndindex(m, m, m):
-        f = (faces + np.array(o)) // m
-        base = int(f.max()) + 1
-        blocks = len(np.unique((f[:, 0] * base + f[:, 1]) * base + f[:, 2]))
-        best = blocks // 4 if best is None else min(best, blocks // 4)
-    return int(best)
+    return _count_blocks(faces, m) // 4
 
 
 def local_search(
