@@ -76,7 +76,7 @@ def dense_best_slack(
 
 @pytest.fixture(scope="module")
 def finger_sample():
-    """1,200 finger-case stars that pass the necessary fit tests (thin enough), fits and misses."""
+    """2,000 finger-case stars that pass the width test (thin enough), fits and misses."""
     spec = StarSpec(box_mm=(20.8, 12.6, 48.3), marker_mm=4, delta_mm=1.5, min_depth_mm=0)
     pool = edge_pool(spec)
     rng = np.random.default_rng(7)
@@ -84,12 +84,13 @@ def finger_sample():
     subs = np.sort(np.array([rng.choice(len(pool), 6, replace=False) for _ in range(40_000)]), axis=1)
     L = pool[subs[np.arange(len(subs))[:, None], assign[rng.integers(0, 30, len(subs))]]]
     L = L[is_realisable(L)]
-    L = L[(tetra_width(L) <= FINGER_LIMIT[0]) & (tetra_width(L) > 0.2)][:1200]
+    L = L[(tetra_width(L) <= FINGER_LIMIT[0]) & (tetra_width(L) > 0.2)][:2000]
     return vertices_from_lengths(L)
 
 
 def test_decision_agrees_with_a_dense_independent_search_both_ways(finger_sample):
     P = finger_sample
+    assert len(P) == 2000
     status, R, _ = decide_fit(P, FINGER_LIMIT)
     dense, _ = dense_best_slack(P, FINGER_LIMIT)
     # sound: every rotation returned really fits (checked here with its own extents)
@@ -140,15 +141,24 @@ def small():
     return spec, enumerate_candidates(spec)
 
 
-def test_enumeration_is_complete_against_a_dense_search(small):
+@pytest.fixture(scope="module")
+def issue_case():
+    """The issue's exactly solvable spec: --box 14 10 30 --marker 4 --delta 2."""
+    spec = StarSpec(box_mm=(14, 10, 30), marker_mm=4, delta_mm=2)
+    return spec, enumerate_candidates(spec)
+
+
+def test_enumeration_is_complete_against_a_dense_search(issue_case):
     """Every labelled star of the pool, classified by the independent dense search: each one it
     fits with the slack to spare is a candidate, and every candidate fits."""
-    spec, cands = small
+    spec, cands = issue_case
     pool = cands.pool_mm
     L = pool[np.array(list(itertools.permutations(range(len(pool)), 6)))]
     L = np.unique(canonical_lengths(L[is_realisable(L)]), axis=0)
-    L = L[tetra_width(L) >= spec.depth_mm - 1e-9]
     limit = np.array(spec.centre_limit_mm)
+    w = tetra_width(L)
+    # deep enough, and no wider than the shortest side (a star wider than that fits no box)
+    L = L[(w >= spec.depth_mm - 1e-9) & (w <= limit[0] + 1e-9)]
     dense, _ = dense_best_slack(vertices_from_lengths(L), limit, n_rot=1500, keep=4, iters=50)
     got = {tuple(x) for x in np.round(canonical_lengths(cands.lengths), 9)}
     und = (
@@ -290,3 +300,27 @@ def test_avoid_keeps_new_stars_apart_from_bodies_a_lab_owns(tmp_path):
     assert (d >= 1.0 - 1e-9).all()
     assert db["summary"]["avoid"][0]["triangles"] == 4 * 12
     assert len(db["stars"]) > 0
+
+
+def test_issue_case_is_the_proven_maximum_by_an_independent_count(issue_case, tmp_path):
+    """`--box 14 10 30 --marker 4 --delta 2`: the family written is a maximum, shown without the
+    window code or any solver.  Every star that may fit is a candidate or undecided (the test
+    above checks that set against the dense search); two stars of a family never share a face
+    triple and a star's four faces are four different triples, so no family holds more than
+    (distinct face triples among them) // 4 stars.  The CLI's family reaches that number."""
+    spec, cands = issue_case
+    out = tmp_path / "max"
+    assert run_cli(["stars", "--box", 14, 10, 30, "--marker", 4, "--delta", 2, "--out", out, "-q"]) == 0
+    doc = json.loads((out / "family.json").read_text())
+    assert check_family(doc) == []
+    may = np.concatenate([cands.lengths, cands.pool_mm[cands.undecided]]) if len(cands.undecided) else cands.lengths
+    triples = {tuple(sorted((round(L[a], 6), round(L[b], 6), round(L[c], 6)))) for L in may.tolist()
+               for a, b, c in ((0, 2, 4), (0, 5, 3), (4, 1, 3), (2, 1, 5))}
+    bound = len(triples) // 4
+    sm = doc["summary"]
+    assert len(doc["stars"]) == bound == sm["upper_bound"]
+    assert sm["optimal"] is True and sm["gap"] == 0
+    # every star of the family is one the decision proved to fit
+    fit = {tuple(x) for x in np.round(canonical_lengths(cands.lengths), 6).tolist()}
+    fam = np.array([[s["lengths"][k] for k in "uUvVwW"] for s in doc["stars"]])
+    assert {tuple(x) for x in np.round(canonical_lengths(fam), 6).tolist()} <= fit
