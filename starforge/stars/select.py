@@ -5,7 +5,8 @@
 * ``max``: as large a family as possible.  Greedy, then a deterministic (1,2)-swap local
   search (remove one star, insert two that only conflicted with it), then an iterated local
   search (``ils``: Andrade-Resende-Werneck style, fixed seed, iteration budget
-  ``ILS_ITERATIONS``), then, when the window matrix is small enough (``MILP_MAX_NONZEROS``), the
+  ``ILS_ITERATIONS``; on small instances also ``ILS_RESTARTS`` short restarts with other fixed
+  seeds), then, when the window matrix is small enough (``MILP_MAX_NONZEROS``), the
   exact MILP (HiGHS through ``scipy.optimize.milp``) under a deterministic node budget
   (:func:`node_budget`); a run cut by the wall-clock safety limit is not used.
 
@@ -186,6 +187,10 @@ def local_search(
 ILS_ITERATIONS = 800
 #: seed of the ILS random generator (fixed: nothing time-dependent)
 ILS_SEED = 0
+#: on instances small enough for the exact solver, restarts of the ILS from the local-search
+#: family with seeds 1..ILS_RESTARTS, each ILS_RESTART_ITERATIONS long (stopped at the bound)
+ILS_RESTARTS = 8
+ILS_RESTART_ITERATIONS = 1000
 
 
 class _Packing:
@@ -471,13 +476,32 @@ def select_family(
     chosen, swaps = local_search(chosen, order, ptr, rows, n_rows)
     info.update(local_search=int(len(chosen)), swaps=swaps, local_search_s=round(time.perf_counter() - t1, 3))
     budget = ILS_ITERATIONS if ils_iterations is None else int(ils_iterations)
+    nnz = int(len(rows))
     if budget > 0 and len(chosen) < bound:
         t3 = time.perf_counter()
-        chosen, used = ils(chosen, order, ptr, rows, n_rows, iterations=budget, bound=bound)
-        info.update(ils=int(len(chosen)), ils_iterations=int(used), ils_s=round(time.perf_counter() - t3, 3))
+        start = chosen
+        chosen, used = ils(start, order, ptr, rows, n_rows, iterations=budget, bound=bound)
+        restarts = 0
+        if nnz <= MILP_MAX_NONZEROS:
+            # small instances: a few short restarts with other fixed seeds before the exact solver
+            # (a tight packing that one walk misses is often found by another within ~1 s, and a
+            # family that reaches the certified bound is proven optimal without the solver)
+            for seed in range(1, ILS_RESTARTS + 1):
+                if len(chosen) >= bound:
+                    break
+                got, k = ils(start, order, ptr, rows, n_rows, iterations=ILS_RESTART_ITERATIONS, bound=bound, seed=seed)
+                used += k
+                restarts += 1
+                if len(got) > len(chosen):
+                    chosen = got
+        info.update(
+            ils=int(len(chosen)),
+            ils_iterations=int(used),
+            ils_restarts=restarts,
+            ils_s=round(time.perf_counter() - t3, 3),
+        )
     else:
         info.update(ils=int(len(chosen)), ils_iterations=0)
-    nnz = int(len(rows))
     if len(chosen) < bound and nnz <= MILP_MAX_NONZEROS:
         # exact set packing over every candidate under a deterministic node budget; a run cut
         # by the wall-clock safety limit is not used, so the same spec gives the same family
