@@ -223,3 +223,68 @@ def test_bad_reserve(tmp_path, capsys, reserve, needle):
     assert run_cli(["stars", "--box", 16, 12, 24, "--reserve", *reserve, "--out", tmp_path / "o"]) == 2
     assert needle in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_force_into_a_folder_where_a_target_is_a_directory_leaves_it_untouched(small_family, tmp_path, capsys):
+    out = tmp_path / "fam"
+    out.mkdir()
+    (out / "run.json").write_text("old run\n")
+    (out / "family.csv").mkdir()  # a folder where a file must go
+    (out / "family.csv" / "keep.txt").write_text("mine\n")
+    before = sorted((p.relative_to(out).as_posix(), p.read_bytes() if p.is_file() else None) for p in out.rglob("*"))
+    code = run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--out", out, "--force", "-q"])
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "family.csv" in err
+    after = sorted((p.relative_to(out).as_posix(), p.read_bytes() if p.is_file() else None) for p in out.rglob("*"))
+    assert after == before  # no new family.json, the old run.json kept, the folder kept
+
+
+@pytest.mark.parametrize(
+    "edit,needle",
+    [
+        (lambda d: d["stars"][1].__setitem__("id", "two"), "stars[1].id must be an integer, got 'two'"),
+        (lambda d: d["stars"][1]["lengths"].__setitem__("v", "x"), "stars[1] (id 2) has a value that is not a number"),
+        (lambda d: d["stars"][1]["lengths"].pop("W"), "stars[1] (id 2) has no lengths.W"),
+        (lambda d: d["stars"][0]["obb"].pop("transform"), "stars[0] (id 1) has no obb.transform"),
+        (lambda d: d.__setitem__("units", "inch"), "gives units 'inch'"),
+        (lambda d: d.pop("units"), "gives units None"),
+        (lambda d: d["spec"].__setitem__("marker_mm", "big"), "spec: marker_mm must be a number"),
+        (lambda d: d["stars"][0].__setitem__("vertices", [[0, 0, 0]] * 4), "fails verification: star 1"),
+        (lambda d: d.__setitem__("stars", {"a": 1}), "stars must be a list"),
+    ],
+)
+def test_family_json_is_re_verified_on_load_with_one_line_errors(small_family, tmp_path, edit, needle):
+    import copy
+
+    from starforge.errors import StarforgeError
+
+    _, doc = small_family
+    bad = copy.deepcopy(doc)
+    edit(bad)
+    p = tmp_path / "family.json"
+    p.write_text(json.dumps(bad))
+    with pytest.raises(StarforgeError) as exc:
+        load_family(p)
+    assert needle in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_family_json_with_spec_keys_left_out_loads_or_says_so_in_one_line(small_family, tmp_path):
+    """A spec key left out falls back to the spec's default (or is refused in one line); the
+    verification sees the defaults too, never a KeyError."""
+    import copy
+
+    from starforge.errors import StarforgeError
+
+    _, doc = small_family
+    for key in doc["spec"]:
+        bad = copy.deepcopy(doc)
+        del bad["spec"][key]
+        p = tmp_path / f"no_{key}.json"
+        p.write_text(json.dumps(bad))
+        try:
+            fam = load_family(p)
+        except StarforgeError as exc:
+            assert "\n" not in str(exc)
+        else:
+            assert len(fam.stars) == len(doc["stars"])

@@ -198,6 +198,8 @@ def family_from_json(data: dict, where: str = "family.json", verify: bool = True
     box and the box inside the size limit, and the uniqueness rule
     (:func:`starforge.stars.verify.check_family`).  A file edited by hand cannot slip through.
     """
+    if not isinstance(data, dict):
+        raise StarforgeError(f"{where} is not a starforge family file (a JSON object is expected)")
     if data.get("format") != FORMAT:
         raise StarforgeError(f"{where} is not a starforge family file (format {data.get('format')!r})")
     if data.get("version") not in READABLE:
@@ -205,38 +207,24 @@ def family_from_json(data: dict, where: str = "family.json", verify: bool = True
             f"{where} has family format version {data.get('version')!r}; this starforge reads versions "
             f"{', '.join(map(str, READABLE))}"
         )
-    if data.get("units", "mm") != "mm":
+    if data.get("units") != "mm":
         raise StarforgeError(
-            f'{where} gives units {data.get("units")!r}; family files are in millimetres ("mm")'
+            f'{where} gives units {data.get("units")!r}; family files are in millimetres ("units": "mm")'
         )
+    if "spec" not in data:
+        raise StarforgeError(f"{where} has no spec")
     try:
         spec = spec_from_mapping(data["spec"])
-        if not isinstance(data["stars"], list):
-            raise TypeError("stars must be a list")
-        stars = []
-        for s in data["stars"]:
-            L = s["lengths"]
-            acc = s.get("accuracy", {})
-            stars.append(
-                Star(
-                    id=int(s["id"]),
-                    lengths=[L[k] for k in LENGTH_NAMES],
-                    vertices=s["vertices"],
-                    obb_extents=s["obb"]["extents"],
-                    obb_transform=s["obb"]["transform"],
-                    obb_method=str(s["obb"].get("method", "minimum")),
-                    margins=dict(s.get("margins", {})),
-                    min_box_extents=s["obb"].get("min_extents", [np.nan] * 3),
-                    depth_mm=float(s["depth_mm"]) if "depth_mm" in s else None,
-                    accuracy=dict(acc) if isinstance(acc, dict) else {},
-                )
-            )
-    except (KeyError, TypeError, IndexError, ValueError) as exc:
-        if isinstance(exc, StarforgeError):
-            raise StarforgeError(f"{where}: {exc}") from None
+    except StarforgeError as exc:
+        raise StarforgeError(f"{where}: spec: {exc}") from None
+    raw = data.get("stars")
+    if not isinstance(raw, list):
+        raise StarforgeError(f"{where}: stars must be a list of stars")
+    if len(raw) > MAX_STARS:
         raise StarforgeError(
-            f"{where} is missing or has malformed data ({exc.__class__.__name__}: {exc})"
-        ) from None
+            f"{where} holds {len(raw):,} stars; a family file holds at most {MAX_STARS:,} (no tracker tells more apart)"
+        )
+    stars = [_star_from_json(s, k, where) for k, s in enumerate(raw)]
     if not stars:
         raise StarforgeError(f"{where} holds no stars")
     ids = [s.id for s in stars]
@@ -245,11 +233,57 @@ def family_from_json(data: dict, where: str = "family.json", verify: bool = True
     if verify:
         from starforge.stars.verify import check_family
 
-        problems = check_family(data)
+        problems = check_family({**data, "spec": to_mapping(spec)})  # defaults filled in
         if problems:
             more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
             raise StarforgeError(f"{where} fails verification: {problems[0]}{more}; was it edited by hand?")
     return Family(spec=spec, stars=tuple(stars), summary=dict(data.get("summary", {})))
+
+
+#: stars a family file may hold (the verification is quadratic in it)
+MAX_STARS = 20_000
+
+
+def _star_from_json(s, k: int, where: str) -> Star:
+    """One star of family.json, with errors that name the star and the key."""
+    at = f"{where}: stars[{k}]"
+    if not isinstance(s, dict):
+        raise StarforgeError(f"{at} must be an object")
+    sid = s.get("id")
+    if isinstance(sid, bool) or not isinstance(sid, int | float) or not float(sid).is_integer():
+        raise StarforgeError(f"{at}.id must be an integer, got {sid!r}")
+    at = f"{at} (id {int(sid)})"
+    lengths, obb = s.get("lengths"), s.get("obb")
+    for obj, key, what in (
+        (s, "lengths", "lengths"),
+        (s, "vertices", "vertices"),
+        (s, "obb", "obb"),
+        (lengths, None, "lengths"),
+        (obb, "extents", "obb.extents"),
+        (obb, "transform", "obb.transform"),
+    ):
+        if not isinstance(obj, dict) or (key is not None and key not in obj):
+            raise StarforgeError(f"{at} has no {what}" if key else f"{at}: {what} must be an object")
+    for name in LENGTH_NAMES:
+        if name not in lengths:
+            raise StarforgeError(f"{at} has no lengths.{name}")
+    try:
+        return Star(
+            id=int(sid),
+            lengths=[float(lengths[name]) for name in LENGTH_NAMES],
+            vertices=s["vertices"],
+            obb_extents=obb["extents"],
+            obb_transform=obb["transform"],
+            obb_method=str(obb.get("method", "minimum")),
+            margins=dict(s["margins"]) if isinstance(s.get("margins"), dict) else {},
+            min_box_extents=obb.get("min_extents", [np.nan] * 3),
+            depth_mm=float(s["depth_mm"]) if "depth_mm" in s else None,
+            accuracy=dict(s["accuracy"]) if isinstance(s.get("accuracy"), dict) else {},
+        )
+    except StarforgeError as exc:
+        raise StarforgeError(f"{at}: {str(exc).split(': ', 1)[-1]}") from None
+    except (TypeError, ValueError) as exc:
+        raise StarforgeError(f"{at} has a value that is not a number ({exc})") from None
 
 
 def load_family(path: str | Path) -> Family:
