@@ -60,12 +60,50 @@ def _run(args: list[str], out: Path) -> dict:
     }
 
 
+FIT_PROBE = (
+    "import json, sys, time\n"
+    "import numpy as np\n"
+    "from starforge.geometry.fit import decide_fit\n"
+    "from starforge.geometry.tetra import canonical_assignments, is_realisable, tetra_width, vertices_from_lengths\n"
+    "from starforge.stars.enumerate import edge_pool\n"
+    "from starforge.stars.spec import StarSpec\n"
+    "spec = StarSpec(box_mm=(20.8, 12.6, 48.3), marker_mm=4, delta_mm=1.5, min_depth_mm=0)\n"
+    "pool, lim = edge_pool(spec), np.array(spec.centre_limit_mm)\n"
+    "rng = np.random.default_rng(0)\n"
+    "subs = np.sort(np.array([rng.choice(len(pool), 6, replace=False) for _ in range(20000)]), axis=1)\n"
+    "L = pool[subs[np.arange(len(subs))[:, None], canonical_assignments()[rng.integers(0, 30, len(subs))]]]\n"
+    "L = L[is_realisable(L)]\n"
+    "L = L[tetra_width(L) <= lim[0]][: int(sys.argv[1])]\n"
+    "P = vertices_from_lengths(L)\n"
+    "decide_fit(P[:2], lim)\n"
+    "t = time.perf_counter(); st, _, work = decide_fit(P, lim); t = time.perf_counter() - t\n"
+    "print(json.dumps({'sets': len(P), 'seconds': t, 'fit': int((st == 1).sum()), 'cells': int(work.sum())}))\n"
+)
+
+
+def _fit_decision_speed() -> dict:
+    """What the compiled kernel buys: fit decisions with numba and in plain Python
+    (``NUMBA_DISABLE_JIT=1``) on finger-case stars that pass the width test (the Python run takes
+    the first 150 of the same sample), one thread each; ``cells`` is the search work done."""
+    out = {}
+    for mode, n in (("numba", 4000), ("python", 150)):
+        env = dict(os.environ, NUMBA_NUM_THREADS="1")
+        if mode == "python":
+            env["NUMBA_DISABLE_JIT"] = "1"
+        proc = subprocess.run([sys.executable, "-c", FIT_PROBE, str(n)], check=True, capture_output=True, text=True, env=env)
+        r = json.loads(proc.stdout.strip().splitlines()[-1])
+        out[mode] = {"sets": r["sets"], "ms_per_set": round(1000 * r["seconds"] / r["sets"], 4), "cells": r["cells"]}
+    out["speedup"] = round(out["python"]["ms_per_set"] / out["numba"]["ms_per_set"])
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--skip-large", action="store_true", help="skip the delta 1.0 case (about 2 minutes)")
     args = ap.parse_args()
     res: dict = {"cpu_count": os.cpu_count()}
+    res["fit_decision_one_thread"] = _fit_decision_speed()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         t = time.perf_counter()
