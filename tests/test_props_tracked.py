@@ -85,6 +85,42 @@ def test_local_search_never_worsens():
         assert prob.cost(local_search(prob, start)) <= prob.cost(start) + 1e-12
 
 
+def test_cost_with_a_bound_and_the_margin_cache_agree_with_the_full_terms():
+    """cost() computes the near-symmetry margin only when the rest does not already lose, and
+    caches it by site set: neither may change a verdict or a value."""
+    from starforge.props.symmetry import near_symmetry_margin
+
+    prob = _problem(3)
+    rng = np.random.default_rng(1)
+    for _ in range(30):
+        sites = rng.choice(len(prob.points), int(rng.integers(4, 10)), replace=False).tolist()
+        full = prob.terms(sites)
+        # independent: the margin of the same set, straight from the symmetry module (any order)
+        cap = prob.settings.near_symmetry_target_mm / 1000.0
+        ref = near_symmetry_margin(prob.points[sorted(sites)], refine=4, cap=cap)
+        assert full["near_symmetry_margin_m"] == pytest.approx(ref)
+        assert prob.cost(sites) == pytest.approx(full["total"], abs=1e-12)
+        assert prob.cost(sites[::-1]) == pytest.approx(full["total"], abs=1e-12)  # cached, other order
+        lower = prob.terms(sites, symmetry=False)["total"]
+        assert lower <= full["total"] + 1e-12
+        bound = lower - 1e-3
+        assert prob.cost(sites, bound=bound) > bound  # a loser is reported as a loser
+
+
+def test_the_default_beats_or_ties_both_baselines_on_every_builtin_prop():
+    from starforge.props.mesh import load_prop
+    from starforge.props.placement import load_spec, place, with_overrides
+
+    spec = with_overrides(load_spec("default"), sites=250, resolution=2, orientations=6)
+    for prop in ("hammer", "racket", "sword", "bottle", "box", "shield", "umbrella"):
+        res = place(load_prop(prop), spec, seed=0)
+        t, b = res.tracked.terms, res.tracked.baselines
+        assert t["total"] <= b["greedy_local_search"]["cost"] + 1e-12
+        assert t["total"] <= b["best_of_random"]["cost"] + 1e-12
+        for c in b["chains"]:
+            assert t["total"] <= c["cost"] + 1e-12
+
+
 def test_spacing_keeps_marker_images_apart():
     from starforge.props.rig import load_rig
 

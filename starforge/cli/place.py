@@ -80,7 +80,7 @@ def run_cmd(
         "hammer", help="Mesh file (STL, OBJ, PLY, GLB, OFF) or built-in prop name (default: hammer)."
     ),
     spec: str = typer.Option(
-        "default", "--spec", help="Settings template name (default, long, paper) or TOML file."
+        "default", "--spec", help="Settings template name (default, paper, long, robust; `starforge templates place`) or TOML file."
     ),
     rig: str = typer.Option(None, "--rig", help="Rig template name or TOML file (default: the spec's)."),
     markers: int = typer.Option(None, "--markers", help="Target number of markers (Table 1: 7), in [4, 20]."),
