@@ -237,3 +237,18 @@ def test_the_paper_setting_stays_available():
 
     s = load_spec("paper")
     assert s.objective == "paper" and s.orientations == 1 and s.costs.marker_diameter_m == pytest.approx(0.004)
+
+
+def test_untracked_poses_are_warned_and_recorded(tmp_path, capsys):
+    """A 4-camera room and only 4 markers on the shield leave a pose untracked: the run says so
+    on stderr and in placement.json."""
+    out = tmp_path / "o"
+    args = ["place", "run", "shield", "--rig", "small4", "--sites", "60", "--resolution", "2",
+            "--orientations", "12", "--markers", "4", "--out", out]
+    assert run_cli(args) == 0
+    doc = json.loads((out / "placement.json").read_text())
+    frac = doc["tracked"]["tracked_fraction"]
+    assert frac < 1.0
+    warned = [w for w in doc["warnings"] if "not tracked" in w]
+    assert len(warned) == 1 and f"of {doc['poses']['count']})" in warned[0]
+    assert "not tracked" in capsys.readouterr().err

@@ -378,9 +378,10 @@ def _place_tracked(
         coverage=terms["untracked"],
     )
     warnings = list(warnings)
-    if terms["untracked"] > 0.1:
+    if terms["untracked"] > 0:
         warnings.append(
-            f"{100 * terms['untracked']:.1f} % of the poses are not tracked (fewer than 3 markers seen, or in a line)"
+            f"{100 * terms['untracked']:.1f} % of the poses ({round(terms['untracked'] * len(poses))} of {len(poses)}) "
+            "are not tracked (fewer than 3 markers seen, or in a line)"
         )
     if terms["close_pairs"]:
         warnings.append(
