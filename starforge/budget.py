@@ -110,7 +110,7 @@ def time_limit_s() -> float:
 
 
 def _limit_source(env: str, flag: str) -> str:
-    return f"set by {env}" if os.environ.get(env) else f"raise it with starforge {flag}"
+    return f"set by {env} or starforge {flag}" if os.environ.get(env) else f"raise it with starforge {flag}"
 
 
 def require_memory(nbytes: float, what: str, advice: str) -> None:

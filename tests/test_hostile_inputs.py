@@ -145,6 +145,15 @@ def _cases(f) -> list[Case]:
         Case("stars-rule-unknown", ("stars", "--rule", "triangle"), r"rule"),
         Case("stars-unknown-template", ("stars", "--spec", "thumb"), r"unknown stars template"),
         Case("stars-count-not-int", ("stars", "--count", "lots"), r"count"),
+        # the tolerance in pool steps cubes the selection's windows: refused from a pilot sample
+        Case("stars-tolerance-windows", ("stars", "--delta", "0.5", "--tolerance", "6", "--min-depth", "0"),
+             r"selecting among about .* fitting stars .* memory"),
+        # the time estimate comes from a pilot sample of the spec's own stars (about 1 min here)
+        Case("stars-pilot-time", ("--max-seconds", "10", "stars", "--delta", "1.0"), r"would take about",
+             env={"STARFORGE_MAX_MEMORY": "8G"}),
+        # a tolerance of 8 pool steps: the pilot's fitting share times 512 windows per face
+        Case("stars-tolerance-8-steps", ("stars", "--delta", "0.5", "--tolerance", "4", "--min-depth", "0"),
+             r"selecting among about .* memory", env={"STARFORGE_MAX_MEMORY": "8G"}),
         # export (CAD and tracker files)
         Case("export-missing", ("export", "nope.json"), r"not found"),
         Case("export-corrupt", ("export", str(f["corrupt"])), r"not valid JSON"),

@@ -43,8 +43,10 @@ UNREALISABLE, TOO_THIN, TOO_WIDE, KY_FAN, NO_FIT, UNDECIDED, FIT, NECESSARY_OK =
 STAGES = ("unrealisable", "too_thin", "too_wide", "ky_fan", "no_fit", "undecided", "fit")
 #: subsets per compiled batch (bounds the working memory: 30 codes + 30 volumes each)
 BATCH_SUBSETS = 1 << 17
-#: seconds per labelled candidate on one core, measured on the finger case (for time estimates)
-SECONDS_PER_LABELLED = 4e-8
+#: wall seconds per labelled candidate on 2 cores, measured on uniformly drawn finger-case
+#: subsets (2.2e-7; a first guess, replaced by a pilot measurement for any spec estimated to
+#: take more than a few seconds: :func:`check_size`)
+SECONDS_PER_LABELLED = 2e-7
 #: bytes kept per fitting candidate (index, status, volume) and a generous share of fits
 BYTES_PER_CANDIDATE = 32
 
@@ -101,26 +103,74 @@ def estimate(spec: StarSpec) -> dict:
 
     labelled = labelled_count(spec)
     cores = max(1, min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS))
-    seconds = labelled * SECONDS_PER_LABELLED / cores
+    seconds = labelled * SECONDS_PER_LABELLED * 2 / cores  # the rate was measured on 2 cores
     # working memory: one batch of codes and volumes, the subsets of a batch, and the kept fits
     # (at most a quarter of the labelled candidates, a generous bound seen on every spec tried)
     nbytes = BATCH_SUBSETS * 30 * 5 + labelled / 4 * BYTES_PER_CANDIDATE + 200e6
     return {"labelled": labelled, "seconds": seconds, "bytes": nbytes}
 
 
+#: admissible 6-subsets drawn for the pilot timing of :func:`check_size`
+PILOT_SUBSETS = 256
+
+
+def pilot(spec: StarSpec, samples: int = PILOT_SUBSETS) -> tuple[float, float]:
+    """(wall seconds per labelled candidate, share of labelled candidates that fit), measured on
+    ``samples`` admissible 6-subsets drawn uniformly (fixed seed) and classified exactly as the
+    enumeration will.  The cost per candidate depends on the spec (how many stars reach the fit
+    decision, how hard it is), so a fixed rate can be off by an order of magnitude; a pilot is
+    not (within about 2x)."""
+    n, m = spec.pool_size, spec.grid_steps
+    free = n - (m - 1) * 5
+    if free < 6:
+        return SECONDS_PER_LABELLED, 0.0
+    rng = np.random.default_rng(0)
+    draws = np.sort(np.array([rng.choice(free, 6, replace=False) for _ in range(samples)]), axis=1)
+    sub = (draws + np.arange(6) * (m - 1)).astype(np.int16)
+    assign = canonical_assignments().astype(np.int64)
+    limit = np.sort(np.array(spec.centre_limit_mm, dtype=float))
+    mode = 0 if spec.box_method == "exact" else 1
+    lo = float(edge_pool(spec)[0])
+    codes = np.empty((len(sub), len(assign)), dtype=np.int8)
+    vols = np.empty((len(sub), len(assign)))
+    args = (assign, lo, float(spec.delta_mm), limit, spec.depth_mm, SLACK_MM, 100_000, mode)
+    _classify(sub[:1], *args, codes[:1], vols[:1])  # compile or load the kernel outside the timing
+    t = time.perf_counter()
+    _classify(sub, *args, codes, vols)
+    rate = max(SECONDS_PER_LABELLED, (time.perf_counter() - t) / codes.size)
+    return rate, float(np.isin(codes, (FIT, NECESSARY_OK)).mean())
+
+
 def check_size(spec: StarSpec) -> None:
-    """Refuse, before any work, an enumeration past the memory or time limit (one line)."""
+    """Refuse, before any work, an enumeration past the memory or time limit (one line).  The
+    time is the labelled count times a rate measured on a pilot sample of the spec's own stars."""
     from starforge.budget import require_memory, require_time
 
     est = estimate(spec)
+    require_memory(est["bytes"], *_what_advice(spec, est))
+    if est["labelled"] and est["seconds"] > 2.0:  # cheap specs need no pilot
+        rate, fit_share = pilot(spec)
+        est["seconds"] = est["labelled"] * rate
+        # the selection's key windows grow with the cube of the tolerance in pool steps
+        keys = 8 if spec.rule == "pair" else 4
+        fits = est["labelled"] * fit_share
+        require_memory(
+            fits * keys * spec.grid_steps**3 * 64.0 + 100e6,
+            f"selecting among about {fits:,.0f} fitting stars (a pilot sample) with a tolerance of "
+            f"{spec.grid_steps} pool steps ({spec.grid_steps**3:,} key windows per face)",
+            "lower tolerance_mm or raise delta_mm",
+        )
+    require_time(est["seconds"], *_what_advice(spec, est))
+
+
+def _what_advice(spec: StarSpec, est: dict) -> tuple[str, str]:
     lo, hi = spec.pool_bounds_mm
     what = (
         f"enumerating {est['labelled']:,} labelled candidates (a pool of {spec.pool_size} lengths, "
         f"{lo:.2f}..{hi:.2f} mm in {spec.delta_mm:g} mm steps)"
     )
     advice = "raise delta_mm, gap_mm, l_min_mm or tolerance_mm, or lower l_max_mm"
-    require_memory(est["bytes"], what, advice)
-    require_time(est["seconds"], what, advice)
+    return what, advice
 
 
 @numba.njit(cache=True)

@@ -85,6 +85,16 @@ def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
     row : (z,) int    ... in row ``row[z]`` (rows renumbered 0..R-1)
     n_rows : int
     """
+    from starforge.budget import require_memory
+
+    n_stars = len(index)
+    k_keys = 8 if rule == "pair" else 4
+    # anchors (3 int64), codes, the sort's copy, the keep mask and star ids per window entry
+    require_memory(
+        n_stars * k_keys * m**3 * 64.0 + 100e6,
+        f"the selection's key windows ({n_stars:,} stars x {k_keys} keys x {m**3:,} tolerance offsets)",
+        f"lower tolerance_mm or raise delta_mm (the tolerance spans {m} pool steps; each step cubes the windows)",
+    )
     keys = key_triples(index, rule)  # (n, k, 3)
     n, k, _ = keys.shape
     tag = (np.arange(k) >= 4).astype(np.int64)  # 0 face, 1 vertex
