@@ -170,6 +170,27 @@ def publish(stage: Path, out_dir: Path, force: bool) -> list[Path]:
     return produced
 
 
+#: set by the CLI's SIGINT handler: a Ctrl-C that a library swallowed (numba's compiler runs
+#: inside ctypes callbacks, which print a KeyboardInterrupt and carry on) still stops publishing
+_interrupted = False
+
+
+def note_interrupt() -> None:
+    """Record a Ctrl-C (called from the CLI's signal handler)."""
+    global _interrupted
+    _interrupted = True
+
+
+def interrupted() -> bool:
+    """Whether Ctrl-C was pressed during this command, even if the exception was swallowed."""
+    return _interrupted
+
+
+def reset_interrupt() -> None:
+    global _interrupted
+    _interrupted = False
+
+
 @contextmanager
 def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
     """Stage every output file in a temp folder beside ``out_dir``; publish them only on success.
@@ -191,6 +212,8 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
                                   dir=_nearest_existing(out_dir.parent)))
     try:
         yield stage
+        if _interrupted:  # a Ctrl-C somebody swallowed: publish nothing
+            raise KeyboardInterrupt
         for p in [stage, *stage.rglob("*")]:  # mkdtemp/mkstemp create 0o700/0o600; use the usual modes
             p.chmod(0o777 & ~_umask() if p.is_dir() else _file_mode())
         publish(stage, out_dir, force)

@@ -301,3 +301,33 @@ def test_ctrl_c_exits_130_and_leaves_the_output_as_it_was(args, files, tmp_path)
     assert proc.returncode == 130, err
     assert "Traceback" not in err
     assert _snapshot(work) == before
+
+
+def test_a_swallowed_ctrl_c_still_changes_nothing(tmp_path, monkeypatch):
+    """numba compiles inside ctypes callbacks, which print a KeyboardInterrupt and carry on (seen
+    on a fresh install: Ctrl-C during `place`'s first compile, and the run went on to exit 0).
+    The CLI's SIGINT handler remembers the Ctrl-C, so nothing is published and the exit is 130."""
+    import signal
+
+    import starforge.stars.family as fam
+
+    real = fam.make_family
+
+    def swallowing(*args, **kwargs):
+        out = real(*args, **kwargs)
+        try:
+            os.kill(os.getpid(), signal.SIGINT)  # delivered to the CLI's handler, in this thread
+            time.sleep(0.1)
+        except KeyboardInterrupt:
+            pass  # what the ctypes callback does
+        return out
+
+    monkeypatch.setattr(fam, "make_family", swallowing)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "keep.txt").write_text("a file the user had")
+    before = _snapshot(out)
+    assert run_cli(["stars", "--box", "14", "10", "24", "--out", out, "--force"]) == 130
+    assert _snapshot(out) == before
+    assert not list(tmp_path.glob("*.staging"))
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored after the run

@@ -26,9 +26,40 @@ def _load_commands() -> None:
     _loaded = True
 
 
+def _on_sigint(signum, frame):
+    from starforge.io import note_interrupt
+
+    note_interrupt()  # remembered even where a library swallows the exception below
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console-script entry point; returns (and exits with) the process exit code."""
+    import signal
+    import threading
+
+    from starforge.io import interrupted, reset_interrupt
+
     _load_commands()
+    reset_interrupt()
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGINT, _on_sigint)
+    try:
+        code = _run(argv)
+        if interrupted() and code == 0:  # Ctrl-C was swallowed somewhere, and nothing was published
+            print("interrupted; no output was changed", file=sys.stderr)
+            code = 130
+    finally:
+        reset_interrupt()  # library calls after this command are not affected
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+    if argv is None:
+        sys.exit(code)
+    return code
+
+
+def _run(argv: list[str] | None) -> int:
     try:
         rv = app(args=argv, prog_name="starforge", standalone_mode=False)
         code = rv if isinstance(rv, int) else 0
@@ -67,6 +98,4 @@ def main(argv: list[str] | None = None) -> int:
             code = exc.exit_code
         else:
             raise
-    if argv is None:
-        sys.exit(code)
     return code
