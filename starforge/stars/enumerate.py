@@ -152,10 +152,11 @@ def check_size(spec: StarSpec) -> None:
         rate, fit_share = pilot(spec)
         est["seconds"] = est["labelled"] * rate
         # the selection's key windows grow with the cube of the tolerance in pool steps
-        keys = 8 if spec.rule == "pair" else 4
+        from starforge.stars.rules import window_bytes
+
         fits = est["labelled"] * fit_share
         require_memory(
-            fits * keys * spec.grid_steps**3 * 64.0 + 100e6,
+            window_bytes(fits, spec.rule, spec.grid_steps),
             f"selecting among about {fits:,.0f} fitting stars (a pilot sample) with a tolerance of "
             f"{spec.grid_steps} pool steps ({spec.grid_steps**3:,} key windows per face)",
             "lower tolerance_mm or raise delta_mm",

@@ -76,6 +76,16 @@ def internal_ok(index: np.ndarray, rule: str, m: int) -> np.ndarray:
     return ok
 
 
+#: keys per star: the 4 faces, and for the pair rule the 4 vertex triples too
+KEYS = {"face": 4, "pair": 8}
+
+
+def window_bytes(n_stars: float, rule: str, m: int) -> float:
+    """Peak bytes of :func:`window_rows` for ``n_stars`` stars: per window entry the anchors
+    (3 int64), the codes, the sort's copy, the keep mask and the star ids, plus a base."""
+    return n_stars * KEYS[rule] * m**3 * 64.0 + 100e6
+
+
 def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
     """The set-packing incidence: (star, row) pairs, one row per key window.
 
@@ -88,11 +98,9 @@ def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
     from starforge.budget import require_memory
 
     n_stars = len(index)
-    k_keys = 8 if rule == "pair" else 4
-    # anchors (3 int64), codes, the sort's copy, the keep mask and star ids per window entry
     require_memory(
-        n_stars * k_keys * m**3 * 64.0 + 100e6,
-        f"the selection's key windows ({n_stars:,} stars x {k_keys} keys x {m**3:,} tolerance offsets)",
+        window_bytes(n_stars, rule, m),
+        f"the selection's key windows ({n_stars:,} stars x {KEYS[rule]} keys x {m**3:,} tolerance offsets)",
         f"lower tolerance_mm or raise delta_mm (the tolerance spans {m} pool steps; each step cubes the windows)",
     )
     keys = key_triples(index, rule)  # (n, k, 3)

@@ -278,7 +278,7 @@ BYTES_PER_TRIPLE = 150.0
 def estimate_cells(marker_mm: float, deltas, cubes, rules, exhaustive_labelled: int, samples: int) -> tuple[float, float]:
     """Rough single-core seconds for a whole sweep and the peak bytes of its largest cell
     (for the bounded-cost check)."""
-    from starforge.stars.enumerate import SECONDS_PER_LABELLED, labelled_count
+    from starforge.stars.enumerate import SECONDS_PER_LABELLED
     from starforge.stars.enumerate import estimate as enum_estimate
     from starforge.stars.spec import StarSpec
 
@@ -289,10 +289,11 @@ def estimate_cells(marker_mm: float, deltas, cubes, rules, exhaustive_labelled: 
                 spec = StarSpec(box_mm=(c, c, c), marker_mm=marker_mm, delta_mm=d)
             except StarforgeError:
                 continue
-            n = labelled_count(spec)
+            est = enum_estimate(spec)
+            n = est["labelled"]
             if n <= exhaustive_labelled:
                 total += n * SECONDS_PER_LABELLED * 4 + 1.0
-                peak = max(peak, enum_estimate(spec)["bytes"])
+                peak = max(peak, est["bytes"])
             else:
                 triples = math.comb(spec.pool_size, 3)
                 total += len(rules) * samples * 2e-5 + triples * 2e-7 * spec.grid_steps**3
