@@ -47,7 +47,9 @@ def main(argv: list[str] | None = None) -> int:
         previous = signal.signal(signal.SIGINT, _on_sigint)
     try:
         code = _run(argv)
-        if interrupted() and code == 0:  # Ctrl-C was swallowed somewhere, and nothing was published
+        # every Ctrl-C ends here: raised, turned into click's Abort, or swallowed by a library
+        # (nothing was published in any case: starforge.io.staged_output checks the flag)
+        if interrupted() and code in (0, 130):
             print("interrupted; no output was changed", file=sys.stderr)
             code = 130
     finally:
@@ -60,11 +62,13 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(argv: list[str] | None) -> int:
+    from starforge.io import note_interrupt
+
     try:
         rv = app(args=argv, prog_name="starforge", standalone_mode=False)
         code = rv if isinstance(rv, int) else 0
     except KeyboardInterrupt:
-        print("interrupted; no output was changed", file=sys.stderr)
+        note_interrupt()  # reported by main()
         code = 130
     except MemoryError:
         # every large allocation is estimated first (starforge.budget); this is the last resort
@@ -82,7 +86,7 @@ def _run(argv: list[str] | None) -> int:
         # that both layouts work: Exit carries exit_code, usage errors also know how to show().
         name = type(exc).__name__
         if name == "Abort":  # click turns Ctrl-C (KeyboardInterrupt) into Abort
-            print("interrupted; no output was changed", file=sys.stderr)
+            note_interrupt()  # reported by main()
             code = 130
         elif hasattr(exc, "show") and hasattr(exc, "exit_code"):
             if exc.exit_code == 0:
