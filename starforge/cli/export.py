@@ -93,13 +93,60 @@ def describe_bodies(family, mount, sets, ids, allow_oversize, **body_options):
     """
     from starforge.cad.export import check_fit, family_bodies, parse_ids
     from starforge.cad.mounts import load_mount
+    from starforge.errors import StarforgeError
 
     m = load_mount(mount or family.spec.mount or "flat", parse_sets(sets))
     spec = body_spec_from_options(**body_options)
     id_list = parse_ids(ids)
     bodies = family_bodies(family, id_list, m, spec)
-    check_fit(bodies, family.spec.box_mm, m.name, allow_oversize)
+    try:
+        check_fit(bodies, family.spec.box_mm, m.name, allow_oversize)
+    except StarforgeError as exc:
+        if family.spec.mount == m.name or sets:  # made for this mount already: the command would not help
+            raise
+        raise StarforgeError(
+            f"{exc}; or make a family for this mount: {stars_command_for(family.spec, m.name)}"
+        ) from None
     return m, spec, id_list, bodies
+
+
+#: the ``starforge stars`` option of each spec field a family records
+_STARS_FLAGS = (
+    ("box_mm", "--box"),
+    ("marker_mm", "--marker"),
+    ("delta_mm", "--delta"),
+    ("gap_mm", "--gap"),
+    ("rule", "--rule"),
+    ("select", "--select"),
+    ("tolerance_mm", "--tolerance"),
+    ("box_method", "--box-method"),
+    ("min_depth_mm", "--min-depth"),
+    ("tip_mm", "--tip"),
+    ("noise_mm", "--noise"),
+    ("count", "--count"),
+)
+
+
+def stars_command_for(spec, mount_name: str) -> str:
+    """The ``starforge stars`` command that makes ``spec``'s family again, for ``mount_name``: the
+    options where the spec differs from the default (the finger template), a new name."""
+    from starforge.catalog import load_template
+    from starforge.stars.spec import spec_from_mapping
+
+    base = spec_from_mapping(load_template("stars", "finger")[1], name="finger")
+
+    def word(v) -> str:
+        if isinstance(v, (tuple, list)):
+            return " ".join(word(x) for x in v)
+        return f"{v:g}" if isinstance(v, float) else str(v)
+
+    parts = ["starforge stars"]
+    for field, flag in _STARS_FLAGS:
+        v = getattr(spec, field)
+        if v is not None and v != getattr(base, field):
+            parts.append(f"{flag} {word(v)}")
+    parts += [f"--name {spec.name}-{mount_name}", f"--mount {mount_name}"]
+    return " ".join(parts)
 
 
 def default_out(file: Path, cad: bool) -> Path:

@@ -1,0 +1,128 @@
+"""A newcomer's path: the README's commands (what .ci/run runs) parse against the CLI, caches stay
+out of the installed package, and export's refusal names the command that fits."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _readme_commands():
+    spec = importlib.util.spec_from_file_location("readme_commands", ROOT / ".ci" / "readme_commands.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_comment_stripping_keeps_quoted_hashes():
+    rc = _readme_commands()
+    assert rc.strip_comment('pip install -e ".[test]"   # the extra') == 'pip install -e ".[test]"'
+    assert rc.strip_comment("echo 'a # b' # c") == "echo 'a # b'"
+    assert rc.strip_comment("x#y") == "x#y"
+    lines = ["## A five-minute tour", "```bash", "starforge a \\", "  --b 1   # c", "", "starforge d", "```"]
+    assert rc.readme_commands("\n".join(lines), "tour") == ["starforge a --b 1", "starforge d"]
+
+
+def test_readme_opens_with_the_two_commands_and_a_tour_that_parses():
+    """Every tour command names a real command and real options with valid values (parsed by the
+    CLI itself, not run), and reads only families that the README's earlier commands write."""
+    import click
+    import typer
+
+    from starforge.cli import _load_commands, app
+
+    rc = _readme_commands()
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    setup = rc.readme_commands(readme, "setup")
+    assert len(setup) == 2
+    assert setup[0].startswith("pip install . && starforge")
+    assert setup[1].startswith('pip install -e ".[test]"') and "pytest" in setup[1]
+    tour = rc.readme_commands(readme, "tour")
+    assert len(tour) >= 3
+    _load_commands()
+    group = typer.main.get_command(app)
+    made: set[str] = set()
+    for line in [setup[0].split("&&", 1)[1].strip(), *tour]:
+        words = shlex.split(line)
+        assert words[0] == "starforge", line
+        cmd = group.commands[words[1]]
+        try:
+            ctx = cmd.make_context(words[1], words[2:])
+        except click.exceptions.UsageError as exc:  # pragma: no cover - the failure message
+            pytest.fail(f"README command does not parse: {line}: {exc.format_message()}")
+        p = ctx.params
+        if p.get("file") is not None:
+            folder = Path(p["file"]).parent if Path(p["file"]).suffix else Path(p["file"])
+            assert folder.as_posix() in made, f"{line}: reads {p['file']}, which no earlier command writes"
+        if words[1] == "stars":  # the tour runs where the first command ran: no collision, no --force
+            target = Path(p["out"]) if p.get("out") else Path("out") / (p.get("name") or "finger")
+            assert target.as_posix() not in made, f"{line}: {target} is already written by an earlier command"
+            assert not p.get("force"), f"{line}: the tour must not need --force"
+            made.add(target.as_posix())
+    assert "out/finger" in made
+
+
+def test_caches_live_outside_the_package(tmp_path):
+    """After a kernel compile, no numba cache file is inside the starforge package, and the
+    cache folder is the one STARFORGE_CACHE_DIR names."""
+    import starforge
+
+    pkg = Path(starforge.__file__).parent
+    before = {p for p in pkg.rglob("*.nb[ic]")}
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["STARFORGE_CACHE_DIR"] = str(tmp_path / "sfcache")
+    code = (
+        "import json, os, starforge\n"
+        "from starforge.geometry.sym3 import sym3_eigvals\n"
+        "sym3_eigvals(2.0, 1.0, 3.0, 0.1, 0.2, 0.3)\n"
+        "print(json.dumps([starforge.cache_dir(), os.environ['NUMBA_CACHE_DIR']]))\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT,
+                         timeout=120)
+    assert res.returncode == 0, res.stderr
+    cache, numba_dir = json.loads(res.stdout)
+    assert Path(cache) == tmp_path / "sfcache"
+    assert Path(numba_dir) == tmp_path / "sfcache" / "numba"
+    assert list((tmp_path / "sfcache" / "numba").rglob("*.nbi")), "the compile wrote no cache index there"
+    assert {p for p in pkg.rglob("*.nb[ic]")} - before == set()
+    assert not before, f"cache files inside the package: {sorted(before)[:3]}"
+
+
+def test_cache_dir_defaults_to_the_user_cache_folder(monkeypatch):
+    from platformdirs import user_cache_dir
+
+    import starforge
+
+    monkeypatch.delenv("STARFORGE_CACHE_DIR", raising=False)
+    assert starforge.cache_dir() == user_cache_dir("starforge", appauthor=False)
+    monkeypatch.setenv("STARFORGE_CACHE_DIR", "/somewhere/else")
+    assert starforge.cache_dir() == "/somewhere/else"
+
+
+def test_export_refusal_names_the_stars_command_that_fits():
+    from starforge.catalog import load_template
+    from starforge.cli.export import stars_command_for
+    from starforge.stars.spec import spec_from_mapping
+
+    finger = spec_from_mapping({**load_template("stars", "finger")[1], "count": 25}, name="f25")
+    assert stars_command_for(finger, "flat") == "starforge stars --count 25 --name f25-flat --mount flat"
+    other = spec_from_mapping({"box_mm": [30, 20, 50], "delta_mm": 2.0}, name="big")
+    cmd = stars_command_for(other, "strap")
+    assert "--box 30 20 50" in cmd and "--delta 2" in cmd and cmd.endswith("--name big-strap --mount strap")
+    # the command it prints parses, and makes that spec again (save the name and mount)
+    import typer
+
+    from starforge.cli import _load_commands, app
+
+    _load_commands()
+    ctx = typer.main.get_command(app).commands["stars"].make_context("stars", shlex.split(cmd)[2:])
+    assert tuple(ctx.params["box"]) == (30, 20, 50) and ctx.params["delta"] == 2.0
