@@ -126,3 +126,57 @@ def test_export_refusal_names_the_stars_command_that_fits():
     _load_commands()
     ctx = typer.main.get_command(app).commands["stars"].make_context("stars", shlex.split(cmd)[2:])
     assert tuple(ctx.params["box"]) == (30, 20, 50) and ctx.params["delta"] == 2.0
+
+
+def test_plain_progress_lines_without_a_terminal(capsys):
+    """Off a terminal the commands' progress becomes a plain line every interval, from a thread,
+    so that work which never calls back (numba's first compile) still shows it is alive."""
+    import time
+
+    from starforge.cli._app import PlainProgress, progress, start_heartbeat
+
+    assert isinstance(progress(), PlainProgress)  # pytest's stderr is not a terminal
+    stop = start_heartbeat("stars", interval_s=0.05)
+    try:
+        time.sleep(0.2)
+        with progress() as bar:
+            task = bar.add_task("enumerating", total=200)
+            bar.update(task, completed=50)
+            time.sleep(0.2)
+            bar.advance(task, 50)
+            time.sleep(0.2)
+    finally:
+        stop()
+    lines = capsys.readouterr().err.splitlines()
+    assert lines and all(line.startswith("starforge stars: ") for line in lines)
+    assert any(line.endswith("s, working") for line in lines)
+    assert any("enumerating 50/200 (25 %)" in line for line in lines)
+    assert any("enumerating 100/200 (50 %)" in line for line in lines)
+    n = len(lines)
+    time.sleep(0.15)
+    assert len(capsys.readouterr().err.splitlines()) == 0 and n > 0  # stopped
+
+
+def test_stars_table_fits_80_columns(small_family, monkeypatch, capsys):
+    """The stars table at 80 columns: every length whole (no `12.…`), one row per star."""
+    import re
+
+    from starforge import load_family
+    from starforge.cli.stars import _report
+
+    out, fam = small_family
+    import dataclasses
+
+    family = dataclasses.replace(load_family(out / "family.json"), timings={"enumerate": 0.5, "select": 0.5})
+    monkeypatch.setenv("COLUMNS", "80")
+    _report(family, out, 1.0, quiet=False)
+    text = capsys.readouterr().out
+    lines = text.splitlines()
+    assert max(len(line) for line in lines) <= 80
+    assert "…" not in text
+    rows = [line for line in lines if re.match(r"^\s*\d+\s+\d", line)]
+    assert len(rows) == (len(fam["stars"]) if len(fam["stars"]) <= 30 else 25)
+    for line, st in zip(rows, fam["stars"], strict=False):
+        words = line.split()
+        assert words[0] == str(st["id"])
+        assert [float(w) for w in words[1:7]] == [round(x, 2) for x in st["lengths"].values()]

@@ -36,11 +36,12 @@ def console(stderr: bool = False):
 
 
 def progress(transient: bool = True, disable: bool | None = None):
-    """A rich Progress bar on stderr, off when stderr is not a terminal unless forced."""
+    """Progress on stderr: a rich bar on a terminal; otherwise (a pipe, a log file, CI) the
+    heartbeat's plain line every few seconds shows the task's state (:class:`PlainProgress`)."""
+    if disable is None and not sys.stderr.isatty():
+        return PlainProgress()
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-    if disable is None:
-        disable = not sys.stderr.isatty()
     return Progress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -49,8 +50,80 @@ def progress(transient: bool = True, disable: bool | None = None):
         TimeRemainingColumn(),
         console=console(stderr=True),
         transient=transient,
-        disable=disable,
+        disable=bool(disable),
     )
+
+
+#: seconds between two plain progress lines (when stderr is not a terminal)
+HEARTBEAT_S = 5.0
+
+#: what the command is doing now, read by the heartbeat: [description, done, total]
+_state: list = ["working", None, None]
+
+
+class PlainProgress:
+    """The part of rich's Progress API the commands use; it only records the state, which the
+    heartbeat (:func:`start_heartbeat`) prints as a plain line every few seconds."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        _state[:] = ["working", None, None]
+
+    def add_task(self, description: str, total=None, **_) -> int:
+        _state[:] = [description, 0, total]
+        return 0
+
+    def update(self, task, description=None, completed=None, total=None, advance=None, **_) -> None:
+        if description is not None:
+            _state[0] = description
+        if total is not None:
+            _state[2] = total
+        if completed is not None:
+            _state[1] = completed
+        if advance is not None:
+            _state[1] = (_state[1] or 0) + advance
+
+    def advance(self, task, advance: float = 1) -> None:
+        self.update(task, advance=advance)
+
+
+def _state_line(command: str, seconds: float) -> str:
+    what, done, total = _state
+    text = f"starforge {command}: {seconds:.0f} s, {what}"
+    if done is not None and total:
+        text += f" {done:,}/{total:,} ({100 * done / total:.0f} %)"
+    elif done:
+        text += f" {done:,}"
+    return text
+
+
+def start_heartbeat(command: str, interval_s: float = HEARTBEAT_S):
+    """Print a plain progress line on stderr every ``interval_s`` until the returned stop function
+    is called: long work (numba's first compile included) shows progress without a terminal."""
+    import threading
+    import time
+
+    stop = threading.Event()
+    t0 = time.monotonic()
+    _state[:] = ["working", None, None]
+
+    def beat() -> None:
+        while not stop.wait(interval_s):
+            try:
+                print(_state_line(command, time.monotonic() - t0), file=sys.stderr, flush=True)
+            except (OSError, ValueError):  # stderr closed: nobody is reading
+                return
+
+    th = threading.Thread(target=beat, name="starforge-heartbeat", daemon=True)
+    th.start()
+
+    def stop_fn() -> None:
+        stop.set()
+        th.join(timeout=1.0)
+
+    return stop_fn
 
 
 @app.callback(invoke_without_command=True)
@@ -81,3 +154,5 @@ def _root(
     if ctx.invoked_subcommand is None:
         print(ctx.get_help())
         raise typer.Exit(0)
+    if not sys.stderr.isatty():  # a pipe or a log: plain progress lines every few seconds
+        ctx.call_on_close(start_heartbeat(ctx.invoked_subcommand))

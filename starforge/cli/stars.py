@@ -168,33 +168,30 @@ def stars_cmd(
 
 
 def _report(family, out_dir: Path, seconds: float, quiet: bool) -> None:
+    from rich import box
     from rich.table import Table
 
     c = console()
     sm = family.summary
     if not quiet:
-        t = Table(title=f"{family.spec.name}: {len(family)} stars, most accurate first", show_lines=False)
-        for col in (
-            "id",
-            "u",
-            "U",
-            "v",
-            "V",
-            "w",
-            "W",
-            "box x*y*z mm",
-            "depth",
-            "face margin",
-            "tip TRE 1 hidden",
-        ):
-            t.add_column(col, justify="right")
+        # fits 80 columns: no vertical rules, one space between columns, nothing wraps
+        t = Table(
+            title=f"{family.spec.name}: {len(family)} stars, most accurate first (mm)",
+            box=box.SIMPLE_HEAD,
+            pad_edge=False,
+            padding=(0, 0),
+            collapse_padding=True,
+            show_lines=False,
+        )
+        for col in ("id", "u", "U", "v", "V", "w", "W", "box x y z", "depth", "face\nmargin", "tip TRE\n1 hidden"):
+            t.add_column(col, justify="right", no_wrap=True)
         shown = family.stars if len(family) <= 30 else family.stars[:25]
         for st in shown:
             e = st.obb_extents
             t.add_row(
                 str(st.id),
                 *[f"{x:.2f}" for x in st.lengths],
-                f"{e[0]:.1f} x {e[1]:.1f} x {e[2]:.1f}",
+                f"{e[0]:.1f} {e[1]:.1f} {e[2]:.1f}",
                 f"{st.depth_mm:.2f}" if st.depth_mm is not None else "",
                 f"{st.margins['family_face_mm']:.2f}",
                 f"{st.accuracy.get('tip_tre_hidden_mm', float('nan')):.2f}",
