@@ -133,7 +133,7 @@ def test_preset_simulation_agrees_with_its_own_rule_check(preset, bodies):
 
 
 def test_qualisys_simulates_the_tolerances_its_files_carry(small_family, tmp_path):
-    from starforge.tracking.formats import write_rigid_bodies
+    from starforge.tracking.export import write_rigid_bodies
 
     fam, _ = small_family
     summary = write_rigid_bodies(fam / "family.json", ["qtm"], tmp_path / "files")

@@ -26,7 +26,7 @@ def _tip(text: str | None):
 _FILES = typer.Argument(
     ...,
     help="Star families, prop placements (or their folders) and a lab's tracker files (QTM .xml, Vicon .vsk, "
-    "Atracsys .ini, body .csv), in any mix.",
+    "Atracsys .ini, NDI .rom, body .csv), in any mix.",
 )
 
 
@@ -59,9 +59,9 @@ def check_cmd(
     choose: str = typer.Option(
         None,
         "--choose",
-        help="How matches inside the window are ranked: fit (lowest residual wins) or window (a tracker "
-        "that treats every distance inside its window as equal takes one at random). Default: the "
-        "preset's, else fit.",
+        help="Rank matches by one rule only: fit (lowest residual wins), window (a tracker that treats every "
+        "distance inside its window as equal takes one at random) or sides (smallest sorted-side-length "
+        "difference). Default: every rule on the same frames, the headline the worst.",
     ),
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same result)."),
     preset: str = typer.Option(
@@ -132,29 +132,49 @@ def check_cmd(
             rates_plot(doc, stage / "check.png")
     if quiet:
         return
+    err = console(stderr=True)
+    for w in doc["input"]["warnings"]:
+        err.print(f"warning: {w}")
     con = console()
     s = doc["settings"]
     con.print(
         f"{doc['input']['bodies']} bodies, {s['frames']} frames, {s['world']} world, presence {s['presence']:g}, "
         f"noise {s['noise_mm']} mm, drop {s['drop']} ({s['drop_mode']}), ghosts {s['ghosts']}, "
         f"match {s['match_mm']:g} mm ({s['window_source']}), residual {s['residual_mm']:g} mm, "
-        f"identify from {s['identify_from_markers']} markers, choose {s['choose']} ({s['choose_means']})"
+        f"identify from {s['identify_from_markers']} markers"
     )
+    if doc["input"]["bodies_never_hiding_a_marker"]:
+        few = doc["input"]["bodies_never_hiding_a_marker"]
+        con.print(
+            f"{len(few)} bodies keep all their markers in every frame (3 markers: no hidden-marker case): "
+            f"{', '.join(few[:5])}{' ...' if len(few) > 5 else ''}"
+        )
     for note in doc["input"]["notes"]:
         con.print(f"note: {note}")
+    for rule, r in doc["by_rule"].items():
+        con.print(
+            f"  rule {rule} ({r['means']}): identified {100 * r['identification_rate']:.3f} %, "
+            f"confused {100 * r['mislabel_rate']:.3f} %"
+        )
     con.print(
         f"identified {100 * doc['identification_rate']:.3f} %, confused {100 * doc['mislabel_rate']:.3f} % "
         f"(flips {100 * doc['flip_rate']:.3f} %, wrong body {100 * doc['wrong_body_rate']:.3f} %), "
-        f"missed {100 * doc['missed_rate']:.3f} %"
+        f"missed {100 * doc['missed_rate']:.3f} % (rule {doc['headline_rule']}"
+        f"{', the worst' if len(doc['by_rule']) > 1 else ''})"
     )
     for w in doc["worst_pairs"][:5]:
         con.print(f"  {w['kind']}: {w['true']} -> {w['reported']}: {w['count']} ({100 * w['rate']:.3f} %)")
     fam = doc["accuracy"]["family"]
     at = doc["accuracy"]["tip_mm"]
     tip = "(" + ", ".join(f"{x:g}" for x in at) + ") mm" if at is not None else "each body's tip"
-    con.print(
-        f"TRE at {tip} ({doc['accuracy']['tip_source']}): median {fam['tip_tre_mm_median']:.3f} mm, worst {fam['tip_tre_mm_worst']:.3f} mm; "
+    hidden = (
         f"one marker hidden: median {fam['tip_tre_hidden_mm_median']:.3f} mm, worst {fam['tip_tre_hidden_mm_worst']:.3f} mm"
+        if fam["tip_tre_hidden_mm_median"] is not None
+        else "no body has a hidden-marker case"
+    )
+    con.print(
+        f"TRE at {tip} ({doc['accuracy']['tip_source']}): median {fam['tip_tre_mm_median']:.3f} mm, "
+        f"worst {fam['tip_tre_mm_worst']:.3f} mm; {hidden}"
     )
     if "rules" in doc:
         v = doc["rules"]["violations"]

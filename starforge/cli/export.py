@@ -15,7 +15,7 @@ import typer
 from starforge.cli._app import app, console, progress
 
 CAD_FORMATS = ("step", "stl", "3mf")
-TRACKER_FORMATS_DOC = ("qtm", "vsk", "atracsys", "csv")
+TRACKER_FORMATS_DOC = ("qtm", "vsk", "atracsys", "rom", "csv")
 
 
 def split_formats(text: str) -> tuple[list[str], list[str]]:
@@ -195,7 +195,7 @@ def export_cmd(
     formats: str = typer.Option(
         "step,stl,3mf",
         "--format",
-        help="Comma list: step, stl, 3mf (CAD, family files) and qtm, vsk, atracsys, csv.",
+        help="Comma list: step, stl, 3mf (CAD, family files) and qtm, vsk, atracsys, rom (NDI), csv.",
     ),
     mount: str = MOUNT,
     ids: str = IDS,
@@ -223,6 +223,11 @@ def export_cmd(
         1,
         "--id-start",
         help="First Atracsys geometry id (ids run on from it; give each family its own range).",
+    ),
+    noise: float = typer.Option(
+        0.2,
+        "--noise",
+        help="Marker noise, sigma per axis, mm, that the tracker files' tolerances assume (QTM, NDI).",
     ),
     out: Path = _OUT,
     force: bool = typer.Option(False, "--force", help="Overwrite existing outputs."),
@@ -271,8 +276,12 @@ def export_cmd(
     elif ids or sets or preview:
         raise StarforgeError("--ids, --set and --preview apply to CAD formats (step, stl, 3mf)")
     if trk:
+        from starforge.spec import non_negative
         from starforge.tracking.bodies import load_bodies
-        from starforge.tracking.formats import check_exportable, parse_formats, write_bodies
+        from starforge.tracking.export import check_exportable
+        from starforge.tracking.formats import parse_formats
+
+        non_negative("noise", noise)
 
         trk = parse_formats(trk)
         bodyset = load_bodies(src)  # read and checked before any file is written
@@ -308,7 +317,9 @@ def export_cmd(
         if trk:
             import json
 
-            summary = write_bodies(bodyset, trk, stage, id_start)
+            from starforge.tracking.export import write_bodies
+
+            summary = write_bodies(bodyset, trk, stage, id_start, noise)
             summary = {
                 "format": "starforge.trackers",
                 "version": 1,
@@ -319,6 +330,8 @@ def export_cmd(
             (stage / "trackers.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
             written.extend([*summary["files"], "trackers.json"])
     err = console(stderr=True)
+    for w in bodyset.warnings if trk else ():
+        err.print(f"warning: {w}")
     if rep is not None:
         for w in rep.warnings:
             err.print(f"warning: {w}")

@@ -8,13 +8,16 @@ or from the tracker files a lab already has.
   converted to mm here.  Its tip is the corner of the prop's bounding box where the predicted
   target registration error is largest (TRE^2 is a convex quadratic in the target point, so its
   maximum over the box is at a corner): the worst point of the prop.
-* QTM (6DOF settings or body files), Vicon VSK, Atracsys ``.ini`` and starforge's body CSV give
-  their bodies as written, in mm (:mod:`starforge.tracking.formats`); their tip is the body's
-  origin, the point trackers report (a tool's tip is usually defined there).
+* Every tracker format of the registry (:mod:`starforge.tracking.formats`: QTM 6DOF settings or
+  body files, Vicon VSK, Atracsys ``.ini``, NDI ``.rom``, starforge's body CSV) gives its bodies
+  as written, in mm; their tip is the body's origin, the point trackers report (a tool's tip is
+  usually defined there).  A body with fewer than 3 markers (a VSK skeleton's one- or
+  two-marker segment) is no rigid body: it is left out and named in a warning.
 
 Any mix of these may be read together (a lab's existing bodies beside new ones): names are made
-unique, the match window defaults to the smallest family tolerance.  Every body is checked for
-truth before use: at least 3 markers, finite coordinates, no two markers closer than 0.1 mm, a
+unique, the match window defaults to the smallest family tolerance.  Bodies of any marker count
+from 3 to :data:`MAX_MARKERS` are kept.  Every body is checked for truth before use: at least 3
+markers, finite coordinates, no two markers closer than 0.1 mm, a
 spread that a marker body can have (:data:`SPREAD_MM`, else "other units?"), and bounded size
 (:data:`MAX_MARKERS` per body, :data:`MAX_TRIANGLES` in all).
 """
@@ -57,6 +60,8 @@ class Body:
     tip_mm : (3,) float or None, mm   the body's target point for accuracy reports (None: the
         body set's default)
     source : str            the file it was read from
+    normals : (n, 3) float or None   unit direction each marker faces, where known (a
+        placement's surface normals); None: the placement frame's +z (a star faces up)
     """
 
     name: str
@@ -64,6 +69,7 @@ class Body:
     points_mm: np.ndarray
     tip_mm: tuple[float, float, float] | None = None
     source: str = ""
+    normals: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         p = np.array(self.points_mm, dtype=float)
@@ -71,6 +77,14 @@ class Body:
             raise StarforgeError(f"body {self.name}: points_mm must be (n, 3) finite numbers")
         p.setflags(write=False)
         object.__setattr__(self, "points_mm", p)
+        if self.normals is not None:
+            nrm = np.array(self.normals, dtype=float).reshape(-1, 3)
+            if nrm.shape != p.shape or not np.isfinite(nrm).all():
+                raise StarforgeError(f"body {self.name}: normals must be one finite (3,) vector per marker")
+            length = np.linalg.norm(nrm, axis=1, keepdims=True)
+            nrm = np.where(length > 0, nrm / np.where(length > 0, length, 1.0), 0.0)
+            nrm.setflags(write=False)
+            object.__setattr__(self, "normals", nrm)
 
     @property
     def n_markers(self) -> int:
@@ -90,7 +104,8 @@ class BodySet:
     marker_mm : float or None       marker sphere diameter, mm
     default_tip_mm : (3,) float     the tip of bodies that carry none, mm
     tip_source : str                where the tips come from
-    notes : tuple of str            what reading skipped or assumed
+    notes : tuple of str            what reading assumed
+    warnings : tuple of str         what reading left out (bodies with fewer than 3 markers)
     """
 
     kind: str
@@ -101,6 +116,7 @@ class BodySet:
     default_tip_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     tip_source: str = "the bodies' own origin"
     notes: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
 
     @property
     def names(self) -> list[str]:
@@ -185,6 +201,12 @@ def _placement_body(path: Path, data: dict, notes: list) -> tuple[Body, float]:
         centres = (data.get("tracked", {}) or {}).get("marker_centres_m")
         src = centres if centres is not None else [m["position"] for m in data["markers"]]
         pos = np.array(src, dtype=float).reshape(-1, 3)
+        nrm = [m.get("normal") for m in data.get("markers", [])]
+        normals = (
+            np.array(nrm, dtype=float).reshape(-1, 3) if nrm and all(v is not None for v in nrm) else None
+        )
+        if normals is not None and normals.shape != pos.shape:
+            normals = None
         name = str(prop.get("name", path.parent.name or path.stem))
         diameter_m = float(data.get("marker_diameter_m", 0.0))
         bounds = prop.get("bounds_m")
@@ -200,26 +222,29 @@ def _placement_body(path: Path, data: dict, notes: list) -> tuple[Body, float]:
     else:
         tip = (0.0, 0.0, 0.0)
         notes.append(f"{path}: no prop bounds_m; its tip is the prop frame's origin")
-    return Body(safe_name(name), 0, P, tip, str(path)), diameter_m * 1000.0
+    return Body(safe_name(name), 0, P, tip, str(path), normals), diameter_m * 1000.0
 
 
-def _tracker_bodies(path: Path, fmt: str, notes: list) -> list[Body]:
-    from starforge.tracking.formats import READERS
+def _tracker_bodies(path: Path, fmt: str, warnings: list) -> list[Body]:
+    from starforge.tracking.formats import FORMATS
 
     bodies = []
-    skipped = []
-    items = list(READERS[fmt](path).items())
-    for name, P in items:
-        if len(P) < 3 and len(items) > 1:
-            skipped.append(f"{name} ({len(P)})")  # a skeleton segment with 1-2 markers is no rigid body
+    small = []
+    for name, P in FORMATS[fmt].read(path).items():
+        if len(P) < 3:
+            small.append(f"{name} ({len(P)} marker{'s' if len(P) != 1 else ''})")
             continue
         check_body(path, name, P)
         bodies.append(Body(safe_name(name), 0, P, (0.0, 0.0, 0.0), str(path)))
     if not bodies:
-        raise StarforgeError(f"{path}: no body with 3 or more markers (a rigid body needs at least 3)")
-    if skipped:
-        notes.append(
-            f"{path}: skipped {len(skipped)} bodies with fewer than 3 markers: {', '.join(skipped[:5])}"
+        raise StarforgeError(
+            f"{path}: no body with 3 or more markers (a rigid body needs at least 3): {', '.join(small[:5])}"
+        )
+    if small:
+        more = f" and {len(small) - 10} more" if len(small) > 10 else ""
+        warnings.append(
+            f"{path}: left out {len(small)} bodies with fewer than 3 markers (no rigid body): "
+            f"{', '.join(small[:10])}{more}"
         )
     return bodies
 
@@ -233,8 +258,8 @@ def _resolve(p: Path) -> Path:
 
 
 def load_bodies(paths) -> BodySet:
-    """Read star families, prop placements and tracker files (QTM, VSK, Atracsys, body CSV), in
-    any mix; a folder means the family.json or placement.json inside it.
+    """Read star families, prop placements and tracker files (every format of
+    :data:`starforge.tracking.formats.FORMATS`), in any mix; a folder means the family.json or placement.json inside it.
 
     Raises StarforgeError (one line) for a missing or corrupt file, a format it does not know,
     or a body that is not a rigid body a tracker could hold (see the module docstring).
@@ -248,13 +273,13 @@ def load_bodies(paths) -> BodySet:
     if not paths:
         raise StarforgeError("no input file given")
     raw: list[Body] = []
-    kinds, sources, notes = [], [], []
+    kinds, sources, notes, warnings = [], [], [], []
     tolerances, markers = [], []
     for p in paths:
         check_input_file(p, "input file")
         fmt = sniff_format(p)
         if fmt is not None and p.suffix.lower() != ".json":
-            raw.extend(_tracker_bodies(p, fmt, notes))
+            raw.extend(_tracker_bodies(p, fmt, warnings))
             kinds.append("tracker")
         else:
             data = read_json(p, what="input file")
@@ -274,7 +299,8 @@ def load_bodies(paths) -> BodySet:
             else:
                 raise StarforgeError(
                     f"{p} is neither a star family nor a prop placement (format {k!r}; expected "
-                    f"{FAMILY_FORMAT!r} or {PLACEMENT_FORMAT!r}) nor a QTM, VSK, Atracsys or body CSV file"
+                    f"{FAMILY_FORMAT!r} or {PLACEMENT_FORMAT!r}) nor a tracker file "
+                    f"({', '.join(_format_names())})"
                 )
         sources.append(str(p))
         triangles = sum(math.comb(b.n_markers, 3) for b in raw)
@@ -290,7 +316,7 @@ def load_bodies(paths) -> BodySet:
         seen[b.name] = n + 1
         name = f"{b.name}_{n + 1}" if n else b.name
         ident = b.id if kinds == ["family"] else len(bodies) + 1
-        bodies.append(Body(name, ident, b.points_mm, b.tip_mm, b.source))
+        bodies.append(Body(name, ident, b.points_mm, b.tip_mm, b.source, b.normals))
     kind = kinds[0] if len(set(kinds)) == 1 else "mixed"
     if kind == "family" and len(kinds) > 1:
         kind = "mixed"
@@ -307,4 +333,11 @@ def load_bodies(paths) -> BodySet:
         default_tip,
         tip_source,
         tuple(notes),
+        tuple(warnings),
     )
+
+
+def _format_names() -> list[str]:
+    from starforge.tracking.formats import FORMATS
+
+    return list(FORMATS)

@@ -7,7 +7,9 @@ The document (``format: starforge.check``, version 1, all lengths mm)::
                   match_mm / residual_mm and where they come from, world, presence,
                   identify_from_markers, choose, preset, tip_mm},
      "identification_rate", "mislabel_rate" (flips + wrong bodies), "flip_rate",
-     "wrong_body_rate", "missed_rate", "phantom_rate",
+     "wrong_body_rate", "missed_rate", "phantom_rate"      the headline: under ``headline_rule``,
+                                                   the worst of the rules (or ``--choose``'s),
+     "by_rule": {rule: {rates, "means"}},          every ranking rule trackers use, same frames,
      "confusion": {"labels": [...], "matrix": B x B (true row, reported column; diagonal correct)},
      "flips": [...], "missed": [...],              per body
      "worst_pairs": [...],                          most frequent confusions in the simulation
@@ -129,7 +131,7 @@ def resolve_windows(bodyset, s: CheckSettings, preset=None) -> dict:
     starforge writes into QTM files for these bodies), else the smallest family tolerance, else
     2 mm; the residual limit ``--residual``, else the preset's, else half the window.
     """
-    from starforge.tracking.formats import qtm_tolerances
+    from starforge.tracking.tolerances import export_tolerances
 
     reflect = bool(preset.tracker.reflect) if preset is not None else False
     choose = s.choose or (preset.tracker.choose if preset is not None else "fit")
@@ -137,9 +139,19 @@ def resolve_windows(bodyset, s: CheckSettings, preset=None) -> dict:
     if s.match_mm is not None:
         match, source = s.match_mm, "--match"
     elif preset is not None and preset.tracker.window == "qtm_export":
-        q = qtm_tolerances([b.points_mm for b in bodyset.bodies])
+        q = export_tolerances([b.points_mm for b in bodyset.bodies], s.noise_mm)
         match, res = q["bone_length_tolerance_mm"], q["maximum_residual_mm"]
-        source = f"preset {preset.name}: QTM BoneLengthTolerance for these bodies (half their margin {q['margin_mm']:g} mm)"
+        source = (
+            f"preset {preset.name}: the BoneLengthTolerance and MaximumResidual starforge writes into QTM files "
+            f"for these bodies at {s.noise_mm:g} mm noise (margin {q['margin_mm']:g} mm)"
+        )
+    elif preset is not None and preset.tracker.window == "rom_export":
+        q = export_tolerances([b.points_mm for b in bodyset.bodies], s.noise_mm)
+        match, res = preset.tracker.match_mm, q["max_marker_error_mm"]
+        source = (
+            f"preset {preset.name}: window {match:g} mm, residual limit the maximum marker error starforge "
+            f"writes into NDI .rom files for these bodies at {s.noise_mm:g} mm noise"
+        )
     elif preset is not None:
         match, res, source = preset.tracker.match_mm, preset.tracker.residual_mm, f"preset {preset.name}"
     elif bodyset.tolerance_mm is not None:
@@ -181,15 +193,16 @@ def accuracy_report(bodyset, s: CheckSettings) -> dict:
     rows = []
     for b, tip in zip(bodyset.bodies, tips, strict=True):
         P = b.points_mm
-        hid = tre_hidden(P, tip, fle) if len(P) > 3 else np.full(len(P), np.inf)
+        # a 3-marker body has no hidden-marker case: a tracker cannot identify it from 2 markers
+        hid = tre_hidden(P, tip, fle) if len(P) > 3 else None
         rows.append(
             {
                 "body": b.name,
                 "markers": len(P),
                 "tip_mm": [float(x) for x in tip],
                 "tip_tre_mm": float(tre_rms(P, tip, fle)),
-                "tip_tre_hidden_mm": float(hid.max()),
-                "worst_hidden_marker": int(hid.argmax()) + 1,
+                "tip_tre_hidden_mm": float(hid.max()) if hid is not None else None,
+                "worst_hidden_marker": int(hid.argmax()) + 1 if hid is not None else None,
                 "rotation_deg": float(rotation_error_deg(P, s.noise_mm)),
                 "rotation_hidden_deg": float(rotation_error_hidden_deg(P, s.noise_mm).max())
                 if len(P) > 3
@@ -197,7 +210,7 @@ def accuracy_report(bodyset, s: CheckSettings) -> dict:
             }
         )
     allm = np.array([r["tip_tre_mm"] for r in rows])
-    hidm = np.array([r["tip_tre_hidden_mm"] for r in rows])
+    hidm = np.array([r["tip_tre_hidden_mm"] for r in rows if r["tip_tre_hidden_mm"] is not None])
     same_tip = bool((tips == tips[0]).all())
     return {
         "tip_mm": [float(x) for x in tips[0]] if same_tip else None,
@@ -207,8 +220,9 @@ def accuracy_report(bodyset, s: CheckSettings) -> dict:
         "family": {
             "tip_tre_mm_median": float(np.median(allm)),
             "tip_tre_mm_worst": float(allm.max()),
-            "tip_tre_hidden_mm_median": float(np.median(hidm)),
-            "tip_tre_hidden_mm_worst": float(hidm.max()),
+            "tip_tre_hidden_mm_median": float(np.median(hidm)) if len(hidm) else None,
+            "tip_tre_hidden_mm_worst": float(hidm.max()) if len(hidm) else None,
+            "bodies_without_hidden_case": [r["body"] for r in rows if r["tip_tre_hidden_mm"] is None],
         },
     }
 
@@ -236,23 +250,31 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
     tr = resolve_windows(bodyset, s, preset)
     match, res = tr["match_mm"], tr["residual_mm"]
     ident.check_settings(lib, s.noise_mm, s.drop, s.ghosts, s.frames, match, res)
-    most = int(lib.counts.min()) - s.drop
+    # markers left per body: a body never drops below 3 (3-marker bodies have no hidden case)
+    left = lib.counts - np.minimum(s.drop, lib.counts - 3)
+    big = lib.counts >= tr["min_markers"]
+    most = int(left[big].min()) if big.any() else int(left.min())
     require(
         not s.drop_exact or tr["min_markers"] <= most,
         f"--drop {s.drop} --exact-drop leaves {most} markers, fewer than the {tr['min_markers']} "
         f"the tracker identifies from",
     )
+    capped = [names[i] for i in np.flatnonzero(lib.counts - 3 < s.drop)]
+    rules = (s.choose,) if s.choose is not None else ident.RULES
     rng = np.random.default_rng(s.seed)
     cb = (lambda d, n: progress("frames", d, n)) if progress else None
     kw = {
         "world": s.world,
         "presence": s.presence,
         "min_markers": tr["min_markers"],
-        "choose": tr["choose"],
         "drop_exact": s.drop_exact,
         "reflect": tr["reflect"],
+        "rules": rules,
     }
-    tally = ident.run(lib, s.frames, s.noise_mm, s.drop, s.ghosts, rng, match, res, progress=cb, **kw)
+    tallies = ident.run_rules(lib, s.frames, s.noise_mm, s.drop, s.ghosts, rng, match, res, progress=cb, **kw)
+    by_rule = {r: t.rates() for r, t in tallies.items()}
+    head = min(rules, key=lambda r: (by_rule[r]["identification_rate"], -by_rule[r]["mislabel_rate"]))
+    tally = tallies[head]
     t_main = time.perf_counter() - t0
     curve = None
     if s.curve_points > 0:
@@ -261,10 +283,10 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
         levels = np.unique(np.round(np.concatenate([np.linspace(0.0, top, s.curve_points), [s.noise_mm]]), 9))
         idr, mis = [], []
         for i, nz in enumerate(levels):
-            t = ident.run(lib, cf, float(nz), s.drop, s.ghosts, rng, match, res, **kw)
-            r = t.rates()
-            idr.append(r["identification_rate"])
-            mis.append(r["mislabel_rate"])
+            ts = ident.run_rules(lib, cf, float(nz), s.drop, s.ghosts, rng, match, res, **kw)
+            rs = [t.rates() for t in ts.values()]
+            idr.append(min(r["identification_rate"] for r in rs))
+            mis.append(max(r["mislabel_rate"] for r in rs))
             if progress:
                 progress("curve", i + 1, len(levels))
         curve = {"noise_mm": levels.tolist(), "frames": cf, "identification_rate": idr, "mislabel_rate": mis}
@@ -278,6 +300,9 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
             "files": list(bodyset.sources),
             "bodies": len(names),
             "notes": list(bodyset.notes),
+            "warnings": list(getattr(bodyset, "warnings", ())),
+            "markers_per_body": sorted({int(c) for c in lib.counts}),
+            "bodies_never_hiding_a_marker": capped,
         },
         "settings": {
             "noise_mm": s.noise_mm,
@@ -296,9 +321,12 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
             "identify_from_markers": tr["min_markers"],
             "choose": tr["choose"],
             "choose_means": ident.CHOOSE[tr["choose"]],
+            "rules": list(rules),
             "tip_mm": acc["tip_mm"],
         },
         **tally.rates(),
+        "headline_rule": head,
+        "by_rule": {r: {**v, "means": ident.CHOOSE[r]} for r, v in by_rule.items()},
         "instances": tally.instances,
         "confusion": {"labels": names, "matrix": tally.confusion.tolist()},
         "flips": tally.flips.tolist(),

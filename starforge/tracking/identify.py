@@ -32,7 +32,8 @@ Simulation: in every frame each body is present with probability ``presence`` an
 random pose (uniform rotation), far from the others (farther than the longest library
 distance, so points of two bodies never form a library distance); every marker centre gets
 Gaussian noise (``noise_mm`` per axis), up to ``drop`` of its markers are hidden (uniform
-0..drop, or exactly ``drop``), and ``ghosts`` random extra points appear in a ball around it
+0..drop, or exactly ``drop``; never so many that fewer than 3 remain: a 3-marker body is always
+seen whole, since a tracker cannot identify it with a marker hidden), and ``ghosts`` random extra points appear in a ball around it
 (radius: the body's radius + ``match_mm``).
 
 Outcome per body and frame: *correct* (own label, every real point on its own marker),
@@ -396,6 +397,8 @@ def simulate(
     X = X + rng.normal(0.0, noise_mm, size=X.shape) if noise_mm > 0 else X
     present = np.arange(nmax)[None, :] < lib.counts[body][:, None]
     k = np.full(S, drop) if drop_exact else rng.integers(0, drop + 1, size=S)
+    # a body keeps at least 3 markers (a 3-marker body has no hidden-marker case)
+    k = np.minimum(k, lib.counts[body] - 3)
     keys = np.where(present, rng.random((S, nmax)), np.inf)
     rank = np.argsort(np.argsort(keys, axis=1), axis=1)
     visible = present & (rank >= k[:, None])
@@ -491,10 +494,10 @@ def check_settings(
     """Validate simulation settings with one-line errors naming the parameter and range."""
     non_negative("noise", noise_mm)
     require(isinstance(drop, int | np.integer) and drop >= 0, f"drop must be an integer >= 0, got {drop}")
-    most = int(lib.counts.min()) - 3
+    most = int(lib.counts.max()) - 3
     require(
         drop <= most,
-        f"drop must be <= markers - 3 = {most} (the smallest body has {int(lib.counts.min())} markers and "
+        f"drop must be <= markers - 3 = {most} (the largest body has {int(lib.counts.max())} markers and "
         f"a tracker needs 3 to identify it), got {drop}",
     )
     require(
@@ -531,7 +534,38 @@ def check_settings(
 CHOOSE = {
     "fit": "the lowest rigid-fit residual wins",
     "window": "matches inside the window are equal; one is taken at random",
+    "sides": "the smallest difference of sorted marker distances wins (correspondence-blind); ties at random",
 }
+#: the rules ``check`` reports side by side (its headline is the worst)
+RULES = tuple(CHOOSE)
+
+
+def sides_key(lib: Library, pts: np.ndarray, h: Hypotheses, chunk: int = 20000) -> np.ndarray:
+    """For each hypothesis, the largest difference between the sorted distances among its
+    matched observed points and the sorted distances among the model markers they are matched
+    to, mm: how a tracker that compares sorted side lengths scores a match (blind to which
+    marker is which, so a flip scores like the right correspondence)."""
+    H = len(h.scene)
+    out = np.zeros(H)
+    nmax = lib.n_max
+    iu = np.triu_indices(nmax, 1)
+    for a in range(0, H, chunk):
+        sl = slice(a, min(a + chunk, H))
+        asg = h.assign[sl]
+        ok = asg >= 0
+        obs = pts[h.scene[sl][:, None], np.maximum(asg, 0)]  # (h, nmax, 3)
+        mod = lib.points[h.body[sl]]
+        both = ok[:, :, None] & ok[:, None, :]
+        do = np.linalg.norm(obs[:, :, None] - obs[:, None, :], axis=3)[:, iu[0], iu[1]]
+        dm = np.linalg.norm(mod[:, :, None] - mod[:, None, :], axis=3)[:, iu[0], iu[1]]
+        m = both[:, iu[0], iu[1]]
+        # unmatched pairs sort last in both (the same count per row) and compare as equal
+        big = np.finfo(float).max
+        do = np.sort(np.where(m, do, big), axis=1)
+        dm = np.sort(np.where(m, np.nan_to_num(dm, nan=big), big), axis=1)
+        out[sl] = np.abs(do - dm).max(axis=1)
+    return out
+
 
 #: caps on what ``check`` simulates, whatever the machine
 MAX_GHOSTS = 20
@@ -573,17 +607,60 @@ def run(
     many markers are ranked (:data:`CHOOSE`).  ``progress(done_frames, total_frames)`` after
     each batch.
     """
+    return run_rules(
+        lib,
+        n_frames,
+        noise_mm,
+        drop,
+        ghosts,
+        rng,
+        match_mm,
+        residual_mm,
+        drop_exact,
+        reflect,
+        chunk_scenes,
+        progress,
+        world,
+        presence,
+        min_markers,
+        (choose,),
+    )[choose]
+
+
+def run_rules(
+    lib: Library,
+    n_frames: int,
+    noise_mm: float,
+    drop: int,
+    ghosts: int,
+    rng: np.random.Generator,
+    match_mm: float,
+    residual_mm: float,
+    drop_exact: bool = False,
+    reflect: bool = False,
+    chunk_scenes: int = 20000,
+    progress=None,
+    world: str = "open",
+    presence: float = 1.0,
+    min_markers: int = 3,
+    rules=RULES,
+) -> dict[str, Tally]:
+    """As :func:`run`, identifying the same simulated frames under each ranking rule of
+    ``rules`` (:data:`CHOOSE`): {rule: Tally}.  The frames and hypotheses are shared, only the
+    choice among a cluster's accepted matches differs."""
     check_settings(lib, noise_mm, drop, ghosts, n_frames, match_mm, residual_mm)
     require(world in ("open", "closed"), f"world must be open or closed, got {world!r}")
     require(0.0 < presence <= 1.0, f"presence must be in (0, 1], got {presence}")
     require(3 <= min_markers, f"min_markers must be >= 3, got {min_markers}")
-    require(choose in CHOOSE, f"choose must be one of {', '.join(CHOOSE)}, got {choose!r}")
+    rules = tuple(rules)
+    for choose in rules:
+        require(choose in CHOOSE, f"choose must be one of {', '.join(CHOOSE)}, got {choose!r}")
     B = lib.n_bodies
     # bound the candidate (observed triangle, library triangle) pairs per batch to ~4 million
     pairs, _ = cost(lib, ghosts, match_mm)
     scenes = int(np.clip(4e6 / max(pairs, 1.0), 1, chunk_scenes))
     per = max(1, scenes // B)
-    tally = Tally(B)
+    tallies = {r: Tally(B) for r in rules}
     done = 0
     while done < n_frames:
         f = min(per, n_frames - done)
@@ -593,14 +670,23 @@ def run(
             keep = h.n >= min_markers
             h = Hypotheses(h.scene[keep], h.body[keep], h.assign[keep], h.n[keep], h.rms[keep])
         group = sc.frame if world == "closed" else np.arange(len(sc.body))
-        key = rng.random(len(h.scene)) if choose == "window" else None
-        chosen = resolve(h, group, sc.pts.shape[1], B, key)
-        score(sc, h, chosen, tally)
-        tally.frames += f
+        random_key = rng.random(len(h.scene))
+        for choose in rules:
+            if choose == "window":
+                key = random_key
+            elif choose == "sides":
+                # sorted-side difference first, ties (a flip scores like the right match) at random
+                sk = sides_key(lib, sc.pts, h)
+                key = np.argsort(np.lexsort((random_key, sk))).astype(float)
+            else:
+                key = None
+            chosen = resolve(h, group, sc.pts.shape[1], B, key)
+            score(sc, h, chosen, tallies[choose])
+            tallies[choose].frames += f
         done += f
         if progress is not None:
             progress(done, n_frames)
-    return tally
+    return tallies
 
 
 def self_matches(points_mm: np.ndarray, match_mm: float, residual_mm: float, reflect: bool = False):

@@ -60,6 +60,7 @@ class Rules:
 WINDOWS = {
     "fixed": "the preset's match_mm and residual_mm",
     "qtm_export": "the BoneLengthTolerance and MaximumResidual starforge writes into QTM files for these bodies",
+    "rom_export": "the preset's match_mm, and the maximum marker error starforge writes into NDI .rom files",
 }
 
 

@@ -1,0 +1,82 @@
+"""What every tracker-format module shares: number text, XML bytes, size checks, number parsing.
+
+Format modules import only this module (never each other, the bodies or the commands).
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from starforge.errors import StarforgeError
+
+#: tracker files larger than this are refused before parsing (a body file is a few kB)
+MAX_FILE_BYTES = 64 * 1024**2
+
+
+@dataclass(frozen=True)
+class WriteContext:
+    """What a writer needs besides the body's name and points.
+
+    index : int                   the body's position in the export (colours)
+    geometry_id : int             a lab-unique numeric id (Atracsys geometry id)
+    marker_radius_mm : float      marker sphere radius, mm
+    normals : (n, 3) float or None   unit direction each marker faces (None: +z, the star's
+        placement frame faces up)
+    tolerances : dict             identification tolerances for the files
+        (:func:`starforge.tracking.tolerances.export_tolerances`): ``noise_mm``,
+        ``bone_length_tolerance_mm``, ``maximum_residual_mm``, ``max_marker_error_mm``
+    min_markers : int             markers a tracker needs to report the body
+    """
+
+    index: int = 0
+    geometry_id: int = 1
+    marker_radius_mm: float = 2.0
+    normals: np.ndarray | None = None
+    tolerances: dict = field(default_factory=dict)
+    min_markers: int = 3
+
+
+def f2s(x: float) -> str:
+    """Python's shortest round-trip text of a float (reading it back gives the same double)."""
+    return repr(float(x))
+
+
+def xml_bytes(root: ET.Element, comment: str | None = None) -> bytes:
+    """UTF-8 XML with a declaration; ``comment`` goes first inside the root element."""
+    if comment:
+        root.insert(0, ET.Comment(f" {comment} "))
+    ET.indent(root, space="  ")
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True) + b"\n"
+
+
+def check_size(path) -> None:
+    size = Path(path).stat().st_size
+    if size > MAX_FILE_BYTES:
+        from starforge.budget import format_bytes
+
+        raise StarforgeError(
+            f"{path} is {format_bytes(size)}; a tracker body file is at most {format_bytes(MAX_FILE_BYTES)}"
+        )
+
+
+def parse_xml(path) -> ET.Element:
+    check_size(path)
+    try:
+        return ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        raise StarforgeError(f"{path} is not valid XML ({exc})") from None
+
+
+def num(path, what: str, text) -> float:
+    """``text`` as a finite float, else one-line StarforgeError naming ``path`` and ``what``."""
+    try:
+        v = float(text)
+    except (TypeError, ValueError):
+        raise StarforgeError(f"{path}: {what} is not a number ({text!r})") from None
+    if not np.isfinite(v):
+        raise StarforgeError(f"{path}: {what} is not finite ({text!r})")
+    return v

@@ -1,0 +1,119 @@
+"""Vicon VSK: the layout Vicon software writes (compared with VSK files kept in public
+repositories, e.g. DART's).
+
+``Parameters`` > ``Parameter NAME= VALUE=`` for every coordinate; ``Skeleton`` > ``Segment``
+with a ``JointFree MEAN=`` (6 values) ``COVARIANCE=`` (36); ``MarkerSet`` > ``Markers`` >
+``Marker NAME= SEGMENT= RGB= POSITION=`` (three parameter names) ``COVARIANCE=`` (9 values)
+``RADIUS=``; ``Sticks`` > ``Stick MARKER1= MARKER2= RGB=``.  A VSK carries no identification
+tolerance (Vicon's are system settings).
+"""
+
+from __future__ import annotations
+
+import itertools
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from starforge.colours import body_colour
+from starforge.errors import StarforgeError
+from starforge.tracking.formats._common import WriteContext, f2s, num, parse_xml, xml_bytes
+
+SUFFIX = ".vsk"
+
+
+def vsk_xml(name: str, P, marker_radius_mm: float = 2.0, colour: tuple[int, int, int] = (255, 0, 0)) -> bytes:
+    """Vicon VSK for one body (segment ``name``, markers ``M1`` .. ``Mn``), mm."""
+    P = np.asarray(P, dtype=float)
+    rgb = " ".join(map(str, colour))
+    root = ET.Element("KinematicModel")
+    params = ET.SubElement(root, "Parameters")
+    sk = ET.SubElement(root, "Skeleton")
+    lo, hi = P.min(axis=0), P.max(axis=0)
+    seg = ET.SubElement(
+        sk,
+        "Segment",
+        NAME=name,
+        POSITION="0 0 0",
+        ORIENTATION="0 0 0",
+        BOUNDS=" ".join(f2s(v) for v in (*lo, *hi)),
+        RGB=rgb,
+    )
+    cov = np.diag([1.0, 1.0, 1.0, 1e8, 1e8, 1e8])  # rotations free, translations free (as Vicon writes)
+    ET.SubElement(seg, "JointFree", MEAN="0 0 0 0 0 0", COVARIANCE=" ".join(f"{v:.6f}" for v in cov.ravel()))
+    ms = ET.SubElement(root, "MarkerSet", NAME=name)
+    mk = ET.SubElement(ms, "Markers")
+    for i, p in enumerate(P):
+        m = f"M{i + 1}"
+        pnames = [f"{m}_{name}_{c}" for c in "XYZ"]
+        for pn, v in zip(pnames, p, strict=True):
+            ET.SubElement(params, "Parameter", NAME=pn, VALUE=f2s(v))
+        ET.SubElement(
+            mk,
+            "Marker",
+            NAME=m,
+            SEGMENT=name,
+            RGB=rgb,
+            POSITION=" ".join(pnames),
+            COVARIANCE=" ".join(f"{v:.6f}" for v in np.eye(3).ravel()),
+            RADIUS=f2s(marker_radius_mm),
+        )
+    st = ET.SubElement(ms, "Sticks")
+    for i, j in itertools.combinations(range(len(P)), 2):
+        ET.SubElement(st, "Stick", MARKER1=f"M{i + 1}", MARKER2=f"M{j + 1}", RGB=rgb)
+    return xml_bytes(root)
+
+
+def write(name: str, P, ctx: WriteContext) -> bytes:
+    return vsk_xml(name, P, ctx.marker_radius_mm, body_colour(ctx.index))
+
+
+def read(path) -> dict[str, np.ndarray]:
+    """Rigid bodies of a Vicon VSK: {name: (n, 3) mm}, one per segment that carries markers.
+
+    A marker's ``POSITION`` is in its ``SEGMENT``'s frame, so each segment is one rigid body
+    (an object VSK has one segment; a skeleton VSK has one per limb).  Position tokens are
+    numbers or parameter names (``Parameters`` > ``Parameter NAME= VALUE=``), a leading ``-``
+    negating a parameter, as Vicon writes ``-HipWidth``.  Bodies are named after the marker set
+    when it has one segment, ``<marker set>_<segment>`` otherwise.  Segments with fewer than 3
+    markers are returned too (the caller names them in a warning).
+    """
+    root = parse_xml(path)
+    if root.tag != "KinematicModel":
+        raise StarforgeError(f"{path}: a VSK's root is KinematicModel, not {root.tag!r}")
+    params: dict[str, float] = {}
+    for p in root.iter("Parameter"):
+        if "NAME" in p.attrib:
+            value = p.attrib.get("VALUE", p.attrib.get("PRIOR"))
+            params[p.attrib["NAME"]] = num(path, f"parameter {p.attrib['NAME']}", value)
+
+    def value(tok: str, marker: str) -> float:
+        if tok in params:
+            return params[tok]
+        if tok.startswith("-") and tok[1:] in params:
+            return -params[tok[1:]]
+        return num(path, f"marker {marker} POSITION token", tok)
+
+    out: dict[str, np.ndarray] = {}
+    for ms in root.iter("MarkerSet"):
+        set_name = ms.attrib.get("NAME") or Path(path).stem
+        groups: dict[str, list] = {}
+        for m in ms.iter("Marker"):
+            name = m.attrib.get("NAME", "?")
+            toks = m.attrib.get("POSITION", "").split()
+            if len(toks) != 3:
+                raise StarforgeError(f"{path}: marker {name} needs a POSITION of 3 values, got {len(toks)}")
+            groups.setdefault(m.attrib.get("SEGMENT", ""), []).append([value(t, name) for t in toks])
+        for seg, pts in groups.items():
+            key = set_name if len(groups) == 1 or not seg else f"{set_name}_{seg}"
+            if key in out:
+                raise StarforgeError(f"{path}: two rigid bodies are named {key!r}")
+            out[key] = np.array(pts, dtype=float).reshape(-1, 3)
+    if not out:
+        raise StarforgeError(f"{path} holds no VSK marker (expected MarkerSet > Markers > Marker)")
+    return out
+
+
+def sniff(path, head: bytes) -> bool:
+    return head.startswith(b"<") and b"KinematicModel" in head
