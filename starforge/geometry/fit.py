@@ -49,8 +49,8 @@ Before the search, the seven directions where the width of a tetrahedron has its
 (the four face normals and the three common normals of opposite edges) are tried as ``a_1``:
 most sets that fit are accepted there.
 
-The kernel is compiled with numba (parallel over sets, each set independent, so results do not
-depend on the thread count).
+The kernel is compiled with numba (serial, GIL released; :func:`decide_fit` spreads sets over
+threads, each set independent, so results do not depend on the thread count).
 """
 
 from __future__ import annotations
@@ -185,7 +185,12 @@ def accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
     return True
 
 
-@_jit
+#: decide_one's one compiled signature: every caller (decide_range here, the enumeration's
+#: kernel) links the same code, so a cold cache compiles it once, not once per argument typing
+_DECIDE_ONE_SIG = "UniTuple(int64, 2)(float64[:, ::1], float64[::1], float64, int64, int64, float64[:, ::1])"
+
+
+@numba.njit(_DECIDE_ONE_SIG, cache=True, nogil=True)
 def decide_one(P, lim, slack, start, max_cells, R):
     k = P.shape[0]
     npair = k * (k - 1) // 2
@@ -215,25 +220,25 @@ def decide_one(P, lim, slack, start, max_cells, R):
                 i0, i1, i2 = (
                     (0, 1, 2) if f == 0 else ((0, 1, 3) if f == 1 else ((0, 2, 3) if f == 2 else (1, 2, 3)))
                 )
-                e1 = P[i1] - P[i0]
-                e2 = P[i2] - P[i0]
+                j0, j1, j2, j3 = i0, i1, i0, i2
+            elif f == 4:
+                j0, j1, j2, j3 = 0, 1, 2, 3
+            elif f == 5:
+                j0, j1, j2, j3 = 0, 2, 1, 3
             else:
-                if f == 4:
-                    e1 = P[1] - P[0]
-                    e2 = P[3] - P[2]
-                elif f == 5:
-                    e1 = P[2] - P[0]
-                    e2 = P[3] - P[1]
-                else:
-                    e1 = P[3] - P[0]
-                    e2 = P[2] - P[1]
-            a1[0] = e1[1] * e2[2] - e1[2] * e2[1]
-            a1[1] = e1[2] * e2[0] - e1[0] * e2[2]
-            a1[2] = e1[0] * e2[1] - e1[1] * e2[0]
+                j0, j1, j2, j3 = 0, 3, 1, 2
+            # a1 = (P[j1] - P[j0]) x (P[j3] - P[j2]), in scalars (no array temporaries to compile)
+            e1x, e1y, e1z = P[j1, 0] - P[j0, 0], P[j1, 1] - P[j0, 1], P[j1, 2] - P[j0, 2]
+            e2x, e2y, e2z = P[j3, 0] - P[j2, 0], P[j3, 1] - P[j2, 1], P[j3, 2] - P[j2, 2]
+            a1[0] = e1y * e2z - e1z * e2y
+            a1[1] = e1z * e2x - e1x * e2z
+            a1[2] = e1x * e2y - e1y * e2x
             nn = math.sqrt(dot3(a1, a1))
             if nn <= 1e-12:
                 continue
-            a1 /= nn
+            a1[0] /= nn
+            a1[1] /= nn
+            a1[2] /= nn
             if accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
                 return 1, 7
     theta_min = slack / max(diam, 1e-12)
@@ -260,6 +265,7 @@ def decide_one(P, lim, slack, start, max_cells, R):
     kid_w = np.empty(4)
     kid_s = np.empty(4)
     kid_t = np.empty(4)
+    order = np.empty(4, np.int64)
     while top > 0:
         top -= 1
         f, s, t, h = Sf[top], Ss[top], St[top], Sh[top]
@@ -308,7 +314,17 @@ def decide_one(P, lim, slack, start, max_cells, R):
             for j in range(npair):
                 w = max(w, abs(dot3(D[j], corner)))
             kid_w[c] = w
-        order = np.argsort(-kid_w)  # push the thinnest last so it is explored first
+        # push the thinnest last so it is explored first: the kids by descending width, ties in
+        # kid order (a stable insertion sort of four, what np.argsort(-kid_w) gives)
+        for c in range(4):
+            order[c] = c
+        for c in range(1, 4):
+            o = order[c]
+            b = c
+            while b > 0 and -kid_w[order[b - 1]] > -kid_w[o]:
+                order[b] = order[b - 1]
+                b -= 1
+            order[b] = o
         if top + 4 > cap:
             return -1, cells
         for c in order:
@@ -320,16 +336,40 @@ def decide_one(P, lim, slack, start, max_cells, R):
     return (-1 if open_small else 0), cells
 
 
-@numba.njit(cache=True, parallel=True)
-def decide_many(P, lim, slack, start, max_cells, status, R, work):
-    for i in numba.prange(P.shape[0]):
+@_jit
+def decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1):
+    """decide_one for sets i0..i1-1 (serial; callers spread ranges over threads, the GIL is
+    released).  Not ``parallel=True``: numba's parallel compile costs seconds on a cold cache."""
+    for i in range(i0, i1):
         st, c = decide_one(P[i], lim, slack, start, max_cells, R[i])
         status[i] = st
         work[i] = c
 
 
-def _kernels():
-    return decide_many
+#: sets per thread task of :func:`decide_fit` (below twice this, one thread does it all)
+CHUNK = 256
+
+
+def _decide_all(P, lim, slack, start, max_cells, status, R, work) -> None:
+    """Every set, over up to ``NUMBA_NUM_THREADS`` threads (each set is independent, so the
+    result does not depend on the thread count or the chunking)."""
+    import os
+
+    n = len(P)
+    threads = max(1, min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS, n // CHUNK))
+    if threads == 1:
+        decide_range(P, lim, slack, start, max_cells, status, R, work, 0, n)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    edges = list(range(0, n, CHUNK)) + [n]
+    with ThreadPoolExecutor(threads) as ex:
+        futs = [
+            ex.submit(decide_range, P, lim, slack, start, max_cells, status, R, work, a, b)
+            for a, b in zip(edges[:-1], edges[1:], strict=True)
+        ]
+        for f in futs:
+            f.result()
 
 
 def fits_limit(ext, limit) -> np.ndarray:
@@ -381,6 +421,6 @@ def decide_fit(points, limit, slack: float = SLACK_MM, start: int = 1, max_cells
     R = np.full((n, 3, 3), np.nan)
     work = np.zeros(n, dtype=np.int64)
     if n:
-        _kernels()(P, lim, float(slack), int(start), int(max_cells), status, R, work)
+        _decide_all(P, lim, float(slack), int(start), int(max_cells), status, R, work)
         R[status != FIT] = np.nan
     return status, R, work
