@@ -179,12 +179,42 @@ def test_body_keeps_centres_and_sizes(family):
                 assert gap >= stem.radius_mm
 
 
-def test_label_digits_are_seven_segment_boxes():
-    assert len(label_boxes("8", 3.0, (0, 0), 0.0, 0.4)) == 7
-    assert len(label_boxes("1", 3.0, (0, 0), 0.0, 0.4)) == 2
-    assert len(label_boxes("10", 3.0, (0, 0), 0.0, 0.4)) == 8
+def test_label_glyphs_are_whole_pixels_without_diagonal_joins():
+    from starforge.cad.label import COLS, FONT, ROWS, glyph_counters, glyph_rects
+
+    for ch, rows in FONT.items():
+        ink = {(c, r) for r in range(ROWS) for c in range(COLS) if rows[r][c] == "#"}
+        rects = glyph_rects(ch)
+        covered = [(c, r) for c0, r0, c1, r1 in rects for c in range(c0, c1) for r in range(r0, r1)]
+        assert sorted(covered) == sorted(ink)  # the rectangles tile the ink, no overlap
+        # no 2x2 window (the glyph's border counts as empty) with a checkerboard: two cuts or two
+        # standing pixels touching only along an edge would make a non-manifold edge
+        for r in range(-1, ROWS):
+            for c in range(-1, COLS):
+                a, b, d, e = ((c, r) in ink, (c + 1, r) in ink, (c, r + 1) in ink, (c + 1, r + 1) in ink)
+                assert not (a == e and b == d and a != b), (ch, c, r)
+    assert glyph_counters("8") == [(1, 1), (1, 3)] and glyph_counters("0") == [(1, 1), (1, 2), (1, 3)]
+    assert glyph_counters("1") == [] and len(glyph_counters("6")) == 1 and len(glyph_counters("9")) == 1
+    assert len(label_boxes("8", 3.0, (0, 0), 0.0, 0.4)) == 7  # 3 bars, 4 pixels between them
     with pytest.raises(StarforgeError, match="digits"):
         label_boxes("A", 3.0, (0, 0), 0.0, 0.4)
+
+
+def test_label_reads_right_side_up_on_the_bed():
+    """In the printing orientation (x -> X, -z -> Y) the first glyph is at the left (-X) and the
+    top row (a 7's bar) at +Y: seen from above, the id reads as written."""
+    from starforge.cad.label import label_rects
+    from starforge.cad.plate import TO_BED
+
+    rects = label_rects("17", 5.0, (0.0, 0.0))
+    centres = np.array([[(x0 + x1) / 2, 0.0, (z0 + z1) / 2] for x0, x1, z0, z1 in rects]) @ TO_BED.T
+    one, seven = centres[centres[:, 0] < 0], centres[centres[:, 0] > 0]
+    assert len(one) and len(seven)
+    bar = max(rects, key=lambda r: r[1] - r[0])  # the widest rectangle: the 1's foot or the 7's bar
+    foot_y = (np.array([0, 0, (bar[2] + bar[3]) / 2]) @ TO_BED.T)[1]
+    seven_bar = [r for r in rects if r[0] > 0 and r[1] - r[0] > 2.0]
+    assert seven_bar and (np.array([0, 0, (seven_bar[0][2] + seven_bar[0][3]) / 2]) @ TO_BED.T)[1] > 0
+    assert foot_y < 0  # the 1's foot is at the bottom of the page
 
 
 def test_posts_instead_of_spheres(family):

@@ -8,7 +8,7 @@ How a body sits (the design decision, in the placement frame of ``family.json``)
 - the mount is a plate under the star, its top face ``standoff_mm`` below the lowest finished
   sphere; a stem runs from the plate to each sphere, vertical where it can be, tilted where a
   vertical stem would pass through (or too close to) another sphere or stem;
-- the star id is engraved in seven-segment digits on the plate's top face, in a free spot
+- the star id is engraved in a pixel font (:mod:`starforge.cad.label`) on the plate's top face, in a free spot
   (the plate grows at its -z end when there is none).
 
 The whole body, with the *finished* (coated) spheres, is compared against the family's size
@@ -23,8 +23,9 @@ from typing import Literal
 
 import numpy as np
 
+from starforge.cad.label import label_boxes, label_size  # noqa: F401 (the label's home; kept importable here)
 from starforge.cad.mounts import Mount, mount_geometry
-from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere, fillet_profile, segment_segment_distance
+from starforge.cad.primitives import Cylinder, Revolved, Sphere, fillet_profile, segment_segment_distance
 from starforge.errors import StarforgeError
 from starforge.spec import in_range, require
 
@@ -71,7 +72,8 @@ class BodySpec:
     max_tilt_deg : float
         A stem leans at most this far from vertical, [0, 60] (FDM: keep it <= 45).
     nozzle_mm : float
-        The printer's nozzle: engraved strokes are at least 1.5 x as wide, [0.1, 1.2].
+        The printer's nozzle: engraved strokes, counters and gaps are at least 1.5 x as wide,
+        [0.1, 1.2].
     label : bool
         Engrave the star id on the plate.
     label_mm : float
@@ -141,8 +143,11 @@ class BodySpec:
         return self.stem_for(marker_mm) / 2 if self.fillet_mm is None else float(self.fillet_mm)
 
     def label_height(self) -> float:
-        """Digit height in effect: strokes (0.18 x height) at least 1.5 nozzle widths wide."""
-        return float(max(self.label_mm, 1.5 * self.nozzle_mm / 0.18))
+        """Digit height in effect, mm: 5 pixels of :func:`starforge.cad.label.pixel_mm` (strokes,
+        counters and gaps are whole pixels, each at least 1.5 nozzle widths)."""
+        from starforge.cad.label import ROWS, pixel_mm
+
+        return ROWS * pixel_mm(self.label_mm, self.nozzle_mm)
 
 
 @dataclass(frozen=True)
@@ -254,64 +259,6 @@ def route_stems(
 
 
 # ---------------------------------------------------------------------------------------------
-# Label: seven-segment digits (boxes), identical in both backends
-
-_SEGMENTS = {
-    "0": "abcdef",
-    "1": "bc",
-    "2": "abged",
-    "3": "abgcd",
-    "4": "fgbc",
-    "5": "afgcd",
-    "6": "afgedc",
-    "7": "abc",
-    "8": "abcdefg",
-    "9": "abcdfg",
-    "-": "g",
-}
-
-
-def label_boxes(text: str, height_mm: float, centre_xz, y_top: float, depth_mm: float) -> list[Box]:
-    """Engraving boxes for ``text`` (digits), read from above (+y) with +z up the page.
-
-    Digits are ``0.55 height`` wide with strokes ``0.18 height`` and gaps ``0.25 height``;
-    the boxes reach ``depth_mm`` below ``y_top`` and 0.1 mm above it (a clean cut that
-    stays below any sphere: ``standoff_mm`` >= 0.2).
-    """
-    h = height_mm
-    w, s, gap = 0.55 * h, 0.18 * h, 0.25 * h
-    total = len(text) * w + (len(text) - 1) * gap
-    seg = {
-        "a": (0.0, h / 2 - s / 2, w, s),
-        "d": (0.0, -h / 2 + s / 2, w, s),
-        "g": (0.0, 0.0, w, s),
-        "b": (w / 2 - s / 2, h / 4, s, h / 2),
-        "c": (w / 2 - s / 2, -h / 4, s, h / 2),
-        "e": (-w / 2 + s / 2, -h / 4, s, h / 2),
-        "f": (-w / 2 + s / 2, h / 4, s, h / 2),
-    }
-    cx, cz = centre_xz
-    boxes = []
-    for k, ch in enumerate(text):
-        if ch not in _SEGMENTS:
-            raise StarforgeError(f"label text may hold digits and '-', got {text!r}")
-        u0 = -total / 2 + w / 2 + k * (w + gap)
-        for sname in _SEGMENTS[ch]:
-            u, v, su, sv = seg[sname]
-            # seen from +y with +z up, the reader's right is -x
-            boxes.append(Box((cx - (u0 + u), y_top - depth_mm / 2 + 0.05, cz + v), (su, depth_mm + 0.1, sv)))
-    return boxes
-
-
-def label_size(text: str, height_mm: float) -> tuple[float, float]:
-    """(width along x, height along z) of the label, mm."""
-    w, gap = 0.55 * height_mm, 0.25 * height_mm
-    return (len(text) * w + (len(text) - 1) * gap, height_mm)
-
-
-# ---------------------------------------------------------------------------------------------
-
-
 def _seat(spec: BodySpec, marker_mm: float):
     """(tip kind, marker type or None) for a body: the catalogue entry, when given, decides."""
     if spec.marker is None:

@@ -148,7 +148,7 @@ def export_family(
     """
     from trimesh.util import concatenate as trimesh_concatenate
 
-    from starforge.cad.mesh import body_mesh
+    from starforge.cad.mesh import body_mesh, check_shell
     from starforge.cad.threemf import threemf_bytes
     from starforge.cad.visibility import sphere_visibility
     from starforge.colours import body_colour
@@ -172,6 +172,7 @@ def export_family(
         t1 = time.perf_counter()
         mesh = body_mesh(b, spec.sphere_segments, spec.cylinder_segments)
         mesh.apply_transform(T)  # printing orientation: plate down on Z = 0
+        check_shell(mesh.vertices, mesh.faces, b.name)  # as the file will hold it (float32)
         meshes.append(mesh)
         colour = body_colour(b.star_id - 1)
         entry = {
@@ -229,6 +230,8 @@ def export_family(
         for name, lay in zip(plate_names(len(beds)), beds, strict=True):
             files = []
             moved = [meshes[i].copy().apply_transform(T) for i, T in zip(lay.members, lay.transforms, strict=True)]
+            for i, mv in zip(lay.members, moved, strict=True):
+                check_shell(mv.vertices, mv.faces, f"{name}: {bodies[i].name}")
             if "stl" in formats:
                 (stage / f"{name}.stl").write_bytes(trimesh_concatenate(moved).export(file_type="stl"))
                 files.append(f"{name}.stl")

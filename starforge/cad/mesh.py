@@ -138,6 +138,38 @@ def body_mesh(body: Body, sphere_segments: int = 64, cylinder_segments: int = 32
     if (area2 <= 1e-12).any():
         solid = solid.simplify(1e-6)
         v, f = manifold_arrays(solid)
+    check_shell(v, f, body.name)
     mesh = trimesh.Trimesh(v, f, process=False)
     mesh.metadata["name"] = body.name
     return mesh
+
+
+def check_shell(vertices, faces, name: str) -> None:
+    """Raise StarforgeError naming ``name`` when :func:`shell_defects` finds anything."""
+    bad = shell_defects(vertices, faces)
+    if any(bad.values()):
+        found = ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in bad.items() if v)
+        raise StarforgeError(f"{name}: the mesh is not a closed 2-manifold once written as float32 ({found})")
+
+
+def shell_defects(vertices, faces) -> dict:
+    """What a reader of the written file would find wrong, after rounding to float32 (STL) and
+    welding equal vertices: edges used by more than two faces, edges used by one face
+    (holes), and faces whose corners weld together.  All zero for a closed 2-manifold.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float, mm ; faces : (m, 3) int
+    """
+    v32 = np.asarray(vertices, dtype=np.float32)
+    _, inv = np.unique(v32, axis=0, return_inverse=True)
+    f = inv.reshape(-1)[np.asarray(faces, dtype=np.int64)]
+    degenerate = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
+    g = f[~degenerate]
+    e = np.sort(np.concatenate([g[:, [0, 1]], g[:, [1, 2]], g[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(e, axis=0, return_counts=True)
+    return {
+        "edges_over_two_faces": int((counts > 2).sum()),
+        "open_edges": int((counts == 1).sum()),
+        "collapsed_faces": int(degenerate.sum()),
+    }
