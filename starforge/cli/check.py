@@ -134,7 +134,7 @@ def check_cmd(
         return
     err = console(stderr=True)
     for w in doc["input"]["warnings"]:
-        err.print(f"warning: {w}")
+        err.print(f"warning: {w}", soft_wrap=True, markup=False)
     con = console()
     s = doc["settings"]
     con.print(

@@ -284,7 +284,7 @@ def export_cmd(
             written.extend([*summary["files"], "trackers.json"])
     err = console(stderr=True)
     for w in bodyset.warnings if trk else ():
-        err.print(f"warning: {w}")
+        err.print(f"warning: {w}", soft_wrap=True, markup=False)
     if rep is not None:
         for w in rep.warnings:
             err.print(f"warning: {w}")
