@@ -26,7 +26,7 @@ def _tip(text: str | None):
 _FILES = typer.Argument(
     ...,
     help="Star families, prop placements (or their folders) and a lab's tracker files (QTM .xml, Vicon .vsk, "
-    "Atracsys .ini, NDI .rom, body .csv), in any mix.",
+    "Atracsys .ini, NDI .rom, OptiTrack .motive, body .csv), in any mix.",
 )
 
 

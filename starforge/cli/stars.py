@@ -49,7 +49,7 @@ def stars_cmd(
     avoid: list[Path] = typer.Option(
         None,
         "--avoid",
-        help="Bodies the lab already owns (family.json, placement.json, QTM .xml, .vsk, Atracsys .ini, NDI .rom, "
+        help="Bodies the lab already owns (family.json, placement.json, QTM .xml, .vsk, Atracsys .ini, NDI .rom, .motive, "
         ".csv), one or several after one flag (--avoid A.xml B.vsk) or the flag repeated: no new face comes "
         "within the tolerance of theirs.",
     ),
