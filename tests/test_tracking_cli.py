@@ -200,7 +200,20 @@ def test_check_a_labs_files_beside_a_family(small_family, tmp_path):
     write_rigid_bodies(fam / "family.json", ["vsk", "atracsys"], lab)
     first = sorted((lab / "vsk").glob("*.vsk"))[0]
     out = tmp_path / "o"
-    args = ["check", fam / "family.json", first, "--frames", 30, "--curve", 0, "--choose", "fit", "--out", out, "-q"]
+    args = [
+        "check",
+        fam / "family.json",
+        first,
+        "--frames",
+        30,
+        "--curve",
+        0,
+        "--choose",
+        "fit",
+        "--out",
+        out,
+        "-q",
+    ]
     assert main([str(a) for a in args]) == 0
     doc = json.loads((out / "check.json").read_text())
     assert doc["input"]["kind"] == "mixed" and doc["input"]["files"][1] == str(first)

@@ -152,7 +152,9 @@ def test_qtm_files_hold_what_the_settings_parser_requires(small_family, tmp_path
         (body,) = qtm_6dof_bodies(f)
         # the midpoint between matching itself and another body, unless the noise needs more
         bone = body["bone_tolerance"]
-        assert bone == pytest.approx(margin / 2, abs=1e-6) or (bone > margin / 2 and "note" in summary["tolerances"])
+        assert bone == pytest.approx(margin / 2, abs=1e-6) or (
+            bone > margin / 2 and "note" in summary["tolerances"]
+        )
         assert body["min_markers"] == 3 and len(body["points"]) == 4
         assert "0.2 mm marker noise" in f.read_text()  # the file says which noise it assumes
         colours.add(body["color"])

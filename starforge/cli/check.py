@@ -26,7 +26,7 @@ def _tip(text: str | None):
 _FILES = typer.Argument(
     ...,
     help="Star families, prop placements (or their folders) and a lab's tracker files (QTM .xml, Vicon .vsk, "
-    "Atracsys .ini, NDI .rom, body .csv), in any mix.",
+    "Atracsys .ini, NDI .rom, OptiTrack .motive, body .csv), in any mix.",
 )
 
 
@@ -134,7 +134,7 @@ def check_cmd(
         return
     err = console(stderr=True)
     for w in doc["input"]["warnings"]:
-        err.print(f"warning: {w}")
+        err.print(f"warning: {w}", soft_wrap=True, markup=False)
     con = console()
     s = doc["settings"]
     con.print(

@@ -15,7 +15,7 @@ import typer
 from starforge.cli._app import app, console, progress
 
 CAD_FORMATS = ("step", "stl", "3mf")
-TRACKER_FORMATS_DOC = ("qtm", "vsk", "atracsys", "rom", "csv")
+TRACKER_FORMATS_DOC = ("qtm", "vsk", "atracsys", "rom", "motive", "csv")
 
 
 def split_formats(text: str) -> tuple[list[str], list[str]]:
@@ -195,7 +195,7 @@ def export_cmd(
     formats: str = typer.Option(
         "step,stl,3mf",
         "--format",
-        help="Comma list: step, stl, 3mf (CAD, family files) and qtm, vsk, atracsys, rom (NDI), csv.",
+        help="Comma list: step, stl, 3mf (CAD, family files) and qtm, vsk, atracsys, rom (NDI), motive (OptiTrack), csv.",
     ),
     mount: str = MOUNT,
     ids: str = IDS,
@@ -331,7 +331,7 @@ def export_cmd(
             written.extend([*summary["files"], "trackers.json"])
     err = console(stderr=True)
     for w in bodyset.warnings if trk else ():
-        err.print(f"warning: {w}")
+        err.print(f"warning: {w}", soft_wrap=True, markup=False)
     if rep is not None:
         for w in rep.warnings:
             err.print(f"warning: {w}")

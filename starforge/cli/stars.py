@@ -7,10 +7,12 @@ from pathlib import Path
 import typer
 
 from starforge.cli._app import app, console, progress
+from starforge.cli._multi import MULTI, more_values
 
 
-@app.command("stars")
+@app.command("stars", context_settings=MULTI)
 def stars_cmd(
+    ctx: typer.Context,
     spec: str = typer.Option(
         None, "--spec", help="Template name (see `starforge templates stars`) or a TOML path."
     ),
@@ -47,7 +49,9 @@ def stars_cmd(
     avoid: list[Path] = typer.Option(
         None,
         "--avoid",
-        help="Bodies the lab already owns (family.json, placement.json, ...): no new face comes within the tolerance of theirs.",
+        help="Bodies the lab already owns (family.json, placement.json, QTM .xml, .vsk, Atracsys .ini, NDI .rom, .motive, "
+        ".csv), one or several after one flag (--avoid A.xml B.vsk) or the flag repeated: no new face comes "
+        "within the tolerance of theirs.",
     ),
     time_limit: float = typer.Option(
         None, "--time-limit", help="Wall-clock safety limit of the exact solver, s."
@@ -136,11 +140,15 @@ def stars_cmd(
     names = ["family.json", "family.csv", "run.json"] + (["family.png"] if preview else [])
     check_writable(out_dir, names, force)  # fail before the long work
     check_size(s)  # memory and time estimated before the long work
+    avoid = more_values("--avoid", avoid, ctx.args)
     avoid_faces, avoid_sources = None, None
     if avoid:
         from starforge.stars.avoid import faces_to_avoid
 
         avoid_faces, avoid_sources = faces_to_avoid(avoid)
+        for src in avoid_sources:
+            for w in src.get("warnings", ()):
+                console(stderr=True).print(f"warning: {w}", soft_wrap=True, markup=False)
 
     with progress() as bar:
         task = bar.add_task("enumerating", total=None)

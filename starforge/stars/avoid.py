@@ -51,8 +51,9 @@ def faces_to_avoid(paths) -> tuple[np.ndarray, list[dict]]:
             )
         faces.extend(tris)
         digest = hashlib.sha256(Path(bs.sources[0]).read_bytes()).hexdigest()[:16]
-        sources.append(
-            {"file": str(p), "kind": bs.kind, "bodies": len(bs.bodies), "triangles": n, "sha256_16": digest}
-        )
+        rec = {"file": str(p), "kind": bs.kind, "bodies": len(bs.bodies), "triangles": n, "sha256_16": digest}
+        if bs.warnings:
+            rec["warnings"] = list(bs.warnings)  # bodies left out (fewer than 3 markers), named
+        sources.append(rec)
     F = np.concatenate(faces) if faces else np.zeros((0, 3))
     return F, sources

@@ -138,19 +138,16 @@ def resolve_windows(bodyset, s: CheckSettings, preset=None) -> dict:
     res = None
     if s.match_mm is not None:
         match, source = s.match_mm, "--match"
-    elif preset is not None and preset.tracker.window == "qtm_export":
+    elif preset is not None and preset.tracker.window != "fixed":
         q = export_tolerances([b.points_mm for b in bodyset.bodies], s.noise_mm)
         match, res = q["bone_length_tolerance_mm"], q["maximum_residual_mm"]
+        what = {
+            "qtm_export": "the BoneLengthTolerance and MaximumResidual starforge writes into QTM files",
+            "rom_export": "the maximum marker error starforge writes into NDI .rom files (residual) and the same "
+            "distance tolerance (NDI's window is not published)",
+        }.get(preset.tracker.window, "the tolerances starforge derives (the vendor's window is a per-body setting)")
         source = (
-            f"preset {preset.name}: the BoneLengthTolerance and MaximumResidual starforge writes into QTM files "
-            f"for these bodies at {s.noise_mm:g} mm noise (margin {q['margin_mm']:g} mm)"
-        )
-    elif preset is not None and preset.tracker.window == "rom_export":
-        q = export_tolerances([b.points_mm for b in bodyset.bodies], s.noise_mm)
-        match, res = preset.tracker.match_mm, q["max_marker_error_mm"]
-        source = (
-            f"preset {preset.name}: window {match:g} mm, residual limit the maximum marker error starforge "
-            f"writes into NDI .rom files for these bodies at {s.noise_mm:g} mm noise"
+            f"preset {preset.name}: {what} for these bodies at {s.noise_mm:g} mm noise (margin {q['margin_mm']:g} mm)"
         )
     elif preset is not None:
         match, res, source = preset.tracker.match_mm, preset.tracker.residual_mm, f"preset {preset.name}"

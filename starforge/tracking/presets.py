@@ -60,7 +60,8 @@ class Rules:
 WINDOWS = {
     "fixed": "the preset's match_mm and residual_mm",
     "qtm_export": "the BoneLengthTolerance and MaximumResidual starforge writes into QTM files for these bodies",
-    "rom_export": "the preset's match_mm, and the maximum marker error starforge writes into NDI .rom files",
+    "rom_export": "the maximum marker error starforge writes into NDI .rom files, and the same distance tolerance",
+    "derived": "the distance and residual tolerances starforge derives from the noise and the bodies' margins",
 }
 
 

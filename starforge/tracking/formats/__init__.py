@@ -12,6 +12,7 @@ trimesh's ``exchange/load.py`` keeps its loaders in one dict).
 * ``vsk`` (:mod:`.vsk`): Vicon VSK
 * ``atracsys`` (:mod:`.atracsys`): Atracsys geometry ``.ini``
 * ``rom`` (:mod:`.rom`): NDI tool definition (binary SROM image)
+* ``motive`` (:mod:`.motive`): OptiTrack Motive profile (``.motive`` XML) with rigid-body assets
 * ``csv`` (:mod:`.bodycsv`): starforge's ``body,marker,x_mm,y_mm,z_mm`` table
 
 Every reader returns millimetres: the vendor formats hold mm by definition, the body CSV says
@@ -28,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.tracking.formats import atracsys, bodycsv, qtm, rom, vsk
+from starforge.tracking.formats import atracsys, bodycsv, motive, qtm, rom, vsk
 from starforge.tracking.formats._common import MAX_FILE_BYTES, WriteContext  # noqa: F401
 
 
@@ -58,6 +59,7 @@ FORMATS: dict[str, Format] = {
         atracsys.MAX_MARKERS,
     ),
     "rom": Format("rom", rom.SUFFIX, "NDI", rom.read, rom.write, rom.sniff, rom.MAX_MARKERS),
+    "motive": Format("motive", motive.SUFFIX, "OptiTrack Motive", motive.read, motive.write, motive.sniff),
     "csv": Format("csv", bodycsv.SUFFIX, "starforge", bodycsv.read, bodycsv.write, bodycsv.sniff),
 }
 TRACKER_FORMATS = tuple(FORMATS)
@@ -98,12 +100,12 @@ def sniff_format(path) -> str | None:
     if rom.sniff(path, head):
         return "rom"
     head = head.removeprefix(b"\xef\xbb\xbf").lstrip()
-    for name in ("vsk", "qtm", "atracsys", "csv"):
+    for name in ("vsk", "motive", "qtm", "atracsys", "csv"):
         if FORMATS[name].sniff(path, head):
             return name
     by_suffix = {".xml": "qtm"} | {f.suffix: k for k, f in FORMATS.items() if k not in ("qtm", "csv")}
     if head.startswith(b"<"):
-        return {".vsk": "vsk", ".xml": "qtm"}.get(path.suffix.lower())
+        return {".vsk": "vsk", ".xml": "qtm", ".motive": "motive"}.get(path.suffix.lower())
     return by_suffix.get(path.suffix.lower()) or ("csv" if path.suffix.lower() == ".csv" else None)
 
 
