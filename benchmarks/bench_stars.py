@@ -1,6 +1,9 @@
 """Star-engine figures as JSON: every target of issue 9, each run as the user runs it.
 
-    python benchmarks/bench_stars.py [--repeat 2] [--skip-large]
+    python benchmarks/bench_stars.py [--repeat 2] [--skip-large] [--start-only]
+
+``stars_first_run_vs_warm`` (issue 20): the finger default warm and on an empty numba cache
+(median of 3 fresh processes each, with the load average); ``--start-only`` runs just that.
 
 Each case is one `starforge stars` command in a fresh process (start-up, enumeration, fit
 decision, selection, placement, verification, writing); wall-clock seconds and the peak
@@ -97,12 +100,60 @@ def _fit_decision_speed() -> dict:
     return out
 
 
+def _stars_seconds(out: Path, cache: str) -> dict:
+    """One plain ``starforge stars`` (the finger default) in a fresh process with the numba
+    cache folder ``cache``: wall seconds, the load average before it, the run's stage timings."""
+    load = os.getloadavg()[0]
+    env = dict(os.environ, STARFORGE_CACHE_DIR=cache)
+    env.pop("NUMBA_CACHE_DIR", None)
+    t = time.perf_counter()
+    subprocess.run(
+        [sys.executable, "-m", "starforge", "stars", "--out", str(out), "-q", "--force"],
+        check=True,
+        stdout=subprocess.DEVNULL,
+        env=env,
+    )
+    wall = time.perf_counter() - t
+    run = json.loads((out / "run.json").read_text())
+    return {"seconds": round(wall, 2), "load_1min_before": round(load, 2), "stages_s": run["seconds"]}
+
+
+def first_run_vs_warm(repeat: int = 3) -> dict:
+    """Issue-20 targets for ``starforge stars`` (finger default): warm (compiled kernels in the
+    cache) and first run (an empty cache folder, as after ``pip install .``), each the median of
+    ``repeat`` fresh processes; the family must be the same byte for byte."""
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        warm_cache = str(tmp / "warm-cache")
+        _stars_seconds(tmp / "prime", warm_cache)
+        cold = [_stars_seconds(tmp / f"cold{i}", str(tmp / f"cold-cache{i}")) for i in range(repeat)]
+        warm = [_stars_seconds(tmp / f"warm{i}", warm_cache) for i in range(repeat)]
+        same = len({(tmp / d / "family.json").read_bytes() for d in [f"cold{i}" for i in range(repeat)] + [f"warm{i}" for i in range(repeat)]}) == 1
+    med = lambda rows: sorted(r["seconds"] for r in rows)[len(rows) // 2]  # noqa: E731
+    w, c = med(warm), med(cold)
+    return {
+        "warm_s_median": w,
+        "first_run_s_median": c,
+        "first_run_over_warm": round(c / w, 2),
+        "same_family_json": same,
+        "warm_runs": warm,
+        "first_runs": cold,
+        "targets": {"warm": "<= 2 s", "first run": "<= 2 x warm"},
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--skip-large", action="store_true", help="skip the delta 1.0 case (about 2 minutes)")
+    ap.add_argument("--start-only", action="store_true", help="only the issue-20 warm / first-run figures")
     args = ap.parse_args()
     res: dict = {"cpu_count": os.cpu_count()}
+    if args.start_only:
+        res["stars_first_run_vs_warm"] = first_run_vs_warm(max(3, args.repeat))
+        print(json.dumps(res, indent=2))
+        return
+    res["stars_first_run_vs_warm"] = first_run_vs_warm(max(3, args.repeat))
     res["fit_decision_one_thread"] = _fit_decision_speed()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

@@ -148,9 +148,8 @@ def export_family(
     """
     from trimesh.util import concatenate as trimesh_concatenate
 
-    from starforge.cad.mesh import body_mesh, check_shell
+    from starforge.cad.mesh import check_shell
     from starforge.cad.threemf import threemf_bytes
-    from starforge.cad.visibility import sphere_visibility
     from starforge.colours import body_colour
     from starforge.render.raster import thumbnail_png
 
@@ -166,62 +165,32 @@ def export_family(
     fits = check_fit(bodies, family.spec.box_mm, mount.name, allow_oversize)
     to_print, beds = print_layout(bodies, bed_mm, gap_mm)
     rep.timings["describe_s"] = time.perf_counter() - t0
-    meshes, solids = [], []
-    t_mesh = t_step = 0.0
-    for k, (b, fit, T) in enumerate(zip(bodies, fits, to_print, strict=True)):
-        t1 = time.perf_counter()
-        mesh = body_mesh(b, spec.sphere_segments, spec.cylinder_segments)
-        mesh.apply_transform(T)  # printing orientation: plate down on Z = 0
-        check_shell(mesh.vertices, mesh.faces, b.name)  # as the file will hold it (float32)
-        meshes.append(mesh)
-        colour = body_colour(b.star_id - 1)
-        entry = {
-            "id": b.star_id,
-            "name": b.name,
-            "size_mm": [round(v, 6) for v in fit.size_mm],
-            "fits": fit.fits,
-            "excess_mm": [round(v, 6) for v in fit.excess_mm],
-            "printed_sphere_mm": b.printed_mm,
-            "centres_mm": [list(c) for c in b.centres],
-            "stem_roots_mm": [list(s.p0) for s in b.stems],
-            "label": b.label,
-            "colour_rgb": list(colour),
-            "print_height_mm": round(float(mesh.bounds[1, 2]), 6),
-            "placement_to_print": np.round(T, 9).tolist(),
-            "print_to_placement": np.round(np.linalg.inv(T), 9).tolist(),
-            "mesh_volume_mm3": round(float(mesh.volume), 6),
-            "files": [],
-        }
-        vis = sphere_visibility(b)
-        entry["visibility"] = [round(float(v), 4) for v in vis]
-        low = [f"{'ABCD'[i]} {v:.2f}" for i, v in enumerate(vis) if v < spec.min_visibility]
-        if low:
-            rep.warnings.append(
-                f"{b.name}: sphere(s) {', '.join(low)} see less than {spec.min_visibility:.2f} of their upper hemisphere"
-            )
-        if not fit.fits:
-            rep.warnings.append(fit.message(b.name) + " (exported with --allow-oversize)")
-        if "stl" in formats:
-            (stage / f"{b.name}.stl").write_bytes(mesh.export(file_type="stl"))
-            entry["files"].append(f"{b.name}.stl")
-        if "3mf" in formats:
-            thumb = thumbnail_png(mesh.vertices, mesh.faces, colour=colour)
-            (stage / f"{b.name}.3mf").write_bytes(threemf_bytes([mesh], [b.name], thumb, [colour]))
-            entry["files"].append(f"{b.name}.3mf")
-        t_mesh += time.perf_counter() - t1
-        if "step" in formats:
-            from starforge.cad.occ import body_solid, placed, write_step
+    meshes: list = []
+    pool = step_job = None
+    if "step" in formats:
+        # the exact solids (OpenCascade) are built in a second thread while this one meshes: the
+        # kernels share nothing and each body's STEP file depends only on that body, so the files
+        # are the same whichever thread finishes first
+        from concurrent.futures import ThreadPoolExecutor
 
-            t2 = time.perf_counter()
-            solid = placed(body_solid(b), T, b.name, colour)
-            solids.append(solid)
-            write_step(solid, stage / f"{b.name}.step")
-            entry["step_volume_mm3"] = round(float(solid.volume), 6)
+        pool = ThreadPoolExecutor(1, thread_name_prefix="starforge-step")
+        plates = list(zip(plate_names(len(beds)), beds, strict=True)) if plate else []
+        step_job = pool.submit(_step_bodies, bodies, to_print, stage, plates)
+    try:
+        t1 = time.perf_counter()
+        _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, progress)
+        t_mesh = time.perf_counter() - t1
+        if step_job is not None:
+            _, volumes, t_step = step_job.result()
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+    if step_job is not None:
+        for entry, b, vol in zip(rep.bodies, bodies, volumes, strict=True):
+            entry["step_volume_mm3"] = round(vol, 6)
             entry["files"].append(f"{b.name}.step")
-            t_step += time.perf_counter() - t2
-        rep.bodies.append(entry)
-        if progress is not None:
-            progress(k + 1, len(bodies))
+    else:
+        t_step = 0.0
     rep.timings["mesh_s"] = t_mesh
     rep.timings["step_s"] = t_step
     plate_docs = []
@@ -246,12 +215,7 @@ def export_family(
                     threemf_bytes(moved, [bodies[i].name for i in lay.members], thumb, cols)
                 )
                 files.append(f"{name}.3mf")
-            if "step" in formats:
-                from starforge.cad.occ import assembly, write_step
-
-                write_step(
-                    assembly([solids[i] for i in lay.members], lay.transforms, name), stage / f"{name}.step"
-                )
+            if "step" in formats:  # written by _step_bodies
                 files.append(f"{name}.step")
             plate_docs.append(
                 {
@@ -297,3 +261,75 @@ def export_family(
     rep.files = sorted(str(p.relative_to(stage)) for p in stage.rglob("*") if p.is_file())
     rep.timings["total_s"] = time.perf_counter() - t0
     return rep
+
+
+def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, progress) -> None:
+    """Per body: the mesh in its printing orientation (appended to ``meshes``), its STL / 3MF
+    files and its bodies.json entry (appended to ``rep.bodies``)."""
+    from starforge.cad.mesh import body_mesh, check_shell
+    from starforge.cad.threemf import threemf_bytes
+    from starforge.cad.visibility import sphere_visibility
+    from starforge.colours import body_colour
+    from starforge.render.raster import thumbnail_png
+
+    for k, (b, fit, T) in enumerate(zip(bodies, fits, to_print, strict=True)):
+        mesh = body_mesh(b, spec.sphere_segments, spec.cylinder_segments)
+        mesh.apply_transform(T)  # printing orientation: plate down on Z = 0
+        check_shell(mesh.vertices, mesh.faces, b.name)  # as the file will hold it (float32)
+        meshes.append(mesh)
+        colour = body_colour(b.star_id - 1)
+        entry = {
+            "id": b.star_id,
+            "name": b.name,
+            "size_mm": [round(v, 6) for v in fit.size_mm],
+            "fits": fit.fits,
+            "excess_mm": [round(v, 6) for v in fit.excess_mm],
+            "printed_sphere_mm": b.printed_mm,
+            "centres_mm": [list(c) for c in b.centres],
+            "stem_roots_mm": [list(s.p0) for s in b.stems],
+            "label": b.label,
+            "colour_rgb": list(colour),
+            "print_height_mm": round(float(mesh.bounds[1, 2]), 6),
+            "placement_to_print": np.round(T, 9).tolist(),
+            "print_to_placement": np.round(np.linalg.inv(T), 9).tolist(),
+            "mesh_volume_mm3": round(float(mesh.volume), 6),
+            "files": [],
+        }
+        vis = sphere_visibility(b)
+        entry["visibility"] = [round(float(v), 4) for v in vis]
+        low = [f"{'ABCD'[i]} {v:.2f}" for i, v in enumerate(vis) if v < spec.min_visibility]
+        if low:
+            rep.warnings.append(
+                f"{b.name}: sphere(s) {', '.join(low)} see less than {spec.min_visibility:.2f} of their upper hemisphere"
+            )
+        if not fit.fits:
+            rep.warnings.append(fit.message(b.name) + " (exported with --allow-oversize)")
+        if "stl" in formats:
+            (stage / f"{b.name}.stl").write_bytes(mesh.export(file_type="stl"))
+            entry["files"].append(f"{b.name}.stl")
+        if "3mf" in formats:
+            thumb = thumbnail_png(mesh.vertices, mesh.faces, colour=colour)
+            (stage / f"{b.name}.3mf").write_bytes(threemf_bytes([mesh], [b.name], thumb, [colour]))
+            entry["files"].append(f"{b.name}.3mf")
+        rep.bodies.append(entry)
+        if progress is not None:
+            progress(k + 1, len(bodies))
+
+
+def _step_bodies(bodies, to_print, stage, plates=()) -> tuple[list, list[float], float]:
+    """Per body: the exact solid in its printing orientation, named and coloured, written to
+    ``<name>.step``; then per (name, layout) of ``plates`` the assembly ``<name>.step``.
+    Returns (solids, their volumes in mm^3, seconds)."""
+    from starforge.cad.occ import assembly, body_solid, placed, write_step
+    from starforge.colours import body_colour
+
+    t = time.perf_counter()
+    solids, volumes = [], []
+    for b, T in zip(bodies, to_print, strict=True):
+        solid = placed(body_solid(b), T, b.name, body_colour(b.star_id - 1))
+        write_step(solid, stage / f"{b.name}.step")
+        solids.append(solid)
+        volumes.append(float(solid.volume))
+    for name, lay in plates:
+        write_step(assembly([solids[i] for i in lay.members], lay.transforms, name), stage / f"{name}.step")
+    return solids, volumes, time.perf_counter() - t
