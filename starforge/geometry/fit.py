@@ -185,17 +185,89 @@ def accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
     return True
 
 
-#: decide_one's one compiled signature: every caller (decide_range here, the enumeration's
-#: kernel) links the same code, so a cold cache compiles it once, not once per argument typing
-_DECIDE_ONE_SIG = "UniTuple(int64, 2)(float64[:, ::1], float64[::1], float64, int64, int64, float64[:, ::1])"
+@_jit
+def cone_excludes(P, lim, slack):
+    """A quick proof that the points do not fit ``lim + slack`` (sorted; each side widened by
+    ``slack``), before the search: True only when proven.
+
+    If they fit, the box's longest axis a3 leaves every pair vector d within ``r =
+    hypot(l1, l2)`` of the line along a3 (its component in the plane of a1, a2 fits that
+    rectangle's diagonal), so a3 lies within ``asin(r / |d|)`` of the line of d.  Two pair
+    vectors whose lines make a larger angle than the sum of their two cone angles cannot share
+    such an a3.  Widening by ``slack`` keeps :func:`decide_one`'s undecided sets (which always
+    fit ``lim + slack``) out of reach of this test, so it never turns an undecided set into a
+    rejected one."""
+    k = P.shape[0]
+    r = math.hypot(lim[0] + slack, lim[1] + slack)
+    for i in range(k):
+        for j in range(i + 1, k):
+            a0, a1_, a2 = P[j, 0] - P[i, 0], P[j, 1] - P[i, 1], P[j, 2] - P[i, 2]
+            na = math.sqrt(a0 * a0 + a1_ * a1_ + a2 * a2)
+            if na <= r:
+                continue
+            ca = math.asin(r / na)
+            for p in range(k):
+                for q in range(p + 1, k):
+                    if p * k + q <= i * k + j:
+                        continue
+                    b0, b1, b2 = P[q, 0] - P[p, 0], P[q, 1] - P[p, 1], P[q, 2] - P[p, 2]
+                    nb = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+                    if nb <= r:
+                        continue
+                    cb = math.asin(r / nb)
+                    if ca + cb >= 0.5 * math.pi:
+                        continue
+                    c = abs(a0 * b0 + a1_ * b1 + a2 * b2) / (na * nb)
+                    # the lines' angle exceeds ca + cb (with float noise kept on the safe side)
+                    if c < math.cos(ca + cb) - 1e-9:
+                        return True
+    return False
 
 
-@numba.njit(_DECIDE_ONE_SIG, cache=True, nogil=True)
+#: stack entries of the branch and bound (12 root cells + 3 per level below, deep enough for
+#: any cell size reachable in double precision)
+STACK = 64 + 3 * 64
+
+
+def workspace_size(k: int) -> int:
+    """Floats :func:`decide_ws` needs for a set of ``k`` points."""
+    npair = k * (k - 1) // 2
+    return 8 * npair + 18 + 3 * STACK
+
+
+@_jit
 def decide_one(P, lim, slack, start, max_cells, R):
     k = P.shape[0]
+    ws = np.empty(8 * (k * (k - 1) // 2) + 18 + 3 * STACK)
+    iws = np.empty(STACK, np.int64)
+    return decide_ws(P, lim, slack, start, max_cells, R, ws, iws)
+
+
+@_jit
+def decide_ws(P, lim, slack, start, max_cells, R, ws, iws):
+    """:func:`decide_one` with the working memory passed in (``ws``: ``workspace_size(k)``
+    floats, ``iws``: ``STACK`` ints), so a caller deciding many sets allocates once."""
+    k = P.shape[0]
     npair = k * (k - 1) // 2
-    D = np.empty((npair, 3))
-    dn = np.empty(npair)
+    D = ws[: 3 * npair].reshape((npair, 3))
+    o = 3 * npair
+    dn = ws[o : o + npair]
+    x = ws[o + npair : o + 2 * npair]
+    y = ws[o + 2 * npair : o + 3 * npair]
+    L2 = ws[o + 3 * npair : o + 4 * npair]
+    L3 = ws[o + 4 * npair : o + 5 * npair]
+    o += 5 * npair
+    u = ws[o : o + 3]
+    v = ws[o + 3 : o + 6]
+    a1 = ws[o + 6 : o + 9]
+    corner = ws[o + 9 : o + 12]
+    cs = ws[o + 12 : o + 14]
+    kid_w = ws[o + 14 : o + 18]
+    o += 18
+    Ss = ws[o : o + STACK]
+    St = ws[o + STACK : o + 2 * STACK]
+    Sh = ws[o + 2 * STACK : o + 3 * STACK]
+    Sf = iws
     q = 0
     diam = 0.0
     for i in range(k):
@@ -205,14 +277,6 @@ def decide_one(P, lim, slack, start, max_cells, R):
             dn[q] = math.sqrt(dot3(D[q], D[q]))
             diam = max(diam, dn[q])
             q += 1
-    u = np.empty(3)
-    v = np.empty(3)
-    x = np.empty(npair)
-    y = np.empty(npair)
-    L2 = np.empty(npair)
-    L3 = np.empty(npair)
-    cs = np.empty(2)
-    a1 = np.empty(3)
     # 1. the critical directions of a tetrahedron's width (face normals, opposite edges)
     if k == 4:
         for f in range(7):
@@ -227,12 +291,12 @@ def decide_one(P, lim, slack, start, max_cells, R):
                 j0, j1, j2, j3 = 0, 2, 1, 3
             else:
                 j0, j1, j2, j3 = 0, 3, 1, 2
-            # a1 = (P[j1] - P[j0]) x (P[j3] - P[j2]), in scalars (no array temporaries to compile)
-            e1x, e1y, e1z = P[j1, 0] - P[j0, 0], P[j1, 1] - P[j0, 1], P[j1, 2] - P[j0, 2]
-            e2x, e2y, e2z = P[j3, 0] - P[j2, 0], P[j3, 1] - P[j2, 1], P[j3, 2] - P[j2, 2]
-            a1[0] = e1y * e2z - e1z * e2y
-            a1[1] = e1z * e2x - e1x * e2z
-            a1[2] = e1x * e2y - e1y * e2x
+            # e1 = P[j1] - P[j0], e2 = P[j3] - P[j2], a1 = e1 x e2 (scalars: no temporaries)
+            e10, e11, e12 = P[j1, 0] - P[j0, 0], P[j1, 1] - P[j0, 1], P[j1, 2] - P[j0, 2]
+            e20, e21, e22 = P[j3, 0] - P[j2, 0], P[j3, 1] - P[j2, 1], P[j3, 2] - P[j2, 2]
+            a1[0] = e11 * e22 - e12 * e21
+            a1[1] = e12 * e20 - e10 * e22
+            a1[2] = e10 * e21 - e11 * e20
             nn = math.sqrt(dot3(a1, a1))
             if nn <= 1e-12:
                 continue
@@ -243,11 +307,7 @@ def decide_one(P, lim, slack, start, max_cells, R):
                 return 1, 7
     theta_min = slack / max(diam, 1e-12)
     # 2. branch and bound over cube-map cells, depth first, best child first
-    cap = 64 + 3 * 64
-    Sf = np.empty(cap, np.int64)
-    Ss = np.empty(cap)
-    St = np.empty(cap)
-    Sh = np.empty(cap)
+    cap = STACK
     top = 0
     n0 = 2**start
     h0 = 1.0 / n0
@@ -261,11 +321,9 @@ def decide_one(P, lim, slack, start, max_cells, R):
                 top += 1
     cells = 7
     open_small = False
-    corner = np.empty(3)
-    kid_w = np.empty(4)
+    order = np.empty(4, np.int64)
     kid_s = np.empty(4)
     kid_t = np.empty(4)
-    order = np.empty(4, np.int64)
     while top > 0:
         top -= 1
         f, s, t, h = Sf[top], Ss[top], St[top], Sh[top]
@@ -313,18 +371,18 @@ def decide_one(P, lim, slack, start, max_cells, R):
             w = 0.0
             for j in range(npair):
                 w = max(w, abs(dot3(D[j], corner)))
-            kid_w[c] = w
-        # push the thinnest last so it is explored first: the kids by descending width, ties in
-        # kid order (a stable insertion sort of four, what np.argsort(-kid_w) gives)
+            kid_w[c] = -w
+        # push the thinnest last so it is explored first: a stable insertion sort of -width
+        # (the order np.argsort gives on 4 values), without allocating
         for c in range(4):
             order[c] = c
         for c in range(1, 4):
-            o = order[c]
-            b = c
-            while b > 0 and -kid_w[order[b - 1]] > -kid_w[o]:
-                order[b] = order[b - 1]
+            cur = order[c]
+            b = c - 1
+            while b >= 0 and kid_w[order[b]] > kid_w[cur]:
+                order[b + 1] = order[b]
                 b -= 1
-            order[b] = o
+            order[b + 1] = cur
         if top + 4 > cap:
             return -1, cells
         for c in order:
