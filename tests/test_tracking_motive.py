@@ -104,3 +104,14 @@ def test_bad_motive_files_give_one_line(tmp_path, text, message):
     with pytest.raises(StarforgeError, match=message) as exc:
         load_bodies(path)
     assert "\n" not in str(exc.value)
+
+
+@pytest.mark.parametrize(
+    "name, message", [("tool.tra", "Motive 1.x"), ("tool.bin", "not a format starforge reads")]
+)
+def test_unsupported_binary_files_are_named_in_one_line(tmp_path, name, message):
+    path = tmp_path / name
+    path.write_bytes(bytes(range(256)) * 2)
+    with pytest.raises(StarforgeError, match=message) as exc:
+        load_bodies(path)
+    assert "\n" not in str(exc.value) and "motive" in str(exc.value)

@@ -7,6 +7,7 @@ import itertools
 import json
 
 import numpy as np
+import pytest
 
 from starforge.tracking import identify as ident
 from tests.conftest import run_cli
@@ -58,3 +59,36 @@ def test_sides_key_is_the_sorted_distance_difference_and_blind_to_flips():
     d_mod = sorted(np.linalg.norm(P[a] - P[b]) for a, b in pairs)
     brute = max(abs(x - y) for x, y in zip(d_obs, d_mod, strict=True))
     assert np.allclose(key, brute)  # both: correspondence-blind
+
+
+def test_the_qualisys_preset_simulates_the_tolerances_written_into_qtm_files(small_family, tmp_path):
+    import xml.etree.ElementTree as ET
+
+    fam, _ = small_family
+    for noise in (0.1, 0.3):
+        lab = tmp_path / f"n{noise}"
+        assert (
+            run_cli(["export", fam / "family.json", "--format", "qtm", "--noise", noise, "--out", lab, "-q"])
+            == 0
+        )
+        body = ET.parse(sorted((lab / "qtm").glob("*.xml"))[0]).getroot().find("The_6D/Body")
+        bone = float(body.findtext("BoneLengthTolerance"))
+        resid = float(body.findtext("MaximumResidual"))
+        summary = json.loads((lab / "trackers.json").read_text())
+        assert summary["tolerances"]["noise_mm"] == noise
+        out = tmp_path / f"c{noise}"
+        args = ["check", fam / "family.json", "--preset", "qualisys", "--noise", noise, "--frames", 10]
+        assert run_cli([*args, "--curve", 0, "--out", out, "-q"]) == 0
+        s = json.loads((out / "check.json").read_text())["settings"]
+        assert (s["match_mm"], s["residual_mm"]) == (bone, resid)
+    # a noisier lab gets wider gates (the residual limit scales with the noise)
+    assert resid == pytest.approx(3 * summary_resid_at(fam, 0.1), rel=1e-5)
+
+
+def summary_resid_at(fam, noise):
+    from starforge.tracking.bodies import load_bodies
+    from starforge.tracking.tolerances import export_tolerances
+
+    return export_tolerances([b.points_mm for b in load_bodies(fam / "family.json").bodies], noise)[
+        "maximum_residual_mm"
+    ]

@@ -332,6 +332,10 @@ def export_cmd(
     err = console(stderr=True)
     for w in bodyset.warnings if trk else ():
         err.print(f"warning: {w}", soft_wrap=True, markup=False)
+    if trk and summary["tolerances"].get("note"):
+        err.print(
+            f"note: tracker file tolerances: {summary['tolerances']['note']}", soft_wrap=True, markup=False
+        )
     if rep is not None:
         for w in rep.warnings:
             err.print(f"warning: {w}")

@@ -6,7 +6,11 @@
 * :mod:`~starforge.tracking.check`: the ``starforge check`` report (check.json)
 * accuracy (TRE, rotation error) and Kabsch fits live in :mod:`starforge.geometry.rigid`
 * :mod:`~starforge.tracking.presets`: vendor presets (templates/presets) and named rule checks
-* :mod:`~starforge.tracking.formats`: QTM / VSK / Atracsys / CSV writers and readers
+* :mod:`~starforge.tracking.formats`: the registry of tracker formats (QTM, VSK, Atracsys,
+  NDI .rom, OptiTrack Motive, CSV), a reader and a writer each
+* :mod:`~starforge.tracking.export`: a body set written in tracker formats (``export``)
+* :mod:`~starforge.tracking.tolerances`: the tolerances vendor files get, from the noise and
+  the bodies' margins
 * :mod:`~starforge.tracking.sweep`: capacity curves (``starforge sweep``)
 
 Heavy imports (scipy, matplotlib) stay inside functions.

@@ -282,6 +282,8 @@ def load_bodies(paths) -> BodySet:
             raw.extend(_tracker_bodies(p, fmt, warnings))
             kinds.append("tracker")
         else:
+            if p.suffix.lower() != ".json":
+                _refuse_unknown(p)
             data = read_json(p, what="input file")
             k = data.get("format")
             if k == FAMILY_FORMAT:
@@ -334,6 +336,31 @@ def load_bodies(paths) -> BodySet:
         tip_source,
         tuple(notes),
         tuple(warnings),
+    )
+
+
+#: files labs have that starforge does not read, with what to do instead
+UNSUPPORTED = {
+    ".tra": "an OptiTrack Motive 1.x rigid-body file (binary .tra) is not supported: save the rigid body in "
+    "Motive 2 or later as a .motive profile",
+    ".tak": "an OptiTrack take (.tak) holds recordings, not rigid-body definitions: save the rigid body as a "
+    ".motive profile",
+    ".c3d": "a C3D file holds marker trajectories, not rigid-body definitions",
+    ".vst": "a Vicon skeleton template (.vst) is a template, not a subject's calibrated VSK: give the .vsk",
+}
+
+
+def _refuse_unknown(path: Path) -> None:
+    """One line for a file that is neither JSON nor a tracker format starforge reads."""
+    why = UNSUPPORTED.get(path.suffix.lower())
+    if why is None:
+        with open(path, "rb") as fh:
+            head = fh.read(512).lstrip()
+        if head[:1] in (b"{", b"["):
+            return  # JSON under another name: read as such
+        why = "not a format starforge reads"
+    raise StarforgeError(
+        f"{path}: {why} (tracker formats read: {', '.join(_format_names())}; or a family.json / placement.json)"
     )
 
 
