@@ -240,7 +240,9 @@ def test_hammer_is_the_default_prop_and_custom_rigs(tmp_path, capsys):
 
 def test_pictures_drawn_in_a_child_process_are_identical(tmp_path, capsys):
     from starforge.props.mesh import load_prop
-    from starforge.props.placement import load_spec, place, with_overrides, write_outputs
+    from starforge.props.files import write_outputs
+    from starforge.props.placement import place
+    from starforge.props.spec import load_spec, with_overrides
 
     out = tmp_path / "cli"
     assert _run(["place", "shield", *FAST, "--seed", "6", "--out", str(out)], capsys)[0] == 0

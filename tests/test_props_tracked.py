@@ -109,7 +109,8 @@ def test_cost_with_a_bound_and_the_margin_cache_agree_with_the_full_terms():
 
 def test_the_default_beats_or_ties_both_baselines_on_every_builtin_prop():
     from starforge.props.mesh import load_prop
-    from starforge.props.placement import load_spec, place, with_overrides
+    from starforge.props.placement import place
+    from starforge.props.spec import load_spec, with_overrides
 
     spec = with_overrides(load_spec("default"), sites=250, resolution=2, orientations=6)
     for prop in ("hammer", "racket", "sword", "bottle", "box", "shield", "umbrella"):
@@ -156,7 +157,8 @@ def test_orientations_spread_over_the_rotation_group():
 
 
 def test_visibility_is_tested_at_the_ball_centre(tmp_path):
-    """An independent re-check with trimesh's own ray tracer (not embree) on the hammer."""
+    """An independent re-check with trimesh's own ray tracer (not embree) on the hammer, the
+    hand's capsule tested by points every 0.5 mm along each sight line."""
     from trimesh.ray.ray_triangle import RayMeshIntersector
 
     out = tmp_path / "o"
@@ -169,15 +171,21 @@ def test_visibility_is_tested_at_the_ball_centre(tmp_path):
     mesh = builtin_mesh("hammer")
     rig = load_rig("default")
     centres = np.array(doc["tracked"]["marker_centres_m"])
+    # the seat: centres on the normals, the catalogue's centre height above the site
+    pos = np.array([m["position"] for m in doc["markers"]])
+    nrm = np.array([m["normal"] for m in doc["markers"]])
+    assert np.allclose(centres, pos + doc["seat"]["centre_height_mm"] / 1000 * nrm, atol=1e-8)
+    hand = doc["hand"]
+    assert len(hand) == 1
+    a, b, r = np.array(hand[0]["a"]), np.array(hand[0]["b"]), hand[0]["radius"]
     poses = np.array(doc["poses"]["matrices"])
     cams = np.array([c.position for c in rig.cameras])
-    pairs = np.array(rig.pairs)
     inter = RayMeshIntersector(mesh)
     seen = np.zeros((len(centres), len(poses)), bool)
+    t = np.linspace(0, 1, 4000)[:, None]
     for k, T in enumerate(poses):
         world = centres @ T[:3, :3].T + T[:3, 3]
         fov = in_view(world, rig)
-        # cameras into the prop frame, rays from the ball centres
         cam_prop = (cams - T[:3, 3]) @ T[:3, :3]
         ok = np.zeros((len(centres), len(cams)), bool)
         for i, c in enumerate(centres):
@@ -186,12 +194,17 @@ def test_visibility_is_tested_at_the_ball_centre(tmp_path):
             hits = inter.intersects_location(np.repeat(c[None], len(cams), 0), d / dist[:, None])
             loc, ray = hits[0], hits[1]
             blocked = np.zeros(len(cams), bool)
-            for L, r in zip(loc, ray, strict=True):
-                if np.linalg.norm(L - c) < dist[r]:
-                    blocked[r] = True
+            for L, rr in zip(loc, ray, strict=True):
+                if np.linalg.norm(L - c) < dist[rr]:
+                    blocked[rr] = True
+            for j in range(len(cams)):
+                q = c + t * d[j]  # along the sight line, 2 m / 4000 = 0.5 mm apart
+                s = np.clip((q - a) @ (b - a) / ((b - a) @ (b - a)), 0, 1)
+                if (np.linalg.norm(q - (a + s[:, None] * (b - a)), axis=1) <= r).any():
+                    blocked[j] = True
             ok[i] = fov[i] & ~blocked
-        seen[:, k] = (ok[:, pairs[:, 0]] & ok[:, pairs[:, 1]]).any(axis=1)
-    ours = np.array([m["seen_fraction"] for m in doc["markers"]])
+        seen[:, k] = ok.sum(axis=1) >= 2
+    ours = np.array([m["seen_all_cameras"] for m in doc["markers"]])
     assert np.abs(seen.mean(axis=1) - ours).max() <= 0.02
     assert doc["tracked"]["tracked_fraction"] >= 0.9
 
@@ -233,7 +246,7 @@ def test_score_refuses_markers_off_the_surface(tmp_path, capsys):
 
 
 def test_the_paper_setting_stays_available():
-    from starforge.props.placement import load_spec
+    from starforge.props.spec import load_spec
 
     s = load_spec("paper")
     assert s.objective == "paper" and s.orientations == 1 and s.costs.marker_diameter_m == pytest.approx(0.004)

@@ -13,7 +13,7 @@ __all__ = ["load_placement"]
 
 
 def load_placement(path):
-    """Read a ``placement.json`` (or the folder holding one); see :func:`starforge.props.placement.load_placement`."""
-    from starforge.props.placement import load_placement as _load
+    """Read a ``placement.json`` (or the folder holding one); see :func:`starforge.props.files.load_placement`."""
+    from starforge.props.files import load_placement as _load
 
     return _load(path)

@@ -1,17 +1,20 @@
 """Marker layouts that keep a prop tracked while it is handled: objective, baselines, optimizer.
 
-A pose is **tracked** when at least three markers are each seen by a camera pair of the rig and
-the seen markers are not nearly collinear: their spread across their best-fit line (RMS
+A scenario (a pose, with a random set of the cameras lost: :func:`loss_scenarios`) is
+**tracked** when at least three markers are each seen by two surviving cameras and the seen
+markers are not nearly collinear: their spread across their best-fit line (RMS
 distance from it) is at least that of a triangle ``min_height_mm`` high (``sqrt(2) / 3`` of the
 height).  The cost of a layout, lowest best, is led by the fraction of poses not tracked::
 
-    C = w_untracked * untracked + w_visibility * (1 - mean visibility)
+    C = w_untracked * untracked + w_spare * no_spare + w_visibility * (1 - mean visibility)
       + w_spread * max(0, 1 - spread / spread_target) + w_near_symmetry * max(0, 1 - margin / target)
       + w_spacing * pairs closer than the spacing + w_count * (1 - exp(-(n - n0)^2 / 2))
       + w_avoid * triangles within the tolerance of another prop's
 
-with *visibility* the fraction of (pose, pair) combinations that see a marker (the paper's
-eq. 2 quantity), *spread* the markers' RMS distance from their best-fit line (a layout on one
+with *no_spare* the fraction of
+scenarios with at most 3 markers seen (tracked with no marker to spare: the term keeps
+separating layouts once every scenario is tracked), *visibility* the fraction of scenarios
+in which a marker is seen (the paper's eq. 2 quantity, under camera loss), *spread* the markers' RMS distance from their best-fit line (a layout on one
 line cannot give an orientation), *margin* the near-symmetry margin
 (:func:`starforge.props.symmetry.near_symmetry_margin`).
 
@@ -51,12 +54,16 @@ class TrackSettings:
     """The tracked objective and its optimizer (lengths in mm unless named ``_m``)."""
 
     marker_mm: float = 9.5
+    marker: str = ""  # a catalogue name (its base seats the marker); "" for the entry of marker_mm
+    cameras_lost: float = 0.5  # fraction of the cameras lost at random in each scenario
+    loss_patterns: int = 2  # random camera losses per pose (scenarios = poses x patterns)
     gap_px: float = 2.0
     min_height_mm: float = 15.0
     target_markers: int = 7
     min_markers: int = 4
     max_markers: int = 12
     w_untracked: float = 10.0
+    w_spare: float = 2.0
     w_visibility: float = 1.0
     w_spread: float = 0.5
     w_near_symmetry: float = 1.0
@@ -75,11 +82,13 @@ class TrackSettings:
     def __post_init__(self):
         in_range("marker_mm", self.marker_mm, 1.0, 50.0)
         in_range("gap_px", self.gap_px, 0.0, 50.0)
+        in_range("cameras_lost", self.cameras_lost, 0.0, 1.0)
+        in_range("loss_patterns", self.loss_patterns, 1, 64)
         in_range("min_height_mm", self.min_height_mm, 0.0, 1000.0)
         in_range("min_markers", self.min_markers, 3, 100)
         in_range("max_markers", self.max_markers, self.min_markers, 100)
         in_range("markers (target_markers)", self.target_markers, self.min_markers, self.max_markers)
-        for n in ("w_untracked", "w_visibility", "w_spread", "w_near_symmetry", "w_spacing", "w_count", "w_avoid"):
+        for n in ("w_untracked", "w_spare", "w_visibility", "w_spread", "w_near_symmetry", "w_spacing", "w_count", "w_avoid"):
             non_negative(n, getattr(self, n))
         positive("near_symmetry_target_mm", self.near_symmetry_target_mm)
         in_range("spread_fraction", self.spread_fraction, 0.0, 1.0)
@@ -193,6 +202,7 @@ class Problem:
         s2 = seen.T @ self.moments[idx]
         tracked = (cnt >= 3) & (line_spread2_many(cnt, s1, s2) >= self.min_spread2)
         untracked = 1.0 - float(tracked.mean())
+        no_spare = float((cnt <= 3).mean())
         vis = float(self.visibility[idx].mean()) if n else 0.0
         P = self.points[idx]
         spread = math.sqrt(line_spread2(n, *P.sum(0), *self.moments[idx].sum(0))) if n >= 2 else 0.0
@@ -203,6 +213,7 @@ class Problem:
         cap = s.near_symmetry_target_mm / 1000.0
         out = {
             "untracked": untracked,
+            "no_spare": no_spare,
             "mean_visibility": vis,
             "spread_m": spread,
             "near_symmetry_margin_m": cap if not symmetry else math.inf,
@@ -235,6 +246,7 @@ class Problem:
         n = t["markers"]
         return (
             s.w_untracked * t["untracked"]
+            + s.w_spare * t.get("no_spare", 0.0)
             + s.w_visibility * (1.0 - t["mean_visibility"])
             + s.w_spread * max(0.0, 1.0 - t["spread_m"] / self.spread_target)
             + s.w_near_symmetry * max(0.0, 1.0 - t["near_symmetry_margin_m"] * 1000.0 / s.near_symmetry_target_mm)
@@ -484,8 +496,36 @@ def optimize(prob: Problem, rng: np.random.Generator, progress=None) -> Optimize
         "best_of_random": {
             "layouts": s.random_layouts,
             "cost": None if r_sites is None else r_cost,
+            "sites": None if r_sites is None else [int(x) for x in r_sites],
             "median_cost": float(np.median(r_costs)) if r_costs else None,
         },
         "chains": [{"cost": r.cost, "iterations": r.iterations, "accepted": r.accepted} for r in runs],
     }
     return Optimized(tuple(int(x) for x in best), prob.terms(best), baselines, tuple(runs), sec)
+
+
+def alive_masks(n_cams: int, lost_fraction: float, count: int, rng: np.random.Generator) -> np.ndarray:
+    """(count,) uint64: random sets of surviving cameras, ``round(lost_fraction * n_cams)`` lost
+    in each (a uniformly random subset per entry)."""
+    lost = int(round(lost_fraction * n_cams))
+    keep = n_cams - lost
+    order = np.argsort(rng.random((count, n_cams)), axis=1)[:, :keep]
+    bits = np.uint64(1) << order.astype(np.uint64)
+    return np.bitwise_or.reduce(bits, axis=1) if keep else np.zeros(count, np.uint64)
+
+
+def loss_scenarios(masks: np.ndarray, n_cams: int, lost_fraction: float, patterns: int, rng: np.random.Generator):
+    """Scenarios of camera loss: every pose ``patterns`` times, each with its own random set of
+    lost cameras (one when none are lost).  A marker is seen in a scenario when at least two of
+    the surviving cameras see it (any two can triangulate it).
+
+    Returns
+    -------
+    seen : (s, P * patterns) bool
+    alive : (P * patterns,) uint64, the surviving cameras of each scenario
+    """
+    P = masks.shape[1]
+    L = patterns if int(round(lost_fraction * n_cams)) > 0 else 1
+    alive = alive_masks(n_cams, lost_fraction, P * L, rng)
+    seen = np.bitwise_count(masks[:, np.repeat(np.arange(P), L)] & alive[None]) >= 2
+    return seen, alive

@@ -1,0 +1,112 @@
+"""The hand that holds the prop, as occluders that move with it: capsules in the prop frame.
+
+A grip is a segment (the axis the fingers close around) and the radius the hand reaches
+from it; the hand is one capsule around that segment (palm and fingers wrapped round the
+grip), which hides whatever lies inside it from every camera and covers the surface it
+encloses (no marker can be stuck under the hand).  ``--grip`` gives the segment in the prop
+frame (metres); without it, a built-in prop has its own grip (:data:`GRIPS`) and a mesh gets
+the thinner end of its longest bounding-box axis (a quarter of its length, at most a palm's
+width, :data:`PALM_M`).  The forearm is not modelled (its direction depends on how the prop
+is held); that is a simplification the README states.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from starforge.errors import StarforgeError
+
+#: a palm's width along the grip, m (an adult hand is 75-95 mm across the knuckles)
+PALM_M = 0.09
+#: what the hand adds around the gripped surface, m (fingers, about 20-25 mm thick)
+FINGERS_M = 0.025
+
+#: built-in props: grip segment (prop frame, m) and the radius of the gripped part, m
+GRIPS = {
+    "hammer": ((0.0, 0.0, 0.02), (0.0, 0.0, 0.11), 0.015),
+    "racket": ((0.0, 0.0, 0.01), (0.0, 0.0, 0.08), 0.018),
+    "sword": ((0.0, 0.0, 0.05), (0.0, 0.0, 0.15), 0.015),
+    "bottle": ((0.0, 0.0, 0.07), (0.0, 0.0, 0.15), 0.037),
+    "box": ((-0.045, 0.0, -0.02), (0.045, 0.0, -0.02), 0.0),  # carried from below
+    "shield": ((-0.045, 0.045, 0.30), (0.045, 0.045, 0.30), 0.0125),
+    "umbrella": ((0.0, 0.0, 0.01), (0.0, 0.0, 0.10), 0.014),
+}
+
+
+@dataclass(frozen=True)
+class Capsule:
+    """All points within ``radius`` of the segment ``a``-``b`` (prop frame, m)."""
+
+    a: tuple[float, float, float]
+    b: tuple[float, float, float]
+    radius: float
+
+    def to_json(self) -> dict:
+        return {"a": [round(float(x), 9) + 0.0 for x in self.a], "b": [round(float(x), 9) + 0.0 for x in self.b], "radius": round(float(self.radius), 9)}
+
+
+def capsule_arrays(caps) -> np.ndarray:
+    """(k, 7) float: a, b, radius of each capsule (the compiled kernels' input)."""
+    if not caps:
+        return np.zeros((0, 7))
+    return np.array([[*c.a, *c.b, c.radius] for c in caps], dtype=float)
+
+
+def parse_grip(text: str) -> Capsule:
+    """A hand from ``--grip x0,y0,z0,x1,y1,z1[,r]`` (prop frame, m; ``r`` the gripped part's
+    radius, default 0.015) or ``none`` handled by the caller."""
+    try:
+        v = [float(x) for x in str(text).replace(" ", "").split(",")]
+    except ValueError:
+        v = []
+    if len(v) not in (6, 7) or not np.all(np.isfinite(v)):
+        raise StarforgeError(f"--grip must be x0,y0,z0,x1,y1,z1[,r] in metres (prop frame), got {text!r}")
+    r = v[6] if len(v) == 7 else 0.015
+    if not 0 <= r <= 0.5:
+        raise StarforgeError(f"--grip radius must be in [0, 0.5] m, got {r}")
+    return Capsule(tuple(v[:3]), tuple(v[3:6]), r + FINGERS_M)
+
+
+def default_grip(mesh, name: str = "", builtin: bool = False) -> Capsule:
+    """The hand at a sensible graspable part (see the module docstring)."""
+    if builtin and name in GRIPS:
+        a, b, r = GRIPS[name]
+        return Capsule(a, b, r + FINGERS_M)
+    lo, hi = np.asarray(mesh.bounds, float)
+    ext = hi - lo
+    ax = int(np.argmax(ext))
+    v = np.asarray(mesh.vertices, float)
+    t = (v[:, ax] - lo[ax]) / max(ext[ax], 1e-12)
+    others = [i for i in range(3) if i != ax]
+
+    def section(mask):
+        if not mask.any():
+            return np.inf, lo + ext / 2
+        w = v[mask][:, others]
+        c = (w.max(0) + w.min(0)) / 2
+        return float(np.linalg.norm(w - c, axis=1).max()), c
+
+    r0, c0 = section(t <= 0.25)
+    r1, c1 = section(t >= 0.75)
+    end, r, c = (0, r0, c0) if r0 <= r1 else (1, r1, c1)
+    length = min(PALM_M, 0.25 * ext[ax])
+    start = lo[ax] + (0.01 if end == 0 else ext[ax] - 0.01 - length)
+    a = np.zeros(3)
+    a[others] = c
+    b = a.copy()
+    a[ax], b[ax] = start, start + length
+    return Capsule(tuple(a), tuple(b), min(r, 0.05) + FINGERS_M)
+
+
+def inside_capsules(points: np.ndarray, caps) -> np.ndarray:
+    """(n,) bool: each point inside some capsule."""
+    pts = np.asarray(points, float)
+    out = np.zeros(len(pts), bool)
+    for c in caps:
+        a, b = np.asarray(c.a), np.asarray(c.b)
+        ab = b - a
+        t = np.clip((pts - a) @ ab / max(float(ab @ ab), 1e-300), 0.0, 1.0)
+        out |= np.linalg.norm(pts - (a + t[:, None] * ab), axis=1) <= c.radius
+    return out
