@@ -125,8 +125,10 @@ def placement_json(res: PlacementResult) -> dict:
             **res.poses.to_json(),
         },
         "sites": {
-            "sampled": len(res.sites) + res.forbidden,
+            "sampled": len(res.sites) + sum(res.removed.values()),
             "forbidden": res.forbidden,
+            "under_hand": res.removed.get("under_hand", 0),
+            "unseated": res.removed.get("unseated", 0),
             "usable": len(res.sites),
             "poisson_radius_m": _r(res.sites.radius_m),
         },
@@ -201,6 +203,16 @@ def placement_json(res: PlacementResult) -> dict:
                 if res.tracked.baselines["best_of_random"]["cost"] is None
                 else _r(res.tracked.baselines["best_of_random"]["cost"]),
                 "best_of_random_sites": res.tracked.baselines["best_of_random"]["sites"],
+                "selection": {
+                    "validated": res.tracked.baselines["validated"],
+                    "note": "candidates ranked by their cost on the searched scenarios plus a held-out sample "
+                    "(track.validation_poses random poses, their own camera losses)",
+                    "default": _r(res.tracked.baselines["selection_cost"]),
+                    "greedy_local_search": _r(res.tracked.baselines["greedy_local_search"]["selection_cost"]),
+                    "best_of_random": None
+                    if res.tracked.baselines["best_of_random"]["selection_cost"] is None
+                    else _r(res.tracked.baselines["best_of_random"]["selection_cost"]),
+                },
                 "random_layouts": res.tracked.baselines["best_of_random"]["layouts"],
                 "median_random": None
                 if res.tracked.baselines["best_of_random"]["median_cost"] is None

@@ -322,6 +322,40 @@ def _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress) -> Pl
     )  # fmt: skip
 
 
+#: the held-out sample's generator is seeded with seed + this (the evaluation's differs again)
+VALIDATION_SEED_OFFSET = 2_000_029
+#: the camera losses of the searched scenarios come from seed + this (so that ``place score``
+#: meets the same scenarios as the placement it re-scores)
+LOSS_SEED_OFFSET = 3_000_017
+
+
+def _validator(prop, spec, seed, prep, centres, prob):
+    """``validate(layouts) -> costs`` on held-out scenarios: ``track.validation_poses`` fresh
+    random poses with their own camera losses, a table built for the candidates' sites only."""
+    from starforge.props.evaluate import random_poses
+    from starforge.props.hand import capsule_arrays
+    from starforge.props.tracked import Problem, loss_scenarios
+    from starforge.props.visibility import compute_table
+
+    ts, sites, rig = spec.track, prep.sites, prep.rig
+
+    def validate(layouts):
+        union = sorted({int(x) for lay in layouts for x in lay})
+        vrng = np.random.default_rng(seed + VALIDATION_SEED_OFFSET)
+        poses = random_poses(rig.volume, ts.validation_poses, prep.poses.pivot, vrng)
+        table = compute_table(
+            prop.mesh, sites.points[union], sites.normals[union], rig, poses, spec.grazing_limit_deg,
+            radius_m=prep.seat.ball_radius_m, centre_m=prep.seat.centre_height_m, occlusion=spec.occlusion,
+            occluders=capsule_arrays(prep.capsules),
+        )  # fmt: skip
+        seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, vrng)
+        held = Problem(centres[union], seen, seen.mean(axis=1), ts, prob.spacing, prob.spread_target, prob.avoid_faces)
+        at = {s: i for i, s in enumerate(union)}
+        return [held.cost([at[int(x)] for x in lay]) for lay in layouts]
+
+    return validate
+
+
 def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress) -> PlacementResult:
     """The tracked objective (:mod:`starforge.props.tracked`) over camera-loss scenarios, then
     the chosen layout and both baselines checked on fresh poses (:mod:`starforge.props.evaluate`)."""
@@ -332,7 +366,7 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
     t = time.perf_counter()
     ts, table, sites, rig = spec.track, prep.table, prep.sites, prep.rig
     centres = sites.points + prep.seat.centre_height_m * sites.normals
-    seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, rng)
+    seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, np.random.default_rng(seed + LOSS_SEED_OFFSET))
     ext = np.sort(np.asarray(prop.mesh.extents))
     prob = Problem(
         centres,
@@ -344,7 +378,10 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         None if avoid is None or not len(avoid) else np.asarray(avoid, float),
     )
     run_cb = (lambda d, n: progress("optimizing", d, n)) if progress else None
-    opt = optimize(prob, rng, run_cb)
+    validate = None
+    if ts.validation_poses:
+        validate = _validator(prop, spec, seed, prep, centres, prob)
+    opt = optimize(prob, rng, run_cb, validate)
     t = _tick(timings, "optimize_s", t)
     chosen, terms = opt.sites, opt.terms
     runs = tuple(
@@ -475,7 +512,7 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
 
         ts = spec.track
         centres = pts + seat.centre_height_m * nrm
-        seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, rng)
+        seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, np.random.default_rng(seed + LOSS_SEED_OFFSET))
         v = seen.mean(axis=1)
         prob = Problem(
             centres,

@@ -6,14 +6,14 @@ markers are not nearly collinear: their spread across their best-fit line (RMS
 distance from it) is at least that of a triangle ``min_height_mm`` high (``sqrt(2) / 3`` of the
 height).  The cost of a layout, lowest best, is led by the fraction of poses not tracked::
 
-    C = w_untracked * untracked + w_spare * no_spare + w_visibility * (1 - mean visibility)
+    C = w_untracked * untracked + w_spare * spare_shortfall + w_visibility * (1 - mean visibility)
       + w_spread * max(0, 1 - spread / spread_target) + w_near_symmetry * max(0, 1 - margin / target)
       + w_spacing * pairs closer than the spacing + w_count * (1 - exp(-(n - n0)^2 / 2))
       + w_avoid * triangles within the tolerance of another prop's
 
-with *no_spare* the fraction of
-scenarios with at most 3 markers seen (tracked with no marker to spare: the term keeps
-separating layouts once every scenario is tracked), *visibility* the fraction of scenarios
+with *spare_shortfall* the mean shortfall of the markers seen
+below ``spare_markers`` (5), as a fraction of it (markers to spare when more are lost: the
+term keeps separating layouts once every scenario is tracked), *visibility* the fraction of scenarios
 in which a marker is seen (the paper's eq. 2 quantity, under camera loss), *spread* the markers' RMS distance from their best-fit line (a layout on one
 line cannot give an orientation), *margin* the near-symmetry margin
 (:func:`starforge.props.symmetry.near_symmetry_margin`).
@@ -64,6 +64,7 @@ class TrackSettings:
     max_markers: int = 12
     w_untracked: float = 10.0
     w_spare: float = 2.0
+    spare_markers: int = 5
     w_visibility: float = 1.0
     w_spread: float = 0.5
     w_near_symmetry: float = 1.0
@@ -78,10 +79,12 @@ class TrackSettings:
     restarts: int = 2
     t0: float = 0.1
     random_layouts: int = 1000
+    validation_poses: int = 400  # held-out random poses that rank the final candidates (0: none)
 
     def __post_init__(self):
         in_range("marker_mm", self.marker_mm, 1.0, 50.0)
         in_range("gap_px", self.gap_px, 0.0, 50.0)
+        in_range("spare_markers", self.spare_markers, 0, 100)
         in_range("cameras_lost", self.cameras_lost, 0.0, 1.0)
         in_range("loss_patterns", self.loss_patterns, 1, 64)
         in_range("min_height_mm", self.min_height_mm, 0.0, 1000.0)
@@ -98,6 +101,7 @@ class TrackSettings:
         in_range("restarts", self.restarts, 0, 1000)
         non_negative("t0", self.t0)
         in_range("random_layouts", self.random_layouts, 0, 10**6)
+        in_range("validation_poses", self.validation_poses, 0, 100_000)
 
 
 def spacing_m(marker_mm: float, rig, gap_px: float) -> float:
@@ -202,7 +206,7 @@ class Problem:
         s2 = seen.T @ self.moments[idx]
         tracked = (cnt >= 3) & (line_spread2_many(cnt, s1, s2) >= self.min_spread2)
         untracked = 1.0 - float(tracked.mean())
-        no_spare = float((cnt <= 3).mean())
+        spare_shortfall = float(np.maximum(0.0, s.spare_markers - cnt).mean()) / max(1, s.spare_markers)
         vis = float(self.visibility[idx].mean()) if n else 0.0
         P = self.points[idx]
         spread = math.sqrt(line_spread2(n, *P.sum(0), *self.moments[idx].sum(0))) if n >= 2 else 0.0
@@ -213,7 +217,7 @@ class Problem:
         cap = s.near_symmetry_target_mm / 1000.0
         out = {
             "untracked": untracked,
-            "no_spare": no_spare,
+            "spare_shortfall": spare_shortfall,
             "mean_visibility": vis,
             "spread_m": spread,
             "near_symmetry_margin_m": cap if not symmetry else math.inf,
@@ -246,7 +250,7 @@ class Problem:
         n = t["markers"]
         return (
             s.w_untracked * t["untracked"]
-            + s.w_spare * t.get("no_spare", 0.0)
+            + s.w_spare * t.get("spare_shortfall", 0.0)
             + s.w_visibility * (1.0 - t["mean_visibility"])
             + s.w_spread * max(0.0, 1.0 - t["spread_m"] / self.spread_target)
             + s.w_near_symmetry * max(0.0, 1.0 - t["near_symmetry_margin_m"] * 1000.0 / s.near_symmetry_target_mm)
@@ -397,12 +401,16 @@ class ChainRun:
 
 
 def chain(prob: Problem, start: list[int], rng: np.random.Generator) -> ChainRun:
-    """One annealed reversible-jump chain from ``start`` (see the module docstring)."""
+    """One annealed reversible-jump chain from ``start`` (see the module docstring).
+
+    The chain anneals the cost without its near-symmetry term (a lower bound of the total; the
+    symmetry search took three quarters of a chain's time), and its ``cost`` is that bound; the
+    swap search that polishes the chain's best uses the full cost."""
     s = prob.settings
     S = len(prob.points)
     Z, lo = s.max_markers, s.min_markers
     sites = list(start)
-    cur = prob.cost(sites)
+    cur = prob.terms(sites, symmetry=False)["total"]
     best, best_sites = cur, tuple(sites)
     hist = np.empty(max(1, s.iterations))
     last_gain = 0
@@ -435,7 +443,7 @@ def chain(prob: Problem, start: list[int], rng: np.random.Generator) -> ChainRun
         # accept iff new cost <= cur + t (log factor - log u): the bound that decides it
         lu = math.log(max(rng.random(), 1e-300))
         limit = cur + t * (math.log(factor) - lu) if t > 0 else cur
-        nc = prob.cost(new, bound=limit)
+        nc = prob.terms(new, symmetry=False)["total"]
         ok = nc <= limit if t > 0 else nc < cur
         if ok:
             sites, cur = new, nc
@@ -461,8 +469,12 @@ class Optimized:
     seconds: dict
 
 
-def optimize(prob: Problem, rng: np.random.Generator, progress=None) -> Optimized:
-    """Baselines, chains from the greedy layout, the best polished (see the module docstring)."""
+def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=None) -> Optimized:
+    """Baselines, chains from the best random layout, the best polished (see the module docstring).
+
+    ``validate``: optional ``validate(list of site tuples) -> costs`` on scenarios the optimizer
+    did not search (a held-out sample); the candidates are then ranked by their cost on both
+    samples together (a larger sample of the same objective), and ``selection_cost`` says so."""
     s = prob.settings
     sec = {}
     t = time.perf_counter()
@@ -486,19 +498,31 @@ def optimize(prob: Problem, rng: np.random.Generator, progress=None) -> Optimize
     if r_sites is not None:
         starts.add(tuple(r_sites))
     cands = [(g_cost, tuple(greedy))]
+    if r_sites is not None:
+        cands.append((r_cost, tuple(r_sites)))  # the baseline itself competes too
     for start in sorted(starts):
         polished = local_search(prob, list(start))
         cands.append((prob.cost(polished), tuple(polished)))
-    best = list(min(cands)[1])
     sec["polish_s"] = round(time.perf_counter() - t, 3)
+    held = [0.0] * len(cands)
+    if validate is not None:
+        t = time.perf_counter()
+        held = list(validate([c[1] for c in cands]))
+        sec["validate_s"] = round(time.perf_counter() - t, 3)
+    ranked = [(c + h, sites) for (c, sites), h in zip(cands, held, strict=True)]
+    best = list(min(ranked)[1])
+    sel = {"greedy": ranked[0][0], "random": ranked[1][0] if r_sites is not None else None}
     baselines = {
-        "greedy_local_search": {"cost": g_cost, "sites": [int(x) for x in greedy]},
+        "greedy_local_search": {"cost": g_cost, "sites": [int(x) for x in greedy], "selection_cost": sel["greedy"]},
         "best_of_random": {
             "layouts": s.random_layouts,
             "cost": None if r_sites is None else r_cost,
             "sites": None if r_sites is None else [int(x) for x in r_sites],
             "median_cost": float(np.median(r_costs)) if r_costs else None,
+            "selection_cost": sel["random"],
         },
+        "selection_cost": min(ranked)[0],
+        "validated": validate is not None,
         "chains": [{"cost": r.cost, "iterations": r.iterations, "accepted": r.accepted} for r in runs],
     }
     return Optimized(tuple(int(x) for x in best), prob.terms(best), baselines, tuple(runs), sec)
