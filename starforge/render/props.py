@@ -57,7 +57,13 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         return res
     runs = res.anneal.runs
     best = int(np.argmin(res.anneal.costs))
-    temps = np.array([res.spec.chain.temperature(i) for i in range(runs[best].iterations)])
+    n_hist = len(runs[best].history_cost)
+    if res.tracked is not None:  # the tracked chains cool geometrically from t0 to 1e-4
+        ts = res.spec.track
+        decay = (1e-4 / ts.t0) ** (1.0 / max(1, ts.iterations)) if ts.t0 > 0 else 0.0
+        temps = ts.t0 * decay ** np.arange(n_hist) if ts.t0 > 0 else np.zeros(n_hist)
+    else:
+        temps = np.array([res.spec.chain.temperature(i) for i in range(n_hist)])
     nf = len(res.prop.mesh.faces)
     keep = np.linspace(0, nf - 1, max_faces).astype(int) if nf > max_faces else np.arange(nf)
     from starforge.props.guide import landmarks
@@ -108,7 +114,11 @@ def convergence_png(res, path: str | Path) -> Path:
     ax.plot(it, cost, color="C0", lw=1.4, label=f"current (best of {len(d.run_costs)} runs)")
     ax.plot(it, best_so_far, color="C3", lw=1.0, ls="--", label="best so far")
     ax.set_ylabel("total cost")
-    ax.set_title(f"{d.name}: annealing, final cost {d.final_cost:.4f}")
+    ax.set_title(
+        f"{d.name}: annealing, final cost {d.final_cost:.4f}"
+        if len(cost) > 1
+        else f"{d.name}: no annealing chain (--restarts 0), cost {d.final_cost:.4f}"
+    )
     ax.legend(loc="upper right", fontsize=8)
     ax.grid(alpha=0.3)
     ax2.plot(it, d.temperatures, color="C2", lw=1.0, label="temperature")
