@@ -367,79 +367,103 @@ def guide_files(res, folder: str | Path) -> list[str]:
     return ["guide.png", "guide.pdf"]
 
 
-class BackgroundRenderer:
-    """Draw ``convergence.png`` and ``layout.png`` in a forked child process.
+#: what each render process draws: the two placement pictures, and the rigging guide
+_ROLES = ("pictures", "guide")
+NAMES = {"pictures": ["convergence.png", "layout.png"], "guide": ["guide.png", "guide.pdf"]}
 
-    Entering forks a child that imports matplotlib at once (start-up cost that then overlaps the
-    parent's own imports and computation on a second core) and waits.  :meth:`submit` hands it
-    the plot data and the folder; :meth:`wait` collects it and raises if drawing failed.
-    Without ``os.fork`` (or when other threads run, where forking is unsafe) the same pictures are
-    drawn in-process by :meth:`wait`.  The pictures are byte-identical either way.
+
+def _draw(role: str, data: PlotData, folder: Path) -> None:
+    if role == "pictures":
+        convergence_png(data, folder / "convergence.png")
+        layout_png(data, folder / "layout.png")
+    else:
+        guide_files(data, folder)
+
+
+class BackgroundRenderer:
+    """Draw the pictures in two forked child processes: ``convergence.png`` and ``layout.png``
+    in one, the rigging guide in the other (they draw at the same time on two cores).
+
+    Entering forks the children, which import matplotlib at once (start-up cost that then
+    overlaps the parent's own imports and computation) and wait.  :meth:`submit` hands them the
+    plot data and the folder; :meth:`wait` collects them and raises if drawing failed.  Without
+    ``os.fork`` (or when other threads run, where forking is unsafe) the same pictures are drawn
+    in-process by :meth:`wait`.  The pictures are byte-identical either way.
     """
 
     def __init__(self, enabled: bool = True):
         import threading
 
         self._fork = enabled and hasattr(os, "fork") and threading.active_count() == 1
-        self._pid: int | None = None
-        self._w: int | None = None
+        self._kids: list[tuple[int, int | None]] = []  # (pid, write end)
         self._job: tuple | None = None
+        self._sent: Path | None = None
 
     def __enter__(self) -> BackgroundRenderer:
         if self._fork:
-            r, w = os.pipe()
-            pid = os.fork()
-            if pid == 0:  # child: never returns
-                os.close(w)
-                _child(r)
-            os.close(r)
-            self._pid, self._w = pid, w
+            for role in _ROLES:
+                r, w = os.pipe()
+                pid = os.fork()
+                if pid == 0:  # child: never returns
+                    os.close(w)
+                    for _, other in self._kids:
+                        if other is not None:
+                            os.close(other)
+                    _child(r, role)
+                os.close(r)
+                self._kids.append((pid, w))
         return self
 
     def submit(self, res, folder: str | Path) -> None:
         """Start drawing the pictures of ``res`` into ``folder``."""
         data, folder = plot_data(res), Path(folder)
-        if self._pid is None:
+        if not self._kids:
             self._job = (data, folder)
             return
         job = folder / ".render.pkl"
         job.write_bytes(pickle.dumps((data, str(folder)), protocol=pickle.HIGHEST_PROTOCOL))
-        os.write(self._w, str(job).encode())
-        os.close(self._w)
-        self._w = None
+        self._sent = job
+        for k, (pid, w) in enumerate(self._kids):
+            os.write(w, str(job).encode())
+            os.close(w)
+            self._kids[k] = (pid, None)
 
     def wait(self) -> list[str]:
         """Wait for the pictures; return their file names."""
-        names = ["convergence.png", "layout.png", "guide.png", "guide.pdf"]
-        if self._pid is None:
+        names = [n for role in _ROLES for n in NAMES[role]]
+        if not self._kids:
             if self._job is not None:
                 data, folder = self._job
-                convergence_png(data, folder / names[0])
-                layout_png(data, folder / names[1])
-                guide_files(data, folder)
+                for role in _ROLES:
+                    _draw(role, data, folder)
                 self._job = None
             return names
-        _, status = os.waitpid(self._pid, 0)
-        self._pid = None
-        if status != 0:
-            raise RuntimeError("drawing the placement pictures failed in the render process")
+        failed = False
+        for pid, _ in self._kids:
+            _, status = os.waitpid(pid, 0)
+            failed |= status != 0
+        self._kids = []
+        if self._sent is not None:
+            self._sent.unlink(missing_ok=True)  # both children have read it
+            self._sent = None
+        if failed:
+            raise RuntimeError("drawing the placement pictures failed in a render process")
         return names
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        if self._w is not None:
-            os.close(self._w)  # the child sees end-of-file and leaves
-            self._w = None
-        if self._pid is not None:
+        for pid, w in self._kids:
+            if w is not None:
+                os.close(w)  # the child sees end-of-file and leaves
             if exc_type is not None:
                 import signal
 
-                os.kill(self._pid, signal.SIGKILL)
-            os.waitpid(self._pid, 0)
-            self._pid = None
+                os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+        self._kids = []
 
 
-def _child(read_fd: int) -> None:
-    """Body of the render process: import matplotlib, wait for a job, draw it, exit."""
+def _child(read_fd: int, role: str) -> None:
+    """Body of a render process: import matplotlib, wait for a job, draw its part, exit."""
     code = 1
     try:
         pyplot()
@@ -450,10 +474,7 @@ def _child(read_fd: int) -> None:
         else:
             job = Path(message.decode())
             data, folder = pickle.loads(job.read_bytes())
-            job.unlink()
-            convergence_png(data, Path(folder) / "convergence.png")
-            layout_png(data, Path(folder) / "layout.png")
-            guide_files(data, Path(folder))
+            _draw(role, data, Path(folder))
             code = 0
     except BaseException:  # reported by the parent through the exit status
         code = 1
