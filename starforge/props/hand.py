@@ -5,8 +5,10 @@ from it; the hand is one capsule around that segment (palm and fingers wrapped r
 grip), which hides whatever lies inside it from every camera and covers the surface it
 encloses (no marker can be stuck under the hand).  ``--grip`` gives the segment in the prop
 frame (metres); without it, a built-in prop has its own grip (:data:`GRIPS`) and a mesh gets
-the thinner end of its longest bounding-box axis (a quarter of its length, at most a palm's
-width, :data:`PALM_M`).  The forearm is not modelled (its direction depends on how the prop
+its thinnest end: of the ends of its bounding box along the axes at least half as long as the
+longest (the quarter of the box next to each face), the one whose cross-section (the vertices' farthest distance from the section's centre)
+is smallest, the grip running a palm's width (:data:`PALM_M`, at most a quarter of the length)
+along that axis.  The forearm is not modelled (its direction depends on how the prop
 is held); that is a simplification the README states.
 """
 
@@ -76,21 +78,23 @@ def default_grip(mesh, name: str = "", builtin: bool = False) -> Capsule:
         return Capsule(a, b, r + FINGERS_M)
     lo, hi = np.asarray(mesh.bounds, float)
     ext = hi - lo
-    ax = int(np.argmax(ext))
     v = np.asarray(mesh.vertices, float)
-    t = (v[:, ax] - lo[ax]) / max(ext[ax], 1e-12)
+    best = None
+    for ax in np.argsort(-ext, kind="stable").tolist():  # longest axis first (wins ties)
+        if ext[ax] < 0.5 * ext.max():
+            continue  # a grip runs along a long direction of the prop
+        others = [i for i in range(3) if i != ax]
+        t = (v[:, ax] - lo[ax]) / max(ext[ax], 1e-12)
+        for end, mask in ((0, t <= 0.25), (1, t >= 0.75)):
+            if not mask.any():
+                continue
+            w = v[mask][:, others]
+            c = (w.max(0) + w.min(0)) / 2
+            r = float(np.linalg.norm(w - c, axis=1).max())
+            if best is None or r < best[0] - 1e-9:
+                best = (r, ax, end, c)
+    r, ax, end, c = best
     others = [i for i in range(3) if i != ax]
-
-    def section(mask):
-        if not mask.any():
-            return np.inf, lo + ext / 2
-        w = v[mask][:, others]
-        c = (w.max(0) + w.min(0)) / 2
-        return float(np.linalg.norm(w - c, axis=1).max()), c
-
-    r0, c0 = section(t <= 0.25)
-    r1, c1 = section(t >= 0.75)
-    end, r, c = (0, r0, c0) if r0 <= r1 else (1, r1, c1)
     length = min(PALM_M, 0.25 * ext[ax])
     start = lo[ax] + (0.01 if end == 0 else ext[ax] - 0.01 - length)
     a = np.zeros(3)
