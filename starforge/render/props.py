@@ -220,6 +220,10 @@ def _markers_in_view(ax, d: PlotData, B, span, colour=None, norm=None, cmap=None
     mp = d.marker_centres @ B.T
     facing = d.marker_normals @ B[2] > -1e-9
     lab = spread_labels(mp[:, :2], span)
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    m = 0.03 * span  # keep every label inside its own view
+    lab[:, 0] = np.clip(lab[:, 0], x0 + m, x1 - m)
+    lab[:, 1] = np.clip(lab[:, 1], y0 + m, y1 - m)
     sc = None
     for i in range(len(mp)):
         col = "k" if facing[i] else "0.55"
