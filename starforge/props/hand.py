@@ -106,11 +106,10 @@ def default_grip(mesh, name: str = "", builtin: bool = False) -> Capsule:
 
 def inside_capsules(points: np.ndarray, caps) -> np.ndarray:
     """(n,) bool: each point inside some capsule."""
-    pts = np.asarray(points, float)
+    from starforge.cad.primitives import point_segment_distance
+
+    pts = np.asarray(points, float).reshape(-1, 3)
     out = np.zeros(len(pts), bool)
     for c in caps:
-        a, b = np.asarray(c.a), np.asarray(c.b)
-        ab = b - a
-        t = np.clip((pts - a) @ ab / max(float(ab @ ab), 1e-300), 0.0, 1.0)
-        out |= np.linalg.norm(pts - (a + t[:, None] * ab), axis=1) <= c.radius
+        out |= point_segment_distance(pts, c.a, c.b) <= c.radius
     return out
