@@ -233,8 +233,16 @@ def score_cmd(
         return
     con = console()
     con.print(f"{p.name}: {cost.markers} markers, cost {cost.total:.4f}")
+    seated = extra.get("seated", [])
+    con.print(f"  seated: {sum(seated)} of {len(seated)} markers (their base rests on the surface, clear of sharp edges)")
     if "tracked_fraction" in extra:
-        con.print(f"  tracked at {100 * extra['tracked_fraction']:.1f} % of the poses, mean visibility {cost.mean_visibility:.3f}")
+        con.print(f"  tracked in {100 * extra['tracked_fraction']:.1f} % of the scenarios, mean visibility {cost.mean_visibility:.3f}")
+        ev = extra.get("evaluation")
+        if ev:
+            con.print(
+                f"  on fresh poses with cameras lost and the hand: tracked {100 * ev['tracked']:.1f} %, "
+                f"markers reconstructed {ev['markers_reconstructed']:.3f}"
+            )
         return
     con.print(
         f"  visibility {cost.visibility:.4f} (mean {cost.mean_visibility:.3f}), count {cost.count:.4f}, "
