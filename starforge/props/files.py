@@ -431,18 +431,37 @@ def summary_lines(res: PlacementResult) -> list[str]:
         f"{' x '.join(f'{e:.3f}' for e in res.prop.mesh.extents)} m",
     ]
     lines += [f"  repair: {n}" for n in res.prop.notes]
-    lines.append(f"sites: {len(res.sites)} usable ({res.forbidden} in constrained areas removed)")
-    lines.append(f"poses: {len(res.poses)}, camera pairs: {len(res.rig.pairs)}, rays cast: {res.rays}")
+    rm = res.removed
+    lines.append(
+        f"sites: {len(res.sites)} usable of {len(res.sites) + sum(rm.values())} ({rm.get('constrained', 0)} constrained, "
+        f"{rm.get('under_hand', 0)} under the hand, {rm.get('unseated', 0)} where a {res.seat.name} base does not seat)"
+    )
+    lines.append(f"poses: {len(res.poses)}, cameras: {len(res.rig.cameras)}, rays cast: {res.rays}")
     if res.tracked is not None:
         t, b = res.tracked.terms, res.tracked.baselines
         lines.append(
-            f"markers: {t['markers']} ({res.spec.track.marker_mm:g} mm, spacing {res.spacing_m * 1000:.1f} mm), "
-            f"tracked at {100 * (1 - t['untracked']):.1f} % of the poses, mean visibility {t['mean_visibility']:.3f}"
+            f"markers: {t['markers']} ({res.seat.name}, spacing {res.spacing_m * 1000:.1f} mm), tracked in "
+            f"{100 * (1 - t['untracked']):.1f} % of {res.marker_pose_seen.shape[1]} scenarios with "
+            f"{round(res.spec.track.cameras_lost * len(res.rig.cameras))} cameras lost, mean visibility {t['mean_visibility']:.3f}"
         )
         rnd = b["best_of_random"]["cost"]
         lines.append(
             f"cost {t['total']:.4f}; greedy + local search {b['greedy_local_search']['cost']:.4f}"
             + (f", best of {b['best_of_random']['layouts']} random {rnd:.4f}" if rnd is not None else "")
+        )
+        ev = res.evaluation
+        if ev:
+            parts = [f"{k.replace('_', ' ')} {100 * v['tracked']:.1f} %" for k, v in ev.items() if not k.startswith("_")]
+            lines.append(
+                f"fresh poses ({ev['_poses']}, {ev['_cameras_lost']} cameras lost, the hand): tracked " + ", ".join(parts)
+            )
+        idx = list(res.marker_sites)
+        contact = np.asarray(res.seat_report.contact)[idx]
+        edge = np.asarray(res.seat_report.edge_m)[idx]
+        lines.append(
+            f"seats: base contact >= {100 * contact.min():.0f} %, sharp edges >= "
+            + (f"{1000 * edge.min():.1f} mm" if np.isfinite(edge.min()) else "none")
+            + f" away (base radius {res.seat.base_mm / 2:g} mm)"
         )
         if not math.isinf(t["near_symmetry_margin_m"]):
             lines.append(f"near-symmetry margin: {t['near_symmetry_margin_m'] * 1000:.1f} mm")

@@ -1,8 +1,9 @@
 """The hand that holds the prop, as occluders that move with it: capsules in the prop frame.
 
-A grip is a segment (the axis the fingers close around) and the radius the hand reaches
-from it; the hand is one capsule around that segment (palm and fingers wrapped round the
-grip), which hides whatever lies inside it from every camera and covers the surface it
+A grip is a segment (the stretch of the gripped part the palm covers, along the axis the
+fingers close around) and the part's radius; the hand is one capsule around it, reaching
+:data:`FINGERS_M` beyond the part and covering that stretch of its surface
+(:func:`hand_capsule`: palm and fingers wrapped round the grip), which hides whatever lies inside it from every camera and covers the surface it
 encloses (no marker can be stuck under the hand).  ``--grip`` gives the segment in the prop
 frame (metres); without it, a built-in prop has its own grip (:data:`GRIPS`) and a mesh gets
 its thinnest end: of the ends of its bounding box along the axes at least half as long as the
@@ -14,6 +15,7 @@ is held); that is a simplification the README states.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,6 +51,21 @@ class Capsule:
         return {"a": [round(float(x), 9) + 0.0 for x in self.a], "b": [round(float(x), 9) + 0.0 for x in self.b], "radius": round(float(self.radius), 9)}
 
 
+def hand_capsule(a, b, part_radius: float) -> Capsule:
+    """The hand around the grip ``a``-``b`` (the stretch of the part the palm covers, m) of a part
+    ``part_radius`` thick: a capsule of radius ``part_radius + FINGERS_M`` whose core is shortened
+    so that where it meets the part's surface it covers ``a``-``b`` and no more (a capsule reaches
+    ``sqrt(R^2 - r^2)`` past its core's ends at distance ``r`` from the axis)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    R = part_radius + FINGERS_M
+    reach = math.sqrt(max(R * R - part_radius * part_radius, 0.0))
+    L = float(np.linalg.norm(b - a))
+    u = (b - a) / L if L > 0 else np.zeros(3)
+    core = max(0.0, L - 2 * reach)
+    mid = (a + b) / 2
+    return Capsule(tuple(mid - u * core / 2), tuple(mid + u * core / 2), R)
+
+
 def capsule_arrays(caps) -> np.ndarray:
     """(k, 7) float: a, b, radius of each capsule (the compiled kernels' input)."""
     if not caps:
@@ -68,14 +85,14 @@ def parse_grip(text: str) -> Capsule:
     r = v[6] if len(v) == 7 else 0.015
     if not 0 <= r <= 0.5:
         raise StarforgeError(f"--grip radius must be in [0, 0.5] m, got {r}")
-    return Capsule(tuple(v[:3]), tuple(v[3:6]), r + FINGERS_M)
+    return hand_capsule(v[:3], v[3:6], r)
 
 
 def default_grip(mesh, name: str = "", builtin: bool = False) -> Capsule:
     """The hand at a sensible graspable part (see the module docstring)."""
     if builtin and name in GRIPS:
         a, b, r = GRIPS[name]
-        return Capsule(a, b, r + FINGERS_M)
+        return hand_capsule(a, b, r)
     lo, hi = np.asarray(mesh.bounds, float)
     ext = hi - lo
     v = np.asarray(mesh.vertices, float)
@@ -101,7 +118,7 @@ def default_grip(mesh, name: str = "", builtin: bool = False) -> Capsule:
     a[others] = c
     b = a.copy()
     a[ax], b[ax] = start, start + length
-    return Capsule(tuple(a), tuple(b), min(r, 0.05) + FINGERS_M)
+    return hand_capsule(a, b, min(r, 0.05))
 
 
 def inside_capsules(points: np.ndarray, caps) -> np.ndarray:
