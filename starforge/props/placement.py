@@ -126,10 +126,7 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
     ok[np.flatnonzero(rest)[report.ok]] = True
     removed = {"constrained": int(bad.sum()), "under_hand": int(hand.sum()), "unseated": int((rest & ~ok).sum())}
     kept = sites.subset(ok)
-    sub = np.flatnonzero(report.ok)
-    from starforge.props.seat import SeatReport
-
-    report = SeatReport(report.contact[sub], report.edge_m[sub], report.clearance_m[sub], report.ok[sub])
+    report = report.subset(report.ok)
     need = spec.track.min_markers if spec.objective == "tracked" else spec.costs.min_markers
     if len(kept) < need:
         raise StarforgeError(
@@ -141,8 +138,8 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
         )
     t = _tick(timings, "sample_s", t)
     pivot = np.asarray(prop.mesh.bounds, dtype=float).mean(axis=0)
+    check_cost(prop, spec, rig, len(kept), spec.resolution**3 * spec.orientations)  # before building them
     poses = make_poses(rig.volume, spec.resolution, spec.orientations, pivot, rng)
-    check_cost(prop, spec, rig, len(kept), len(poses))
     table = compute_table(
         prop.mesh,
         kept.points,

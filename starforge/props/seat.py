@@ -194,6 +194,10 @@ class SeatReport:
     clearance_m: np.ndarray
     ok: np.ndarray
 
+    def subset(self, keep: np.ndarray) -> SeatReport:
+        """The report of the sites where the boolean mask ``keep`` is true."""
+        return SeatReport(self.contact[keep], self.edge_m[keep], self.clearance_m[keep], self.ok[keep])
+
 
 def seat_report(mesh, points: np.ndarray, normals: np.ndarray, seat: Seat, rules: SeatRules) -> SeatReport:
     """Test every site (``points`` (s, 3) m on the surface, outward unit ``normals``).
