@@ -221,7 +221,7 @@ def test_constraints_from_the_cli(tmp_path, capsys):
     st = doc["sites"]
     assert st["forbidden"] > 0 and st["usable"] + st["forbidden"] + st["under_hand"] + st["unseated"] == 250
     assert all(m["position"][2] > 0.1 for m in doc["markers"])
-    assert f"{doc['sites']['forbidden']} in constrained areas removed" in stdout
+    assert f"({doc['sites']['forbidden']} constrained, " in stdout
 
 
 def test_orientations_and_help(tmp_path, capsys):
