@@ -8,6 +8,8 @@
 * ``paper_defects``: ``--spec paper --markers 10`` on every built-in: the closest two markers
   (0 mm would be two markers on one site) and the least clearance of a 2 mm ball from the
   surface, recomputed here with trimesh's closest-point query (below 2 mm: the ball cuts in).
+* ``small_rig``: the same on the 4-camera ``small4`` rig (2 of 4 cameras lost in each pose),
+  where layouts separate by tracked poses, not only by markers reconstructed.
 * ``hammer_cli_s``: ``starforge place`` (the hammer, default settings) end to end as a fresh
   process, the median of 3.
 * ``targets``: each with its measured value and a met flag.
@@ -40,11 +42,11 @@ def _load() -> str:
         return "n/a"
 
 
-def _prop_row(prop: str) -> dict:
+def _prop_row(prop: str, **kw) -> dict:
     from starforge.props.placement import run_placement
 
     t = time.perf_counter()
-    res = run_placement(prop)
+    res = run_placement(prop, **kw)
     sec = time.perf_counter() - t
     terms, b, ev = res.tracked.terms, res.tracked.baselines, res.evaluation
     idx = list(res.marker_sites)
@@ -90,6 +92,10 @@ def main() -> None:
     props = [p for p in a.props.split(",") if p]
     out: dict = {"machine": platform.machine(), "cpus": os.cpu_count(), "load_before": _load()}
     out["props"] = {p: _prop_row(p) for p in props}
+    out["small_rig"] = {
+        p: {k: v for k, v in _prop_row(p, rig="small4").items() if k in ("cost", "cost_greedy_local_search", "cost_best_of_1000_random", "evaluation", "seconds")}
+        for p in props
+    }  # fmt: skip
     out["paper_defects"] = {p: _paper_row(p) for p in props}
     with tempfile.TemporaryDirectory() as tmp:
         runs = []
