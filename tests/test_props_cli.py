@@ -278,3 +278,27 @@ def test_pictures_drawn_in_a_child_process_are_identical(tmp_path, capsys):
     for name in ("convergence.png", "layout.png", "markers.csv", "prop_markers.glb"):
         assert (out / name).read_bytes() == (here / name).read_bytes(), name
     assert not list(out.glob(".render*"))
+
+
+def test_grip_no_hand_and_bases_stl(tmp_path, capsys):
+    """--grip places the hand where asked, --no-hand removes it, --bases-stl writes a watertight
+    prop with one pad per marker, and the guide names every marker."""
+    import trimesh
+
+    out = tmp_path / "g"
+    args = ["place", "box", "--sites", "150", "--resolution", "1", "--orientations", "6", "--bases-stl",
+            "--grip", "-0.1,0,0.25,0.1,0,0.25,0.01", "--out", str(out)]  # fmt: skip
+    code, stdout, err = _run(args, capsys)
+    assert code == 0, err
+    doc = json.loads((out / "placement.json").read_text())
+    (hand,) = doc["hand"]
+    assert hand["radius"] == pytest.approx(0.035) and hand["a"][2] == pytest.approx(0.25)
+    assert max(abs(hand["a"][0]), abs(hand["b"][0])) < 0.1  # the core is shortened by the reach
+    stl = trimesh.load(out / "prop_bases.stl")
+    assert stl.is_watertight and stl.volume > 0.4 * 0.3 * 0.25
+    assert (out / "guide.pdf").read_bytes()[:5] == b"%PDF-"
+    code, stdout, err = _run(["place", "box", "--sites", "150", "--resolution", "1", "--orientations", "6",
+                              "--no-hand", "--out", str(tmp_path / "n")], capsys)  # fmt: skip
+    assert code == 0, err
+    doc = json.loads((tmp_path / "n" / "placement.json").read_text())
+    assert doc["hand"] == [] and doc["sites"]["under_hand"] == 0
