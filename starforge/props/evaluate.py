@@ -4,8 +4,8 @@ Fresh poses: uniformly random rotations (normalised Gaussian quaternions) at uni
 positions of the capture volume, drawn from their own generator (``seed + seed_offset``); in
 each pose a random ``cameras_lost`` fraction of the rig's cameras is lost, and the hand holds
 the prop.  A marker is seen by a camera when its ball centre is in the camera's field of view,
-faces it within the grazing limit, the sight line misses the hand (closest points of two
-segments, numpy) and misses the prop (one occlusion query per sight line); it is
+faces it within the grazing limit, the sight line misses the hand (the ray-segment distance of
+:mod:`starforge.cad.primitives`, not the compiled kernel's) and misses the prop (one occlusion query per sight line); it is
 reconstructed when two surviving cameras see it.  A pose is tracked when at least three
 markers are reconstructed and they span a triangle ``min_height_mm`` high (RMS distance from
 their best-fit line, from the eigenvalues of their covariance).
@@ -36,23 +36,6 @@ def random_poses(volume, count: int, pivot, rng: np.random.Generator):
     return Poses(R, T, np.asarray(pivot, float))
 
 
-def _segment_dist2(p0, p1, q0, q1):
-    """Squared distance between segments p0-p1 and q0-q1, broadcast over leading axes."""
-    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
-    a = np.einsum("...i,...i", d1, d1)
-    e = np.einsum("...i,...i", d2, d2)
-    b = np.einsum("...i,...i", d1, d2)
-    c = np.einsum("...i,...i", d1, r)
-    f = np.einsum("...i,...i", d2, r)
-    den = a * e - b * b
-    s = np.where(den > 1e-300, np.clip((b * f - c * e) / np.where(den > 1e-300, den, 1.0), 0, 1), 0.0)
-    t = (b * s + f) / np.where(e > 1e-300, e, 1.0)
-    s = np.where(t < 0, np.clip(-c / np.where(a > 1e-300, a, 1.0), 0, 1), np.where(t > 1, np.clip((b - c) / np.where(a > 1e-300, a, 1.0), 0, 1), s))
-    t = np.clip(t, 0, 1)
-    w = (p0 + d1 * s[..., None]) - (q0 + d2 * t[..., None])
-    return np.einsum("...i,...i", w, w)
-
-
 def camera_hits(mesh, centres, normals, rig, poses, capsules=(), grazing_limit_deg: float = 180.0):
     """(P, m, C) bool: camera c sees marker i (ball centre ``centres[i]``, prop frame) at pose k."""
     from starforge.props.visibility import camera_arrays, ray_offset, segment_occluded
@@ -67,11 +50,17 @@ def camera_hits(mesh, centres, normals, rig, poses, capsules=(), grazing_limit_d
     ok = (z > 0) & (np.abs(loc[..., 0]) <= tans[:, 0] * z) & (np.abs(loc[..., 1]) <= tans[:, 1] * z)
     dist = np.linalg.norm(d, axis=-1)
     ok &= -np.einsum("kmcj,kmj->kmc", d, wn) >= math.cos(math.radians(grazing_limit_deg)) * dist
-    for cap in capsules:
-        a = np.einsum("kij,j->ki", R, np.asarray(cap.a) - piv) + T
-        b = np.einsum("kij,j->ki", R, np.asarray(cap.b) - piv) + T
-        d2 = _segment_dist2(w[:, :, None], np.broadcast_to(cam[None, None], d.shape), a[:, None, None], b[:, None, None])
-        ok &= d2 > cap.radius**2
+    if len(capsules):
+        from starforge.cad.primitives import ray_segment_distance
+
+        # in the prop frame, where the hand is fixed: rays from the ball centres to the cameras
+        # (the hand is within the prop's reach, the cameras metres away: a ray is the segment)
+        qk = np.einsum("kji,kcj->kci", R, cam[None] - T[:, None]) + piv  # (P, C, 3)
+        rays = qk[:, None, :, :] - centres[None, :, None, :]  # (P, m, C, 3)
+        org = np.broadcast_to(centres[None, :, None, :], rays.shape).reshape(-1, 3)
+        dirs = (rays / np.linalg.norm(rays, axis=-1, keepdims=True)).reshape(-1, 3)
+        for cap in capsules:
+            ok &= (ray_segment_distance(org, dirs, np.asarray(cap.a), np.asarray(cap.b)) > cap.radius).reshape(ok.shape)
     kk, mm, cc = np.nonzero(ok)
     if len(kk):
         # the sight line in the prop frame: camera -> prop frame is R^T (x - t) + pivot
