@@ -125,7 +125,8 @@ def test_chain_settings_validation():
 @pytest.mark.parametrize("name", ["hammer", "racket", "sword", "bottle", "box", "shield", "umbrella"])
 def test_beats_best_of_1000_random_layouts(name):
     from starforge.props.mesh import load_prop
-    from starforge.props.placement import load_spec, place
+    from starforge.props.placement import place
+    from starforge.props.spec import load_spec
 
     spec = load_spec("long")
     res = place(load_prop(name), spec, seed=1)
@@ -150,7 +151,8 @@ def test_beats_best_of_1000_random_layouts(name):
 def test_coverage_term_keeps_three_markers_in_view():
     """The optional coverage term (robust preset): re-checked from the visibility table."""
     from starforge.props.mesh import load_prop
-    from starforge.props.placement import load_spec, place
+    from starforge.props.placement import place
+    from starforge.props.spec import load_spec
 
     spec = load_spec("robust")
     res = place(load_prop("hammer"), spec, seed=2)

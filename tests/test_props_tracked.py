@@ -109,16 +109,20 @@ def test_cost_with_a_bound_and_the_margin_cache_agree_with_the_full_terms():
 
 def test_the_default_beats_or_ties_both_baselines_on_every_builtin_prop():
     from starforge.props.mesh import load_prop
-    from starforge.props.placement import load_spec, place, with_overrides
+    from starforge.props.placement import place
+    from starforge.props.spec import load_spec, with_overrides
 
     spec = with_overrides(load_spec("default"), sites=250, resolution=2, orientations=6)
     for prop in ("hammer", "racket", "sword", "bottle", "box", "shield", "umbrella"):
         res = place(load_prop(prop), spec, seed=0)
         t, b = res.tracked.terms, res.tracked.baselines
-        assert t["total"] <= b["greedy_local_search"]["cost"] + 1e-12
-        assert t["total"] <= b["best_of_random"]["cost"] + 1e-12
+        # ranked on the searched and the held-out scenarios together
+        assert b["validated"]
+        assert b["selection_cost"] <= b["greedy_local_search"]["selection_cost"] + 1e-12
+        assert b["selection_cost"] <= b["best_of_random"]["selection_cost"] + 1e-12
+        assert b["selection_cost"] >= t["total"] - 1e-12  # the held-out cost is >= 0
         for c in b["chains"]:
-            assert t["total"] <= c["cost"] + 1e-12
+            assert c["cost"] >= 0  # a chain's cost leaves out the near-symmetry term (a lower bound)
 
 
 def test_spacing_keeps_marker_images_apart():
@@ -156,7 +160,8 @@ def test_orientations_spread_over_the_rotation_group():
 
 
 def test_visibility_is_tested_at_the_ball_centre(tmp_path):
-    """An independent re-check with trimesh's own ray tracer (not embree) on the hammer."""
+    """An independent re-check with trimesh's own ray tracer (not embree) on the hammer, the
+    hand's capsule tested by points every 0.5 mm along each sight line."""
     from trimesh.ray.ray_triangle import RayMeshIntersector
 
     out = tmp_path / "o"
@@ -169,15 +174,21 @@ def test_visibility_is_tested_at_the_ball_centre(tmp_path):
     mesh = builtin_mesh("hammer")
     rig = load_rig("default")
     centres = np.array(doc["tracked"]["marker_centres_m"])
+    # the seat: centres on the normals, the catalogue's centre height above the site
+    pos = np.array([m["position"] for m in doc["markers"]])
+    nrm = np.array([m["normal"] for m in doc["markers"]])
+    assert np.allclose(centres, pos + doc["seat"]["centre_height_mm"] / 1000 * nrm, atol=1e-8)
+    hand = doc["hand"]
+    assert len(hand) == 1
+    a, b, r = np.array(hand[0]["a"]), np.array(hand[0]["b"]), hand[0]["radius"]
     poses = np.array(doc["poses"]["matrices"])
     cams = np.array([c.position for c in rig.cameras])
-    pairs = np.array(rig.pairs)
     inter = RayMeshIntersector(mesh)
     seen = np.zeros((len(centres), len(poses)), bool)
+    t = np.linspace(0, 1, 4000)[:, None]
     for k, T in enumerate(poses):
         world = centres @ T[:3, :3].T + T[:3, 3]
         fov = in_view(world, rig)
-        # cameras into the prop frame, rays from the ball centres
         cam_prop = (cams - T[:3, 3]) @ T[:3, :3]
         ok = np.zeros((len(centres), len(cams)), bool)
         for i, c in enumerate(centres):
@@ -186,12 +197,17 @@ def test_visibility_is_tested_at_the_ball_centre(tmp_path):
             hits = inter.intersects_location(np.repeat(c[None], len(cams), 0), d / dist[:, None])
             loc, ray = hits[0], hits[1]
             blocked = np.zeros(len(cams), bool)
-            for L, r in zip(loc, ray, strict=True):
-                if np.linalg.norm(L - c) < dist[r]:
-                    blocked[r] = True
+            for L, rr in zip(loc, ray, strict=True):
+                if np.linalg.norm(L - c) < dist[rr]:
+                    blocked[rr] = True
+            for j in range(len(cams)):
+                q = c + t * d[j]  # along the sight line, 2 m / 4000 = 0.5 mm apart
+                s = np.clip((q - a) @ (b - a) / ((b - a) @ (b - a)), 0, 1)
+                if (np.linalg.norm(q - (a + s[:, None] * (b - a)), axis=1) <= r).any():
+                    blocked[j] = True
             ok[i] = fov[i] & ~blocked
-        seen[:, k] = (ok[:, pairs[:, 0]] & ok[:, pairs[:, 1]]).any(axis=1)
-    ours = np.array([m["seen_fraction"] for m in doc["markers"]])
+        seen[:, k] = ok.sum(axis=1) >= 2
+    ours = np.array([m["seen_all_cameras"] for m in doc["markers"]])
     assert np.abs(seen.mean(axis=1) - ours).max() <= 0.02
     assert doc["tracked"]["tracked_fraction"] >= 0.9
 
@@ -233,7 +249,7 @@ def test_score_refuses_markers_off_the_surface(tmp_path, capsys):
 
 
 def test_the_paper_setting_stays_available():
-    from starforge.props.placement import load_spec
+    from starforge.props.spec import load_spec
 
     s = load_spec("paper")
     assert s.objective == "paper" and s.orientations == 1 and s.costs.marker_diameter_m == pytest.approx(0.004)
@@ -250,5 +266,7 @@ def test_untracked_poses_are_warned_and_recorded(tmp_path, capsys):
     frac = doc["tracked"]["tracked_fraction"]
     assert frac < 1.0
     warned = [w for w in doc["warnings"] if "not tracked" in w]
-    assert len(warned) == 1 and f"of {doc['poses']['count']})" in warned[0]
+    sc = doc["tracked"]["scenarios"]
+    assert sc["count"] == 2 * doc["poses"]["count"] and sc["cameras_lost"] == 2 and sc["cameras"] == 4
+    assert len(warned) == 1 and f"of {sc['count']}: {doc['poses']['count']} poses" in warned[0]
     assert "not tracked" in capsys.readouterr().err

@@ -41,12 +41,12 @@ app.add_typer(place_app, name="place")
 
 def _prop_and_spec(
     prop, units, spec, rig, markers, resolution, orientations, sites, restarts, forbid_mesh, mask, mesh_format,
-    marker_mm=None,
+    marker_mm=None, base_mm=None, hand=None, cameras_lost=None,
 ):
     from dataclasses import replace
 
     from starforge.props.mesh import load_prop
-    from starforge.props.placement import load_spec, with_overrides
+    from starforge.props.spec import load_spec, with_overrides
 
     s = load_spec(spec)
     cons = None
@@ -67,17 +67,24 @@ def _prop_and_spec(
         constraints=cons,
         mesh_format=mesh_format,
         marker_mm=marker_mm,
+        base_mm=base_mm,
+        hand=hand,
+        cameras_lost=cameras_lost,
     )
     return load_prop(prop, units), s
 
 
-_PROP = typer.Argument(..., help="Mesh file (STL, OBJ, PLY, GLB, OFF) or built-in prop name.")
+_PROP = typer.Argument(
+    ..., help="Mesh file (STL, OBJ, PLY, GLB, OFF) or built-in prop name (builtin:NAME when a path has that name)."
+)
 
 
 @place_app.command(_DEFAULT, help="Optimize a marker set on PROP (the default command).")
 def run_cmd(
     prop: str = typer.Argument(
-        "hammer", help="Mesh file (STL, OBJ, PLY, GLB, OFF) or built-in prop name (default: hammer)."
+        "hammer",
+        help="Mesh file (STL, OBJ, PLY, GLB, OFF) or built-in prop name (default: hammer; builtin:NAME when a "
+        "path has that name).",
     ),
     spec: str = typer.Option(
         "default", "--spec", help="Settings template name (default, paper, long, robust; `starforge templates place`) or TOML file."
@@ -89,7 +96,24 @@ def run_cmd(
     sites: int = typer.Option(None, "--sites", help="Candidate sites (Poisson-disk samples, default 1000)."),
     restarts: int = typer.Option(None, "--restarts", help="Independent annealing runs; the best is kept."),
     marker_mm: str = typer.Option(
-        None, "--marker-mm", help="Marker ball diameter, mm, or a catalogue name (e.g. 9.5mm-m3; default: the spec's)."
+        None,
+        "--marker-mm",
+        "--marker",
+        help="Marker: a catalogue name (4mm-flat, 6.4mm-post, 9.5mm-m3, 12.7mm-m3, 14mm-m4; its base seats it) or a "
+        "ball diameter in mm (default: the spec's, 9.5mm-m3).",
+    ),
+    base_mm: float = typer.Option(
+        None, "--base-mm", help="Diameter of the flat base under each marker, mm (a stick-on pad; default: the marker's own)."
+    ),
+    grip: str = typer.Option(
+        None, "--grip", help="The hand's grip: x0,y0,z0,x1,y1,z1[,r] in metres, prop frame (default: the prop's grip)."
+    ),
+    no_hand: bool = typer.Option(False, "--no-hand", help="No hand holds the prop."),
+    cameras_lost: float = typer.Option(
+        None, "--cameras-lost", help="Fraction of the cameras lost at random in each scenario, [0, 1] (default 0.5)."
+    ),
+    bases_stl: bool = typer.Option(
+        False, "--bases-stl", help="Also write prop_bases.stl: the prop with a flat pad under every marker (for printing)."
     ),
     avoid: list[Path] = typer.Option(
         None, "--avoid", help="Placements, star families or tracker files of bodies already in the room."
@@ -111,7 +135,8 @@ def run_cmd(
     # fork the picture-drawing process first, so that its matplotlib import overlaps our work
     with BackgroundRenderer() as renderer:
         from starforge.io import check_writable, staged_output
-        from starforge.props.placement import place, write_outputs
+        from starforge.props.files import write_outputs
+        from starforge.props.placement import place
 
         out = Path(out)
         p, s = _prop_and_spec(
@@ -128,7 +153,15 @@ def run_cmd(
             mask,
             mesh_format,
             marker_mm,
+            base_mm,
+            False if no_hand else None,
+            cameras_lost,
         )
+        cap = None
+        if grip is not None and not no_hand:
+            from starforge.props.hand import parse_grip
+
+            cap = parse_grip(grip)
         avoid_faces = None
         if avoid:
             from starforge.stars.avoid import faces_to_avoid
@@ -140,7 +173,9 @@ def run_cmd(
             f"prop_markers.{s.mesh_format}",
             "convergence.png",
             "layout.png",
-        ]
+            "guide.png",
+            "guide.pdf",
+        ] + (["prop_bases.stl"] if bases_stl else [])
         check_writable(out, names, force)  # fail before the work, not after
         with progress() as bar:
             task = bar.add_task("visibility", total=None)
@@ -148,11 +183,11 @@ def run_cmd(
             def cb(stage, done, total):
                 bar.update(task, description=stage, completed=done, total=total)
 
-            res = place(p, s, seed=seed, progress=cb, avoid=avoid_faces)
+            res = place(p, s, seed=seed, progress=cb, avoid=avoid_faces, grip=cap)
             bar.update(task, description="writing")
             with staged_output(out, force) as stage:
-                write_outputs(res, stage, renderer=renderer)
-    from starforge.props.placement import summary_lines
+                write_outputs(res, stage, renderer=renderer, bases_stl=bases_stl)
+    from starforge.props.files import summary_lines
 
     err = console(stderr=True)
     for w in res.warnings:
@@ -163,7 +198,10 @@ def run_cmd(
             con.print(line)
         t = res.timings
         load = t.get("load_s", 0.0) + t.get("repair_s", 0.0)
-        con.print(f"time: load {load:.2f} s, visibility {t['visibility_s']:.2f} s, optimization {t['optimize_s']:.2f} s")
+        con.print(
+            f"time: load {load:.2f} s, sites {t.get('sample_s', 0):.2f} s, visibility {t['visibility_s']:.2f} s, "
+            f"optimization {t['optimize_s']:.2f} s, evaluation {t.get('evaluate_s', 0):.2f} s"
+        )
         con.print(f"wrote {out}/: {', '.join(names)}")
 
 
@@ -181,7 +219,8 @@ def score_cmd(
 ) -> None:
     import json
 
-    from starforge.props.placement import read_markers_csv, score_layout
+    from starforge.props.files import read_markers_csv
+    from starforge.props.placement import score_layout
 
     p, s = _prop_and_spec(
         prop, units, spec, rig, None, resolution, orientations, None, None, None, None, None
@@ -194,8 +233,16 @@ def score_cmd(
         return
     con = console()
     con.print(f"{p.name}: {cost.markers} markers, cost {cost.total:.4f}")
+    seated = extra.get("seated", [])
+    con.print(f"  seated: {sum(seated)} of {len(seated)} markers (their base rests on the surface, clear of sharp edges)")
     if "tracked_fraction" in extra:
-        con.print(f"  tracked at {100 * extra['tracked_fraction']:.1f} % of the poses, mean visibility {cost.mean_visibility:.3f}")
+        con.print(f"  tracked in {100 * extra['tracked_fraction']:.1f} % of the scenarios, mean visibility {cost.mean_visibility:.3f}")
+        ev = extra.get("evaluation")
+        if ev:
+            con.print(
+                f"  on fresh poses with cameras lost and the hand: tracked {100 * ev['tracked']:.1f} %, "
+                f"markers reconstructed {ev['markers_reconstructed']:.3f}"
+            )
         return
     con.print(
         f"  visibility {cost.visibility:.4f} (mean {cost.mean_visibility:.3f}), count {cost.count:.4f}, "

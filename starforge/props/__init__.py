@@ -1,9 +1,13 @@
 """Prop marker placement (Acevedo et al. 2023, sections 3-5): optimize a marker set on a prop mesh.
 
 Modules: ``mesh`` (load, repair), ``builtin`` (props generated in code), ``sites`` (Poisson-disk
-candidate sites, constrained areas), ``rig`` (cameras, pairs, poses), ``visibility`` (the
-sites x poses x pairs table, embree), ``costs`` and ``symmetry`` (eq. 1-5), ``optimizer``
-(RJ-MCMC simulated annealing, eq. 6-9), ``placement`` (pipeline, files, :func:`load_placement`).
+candidate sites, constrained areas), ``seat`` (where a marker's base rests), ``hand`` (the hand
+as occluding capsules), ``rig`` (cameras, pairs, poses), ``visibility`` (the sites x poses
+camera-mask table: compiled tests, embree rays), ``costs`` and ``symmetry`` (eq. 1-5),
+``optimizer`` (RJ-MCMC simulated annealing, eq. 6-9), ``tracked`` (the default objective over
+camera-loss scenarios, baselines), ``evaluate`` (the check on fresh poses), ``spec`` (settings),
+``placement`` (the pipeline; :func:`starforge.props.placement.run_placement`), ``files``
+(placement.json and the files beside it, :func:`load_placement`), ``guide`` (landmarks, pads).
 Importing this package is light; heavy libraries load inside the functions that use them.
 """
 
@@ -13,7 +17,7 @@ __all__ = ["load_placement"]
 
 
 def load_placement(path):
-    """Read a ``placement.json`` (or the folder holding one); see :func:`starforge.props.placement.load_placement`."""
-    from starforge.props.placement import load_placement as _load
+    """Read a ``placement.json`` (or the folder holding one); see :func:`starforge.props.files.load_placement`."""
+    from starforge.props.files import load_placement as _load
 
     return _load(path)

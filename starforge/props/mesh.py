@@ -274,7 +274,9 @@ def _nearest_origin(raw, origin, new):
 
 
 def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
-    """A built-in prop name (``hammer``) or a mesh file path -> repaired :class:`PropMesh` in metres.
+    """A built-in prop name (``hammer``, or ``builtin:hammer``) or a mesh file path -> repaired
+    :class:`PropMesh` in metres.  A bare built-in name that is also a file here reads the file
+    (``builtin:NAME`` names the built-in); a folder of that name does not hide the built-in.
     ``timings`` holds the seconds spent loading and repairing."""
     import time
 
@@ -283,7 +285,13 @@ def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
     t0 = time.perf_counter()
     units_scale(units)  # validate even for built-ins (which are in metres)
     text = str(prop)
-    if text in BUILTIN and not Path(text).exists():
+    if text.startswith("builtin:"):
+        text = text.removeprefix("builtin:")
+        if text not in BUILTIN:
+            raise StarforgeError(f"unknown built-in prop {text!r}; built-ins: {', '.join(BUILTIN)}")
+    elif text in BUILTIN and Path(text).is_file():
+        text = str(prop) if "/" in str(prop) else f"./{text}"  # a file of that name wins; said so
+    if text in BUILTIN:
         mesh = builtin_mesh(text)
         n = len(mesh.faces)
         return PropMesh(text, "builtin", "m", mesh, np.arange(n), (), n, {"load_s": round(time.perf_counter() - t0, 4)})

@@ -347,8 +347,8 @@ def run_chain(
             ok = False
             new_pc = None
             if move == ADD:
-                if n < Z:
-                    s_new = u_site[b]
+                s_new = u_site[b]
+                if n < Z and s_new not in sites:  # one marker per site
                     if pose_seen is not None:
                         new_pc = lay.pc + pose_seen[s_new]
                     new_sites = sites + [s_new]
@@ -366,6 +366,10 @@ def run_chain(
             else:
                 k = int(u_pick[b] * n)
                 s_old, s_new = sites[k], u_site[b]
+                if s_new != s_old and s_new in sites:  # one marker per site
+                    i += 1
+                    h_cost[i - 1], h_best[i - 1], h_n[i - 1] = cur_cost, best_cost, n
+                    continue
                 new_sites = sites[:k] + [s_new] + sites[k + 1 :]
                 if pose_seen is not None:
                     new_pc = lay.pc - pose_seen[s_old] + pose_seen[s_new]

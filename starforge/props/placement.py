@@ -1,136 +1,25 @@
-"""Marker placement end to end: spec -> sites -> visibility table -> annealing -> files.
+"""Marker placement end to end: prop -> seated sites -> visibility table -> optimizer -> result.
 
-``placement.json`` is the source of truth (read back with :func:`load_placement`); the CSV,
-the mesh and the pictures are derived from the same result.
+:func:`run_placement` runs one placement from plain arguments (a prop name or path, a spec
+name, a seed) and returns the :class:`PlacementResult`; :func:`place` does the same from a
+loaded prop and spec.  The files are written by :mod:`starforge.props.files`.
 """
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.props.costs import CostBreakdown, CostSettings, evaluate
-from starforge.props.optimizer import AnnealResult, ChainSettings, anneal
-from starforge.props.sites import Constraints, Sites
-from starforge.props.tracked import TrackSettings
-from starforge.spec import in_range, require
-
-FORMAT = "starforge.placement"
-VERSION = 1
-CSV_HEADER = ("id", "x_m", "y_m", "z_m", "nx", "ny", "nz")
-HISTORY_POINTS = 400
-
-
-@dataclass(frozen=True)
-class PlaceSpec:
-    """Everything a placement run needs besides the prop and the seed (``templates/place/*.toml``)."""
-
-    description: str = ""
-    objective: Literal["tracked", "paper"] = "paper"
-    sites: int = 1000
-    resolution: int = 4
-    orientations: int = 1
-    grazing_limit_deg: float = 80.0
-    occlusion: bool = True
-    rig: str = "default"
-    mesh_format: Literal["glb", "stl"] = "glb"
-    costs: CostSettings = field(default_factory=CostSettings)
-    chain: ChainSettings = field(default_factory=ChainSettings)
-    track: TrackSettings = field(default_factory=TrackSettings)
-    constraints: Constraints = field(default_factory=Constraints)
-    name: str = "custom"
-
-    def __post_init__(self):
-        require(
-            self.objective in ("tracked", "paper"),
-            f"objective must be tracked or paper, got {self.objective!r}",
-        )
-        in_range("sites", self.sites, 1, 100000)
-        in_range("resolution", self.resolution, 1, 64)
-        in_range("orientations", self.orientations, 1, 1000)
-        in_range("grazing_limit_deg", self.grazing_limit_deg, 1e-6, 180.0)
-
-    @property
-    def marker_diameter_m(self) -> float:
-        """The marker ball in effect, m."""
-        return self.track.marker_mm / 1000.0 if self.objective == "tracked" else self.costs.marker_diameter_m
-
-
-def load_spec(name_or_path: str = "default") -> PlaceSpec:
-    """A placement spec from a shipped template (``default``, ``long``, ``paper``) or a TOML file."""
-    from starforge.catalog import load_template
-    from starforge.spec import from_mapping
-
-    name, data = load_template("place", name_or_path)
-    data = dict(data)
-    data.setdefault("name", name)
-    return from_mapping(PlaceSpec, data, where=f"place spec {name}")
-
-
-def with_overrides(
-    spec: PlaceSpec,
-    markers: int | None = None,
-    resolution: int | None = None,
-    orientations: int | None = None,
-    sites: int | None = None,
-    restarts: int | None = None,
-    rig: str | None = None,
-    constraints: Constraints | None = None,
-    mesh_format: str | None = None,
-    marker_mm: str | float | None = None,
-) -> PlaceSpec:
-    """The spec with CLI options applied (each validated by the dataclasses).  ``marker_mm``: a
-    diameter in mm or a marker catalogue name (:mod:`starforge.markers`)."""
-    if markers is not None:
-        cs = spec.track if spec.objective == "tracked" else spec.costs
-        require(
-            cs.min_markers <= markers <= cs.max_markers,
-            f"markers must be in [{cs.min_markers}, {cs.max_markers}], got {markers}",
-        )
-        if spec.objective == "tracked":
-            spec = replace(spec, track=replace(spec.track, target_markers=int(markers)))
-        else:
-            spec = replace(spec, costs=replace(spec.costs, target_markers=int(markers)))
-    if marker_mm is not None:
-        from starforge.markers import marker_diameter_mm
-
-        d = marker_diameter_mm(marker_mm)
-        spec = replace(
-            spec,
-            track=replace(spec.track, marker_mm=d),
-            costs=replace(spec.costs, marker_diameter_m=d / 1000),
-        )
-    if restarts is not None:
-        spec = replace(
-            spec,
-            chain=replace(spec.chain, restarts=int(restarts)),
-            track=replace(spec.track, restarts=int(restarts)),
-        )
-    kw = {
-        k: v
-        for k, v in dict(
-            resolution=resolution,
-            orientations=orientations,
-            sites=sites,
-            rig=rig,
-            constraints=constraints,
-            mesh_format=mesh_format,
-        ).items()
-        if v is not None
-    }
-    if "mesh_format" in kw:
-        require(
-            kw["mesh_format"] in ("glb", "stl"), f"mesh format must be glb or stl, got {kw['mesh_format']!r}"
-        )
-    return replace(spec, **kw) if kw else spec
+from starforge.props.costs import CostBreakdown, evaluate
+from starforge.props.optimizer import AnnealResult, anneal
+from starforge.props.sites import Sites
+from starforge.props.spec import PlaceSpec
+from starforge.spec import require
 
 
 @dataclass(frozen=True)
@@ -148,13 +37,18 @@ class PlacementResult:
     marker_sites: tuple[int, ...] = ()
     cost: CostBreakdown | None = None
     anneal: AnnealResult | None = None
-    marker_pose_seen: np.ndarray = field(default=None, repr=False)  # (m, poses) any pair sees
+    marker_pose_seen: np.ndarray = field(default=None, repr=False)  # (m, scenarios) seen
     timings: dict = field(default_factory=dict)
     rays: int = 0
     tracked: object = None  # starforge.props.tracked.Optimized for the tracked objective
     warnings: tuple[str, ...] = ()
     spacing_m: float = 0.0
-    avoid: tuple = ()
+    seat: object = None  # starforge.props.seat.Seat
+    seat_report: object = None  # starforge.props.seat.SeatReport over ``sites``
+    capsules: tuple = ()  # the hand (starforge.props.hand.Capsule)
+    removed: dict = field(default_factory=dict)  # sampled sites removed, by reason
+    evaluation: dict = field(default_factory=dict)  # starforge.props.evaluate on fresh poses
+    marker_masks: np.ndarray = field(default=None, repr=False)  # (m, poses) uint64 camera bits
 
     @property
     def marker_points(self) -> np.ndarray:
@@ -168,6 +62,11 @@ class PlacementResult:
     def marker_visibility(self) -> np.ndarray:
         return self.site_visibility[list(self.marker_sites)]
 
+    def centres(self, sites=None) -> np.ndarray:
+        """(m, 3) ball centres of ``sites`` (default: the markers), m: on the seat's axis."""
+        idx = list(self.marker_sites if sites is None else sites)
+        return self.sites.points[idx] + self.seat.centre_height_m * self.sites.normals[idx]
+
 
 def _tick(timings: dict, key: str, t0: float) -> float:
     now = time.perf_counter()
@@ -175,9 +74,37 @@ def _tick(timings: dict, key: str, t0: float) -> float:
     return now
 
 
-def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timings=None):
-    """Sites (with constrained areas removed), rig, poses and the visibility table."""
+@dataclass(frozen=True)
+class Prepared:
+    """The optimizer's input: seated sites, the rig, the poses and the visibility table."""
+
+    sites: Sites
+    removed: dict
+    rig: object
+    poses: object
+    table: object
+    seat: object
+    seat_report: object
+    capsules: tuple
+
+
+def hand_capsules(prop, spec: PlaceSpec, grip=None) -> tuple:
+    """The hand holding ``prop``: ``grip`` (a Capsule, or None for the default grip), nothing
+    when the spec has no hand."""
+    from starforge.props.hand import default_grip
+
+    if not spec.hand:
+        return ()
+    if grip is None:
+        grip = default_grip(prop.mesh, prop.name, builtin=prop.source == "builtin")
+    return (grip,)
+
+
+def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timings=None, grip=None) -> Prepared:
+    """Sites that seat the marker (constrained areas and the hand removed), rig, poses, table."""
+    from starforge.props.hand import capsule_arrays, inside_capsules
     from starforge.props.rig import load_rig, make_poses
+    from starforge.props.seat import seat_report
     from starforge.props.sites import forbidden_sites, sample_sites
     from starforge.props.visibility import compute_table
 
@@ -189,18 +116,30 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
         bad = np.zeros(len(sites), dtype=bool)
     else:
         bad = forbidden_sites(sites, spec.constraints, prop.face_origin, prop.source_faces)
-    kept = sites.subset(~bad)
-    if len(kept) == 0:
-        raise StarforgeError(f"every one of the {len(sites)} candidate sites lies in a constrained area")
-    if len(kept) < spec.costs.min_markers:
+    seat = spec.marker_seat()
+    caps = hand_capsules(prop, spec, grip)
+    centres = sites.points + seat.centre_height_m * sites.normals
+    hand = (inside_capsules(sites.points, caps) | inside_capsules(centres, caps)) & ~bad
+    rest = ~bad & ~hand
+    report = seat_report(prop.mesh, sites.points[rest], sites.normals[rest], seat, spec.seat)
+    ok = np.zeros(len(sites), bool)
+    ok[np.flatnonzero(rest)[report.ok]] = True
+    removed = {"constrained": int(bad.sum()), "under_hand": int(hand.sum()), "unseated": int((rest & ~ok).sum())}
+    kept = sites.subset(ok)
+    report = report.subset(report.ok)
+    need = spec.track.min_markers if spec.objective == "tracked" else spec.costs.min_markers
+    if len(kept) < need:
         raise StarforgeError(
-            f"only {len(kept)} candidate sites are outside the constrained areas, "
-            f"fewer than min_markers = {spec.costs.min_markers}"
+            f"only {len(kept)} of the {len(sites)} candidate sites seat a {seat.name} marker "
+            f"(base {seat.base_mm:g} mm): {removed['constrained']} in constrained areas, "
+            f"{removed['under_hand']} under the hand, {removed['unseated']} where the base does not rest "
+            f"(curved, near an edge or the ball cuts in); fewer than the {need} markers needed: try a "
+            "smaller --marker or --base-mm, or --no-hand"
         )
     t = _tick(timings, "sample_s", t)
     pivot = np.asarray(prop.mesh.bounds, dtype=float).mean(axis=0)
+    check_cost(prop, spec, rig, len(kept), spec.resolution**3 * spec.orientations)  # before building them
     poses = make_poses(rig.volume, spec.resolution, spec.orientations, pivot, rng)
-    check_cost(prop, spec, rig, len(kept), len(poses))
     table = compute_table(
         prop.mesh,
         kept.points,
@@ -209,30 +148,35 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
         poses,
         spec.grazing_limit_deg,
         progress=progress,
-        radius_m=spec.marker_diameter_m / 2,
+        radius_m=seat.ball_radius_m,
+        centre_m=seat.centre_height_m,
         occlusion=spec.occlusion,
+        occluders=capsule_arrays(caps),
     )
     _tick(timings, "visibility_s", t)
-    return kept, int(bad.sum()), rig, poses, table
+    return Prepared(kept, removed, rig, poses, table, seat, report, caps)
 
 
 def check_cost(prop, spec: PlaceSpec, rig, sites: int, poses: int) -> None:
     """Refuse, before the visibility table, work past the memory or time limit (one line)."""
     from starforge.budget import require_memory, require_time
 
-    cams, pairs = len(rig.cameras), len(rig.pairs)
+    cams = len(rig.cameras)
+    patterns = spec.track.loss_patterns if spec.objective == "tracked" else 1
     what = f"a visibility table of {sites:,} sites x {poses:,} poses x {cams} cameras"
     advice = "lower --resolution, --orientations or --sites"
-    batch = min(1_000_000, sites * cams * max(1, 1_000_000 // max(1, sites * cams)))
-    require_memory(sites * poses * (pairs + 9) + batch * 200 + 50e6, what, advice)
-    require_time(sites * poses * cams * 4e-7 + 1.0, what, advice)
+    require_memory(sites * poses * (8 + 3 * patterns + len(rig.pairs)) + sites * poses * 16 + 50e6, what, advice)
+    require_time(sites * poses * cams * 1e-7 + 1.0, what, advice)
 
 
 def check_scale(prop, rig, marker_m: float) -> list[str]:
-    """Refuse a prop whose size says it is in other units; warn when it does not fit the volume.
+    """Refuse a prop whose size says it is in other units; warn when it does not fit the volume,
+    upright or turned.
 
     A prop larger than twice the capture volume, or smaller than four markers, cannot be what was
-    meant: the message names the ``--units`` that would make it a plausible size.
+    meant: the message names the ``--units`` that would make it a plausible size.  The poses turn
+    the prop about its bounding-box centre, so it sweeps a ball as wide as twice its farthest
+    point from that centre: a prop that fits upright but not that ball gets its own warning.
     """
     ext = float(np.max(prop.mesh.extents))
     vol = float(np.max(rig.volume.size))
@@ -250,14 +194,82 @@ def check_scale(prop, rig, marker_m: float) -> list[str]:
             + ("larger than twice the capture volume" if ext > 2 * vol else "smaller than four markers")
             + f" ({vol:g} m){hint}"
         )
-    if np.any(np.asarray(prop.mesh.extents) > np.asarray(rig.volume.size)):
+    size = np.asarray(rig.volume.size, float)
+    vol_text = " x ".join(f"{e:g}" for e in size)
+    if np.any(np.asarray(prop.mesh.extents) > size):
         return [
-            f"the prop ({' x '.join(f'{e:.3g}' for e in prop.mesh.extents)} m) does not fit inside the capture volume ({' x '.join(f'{e:g}' for e in rig.volume.size)} m)"
+            f"the prop ({' x '.join(f'{e:.3g}' for e in prop.mesh.extents)} m) does not fit inside the capture volume ({vol_text} m)"
+        ]
+    pivot = np.asarray(prop.mesh.bounds, float).mean(axis=0)
+    span = 2.0 * float(np.linalg.norm(np.asarray(prop.mesh.vertices) - pivot, axis=1).max())
+    if span > size.min():
+        return [
+            f"the prop fits the capture volume ({vol_text} m) upright but not when turned: turned about its "
+            f"centre it sweeps {span:.3g} m, more than the volume's smallest side {size.min():g} m"
         ]
     return []
 
 
-def place(prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None) -> PlacementResult:
+def prop_name_warnings(prop) -> list[str]:
+    """Say which prop was used when a built-in name is also a path here."""
+    from starforge.props.builtin import BUILTIN
+
+    if prop.source == "builtin" and Path(prop.name).exists():
+        return [f"a path named {prop.name!r} exists here; the built-in {prop.name} was used (./{prop.name} names the path)"]
+    if prop.source != "builtin" and Path(prop.source).name in BUILTIN and Path(prop.source).stem == prop.source.removeprefix("./"):
+        name = Path(prop.source).name
+        return [f"the file {prop.source!r} was used, not the built-in {name} (builtin:{name} names it)"]
+    return []
+
+
+def run_placement(
+    prop: str = "hammer",
+    spec: str | PlaceSpec = "default",
+    seed: int = 0,
+    units: str = "m",
+    grip: str | None = None,
+    avoid: list[str] | None = None,
+    progress=None,
+    **overrides,
+) -> PlacementResult:
+    """One placement from plain arguments (the library entry point, e.g. for a batch).
+
+    Parameters
+    ----------
+    prop : str
+        A built-in name (``hammer``, ``builtin:hammer``) or a mesh path.
+    spec : str or PlaceSpec
+        A place template name or TOML path, or a spec.
+    seed : int
+    units : str
+        Units of a mesh file (m, cm, mm).
+    grip : str, optional
+        ``x0,y0,z0,x1,y1,z1[,r]`` (prop frame, m), ``none`` for no hand; default: the prop's grip.
+    avoid : list of str, optional
+        Placements, star families or tracker files of bodies already in the room.
+    **overrides
+        :func:`starforge.props.spec.with_overrides` keywords (``markers``, ``marker_mm``, ...).
+    """
+    from starforge.props.hand import parse_grip
+    from starforge.props.mesh import load_prop
+    from starforge.props.spec import load_spec, with_overrides
+
+    s = spec if isinstance(spec, PlaceSpec) else load_spec(spec)
+    cap = None
+    if grip is not None and str(grip).strip().lower() == "none":
+        overrides["hand"] = False
+    elif grip is not None:
+        cap = parse_grip(grip)
+    s = with_overrides(s, **overrides)
+    avoid_faces = None
+    if avoid:
+        from starforge.stars.avoid import faces_to_avoid
+
+        avoid_faces = faces_to_avoid([Path(a) for a in avoid])[0] / 1000.0  # mm -> m
+    return place(load_prop(prop, units), s, seed=seed, progress=progress, avoid=avoid_faces, grip=cap)
+
+
+def place(prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None, grip=None) -> PlacementResult:
     """Optimize a marker set on ``prop`` (a :class:`starforge.props.mesh.PropMesh`).
 
     Parameters
@@ -271,6 +283,8 @@ def place(prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None) -> Pl
     avoid : (k, 3) float or None
         Marker triangles (sorted sides, m) of props and stars already in the room (tracked
         objective): the layout's triangles keep ``avoid_tolerance_mm`` from them.
+    grip : starforge.props.hand.Capsule, optional
+        The hand (default: the prop's grip, when ``spec.hand``).
     """
     require(isinstance(seed, int) and seed >= 0, f"seed must be an integer >= 0, got {seed}")
     rng = np.random.default_rng(seed)
@@ -278,12 +292,16 @@ def place(prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None) -> Pl
     vis_cb = (lambda d, n: progress("visibility", d, n)) if progress else None
     from starforge.props.rig import load_rig
 
-    warnings = check_scale(prop, load_rig(spec.rig), spec.marker_diameter_m)
-    sites, n_bad, rig, poses, table = prepare(prop, spec, rng, vis_cb, timings)
+    warnings = prop_name_warnings(prop) + check_scale(prop, load_rig(spec.rig), spec.marker_diameter_m)
+    prep = prepare(prop, spec, rng, vis_cb, timings, grip)
     if spec.objective == "tracked":
-        return _place_tracked(
-            prop, spec, seed, rng, sites, n_bad, rig, poses, table, timings, warnings, avoid, progress
-        )
+        return _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress)
+    return _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress)
+
+
+def _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress) -> PlacementResult:
+    """The paper's objective (eq. 1-5) and RJMCMC (eq. 6-9) on the prepared table."""
+    table, sites = prep.table, prep.sites
     v = table.site_visibility
     t = time.perf_counter()
     run_cb = (lambda d, n: progress("annealing", d, n)) if progress else None
@@ -295,73 +313,80 @@ def place(prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None) -> Pl
     cost = evaluate(sites.points[list(chosen)], v[list(chosen)], spec.costs, marker_pose_seen=seen_any)
     _tick(timings, "score_s", t)
     return PlacementResult(
-        prop,
-        spec,
-        seed,
-        rig,
-        poses,
-        sites,
-        n_bad,
-        v,
-        chosen,
-        cost,
-        result,
-        seen_any,
-        timings,
-        table.rays,
-        warnings=tuple(warnings),
-    )
+        prop, spec, seed, prep.rig, prep.poses, sites, prep.removed["constrained"], v, chosen, cost, result,
+        seen_any, timings, table.rays, warnings=tuple(warnings), seat=prep.seat, seat_report=prep.seat_report,
+        capsules=prep.capsules, removed=prep.removed, marker_masks=table.masks[list(chosen)],
+    )  # fmt: skip
 
 
-def _place_tracked(
-    prop, spec, seed, rng, sites, n_bad, rig, poses, table, timings, warnings, avoid, progress
-):
-    """The tracked objective (:mod:`starforge.props.tracked`) on a prepared table."""
-    from starforge.props.optimizer import AnnealResult, ChainResult
-    from starforge.props.tracked import Problem, optimize, spacing_m
+#: the held-out sample's generator is seeded with seed + this (the evaluation's differs again)
+VALIDATION_SEED_OFFSET = 2_000_029
+#: the camera losses of the searched scenarios come from seed + this (so that ``place score``
+#: meets the same scenarios as the placement it re-scores)
+LOSS_SEED_OFFSET = 3_000_017
+
+
+def _validator(prop, spec, seed, prep, centres, prob):
+    """``validate(layouts) -> costs`` on held-out scenarios: ``track.validation_poses`` fresh
+    random poses with their own camera losses, a table built for the candidates' sites only."""
+    from starforge.props.evaluate import random_poses
+    from starforge.props.hand import capsule_arrays
+    from starforge.props.tracked import Problem, loss_scenarios
+    from starforge.props.visibility import compute_table
+
+    ts, sites, rig = spec.track, prep.sites, prep.rig
+
+    def validate(layouts):
+        union = sorted({int(x) for lay in layouts for x in lay})
+        vrng = np.random.default_rng(seed + VALIDATION_SEED_OFFSET)
+        poses = random_poses(rig.volume, ts.validation_poses, prep.poses.pivot, vrng)
+        table = compute_table(
+            prop.mesh, sites.points[union], sites.normals[union], rig, poses, spec.grazing_limit_deg,
+            radius_m=prep.seat.ball_radius_m, centre_m=prep.seat.centre_height_m, occlusion=spec.occlusion,
+            occluders=capsule_arrays(prep.capsules),
+        )  # fmt: skip
+        seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, vrng)
+        held = Problem(centres[union], seen, seen.mean(axis=1), ts, prob.spacing, prob.spread_target, prob.avoid_faces)
+        at = {s: i for i, s in enumerate(union)}
+        return [held.cost([at[int(x)] for x in lay]) for lay in layouts]
+
+    return validate
+
+
+def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress) -> PlacementResult:
+    """The tracked objective (:mod:`starforge.props.tracked`) over camera-loss scenarios, then
+    the chosen layout and both baselines checked on fresh poses (:mod:`starforge.props.evaluate`)."""
+    from starforge.props.evaluate import evaluate_layouts
+    from starforge.props.optimizer import ChainResult
+    from starforge.props.tracked import Problem, loss_scenarios, optimize, spacing_m
 
     t = time.perf_counter()
-    ts = spec.track
-    r = ts.marker_mm / 2000.0
-    centres = sites.points + r * sites.normals
-    pose_seen = table.seen.any(axis=2)
+    ts, table, sites, rig = spec.track, prep.table, prep.sites, prep.rig
+    centres = sites.points + prep.seat.centre_height_m * sites.normals
+    seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, np.random.default_rng(seed + LOSS_SEED_OFFSET))
     ext = np.sort(np.asarray(prop.mesh.extents))
     prob = Problem(
         centres,
-        pose_seen,
-        table.site_visibility,
+        seen,
+        seen.mean(axis=1),
         ts,
         spacing_m(ts.marker_mm, rig, ts.gap_px),
         max(ts.spread_fraction * float(ext[1]), 1e-4),
         None if avoid is None or not len(avoid) else np.asarray(avoid, float),
     )
     run_cb = (lambda d, n: progress("optimizing", d, n)) if progress else None
-    opt = optimize(prob, rng, run_cb)
+    validate = None
+    if ts.validation_poses:
+        validate = _validator(prop, spec, seed, prep, centres, prob)
+    opt = optimize(prob, rng, run_cb, validate)
     t = _tick(timings, "optimize_s", t)
-    chosen = opt.sites
-    terms = opt.terms
+    chosen, terms = opt.sites, opt.terms
     runs = tuple(
-        ChainResult(
-            c.sites,
-            c.cost,
-            c.iterations,
-            c.history,
-            c.history,
-            np.full(len(c.history), len(c.sites), np.int16),
-            {},
-            {"all": c.accepted},
-        )
+        ChainResult(c.sites, c.cost, c.iterations, c.history, c.history, np.full(len(c.history), len(c.sites), np.int16), {}, {"all": c.accepted})
         for c in opt.runs
     ) or (
-        ChainResult(
-            chosen,
-            terms["total"],
-            0,
-            np.array([terms["total"]]),
-            np.array([terms["total"]]),
-            np.array([len(chosen)], np.int16),
-        ),
-    )
+        ChainResult(chosen, terms["total"], 0, np.array([terms["total"]]), np.array([terms["total"]]), np.array([len(chosen)], np.int16)),
+    )  # fmt: skip
     ann = AnnealResult(min(runs, key=lambda c: c.cost), runs)
     cost = CostBreakdown(
         total=terms["total"],
@@ -377,49 +402,50 @@ def _place_tracked(
         markers=terms["markers"],
         coverage=terms["untracked"],
     )
+    layouts = {"default": chosen, "greedy_local_search": opt.baselines["greedy_local_search"]["sites"]}
+    if opt.baselines["best_of_random"]["sites"] is not None:
+        layouts["best_of_random"] = opt.baselines["best_of_random"]["sites"]
+    ev = evaluate_layouts(
+        prop.mesh,
+        {k: (centres[list(v)], sites.normals[list(v)]) for k, v in layouts.items()},
+        rig,
+        prep.poses.pivot,
+        spec.evaluation,
+        seed,
+        ts.min_height_mm,
+        prep.capsules,
+        spec.grazing_limit_deg,
+    )
+    t = _tick(timings, "evaluate_s", t)
     warnings = list(warnings)
+    lost = int(round(ts.cameras_lost * len(rig.cameras)))
     if terms["untracked"] > 0:
         warnings.append(
-            f"{100 * terms['untracked']:.1f} % of the poses ({round(terms['untracked'] * len(poses))} of {len(poses)}) "
+            f"{100 * terms['untracked']:.1f} % of the scenarios ({round(terms['untracked'] * seen.shape[1])} of "
+            f"{seen.shape[1]}: {len(prep.poses)} poses, {lost} of {len(rig.cameras)} cameras lost at random) "
             "are not tracked (fewer than 3 markers seen, or in a line)"
         )
     if terms["close_pairs"]:
-        warnings.append(
-            f"{terms['close_pairs']} marker pair(s) closer than the spacing {prob.spacing * 1000:.1f} mm"
-        )
+        warnings.append(f"{terms['close_pairs']} marker pair(s) closer than the spacing {prob.spacing * 1000:.1f} mm")
     if terms["avoid_conflicts"]:
         warnings.append(
             f"{terms['avoid_conflicts']} marker triangle(s) within {ts.avoid_tolerance_mm:g} mm of another prop's"
         )
-    _tick(timings, "score_s", t)
-    res = PlacementResult(
-        prop,
-        spec,
-        seed,
-        rig,
-        poses,
-        sites,
-        n_bad,
-        table.site_visibility,
-        chosen,
-        cost,
-        ann,
-        pose_seen[list(chosen)],
-        timings,
-        table.rays,
-        opt,
-        tuple(warnings),
-        prob.spacing,
-    )
-    # marker positions reported at the surface (where they are stuck); centres = + radius * normal
-    return res
+    if ev.get("default") and ev["default"]["tracked"] < max(v["tracked"] for k, v in ev.items() if not k.startswith("_")):
+        warnings.append("on the fresh evaluation poses a baseline layout tracked more poses than the chosen one")
+    return PlacementResult(
+        prop, spec, seed, rig, prep.poses, sites, prep.removed["constrained"], prob.visibility, chosen, cost, ann,
+        seen[list(chosen)], timings, table.rays, opt, tuple(warnings), prob.spacing, seat=prep.seat,
+        seat_report=prep.seat_report, capsules=prep.capsules, removed=prep.removed, evaluation=ev,
+        marker_masks=table.masks[list(chosen)],
+    )  # fmt: skip
 
 
 #: a scored marker may lie this far from the prop's surface (m), or 1 % of the prop's size if more
 OFF_SURFACE_M = 0.002
 
 
-def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: PlaceSpec, seed: int = 0):
+def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: PlaceSpec, seed: int = 0, grip=None):
     """Score a given layout (the paper's expert comparison): ``(CostBreakdown, per-marker
     visibility, extra)`` where ``extra`` holds the tracked objective's terms for that objective.
 
@@ -453,6 +479,11 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
     pivot = np.asarray(prop.mesh.bounds, dtype=float).mean(axis=0)
     poses = make_poses(rig.volume, spec.resolution, spec.orientations, pivot, rng)
     check_cost(prop, spec, rig, len(pts), len(poses))
+    from starforge.props.hand import capsule_arrays
+    from starforge.props.seat import seat_report
+
+    seat = spec.marker_seat()
+    caps = hand_capsules(prop, spec, grip)
     table = compute_table(
         prop.mesh,
         pts,
@@ -460,17 +491,29 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
         rig,
         poses,
         spec.grazing_limit_deg,
-        radius_m=spec.marker_diameter_m / 2,
+        radius_m=seat.ball_radius_m,
+        centre_m=seat.centre_height_m,
         occlusion=spec.occlusion,
+        occluders=capsule_arrays(caps),
     )
     v = table.site_visibility
+    rep = seat_report(prop.mesh, pts, nrm, seat, spec.seat)
+    seated = {
+        "contact": [round(float(x), 4) for x in rep.contact],
+        "edge_mm": [None if not math.isfinite(x) else round(float(x) * 1000, 2) for x in rep.edge_m],
+        "seated": [bool(x) for x in rep.ok],
+    }
     if spec.objective == "tracked":
-        from starforge.props.tracked import Problem, spacing_m
+        from starforge.props.evaluate import evaluate_layouts
+        from starforge.props.tracked import Problem, loss_scenarios, spacing_m
 
         ts = spec.track
+        centres = pts + seat.centre_height_m * nrm
+        seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, np.random.default_rng(seed + LOSS_SEED_OFFSET))
+        v = seen.mean(axis=1)
         prob = Problem(
-            pts + ts.marker_mm / 2000.0 * nrm,
-            table.seen.any(axis=2),
+            centres,
+            seen,
             v,
             ts,
             spacing_m(ts.marker_mm, rig, ts.gap_px),
@@ -491,372 +534,19 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
             len(pts),
             t["untracked"],
         )
-        extra = {"objective": "tracked", "tracked_fraction": 1 - t["untracked"], "spacing_m": prob.spacing}
-        return cost, v, extra
-    return evaluate(pts, v, spec.costs, marker_pose_seen=table.seen.any(axis=2)), v, {"objective": "paper"}
-
-
-# ----------------------------------------------------------------------------- files
-
-
-def _r(x, nd=9):
-    """Round floats for stable, readable JSON."""
-    if isinstance(x, np.ndarray):
-        return (np.round(x.astype(float), nd) + 0.0).tolist()  # + 0.0 turns -0.0 into 0.0
-    return round(float(x), nd) + 0.0
-
-
-def _downsample(arr: np.ndarray, n: int = HISTORY_POINTS) -> tuple[list[int], np.ndarray]:
-    if len(arr) <= n:
-        idx = np.arange(len(arr))
-    else:
-        idx = np.unique(np.linspace(0, len(arr) - 1, n).round().astype(int))
-    return idx.tolist(), arr[idx]
-
-
-def placement_json(res: PlacementResult) -> dict:
-    """The ``placement.json`` document (plain JSON data; keys fixed by format version 1)."""
-    from starforge.spec import to_mapping
-
-    prop = res.prop
-    spec = res.spec
-    runs = res.anneal.runs
-    costs = res.anneal.costs
-    history = {
-        "restarts": len(runs),
-        "best_run": int(np.argmin(costs)),
-        "run_costs": _r(costs),
-        "cost_mean": _r(costs.mean()),
-        "cost_sd": _r(costs.std(ddof=1)) if len(costs) > 1 else 0.0,
-        "runs": [],
-    }
-    for r in runs:
-        it, c = _downsample(r.history_cost)
-        history["runs"].append(
-            {
-                "iterations": r.iterations,
-                "cost": _r(r.cost),
-                "markers": len(r.sites),
-                "proposed": r.proposed,
-                "accepted": r.accepted,
-                "trace": {
-                    "iteration": it,
-                    "cost": _r(c),
-                    "best": _r(r.history_best[it]),
-                    "markers": r.history_n[it].astype(int).tolist(),
-                    "temperature": [_r(spec.chain.temperature(i)) for i in it],
-                },
-            }
-        )
-    seen3 = (res.marker_pose_seen.sum(axis=0) >= 3) if len(res.marker_sites) else np.zeros(0, bool)
-    markers = []
-    for i, s in enumerate(res.marker_sites):
-        markers.append(
-            {
-                "id": i,
-                "position": _r(res.sites.points[s]),
-                "normal": _r(res.sites.normals[s]),
-                "site": int(s),
-                "visibility": _r(res.site_visibility[s]),
-                "seen_fraction": _r(res.marker_pose_seen[i].mean()),
-            }
-        )
-    doc = {
-        "format": FORMAT,
-        "version": VERSION,
-        "prop": {
-            "name": prop.name,
-            "units": prop.units,
-            "source": prop.source,
-            "faces": int(len(prop.mesh.faces)),
-            "extents_m": _r(np.asarray(prop.mesh.extents)),
-            "bounds_m": _r(np.asarray(prop.mesh.bounds)),
-            "watertight": bool(prop.mesh.is_watertight),
-            "repairs": list(prop.notes),
-        },
-        "settings": to_mapping(spec),
-        "seed": res.seed,
-        "rig": res.rig.to_json(),
-        "poses": {
-            "count": len(res.poses),
-            "resolution": spec.resolution,
-            "orientations": spec.orientations,
-            **res.poses.to_json(),
-        },
-        "sites": {
-            "sampled": len(res.sites) + res.forbidden,
-            "forbidden": res.forbidden,
-            "usable": len(res.sites),
-            "poisson_radius_m": _r(res.sites.radius_m),
-        },
-        "markers": markers,
-        "marker_diameter_m": spec.marker_diameter_m,
-        "cost": {
-            **{k: (_r(v) if isinstance(v, float) else v) for k, v in res.cost.to_json().items()},
-            "weights": {
-                "visibility": spec.costs.w_visibility,
-                "count": spec.costs.w_count,
-                "overlap": spec.costs.w_overlap,
-                "symmetry": spec.costs.w_symmetry,
-                "near_symmetry": spec.costs.w_near_symmetry,
-            },
-        },
-        "coverage": {
-            "poses_with_3_markers_seen": _r(seen3.mean()) if len(seen3) else 0.0,
-            "min_markers_seen": int(res.marker_pose_seen.sum(axis=0).min()) if len(seen3) else 0,
-        },
-        "history": history,
-        "timings": {
-            **res.timings,
-            "rays": res.rays,
-            **(res.tracked.seconds if res.tracked is not None else {}),
-        },
-        "objective": spec.objective,
-        "warnings": list(res.warnings),
-    }
-    if res.tracked is None:
-        from starforge.props.costs import lower_bound
-
-        lb, lb_n = lower_bound(res.site_visibility, spec.costs)
-        doc["cost"]["lower_bound"] = _r(lb)
-        doc["cost"]["lower_bound_markers"] = lb_n
-        doc["cost"]["lower_bound_note"] = (
-            "no layout of these sites can cost less: the visibility term is at least its distance from the "
-            "range of means of n sites, the count term is exact, the others are >= 0"
-        )
-    if res.tracked is not None:
-        t = res.tracked.terms
-        doc["tracked"] = {
-            "definition": (
-                f"a pose is tracked when >= 3 markers are each seen by a camera pair and they are not in a line "
-                f"(spread across their best-fit line at least that of a triangle {spec.track.min_height_mm:g} mm high)"
-            ),
-            "tracked_fraction": _r(1.0 - t["untracked"]),
-            "mean_visibility": _r(t["mean_visibility"]),
-            "spread_m": _r(t["spread_m"]),
-            "near_symmetry_margin_m": None
-            if math.isinf(t["near_symmetry_margin_m"])
-            else _r(t["near_symmetry_margin_m"]),
-            "close_pairs": t["close_pairs"],
-            "spacing_m": _r(res.spacing_m),
-            "avoid_conflicts": t["avoid_conflicts"],
-            "cost": _r(t["total"]),
-            "baselines": {
-                "greedy_local_search": _r(res.tracked.baselines["greedy_local_search"]["cost"]),
-                "best_of_random": None
-                if res.tracked.baselines["best_of_random"]["cost"] is None
-                else _r(res.tracked.baselines["best_of_random"]["cost"]),
-                "random_layouts": res.tracked.baselines["best_of_random"]["layouts"],
-                "median_random": None
-                if res.tracked.baselines["best_of_random"]["median_cost"] is None
-                else _r(res.tracked.baselines["best_of_random"]["median_cost"]),
-                "chains": [
-                    {k: (_r(v) if isinstance(v, float) else v) for k, v in c.items()}
-                    for c in res.tracked.baselines["chains"]
-                ],
-            },
-            "marker_centres_m": _r(res.marker_points + spec.track.marker_mm / 2000.0 * res.marker_normals),
+        ev = evaluate_layouts(
+            prop.mesh, {"layout": (centres, nrm)}, rig, pivot, spec.evaluation, seed, ts.min_height_mm, caps,
+            spec.grazing_limit_deg,
+        )  # fmt: skip
+        extra = {
+            "objective": "tracked",
+            "tracked_fraction": 1 - t["untracked"],
+            "spacing_m": prob.spacing,
+            "evaluation": ev["layout"],
+            **seated,
         }
-    return doc
+        return cost, v, extra
+    extra = {"objective": "paper", **seated}
+    return evaluate(pts, v, spec.costs, marker_pose_seen=table.seen.any(axis=2)), v, extra
 
 
-def markers_csv(points: np.ndarray, normals: np.ndarray) -> str:
-    """``id,x_m,y_m,z_m,nx,ny,nz``, one marker per row."""
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(CSV_HEADER)
-    for i, (p, n) in enumerate(zip(points, normals, strict=True)):
-        w.writerow(
-            [i, *(f"{v + 0.0:.9f}" for v in np.round(p, 9)), *(f"{v + 0.0:.9f}" for v in np.round(n, 9))]
-        )
-    return buf.getvalue()
-
-
-def read_markers_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """Marker positions (m) and normals (None when the columns are absent) from a markers CSV."""
-    path = Path(path)
-    if not path.is_file():
-        raise StarforgeError(f"markers file not found: {path}")
-    try:
-        rows = list(csv.DictReader(path.read_text(encoding="utf-8").splitlines()))
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise StarforgeError(f"markers file {path} is not a readable CSV: {exc}") from None
-    if not rows:
-        raise StarforgeError(f"markers file {path} has no markers")
-    fields = set(rows[0])
-    if not {"x_m", "y_m", "z_m"} <= fields:
-        raise StarforgeError(f"markers file {path} needs columns x_m,y_m,z_m (header {','.join(CSV_HEADER)})")
-    try:
-        pts = np.array([[float(r["x_m"]), float(r["y_m"]), float(r["z_m"])] for r in rows])
-        nrm = None
-        if {"nx", "ny", "nz"} <= fields:
-            nrm = np.array([[float(r["nx"] or 0), float(r["ny"] or 0), float(r["nz"] or 0)] for r in rows])
-    except (TypeError, ValueError) as exc:
-        raise StarforgeError(f"markers file {path} has a non-numeric value: {exc}") from None
-    if not np.all(np.isfinite(pts)):
-        raise StarforgeError(f"markers file {path} has non-finite coordinates")
-    return pts, nrm
-
-
-def marker_mesh(prop_mesh, points, normals, diameter_m: float, fmt: str = "glb") -> bytes:
-    """The prop with a sphere per marker (resting on the surface along its normal), as GLB or STL bytes."""
-    import trimesh
-
-    r = diameter_m / 2.0
-    spheres = []
-    for p, n in zip(points, normals, strict=True):
-        s = trimesh.creation.icosphere(subdivisions=2, radius=r)
-        s.apply_translation(np.asarray(p) + r * np.asarray(n))
-        spheres.append(s)
-    if fmt == "stl":
-        return trimesh.util.concatenate([prop_mesh, *spheres]).export(file_type="stl")
-    body = prop_mesh.copy()
-    body.visual.face_colors = [200, 200, 200, 255]
-    scene = trimesh.Scene()
-    scene.add_geometry(body, geom_name="prop")
-    if spheres:
-        marks = trimesh.util.concatenate(spheres)
-        marks.visual.face_colors = [230, 40, 40, 255]
-        scene.add_geometry(marks, geom_name="markers")
-    return scene.export(file_type="glb")
-
-
-def write_outputs(res: PlacementResult, folder: Path, render: bool = True, renderer=None) -> list[str]:
-    """Write every output of a placement into ``folder`` (a staging folder); return the file names.
-
-    ``renderer``: a started :class:`starforge.render.props.BackgroundRenderer` to draw the
-    pictures in (default: drawn here when ``render``).
-    """
-    from starforge.io import atomic_write_bytes, atomic_write_json, atomic_write_text
-
-    t = time.perf_counter()
-    folder = Path(folder)
-    if render and renderer is None:
-        from starforge.render.props import BackgroundRenderer
-
-        renderer = BackgroundRenderer(enabled=False)
-    if render:
-        renderer.submit(res, folder)
-    names = []
-    atomic_write_text(folder / "markers.csv", markers_csv(res.marker_points, res.marker_normals))
-    names.append("markers.csv")
-    fmt = res.spec.mesh_format
-    mesh_name = f"prop_markers.{fmt}"
-    atomic_write_bytes(
-        folder / mesh_name,
-        marker_mesh(res.prop.mesh, res.marker_points, res.marker_normals, res.spec.marker_diameter_m, fmt),
-    )
-    names.append(mesh_name)
-    if render:
-        names += renderer.wait()
-    res.timings["write_s"] = round(time.perf_counter() - t, 4)
-    doc = placement_json(res)
-    atomic_write_json(folder / "placement.json", doc)
-    names.insert(0, "placement.json")
-    return names
-
-
-@dataclass(frozen=True)
-class Placement:
-    """A ``placement.json`` read back (:func:`load_placement`)."""
-
-    path: Path
-    data: dict = field(repr=False)
-    positions_m: np.ndarray = field(repr=False)
-    normals: np.ndarray = field(repr=False)
-    sites: tuple[int, ...] = ()
-    visibility: np.ndarray = field(default=None, repr=False)
-    marker_diameter_m: float = 0.004
-    seed: int = 0
-
-    @property
-    def prop_name(self) -> str:
-        return self.data["prop"]["name"]
-
-    @property
-    def total_cost(self) -> float:
-        return float(self.data["cost"]["total"])
-
-
-def load_placement(path: str | Path) -> Placement:
-    """Read ``placement.json`` (or the folder holding it); StarforgeError when missing or not a placement."""
-    from starforge.io import read_json
-
-    path = Path(path)
-    if path.is_dir():
-        path = path / "placement.json"
-    data = read_json(path, "placement file")
-    if data.get("format") != FORMAT:
-        raise StarforgeError(f"{path} is not a starforge placement (format {data.get('format')!r})")
-    if data.get("version") != VERSION:
-        raise StarforgeError(
-            f"{path}: unsupported placement version {data.get('version')!r}, expected {VERSION}"
-        )
-    missing = [
-        k
-        for k in (
-            "prop",
-            "settings",
-            "seed",
-            "rig",
-            "poses",
-            "markers",
-            "marker_diameter_m",
-            "cost",
-            "history",
-            "timings",
-        )
-        if k not in data
-    ]
-    if missing:
-        raise StarforgeError(f"{path} lacks {', '.join(missing)}")
-    try:
-        m = data["markers"]
-        pos = np.array([x["position"] for x in m], dtype=float).reshape(-1, 3)
-        nrm = np.array([x["normal"] for x in m], dtype=float).reshape(-1, 3)
-        sites = tuple(int(x["site"]) for x in m)
-        vis = np.array([x["visibility"] for x in m], dtype=float)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise StarforgeError(f"{path} has a malformed marker entry: {exc}") from None
-    return Placement(path, data, pos, nrm, sites, vis, float(data["marker_diameter_m"]), int(data["seed"]))
-
-
-def summary_lines(res: PlacementResult) -> list[str]:
-    """A few lines for the terminal."""
-    c = res.cost
-    costs = res.anneal.costs
-    sd = costs.std(ddof=1) if len(costs) > 1 else 0.0
-    lines = [
-        f"prop {res.prop.name}: {len(res.prop.mesh.faces)} faces, extents "
-        f"{' x '.join(f'{e:.3f}' for e in res.prop.mesh.extents)} m",
-    ]
-    lines += [f"  repair: {n}" for n in res.prop.notes]
-    lines.append(f"sites: {len(res.sites)} usable ({res.forbidden} in constrained areas removed)")
-    lines.append(f"poses: {len(res.poses)}, camera pairs: {len(res.rig.pairs)}, rays cast: {res.rays}")
-    if res.tracked is not None:
-        t, b = res.tracked.terms, res.tracked.baselines
-        lines.append(
-            f"markers: {t['markers']} ({res.spec.track.marker_mm:g} mm, spacing {res.spacing_m * 1000:.1f} mm), "
-            f"tracked at {100 * (1 - t['untracked']):.1f} % of the poses, mean visibility {t['mean_visibility']:.3f}"
-        )
-        rnd = b["best_of_random"]["cost"]
-        lines.append(
-            f"cost {t['total']:.4f}; greedy + local search {b['greedy_local_search']['cost']:.4f}"
-            + (f", best of {b['best_of_random']['layouts']} random {rnd:.4f}" if rnd is not None else "")
-        )
-        if not math.isinf(t["near_symmetry_margin_m"]):
-            lines.append(f"near-symmetry margin: {t['near_symmetry_margin_m'] * 1000:.1f} mm")
-        return lines
-    lines.append(
-        f"markers: {c.markers}, cost {c.total:.4f} (visibility {c.visibility:.4f}, count {c.count:.4f}, "
-        f"overlap {c.overlap:.4f}, symmetry {c.symmetry:.0f}), mean visibility {c.mean_visibility:.3f}"
-    )
-    from starforge.props.costs import lower_bound
-
-    lb, lb_n = lower_bound(res.site_visibility, res.spec.costs)
-    lines.append(f"no layout of these sites costs less than {lb:.4f} ({lb_n} most visible sites)")
-    if len(costs) > 1:
-        lines.append(f"restarts: {len(costs)}, cost mean {costs.mean():.4f} SD {sd:.4f}")
-    if not math.isinf(c.margin_m):
-        lines.append(f"near-symmetry margin: {c.margin_m * 1000:.1f} mm")
-    return lines

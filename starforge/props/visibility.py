@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from starforge.errors import StarforgeError
@@ -29,24 +30,42 @@ RAY_OFFSET_MIN_M = 1e-7
 
 @dataclass(frozen=True)
 class VisibilityTable:
-    """Pair visibility of every site at every pose.
+    """Which cameras see every site at every pose.
 
     Attributes
     ----------
-    seen : (s, p, c) bool
-        ``seen[i, k, j]``: site ``i`` at pose ``k`` is seen by both cameras of pair ``j``.
+    masks : (s, p) uint64
+        Bit ``c`` of ``masks[i, k]``: camera ``c`` sees site ``i`` at pose ``k``.  A site seen
+        by fewer than two cameras at a pose has mask 0 there (it cannot be triangulated, so its
+        rays are not cast).
+    pairs : (c, 2) int
+        The rig's camera pairs (the paper's model: a pair sees a site when both cameras do).
     rays : int
-        Occlusion rays cast (segments that passed the field-of-view and facing tests).
+        Occlusion rays cast against the prop.
     """
 
-    seen: np.ndarray = field(repr=False)
+    masks: np.ndarray = field(repr=False)
+    pairs: np.ndarray = field(repr=False)
     rays: int = 0
+
+    @property
+    def seen(self) -> np.ndarray:
+        """(s, p, pairs) bool: ``seen[i, k, j]``, site ``i`` at pose ``k`` is seen by both
+        cameras of pair ``j``."""
+        m = self.masks
+        a = (m[..., None] >> self.pairs[:, 0].astype(np.uint64)) & np.uint64(1)
+        b = (m[..., None] >> self.pairs[:, 1].astype(np.uint64)) & np.uint64(1)
+        return (a & b).astype(bool)
 
     @property
     def site_visibility(self) -> np.ndarray:
         """(s,) float in [0, 1]: fraction of (pose, pair) combinations that see each site."""
-        s = self.seen.shape[0]
+        s = self.masks.shape[0]
         return self.seen.reshape(s, -1).mean(axis=1)
+
+    def cameras_seen(self) -> np.ndarray:
+        """(s, p) int: how many cameras see each site at each pose."""
+        return np.bitwise_count(self.masks).astype(np.int64)
 
 
 def ray_offset(mesh) -> float:
@@ -115,6 +134,78 @@ def check_rig_sees_volume(rig, positions_world: np.ndarray) -> None:
         )
 
 
+@numba.njit(cache=True, nogil=True)
+def _seg_seg_dist2(p0, p1, q0, q1):
+    """Squared distance between segments p0-p1 and q0-q1 (closest points, clamped)."""
+    d1 = p1 - p0
+    d2 = q1 - q0
+    r = p0 - q0
+    a = d1 @ d1
+    e = d2 @ d2
+    f = d2 @ r
+    s = 0.0
+    t = 0.0
+    if a <= 1e-300 and e <= 1e-300:
+        return r @ r
+    if a <= 1e-300:
+        t = min(max(f / e, 0.0), 1.0)
+    else:
+        c = d1 @ r
+        if e <= 1e-300:
+            s = min(max(-c / a, 0.0), 1.0)
+        else:
+            b = d1 @ d2
+            den = a * e - b * b
+            if den > 1e-300:
+                s = min(max((b * f - c * e) / den, 0.0), 1.0)
+            t = (b * s + f) / e
+            if t < 0.0:
+                t = 0.0
+                s = min(max(-c / a, 0.0), 1.0)
+            elif t > 1.0:
+                t = 1.0
+                s = min(max((b - c) / a, 0.0), 1.0)
+    w = (p0 + d1 * s) - (q0 + d2 * t)
+    return w @ w
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _view_masks(centres, normals, q, axes, tans, cos_lim, caps, min_cams):
+    """(s, P) uint64 camera bits: camera c (position ``q[k, c]`` and axes ``axes[k, c]`` in the
+    prop frame at pose k) has site i's ball centre in its field of view, faces it within the
+    grazing limit, and the segment between them misses every capsule of ``caps`` (k, 7).  Masks
+    with fewer than ``min_cams`` bits are cleared.  The prop itself is tested afterwards."""
+    S = centres.shape[0]
+    P, C = q.shape[0], q.shape[1]
+    out = np.zeros((S, P), dtype=np.uint64)
+    for k in numba.prange(P):
+        for i in range(S):
+            m = np.uint64(0)
+            cnt = 0
+            for c in range(C):
+                d = centres[i] - q[k, c]
+                z = axes[k, c, 2] @ d
+                if z <= 0.0:
+                    continue
+                if abs(axes[k, c, 0] @ d) > tans[c, 0] * z or abs(axes[k, c, 1] @ d) > tans[c, 1] * z:
+                    continue
+                dist = math.sqrt(d @ d)
+                if -(d @ normals[i]) < cos_lim * dist:
+                    continue
+                hidden = False
+                for h in range(caps.shape[0]):
+                    if _seg_seg_dist2(centres[i], q[k, c], caps[h, 0:3], caps[h, 3:6]) <= caps[h, 6] * caps[h, 6]:
+                        hidden = True
+                        break
+                if hidden:
+                    continue
+                m |= np.uint64(1) << np.uint64(c)
+                cnt += 1
+            if cnt >= min_cams:
+                out[i, k] = m
+    return out
+
+
 def compute_table(
     mesh,
     points,
@@ -122,17 +213,19 @@ def compute_table(
     rig,
     poses,
     grazing_limit_deg: float = 80.0,
-    max_batch: int = 1_000_000,
+    max_batch: int = 2_000_000,
     progress=None,
     radius_m: float = 0.0,
     occlusion: bool = True,
+    centre_m: float | None = None,
+    occluders: np.ndarray | None = None,
 ) -> VisibilityTable:
-    """Build the (sites x poses x pairs) visibility table.
+    """Build the (sites x poses) camera-mask table.
 
     Parameters
     ----------
     mesh : trimesh.Trimesh
-        The prop, metres, normals outward (the only occluder).
+        The prop, metres, normals outward.
     points, normals : (s, 3) float
         Sites on the surface (m) and their outward unit normals, prop frame.
     rig : Rig
@@ -141,55 +234,80 @@ def compute_table(
         Largest angle between the normal and the direction to a camera that still counts as seen,
         degrees in (0, 180].
     max_batch : int
-        Camera-site tests per batch (bounds memory).
+        Occlusion rays per embree call (bounds memory).
     progress : callable, optional
-        Called as ``progress(done_poses, total_poses)``.
+        Called as ``progress(done, total)``.
     radius_m : float
-        Marker ball radius: a marker is seen when the segment from its centre (``radius_m`` off
-        the surface along the normal) to the camera misses the prop.
+        Marker ball radius, m.
     occlusion : bool
         Test the segments against the prop (False: field of view and facing only, a model that
         lets a camera see through the prop; for comparison with published figures).
+    centre_m : float, optional
+        Height of the ball's centre above the site along the normal, m (default ``radius_m``: a
+        ball resting on the surface; a marker on a base sits higher).
+    occluders : (k, 7) float, optional
+        Capsules that move with the prop (the hand, :func:`starforge.props.hand.capsule_arrays`).
+
+    Notes
+    -----
+    Field of view, facing and the capsules are tested in compiled code for every (site, pose,
+    camera); a ray is cast against the prop only where the site passed those tests for at least
+    two cameras at that pose (one camera alone cannot triangulate it).
     """
     grazing = in_range("grazing_limit_deg", grazing_limit_deg, 1e-6, 180.0)
     cos_lim = math.cos(math.radians(grazing))
-    pts = np.asarray(points, dtype=float)
-    nrm = np.asarray(normals, dtype=float)
-    s = len(pts)
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    nrm = np.asarray(normals, dtype=float).reshape(-1, 3)
     cam_pos, basis, tans = camera_arrays(rig)
-    c = len(cam_pos)
-    pairs = np.array(rig.pairs)
-    P = len(poses)
+    if len(cam_pos) > 64:
+        raise StarforgeError(f"a rig has at most 64 cameras, this one {len(cam_pos)}")
+    pairs = np.array(rig.pairs, dtype=np.int64).reshape(-1, 2)
     R, T, pivot = poses.rotations, poses.translations, poses.pivot
     check_rig_sees_volume(rig, T)
-    offset = ray_offset(mesh)
-    origins_all = pts + (radius_m + offset) * nrm
-    pts = pts + radius_m * nrm  # field of view and facing are tested at the ball's centre
-    seen = np.zeros((s, P, len(pairs)), dtype=bool)
-    step = max(1, int(max_batch // max(1, s * c)))
+    h = radius_m if centre_m is None else centre_m
+    centres = pts + h * nrm  # field of view, facing and rays from the ball's centre
+    # cameras in the prop frame: q = R^T (cam - t) + pivot; camera axes: rows of basis @ R
+    q = np.einsum("kji,kcj->kci", R, cam_pos[None] - T[:, None]) + pivot
+    axes = np.einsum("cij,kjl->kcil", basis, R)
+    caps = np.zeros((0, 7)) if occluders is None else np.asarray(occluders, float).reshape(-1, 7)
+    masks = _view_masks(centres, nrm, np.ascontiguousarray(q), np.ascontiguousarray(axes), tans, cos_lim, caps, 2)
     rays = 0
-    for k0 in range(0, P, step):
-        k1 = min(P, k0 + step)
-        Rk, Tk = R[k0:k1], T[k0:k1]
-        # cameras in the prop frame: q = R^T (cam - t) + pivot; camera axes: rows of basis @ R
-        q = np.einsum("kji,kcj->kci", Rk, cam_pos[None] - Tk[:, None]) + pivot
-        axes = np.einsum("cij,kjl->kcil", basis, Rk)  # (k, c, 3, 3)
-        d = pts[None, None] - q[:, :, None]  # (k, c, s, 3) camera -> site
-        local = np.einsum("kcij,kcsj->kcsi", axes, d)
-        z = local[..., 2]
-        ok = (z > 0) & (np.abs(local[..., 0]) <= tans[None, :, 0, None] * z)
-        ok &= np.abs(local[..., 1]) <= tans[None, :, 1, None] * z
-        dist = np.linalg.norm(d, axis=-1)
-        facing = -np.einsum("kcsj,sj->kcs", d, nrm) >= cos_lim * dist
-        ok &= facing
-        idx = np.nonzero(ok)
-        if occlusion and len(idx[0]):
-            kk, cc, ss = idx
-            blocked = segment_occluded(mesh, origins_all[ss], q[kk, cc])
-            ok[kk[blocked], cc[blocked], ss[blocked]] = False
-            rays += len(ss)
-        cam_seen = np.transpose(ok, (2, 0, 1))  # (s, k, c)
-        seen[:, k0:k1] = cam_seen[:, :, pairs[:, 0]] & cam_seen[:, :, pairs[:, 1]]
-        if progress is not None:
-            progress(k1, P)
-    return VisibilityTable(seen, rays)
+    if occlusion and masks.any():
+        si, ki = np.nonzero(masks)
+        m = masks[si, ki]
+        C = len(cam_pos)
+        bits = ((m[:, None] >> np.arange(C, dtype=np.uint64)[None]) & np.uint64(1)).astype(bool)
+        row, cc = np.nonzero(bits)
+        ss, kk = si[row], ki[row]
+        origins = centres + ray_offset(mesh) * nrm
+        blocked = np.zeros(len(row), dtype=bool)
+        for a in range(0, len(row), max_batch):
+            b = min(len(row), a + max_batch)
+            blocked[a:b] = segment_occluded(mesh, origins[ss[a:b]], q[kk[a:b], cc[a:b]])
+            if progress is not None:
+                progress(b, len(row))
+        rays = len(row)
+        clear = np.zeros(len(m), dtype=np.uint64)
+        np.bitwise_or.at(clear, row[blocked], np.uint64(1) << cc[blocked].astype(np.uint64))
+        m = m & ~clear
+        m[np.bitwise_count(m) < 2] = 0
+        masks[si, ki] = m
+    elif progress is not None:
+        progress(1, 1)
+    return VisibilityTable(masks, pairs, rays)
+
+
+def first_hits(mesh, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (m, inf for a miss) to the first face each ray hits, and that face (-1)."""
+    origins = np.asarray(origins, float)
+    dirs = np.asarray(dirs, float)
+    dist = np.full(len(origins), np.inf)
+    face = np.full(len(origins), -1, dtype=np.int64)
+    if not len(origins):
+        return dist, face
+    tri, ray, loc = mesh.ray.intersects_id(origins, dirs, multiple_hits=False, return_locations=True)
+    if len(ray):
+        d = np.einsum("ij,ij->i", np.asarray(loc) - origins[ray], dirs[ray])
+        dist[ray] = d
+        face[ray] = tri
+    return dist, face

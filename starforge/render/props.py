@@ -1,4 +1,5 @@
-"""Pictures of a marker placement: ``convergence.png`` and ``layout.png`` (matplotlib, Agg).
+"""Pictures of a marker placement: ``convergence.png``, ``layout.png`` and the rigging guide
+``guide.png`` / ``guide.pdf`` (matplotlib, Agg).
 
 The functions take a :class:`PlotData` (plain arrays, picklable) or a placement result.
 :class:`BackgroundRenderer` draws them in a forked child process that imports matplotlib while
@@ -34,6 +35,14 @@ class PlotData:
     marker_points: np.ndarray = field(repr=False)
     marker_normals: np.ndarray = field(repr=False)
     marker_visibility: np.ndarray = field(repr=False)
+    marker_centres: np.ndarray = field(default=None, repr=False)
+    landmarks: tuple = ()  # per marker: the text of starforge.props.guide.landmarks
+    contact: np.ndarray = field(default=None, repr=False)
+    edge_mm: np.ndarray = field(default=None, repr=False)
+    bounds: np.ndarray = field(default=None, repr=False)  # (2, 3) m
+    seat_text: str = ""
+    hand: np.ndarray = field(default=None, repr=False)  # (k, 7) capsules
+    visibility_label: str = "visibility"
 
 
 MAX_FACES = 20000
@@ -48,9 +57,21 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         return res
     runs = res.anneal.runs
     best = int(np.argmin(res.anneal.costs))
-    temps = np.array([res.spec.chain.temperature(i) for i in range(runs[best].iterations)])
+    n_hist = len(runs[best].history_cost)
+    if res.tracked is not None:  # the tracked chains cool geometrically from t0 to 1e-4
+        ts = res.spec.track
+        decay = (1e-4 / ts.t0) ** (1.0 / max(1, ts.iterations)) if ts.t0 > 0 else 0.0
+        temps = ts.t0 * decay ** np.arange(n_hist) if ts.t0 > 0 else np.zeros(n_hist)
+    else:
+        temps = np.array([res.spec.chain.temperature(i) for i in range(n_hist)])
     nf = len(res.prop.mesh.faces)
     keep = np.linspace(0, nf - 1, max_faces).astype(int) if nf > max_faces else np.arange(nf)
+    from starforge.props.guide import landmarks
+    from starforge.props.hand import capsule_arrays
+
+    idx = list(res.marker_sites)
+    seat = res.seat
+    tracked = res.tracked is not None
     return PlotData(
         name=res.prop.name,
         final_cost=float(res.cost.total),
@@ -63,6 +84,20 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         marker_points=res.marker_points,
         marker_normals=res.marker_normals,
         marker_visibility=res.marker_visibility,
+        marker_centres=res.centres(),
+        landmarks=tuple(m["text"] for m in landmarks(res.prop.mesh, res.marker_points, res.marker_normals)),
+        contact=np.asarray(res.seat_report.contact)[idx],
+        edge_mm=np.asarray(res.seat_report.edge_m)[idx] * 1000.0,
+        bounds=np.asarray(res.prop.mesh.bounds, float),
+        seat_text=(
+            f"{seat.name}: {seat.ball_mm:g} mm ball, centre {seat.centre_height_mm:g} mm above a {seat.base_mm:g} mm base"
+            if seat.base_mm > 0
+            else f"{seat.ball_mm:g} mm ball on the surface"
+        ),
+        hand=capsule_arrays(res.capsules),
+        visibility_label=(
+            "fraction of scenarios seen by 2 surviving cameras" if tracked else "visibility (fraction of poses x pairs)"
+        ),
     )
 
 
@@ -79,7 +114,11 @@ def convergence_png(res, path: str | Path) -> Path:
     ax.plot(it, cost, color="C0", lw=1.4, label=f"current (best of {len(d.run_costs)} runs)")
     ax.plot(it, best_so_far, color="C3", lw=1.0, ls="--", label="best so far")
     ax.set_ylabel("total cost")
-    ax.set_title(f"{d.name}: annealing, final cost {d.final_cost:.4f}")
+    ax.set_title(
+        f"{d.name}: annealing, final cost {d.final_cost:.4f}"
+        if len(cost) > 1
+        else f"{d.name}: no annealing chain (--restarts 0), cost {d.final_cost:.4f}"
+    )
     ax.legend(loc="upper right", fontsize=8)
     ax.grid(alpha=0.3)
     ax2.plot(it, d.temperatures, color="C2", lw=1.0, label="temperature")
@@ -104,151 +143,331 @@ def _view_basis(elev_deg: float, azim_deg: float) -> np.ndarray:
     return np.array([right, up, toward])
 
 
+def _shaded(ax, tris, fn, B, light=None):
+    """Draw the prop's faces seen along ``B[2]`` (painter's algorithm); return the projection."""
+    from matplotlib.collections import PolyCollection
+
+    if light is None:
+        light = np.array([0.3, -0.4, 0.85]) / np.linalg.norm([0.3, -0.4, 0.85])
+    proj = tris @ B.T
+    front = fn @ B[2] > 0
+    order = np.argsort(proj[front][:, :, 2].mean(axis=1))
+    shade = np.clip(np.abs(fn[front] @ B[2]), 0, 1) * 0.35 + np.clip(fn[front] @ light, 0, 1) * 0.2 + 0.4
+    polys = proj[front][order][:, :, :2]
+    cols = np.repeat(shade[order][:, None], 3, axis=1)
+    ax.add_collection(PolyCollection(polys, facecolors=cols, edgecolors=cols, linewidths=0.2))
+    return proj
+
+
+def _hand_outline(ax, hand, B):
+    """The hand's capsules as dashed outlines (their silhouette: a stadium per capsule)."""
+    for c in np.asarray(hand).reshape(-1, 7):
+        a, b, r = c[:3] @ B.T, c[3:6] @ B.T, c[6]
+        d = b[:2] - a[:2]
+        L = float(np.hypot(*d))
+        ang = np.arctan2(d[1], d[0]) if L > 1e-12 else 0.0
+        t = np.linspace(-np.pi / 2, np.pi / 2, 24)
+        u = np.array([np.cos(ang), np.sin(ang)])
+        v = np.array([-u[1], u[0]])
+        cap1 = b[:2] + r * (np.cos(t)[:, None] * u + np.sin(t)[:, None] * v)
+        cap0 = a[:2] + r * (-np.cos(t)[:, None] * u - np.sin(t)[:, None] * v)
+        ring = np.vstack([cap1, cap0, cap1[:1]])
+        ax.plot(ring[:, 0], ring[:, 1], color="C1", ls="--", lw=0.9, zorder=2)
+
+
+def spread_labels(points: np.ndarray, span: float, rounds: int = 200) -> np.ndarray:
+    """(n, 2) label positions near ``points`` (n, 2) that keep apart from each other and from
+    every point: each starts one step out from the points' centre and is pushed by the
+    others until no two are closer than ``0.07 * span`` (or ``rounds`` pass)."""
+    pts = np.asarray(points, float)
+    n = len(pts)
+    if n == 0:
+        return pts
+    gap = 0.07 * span
+    c = pts.mean(axis=0)
+    d = pts - c
+    norm = np.linalg.norm(d, axis=1)
+    ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    fallback = np.column_stack([np.cos(ang), np.sin(ang)])
+    u = np.where(norm[:, None] > 1e-9 * span, d / np.maximum(norm, 1e-300)[:, None], fallback)
+    lab = pts + 1.2 * gap * u
+    for _ in range(rounds):
+        moved = False
+        others = np.vstack([lab, pts])
+        for i in range(n):
+            diff = lab[i] - others
+            dist = np.linalg.norm(diff, axis=1)
+            dist[i] = np.inf
+            close = dist < gap
+            if close.any():
+                push = (diff[close] / np.maximum(dist[close], 1e-9 * span)[:, None] * (gap - dist[close])[:, None]).sum(0)
+                if np.linalg.norm(push) < 1e-12 * span:
+                    push = u[i] * gap * 0.1
+                lab[i] += 0.5 * push
+                moved = True
+            pull = lab[i] - pts[i]
+            far = np.linalg.norm(pull)
+            if far > 3 * gap:
+                lab[i] = pts[i] + pull / far * 3 * gap
+        if not moved:
+            break
+    return lab
+
+
+def _markers_in_view(ax, d: PlotData, B, span, colour=None, norm=None, cmap=None, size=60):
+    """Numbered markers (1-based) with leader lines to labels that do not overlap; those on the
+    far side hollow and grey."""
+    mp = d.marker_centres @ B.T
+    facing = d.marker_normals @ B[2] > -1e-9
+    lab = spread_labels(mp[:, :2], span)
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    m = 0.03 * span  # keep every label inside its own view
+    lab[:, 0] = np.clip(lab[:, 0], x0 + m, x1 - m)
+    lab[:, 1] = np.clip(lab[:, 1], y0 + m, y1 - m)
+    sc = None
+    for i in range(len(mp)):
+        col = "k" if facing[i] else "0.55"
+        ax.plot([mp[i, 0], lab[i, 0]], [mp[i, 1], lab[i, 1]], color=col, lw=0.5, zorder=4)
+        ax.text(lab[i, 0], lab[i, 1], str(i + 1), fontsize=8, ha="center", va="center", color=col, zorder=6,
+                bbox=dict(boxstyle="circle,pad=0.15", fc="white", ec=col, lw=0.6))  # fmt: skip
+    if colour is not None:
+        sc = ax.scatter(mp[facing, 0], mp[facing, 1], c=colour[facing], cmap=cmap, norm=norm, s=size,
+                        edgecolors="k", linewidths=0.7, zorder=5)  # fmt: skip
+    else:
+        ax.scatter(mp[facing, 0], mp[facing, 1], c="C3", s=size, edgecolors="k", linewidths=0.7, zorder=5)
+    ax.scatter(mp[~facing, 0], mp[~facing, 1], facecolors="none", edgecolors="0.45", s=size, lw=0.7,
+               linestyle=":", zorder=5)  # fmt: skip
+    return sc
+
+
+def _frame(ax, proj, pad=1.25):
+    allp = proj.reshape(-1, 3)
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
+    c, h = (lo + hi) / 2, float(np.max(hi - lo)) / 2 * pad
+    ax.set_xlim(c[0] - h, c[0] + h)
+    ax.set_ylim(c[1] - h, c[1] + h)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    return 2 * h
+
+
 def layout_png(res, path: str | Path) -> Path:
-    """The prop (shaded, grey) in two orthographic views with its markers coloured by visibility.
+    """The prop (shaded, grey) in two orthographic views with its markers numbered (1-based,
+    labels kept apart) and coloured by visibility on the markers' own range, with a colour bar.
 
     Drawn in 2D with the painter's algorithm (faces sorted by depth), which is much faster
-    than matplotlib's 3D axes; hidden markers are drawn hollow.
+    than matplotlib's 3D axes; markers on the far side are drawn hollow.
     """
     d = plot_data(res)
     plt = pyplot()
-    from matplotlib.collections import PolyCollection
+    from matplotlib.colors import Normalize
 
-    pts = d.marker_points
-    nrm = d.marker_normals
     vis = d.marker_visibility
+    lo, hi = (float(vis.min()), float(vis.max())) if len(vis) else (0.0, 1.0)
+    if hi - lo < 0.02:
+        lo, hi = max(0.0, lo - 0.01), min(1.0, hi + 0.01)
+    norm = Normalize(lo, hi)
     fig, axes = plt.subplots(1, 2, figsize=(9, 4.8))
-    fig.subplots_adjust(left=0.04, right=0.86, top=0.88, bottom=0.06, wspace=0.08)
-    light = np.array([0.3, -0.4, 0.85])
-    light /= np.linalg.norm(light)
-    tris_all = d.triangles
-    fn = d.face_normals
+    fig.subplots_adjust(left=0.03, right=0.84, top=0.86, bottom=0.04, wspace=0.06)
     sc = None
     for ax, (elev, azim), title in zip(axes, [(20, -60), (20, 120)], ["front", "back"], strict=True):
         B = _view_basis(elev, azim)
-        proj = tris_all @ B.T
-        front = fn @ B[2] > 0
-        order = np.argsort(proj[front][:, :, 2].mean(axis=1))
-        shade = np.clip(fn[front] @ light, 0, 1) * 0.5 + 0.4
-        polys = proj[front][order][:, :, :2]
-        cols = np.repeat(shade[order][:, None], 3, axis=1)
-        ax.add_collection(PolyCollection(polys, facecolors=cols, edgecolors=cols, linewidths=0.2))
-        mp = pts @ B.T
-        facing = nrm @ B[2] > 0
-        sc = ax.scatter(
-            mp[facing, 0],
-            mp[facing, 1],
-            c=vis[facing],
-            cmap="viridis",
-            vmin=0,
-            vmax=1,
-            s=45,
-            edgecolors="k",
-            zorder=3,
-        )
-        ax.scatter(
-            mp[~facing, 0],
-            mp[~facing, 1],
-            facecolors="none",
-            edgecolors="k",
-            s=45,
-            lw=0.6,
-            linestyle=":",
-            zorder=3,
-        )
-        for i, q in enumerate(mp):
-            ax.annotate(str(i), q[:2], xytext=(4, 4), textcoords="offset points", fontsize=7, zorder=4)
-        allp = proj.reshape(-1, 3)
-        lo, hi = allp.min(axis=0), allp.max(axis=0)
-        c, h = (lo + hi) / 2, float(np.max(hi - lo)[..., None].max()) / 2 * 1.08
-        ax.set_xlim(c[0] - h, c[0] + h)
-        ax.set_ylim(c[1] - h, c[1] + h)
-        ax.set_aspect("equal")
-        ax.set_xticks([])
-        ax.set_yticks([])
+        proj = _shaded(ax, d.triangles, d.face_normals, B)
+        span = _frame(ax, proj)
+        if d.hand is not None and len(d.hand):
+            _hand_outline(ax, d.hand, B)
+        sc = _markers_in_view(ax, d, B, span, vis, norm, "plasma") or sc
         ax.set_title(f"{title} (elevation {elev}, azimuth {azim} deg)", fontsize=8)
-    cax = fig.add_axes([0.88, 0.15, 0.025, 0.65])
-    fig.colorbar(sc, cax=cax, label="visibility (fraction of poses x pairs)")
+    cax = fig.add_axes([0.86, 0.15, 0.022, 0.62])
+    if sc is not None:
+        fig.colorbar(sc, cax=cax).set_label(d.visibility_label, fontsize=8)
     fig.suptitle(
-        f"{d.name}: {len(pts)} markers, mean visibility {d.mean_visibility:.2f} (hollow: on the far side)"
+        f"{d.name}: {len(vis)} markers (numbered), mean {d.mean_visibility:.3f}; hollow: far side"
+        + ("; dashed: the hand" if d.hand is not None and len(d.hand) else ""),
+        fontsize=10,
     )
     save_png(fig, path, dpi=_DPI)
     plt.close(fig)
     return Path(path)
 
 
-class BackgroundRenderer:
-    """Draw ``convergence.png`` and ``layout.png`` in a forked child process.
+#: the guide's orthographic views: name, rows of (screen right, screen up, towards the viewer)
+GUIDE_VIEWS = (
+    ("front (from -y)", np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])),
+    ("side (from +x)", np.array([[0, 1.0, 0], [0, 0, 1], [1, 0, 0]])),
+    ("top (from +z)", np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1]])),
+    ("back (from +y)", np.array([[-1.0, 0, 0], [0, 0, 1], [0, 1, 0]])),
+)
 
-    Entering forks a child that imports matplotlib at once (start-up cost that then overlaps the
-    parent's own imports and computation on a second core) and waits.  :meth:`submit` hands it
-    the plot data and the folder; :meth:`wait` collects it and raises if drawing failed.
-    Without ``os.fork`` (or when other threads run, where forking is unsafe) the same pictures are
-    drawn in-process by :meth:`wait`.  The pictures are byte-identical either way.
+
+def guide_figure(res):
+    """The one-page rigging guide: four orthographic views with the numbered markers and the
+    bounding box a person measures from, and per marker its position from the box's sides."""
+    d = plot_data(res)
+    plt = pyplot()
+    fig = plt.figure(figsize=(11.69, 8.27))  # A4 landscape
+    lo, hi = d.bounds
+    names = "xyz"
+    for k, (title, B) in enumerate(GUIDE_VIEWS):
+        ax = fig.add_axes([0.01 + 0.245 * k, 0.45, 0.235, 0.47])
+        proj = _shaded(ax, d.triangles, d.face_normals, B)
+        span = _frame(ax, proj, pad=1.35)
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]) @ B.T
+        x0, y0 = corners[:, 0].min(), corners[:, 1].min()
+        x1, y1 = corners[:, 0].max(), corners[:, 1].max()
+        ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], color="C0", lw=0.7, ls="-", zorder=1.5)
+        ax_r, ax_u = int(np.argmax(np.abs(B[0]))), int(np.argmax(np.abs(B[1])))
+        sr, su = np.sign(B[0][ax_r]), np.sign(B[1][ax_u])
+        fs = 6.5
+        ax.text(x0, y0 - 0.03 * span, f"{names[ax_r]}-{'min' if sr > 0 else 'max'}", fontsize=fs, color="C0", ha="left", va="top")
+        ax.text(x1, y0 - 0.03 * span, f"{names[ax_r]}-{'max' if sr > 0 else 'min'}", fontsize=fs, color="C0", ha="right", va="top")
+        ax.text(x0 - 0.02 * span, y0, f"{names[ax_u]}-{'min' if su > 0 else 'max'}", fontsize=fs, color="C0", ha="right", va="bottom", rotation=90)
+        ax.text(x0 - 0.02 * span, y1, f"{names[ax_u]}-{'max' if su > 0 else 'min'}", fontsize=fs, color="C0", ha="right", va="top", rotation=90)
+        ext_r = (hi - lo)[ax_r] * 1000
+        ext_u = (hi - lo)[ax_u] * 1000
+        ax.text((x0 + x1) / 2, y1 + 0.02 * span, f"{ext_r:.1f} mm", fontsize=fs, color="C0", ha="center", va="bottom")
+        ax.text(x1 + 0.02 * span, (y0 + y1) / 2, f"{ext_u:.1f} mm", fontsize=fs, color="C0", ha="left", va="center", rotation=90)
+        if d.hand is not None and len(d.hand):
+            _hand_outline(ax, d.hand, B)
+        _markers_in_view(ax, d, B, span, size=40)
+        ax.set_title(title, fontsize=9)
+        for sp in ax.spines.values():
+            sp.set_visible(False)
+    lines = [
+        f"{i + 1:>2}. {t}   (base contact {100 * c:.0f} %, edge {e:.1f} mm)" if np.isfinite(e)
+        else f"{i + 1:>2}. {t}   (base contact {100 * c:.0f} %, no sharp edge)"
+        for i, (t, c, e) in enumerate(zip(d.landmarks, d.contact, d.edge_mm, strict=True))
+    ]  # fmt: skip
+    fig.text(0.02, 0.965, f"Rigging guide: {d.name}, {len(lines)} markers", fontsize=13, weight="bold", va="top")
+    size = " x ".join(f"{(hi - lo)[k] * 1000:.1f}" for k in range(3))
+    head = (
+        f"Marker: {d.seat_text}.  Prop bounding box {size} mm (x, y, z).  Each marker's base centre is given by its distance "
+        "from the nearer side of the box on each axis (a ruler or square against the box's sides)."
+    )
+    fig.text(0.02, 0.43, head, fontsize=8, va="top", wrap=True)
+    ncol = 1 if len(lines) <= 12 else 2
+    per = -(-len(lines) // ncol)
+    for c in range(ncol):
+        fig.text(0.02 + 0.49 * c, 0.39, "\n".join(lines[c * per : (c + 1) * per]), fontsize=7.5 if ncol == 1 else 6.5,
+                 family="monospace", va="top")  # fmt: skip
+    fig.text(0.02, 0.015, "Filled: on the near side of that view; hollow, grey: on the far side.  Dashed orange: the hand "
+             "that holds the prop (no markers under it).  Blue: the bounding box.", fontsize=7)  # fmt: skip
+    return fig, plt
+
+
+def guide_files(res, folder: str | Path) -> list[str]:
+    """Write ``guide.png`` and ``guide.pdf`` (the same page) into ``folder``."""
+    import io
+
+    from starforge.io import atomic_write_bytes
+
+    fig, plt = guide_figure(res)
+    save_png(fig, Path(folder) / "guide.png", dpi=110)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="pdf", metadata={"Creator": None, "Producer": None, "CreationDate": None})
+    atomic_write_bytes(Path(folder) / "guide.pdf", buf.getvalue())
+    plt.close(fig)
+    return ["guide.png", "guide.pdf"]
+
+
+#: what each render process draws: the two placement pictures, and the rigging guide
+_ROLES = ("pictures", "guide")
+NAMES = {"pictures": ["convergence.png", "layout.png"], "guide": ["guide.png", "guide.pdf"]}
+
+
+def _draw(role: str, data: PlotData, folder: Path) -> None:
+    if role == "pictures":
+        convergence_png(data, folder / "convergence.png")
+        layout_png(data, folder / "layout.png")
+    else:
+        guide_files(data, folder)
+
+
+class BackgroundRenderer:
+    """Draw the pictures in two forked child processes: ``convergence.png`` and ``layout.png``
+    in one, the rigging guide in the other (they draw at the same time on two cores).
+
+    Entering forks the children, which import matplotlib at once (start-up cost that then
+    overlaps the parent's own imports and computation) and wait.  :meth:`submit` hands them the
+    plot data and the folder; :meth:`wait` collects them and raises if drawing failed.  Without
+    ``os.fork`` (or when other threads run, where forking is unsafe) the same pictures are drawn
+    in-process by :meth:`wait`.  The pictures are byte-identical either way.
     """
 
     def __init__(self, enabled: bool = True):
         import threading
 
         self._fork = enabled and hasattr(os, "fork") and threading.active_count() == 1
-        self._pid: int | None = None
-        self._w: int | None = None
+        self._kids: list[tuple[int, int | None]] = []  # (pid, write end)
         self._job: tuple | None = None
+        self._sent: Path | None = None
 
     def __enter__(self) -> BackgroundRenderer:
         if self._fork:
-            r, w = os.pipe()
-            pid = os.fork()
-            if pid == 0:  # child: never returns
-                os.close(w)
-                _child(r)
-            os.close(r)
-            self._pid, self._w = pid, w
+            for role in _ROLES:
+                r, w = os.pipe()
+                pid = os.fork()
+                if pid == 0:  # child: never returns
+                    os.close(w)
+                    for _, other in self._kids:
+                        if other is not None:
+                            os.close(other)
+                    _child(r, role)
+                os.close(r)
+                self._kids.append((pid, w))
         return self
 
     def submit(self, res, folder: str | Path) -> None:
         """Start drawing the pictures of ``res`` into ``folder``."""
         data, folder = plot_data(res), Path(folder)
-        if self._pid is None:
+        if not self._kids:
             self._job = (data, folder)
             return
         job = folder / ".render.pkl"
         job.write_bytes(pickle.dumps((data, str(folder)), protocol=pickle.HIGHEST_PROTOCOL))
-        os.write(self._w, str(job).encode())
-        os.close(self._w)
-        self._w = None
+        self._sent = job
+        for k, (pid, w) in enumerate(self._kids):
+            os.write(w, str(job).encode())
+            os.close(w)
+            self._kids[k] = (pid, None)
 
     def wait(self) -> list[str]:
         """Wait for the pictures; return their file names."""
-        names = ["convergence.png", "layout.png"]
-        if self._pid is None:
+        names = [n for role in _ROLES for n in NAMES[role]]
+        if not self._kids:
             if self._job is not None:
                 data, folder = self._job
-                convergence_png(data, folder / names[0])
-                layout_png(data, folder / names[1])
+                for role in _ROLES:
+                    _draw(role, data, folder)
                 self._job = None
             return names
-        _, status = os.waitpid(self._pid, 0)
-        self._pid = None
-        if status != 0:
-            raise RuntimeError("drawing convergence.png and layout.png failed in the render process")
+        failed = False
+        for pid, _ in self._kids:
+            _, status = os.waitpid(pid, 0)
+            failed |= status != 0
+        self._kids = []
+        if self._sent is not None:
+            self._sent.unlink(missing_ok=True)  # both children have read it
+            self._sent = None
+        if failed:
+            raise RuntimeError("drawing the placement pictures failed in a render process")
         return names
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        if self._w is not None:
-            os.close(self._w)  # the child sees end-of-file and leaves
-            self._w = None
-        if self._pid is not None:
+        for pid, w in self._kids:
+            if w is not None:
+                os.close(w)  # the child sees end-of-file and leaves
             if exc_type is not None:
                 import signal
 
-                os.kill(self._pid, signal.SIGKILL)
-            os.waitpid(self._pid, 0)
-            self._pid = None
+                os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+        self._kids = []
 
 
-def _child(read_fd: int) -> None:
-    """Body of the render process: import matplotlib, wait for a job, draw it, exit."""
+def _child(read_fd: int, role: str) -> None:
+    """Body of a render process: import matplotlib, wait for a job, draw its part, exit."""
     code = 1
     try:
         pyplot()
@@ -259,9 +478,7 @@ def _child(read_fd: int) -> None:
         else:
             job = Path(message.decode())
             data, folder = pickle.loads(job.read_bytes())
-            job.unlink()
-            convergence_png(data, Path(folder) / "convergence.png")
-            layout_png(data, Path(folder) / "layout.png")
+            _draw(role, data, Path(folder))
             code = 0
     except BaseException:  # reported by the parent through the exit status
         code = 1

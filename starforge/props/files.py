@@ -1,0 +1,481 @@
+"""placement.json and the files beside it: written from a :class:`PlacementResult`, read back.
+
+``placement.json`` is the source of truth (read back with :func:`load_placement`); the CSV,
+the mesh and the pictures are derived from the same result.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from starforge.errors import StarforgeError
+
+if TYPE_CHECKING:
+    from starforge.props.placement import PlacementResult
+
+FORMAT = "starforge.placement"
+VERSION = 1
+CSV_HEADER = ("id", "x_m", "y_m", "z_m", "nx", "ny", "nz")
+HISTORY_POINTS = 400
+
+
+
+def _r(x, nd=9):
+    """Round floats for stable, readable JSON."""
+    if isinstance(x, np.ndarray):
+        return (np.round(x.astype(float), nd) + 0.0).tolist()  # + 0.0 turns -0.0 into 0.0
+    return round(float(x), nd) + 0.0
+
+
+def _downsample(arr: np.ndarray, n: int = HISTORY_POINTS) -> tuple[list[int], np.ndarray]:
+    if len(arr) <= n:
+        idx = np.arange(len(arr))
+    else:
+        idx = np.unique(np.linspace(0, len(arr) - 1, n).round().astype(int))
+    return idx.tolist(), arr[idx]
+
+
+def placement_json(res: PlacementResult) -> dict:
+    """The ``placement.json`` document (plain JSON data; keys fixed by format version 1)."""
+    from starforge.spec import to_mapping
+
+    prop = res.prop
+    spec = res.spec
+    runs = res.anneal.runs
+    costs = res.anneal.costs
+    history = {
+        "restarts": len(runs),
+        "best_run": int(np.argmin(costs)),
+        "run_costs": _r(costs),
+        "cost_mean": _r(costs.mean()),
+        "cost_sd": _r(costs.std(ddof=1)) if len(costs) > 1 else 0.0,
+        "runs": [],
+    }
+    for r in runs:
+        it, c = _downsample(r.history_cost)
+        history["runs"].append(
+            {
+                "iterations": r.iterations,
+                "cost": _r(r.cost),
+                "markers": len(r.sites),
+                "proposed": r.proposed,
+                "accepted": r.accepted,
+                "trace": {
+                    "iteration": it,
+                    "cost": _r(c),
+                    "best": _r(r.history_best[it]),
+                    "markers": r.history_n[it].astype(int).tolist(),
+                    "temperature": [_r(spec.chain.temperature(i)) for i in it],
+                },
+            }
+        )
+    seen3 = (res.marker_pose_seen.sum(axis=0) >= 3) if len(res.marker_sites) else np.zeros(0, bool)
+    from starforge.props.guide import landmarks
+
+    centres = res.centres()
+    marks = landmarks(prop.mesh, res.marker_points, res.marker_normals)
+    rep = res.seat_report
+    markers = []
+    for i, s in enumerate(res.marker_sites):
+        edge = float(rep.edge_m[s])
+        markers.append(
+            {
+                "id": i,
+                "number": i + 1,
+                "position": _r(res.sites.points[s]),
+                "normal": _r(res.sites.normals[s]),
+                "centre": _r(centres[i]),
+                "site": int(s),
+                "visibility": _r(res.site_visibility[s]),
+                "seen_fraction": _r(res.marker_pose_seen[i].mean()),
+                "seen_all_cameras": _r((np.bitwise_count(res.marker_masks[i]) >= 2).mean()),
+                "base_contact": _r(rep.contact[s], 4),
+                "edge_distance_mm": None if not math.isfinite(edge) else _r(edge * 1000.0, 3),
+                "landmark": marks[i],
+            }
+        )
+    doc = {
+        "format": FORMAT,
+        "version": VERSION,
+        "prop": {
+            "name": prop.name,
+            "units": prop.units,
+            "source": prop.source,
+            "faces": int(len(prop.mesh.faces)),
+            "extents_m": _r(np.asarray(prop.mesh.extents)),
+            "bounds_m": _r(np.asarray(prop.mesh.bounds)),
+            "watertight": bool(prop.mesh.is_watertight),
+            "repairs": list(prop.notes),
+        },
+        "settings": to_mapping(spec),
+        "seed": res.seed,
+        "rig": res.rig.to_json(),
+        "poses": {
+            "count": len(res.poses),
+            "resolution": spec.resolution,
+            "orientations": spec.orientations,
+            **res.poses.to_json(),
+        },
+        "sites": {
+            "sampled": len(res.sites) + sum(res.removed.values()),
+            "forbidden": res.forbidden,
+            "under_hand": res.removed.get("under_hand", 0),
+            "unseated": res.removed.get("unseated", 0),
+            "usable": len(res.sites),
+            "poisson_radius_m": _r(res.sites.radius_m),
+        },
+        "markers": markers,
+        "marker_diameter_m": spec.marker_diameter_m,
+        "seat": {
+            **res.seat.to_json(),
+            **{k: v for k, v in to_mapping(spec.seat).items()},
+            "sites_removed": dict(res.removed),
+        },
+        "hand": [c.to_json() for c in res.capsules],
+        "cost": {
+            **{k: (_r(v) if isinstance(v, float) else v) for k, v in res.cost.to_json().items()},
+            "weights": {
+                "visibility": spec.costs.w_visibility,
+                "count": spec.costs.w_count,
+                "overlap": spec.costs.w_overlap,
+                "symmetry": spec.costs.w_symmetry,
+                "near_symmetry": spec.costs.w_near_symmetry,
+            },
+        },
+        "coverage": {
+            "poses_with_3_markers_seen": _r(seen3.mean()) if len(seen3) else 0.0,
+            "min_markers_seen": int(res.marker_pose_seen.sum(axis=0).min()) if len(seen3) else 0,
+        },
+        "history": history,
+        "timings": {
+            **res.timings,
+            "rays": res.rays,
+            **(res.tracked.seconds if res.tracked is not None else {}),
+        },
+        "objective": spec.objective,
+        "warnings": list(res.warnings),
+    }
+    if res.tracked is None:
+        from starforge.props.costs import lower_bound
+
+        lb, lb_n = lower_bound(res.site_visibility, spec.costs)
+        doc["cost"]["lower_bound"] = _r(lb)
+        doc["cost"]["lower_bound_markers"] = lb_n
+        doc["cost"]["lower_bound_note"] = (
+            "no layout of these sites can cost less: the visibility term is at least its distance from the "
+            "range of means of n sites, the count term is exact, the others are >= 0"
+        )
+    if res.tracked is not None:
+        t = res.tracked.terms
+        doc["tracked"] = {
+            "definition": (
+                f"a pose is tracked when >= 3 markers are each seen by a camera pair and they are not in a line "
+                f"(spread across their best-fit line at least that of a triangle {spec.track.min_height_mm:g} mm high)"
+            ),
+            "tracked_fraction": _r(1.0 - t["untracked"]),
+            "mean_visibility": _r(t["mean_visibility"]),
+            "spread_m": _r(t["spread_m"]),
+            "near_symmetry_margin_m": None
+            if math.isinf(t["near_symmetry_margin_m"])
+            else _r(t["near_symmetry_margin_m"]),
+            "close_pairs": t["close_pairs"],
+            "spacing_m": _r(res.spacing_m),
+            "avoid_conflicts": t["avoid_conflicts"],
+            "cost": _r(t["total"]),
+            "scenarios": {
+                "poses": len(res.poses),
+                "cameras_lost": int(round(spec.track.cameras_lost * len(res.rig.cameras))),
+                "cameras": len(res.rig.cameras),
+                "count": int(res.marker_pose_seen.shape[1]),
+            },
+            "baselines": {
+                "greedy_local_search": _r(res.tracked.baselines["greedy_local_search"]["cost"]),
+                "greedy_local_search_sites": res.tracked.baselines["greedy_local_search"]["sites"],
+                "best_of_random": None
+                if res.tracked.baselines["best_of_random"]["cost"] is None
+                else _r(res.tracked.baselines["best_of_random"]["cost"]),
+                "best_of_random_sites": res.tracked.baselines["best_of_random"]["sites"],
+                "selection": {
+                    "validated": res.tracked.baselines["validated"],
+                    "note": "candidates ranked by their cost on the searched scenarios plus a held-out sample "
+                    "(track.validation_poses random poses, their own camera losses)",
+                    "default": _r(res.tracked.baselines["selection_cost"]),
+                    "greedy_local_search": _r(res.tracked.baselines["greedy_local_search"]["selection_cost"]),
+                    "best_of_random": None
+                    if res.tracked.baselines["best_of_random"]["selection_cost"] is None
+                    else _r(res.tracked.baselines["best_of_random"]["selection_cost"]),
+                },
+                "random_layouts": res.tracked.baselines["best_of_random"]["layouts"],
+                "median_random": None
+                if res.tracked.baselines["best_of_random"]["median_cost"] is None
+                else _r(res.tracked.baselines["best_of_random"]["median_cost"]),
+                "chains": [
+                    {k: (_r(v) if isinstance(v, float) else v) for k, v in c.items()}
+                    for c in res.tracked.baselines["chains"]
+                ],
+            },
+            "marker_centres_m": _r(centres),
+            "layouts": {
+                name: {"sites": list(sites), "positions": _r(res.sites.points[list(sites)]), "centres": _r(res.centres(sites))}
+                for name, sites in (
+                    ("greedy_local_search", res.tracked.baselines["greedy_local_search"]["sites"]),
+                    ("best_of_random", res.tracked.baselines["best_of_random"]["sites"]),
+                )
+                if sites is not None
+            },
+        }
+    if res.evaluation:
+        ev = res.evaluation
+        doc["evaluation"] = {
+            "definition": (
+                f"{ev['_poses']} fresh uniformly random rotations at random positions of the volume (not the "
+                f"optimizer's poses), {ev['_cameras_lost']} of {len(res.rig.cameras)} cameras lost at random in each, "
+                "the hand at the grip; tracked: >= 3 markers each seen by 2 surviving cameras, not in a line"
+            ),
+            **{k: {kk: _r(vv) for kk, vv in v.items()} for k, v in ev.items() if not k.startswith("_")},
+        }
+    return doc
+
+
+def markers_csv(points: np.ndarray, normals: np.ndarray) -> str:
+    """``id,x_m,y_m,z_m,nx,ny,nz``, one marker per row."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(CSV_HEADER)
+    for i, (p, n) in enumerate(zip(points, normals, strict=True)):
+        w.writerow(
+            [i, *(f"{v + 0.0:.9f}" for v in np.round(p, 9)), *(f"{v + 0.0:.9f}" for v in np.round(n, 9))]
+        )
+    return buf.getvalue()
+
+
+def read_markers_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Marker positions (m) and normals (None when the columns are absent) from a markers CSV."""
+    path = Path(path)
+    if not path.is_file():
+        raise StarforgeError(f"markers file not found: {path}")
+    try:
+        rows = list(csv.DictReader(path.read_text(encoding="utf-8").splitlines()))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise StarforgeError(f"markers file {path} is not a readable CSV: {exc}") from None
+    if not rows:
+        raise StarforgeError(f"markers file {path} has no markers")
+    fields = set(rows[0])
+    if not {"x_m", "y_m", "z_m"} <= fields:
+        raise StarforgeError(f"markers file {path} needs columns x_m,y_m,z_m (header {','.join(CSV_HEADER)})")
+    try:
+        pts = np.array([[float(r["x_m"]), float(r["y_m"]), float(r["z_m"])] for r in rows])
+        nrm = None
+        if {"nx", "ny", "nz"} <= fields:
+            nrm = np.array([[float(r["nx"] or 0), float(r["ny"] or 0), float(r["nz"] or 0)] for r in rows])
+    except (TypeError, ValueError) as exc:
+        raise StarforgeError(f"markers file {path} has a non-numeric value: {exc}") from None
+    if not np.all(np.isfinite(pts)):
+        raise StarforgeError(f"markers file {path} has non-finite coordinates")
+    return pts, nrm
+
+
+def marker_mesh(prop_mesh, points, normals, seat, fmt: str = "glb") -> bytes:
+    """The prop with every marker as it sits (a ball ``seat.centre_height_mm`` above the site
+    along its normal, on a disc of the base's diameter), as GLB or STL bytes."""
+    import trimesh
+
+    r = seat.ball_radius_m
+    parts = []
+    for p, n in zip(points, normals, strict=True):
+        s = trimesh.creation.icosphere(subdivisions=2, radius=r)
+        s.apply_translation(np.asarray(p) + seat.centre_height_m * np.asarray(n))
+        parts.append(s)
+        if seat.base_mm > 0:
+            tf = trimesh.geometry.align_vectors([0, 0, 1], n)
+            tf[:3, 3] = np.asarray(p) + 0.0005 * np.asarray(n)
+            parts.append(trimesh.creation.cylinder(radius=seat.base_radius_m, height=0.001, sections=24, transform=tf))
+    if fmt == "stl":
+        return trimesh.util.concatenate([prop_mesh, *parts]).export(file_type="stl")
+    body = prop_mesh.copy()
+    body.visual.face_colors = [200, 200, 200, 255]
+    scene = trimesh.Scene()
+    scene.add_geometry(body, geom_name="prop")
+    if parts:
+        marks = trimesh.util.concatenate(parts)
+        marks.visual.face_colors = [230, 40, 40, 255]
+        scene.add_geometry(marks, geom_name="markers")
+    return scene.export(file_type="glb")
+
+
+def write_outputs(res: PlacementResult, folder: Path, render: bool = True, renderer=None, bases_stl: bool = False) -> list[str]:
+    """Write every output of a placement into ``folder`` (a staging folder); return the file names.
+
+    ``renderer``: a started :class:`starforge.render.props.BackgroundRenderer` to draw the
+    pictures in (default: drawn here when ``render``).  ``bases_stl``: also the prop with a pad
+    under every marker (:func:`starforge.props.guide.bases_mesh`) as ``prop_bases.stl``.
+    """
+    from starforge.io import atomic_write_bytes, atomic_write_json, atomic_write_text
+
+    t = time.perf_counter()
+    folder = Path(folder)
+    if render and renderer is None:
+        from starforge.render.props import BackgroundRenderer
+
+        renderer = BackgroundRenderer(enabled=False)
+    if render:
+        renderer.submit(res, folder)
+    names = []
+    atomic_write_text(folder / "markers.csv", markers_csv(res.marker_points, res.marker_normals))
+    names.append("markers.csv")
+    fmt = res.spec.mesh_format
+    mesh_name = f"prop_markers.{fmt}"
+    atomic_write_bytes(
+        folder / mesh_name,
+        marker_mesh(res.prop.mesh, res.marker_points, res.marker_normals, res.seat, fmt),
+    )
+    names.append(mesh_name)
+    if bases_stl:
+        from starforge.props.guide import bases_mesh
+
+        base = res.seat.base_mm or res.seat.ball_mm
+        atomic_write_bytes(
+            folder / "prop_bases.stl",
+            bases_mesh(res.prop.mesh, res.marker_points, res.marker_normals, base).export(file_type="stl"),
+        )
+        names.append("prop_bases.stl")
+    if render:
+        names += renderer.wait()
+    res.timings["write_s"] = round(time.perf_counter() - t, 4)
+    doc = placement_json(res)
+    atomic_write_json(folder / "placement.json", doc)
+    names.insert(0, "placement.json")
+    return names
+
+
+@dataclass(frozen=True)
+class Placement:
+    """A ``placement.json`` read back (:func:`load_placement`)."""
+
+    path: Path
+    data: dict = field(repr=False)
+    positions_m: np.ndarray = field(repr=False)
+    normals: np.ndarray = field(repr=False)
+    sites: tuple[int, ...] = ()
+    visibility: np.ndarray = field(default=None, repr=False)
+    marker_diameter_m: float = 0.004
+    seed: int = 0
+
+    @property
+    def prop_name(self) -> str:
+        return self.data["prop"]["name"]
+
+    @property
+    def total_cost(self) -> float:
+        return float(self.data["cost"]["total"])
+
+
+def load_placement(path: str | Path) -> Placement:
+    """Read ``placement.json`` (or the folder holding it); StarforgeError when missing or not a placement."""
+    from starforge.io import read_json
+
+    path = Path(path)
+    if path.is_dir():
+        path = path / "placement.json"
+    data = read_json(path, "placement file")
+    if data.get("format") != FORMAT:
+        raise StarforgeError(f"{path} is not a starforge placement (format {data.get('format')!r})")
+    if data.get("version") != VERSION:
+        raise StarforgeError(
+            f"{path}: unsupported placement version {data.get('version')!r}, expected {VERSION}"
+        )
+    missing = [
+        k
+        for k in (
+            "prop",
+            "settings",
+            "seed",
+            "rig",
+            "poses",
+            "markers",
+            "marker_diameter_m",
+            "cost",
+            "history",
+            "timings",
+        )
+        if k not in data
+    ]
+    if missing:
+        raise StarforgeError(f"{path} lacks {', '.join(missing)}")
+    try:
+        m = data["markers"]
+        pos = np.array([x["position"] for x in m], dtype=float).reshape(-1, 3)
+        nrm = np.array([x["normal"] for x in m], dtype=float).reshape(-1, 3)
+        sites = tuple(int(x["site"]) for x in m)
+        vis = np.array([x["visibility"] for x in m], dtype=float)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise StarforgeError(f"{path} has a malformed marker entry: {exc}") from None
+    return Placement(path, data, pos, nrm, sites, vis, float(data["marker_diameter_m"]), int(data["seed"]))
+
+
+def summary_lines(res: PlacementResult) -> list[str]:
+    """A few lines for the terminal."""
+    c = res.cost
+    costs = res.anneal.costs
+    sd = costs.std(ddof=1) if len(costs) > 1 else 0.0
+    lines = [
+        f"prop {res.prop.name}: {len(res.prop.mesh.faces)} faces, extents "
+        f"{' x '.join(f'{e:.3f}' for e in res.prop.mesh.extents)} m",
+    ]
+    lines += [f"  repair: {n}" for n in res.prop.notes]
+    rm = res.removed
+    lines.append(
+        f"sites: {len(res.sites)} usable of {len(res.sites) + sum(rm.values())} ({rm.get('constrained', 0)} constrained, "
+        f"{rm.get('under_hand', 0)} under the hand, {rm.get('unseated', 0)} where a {res.seat.name} base does not seat)"
+    )
+    lines.append(f"poses: {len(res.poses)}, cameras: {len(res.rig.cameras)}, rays cast: {res.rays}")
+    if res.tracked is not None:
+        t, b = res.tracked.terms, res.tracked.baselines
+        lines.append(
+            f"markers: {t['markers']} ({res.seat.name}, spacing {res.spacing_m * 1000:.1f} mm), tracked in "
+            f"{100 * (1 - t['untracked']):.1f} % of {res.marker_pose_seen.shape[1]} scenarios with "
+            f"{round(res.spec.track.cameras_lost * len(res.rig.cameras))} cameras lost, mean visibility {t['mean_visibility']:.3f}"
+        )
+        rnd = b["best_of_random"]["cost"]
+        lines.append(
+            f"cost {t['total']:.4f}; greedy + local search {b['greedy_local_search']['cost']:.4f}"
+            + (f", best of {b['best_of_random']['layouts']} random {rnd:.4f}" if rnd is not None else "")
+        )
+        ev = res.evaluation
+        if ev:
+            parts = [f"{k.replace('_', ' ')} {100 * v['tracked']:.1f} %" for k, v in ev.items() if not k.startswith("_")]
+            lines.append(
+                f"fresh poses ({ev['_poses']}, {ev['_cameras_lost']} cameras lost, the hand): tracked " + ", ".join(parts)
+            )
+        idx = list(res.marker_sites)
+        contact = np.asarray(res.seat_report.contact)[idx]
+        edge = np.asarray(res.seat_report.edge_m)[idx]
+        lines.append(
+            f"seats: base contact >= {100 * contact.min():.0f} %, sharp edges >= "
+            + (f"{1000 * edge.min():.1f} mm" if np.isfinite(edge.min()) else "none")
+            + f" away (base radius {res.seat.base_mm / 2:g} mm)"
+        )
+        if not math.isinf(t["near_symmetry_margin_m"]):
+            lines.append(f"near-symmetry margin: {t['near_symmetry_margin_m'] * 1000:.1f} mm")
+        return lines
+    lines.append(
+        f"markers: {c.markers}, cost {c.total:.4f} (visibility {c.visibility:.4f}, count {c.count:.4f}, "
+        f"overlap {c.overlap:.4f}, symmetry {c.symmetry:.0f}), mean visibility {c.mean_visibility:.3f}"
+    )
+    from starforge.props.costs import lower_bound
+
+    lb, lb_n = lower_bound(res.site_visibility, res.spec.costs)
+    lines.append(f"no layout of these sites costs less than {lb:.4f} ({lb_n} most visible sites)")
+    if len(costs) > 1:
+        lines.append(f"restarts: {len(costs)}, cost mean {costs.mean():.4f} SD {sd:.4f}")
+    if not math.isinf(c.margin_m):
+        lines.append(f"near-symmetry margin: {c.margin_m * 1000:.1f} mm")
+    return lines

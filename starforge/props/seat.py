@@ -1,0 +1,239 @@
+"""Where a marker can be stuck on: its base must rest on the surface, clear of sharp edges.
+
+A prop marker is a ball on a flat base (the marker catalogue, :mod:`starforge.markers`: the
+base diameter ``base_mm`` and the height of the ball's centre above the base plane
+``centre_height_mm``).  A candidate site (a surface point with its outward normal) *seats* the
+marker when
+
+* the base disc rests on the surface: of an area-uniform sample of the disc (a sunflower
+  spiral of :data:`DISC_SAMPLES` points), at least ``min_contact`` have the surface within
+  ``flat_mm`` of the base plane, with the surface normal within ``normal_deg`` of the site's
+  (so a curved surface counts while its sag under the disc stays within ``flat_mm``: a 7 mm
+  base accepts a cylinder of radius 20 mm or more at 0.3 mm, not a 30 mm handle);
+* the nearest sharp edge (dihedral angle above ``sharp_deg``, or an open boundary) is at least
+  one base radius away;
+* the ball, centred ``centre_height_mm`` above the site, does not cut into the prop (its
+  centre is at least a radius from the surface, less ``clearance_tol_mm``).
+
+Everything is in metres inside, the settings in mm as named.  The edge distance is measured
+to points sampled along the sharp edges every :data:`EDGE_STEP_M` (it errs by at most half a
+step, 0.125 mm, and only ever upward).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from starforge.spec import in_range
+
+#: points of the base disc tested for contact (area-uniform sunflower spiral)
+DISC_SAMPLES = 37
+#: spacing of the points sampled along sharp edges, m
+EDGE_STEP_M = 2.5e-4
+#: at most this many edge points (longer edge sets are sampled more coarsely, and say so)
+MAX_EDGE_POINTS = 2_000_000
+
+
+@dataclass(frozen=True)
+class Seat:
+    """The marker as it sits on a prop (lengths in mm).
+
+    Attributes
+    ----------
+    name : str
+        Catalogue name of the marker (or ``"<d> mm ball"`` for a plain diameter).
+    ball_mm : float
+        Finished sphere diameter.
+    base_mm : float
+        Diameter of the flat base that rests on the prop.
+    centre_height_mm : float
+        Base plane to sphere centre.
+    """
+
+    name: str
+    ball_mm: float
+    base_mm: float
+    centre_height_mm: float
+
+    def __post_init__(self):
+        in_range("ball_mm", self.ball_mm, 1.0, 50.0)
+        in_range("base_mm", self.base_mm, 0.0, 100.0)
+        in_range("centre_height_mm", self.centre_height_mm, 0.0, 100.0)
+
+    @property
+    def centre_height_m(self) -> float:
+        return self.centre_height_mm / 1000.0
+
+    @property
+    def ball_radius_m(self) -> float:
+        return self.ball_mm / 2000.0
+
+    @property
+    def base_radius_m(self) -> float:
+        return self.base_mm / 2000.0
+
+    def to_json(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+@dataclass(frozen=True)
+class SeatRules:
+    """When a site seats a marker (``[seat]`` in the place templates; see the module docstring).
+
+    ``base = false`` keeps only the ball's clearance (the paper's setting: a ball on a vertex).
+    """
+
+    base: bool = True
+    flat_mm: float = 0.3
+    normal_deg: float = 15.0
+    min_contact: float = 0.9
+    sharp_deg: float = 30.0
+    clearance_tol_mm: float = 0.05
+
+    def __post_init__(self):
+        in_range("seat.flat_mm", self.flat_mm, 0.0, 10.0)
+        in_range("seat.normal_deg", self.normal_deg, 0.0, 90.0)
+        in_range("seat.min_contact", self.min_contact, 0.0, 1.0)
+        in_range("seat.sharp_deg", self.sharp_deg, 1.0, 180.0)
+        in_range("seat.clearance_tol_mm", self.clearance_tol_mm, 0.0, 10.0)
+
+
+def seat_for(marker: str | float, base_mm: float | None = None) -> Seat:
+    """The seat of a catalogue marker (``9.5mm-m3``) or of a plain diameter in mm.
+
+    A plain diameter takes the catalogue entry of the same diameter when there is one, else a
+    base of 0.75 diameters with the centre 0.55 diameters above it (the proportions of the
+    catalogue's hard markers; starforge's assumption).  ``base_mm`` overrides the base diameter
+    (a stick-on pad of that size under the marker)."""
+    from starforge.markers import load_marker, marker_diameter_mm, marker_names
+
+    text = str(marker).strip()
+    try:
+        d = float(text.removesuffix("mm"))
+        entry = None
+        for n in marker_names():
+            m = load_marker(n)
+            if abs(m.diameter_mm - d) < 1e-9:
+                entry = m
+                break
+    except ValueError:
+        entry = load_marker(text)
+        d = entry.diameter_mm
+    d = marker_diameter_mm(d)
+    if entry is not None:
+        seat = Seat(entry.name, entry.diameter_mm, entry.base_mm, entry.centre_height_mm)
+    else:
+        seat = Seat(f"{d:g} mm ball", d, round(0.75 * d, 3), round(0.55 * d, 3))
+    if base_mm is not None:
+        from dataclasses import replace
+
+        seat = replace(seat, base_mm=float(in_range("base_mm", base_mm, 0.5, 100.0)), name=f"{seat.name} on a {base_mm:g} mm base")
+    return seat
+
+
+def disc_offsets(count: int = DISC_SAMPLES) -> np.ndarray:
+    """(count, 2) area-uniform points of the unit disc (sunflower spiral, the centre first)."""
+    k = np.arange(count)
+    r = np.sqrt((k + 0.5 * (k > 0)) / count) * (k > 0)
+    r = np.minimum(r / max(r.max(), 1e-12), 1.0)
+    a = k * math.pi * (3.0 - math.sqrt(5.0))
+    return np.column_stack([r * np.cos(a), r * np.sin(a)])
+
+
+def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents (n, 3) each, orthogonal to each normal and to each other."""
+    n = np.asarray(normals, float)
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = np.cross(n, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return u, np.cross(n, u)
+
+
+def sharp_edge_points(mesh, sharp_deg: float = 30.0) -> np.ndarray:
+    """(k, 3) points every :data:`EDGE_STEP_M` along the mesh's sharp edges, m: edges whose two
+    faces meet at more than ``sharp_deg`` degrees, and boundary edges of an open mesh."""
+    angles = np.asarray(mesh.face_adjacency_angles)
+    edges = [np.asarray(mesh.face_adjacency_edges)[angles > math.radians(sharp_deg)]]
+    edges.append(np.asarray(mesh.edges_sorted)[_boundary(mesh)])
+    e = np.concatenate([x.reshape(-1, 2) for x in edges])
+    if not len(e):
+        return np.zeros((0, 3))
+    a, b = mesh.vertices[e[:, 0]], mesh.vertices[e[:, 1]]
+    length = np.linalg.norm(b - a, axis=1)
+    step = max(EDGE_STEP_M, float(length.sum()) / MAX_EDGE_POINTS)
+    n = np.maximum(1, np.ceil(length / step).astype(np.int64))
+    rep = np.repeat(np.arange(len(e)), n + 1)
+    t = np.concatenate([np.linspace(0.0, 1.0, k + 1) for k in n])
+    return a[rep] + t[:, None] * (b - a)[rep]
+
+
+def _boundary(mesh) -> np.ndarray:
+    """(e,) bool over ``mesh.edges_sorted``: edges used by one face only."""
+    es = np.asarray(mesh.edges_sorted)
+    if not len(es):
+        return np.zeros(0, bool)
+    _, inv, cnt = np.unique(es, axis=0, return_inverse=True, return_counts=True)
+    return cnt[inv.ravel()] == 1
+
+
+@dataclass(frozen=True)
+class SeatReport:
+    """Per site: how the marker's base rests there (arrays of the sites' length).
+
+    contact : base-disc fraction resting on the surface, [0, 1]
+    edge_m : distance to the nearest sharp edge, m (inf when the mesh has none)
+    clearance_m : ball centre to the prop's surface, m
+    ok : the site seats the marker (every rule of the module docstring)
+    """
+
+    contact: np.ndarray
+    edge_m: np.ndarray
+    clearance_m: np.ndarray
+    ok: np.ndarray
+
+    def subset(self, keep: np.ndarray) -> SeatReport:
+        """The report of the sites where the boolean mask ``keep`` is true."""
+        return SeatReport(self.contact[keep], self.edge_m[keep], self.clearance_m[keep], self.ok[keep])
+
+
+def seat_report(mesh, points: np.ndarray, normals: np.ndarray, seat: Seat, rules: SeatRules) -> SeatReport:
+    """Test every site (``points`` (s, 3) m on the surface, outward unit ``normals``).
+
+    With ``rules.base`` false only the ball's clearance is required (the paper's setting, where
+    a marker is a ball on a vertex and has no base); contact is then reported, not required.
+    """
+    from scipy.spatial import cKDTree
+
+    from starforge.props.visibility import first_hits
+
+    pts = np.asarray(points, float)
+    nrm = np.asarray(normals, float)
+    s = len(pts)
+    if s == 0:
+        z = np.zeros(0)
+        return SeatReport(z, z, z, np.zeros(0, bool))
+    R = seat.base_radius_m
+    flat = rules.flat_mm / 1000.0
+    u, v = tangent_frames(nrm)
+    off = disc_offsets() * R
+    q = pts[:, None] + off[None, :, :1] * u[:, None] + off[None, :, 1:] * v[:, None]  # (s, k, 3)
+    lift = 2.0 * flat + 1e-4
+    origins = (q + lift * nrm[:, None]).reshape(-1, 3)
+    dirs = np.repeat(-nrm, len(off), axis=0)
+    dist, face = first_hits(mesh, origins, dirs)
+    dev = np.abs(dist - lift)
+    fn = np.asarray(mesh.face_normals)[np.clip(face, 0, None)]
+    agree = np.einsum("ij,ij->i", fn, dirs) <= -math.cos(math.radians(rules.normal_deg))
+    contact = ((face >= 0) & (dev <= flat) & agree).reshape(s, -1).mean(axis=1)
+    edges = sharp_edge_points(mesh, rules.sharp_deg)
+    edge_m = cKDTree(edges).query(pts)[0] if len(edges) else np.full(s, np.inf)
+    centres = pts + seat.centre_height_m * nrm
+    clearance = np.asarray(mesh.nearest.on_surface(centres)[1], float)
+    need = min(seat.ball_radius_m, seat.centre_height_m) - rules.clearance_tol_mm / 1000.0
+    ok = clearance >= need
+    if rules.base:
+        ok &= (contact >= rules.min_contact) & (edge_m >= R)
+    return SeatReport(contact, edge_m, clearance, ok)

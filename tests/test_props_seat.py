@@ -1,0 +1,291 @@
+"""Seated markers, the hand, the fresh-pose evaluation, the rigging guide and the prop-name fixes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from starforge.errors import StarforgeError
+from starforge.props.seat import Seat, SeatRules, disc_offsets, seat_for, seat_report, sharp_edge_points
+
+
+def _box(ext=(0.1, 0.06, 0.04)):
+    import trimesh
+
+    return trimesh.creation.box(extents=ext)
+
+
+def test_seat_from_the_catalogue_and_from_a_diameter():
+    s = seat_for("9.5mm-m3")
+    assert (s.ball_mm, s.base_mm, s.centre_height_mm) == (9.5, 7.0, 5.2)
+    assert seat_for(9.5) == s  # a plain diameter takes the catalogue entry of that size
+    odd = seat_for(8.0)  # none in the catalogue: 0.75 / 0.55 diameters
+    assert odd.base_mm == pytest.approx(6.0) and odd.centre_height_mm == pytest.approx(4.4)
+    pad = seat_for("14mm-m4", base_mm=20)
+    assert pad.base_mm == 20 and pad.ball_mm == 14.0
+    with pytest.raises(StarforgeError, match="unknown marker"):
+        seat_for("nope")
+
+
+def test_disc_samples_are_area_uniform():
+    off = disc_offsets()
+    r = np.linalg.norm(off, axis=1)
+    assert r.max() == pytest.approx(1.0) and r.min() == 0.0
+    # area-uniform: the fraction inside radius 1/sqrt(2) is about half
+    assert abs((r <= 1 / math.sqrt(2)).mean() - 0.5) < 0.06
+
+
+def test_sharp_edges_of_a_box_and_the_distance_to_them():
+    box = _box()
+    pts = sharp_edge_points(box, 30.0)
+    # every sample lies on one of the 12 edges: two coordinates at their extremes
+    half = np.array([0.05, 0.03, 0.02])
+    on_extreme = np.isclose(np.abs(pts), half, atol=1e-9).sum(axis=1)
+    assert (on_extreme >= 2).all()
+    # the steps cover the edges' total length
+    assert len(pts) >= 4 * (0.1 + 0.06 + 0.04) / 2.5e-4
+    # a cylinder's facet edges (11.25 deg) are not sharp at 30 deg, its rims are
+    import trimesh
+
+    cyl = trimesh.creation.cylinder(radius=0.02, height=0.1, sections=32)
+    p = sharp_edge_points(cyl, 30.0)
+    assert np.allclose(np.abs(p[:, 2]), 0.05)
+
+
+def test_seat_report_on_a_box_against_brute_force():
+    box = _box()
+    seat = seat_for("9.5mm-m3")  # 7 mm base, radius 3.5 mm
+    rules = SeatRules()
+    # sites on the +z face at growing distances from the x = 0.05 edge
+    d = np.array([0.001, 0.003, 0.0036, 0.01, 0.02])
+    pts = np.column_stack([0.05 - d, np.zeros(5), np.full(5, 0.02)])
+    nrm = np.tile([0.0, 0, 1], (5, 1))
+    rep = seat_report(box, pts, nrm, seat, rules)
+    assert np.allclose(rep.edge_m, d, atol=1.3e-4)  # sampled edges: within half a step
+    assert rep.ok.tolist() == [False, False, True, True, True]
+    # contact: the part of the disc over the face, brute force on a fine grid
+    g = np.linspace(-1, 1, 801)
+    X, Y = np.meshgrid(g, g)
+    inside = X**2 + Y**2 <= 1
+    for di, c in zip(d, rep.contact, strict=True):
+        exact = ((X[inside] * 0.0035) <= di).mean()
+        assert abs(c - exact) < 0.08
+    assert np.allclose(rep.clearance_m, 0.0052)
+
+
+def test_seat_rejects_a_tight_curve_and_accepts_a_gentle_one():
+    import trimesh
+
+    seat = seat_for("9.5mm-m3")
+    rules = SeatRules(min_contact=1.0)
+    for radius, ok in ((0.008, False), (0.06, True)):
+        cyl = trimesh.creation.cylinder(radius=radius, height=0.1, sections=256)
+        pts = np.array([[radius * math.cos(0.01), radius * math.sin(0.01), 0.0]])
+        nrm = pts / np.linalg.norm(pts)
+        rep = seat_report(cyl, pts, nrm, seat, rules)
+        # the flat base's sag over a cylinder: a^2 / 2R against 0.3 mm
+        sag = 0.0035**2 / (2 * radius)
+        assert (sag <= 0.0003) == ok
+        assert bool(rep.ok[0]) == ok
+
+
+def test_a_ball_that_would_cut_in_is_refused():
+    """A ball in the inside corner of an L: centre 2 mm off the floor, 1 mm from the wall."""
+    import trimesh
+
+    from starforge.props.mesh import _union
+
+    floor = trimesh.creation.box(extents=(0.1, 0.1, 0.01))
+    wall = trimesh.creation.box(extents=(0.01, 0.1, 0.05), transform=trimesh.transformations.translation_matrix([0.045, 0, 0.03]))
+    L = _union([floor, wall])
+    seat = Seat("4 mm ball", 4.0, 0.0, 2.0)
+    rules = SeatRules(base=False)
+    pts = np.array([[0.039, 0.0, 0.005], [0.0, 0.0, 0.005]])
+    rep = seat_report(L, pts, np.tile([0.0, 0, 1], (2, 1)), seat, rules)
+    assert rep.ok.tolist() == [False, True]
+    assert rep.clearance_m[0] == pytest.approx(0.001, abs=1e-6)
+
+
+def test_paper_spec_puts_one_marker_per_site_and_no_ball_cuts_in():
+    from starforge.props.placement import run_placement
+
+    res = run_placement("box", "paper", markers=10, sites=300, resolution=2)
+    sites = list(res.marker_sites)
+    assert len(set(sites)) == len(sites)
+    c = res.centres()
+    d = np.linalg.norm(c[:, None] - c[None], axis=2)[np.triu_indices(len(c), 1)]
+    assert d.min() > 0
+    assert (res.prop.mesh.nearest.on_surface(c)[1] >= 0.002 - 5e-5).all()
+
+
+def test_hand_grip_parsing_and_default():
+    from starforge.props.builtin import builtin_mesh
+    from starforge.props.hand import FINGERS_M, default_grip, inside_capsules, parse_grip
+
+    cap = parse_grip("0,0,0.02,0,0,0.11,0.015")
+    assert cap.radius == pytest.approx(0.015 + FINGERS_M)
+    with pytest.raises(StarforgeError, match="--grip"):
+        parse_grip("1,2,3")
+    hammer = default_grip(builtin_mesh("hammer"), "hammer", builtin=True)
+    assert inside_capsules(np.array([[0, 0, 0.05], [0.05, 0, 0.31]]), (hammer,)).tolist() == [True, False]
+    # a mesh without a grip of its own: the thinner end of its longest axis
+    import trimesh
+
+    bat = trimesh.util.concatenate([
+        trimesh.creation.cylinder(radius=0.015, height=0.2, transform=trimesh.transformations.translation_matrix([0, 0, 0.1])),
+        trimesh.creation.cylinder(radius=0.04, height=0.3, transform=trimesh.transformations.translation_matrix([0, 0, 0.35])),
+    ])  # fmt: skip
+    g = default_grip(bat, "bat")
+    assert max(g.a[2], g.b[2]) < 0.2 and g.radius == pytest.approx(0.015 + FINGERS_M, abs=2e-3)
+
+
+def test_the_hand_hides_what_lies_behind_it():
+    """Compiled capsule test against a numpy brute force over points along each sight line."""
+    from starforge.props.hand import Capsule, capsule_arrays
+    from starforge.props.rig import load_rig, make_poses
+    from starforge.props.visibility import compute_table
+
+    box = _box((0.2, 0.2, 0.02))
+    rng = np.random.default_rng(3)
+    pts = np.column_stack([rng.uniform(-0.09, 0.09, 40), rng.uniform(-0.09, 0.09, 40), np.full(40, 0.01)])
+    nrm = np.tile([0.0, 0, 1], (40, 1))
+    cap = Capsule((-0.1, 0.0, 0.06), (0.1, 0.0, 0.06), 0.03)
+    rig = load_rig("default")
+    poses = make_poses(rig.volume, 1, 6, np.zeros(3), rng)
+    with_hand = compute_table(box, pts, nrm, rig, poses, 180.0, radius_m=0.002, occluders=capsule_arrays((cap,)))
+    without = compute_table(box, pts, nrm, rig, poses, 180.0, radius_m=0.002)
+    assert (with_hand.masks & ~without.masks).sum() == 0  # the hand only removes
+    cams = np.array([c.position for c in rig.cameras])
+    a, b = np.array(cap.a), np.array(cap.b)
+    t = np.linspace(0, 1, 6000)[:, None]
+    for k in range(len(poses)):
+        R, T = poses.rotations[k], poses.translations[k]
+        q = (cams - T) @ R  # cameras in the prop frame (pivot 0)
+        for i in range(0, 40, 5):
+            c = pts[i] + 0.002 * nrm[i]
+            for j in range(len(cams)):
+                seg = c + t * (q[j] - c)
+                s = np.clip((seg - a) @ (b - a) / ((b - a) @ (b - a)), 0, 1)
+                hidden = (np.linalg.norm(seg - (a + s[:, None] * (b - a)), axis=1) <= cap.radius).any()
+                bit_w = bool((int(with_hand.masks[i, k]) >> j) & 1)
+                bit_o = bool((int(without.masks[i, k]) >> j) & 1)
+                if bin(int(without.masks[i, k])).count("1") >= 2 and bin(int(with_hand.masks[i, k])).count("1") >= 2:
+                    assert bit_w == (bit_o and not hidden)
+
+
+def test_loss_scenarios_count_two_surviving_cameras():
+    from starforge.props.tracked import alive_masks, loss_scenarios
+
+    rng = np.random.default_rng(0)
+    alive = alive_masks(8, 0.5, 500, rng)
+    assert (np.bitwise_count(alive) == 4).all() and (alive < 256).all()
+    masks = rng.integers(0, 256, size=(30, 50)).astype(np.uint64)
+    seen, alive = loss_scenarios(masks, 8, 0.5, 3, np.random.default_rng(1))
+    assert seen.shape == (30, 150)
+    for s in range(30):
+        for col in range(150):
+            p = col // 3
+            live = [c for c in range(8) if (int(alive[col]) >> c) & 1]
+            n = sum((int(masks[s, p]) >> c) & 1 for c in live)
+            assert seen[s, col] == (n >= 2)
+
+
+def test_evaluation_spread_rule_matches_svd():
+    from starforge.props.evaluate import tracked_poses
+
+    rng = np.random.default_rng(5)
+    centres = rng.normal(size=(6, 3)) * 0.03
+    hits = rng.random((200, 6, 8)) < 0.5
+    alive = np.full(200, np.uint64(255))
+    got = tracked_poses(hits, alive, centres, 15.0)
+    for k in range(200):
+        rec = hits[k].sum(axis=1) >= 2
+        P = centres[rec]
+        if len(P) < 3:
+            assert not got[k]
+            continue
+        sv = np.linalg.svd(P - P.mean(0), compute_uv=False)
+        spread = math.sqrt((sv[1] ** 2 + sv[2] ** 2) / len(P))
+        assert got[k] == (spread >= math.sqrt(2) / 3 * 0.015)
+
+
+def test_landmarks_from_the_bounding_box():
+    from starforge.props.guide import landmarks
+
+    box = _box()
+    marks = landmarks(box, np.array([[0.04, -0.02, 0.02]]), np.array([[0.0, 0, 1]]))
+    m = marks[0]
+    assert m["from"] == {"x": "max", "y": "min", "z": "max"}
+    assert m["distance_mm"] == [10.0, 10.0, 0.0] and m["face"] == "+z"
+    assert "10.0 mm from the x-max side" in m["text"]
+
+
+def test_bases_mesh_adds_a_pad_per_marker():
+    from starforge.props.guide import bases_mesh
+
+    box = _box()
+    pts = np.array([[0.0, 0, 0.02], [0.03, 0, 0.02]])
+    out = bases_mesh(box, pts, np.tile([0.0, 0, 1], (2, 1)), base_mm=7.0, height_mm=1.0)
+    assert out.is_watertight
+    # each pad adds its part above the surface: pi r^2 h (32-gon, within 1 %)
+    added = out.volume - box.volume
+    assert added == pytest.approx(2 * math.pi * 0.0035**2 * 0.001, rel=0.01)
+
+
+def test_builtin_prefix_and_a_folder_of_that_name(tmp_path, monkeypatch):
+    from starforge.props.mesh import load_prop
+    from starforge.props.placement import prop_name_warnings
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "hammer").mkdir()
+    p = load_prop("hammer")
+    assert p.source == "builtin"
+    assert "built-in hammer was used" in prop_name_warnings(p)[0]
+    assert load_prop("builtin:hammer").source == "builtin"
+    with pytest.raises(StarforgeError, match="unknown built-in"):
+        load_prop("builtin:anvil")
+
+
+def test_turned_extent_warning():
+    from starforge.props.mesh import PropMesh
+    from starforge.props.placement import check_scale
+    from starforge.props.rig import load_rig
+
+    rig = load_rig("default")  # 2 x 2 x 2 m
+    long = _box((0.1, 0.1, 1.9))  # fits upright; turned it sweeps a 1.91 m ball: fits
+    thin = _box((1.5, 1.5, 0.1))  # fits upright; turned it sweeps 2.12 m: does not
+    mk = lambda m: PropMesh("p", "x.stl", "m", m, np.arange(len(m.faces)), (), len(m.faces), {})  # noqa: E731
+    assert check_scale(mk(long), rig, 0.0095) == []
+    w = check_scale(mk(thin), rig, 0.0095)
+    assert len(w) == 1 and "not when turned" in w[0] and "2.12" in w[0]
+
+
+def test_the_evaluation_agrees_with_the_compiled_table():
+    """Two implementations of what a camera sees (the evaluation's numpy geometry and the
+    compiled table) agree on random poses of the hammer held in its hand."""
+    from starforge.props.builtin import builtin_mesh
+    from starforge.props.evaluate import camera_hits, random_poses
+    from starforge.props.hand import capsule_arrays, default_grip
+    from starforge.props.rig import load_rig
+    from starforge.props.sites import sample_sites
+    from starforge.props.visibility import compute_table
+
+    mesh = builtin_mesh("hammer")
+    rig = load_rig("default")
+    rng = np.random.default_rng(11)
+    sites = sample_sites(mesh, 40, rng)
+    caps = (default_grip(mesh, "hammer", builtin=True),)
+    poses = random_poses(rig.volume, 60, mesh.bounds.mean(axis=0), rng)
+    table = compute_table(mesh, sites.points, sites.normals, rig, poses, 180.0, radius_m=0.00475, centre_m=0.0052,
+                          occluders=capsule_arrays(caps))  # fmt: skip
+    hits = camera_hits(mesh, sites.points + 0.0052 * sites.normals, sites.normals, rig, poses, caps, 180.0)
+    C = len(rig.cameras)
+    bits = ((table.masks.T[..., None] >> np.arange(C, dtype=np.uint64)) & np.uint64(1)).astype(bool)  # (P, s, C)
+    both = (bits.sum(axis=2) >= 2) & (hits.sum(axis=2) >= 2)
+    assert both.mean() > 0.3
+    agree = (bits == hits).all(axis=2)[both].mean()
+    assert agree >= 0.99  # sight lines that graze an edge may go either way in float32 embree
+    # a marker the table counts as seen by two cameras, the evaluation does too, and back
+    assert ((bits.sum(axis=2) >= 2) == (hits.sum(axis=2) >= 2)).mean() >= 0.99
