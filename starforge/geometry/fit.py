@@ -320,7 +320,7 @@ def decide_one(P, lim, slack, start, max_cells, R):
     return (-1 if open_small else 0), cells
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, nogil=True)  # nogil: Ctrl-C is answered while it runs
 def decide_many(P, lim, slack, start, max_cells, status, R, work):
     for i in numba.prange(P.shape[0]):
         st, c = decide_one(P[i], lim, slack, start, max_cells, R[i])

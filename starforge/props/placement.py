@@ -247,8 +247,9 @@ def check_scale(prop, rig, marker_m: float) -> list[str]:
         size = " x ".join(f"{e:.4g}" for e in prop.mesh.extents)
         raise StarforgeError(
             f"prop {prop.name} is {size} m read as {prop.units}: "
-            + ("larger than twice the capture volume" if ext > 2 * vol else "smaller than four markers")
-            + f" ({vol:g} m){hint}"
+            + (f"larger than twice the capture volume ({vol:g} m)" if ext > 2 * vol
+               else f"smaller than four markers ({4 * marker_m * 1000:g} mm)")
+            + hint
         )
     if np.any(np.asarray(prop.mesh.extents) > np.asarray(rig.volume.size)):
         return [
@@ -674,9 +675,9 @@ def markers_csv(points: np.ndarray, normals: np.ndarray) -> str:
 
 def read_markers_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     """Marker positions (m) and normals (None when the columns are absent) from a markers CSV."""
-    path = Path(path)
-    if not path.is_file():
-        raise StarforgeError(f"markers file not found: {path}")
+    from starforge.io import check_input_file
+
+    path = check_input_file(Path(path), "markers file")
     try:
         rows = list(csv.DictReader(path.read_text(encoding="utf-8").splitlines()))
     except (UnicodeDecodeError, csv.Error) as exc:
