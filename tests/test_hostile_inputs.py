@@ -141,6 +141,11 @@ def files(tmp_path_factory, small_family):
     small.apply_scale(0.001)
     small.export(d / "x0.001.stl")
     out["mesh_x0001"] = d / "x0.001.stl"
+    # a binary STL that says it holds 5 M faces (250 MB, sparse: no disk used): refused from its size
+    with open(d / "faces5m.stl", "wb") as fh:
+        fh.write(b"\0" * 80 + (5_000_000).to_bytes(4, "little"))
+        fh.truncate(84 + 50 * 5_000_000)
+    out["mesh_5m"] = d / "faces5m.stl"
     return out
 
 
@@ -240,6 +245,8 @@ def _cases(f) -> list[Case]:
              r"--forbid-mesh file .*fifo is not a regular"),
         Case("place-mesh-x1e30", ("place", "run", str(f["mesh_x1e30"])), r"m across read as m: no prop is that large"),
         Case("place-mesh-x0.001", ("place", "run", str(f["mesh_x0001"])), r"smaller than four markers \(38 mm\)"),
+        Case("place-5m-faces-64-orientations", ("place", "run", str(f["mesh_5m"]), "--orientations", "64"),
+             r"prop mesh .*faces5m.stl \(250 MB\) needs about .* memory"),
         Case("sweep-cube-nan", ("sweep", "--cube", "nan:40:5"), r"cube must hold finite numbers, got 'nan'"),
     ]
 
@@ -251,7 +258,7 @@ def _case_ids():
 _FILE_KEYS = (
     "good x300 x1e6 contradict coincident inch no_stars corrupt list garbage_stl empty_obj bad_toml "
     "wrongtype_toml unknownkey_toml box_mm speck far_csv bom_toml fifo id_negative id_huge family_10k "
-    "mesh_x1e30 mesh_x0001"
+    "mesh_x1e30 mesh_x0001 mesh_5m"
 ).split()
 #: the plain progress lines a command prints every few seconds when stderr is not a terminal
 PROGRESS = r"^starforge [a-z]+: \d+ s, "
