@@ -99,14 +99,20 @@ def time_limit_s() -> float:
     """The wall-clock budget of one command, s."""
     env = os.environ.get(ENV_SECONDS)
     if env:
-        try:
-            value = float(env)
-        except ValueError:
-            value = float("nan")
-        if not (math.isfinite(value) and value > 0):
-            raise StarforgeError(f"{ENV_SECONDS} must be a positive number of seconds, got {env!r}")
-        return value
+        return parse_seconds(env, ENV_SECONDS)
     return DEFAULT_SECONDS
+
+
+def parse_seconds(text, what: str = ENV_SECONDS) -> float:
+    """A positive, finite number of seconds, or StarforgeError naming ``what`` (the variable or
+    the option the user set)."""
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if not (math.isfinite(value) and value > 0):
+        raise StarforgeError(f"{what} must be a positive, finite number of seconds, got {text!r}")
+    return value
 
 
 def _limit_source(env: str, flag: str) -> str:

@@ -35,7 +35,7 @@ def read_toml(path: str | Path) -> dict:
 
     path = check_input_file(path, "spec file")
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark (Windows editors) is fine
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise StarforgeError(f"spec file {path} is not valid TOML: {exc}") from None
 

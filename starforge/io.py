@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import functools
 import json
 import os
@@ -108,6 +109,14 @@ def check_writable(out_dir: str | Path, names: Iterable[str], force: bool) -> No
     if existing and not force:
         shown = ", ".join(existing[:3]) + (" ..." if len(existing) > 3 else "")
         raise StarforgeError(f"{out_dir} already holds {shown}; pass --force to overwrite")
+    # a read-only file (no write bit: root may write anyway) is the user's "keep this", even with --force
+    locked = [n for n in existing if not os.path.islink(out_dir / n) and not os.stat(out_dir / n).st_mode & 0o222]
+    if locked:
+        shown = ", ".join(locked[:3]) + (f" and {len(locked) - 3} more" if len(locked) > 3 else "")
+        raise StarforgeError(
+            f"{out_dir} holds read-only {shown}; --force does not replace read-only files "
+            "(make them writable, e.g. chmod u+w, or choose another --out)"
+        )
 
 
 @contextmanager
@@ -210,15 +219,46 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
     # stage in the nearest folder that exists, so a failure creates no folder either
     stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".staging",
                                   dir=_nearest_existing(out_dir.parent)))
+    _stages.add(stage)
     try:
-        yield stage
+        try:
+            yield stage
+        except OSError as exc:
+            if exc.errno in _FULL:  # say where: the message alone names no path
+                raise StarforgeError(
+                    f"cannot write the outputs for {out_dir}: {exc.strerror or exc} (staging in {stage.parent})"
+                ) from None
+            raise
         if _interrupted:  # a Ctrl-C somebody swallowed: publish nothing
             raise KeyboardInterrupt
         for p in [stage, *stage.rglob("*")]:  # mkdtemp/mkstemp create 0o700/0o600; use the usual modes
             p.chmod(0o777 & ~_umask() if p.is_dir() else _file_mode())
-        publish(stage, out_dir, force)
+        with _publishing:
+            publish(stage, out_dir, force)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+        _stages.discard(stage)
+
+
+#: errors of a full or read-only file system while writing (ENOSPC, EDQUOT, EFBIG, EROFS)
+_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS}
+
+#: stage folders of the runs under way, and a lock held while one is published: the CLI's
+#: last-resort exit after a signal (a compiled kernel that does not return to Python) takes the
+#: lock, so that it never cuts a publish in half, and removes the stages (:func:`discard_stages`)
+_stages: set[Path] = set()
+_publishing = threading.Lock()
+
+
+def discard_stages(timeout_s: float = 5.0) -> bool:
+    """Remove every stage folder of this process, unless a publish is under way (then wait for it
+    up to ``timeout_s``).  Returns False when a publish did not finish in time (nothing removed).
+    The caller exits right after; the lock stays held so that no publish starts."""
+    if not _publishing.acquire(timeout=timeout_s):
+        return False
+    for stage in list(_stages):
+        shutil.rmtree(stage, ignore_errors=True)
+    return True
 
 
 def check_input_file(path: str | Path, what: str = "file") -> Path:

@@ -120,6 +120,32 @@ def files(tmp_path_factory, small_family):
     out["speck"] = d / "speck.stl"
     (d / "far.csv").write_text("id,x_m,y_m,z_m\n1,100,0,0\n2,100,0.1,0\n3,100,0,0.1\n4,100.1,0,0\n")
     out["far_csv"] = d / "far.csv"
+    # a spec saved by a Windows editor (byte-order mark); its box is too small, refused after reading
+    (d / "bom.toml").write_bytes(b"\xef\xbb\xbfbox_mm = [3, 3, 3]\n")
+    out["bom_toml"] = d / "bom.toml"
+    os.mkfifo(d / "fifo")
+    out["fifo"] = d / "fifo"
+    out["id_negative"] = family("id_negative", lambda doc: doc["stars"][0].update(id=-1))
+    out["id_huge"] = family("id_huge", lambda doc: doc["stars"][0].update(id=1e30))
+
+    def many(doc):  # about 10,000 stars: the star list repeated, ids renumbered
+        stars = doc["stars"]
+        doc["stars"] = [{**stars[k % len(stars)], "id": k + 1} for k in range(10_000)]
+
+    out["family_10k"] = family("family_10k", many)
+    big = trimesh.creation.box(extents=(0.1, 0.2, 0.05))
+    big.apply_scale(1e30)
+    big.export(d / "x1e30.stl")
+    out["mesh_x1e30"] = d / "x1e30.stl"
+    small = trimesh.creation.capsule(height=0.3, radius=0.03)
+    small.apply_scale(0.001)
+    small.export(d / "x0.001.stl")
+    out["mesh_x0001"] = d / "x0.001.stl"
+    # a binary STL that says it holds 5 M faces (250 MB, sparse: no disk used): refused from its size
+    with open(d / "faces5m.stl", "wb") as fh:
+        fh.write(b"\0" * 80 + (5_000_000).to_bytes(4, "little"))
+        fh.truncate(84 + 50 * 5_000_000)
+    out["mesh_5m"] = d / "faces5m.stl"
     return out
 
 
@@ -191,6 +217,37 @@ def _cases(f) -> list[Case]:
         Case("templates-unknown-kind", ("templates", "wands"), r"unknown template kind", uses_out=False),
         Case("mounts-unknown", ("mounts", "velcro"), r"velcro", uses_out=False),
         Case("max-memory-garbage", ("--max-memory", "lots", "stars"), r"--max-memory", uses_out=False),
+        # issue 16's hostile pass
+        Case("stars-marker-denormal", ("stars", "--marker", "1e-320"), r"marker_mm must be >= 0.5 mm"),
+        *[Case(f"max-seconds-{v}", ("--max-seconds", v, "stars"), r"^error: --max-seconds must be a positive",
+               uses_out=False) for v in ("nan", "-1", "inf", "0")],
+        Case("stars-spec-bom", ("stars", "--spec", str(f["bom_toml"])), r"box_mm \[3.0, 3.0, 3.0\] is too small"),
+        Case("check-noise-1e308", ("check", fam, "--noise", "1e308"), r"noise must be at most 100 mm"),
+        Case("check-same-file-twice", ("check", fam, fam), r"given twice"),
+        Case("export-star-id-negative", ("export", str(f["id_negative"]), "--format", "qtm"),
+             r"stars\[0\]\.id must be an integer from 1"),
+        Case("export-star-id-1e30", ("export", str(f["id_huge"]), "--format", "qtm"), r"from 1 to 999,999, got 1e\+30"),
+        Case("export-ids-missing-summarised", ("export", fam, "--ids", "1-1000000"),
+             r"(ids .* name 1,000,000 stars; a family holds at most|and [0-9,]+ more not in the family)"),
+        Case("export-ids-missing-1000", ("export", fam, "--ids", "1-1000"), r"star ids \d+, .* and [0-9,]+ more not in"),
+        Case("preview-ids-huge", ("preview", fam, "--ids", "1-99999999"), r"99,999,999 stars; a family holds at most"),
+        *[Case(f"family-10k-{cmd[0]}", ("--max-seconds", "10", *cmd), r"verifying the 10,000 stars .* would take")
+          for cmd in (("export", str(f["family_10k"]), "--format", "qtm,csv"), ("check", str(f["family_10k"])),
+                      ("preview", str(f["family_10k"])), ("stars", "--box", "16", "12", "24", "--delta", "2", "--avoid", str(f["family_10k"])))],
+        Case("place-score-dev-zero", ("place", "score", "hammer", "/dev/zero"), r"markers file /dev/zero is not a regular",
+             uses_out=False),
+        Case("place-score-fifo", ("place", "score", "hammer", str(f["fifo"])), r"markers file .*fifo is not a regular",
+             uses_out=False),
+        Case("place-mesh-fifo", ("place", "run", str(f["fifo"])), r"prop mesh .*fifo is not a regular"),
+        Case("place-forbid-mesh-missing", ("place", "run", "hammer", "--forbid-mesh", "nope.stl"),
+             r"--forbid-mesh file not found: nope.stl"),
+        Case("place-forbid-mesh-fifo", ("place", "run", "hammer", "--forbid-mesh", str(f["fifo"])),
+             r"--forbid-mesh file .*fifo is not a regular"),
+        Case("place-mesh-x1e30", ("place", "run", str(f["mesh_x1e30"])), r"m across read as m: no prop is that large"),
+        Case("place-mesh-x0.001", ("place", "run", str(f["mesh_x0001"])), r"smaller than four markers \(38 mm\)"),
+        Case("place-5m-faces-64-orientations", ("place", "run", str(f["mesh_5m"]), "--orientations", "64"),
+             r"prop mesh .*faces5m.stl \(250 MB\) needs about .* memory"),
+        Case("sweep-cube-nan", ("sweep", "--cube", "nan:40:5"), r"cube must hold finite numbers, got 'nan'"),
     ]
 
 
@@ -200,8 +257,11 @@ def _case_ids():
 
 _FILE_KEYS = (
     "good x300 x1e6 contradict coincident inch no_stars corrupt list garbage_stl empty_obj bad_toml "
-    "wrongtype_toml unknownkey_toml box_mm speck far_csv"
+    "wrongtype_toml unknownkey_toml box_mm speck far_csv bom_toml fifo id_negative id_huge family_10k "
+    "mesh_x1e30 mesh_x0001 mesh_5m"
 ).split()
+#: the plain progress lines a command prints every few seconds when stderr is not a terminal
+PROGRESS = r"^starforge [a-z]+: \d+ s, "
 
 
 @pytest.mark.parametrize("case_id", _case_ids())
@@ -238,11 +298,12 @@ def test_hostile_input(case_id, files, tmp_path):
     assert "Traceback" not in res.stderr, res.stderr
     assert res.returncode == case.code, (res.returncode, err)
     if case.code == 2:
-        lines = err.splitlines()
-        assert len(lines) == 1 and lines[0].startswith("error: "), err
         import re
 
+        lines = [line for line in err.splitlines() if not re.match(PROGRESS, line)]
+        assert len(lines) == 1 and lines[0].startswith("error: "), err
         assert re.search(case.pattern, lines[0]), lines[0]
+        assert len(lines[0]) < 400, f"a long error line ({len(lines[0])} characters)"
     assert _snapshot(work) == before
 
 
@@ -267,16 +328,19 @@ def test_cli_in_process_agrees(files, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "args",
+    "args, signame",
     [
-        ("stars",),
-        ("place", "run", "hammer", "--orientations", "64"),
-        ("check", "{family}", "--frames", "200000"),
+        (("stars",), "SIGINT"),
+        (("place", "run", "hammer", "--orientations", "64"), "SIGINT"),
+        (("check", "{family}", "--frames", "200000"), "SIGINT"),
+        (("stars",), "SIGTERM"),
+        (("export", "{family}", "--allow-oversize"), "SIGTERM"),
     ],
-    ids=["stars", "place", "check"],
+    ids=["stars", "place", "check", "stars-sigterm", "export-sigterm"],
 )
-def test_ctrl_c_exits_130_and_leaves_the_output_as_it_was(args, files, tmp_path):
-    """SIGINT in the middle of the work (after start-up, long before the end): exit 130, one
+def test_ctrl_c_exits_within_2_s_and_leaves_the_output_as_it_was(args, signame, files, tmp_path):
+    """SIGINT (exit 130) or SIGTERM (exit 143) in the middle of the work (after start-up, long
+    before the end; inside a compiled kernel for stars): the process ends within 2 s with one
     line, the old outputs untouched (even with --force) and no staging folder left."""
     import signal
 
@@ -296,10 +360,17 @@ def test_ctrl_c_exits_130_and_leaves_the_output_as_it_was(args, files, tmp_path)
     )
     time.sleep(4.0)
     assert proc.poll() is None, "the work ended before it could be interrupted"
-    proc.send_signal(signal.SIGINT)
+    sig = getattr(signal, signame)
+    t0 = time.perf_counter()
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=LIMIT_S)
-    assert proc.returncode == 130, err
+    seconds = time.perf_counter() - t0
+    assert proc.returncode == 128 + sig, err
+    assert seconds < 2.0, f"stopped {seconds:.2f} s after {signame}"
     assert "Traceback" not in err
+    word = "terminated" if sig == signal.SIGTERM else "interrupted"
+    lines = [line for line in err.splitlines() if not line.startswith("starforge ")]  # progress lines
+    assert lines == [f"{word}; no output was changed"], err
     assert _snapshot(work) == before
 
 
@@ -331,3 +402,41 @@ def test_a_swallowed_ctrl_c_still_changes_nothing(tmp_path, monkeypatch):
     assert _snapshot(out) == before
     assert not list(tmp_path.glob("*.staging"))
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored after the run
+
+
+def test_force_does_not_replace_a_read_only_file(files, tmp_path):
+    """--force over a read-only output refuses in one line (a read-only file means "keep this")."""
+    out = tmp_path / "out"
+    out.mkdir()
+    locked = out / "family.json"
+    locked.write_text("the user's family")
+    locked.chmod(0o444)
+    before = _snapshot(out)
+    res = subprocess.run(
+        [sys.executable, "-c", CHILD, "stars", "--box", "16", "12", "24", "--delta", "2", "--out", str(out), "--force"],
+        env={**os.environ, "STARFORGE_MAX_MEMORY": "1G"}, capture_output=True, text=True, timeout=LIMIT_S,
+    )
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().splitlines() == [
+        f"error: {out} holds read-only family.json; --force does not replace read-only files "
+        "(make them writable, e.g. chmod u+w, or choose another --out)"
+    ]
+    assert _snapshot(out) == before
+    assert not list(tmp_path.glob(".*staging"))
+
+
+def test_a_full_disk_names_the_output(tmp_path):
+    """ENOSPC while the outputs are written: the message names the output (the OS error names no
+    path), nothing is published and no stage is left."""
+    import errno
+
+    from starforge.errors import StarforgeError
+    from starforge.io import staged_output
+
+    out = tmp_path / "out"
+    with pytest.raises(StarforgeError, match=r"cannot write the outputs for .*out: No space left on device"):
+        with staged_output(out) as stage:
+            (stage / "a.txt").write_text("half")
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    assert not out.exists()
+    assert list(tmp_path.iterdir()) == []

@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -180,3 +181,28 @@ def test_stars_table_fits_80_columns(small_family, monkeypatch, capsys):
         words = line.split()
         assert words[0] == str(st["id"])
         assert [float(w) for w in words[1:7]] == [round(x, 2) for x in st["lengths"].values()]
+
+
+def test_pictures_are_framed_and_scaled(small_family, tmp_path):
+    """The star preview fills most of its frame (it filled a third), and family.png's scale bar
+    is a round length no longer than half the limit's width."""
+    from matplotlib.image import imread
+
+    from starforge import load_family
+    from starforge.cad.body import BodySpec
+    from starforge.cad.export import family_bodies
+    from starforge.cad.mounts import load_mount
+    from starforge.render.bodies import render_body_png
+    from starforge.render.stars import _nice_length
+
+    out, _ = small_family
+    family = load_family(out / "family.json")
+    (body,) = family_bodies(family, [family.stars[0].id], load_mount("flat"), BodySpec())
+    img = imread(render_body_png(body, tmp_path / "b.png"))
+    ink = np.argwhere(img[..., :3].min(axis=2) < 0.9)  # not white
+    rows = img.shape[0] * 0.1  # below the title
+    body_px = ink[ink[:, 0] > rows]
+    span = (body_px.max(axis=0) - body_px.min(axis=0)) / np.array(img.shape[:2])
+    assert span.max() > 0.7, f"the body spans only {span.max():.0%} of the frame"
+    for width, bar in ((6.3, 5.0), (10.4, 10.0), (19.9, 10.0), (25.0, 20.0), (0.9, 0.5)):
+        assert _nice_length(width) == bar

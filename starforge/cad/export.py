@@ -52,6 +52,8 @@ def parse_ids(text: str | None) -> list[int] | None:
     """``"1,2,5"`` or ``"1-4,9"`` -> [1, 2, 5] / [1, 2, 3, 4, 9]; None or "" -> None (all)."""
     if text is None or not str(text).strip():
         return None
+    from starforge.stars.model import MAX_STARS
+
     out: list[int] = []
     for part in str(text).split(","):
         part = part.strip()
@@ -61,9 +63,15 @@ def parse_ids(text: str | None) -> list[int] | None:
                 lo, hi = int(a), int(b)
                 if hi < lo:
                     raise ValueError
+                if hi - lo + 1 + len(out) > MAX_STARS:  # before the list is built
+                    raise StarforgeError(
+                        f"ids {text!r} name {hi - lo + 1 + len(out):,} stars; a family holds at most {MAX_STARS:,}"
+                    )
                 out.extend(range(lo, hi + 1))
             else:
                 out.append(int(part))
+        except StarforgeError:
+            raise
         except ValueError:
             raise StarforgeError(
                 f"ids must be a comma list of star ids or ranges like 1,2,5-7; got {text!r}"

@@ -7,8 +7,11 @@ line on stderr and exit code 2, never a traceback.
 from __future__ import annotations
 
 import importlib
+import os
 import pkgutil
+import signal
 import sys
+import threading
 
 from starforge.cli._app import app
 
@@ -26,43 +29,129 @@ def _load_commands() -> None:
     _loaded = True
 
 
-def _on_sigint(signum, frame):
+#: the signal that stopped the command (SIGINT or SIGTERM), for its one line and exit code
+_stopped_by: list = [None]
+
+
+def _on_signal(signum, frame):
+    """Ctrl-C and SIGTERM alike, in the main thread: remember it (even where a library swallows
+    the exception below) and unwind; nothing staged is published (starforge.io.staged_output
+    checks the flag)."""
+    _noted(signum)
+    raise KeyboardInterrupt
+
+
+def _noted(signum: int) -> bool:
+    """Record the stopping signal; True the first time."""
     from starforge.io import note_interrupt
 
-    note_interrupt()  # remembered even where a library swallows the exception below
-    raise KeyboardInterrupt
+    note_interrupt()
+    if _stopped_by[0] is None:
+        _stopped_by[0] = signum
+        return True
+    return False
+
+
+#: seconds a command has to stop on its own after Ctrl-C or SIGTERM before the last resort
+STOP_DEADLINE_S = 1.0
+
+_reported = threading.Lock()  # held by whoever reports the stop (the command, or the last resort)
+
+
+def _watch_signals(read_fd: int, done: threading.Event) -> None:
+    """The last resort, in a thread: Python runs a signal handler only between bytecodes of the
+    main thread, and a compiled kernel (numba, HiGHS) does not return to Python until it is done.
+    The signal's number also arrives on ``read_fd`` (signal.set_wakeup_fd) while such a kernel
+    runs without the GIL; if the command has not ended STOP_DEADLINE_S later, remove its stage
+    folders (never in the middle of a publish), print the one line and exit at once."""
+    from starforge.io import discard_stages
+
+    while True:
+        try:
+            data = os.read(read_fd, 1)
+        except OSError:
+            return
+        if not data:  # the command ended and closed the pipe
+            return
+        signum = data[0]
+        if signum not in (signal.SIGINT, signal.SIGTERM):
+            continue
+        _noted(signum)
+        if done.wait(STOP_DEADLINE_S):
+            return
+        with _reported:
+            if done.is_set() or not discard_stages():
+                return  # ended meanwhile, or a publish that would not finish: let it end on its own
+            _report_stop(_stopped_by[0] or signum)
+            os._exit(128 + (_stopped_by[0] or signum))
+
+
+def _report_stop(signum: int) -> None:
+    word = "terminated" if signum == signal.SIGTERM else "interrupted"
+    try:
+        print(f"{word}; no output was changed", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
+def _install_signals():
+    """Handlers for SIGINT and SIGTERM and the last-resort watcher; returns (the event to set
+    when the command has ended, under ``_reported``; the undo function)."""
+    done = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        return done, lambda: None
+    previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)
+    try:
+        old_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+    except (ValueError, OSError):
+        old_fd = None
+    watcher = threading.Thread(target=_watch_signals, args=(read_fd, done), name="starforge-signals", daemon=True)
+    watcher.start()
+
+    def undo() -> None:
+        with _reported:  # if the last resort holds it, it is exiting the process
+            done.set()
+        if old_fd is not None:
+            signal.set_wakeup_fd(old_fd)
+        os.close(write_fd)  # the watcher reads EOF and ends
+        watcher.join(timeout=1.0)
+        os.close(read_fd)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+    return done, undo
 
 
 def main(argv: list[str] | None = None) -> int:
     """Console-script entry point; returns (and exits with) the process exit code."""
-    import signal
-    import threading
-
     from starforge.io import interrupted, reset_interrupt
 
     _load_commands()
     reset_interrupt()
-    previous = None
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGINT, _on_sigint)
+    _stopped_by[0] = None
+    done, undo = _install_signals()
     try:
         code = _run(argv)
-        # every Ctrl-C ends here: raised, turned into click's Abort, or swallowed by a library
-        # (nothing was published in any case: starforge.io.staged_output checks the flag)
-        if interrupted() and code in (0, 130):
-            print("interrupted; no output was changed", file=sys.stderr)
-            code = 130
+        # every Ctrl-C or SIGTERM ends here: raised, turned into click's Abort, or swallowed by a
+        # library (nothing was published in any case: starforge.io.staged_output checks the flag)
+        with _reported:  # if the last resort holds it, it is exiting the process
+            done.set()
+            if interrupted() and code in (0, 130):
+                signum = _stopped_by[0] or signal.SIGINT
+                code = 128 + signum
+                _report_stop(signum)
     finally:
+        undo()
         reset_interrupt()  # library calls after this command are not affected
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
     if argv is None:
         sys.exit(code)
     return code
 
 
 def _run(argv: list[str] | None) -> int:
-    from starforge.io import note_interrupt
+    from starforge.io import interrupted, note_interrupt
 
     try:
         rv = app(args=argv, prog_name="starforge", standalone_mode=False)
@@ -75,6 +164,20 @@ def _run(argv: list[str] | None) -> int:
         print("error: out of memory; lower the problem size or the memory others use (--max-memory)",
               file=sys.stderr)
         code = 2
+    except Exception as exc:
+        if not interrupted():
+            return _error_code(exc)
+        # a library turned the Ctrl-C into its own error (OCP's import: "initialization failed")
+        code = 130
+    return code
+
+
+def _error_code(exc: Exception) -> int:
+    """The exit code of an exception that is not a Ctrl-C, after printing its one line."""
+    from starforge.io import note_interrupt
+
+    try:
+        raise exc
     except (ValueError, OSError) as exc:  # StarforgeError is a ValueError
         msg = str(exc) or exc.__class__.__name__
         if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:

@@ -144,8 +144,7 @@ def _root(
     if max_memory is not None:
         os.environ[budget.ENV_MEMORY] = str(budget.parse_bytes(max_memory, "--max-memory"))
     if max_seconds is not None:
-        os.environ[budget.ENV_SECONDS] = repr(float(max_seconds))
-        budget.time_limit_s()  # validates
+        os.environ[budget.ENV_SECONDS] = repr(budget.parse_seconds(max_seconds, "--max-seconds"))
     if version:
         from starforge import __version__
 

@@ -53,6 +53,9 @@ def _prop_and_spec(
     if forbid_mesh or mask:
         cons = s.constraints
         if forbid_mesh:
+            from starforge.io import check_input_file
+
+            check_input_file(forbid_mesh, "--forbid-mesh file")  # before the long work
             cons = replace(cons, mesh=str(forbid_mesh))
         if mask:
             cons = replace(cons, mask=str(mask))

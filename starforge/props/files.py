@@ -259,9 +259,9 @@ def markers_csv(points: np.ndarray, normals: np.ndarray) -> str:
 
 def read_markers_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     """Marker positions (m) and normals (None when the columns are absent) from a markers CSV."""
-    path = Path(path)
-    if not path.is_file():
-        raise StarforgeError(f"markers file not found: {path}")
+    from starforge.io import check_input_file
+
+    path = check_input_file(Path(path), "markers file")
     try:
         rows = list(csv.DictReader(path.read_text(encoding="utf-8").splitlines()))
     except (UnicodeDecodeError, csv.Error) as exc:

@@ -62,39 +62,46 @@ def units_scale(units: str) -> float:
     return UNITS_TO_M[units]
 
 
-def load_mesh_file(path: str | Path, units: str = "m"):
+def load_mesh_file(path: str | Path, units: str = "m", what: str = "prop mesh"):
     """Read a mesh file (STL, OBJ, PLY, GLB, OFF, ...) into one ``trimesh.Trimesh`` in metres, unrepaired.
 
     Scenes (GLB, multi-object OBJ) are flattened with their transforms applied.
-    Raises StarforgeError for a missing, unreadable or empty file.
+    Raises StarforgeError for a missing, unreadable or empty file, or one that is not a regular
+    file (a device, a FIFO); ``what`` names the file in the message (``"--forbid-mesh file"``).
     """
     import trimesh
 
+    from starforge.io import check_input_file
+
     scale = units_scale(units)
-    path = Path(path)
-    if not path.exists():
-        raise StarforgeError(f"prop mesh not found: {path}")
-    if path.is_dir():
-        raise StarforgeError(f"prop mesh {path} is a folder, expected a mesh file")
-    if path.stat().st_size == 0:
-        raise StarforgeError(f"prop mesh {path} is empty (0 bytes)")
+    path = check_input_file(Path(path), what)
     from starforge.budget import require_memory
 
     # a mesh in memory takes about 10-20 x its file size (vertices, faces, adjacency, repair)
     require_memory(
-        path.stat().st_size * 20.0, f"the prop mesh {path} ({path.stat().st_size / 1e6:.0f} MB)", "simplify the mesh first"
+        path.stat().st_size * 20.0, f"the {what} {path} ({path.stat().st_size / 1e6:.0f} MB)", "simplify the mesh first"
     )
     try:
         loaded = trimesh.load(str(path), force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files
-        raise StarforgeError(f"cannot read prop mesh {path}: {exc.__class__.__name__}: {exc}") from None
+        raise StarforgeError(f"cannot read {what} {path}: {exc.__class__.__name__}: {exc}") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise StarforgeError(f"prop mesh {path} holds no triangles")
+        raise StarforgeError(f"{what} {path} holds no triangles")
     vertices = np.asarray(loaded.vertices, dtype=float) * scale
     faces = np.asarray(loaded.faces, dtype=np.int64)
     if not np.all(np.isfinite(vertices)):
-        raise StarforgeError(f"prop mesh {path} has non-finite vertex coordinates")
+        raise StarforgeError(f"{what} {path} has non-finite vertex coordinates")
+    size = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 0.0
+    if size > MAX_SIZE_M:  # beyond this, float arithmetic in the repair overflows
+        raise StarforgeError(
+            f"{what} {path} is {size:.3g} m across read as {units}: no prop is that large "
+            f"(at most {MAX_SIZE_M:g} m); check --units or the file's scale"
+        )
     return trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
+
+
+#: largest prop extent accepted, m (a capture volume is tens of metres)
+MAX_SIZE_M = 1000.0
 
 
 def repair_mesh(mesh, union_shells: bool = True):

@@ -191,8 +191,9 @@ def check_scale(prop, rig, marker_m: float) -> list[str]:
         size = " x ".join(f"{e:.4g}" for e in prop.mesh.extents)
         raise StarforgeError(
             f"prop {prop.name} is {size} m read as {prop.units}: "
-            + ("larger than twice the capture volume" if ext > 2 * vol else "smaller than four markers")
-            + f" ({vol:g} m){hint}"
+            + (f"larger than twice the capture volume ({vol:g} m)" if ext > 2 * vol
+               else f"smaller than four markers ({4 * marker_m * 1000:g} mm)")
+            + hint
         )
     size = np.asarray(rig.volume.size, float)
     vol_text = " x ".join(f"{e:g}" for e in size)

@@ -223,7 +223,7 @@ def forbidden_sites(
     if constraints.mesh:
         from starforge.props.mesh import load_mesh_file
 
-        other = load_mesh_file(constraints.mesh, constraints.mesh_units)
+        other = load_mesh_file(constraints.mesh, constraints.mesh_units, what="constraint mesh (--forbid-mesh)")
         other.merge_vertices()
         if other.is_watertight and other.volume < 0:
             other.invert()

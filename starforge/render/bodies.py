@@ -27,7 +27,8 @@ def _view_triangles(body, segments: int = 20, edge_mm: float = 0.8) -> np.ndarra
     return (v @ TO_BED.T)[f]
 
 
-def _draw(ax, tris: np.ndarray, title: str, half: float | None = None) -> None:
+def _draw(ax, tris: np.ndarray, title: str, half: float | None = None, zoom: float = 1.45,
+          title_size: float = 14) -> None:
     """Shaded triangles; ``half`` is the half-size of the view cube, mm (one scale for a sheet)."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
@@ -37,17 +38,18 @@ def _draw(ax, tris: np.ndarray, title: str, half: float | None = None) -> None:
     light /= np.linalg.norm(light)
     shade = 0.35 + 0.65 * np.clip(n @ light, 0, 1)
     colors = np.column_stack([0.55 * shade, 0.62 * shade, 0.75 * shade, np.ones_like(shade)])
-    ax.add_collection3d(Poly3DCollection(tris, facecolors=colors, edgecolors="none"))
+    # each triangle's edge in its own colour: no light seams between the triangles (the streaks)
+    ax.add_collection3d(Poly3DCollection(tris, facecolors=colors, edgecolors=colors, linewidths=0.3))
     lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
     mid = (lo + hi) / 2
     half = (hi - lo).max() / 2 if half is None else half
     ax.set_xlim(mid[0] - half, mid[0] + half)
     ax.set_ylim(mid[1] - half, mid[1] + half)
     ax.set_zlim(mid[2] - half, mid[2] + half)
-    ax.set_box_aspect((1, 1, 1))
+    ax.set_box_aspect((1, 1, 1), zoom=zoom)  # the view cube's corners lie far outside the body
     ax.view_init(elev=50, azim=-60)
     ax.set_axis_off()
-    ax.set_title(title, fontsize=10)
+    ax.set_title(title, fontsize=title_size, fontweight="bold", pad=0)
 
 
 def render_body_png(body, path: str | Path, size_px: int = 480) -> Path:
@@ -57,7 +59,7 @@ def render_body_png(body, path: str | Path, size_px: int = 480) -> Path:
     plt = pyplot()
     fig = plt.figure(figsize=(size_px / _DPI, size_px / _DPI), dpi=_DPI)
     try:
-        ax = fig.add_subplot(projection="3d")
+        ax = fig.add_axes((0.0, 0.0, 1.0, 0.92), projection="3d")
         _draw(ax, _view_triangles(body), f"star {body.star_id} ({body.mount})")
         save_png(fig, path, dpi=_DPI)
     finally:
@@ -78,8 +80,9 @@ def render_sheet_png(bodies, path: str | Path, cell_px: int = 240) -> Path:
     fig = plt.figure(figsize=(cols * cell_px / _DPI, rows * cell_px / _DPI), dpi=_DPI)
     try:
         for k, (b, t) in enumerate(zip(bodies, tris, strict=True)):
-            ax = fig.add_subplot(rows, cols, k + 1, projection="3d")
-            _draw(ax, t, f"star {b.star_id}", half=half)
+            r, c = divmod(k, cols)
+            ax = fig.add_axes((c / cols, 1 - (r + 1) / rows, 1 / cols, 0.9 / rows), projection="3d")
+            _draw(ax, t, f"star {b.star_id}", half=half, title_size=11)
         fig.text(0.01, 0.01, f"one scale: each cell spans {2 * half:.1f} mm", fontsize=7)
         save_png(fig, path, dpi=_DPI)
     finally:

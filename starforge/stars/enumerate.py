@@ -221,7 +221,7 @@ def _width(L0, L1, L2, L3, L4, L5, vol6):
     return w
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, nogil=True)  # nogil: Ctrl-C is answered while it runs
 def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode, codes, volumes):
     """Outcome code and fitting-box volume of every labelled candidate of ``subsets``.
 

@@ -153,9 +153,9 @@ class Family:
         table = {s.id: s for s in self.stars}
         missing = [i for i in ids if i not in table]
         if missing:
+            shown = ", ".join(map(str, missing[:5])) + (f" and {len(missing) - 5:,} more" if len(missing) > 5 else "")
             raise StarforgeError(
-                f"star id{'s' if len(missing) > 1 else ''} {', '.join(map(str, missing))} not in the family "
-                f"(ids {min(table)}..{max(table)})"
+                f"star id{'s' if len(missing) > 1 else ''} {shown} not in the family (ids {min(table)}..{max(table)})"
             )
         return [table[i] for i in ids]
 
@@ -231,8 +231,14 @@ def family_from_json(data: dict, where: str = "family.json", verify: bool = True
     if len(set(ids)) != len(ids):
         raise StarforgeError(f"{where} has duplicate star ids")
     if verify:
-        from starforge.stars.verify import check_family
+        from starforge.budget import require_time
+        from starforge.stars.verify import check_family, verify_seconds
 
+        require_time(
+            verify_seconds(len(stars)),
+            f"verifying the {len(stars):,} stars of {where} (every pair of stars is compared)",
+            "give a smaller family (starforge stars --count N) or raise --max-seconds",
+        )
         problems = check_family({**data, "spec": to_mapping(spec)})  # defaults filled in
         if problems:
             more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
@@ -242,6 +248,8 @@ def family_from_json(data: dict, where: str = "family.json", verify: bool = True
 
 #: stars a family file may hold (the verification is quadratic in it)
 MAX_STARS = 20_000
+#: largest star id (ids name files: star_000001 ... star_999999)
+MAX_STAR_ID = 999_999
 
 
 def _star_from_json(s, k: int, where: str) -> Star:
@@ -252,6 +260,8 @@ def _star_from_json(s, k: int, where: str) -> Star:
     sid = s.get("id")
     if isinstance(sid, bool) or not isinstance(sid, int | float) or not float(sid).is_integer():
         raise StarforgeError(f"{at}.id must be an integer, got {sid!r}")
+    if not 1 <= sid <= MAX_STAR_ID:
+        raise StarforgeError(f"{at}.id must be an integer from 1 to {MAX_STAR_ID:,}, got {sid!r}")
     at = f"{at} (id {int(sid)})"
     lengths, obb = s.get("lengths"), s.get("obb")
     for obj, key, what in (

@@ -93,6 +93,10 @@ class StarSpec:
         for i, b in enumerate(self.box_mm):
             positive(f"box_mm[{i}]", b)
         positive("marker_mm", self.marker_mm)
+        require(
+            self.marker_mm >= 0.5,
+            f"marker_mm must be >= 0.5 mm (retroreflective markers are about 2-40 mm), got {self.marker_mm:g}",
+        )
         positive("delta_mm", self.delta_mm)
         require(
             self.delta_mm >= 1e-3,

@@ -272,6 +272,12 @@ def load_bodies(paths) -> BodySet:
     paths = [_resolve(Path(p)) for p in paths]
     if not paths:
         raise StarforgeError("no input file given")
+    first: dict[Path, Path] = {}
+    for p in paths:
+        key = p.resolve()
+        if key in first:
+            raise StarforgeError(f"{p} is given twice (as {first[key]} before): give each file once")
+        first[key] = p
     raw: list[Body] = []
     kinds, sources, notes, warnings = [], [], [], []
     tolerances, markers = [], []
@@ -313,12 +319,18 @@ def load_bodies(paths) -> BodySet:
             )
     seen: dict[str, int] = {}
     bodies = []
+    renamed = []
     for b in raw:
         n = seen.get(b.name, 0)
         seen[b.name] = n + 1
         name = f"{b.name}_{n + 1}" if n else b.name
+        if n:
+            renamed.append(f"{b.name} -> {name}")
         ident = b.id if kinds == ["family"] else len(bodies) + 1
         bodies.append(Body(name, ident, b.points_mm, b.tip_mm, b.source, b.normals))
+    if renamed:
+        shown = ", ".join(renamed[:3]) + (f" and {len(renamed) - 3} more" if len(renamed) > 3 else "")
+        notes.append(f"{len(renamed)} bodies share a name with a body of another file; renamed {shown}")
     kind = kinds[0] if len(set(kinds)) == 1 else "mixed"
     if kind == "family" and len(kinds) > 1:
         kind = "mixed"

@@ -36,6 +36,10 @@ FORMAT = "starforge.check"
 VERSION = 1
 
 
+#: largest marker noise a check simulates, mm (a tracker's noise is well under a millimetre)
+MAX_NOISE_MM = 100.0
+
+
 @dataclass(frozen=True)
 class CheckSettings:
     """Simulation settings.
@@ -84,6 +88,8 @@ class CheckSettings:
         require(0 < self.presence <= 1, f"presence must be in (0, 1], got {self.presence}")
         require(self.curve_points <= 50, f"curve must be at most 50 noise levels, got {self.curve_points}")
         non_negative("noise", self.noise_mm)
+        require(self.noise_mm <= MAX_NOISE_MM, f"noise must be at most {MAX_NOISE_MM:g} mm (sigma per axis), "
+                f"got {self.noise_mm:g}")
         require(self.drop >= 0, f"drop must be >= 0, got {self.drop}")
         require(self.ghosts >= 0, f"ghosts must be >= 0, got {self.ghosts}")
         require(self.frames >= 1, f"frames must be >= 1, got {self.frames}")

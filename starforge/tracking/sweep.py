@@ -56,9 +56,12 @@ SWEEP_MILP_WORK = 800_000
 
 def _num(tok: str, name: str, text: str) -> float:
     try:
-        return float(tok)
+        v = float(tok)
     except ValueError:
         raise StarforgeError(f"{name} must be numbers like 0.5:3:0.5 or 1,2,5, got {text!r}") from None
+    if not math.isfinite(v):
+        raise StarforgeError(f"{name} must hold finite numbers, got {tok.strip()!r} in {text!r}")
+    return v
 
 
 def parse_range(text: str, name: str) -> list[float]:
