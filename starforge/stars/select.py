@@ -216,6 +216,9 @@ class _Packing:
         per_row = np.diff(self.rptr)
         most = int(np.diff(ptr).max()) * int(per_row.max()) if n and n_rows else 0
         self._buf = np.empty(max(most, 1), dtype=np.int64)
+        self._lst = np.empty(max(most, 1), dtype=np.int64)
+        self._seen = np.zeros(n, dtype=np.bool_)
+        self.rank64 = np.asarray(rank, dtype=np.int64)
         # rows per candidate padded with the sentinel row n_rows (never owned), for batch checks
         counts = np.diff(ptr)
         width = int(counts.max()) if n else 0
@@ -296,19 +299,11 @@ class _Packing:
     def two_swap(self, t: int):
         """Best (1,2)-swap for family star t: two disjoint candidates whose only conflict is t,
         most compact first; None if none."""
-        u = self.touched(t)
-        L = np.unique(u[self.tight[u] == t])
-        if len(L) < 2:
-            return None
-        L = L[np.argsort(self.rank[L], kind="stable")]
-        ptr, rows = self.ptr, self.rows
-        sets = [frozenset(rows[ptr[x] : ptr[x + 1]].tolist()) for x in L.tolist()]
-        for i in range(len(L) - 1):
-            a = sets[i]
-            for j in range(i + 1, len(L)):
-                if a.isdisjoint(sets[j]):
-                    return int(L[i]), int(L[j])
-        return None
+        a, b = _two_swap(
+            t, self.ptr64, self.rows64, self.rptr, self.cands, self.state, self.rank64, self._seen, self._buf,
+            self._lst,
+        )
+        return None if a < 0 else (int(a), int(b))
 
     def descend(self, queue: set[int]) -> None:
         """(1,2)-swaps (and free insertions) until none is left for the queued stars."""
@@ -361,6 +356,46 @@ def _update_kernel(s, sign, ptr, rows, rptr, cands, state, in_fam, out):
         else:
             state[c, 3] = -1
     return k
+
+
+@numba.njit(cache=True, nogil=True)
+def _two_swap(t, ptr, rows, rptr, cands, state, rank, seen, buf, lst):
+    """The first pair, in rank order (most compact first), of distinct candidates 1-tight with
+    family star t (``state[:, 3] == t``) whose rows are disjoint; (-1, -1) if none.  ``seen``
+    (all False, left so), ``buf`` and ``lst`` are scratch space."""
+    k = _gather(t, ptr, rows, rptr, cands, buf)
+    m = 0
+    for i in range(k):
+        c = buf[i]
+        if state[c, 3] == t and not seen[c]:
+            seen[c] = True
+            lst[m] = c
+            m += 1
+    for i in range(m):
+        seen[lst[i]] = False
+    # by rank (a permutation: no ties), insertion sort: these lists are short
+    for i in range(1, m):
+        c = lst[i]
+        j = i
+        while j > 0 and rank[lst[j - 1]] > rank[c]:
+            lst[j] = lst[j - 1]
+            j -= 1
+        lst[j] = c
+    for i in range(m - 1):
+        a = lst[i]
+        for j in range(i + 1, m):
+            b = lst[j]
+            apart = True
+            for x in range(ptr[a], ptr[a + 1]):
+                for y in range(ptr[b], ptr[b + 1]):
+                    if rows[x] == rows[y]:
+                        apart = False
+                        break
+                if not apart:
+                    break
+            if apart:
+                return a, b
+    return -1, -1
 
 
 def ils(
