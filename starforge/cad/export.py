@@ -150,7 +150,8 @@ def export_family(
 ) -> ExportReport:
     """Write the bodies of a family into ``stage`` (see the module docstring for the files).
 
-    ``progress(done, total)`` is called after each star.  ``bodies``: the descriptions from
+    ``progress(done, total)`` is called after each star's mesh files and after each star's STEP
+    file (from the STEP thread; total = stars x 2 with STEP).  ``bodies``: the descriptions from
     :func:`family_bodies` for the same family, ids, mount and spec, when the caller already has
     them (they are described here otherwise).
     """
@@ -175,6 +176,7 @@ def export_family(
     rep.timings["describe_s"] = time.perf_counter() - t0
     meshes: list = []
     pool = step_job = None
+    tick = _Ticker(progress, len(bodies) * (2 if "step" in formats else 1))
     if "step" in formats:
         # the exact solids (OpenCascade) are built in a second thread while this one meshes: the
         # kernels share nothing and each body's STEP file depends only on that body, so the files
@@ -183,10 +185,10 @@ def export_family(
 
         pool = ThreadPoolExecutor(1, thread_name_prefix="starforge-step")
         plates = list(zip(plate_names(len(beds)), beds, strict=True)) if plate else []
-        step_job = pool.submit(_step_bodies, bodies, to_print, stage, plates)
+        step_job = pool.submit(_step_bodies, bodies, to_print, stage, plates, tick)
     try:
         t1 = time.perf_counter()
-        _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, progress)
+        _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick)
         t_mesh = time.perf_counter() - t1
         if step_job is not None:
             _, volumes, t_step = step_job.result()
@@ -271,7 +273,23 @@ def export_family(
     return rep
 
 
-def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, progress) -> None:
+class _Ticker:
+    """``progress(done, total)`` after each unit of work, from either thread (one lock)."""
+
+    def __init__(self, progress, total: int) -> None:
+        import threading
+
+        self.progress, self.total, self.done, self.lock = progress, total, 0, threading.Lock()
+
+    def __call__(self) -> None:
+        if self.progress is None:
+            return
+        with self.lock:
+            self.done += 1
+            self.progress(self.done, self.total)
+
+
+def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick) -> None:
     """Per body: the mesh in its printing orientation (appended to ``meshes``), its STL / 3MF
     files and its bodies.json entry (appended to ``rep.bodies``)."""
     from starforge.cad.mesh import body_mesh, check_shell
@@ -280,7 +298,7 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, prog
     from starforge.colours import body_colour
     from starforge.render.raster import thumbnail_png
 
-    for k, (b, fit, T) in enumerate(zip(bodies, fits, to_print, strict=True)):
+    for b, fit, T in zip(bodies, fits, to_print, strict=True):
         mesh = body_mesh(b, spec.sphere_segments, spec.cylinder_segments)
         mesh.apply_transform(T)  # printing orientation: plate down on Z = 0
         check_shell(mesh.vertices, mesh.faces, b.name)  # as the file will hold it (float32)
@@ -320,11 +338,10 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, prog
             (stage / f"{b.name}.3mf").write_bytes(threemf_bytes([mesh], [b.name], thumb, [colour]))
             entry["files"].append(f"{b.name}.3mf")
         rep.bodies.append(entry)
-        if progress is not None:
-            progress(k + 1, len(bodies))
+        tick()
 
 
-def _step_bodies(bodies, to_print, stage, plates=()) -> tuple[list, list[float], float]:
+def _step_bodies(bodies, to_print, stage, plates=(), tick=None) -> tuple[list, list[float], float]:
     """Per body: the exact solid in its printing orientation, named and coloured, written to
     ``<name>.step``; then per (name, layout) of ``plates`` the assembly ``<name>.step``.
     Returns (solids, their volumes in mm^3, seconds)."""
@@ -338,6 +355,8 @@ def _step_bodies(bodies, to_print, stage, plates=()) -> tuple[list, list[float],
         write_step(solid, stage / f"{b.name}.step")
         solids.append(solid)
         volumes.append(float(solid.volume))
+        if tick is not None:
+            tick()
     for name, lay in plates:
         write_step(assembly([solids[i] for i in lay.members], lay.transforms, name), stage / f"{name}.step")
     return solids, volumes, time.perf_counter() - t

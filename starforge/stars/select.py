@@ -210,8 +210,15 @@ class _Packing:
         self.n, self.ptr, self.rows, self.rank = n, ptr, rows, rank
         # row -> candidates (CSC of the incidence), candidates ascending within a row
         inc = sp.csr_matrix((np.ones(len(rows), dtype=np.int8), rows, ptr), shape=(n, n_rows)).tocsc()
-        cands, rptr = inc.indices.astype(np.int64), inc.indptr.tolist()
-        self.row_cands = [cands[rptr[r] : rptr[r + 1]] for r in range(n_rows)]
+        self.cands, self.rptr = inc.indices.astype(np.int64), inc.indptr.astype(np.int64)
+        self.ptr64, self.rows64 = np.asarray(ptr, dtype=np.int64), np.asarray(rows, dtype=np.int64)
+        # touched() of one star is at most (its rows) x (the most candidates on a row) entries
+        per_row = np.diff(self.rptr)
+        most = int(np.diff(ptr).max()) * int(per_row.max()) if n and n_rows else 0
+        self._buf = np.empty(max(most, 1), dtype=np.int64)
+        self._lst = np.empty(max(most, 1), dtype=np.int64)
+        self._seen = np.zeros(n, dtype=np.bool_)
+        self.rank64 = np.asarray(rank, dtype=np.int64)
         # rows per candidate padded with the sentinel row n_rows (never owned), for batch checks
         counts = np.diff(ptr)
         width = int(counts.max()) if n else 0
@@ -224,10 +231,11 @@ class _Packing:
             self.padded[star_of_entry, np.arange(len(rows)) - np.repeat(ptr[:-1], counts)] = rows
         self.owner = np.full(n_rows + 1, -1, dtype=np.int64)
         self.in_fam = np.zeros(n, dtype=bool)
-        self.cnt = np.zeros(n, dtype=np.int64)
-        self.s1 = np.zeros(n, dtype=np.int64)
-        self.s2 = np.zeros(n, dtype=np.int64)
-        self.tight = np.full(n, -1, dtype=np.int64)  # t if 1-tight with family star t, else -1
+        # cnt, s1, s2, tight side by side: an update touches all four of a candidate (one cache line)
+        self.state = np.zeros((n, 4), dtype=np.int64)
+        self.state[:, 3] = -1
+        self.cnt, self.s1, self.s2 = self.state[:, 0], self.state[:, 1], self.state[:, 2]
+        self.tight = self.state[:, 3]  # t if 1-tight with family star t, else -1
         self.size = 0
         self.log: list[tuple[int, int]] | None = None  # (+1 insert / -1 remove, star)
         for s in np.asarray(chosen).tolist():
@@ -238,23 +246,15 @@ class _Packing:
 
     def touched(self, s: int) -> np.ndarray:
         """Candidates sharing a row with s, once per shared row."""
-        rc = self.row_cands
-        parts = [rc[r] for r in self.rows_of(s).tolist()]
-        return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+        k = _gather(s, self.ptr64, self.rows64, self.rptr, self.cands, self._buf)
+        return self._buf[:k].copy()
 
     def _update(self, s: int, sign: int) -> np.ndarray:
-        ent = self.touched(s)
-        old = self.cnt[ent]
-        np.add.at(self.cnt, ent, sign)  # the one unbuffered add (ent repeats a candidate per row)
-        c = self.cnt[ent]
-        k = c - old  # per entry: the candidate's whole change, so buffered writes are exact
-        s1 = self.s1[ent] + k * s
-        s2 = self.s2[ent] + k * (s * s)
-        self.s1[ent] = s1
-        self.s2[ent] = s2
-        one = (c > 0) & (c * s2 == s1 * s1) & ~self.in_fam[ent]
-        self.tight[ent] = np.where(one, s1 // np.maximum(c, 1), -1)
-        return ent
+        k = _update_kernel(
+            s, sign, self.ptr64, self.rows64, self.rptr, self.cands,
+            self.state, self.in_fam, self._buf,
+        )
+        return self._buf[:k].copy()
 
     def insert(self, s: int) -> np.ndarray:
         self.owner[self.rows_of(s)] = s
@@ -299,19 +299,11 @@ class _Packing:
     def two_swap(self, t: int):
         """Best (1,2)-swap for family star t: two disjoint candidates whose only conflict is t,
         most compact first; None if none."""
-        u = self.touched(t)
-        L = np.unique(u[self.tight[u] == t])
-        if len(L) < 2:
-            return None
-        L = L[np.argsort(self.rank[L], kind="stable")]
-        ptr, rows = self.ptr, self.rows
-        sets = [frozenset(rows[ptr[x] : ptr[x + 1]].tolist()) for x in L.tolist()]
-        for i in range(len(L) - 1):
-            a = sets[i]
-            for j in range(i + 1, len(L)):
-                if a.isdisjoint(sets[j]):
-                    return int(L[i]), int(L[j])
-        return None
+        a, b = _two_swap(
+            t, self.ptr64, self.rows64, self.rptr, self.cands, self.state, self.rank64, self._seen, self._buf,
+            self._lst,
+        )
+        return None if a < 0 else (int(a), int(b))
 
     def descend(self, queue: set[int]) -> None:
         """(1,2)-swaps (and free insertions) until none is left for the queued stars."""
@@ -327,6 +319,83 @@ class _Packing:
             touched += self.fill(touched[0])
             for aff in touched:
                 queue.update(self.tight_owners(aff).tolist())
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather(s, ptr, rows, rptr, cands, out):
+    """Write the candidates sharing a row with star s (once per shared row, rows in order) into
+    ``out``; returns how many."""
+    k = 0
+    for j in range(ptr[s], ptr[s + 1]):
+        r = rows[j]
+        for q in range(rptr[r], rptr[r + 1]):
+            out[k] = cands[q]
+            k += 1
+    return k
+
+
+@numba.njit(cache=True, nogil=True)
+def _update_kernel(s, sign, ptr, rows, rptr, cands, state, in_fam, out):
+    """:class:`_Packing`'s bookkeeping when star s enters (sign +1) or leaves (-1) the family:
+    per candidate sharing rows with s, the count, sum and sum of squares of the family stars
+    holding its rows (``state`` columns 0-2), then whether they all belong to one star
+    (column 3, ``tight``).  Writes the touched
+    entries into ``out`` (as :func:`_gather`) and returns how many."""
+    k = _gather(s, ptr, rows, rptr, cands, out)
+    ss = s * s
+    for i in range(k):
+        c = out[i]
+        state[c, 0] += sign
+        state[c, 1] += sign * s
+        state[c, 2] += sign * ss
+    for i in range(k):
+        c = out[i]
+        n, s1 = state[c, 0], state[c, 1]
+        if n > 0 and n * state[c, 2] == s1 * s1 and not in_fam[c]:
+            state[c, 3] = s1 // n
+        else:
+            state[c, 3] = -1
+    return k
+
+
+@numba.njit(cache=True, nogil=True)
+def _two_swap(t, ptr, rows, rptr, cands, state, rank, seen, buf, lst):
+    """The first pair, in rank order (most compact first), of distinct candidates 1-tight with
+    family star t (``state[:, 3] == t``) whose rows are disjoint; (-1, -1) if none.  ``seen``
+    (all False, left so), ``buf`` and ``lst`` are scratch space."""
+    k = _gather(t, ptr, rows, rptr, cands, buf)
+    m = 0
+    for i in range(k):
+        c = buf[i]
+        if state[c, 3] == t and not seen[c]:
+            seen[c] = True
+            lst[m] = c
+            m += 1
+    for i in range(m):
+        seen[lst[i]] = False
+    # by rank (a permutation: no ties), insertion sort: these lists are short
+    for i in range(1, m):
+        c = lst[i]
+        j = i
+        while j > 0 and rank[lst[j - 1]] > rank[c]:
+            lst[j] = lst[j - 1]
+            j -= 1
+        lst[j] = c
+    for i in range(m - 1):
+        a = lst[i]
+        for j in range(i + 1, m):
+            b = lst[j]
+            apart = True
+            for x in range(ptr[a], ptr[a + 1]):
+                for y in range(ptr[b], ptr[b + 1]):
+                    if rows[x] == rows[y]:
+                        apart = False
+                        break
+                if not apart:
+                    break
+            if apart:
+                return a, b
+    return -1, -1
 
 
 def ils(

@@ -1,0 +1,83 @@
+"""The export builds STEP solids in a second thread: the files must be what a serial build
+writes, bodies.json must not depend on it, and progress must count every unit of work once."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from starforge import load_family
+from starforge.cad.body import BodySpec
+from starforge.cad.export import export_family
+from starforge.cad.mounts import load_mount
+
+DATA = Path(__file__).parent / "data" / "cad" / "small_family.json"
+
+
+@pytest.fixture(scope="module")
+def both(tmp_path_factory):
+    """Stars 1 and 2 exported as STEP + STL + 3MF (threaded), and as STL + 3MF alone."""
+    fam = load_family(DATA)
+    mount, spec = load_mount("flat"), BodySpec()
+    full, mesh_only = tmp_path_factory.mktemp("full"), tmp_path_factory.mktemp("mesh")
+    calls: list = []
+    export_family(fam, full, mount, spec, ids=[1, 2], progress=lambda d, n: calls.append((d, n)))
+    export_family(fam, mesh_only, mount, spec, formats=("stl", "3mf"), ids=[1, 2])
+    return fam, mount, spec, full, mesh_only, calls
+
+
+def test_progress_counts_meshes_and_step_solids_once(both):
+    *_, calls = both
+    assert [d for d, _ in calls] == [1, 2, 3, 4]  # 2 stars x (mesh files, STEP file), in order
+    assert {n for _, n in calls} == {4}
+
+
+SERIAL = """
+import sys
+from pathlib import Path
+from starforge import load_family
+from starforge.cad.body import BodySpec
+from starforge.cad.export import export_family, family_bodies, print_layout
+from starforge.cad.mounts import load_mount
+from starforge.cad.occ import body_solid, placed, write_step
+from starforge.colours import body_colour
+fam, mount, spec = load_family(sys.argv[1]), load_mount("flat"), BodySpec()
+out = Path(sys.argv[2])
+if sys.argv[3] == "serial":  # one body after the other, as the export did before its STEP thread
+    bodies = family_bodies(fam, [1, 2], mount, spec)
+    transforms, _ = print_layout(bodies, (200.0, 200.0), 5.0)
+    for b, T in zip(bodies, transforms, strict=True):
+        write_step(placed(body_solid(b), T, b.name, body_colour(b.star_id - 1)), out / f"{b.name}.step")
+else:
+    export_family(fam, out, mount, spec, ids=[1, 2], plate=False)
+"""
+
+
+def test_step_files_equal_a_serial_build(tmp_path):
+    """Each in a fresh process: OCCT numbers some STEP entities with a process-wide counter, so
+    a file depends on how many were written before it in the same process (and in which order)."""
+    import subprocess
+    import sys
+
+    for how in ("serial", "threaded"):
+        (tmp_path / how).mkdir()
+        subprocess.run([sys.executable, "-c", SERIAL, str(DATA), str(tmp_path / how), how], check=True)
+    for name in ("star_001.step", "star_002.step"):
+        assert (tmp_path / "serial" / name).read_bytes() == (tmp_path / "threaded" / name).read_bytes()
+
+
+def test_mesh_files_and_entries_do_not_depend_on_step(both):
+    *_, full, mesh_only, _ = both
+    for f in sorted(mesh_only.glob("*")):
+        if f.suffix in (".stl", ".3mf"):
+            assert f.read_bytes() == (full / f.name).read_bytes(), f.name
+    a = json.loads((full / "bodies.json").read_text())
+    b = json.loads((mesh_only / "bodies.json").read_text())
+    for ea, eb in zip(a["bodies"], b["bodies"], strict=True):
+        assert ea["files"] == [*eb["files"], f"{ea['name']}.step"]
+        assert ea["step_volume_mm3"] == pytest.approx(ea["mesh_volume_mm3"], rel=1e-3)
+        assert {k: v for k, v in ea.items() if k not in ("files", "step_volume_mm3")} == {
+            k: v for k, v in eb.items() if k != "files"
+        }
