@@ -394,6 +394,10 @@ def test_a_swallowed_ctrl_c_still_changes_nothing(tmp_path, monkeypatch):
         return out
 
     monkeypatch.setattr(fam, "make_family", swallowing)
+    import starforge.cli
+
+    # the last resort (exit 1 s after the signal) is tested in a child process, not in this one
+    monkeypatch.setattr(starforge.cli, "STOP_DEADLINE_S", 60.0)
     out = tmp_path / "out"
     out.mkdir()
     (out / "keep.txt").write_text("a file the user had")
