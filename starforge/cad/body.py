@@ -30,6 +30,15 @@ from starforge.errors import StarforgeError
 from starforge.spec import in_range, require
 
 UP = np.array([0.0, 1.0, 0.0])
+#: what a stem can end in (``BodySpec.seat``)
+SEATS = ("sphere", "glue", "post", "screw", "insert")
+#: the seats that suit a catalogue marker, by its attachment (a printed sphere always does)
+SEATS_FOR = {
+    "glue": ("glue", "sphere"),
+    "post": ("post", "sphere"),
+    "screw": ("screw", "insert", "sphere"),
+    "insert": ("insert", "screw", "sphere"),
+}
 #: a post's pin is this much shorter than the hole in the marker's base, so the marker seats on
 #: the shoulder (its designed centre), never on the pin's end
 POST_PLAY_MM = 0.3
@@ -46,10 +55,13 @@ class BodySpec:
     coating_mm : float
         Coating allowance on the diameter: printed sphere = marker_mm - coating_mm
         (paper: 3.8 mm printed, 4 mm finished -> 0.2).  Range [0, marker_mm / 2].
-    tip : "sphere", "post", "glue", "screw" or "insert"
-        Printed spheres, or a seat for a bought marker: a post with a shoulder (a hole in the
-        marker's base), a pad (a flat base glued on), a bore (a threaded stud screwed in) or a
-        heat-set insert hole.  ``marker`` sets it from the catalogue.
+    seat : "sphere", "post", "glue", "screw", "insert" or None
+        What each stem ends in: a printed sphere, or a seat for a bought marker: a post with a
+        shoulder (a hole in the marker's base), a pad (a flat base glued on), a bore (a threaded
+        stud screwed in) or a heat-set insert hole.  None: the catalogue marker's own attachment
+        (``marker``), else a printed sphere.  With a catalogue marker the seat must suit it
+        (:data:`SEATS_FOR`): a printed sphere in its place, or its attachment (a threaded marker
+        takes a bore or an insert).
     marker : str or None
         A catalogue marker (``starforge.markers``: name or TOML file); its attachment, base and
         centre height shape the seat, and its diameter must be the family's.
@@ -87,7 +99,7 @@ class BodySpec:
     """
 
     coating_mm: float = 0.2
-    tip: Literal["sphere", "post", "glue", "screw", "insert"] = "sphere"
+    seat: Literal["sphere", "post", "glue", "screw", "insert"] | None = None
     marker: str | None = None
     post_mm: float = 1.5
     post_length_mm: float = 2.0
@@ -107,8 +119,8 @@ class BodySpec:
 
     def __post_init__(self) -> None:
         require(
-            self.tip in ("sphere", "post", "glue", "screw", "insert"),
-            f"tip must be sphere, post, glue, screw or insert, got {self.tip!r}",
+            self.seat is None or self.seat in SEATS,
+            f"seat must be one of {', '.join(SEATS)}, got {self.seat!r}",
         )
         in_range("coating_mm", self.coating_mm, 0.0, 10.0)
         in_range("post_mm", self.post_mm, 0.8, 4.0)
@@ -259,10 +271,25 @@ def route_stems(
 
 
 # ---------------------------------------------------------------------------------------------
+def body_spec_for(marker: str | None, seat: str | None, marker_mm: float) -> BodySpec:
+    """The default body for a catalogue ``marker`` (or None) and a ``seat`` (or None), checked
+    against ``marker_mm`` up front (the marker's diameter, the seat suiting it); what
+    ``starforge stars --mount`` designs a family for."""
+    spec = BodySpec(marker=marker, seat=seat)
+    _seat(spec, marker_mm)
+    return spec
+
+
 def _seat(spec: BodySpec, marker_mm: float):
-    """(tip kind, marker type or None) for a body: the catalogue entry, when given, decides."""
+    """(seat kind, marker type or None) for a body: ``spec.seat``, by default the catalogue
+    marker's attachment (a printed sphere without one)."""
     if spec.marker is None:
-        return spec.tip, None
+        kind = spec.seat or "sphere"
+        require(
+            kind in ("sphere", "post", "glue"),
+            f"seat {kind} needs a catalogue marker (--marker NAME: its thread and stud)",
+        )
+        return kind, None
     from starforge.markers import load_marker
 
     mt = load_marker(spec.marker)
@@ -270,7 +297,12 @@ def _seat(spec: BodySpec, marker_mm: float):
         abs(mt.diameter_mm - marker_mm) <= 0.05,
         f"marker {mt.name} is {mt.diameter_mm:g} mm; this family is designed for {marker_mm:g} mm markers",
     )
-    return mt.attach, mt
+    kind = spec.seat or mt.attach
+    require(
+        kind in SEATS_FOR[mt.attach],
+        f"seat {kind} does not suit marker {mt.name} ({mt.attach}); choose one of {', '.join(SEATS_FOR[mt.attach])}",
+    )
+    return kind, mt
 
 
 def _seat_depth(kind: str, mt, spec: BodySpec, marker_mm: float) -> float:
@@ -282,11 +314,22 @@ def _seat_depth(kind: str, mt, spec: BodySpec, marker_mm: float) -> float:
         return rf + 1.0
     if kind in ("post", "glue"):
         return mt.centre_height_mm + 1.0
-    from starforge.markers import THREADS
-
-    bore, insert_d, insert_len = THREADS[mt.thread]
-    hole_len = mt.stud_length_mm + 0.5 if kind == "screw" else max(insert_len, mt.stud_length_mm) + 0.5
+    _, hole_len, _ = seat_hole(kind, mt)
     return mt.centre_height_mm + hole_len + 1.0
+
+
+def seat_hole(kind: str, mt) -> tuple[float, float, float]:
+    """(diameter, depth, least wall round it), mm, of a threaded marker's hole: the ISO 2306
+    tap drill for ``screw`` (the stud's length + 0.5 mm deep, a 1.2 mm wall), the insert's
+    published hole for ``insert`` (its length, or the stud's if longer, + 0.5 mm); see
+    :data:`starforge.markers.THREAD_SOURCES`."""
+    from starforge.markers import INSERT_HOLE_EXTRA_MM, THREADS
+
+    th = THREADS[mt.thread]
+    if kind == "screw":
+        return th.tap_drill_mm, mt.stud_length_mm + 0.5, 1.2
+    depth = max(th.insert_length_mm, mt.stud_length_mm) + INSERT_HOLE_EXTRA_MM
+    return th.insert_hole_mm, depth, th.insert_wall_mm
 
 
 def plate_gap_mm(spec: BodySpec, marker_mm: float) -> float:
@@ -332,15 +375,8 @@ def _tip_parts(kind: str, mt, spec: BodySpec, cen, u, marker_mm: float, stem_r: 
         if kind == "post":  # the pin stops short of the hole's bottom: the base seats on the shoulder
             adds.append(Cylinder(seat - 0.2 * u, seat + (depth - POST_PLAY_MM) * u, pin / 2))
         return seat - 0.5 * u, adds, cuts  # the stem runs into the pad: one piece
-    from starforge.markers import THREADS
-
-    bore, insert_d, insert_len = THREADS[mt.thread]
-    hole_d, hole_len = (
-        (bore, mt.stud_length_mm + 0.5)
-        if kind == "screw"
-        else (insert_d, max(insert_len, mt.stud_length_mm) + 0.5)
-    )
-    boss_d = max(hole_d + 2.4, 2 * stem_r + 0.4)
+    hole_d, hole_len, wall = seat_hole(kind, mt)
+    boss_d = max(hole_d + 2 * wall, 2 * stem_r + 0.4)
     boss_len = hole_len + 1.0
     adds.append(Cylinder(seat - boss_len * u, seat, boss_d / 2))
     cuts.append(Cylinder(seat - hole_len * u, seat + 0.5 * u, hole_d / 2))

@@ -95,6 +95,13 @@ def describe_bodies(family, mount, sets, ids, allow_oversize, **body_options):
     from starforge.cad.mounts import load_mount
 
     m = load_mount(mount or family.spec.mount or "flat", parse_sets(sets))
+    # the marker and seat the family was designed for, unless told otherwise
+    if body_options.get("marker") is None and getattr(family.spec, "marker", None) is not None:
+        body_options["marker"] = family.spec.marker
+        if body_options.get("seat") is None:
+            body_options["seat"] = family.spec.seat
+    elif body_options.get("seat") is None and body_options.get("marker") is None:
+        body_options["seat"] = getattr(family.spec, "seat", None)
     spec = body_spec_from_options(**body_options)
     id_list = parse_ids(ids)
     bodies = family_bodies(family, id_list, m, spec)
@@ -118,8 +125,11 @@ IDS = typer.Option(None, "--ids", help="Star ids, e.g. 1,2,5 or 1-4 (default: al
 SETS = typer.Option(
     None, "--set", help="Mount parameter override KEY=VALUE (repeatable), e.g. --set holes=2."
 )
-TIP = typer.Option(
-    None, "--tip", help="sphere (printed, default), post, glue, screw or insert (a seat for a bought marker)."
+SEAT = typer.Option(
+    None,
+    "--seat",
+    help="What each stem ends in: sphere (printed), glue, post, screw or insert (a seat for a bought "
+    "--marker; default: the marker's own attachment, else the family's, else sphere).",
 )
 MARKER = typer.Option(
     None,
@@ -134,7 +144,7 @@ COATING = typer.Option(
 )
 STEM = typer.Option(None, "--stem-mm", help="Stem diameter, mm (default: 0.45 x the marker, at least 0.8).")
 MIN_STEM = typer.Option(None, "--min-stem-mm", help="Printable minimum stem diameter, mm (default 0.8).")
-POST = typer.Option(None, "--post-mm", help="Post diameter for --tip post, mm (default 1.5).")
+POST = typer.Option(None, "--post-mm", help="Post diameter for --seat post, mm (default 1.5).")
 NO_LABEL = typer.Option(False, "--no-label", help="Do not engrave the star id.")
 
 
@@ -153,7 +163,7 @@ def export_cmd(
     mount: str = MOUNT,
     ids: str = IDS,
     sets: list[str] = SETS,
-    tip: str = TIP,
+    seat: str = SEAT,
     marker: str = MARKER,
     nozzle_mm: float = NOZZLE,
     coating_mm: float = COATING,
@@ -210,7 +220,7 @@ def export_cmd(
             sets,
             ids,
             allow_oversize,
-            tip=tip,
+            seat=seat,
             marker=marker,
             nozzle_mm=nozzle_mm,
             coating_mm=coating_mm,
