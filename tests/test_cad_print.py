@@ -255,7 +255,7 @@ def test_engraved_strokes_suit_the_nozzle(nozzle):
     h = spec.label_height()
     boxes = label_boxes("18", h, (0.0, 0.0), 0.0, spec.label_depth_mm)
     widths = [min(b.size[0], b.size[2]) for b in boxes]
-    assert min(widths) >= 1.5 * nozzle - 1e-9
+    assert min(widths) >= 2.0 * nozzle - 1e-9
 
 
 def test_stems_scale_with_the_marker_and_have_a_fillet_at_the_root():

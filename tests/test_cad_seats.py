@@ -144,3 +144,48 @@ def test_every_mesh_is_a_closed_2_manifold_as_written(mount, tmp_path):
 @pytest.mark.skipif(ADMESH is None, reason="admesh not installed (Debian: apt-get install admesh)")
 def test_admesh_is_there_when_installed():
     assert subprocess.run([ADMESH, "--version"], capture_output=True, timeout=30).returncode == 0
+
+
+@pytest.mark.parametrize("nozzle", [0.25, 0.4, 0.6])
+def test_features_of_different_markers_keep_two_nozzle_widths(nozzle):
+    """Every stem keeps two nozzle widths from every other marker's finished sphere and stem
+    (re-checked with exact segment distances), unless no route exists (then the body is refused)."""
+    from pathlib import Path
+
+    from starforge.cad.body import closest_features_mm
+    from starforge.errors import StarforgeError
+    from starforge.stars.model import load_family
+
+    family = load_family(Path(__file__).parent / "data" / "cad" / "small_family.json")
+    spec = BodySpec(nozzle_mm=nozzle)
+    built = 0
+    for s in family.stars[:12]:
+        try:
+            b = build_body(s.id, s.vertices, family.spec.marker_mm, load_mount("flat"), spec)
+        except StarforgeError as exc:
+            assert "no stem route" in str(exc)
+            continue
+        built += 1
+        assert closest_features_mm(b) >= 2 * nozzle - 1e-9
+    assert built >= 6
+
+
+def test_a_pocket_ceiling_counts_as_a_bridge_and_the_mounts_keep_it_printable():
+    """A ceiling held all round (a pocket opening on the bed) is a bridge, measured across; the
+    magnet pocket's chamfer and the strap's stepped roof bring theirs to <= 5 mm."""
+    import trimesh
+
+    from starforge.cad.body import body_bounds
+    from starforge.cad.plate import print_transform
+    from starforge.cad.printability import MAX_BRIDGE_MM, layer_report
+
+    block = trimesh.creation.box((14, 14, 4))
+    block.apply_translation((0, 0, 2))
+    pocket = trimesh.creation.cylinder(radius=4.0, height=4.0, sections=64)  # z -2..2: 2 mm deep
+    span = layer_report(block.difference(pocket))["max_bridge_mm"]
+    assert 7.0 < span <= 8.0  # the 8 mm ceiling less the 45 deg reach of one layer each side
+    for mount, sets in (("magnet", {}), ("strap", {}), ("strap", {"strap_width_mm": 12.0})):
+        b = build_body(1, CORNERS, 4.0, load_mount(mount, sets), BodySpec())
+        mesh = body_mesh(b)
+        mesh.apply_transform(print_transform(body_bounds(b)))
+        assert layer_report(mesh)["max_bridge_mm"] <= MAX_BRIDGE_MM, (mount, sets)

@@ -23,13 +23,15 @@ from typing import Literal
 
 import numpy as np
 
-from starforge.cad.label import label_boxes, label_size  # noqa: F401 (the label's home; kept importable here)
+from starforge.cad.label import label_boxes, label_counters, label_size  # noqa: F401 (the label's home; kept importable here)
 from starforge.cad.mounts import Mount, mount_geometry
 from starforge.cad.primitives import Cylinder, Revolved, Sphere, fillet_profile, segment_segment_distance
 from starforge.errors import StarforgeError
 from starforge.spec import in_range, require
 
 UP = np.array([0.0, 1.0, 0.0])
+#: features of different markers stay this many nozzle widths apart (``BodySpec.clearance_mm``)
+CLEARANCE_NOZZLES = 2.0
 #: what a stem can end in (``BodySpec.seat``)
 SEATS = ("sphere", "glue", "post", "screw", "insert")
 #: the seats that suit a catalogue marker, by its attachment (a printed sphere always does)
@@ -79,12 +81,14 @@ class BodySpec:
         stem diameter.  Kept below the lowest marker (at most standoff - 0.1).  [0, 4].
     standoff_mm : float
         Gap between the lowest finished sphere and the plate (room for the foil), [0.2, 10].
-    clearance_mm : float
-        Least gap between a stem and another (finished) sphere or stem, [0, 2].
+    clearance_mm : float or None
+        Least gap between a stem and another (finished) marker or stem, [0, 4]; None: two
+        nozzle widths (:data:`CLEARANCE_NOZZLES`), so a slicer keeps the two apart instead of
+        fusing them or stringing between them.
     max_tilt_deg : float
         A stem leans at most this far from vertical, [0, 60] (FDM: keep it <= 45).
     nozzle_mm : float
-        The printer's nozzle: engraved strokes, counters and gaps are at least 1.5 x as wide,
+        The printer's nozzle: engraved strokes, counters and gaps are at least 2 x as wide,
         [0.1, 1.2].
     label : bool
         Engrave the star id on the plate.
@@ -107,7 +111,7 @@ class BodySpec:
     min_stem_mm: float = 0.8
     fillet_mm: float | None = None
     standoff_mm: float = 1.0
-    clearance_mm: float = 0.3
+    clearance_mm: float | None = None
     max_tilt_deg: float = 40.0
     nozzle_mm: float = 0.4
     label: bool = True
@@ -135,7 +139,8 @@ class BodySpec:
         if self.fillet_mm is not None:
             in_range("fillet_mm", self.fillet_mm, 0.0, 4.0)
         in_range("standoff_mm", self.standoff_mm, 0.2, 10.0)
-        in_range("clearance_mm", self.clearance_mm, 0.0, 2.0)
+        if self.clearance_mm is not None:
+            in_range("clearance_mm", self.clearance_mm, 0.0, 4.0)
         in_range("max_tilt_deg", self.max_tilt_deg, 0.0, 60.0)
         in_range("nozzle_mm", self.nozzle_mm, 0.1, 1.2)
         in_range("label_mm", self.label_mm, 1.5, 8.0)
@@ -150,13 +155,17 @@ class BodySpec:
             return float(self.stem_mm)
         return float(min(4.0, max(self.min_stem_mm, 0.45 * marker_mm)))
 
+    def clearance(self) -> float:
+        """The stem clearance in effect, mm: ``clearance_mm``, else two nozzle widths."""
+        return CLEARANCE_NOZZLES * self.nozzle_mm if self.clearance_mm is None else float(self.clearance_mm)
+
     def fillet_for(self, marker_mm: float) -> float:
         """The fillet (radius added at the stem root) in effect, mm."""
         return self.stem_for(marker_mm) / 2 if self.fillet_mm is None else float(self.fillet_mm)
 
     def label_height(self) -> float:
         """Digit height in effect, mm: 5 pixels of :func:`starforge.cad.label.pixel_mm` (strokes,
-        counters and gaps are whole pixels, each at least 1.5 nozzle widths)."""
+        counters and gaps are whole pixels, each at least 2 nozzle widths)."""
         from starforge.cad.label import ROWS, pixel_mm
 
         return ROWS * pixel_mm(self.label_mm, self.nozzle_mm)
@@ -178,6 +187,9 @@ class Body:
     stems : tuple of Cylinder        stem axes (root on the plate -> sphere)
     mount : str                      mount template name
     label : str                      engraved text
+    label_counters : tuple           the label's counters (raised islands inside 0, 4, 6, 8, 9) as
+                                     (x0, x1, z0, z1) mm on the plate's top face (placement frame)
+    label_face_y : float or None     that face's height, mm (the engraving reaches label_depth below)
     """
 
     star_id: int
@@ -190,6 +202,8 @@ class Body:
     stems: tuple
     mount: str
     label: str
+    label_counters: tuple = ()
+    label_face_y: float | None = None
 
     @property
     def centres_array(self) -> np.ndarray:
@@ -415,7 +429,7 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
         require(spec.post_mm < marker_mm, f"post_mm={spec.post_mm} must be < marker_mm={marker_mm}")
     below = plate_gap_mm(spec, marker_mm) + rf
     y_top = float(c[:, 1].min() - below)
-    roots = route_stems(c, rf, rs, y_top, spec.clearance_mm, spec.max_tilt_deg)
+    roots = route_stems(c, rf, rs, y_top, spec.clearance(), spec.max_tilt_deg)
     # the material under the label: thinner mounts cannot take a deep engraving
     floor = mount["thickness_mm"]
     if mount.kind == "magnet":
@@ -470,7 +484,34 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
         stems=tuple(stems),
         mount=mount.name,
         label=text if spec.label else "",
+        label_counters=tuple(label_counters(text, label_h, mg.label_centre)) if spec.label else (),
+        label_face_y=float(y_top) if spec.label else None,
     )
+
+
+def closest_features_mm(body: Body) -> float:
+    """The smallest gap between features of two different markers, mm: a stem (above the
+    plate, as routed: root -> marker centre) and another marker's finished sphere, or two stems.
+    What :func:`route_stems` keeps at least ``BodySpec.clearance()``; an independent re-check
+    (exact segment distances).  The plate joins every stem on purpose and does not count."""
+    c = body.centres_array
+    rf = body.marker_mm / 2
+    gaps = []
+    segs = []
+    for st in body.stems:
+        p0, p1 = np.array(st.p0), np.array(st.p1)
+        u = (p1 - p0) / np.linalg.norm(p1 - p0)
+        root = p0 + u * (0.3 / max(u[1], 1e-6))  # where it leaves the plate
+        segs.append((root, p1, st.radius_mm))
+    for i, (a0, a1, ra) in enumerate(segs):
+        for j in range(len(c)):
+            if j != i:
+                d = segment_segment_distance(a0, a1, c[j], c[j])
+                gaps.append(d - ra - rf)
+        for k in range(i + 1, len(segs)):
+            b0, b1, rb = segs[k]
+            gaps.append(segment_segment_distance(a0, a1, b0, b1) - ra - rb)
+    return float(min(gaps)) if gaps else float("inf")
 
 
 def body_bounds(body: Body, finished: bool = True) -> np.ndarray:

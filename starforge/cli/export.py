@@ -137,7 +137,7 @@ MARKER = typer.Option(
     help="A bought marker from the catalogue (see `starforge templates markers`) or a TOML file.",
 )
 NOZZLE = typer.Option(
-    None, "--nozzle-mm", help="Printer nozzle, mm: engraved strokes are 1.5 x wider (default 0.4)."
+    None, "--nozzle-mm", help="Printer nozzle, mm: engraved strokes and counters are 2 x wider (default 0.4)."
 )
 COATING = typer.Option(
     None, "--coating-mm", help="Coating allowance on the diameter (default 0.2: 3.8 printed, 4 finished)."
