@@ -35,8 +35,10 @@ MAX_GRID = 400
 #: the longest bridge a pocket's ceiling may span, mm (FDM prints about this much unsupported
 #: across a gap without sagging; wider pockets narrow to it under a 45 deg chamfer)
 PRINTABLE_BRIDGE_MM = 5.0
-#: a step of the strap tunnel's roof, mm: 1/4 mm up and in (45 deg; exact in binary)
+#: the strap tunnel's roof steps up and in by a multiple of this, mm (45 deg; exact in binary),
+#: in at most :data:`STRAP_MAX_STEPS` steps (each a ledge that overhangs by one step)
 STRAP_STEP_MM = 0.25
+STRAP_MAX_STEPS = 12
 #: the strap tunnel is this much wider than the strap (mm)
 STRAP_PLAY_MM = 0.5
 KINDS: dict[str, tuple[str, ...]] = {
@@ -307,9 +309,10 @@ def mount_geometry(
         top = y0 + snap(p["slot_mm"])
         xs = snap(w + 2.0)
         sub.append(Box((xc, (y0 + top) / 2, zc), (xs, top - y0, wide)))
-        for k in range(1, strap_roof_steps(p) + 1):
-            hi = top + k * STRAP_STEP_MM
-            sub.append(Box((xc, (y0 + hi) / 2, zc), (xs, hi - y0, wide - 2 * k * STRAP_STEP_MM)))
+        n, step = strap_roof(p)
+        for k in range(1, n + 1):
+            hi = top + k * step
+            sub.append(Box((xc, (y0 + hi) / 2, zc), (xs, hi - y0, wide - 2 * k * step)))
     if kind == "adhesive":
         rd = p["recess_mm"]
         sub.append(Box((xm, y_bottom + rd / 2 - 0.5, zm), (p["pad_width_mm"], rd + 1.0, p["pad_length_mm"])))
@@ -324,16 +327,21 @@ def mount_geometry(
     return MountGeometry(tuple(add), tuple(sub), (x0, x1, z0, z1), y_bottom, label_centre)
 
 
-def strap_roof_steps(p) -> int:
-    """Steps of the strap tunnel's roof (each :data:`STRAP_STEP_MM` high and in from each side),
-    enough to narrow the tunnel's ceiling to :data:`PRINTABLE_BRIDGE_MM`."""
-    excess = p["strap_width_mm"] + STRAP_PLAY_MM - PRINTABLE_BRIDGE_MM
-    return max(0, math.ceil(excess / (2 * STRAP_STEP_MM) - 1e-9))
+def strap_roof(p) -> tuple[int, float]:
+    """(steps, step mm) of the strap tunnel's roof: each step as high as it steps in from each
+    side (45 deg), enough to narrow the ceiling to :data:`PRINTABLE_BRIDGE_MM`; the step is the
+    smallest multiple of :data:`STRAP_STEP_MM` that needs at most :data:`STRAP_MAX_STEPS`."""
+    half = (p["strap_width_mm"] + STRAP_PLAY_MM - PRINTABLE_BRIDGE_MM) / 2
+    if half <= 1e-9:
+        return 0, STRAP_STEP_MM
+    step = STRAP_STEP_MM * max(1, math.ceil(half / (STRAP_STEP_MM * STRAP_MAX_STEPS) - 1e-9))
+    return math.ceil(half / step - 1e-9), step
 
 
 def strap_roof_mm(p) -> float:
     """Height of the strap tunnel's stepped roof above ``slot_mm``, mm."""
-    return strap_roof_steps(p) * STRAP_STEP_MM
+    n, step = strap_roof(p)
+    return n * step
 
 
 def magnet_chamfer_mm(p) -> float:
