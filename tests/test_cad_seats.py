@@ -189,3 +189,13 @@ def test_a_pocket_ceiling_counts_as_a_bridge_and_the_mounts_keep_it_printable():
         mesh = body_mesh(b)
         mesh.apply_transform(print_transform(body_bounds(b)))
         assert layer_report(mesh)["max_bridge_mm"] <= MAX_BRIDGE_MM, (mount, sets)
+
+
+def test_export_seat_errors_are_one_line_before_any_star(tmp_path, capsys):
+    from pathlib import Path
+
+    fam = Path(__file__).parent / "data" / "cad" / "small_family.json"
+    code, _, err = _run(["export", fam, "--seat", "screw", "--out", tmp_path / "o"], capsys)
+    assert code == 2 and err.startswith("error: seat screw needs a catalogue marker") and not (tmp_path / "o").exists()
+    code, _, err = _run(["export", fam, "--tip", "glue", "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "--tip" in err  # the seat option is --seat now; --tip is the accuracy target of stars

@@ -290,13 +290,14 @@ def body_spec_for(marker: str | None, seat: str | None, marker_mm: float) -> Bod
     against ``marker_mm`` up front (the marker's diameter, the seat suiting it); what
     ``starforge stars --mount`` designs a family for."""
     spec = BodySpec(marker=marker, seat=seat)
-    _seat(spec, marker_mm)
+    seat_kind(spec, marker_mm)
     return spec
 
 
-def _seat(spec: BodySpec, marker_mm: float):
+def seat_kind(spec: BodySpec, marker_mm: float):
     """(seat kind, marker type or None) for a body: ``spec.seat``, by default the catalogue
-    marker's attachment (a printed sphere without one)."""
+    marker's attachment (a printed sphere without one).  Raises StarforgeError for a marker of
+    another diameter, a seat that does not suit the marker, or a threaded seat without one."""
     if spec.marker is None:
         kind = spec.seat or "sphere"
         require(
@@ -349,7 +350,7 @@ def seat_hole(kind: str, mt) -> tuple[float, float, float]:
 def plate_gap_mm(spec: BodySpec, marker_mm: float) -> float:
     """How far the plate's top face lies below the lowest finished marker's surface, mm: the
     standoff, or more where a bought marker's seat reaches further down."""
-    kind, mt = _seat(spec, marker_mm)
+    kind, mt = seat_kind(spec, marker_mm)
     rf = marker_mm / 2
     return max(spec.standoff_mm, _seat_depth(kind, mt, spec, marker_mm) + 0.5 - rf)
 
@@ -413,7 +414,7 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
     rf = marker_mm / 2
     stem_mm = spec.stem_for(marker_mm)
     rs = stem_mm / 2
-    kind, mt = _seat(spec, marker_mm)
+    kind, mt = seat_kind(spec, marker_mm)
     require(
         spec.coating_mm <= marker_mm / 2,
         f"coating_mm must be in [0, {marker_mm / 2:g}] (half the marker diameter), got {spec.coating_mm}",

@@ -103,6 +103,9 @@ def describe_bodies(family, mount, sets, ids, allow_oversize, **body_options):
     elif body_options.get("seat") is None and body_options.get("marker") is None:
         body_options["seat"] = getattr(family.spec, "seat", None)
     spec = body_spec_from_options(**body_options)
+    from starforge.cad.body import seat_kind
+
+    seat_kind(spec, family.spec.marker_mm)  # the seat suits the marker, before any star is built
     id_list = parse_ids(ids)
     bodies = family_bodies(family, id_list, m, spec)
     check_fit(bodies, family.spec.box_mm, m.name, allow_oversize)
