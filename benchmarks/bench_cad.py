@@ -218,7 +218,7 @@ def main() -> None:
     box = (20.8, 12.6, 48.3)
     spec = BodySpec()
     families: dict = {}
-    for name in args.mounts.split(","):
+    for name in [n for n in args.mounts.split(",") if n]:
         m = load_mount(name)
         row: dict = {}
         try:
@@ -372,7 +372,7 @@ def main() -> None:
             "met": all(r["closest_features_mm_min"] >= 0.8 - 1e-9 for r in everything),
         },
         "STEP and STL volumes within 0.01 %": {
-            "measured": max(r["step_vs_stl_volume_percent_worst"] for r in rows),
+            "measured": max((r["step_vs_stl_volume_percent_worst"] for r in rows), default=None),
             "met": all(r["step_vs_stl_volume_percent_worst"] < 0.01 for r in rows),
         },
         "25 stars plus plate <= 5 s in process": {
