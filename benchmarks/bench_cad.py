@@ -109,7 +109,14 @@ def _manifold(path: Path) -> dict:
 
 
 def _judge(
-    stage: Path, rep, doc: dict, slicers, jobs: int, slice_limit: int | None = None, analysis_limit: int | None = None
+    stage: Path,
+    rep,
+    doc: dict,
+    slicers,
+    jobs: int,
+    slice_limit: int | None = None,
+    analysis_limit: int | None = None,
+    slice_ids=None,
 ) -> dict:
     """Layer analysis, manifold checks and slicing of what an export wrote into ``stage``.
     ``slice_limit``: slice only the first that many single stars (and every plate);
@@ -154,6 +161,8 @@ def _judge(
             heights[p["name"]] = max(heights[n] for n in p["bodies"])
         chosen = [f for f in files if not f.name.startswith("star_")]
         keep = {f.stem for f in singles[: slice_limit if slice_limit is not None else len(singles)]}
+        if slice_ids:
+            keep = {f"star_{int(i):03d}" for i in slice_ids} & {f.stem for f in singles}
         chosen += [f for f in files if f.name.startswith("star_") and f.stem in keep]
         jobs_ = [(f, sl) for sl in slicers for f in chosen if not (sl == "slic3r" and f.suffix == ".3mf")]
         t = time.perf_counter()
@@ -189,6 +198,11 @@ def main() -> None:
     ap.add_argument("--mounts", default=",".join(MOUNTS))
     ap.add_argument("--markers", default="all", help="limb family markers: all, none or a comma list")
     ap.add_argument("--limb-mount", default="strap")
+    ap.add_argument(
+        "--finger-slice-ids",
+        default="",
+        help="slice only these single stars of each finger family (and every plate); default: all",
+    )
     ap.add_argument("--limb-slice", type=int, default=3, help="single limb stars sliced per marker")
     ap.add_argument("--limb-analyse", type=int, default=10, help="single limb stars layer-analysed per marker")
     args = ap.parse_args()
@@ -248,7 +262,8 @@ def main() -> None:
             row["bodies_fit"] = sum(b["fits"] for b in rep.bodies)
             vols = [abs(b["mesh_volume_mm3"] / b["step_volume_mm3"] - 1) * 100 for b in rep.bodies]
             row["step_vs_stl_volume_percent_worst"] = round(max(vols), 6)
-            row.update(_judge(stage, rep, doc, slicers, args.jobs))
+            ids = [int(x) for x in args.finger_slice_ids.split(",")] if args.finger_slice_ids else None
+            row.update(_judge(stage, rep, doc, slicers, args.jobs, slice_ids=ids))
         out["mounts"][name] = row
 
     if "flat" in families:
