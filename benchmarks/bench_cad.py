@@ -15,9 +15,7 @@ exported in process as STEP + STL + 3MF with plates (timed), then
 ``targets`` at the end says, per issue-12 target, what was measured and whether it is met.
 Timings are wall clock on whatever machine runs this (the JSON names it); run it on an idle one.
 
-Usage: python benchmarks/bench_cad.py [--no-slicer] [--jobs 2] [--mounts flat,strap] [--speed-only] [--repeat 3]
-
-``--speed-only``: just the issue-20 figures (export as a command and in process, median of 3).
+Usage: python benchmarks/bench_cad.py [--no-slicer] [--jobs 2] [--mounts flat,strap]
 """
 
 from __future__ import annotations
@@ -39,35 +37,158 @@ MOUNTS = ("flat", "saddle", "magnet", "adhesive", "strap")
 LAYER_MM = 0.2
 
 
-def _slice(path: Path, out: Path) -> dict:
-    g = out / (path.name + ".gcode")
+SLICERS = {
+    "prusa-slicer": lambda f, g: [
+        "prusa-slicer", "--export-gcode", str(f), "--layer-height", str(LAYER_MM),
+        "--first-layer-height", str(LAYER_MM), "--nozzle-diameter", "0.4", "--center", "100,100",
+        "--output", str(g),
+    ],
+    "slic3r": lambda f, g: [
+        "slic3r", str(f), "--layer-height", str(LAYER_MM), "--first-layer-height", str(LAYER_MM),
+        "--nozzle-diameter", "0.4", "--print-center", "100,100", "-o", str(g),
+    ],
+}
+
+
+def _slice(path: Path, out: Path, slicer: str = "prusa-slicer", counters=None, depth_mm: float = 0.6) -> dict:
+    """Slice one file; exit status, warnings, sliced height and (for a single-star STL with
+    ``counters``, printing-frame rectangles) whether every counter is extruded on every layer
+    inside the engraving."""
+    import trimesh
+    from _gcode import covered, extrusions
+
+    g = out / (path.name + f".{slicer}.gcode")
     t = time.perf_counter()
-    res = subprocess.run(
-        [
-            "prusa-slicer",
-            "--export-gcode",
-            str(path),
-            "--layer-height",
-            str(LAYER_MM),
-            "--first-layer-height",
-            str(LAYER_MM),
-            "--output",
-            str(g),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    zs = [float(m) for m in re.findall(r"^;Z:([0-9.]+)", g.read_text(), flags=re.M)] if g.exists() else []
+    res = subprocess.run(SLICERS[slicer](path, g), capture_output=True, text=True, timeout=600)
+    text = g.read_text() if g.exists() else ""
+    zs = [float(m) for m in re.findall(r"^;Z:([0-9.]+)", text, flags=re.M)]
+    log = res.stdout + res.stderr
+    warnings = [ln.strip() for ln in log.splitlines() if re.search(r"warn|unable|error", ln, re.I)]
+    row = {
+        "file": path.name,
+        "slicer": slicer,
+        "ok": res.returncode == 0 and bool(text),
+        "warnings": warnings[:3],
+        "seconds": round(time.perf_counter() - t, 2),
+        "error": "" if res.returncode == 0 else log[-300:],
+    }
+    segs = extrusions(text) if text else {}
+    row["sliced_top_mm"] = max(zs) if zs else (max(segs) if segs else None)
+    if counters and segs:
+        m = trimesh.load(path, force="mesh")
+        c = (m.bounds[0, :2] + m.bounds[1, :2]) / 2
+        face = counters[0][0][2]
+        layers = [z for z in segs if face - depth_mm + 0.1 < z <= face + 0.01]
+        lost = 0
+        for (ax, ay, _), (bx, by, _) in counters:
+            rect = (min(ax, bx) - c[0] + 100, max(ax, bx) - c[0] + 100, min(ay, by) - c[1] + 100, max(ay, by) - c[1] + 100)
+            lost += not all(covered(segs[z], rect) for z in layers)
+        row["counters"] = len(counters)
+        row["counters_lost"] = lost
     if g.exists():
         g.unlink()
-    return {
-        "file": path.name,
-        "ok": res.returncode == 0 and bool(zs),
-        "sliced_top_mm": max(zs) if zs else None,
-        "seconds": round(time.perf_counter() - t, 2),
-        "error": "" if res.returncode == 0 else (res.stdout + res.stderr)[-300:],
+    return row
+
+
+def _manifold(path: Path) -> dict:
+    """The file as a reader finds it: edges on more than two faces, open edges, shells
+    (trimesh, vertices welded), and admesh's repairs where admesh is installed."""
+    import numpy as np
+    import trimesh
+
+    m = trimesh.load(path, force="mesh")
+    e = np.sort(m.edges, axis=1)
+    _, cnt = np.unique(e, axis=0, return_counts=True)
+    row = {"file": path.name, "nonmanifold_edges": int((cnt > 2).sum()), "open_edges": int((cnt == 1).sum()),
+           "shells": int(m.body_count)}
+    if shutil.which("admesh") and path.suffix == ".stl":
+        rep = subprocess.run(["admesh", str(path)], capture_output=True, text=True, timeout=120).stdout
+        fixes = {k: int(v) for k, v in re.findall(r"(Degenerate facets|Edges fixed|Facets removed|Facets added|Facets reversed)\s*:\s*(\d+)", rep)}
+        row["admesh_fixes"] = sum(fixes.values())
+    return row
+
+
+def _judge(
+    stage: Path,
+    rep,
+    doc: dict,
+    slicers,
+    jobs: int,
+    slice_limit: int | None = None,
+    analysis_limit: int | None = None,
+    slice_ids=None,
+) -> dict:
+    """Layer analysis, manifold checks and slicing of what an export wrote into ``stage``.
+    ``slice_limit``: slice only the first that many single stars (and every plate);
+    ``analysis_limit``: the layer analysis of only the first that many single stars (and every
+    plate).  Manifold checks cover every file."""
+    import trimesh
+
+    from starforge.cad.printability import layer_report, printable
+
+    row: dict = {}
+    singles = sorted(stage.glob("star_*.stl"))
+    plates = sorted(stage.glob("plate*.stl"))
+    files = singles + sorted(stage.glob("star_*.3mf")) + plates + sorted(stage.glob("plate*.3mf"))
+    with ThreadPoolExecutor(jobs) as ex:
+        man = list(ex.map(_manifold, files))
+    row["manifold"] = {
+        "files": len(man),
+        "nonmanifold_edges": sum(r["nonmanifold_edges"] for r in man),
+        "open_edges": sum(r["open_edges"] for r in man),
+        "single_star_files_not_one_shell": sum(r["shells"] != 1 for r in man if r["file"].startswith("star_")),
+        "admesh_fixes": sum(r.get("admesh_fixes", 0) for r in man) if shutil.which("admesh") else "not installed",
     }
+    analysed = singles[: analysis_limit if analysis_limit is not None else len(singles)]
+    reports = {f.name: layer_report(trimesh.load(f, force="mesh"), LAYER_MM) for f in analysed + plates}
+    single = [reports[f.name] for f in analysed]
+    row["layer_analysis"] = {
+        "single_stars_analysed": len(analysed),
+        "midair_islands_total": sum(len(r["midair_islands"]) for r in reports.values()),
+        "not_printable": {k: printable(r) for k, r in reports.items() if printable(r) and k in {f.name for f in singles}},
+        "bed_contact_mm2_min": min(r["first_layer_mm2"] for r in single),
+        "com_margin_mm_min": min(r["com_margin_mm"] for r in single),
+        "bridge_span_mm_max": max(r["max_bridge_mm"] for r in single),
+        "overhang_mm2_max_per_body": max(r["overhang_mm2"] for r in single),
+        "height_mm_max": max(r["height_mm"] for r in single),
+    }
+    row["closest_features_mm_min"] = min(b["closest_features_mm"] for b in rep.bodies)
+    if slicers:
+        heights = {b["name"]: b["print_height_mm"] for b in rep.bodies}
+        counters = {b["name"]: b.get("label_counters_print_mm") for b in rep.bodies}
+        depth = doc["body_spec"]["label_depth_mm"]
+        for p in doc["plates"]:
+            heights[p["name"]] = max(heights[n] for n in p["bodies"])
+        chosen = [f for f in files if not f.name.startswith("star_")]
+        keep = {f.stem for f in singles[: slice_limit if slice_limit is not None else len(singles)]}
+        if slice_ids:
+            keep = {f"star_{int(i):03d}" for i in slice_ids} & {f.stem for f in singles}
+        chosen += [f for f in files if f.name.startswith("star_") and f.stem in keep]
+        jobs_ = [(f, sl) for sl in slicers for f in chosen if not (sl == "slic3r" and f.suffix == ".3mf")]
+        t = time.perf_counter()
+        with ThreadPoolExecutor(jobs) as ex:
+            sliced = list(
+                ex.map(
+                    lambda fs: _slice(fs[0], stage, fs[1], counters.get(fs[0].stem) if fs[0].suffix == ".stl" else None, depth),
+                    jobs_,
+                )
+            )
+        diffs = [abs(x["sliced_top_mm"] - heights[Path(x["file"]).stem]) for x in sliced if x["ok"] and x["sliced_top_mm"]]
+        row["slicer"] = {
+            "files": len(sliced),
+            "per_slicer": {sl: sum(x["slicer"] == sl for x in sliced) for sl in slicers},
+            "single_stars_sliced": len(keep),
+            "sliced_ok": sum(x["ok"] for x in sliced),
+            "with_warnings": sum(bool(x["warnings"]) for x in sliced),
+            "warnings": [(x["file"], x["slicer"], x["warnings"]) for x in sliced if x["warnings"]][:5],
+            "failures": [x for x in sliced if not x["ok"]][:5],
+            "counters": sum(x.get("counters", 0) for x in sliced),
+            "counters_lost": sum(x.get("counters_lost", 0) for x in sliced),
+            "height_diff_mm_max": round(max(diffs), 4) if diffs else None,
+            "height_mismatches": sum(d > LAYER_MM + 1e-9 for d in diffs),
+            "seconds": round(time.perf_counter() - t, 1),
+        }
+    return row
 
 
 IN_PROCESS = (
@@ -164,6 +285,15 @@ def main() -> None:
     ap.add_argument("--no-slicer", action="store_true")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--mounts", default=",".join(MOUNTS))
+    ap.add_argument("--markers", default="all", help="limb family markers: all, none or a comma list")
+    ap.add_argument("--limb-mount", default="strap")
+    ap.add_argument(
+        "--finger-slice-ids",
+        default="",
+        help="slice only these single stars of each finger family (and every plate); default: all",
+    )
+    ap.add_argument("--limb-slice", type=int, default=3, help="single limb stars sliced per marker")
+    ap.add_argument("--limb-analyse", type=int, default=10, help="single limb stars layer-analysed per marker")
     ap.add_argument("--speed-only", action="store_true", help="only the issue-20 export timings")
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
@@ -176,21 +306,22 @@ def main() -> None:
         )
         return
 
-    import trimesh
 
     from starforge.cad.body import BodySpec
     from starforge.cad.export import export_family, family_bodies
     from starforge.cad.mounts import load_mount
-    from starforge.cad.printability import layer_report, printable
     from starforge.cad.reserve import bodies_fit, mount_reserve_mm
     from starforge.errors import StarforgeError
     from starforge.stars.family import make_family
     from starforge.stars.spec import StarSpec
 
     slicer = shutil.which("prusa-slicer") if not args.no_slicer else None
+    slicers = [] if args.no_slicer else [n for n in SLICERS if shutil.which(n)]
     out: dict = {
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}",
         "prusa_slicer": slicer,
+        "slicers": slicers,
+        "load_at_start": open("/proc/loadavg").read().split()[:3] if os.path.exists("/proc/loadavg") else None,
         "mounts": {},
     }
     t = time.perf_counter()
@@ -200,7 +331,7 @@ def main() -> None:
     box = (20.8, 12.6, 48.3)
     spec = BodySpec()
     families: dict = {}
-    for name in args.mounts.split(","):
+    for name in [n for n in args.mounts.split(",") if n]:
         m = load_mount(name)
         row: dict = {}
         try:
@@ -230,42 +361,8 @@ def main() -> None:
             row["bodies_fit"] = sum(b["fits"] for b in rep.bodies)
             vols = [abs(b["mesh_volume_mm3"] / b["step_volume_mm3"] - 1) * 100 for b in rep.bodies]
             row["step_vs_stl_volume_percent_worst"] = round(max(vols), 6)
-            singles = sorted(stage.glob("star_*.stl"))
-            plates = sorted(stage.glob("plate*.stl"))
-            reports = {
-                f.name: layer_report(trimesh.load(f, force="mesh"), LAYER_MM) for f in singles + plates
-            }
-            single = [reports[f.name] for f in singles]
-            row["layer_analysis"] = {
-                "midair_islands_total": sum(len(r["midair_islands"]) for r in reports.values()),
-                "not_printable": {
-                    k: printable(r)
-                    for k, r in reports.items()
-                    if printable(r) and k in {f.name for f in singles}
-                },
-                "bed_contact_mm2_min": min(r["first_layer_mm2"] for r in single),
-                "com_margin_mm_min": min(r["com_margin_mm"] for r in single),
-                "bridge_span_mm_max": max(r["max_bridge_mm"] for r in single),
-                "overhang_mm2_max_per_body": max(r["overhang_mm2"] for r in single),
-                "height_mm_max": max(r["height_mm"] for r in single),
-            }
-            if slicer:
-                files = singles + sorted(stage.glob("star_*.3mf")) + plates + sorted(stage.glob("plate*.3mf"))
-                heights = {b["name"]: b["print_height_mm"] for b in rep.bodies}
-                for p in doc["plates"]:
-                    heights[p["name"]] = max(heights[n] for n in p["bodies"])
-                t = time.perf_counter()
-                with ThreadPoolExecutor(args.jobs) as ex:
-                    sliced = list(ex.map(_slice, files, [stage] * len(files)))
-                diffs = [abs(s["sliced_top_mm"] - heights[Path(s["file"]).stem]) for s in sliced if s["ok"]]
-                row["slicer"] = {
-                    "files": len(sliced),
-                    "sliced_ok": sum(s["ok"] for s in sliced),
-                    "failures": [s for s in sliced if not s["ok"]][:5],
-                    "height_diff_mm_max": round(max(diffs), 4) if diffs else None,
-                    "height_mismatches": sum(d > LAYER_MM + 1e-9 for d in diffs),
-                    "seconds": round(time.perf_counter() - t, 1),
-                }
+            ids = [int(x) for x in args.finger_slice_ids.split(",")] if args.finger_slice_ids else None
+            row.update(_judge(stage, rep, doc, slicers, args.jobs, slice_ids=ids))
         out["mounts"][name] = row
 
     if "flat" in families:
@@ -278,9 +375,54 @@ def main() -> None:
             )
             out["flat_family25_cli_s"] = round(time.perf_counter() - t, 2)
 
+    # the limb spec with every catalogue marker (its seat), on the limb mount
+    from starforge.cad.body import body_spec_for
+    from starforge.catalog import load_template
+    from starforge.markers import load_marker, marker_names
+    from starforge.stars.spec import spec_from_mapping
+
+    out["limb"] = {}
+    names = marker_names() if args.markers == "all" else [] if args.markers == "none" else args.markers.split(",")
+    for mk in names:
+        mt = load_marker(mk)
+        m = load_mount(args.limb_mount)
+        row = {"marker_mm": mt.diameter_mm, "seat": mt.attach}
+        try:
+            body = body_spec_for(mk, None, mt.diameter_mm)
+            _, data = load_template("stars", "limb")
+            data.update(marker_mm=mt.diameter_mm, marker=mk, mount=args.limb_mount, name=f"limb_{mk}")
+            data["reserve_mm"] = list(mount_reserve_mm(m, mt.diameter_mm, body))
+            lspec = spec_from_mapping(data)
+            t = time.perf_counter()
+            fam = make_family(
+                lspec,
+                star_filter=lambda V, _m=m, _b=body, _d=mt.diameter_mm, _box=lspec.box_mm: bodies_fit(V, _d, _box, _m, _b),
+            )
+            row["make_family_s"] = round(time.perf_counter() - t, 2)
+        except StarforgeError as exc:
+            out["limb"][mk] = {**row, "refused": str(exc)}
+            continue
+        row["stars"] = len(fam)
+        row["reserve_mm"] = data["reserve_mm"]
+        with tempfile.TemporaryDirectory() as tmp:
+            stage = Path(tmp)
+            t = time.perf_counter()
+            bodies = family_bodies(fam, None, m, body)
+            rep = export_family(fam, stage, m, body, formats=("stl", "3mf"), bodies=bodies)
+            row["export_s"] = round(time.perf_counter() - t, 2)
+            doc = json.loads((stage / "bodies.json").read_text())
+            row["bodies_fit"] = sum(b["fits"] for b in rep.bodies)
+            row.update(
+                _judge(stage, rep, doc, slicers, args.jobs, slice_limit=args.limb_slice, analysis_limit=args.limb_analyse)
+            )
+        out["limb"][mk] = row
+
     rows = [r for r in out["mounts"].values() if "refused" not in r]
+    limb = [r for r in out["limb"].values() if "refused" not in r]
+    everything = rows + limb
     refused = {k: v["refused"] for k, v in out["mounts"].items() if "refused" in v}
     sl = [r["slicer"] for r in rows if "slicer" in r]
+    sl_all = [r["slicer"] for r in everything if "slicer" in r]
     out["targets"] = {
         "every mount fits the finger family (25 stars, every body within the limit)": {
             "measured": {k: (v.get("bodies_fit"), v.get("stars")) for k, v in out["mounts"].items()},
@@ -303,8 +445,48 @@ def main() -> None:
                 for r in rows
             ),
         },
+        "0 non-manifold edges (every STL, 3MF, plate; finger mounts and limb markers)": {
+            "measured": {
+                "nonmanifold_edges": sum(r["manifold"]["nonmanifold_edges"] for r in everything),
+                "open_edges": sum(r["manifold"]["open_edges"] for r in everything),
+                "files": sum(r["manifold"]["files"] for r in everything),
+                "admesh_fixes": [r["manifold"]["admesh_fixes"] for r in everything],
+            },
+            "met": all(
+                r["manifold"]["nonmanifold_edges"] == 0
+                and r["manifold"]["open_edges"] == 0
+                and r["manifold"]["single_star_files_not_one_shell"] == 0
+                and r["manifold"]["admesh_fixes"] in (0, "not installed")
+                for r in everything
+            ),
+        },
+        "every file sliced slices in every slicer installed with no warning": {
+            "measured": f"{sum(s['sliced_ok'] - s['with_warnings'] for s in sl_all)} of {sum(s['files'] for s in sl_all)} "
+            f"slices clean ({', '.join(slicers) or 'no slicer'})" if sl_all else "not run",
+            "met": bool(sl_all) and len(slicers) >= 2
+            and all(s["sliced_ok"] == s["files"] and s["with_warnings"] == 0 for s in sl_all),
+        },
+        "every digit's counter survives slicing": {
+            "measured": f"{sum(s['counters'] - s['counters_lost'] for s in sl_all)} of {sum(s['counters'] for s in sl_all)}"
+            if sl_all else "not run",
+            "met": bool(sl_all) and all(s["counters_lost"] == 0 for s in sl_all),
+        },
+        "every seat body fits the limit (limb family, each catalogue marker)": {
+            "measured": {k: (v.get("bodies_fit"), v.get("stars")) if "refused" not in v else v["refused"]
+                         for k, v in out["limb"].items()},
+            "met": bool(out["limb"]) and all(r["bodies_fit"] == r["stars"] > 0 for r in limb)
+            and not any("refused" in v for v in out["limb"].values()),
+        },
+        "no unsupported bridge over 5 mm (layer analysis)": {
+            "measured": max(r["layer_analysis"]["bridge_span_mm_max"] for r in everything),
+            "met": all(r["layer_analysis"]["bridge_span_mm_max"] <= 5.0 for r in everything),
+        },
+        "features of different markers >= 2 nozzle widths apart (0.8 mm)": {
+            "measured": min(r["closest_features_mm_min"] for r in everything),
+            "met": all(r["closest_features_mm_min"] >= 0.8 - 1e-9 for r in everything),
+        },
         "STEP and STL volumes within 0.01 %": {
-            "measured": max(r["step_vs_stl_volume_percent_worst"] for r in rows),
+            "measured": max((r["step_vs_stl_volume_percent_worst"] for r in rows), default=None),
             "met": all(r["step_vs_stl_volume_percent_worst"] < 0.01 for r in rows),
         },
         "25 stars plus plate <= 5 s in process": {

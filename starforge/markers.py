@@ -19,16 +19,47 @@ from starforge.catalog import list_templates, load_template
 from starforge.errors import StarforgeError
 from starforge.spec import from_mapping, in_range, require
 
-#: ISO metric threads: (bore for a stud screwed straight into printed plastic, heat-set insert
-#: hole diameter, insert length), mm.  The bore is the tap-drill size (about 0.85 x the major
-#: diameter); insert holes follow the common brass inserts for 3D prints (starforge's defaults).
+
+@dataclass(frozen=True)
+class Thread:
+    """Holes for one ISO metric thread in a print, mm (sources in :data:`THREAD_SOURCES`).
+
+    Attributes
+    ----------
+    tap_drill_mm : the bore a stud is screwed straight into (ISO 2306 tap-drill diameter)
+    insert_hole_mm : the hole a heat-set insert is melted into (its published hole diameter)
+    insert_length_mm : the insert's length; the hole is :data:`INSERT_HOLE_EXTRA_MM` deeper
+    insert_wall_mm : least plastic round the insert hole
+    """
+
+    tap_drill_mm: float
+    insert_hole_mm: float
+    insert_length_mm: float
+    insert_wall_mm: float
+
+
+#: ISO metric threads starforge seats markers on.  Tap drills: ISO 2306; heat-set inserts: the
+#: common brass inserts for 3D prints (ruthex RX-M.. / CNC Kitchen), see :data:`THREAD_SOURCES`.
 THREADS = {
-    "M2": (1.7, 3.2, 3.0),
-    "M2.5": (2.1, 3.6, 4.0),
-    "M3": (2.5, 4.0, 4.0),
-    "M4": (3.3, 5.6, 6.0),
-    "M5": (4.2, 6.4, 7.0),
+    "M2": Thread(1.6, 3.2, 4.0, 1.3),
+    "M2.5": Thread(2.05, 3.6, 5.7, 1.5),
+    "M3": Thread(2.5, 4.0, 5.7, 1.6),
+    "M4": Thread(3.3, 5.6, 8.1, 2.3),
+    "M5": Thread(4.2, 6.4, 9.5, 2.6),
 }
+#: an insert's hole is this much deeper than the insert (room for the plastic it displaces)
+INSERT_HOLE_EXTRA_MM = 0.5
+THREAD_SOURCES = (
+    "tap drills: ISO 2306 (drills for use prior to tapping), coarse pitch: M2 1.6, M2.5 2.05, M3 2.5, "
+    "M4 3.3, M5 4.2 mm; heat-set inserts: the standard brass inserts for 3D printing (ruthex RX-M2x4, "
+    "RX-M2.5x5.7, RX-M3x5.7, RX-M4x8.1, RX-M5x9.5; CNC Kitchen's standard inserts have the same "
+    "lengths and holes): hole diameters 3.2 / 3.6 / 4.0 / 5.6 / 6.4 mm as in the pilot-hole chart "
+    "https://www.accu.co.uk/p/488-threaded-insert-hole-size-charts-for-3d-printing-pla-petg-resin, "
+    "hole depth = insert length + 0.5 mm as in https://tools.creative3dp.com/blog/heat-set-insert-hole-size-chart; "
+    "wall round the hole: 0.4 x the hole diameter rounded up to 0.1 mm (M3: 1.6 mm, ruthex's minimum wall; "
+    "within the 0.25-0.9 x outer diameter secam recommends for commodity plastics, "
+    "http://secam-fixing.com/inserts/screw-insert/type-1/recommendation-for-the-designer/)"
+)
 
 
 @dataclass(frozen=True)

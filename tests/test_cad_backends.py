@@ -174,7 +174,7 @@ def test_posts_build_in_both_backends(family):
     from starforge.cad.occ import body_solid
 
     s = family.stars[0]
-    b = build_body(s.id, s.vertices, 4.0, load_mount("flat"), BodySpec(tip="post"))
+    b = build_body(s.id, s.vertices, 4.0, load_mount("flat"), BodySpec(seat="post"))
     mesh = body_mesh(b)
     solid = body_solid(b)
     assert mesh.is_watertight and mesh.body_count == 1 and solid.is_valid
@@ -193,7 +193,7 @@ def test_volumes_agree_for_every_star(family, tip):
     from starforge.cad.occ import body_solid
 
     for s, name in itertools.product(family.stars, ["magnet"]):
-        b = build_body(s.id, s.vertices, 4.0, load_mount(name), BodySpec(tip=tip))
+        b = build_body(s.id, s.vertices, 4.0, load_mount(name), BodySpec(seat=tip))
         assert body_mesh(b).volume == pytest.approx(body_solid(b).volume, rel=0.01)
 
 

@@ -220,7 +220,7 @@ def test_label_reads_right_side_up_on_the_bed():
 def test_posts_instead_of_spheres(family):
     s = family.stars[0]
     b = build_body(
-        s.id, s.vertices, 4.0, load_mount("flat"), BodySpec(tip="post", post_mm=1.5, post_length_mm=2.0)
+        s.id, s.vertices, 4.0, load_mount("flat"), BodySpec(seat="post", post_mm=1.5, post_length_mm=2.0)
     )
     assert not [p for p in b.add if isinstance(p, Sphere)]
     posts = [p for p in b.add if isinstance(p, Cylinder) and p.radius_mm == pytest.approx(0.75)]
@@ -254,8 +254,8 @@ def test_body_spec_validation_names_the_parameter():
         BodySpec(stem_mm=0.5)
     with pytest.raises(StarforgeError, match="coating_mm"):
         BodySpec(coating_mm=-0.1)
-    with pytest.raises(StarforgeError, match="tip"):
-        BodySpec(tip="cube")
+    with pytest.raises(StarforgeError, match="seat"):
+        BodySpec(seat="cube")
 
 
 def test_parse_ids():

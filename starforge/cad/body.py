@@ -23,13 +23,24 @@ from typing import Literal
 
 import numpy as np
 
-from starforge.cad.label import label_boxes, label_size  # noqa: F401 (the label's home; kept importable here)
+from starforge.cad.label import label_boxes, label_counters, label_size  # noqa: F401 (the label's home; kept importable here)
 from starforge.cad.mounts import Mount, mount_geometry
 from starforge.cad.primitives import Cylinder, Revolved, Sphere, fillet_profile, segment_segment_distance
 from starforge.errors import StarforgeError
 from starforge.spec import in_range, require
 
 UP = np.array([0.0, 1.0, 0.0])
+#: features of different markers stay this many nozzle widths apart (``BodySpec.clearance_mm``)
+CLEARANCE_NOZZLES = 2.0
+#: what a stem can end in (``BodySpec.seat``)
+SEATS = ("sphere", "glue", "post", "screw", "insert")
+#: the seats that suit a catalogue marker, by its attachment (a printed sphere always does)
+SEATS_FOR = {
+    "glue": ("glue", "sphere"),
+    "post": ("post", "sphere"),
+    "screw": ("screw", "insert", "sphere"),
+    "insert": ("insert", "screw", "sphere"),
+}
 #: a post's pin is this much shorter than the hole in the marker's base, so the marker seats on
 #: the shoulder (its designed centre), never on the pin's end
 POST_PLAY_MM = 0.3
@@ -46,10 +57,13 @@ class BodySpec:
     coating_mm : float
         Coating allowance on the diameter: printed sphere = marker_mm - coating_mm
         (paper: 3.8 mm printed, 4 mm finished -> 0.2).  Range [0, marker_mm / 2].
-    tip : "sphere", "post", "glue", "screw" or "insert"
-        Printed spheres, or a seat for a bought marker: a post with a shoulder (a hole in the
-        marker's base), a pad (a flat base glued on), a bore (a threaded stud screwed in) or a
-        heat-set insert hole.  ``marker`` sets it from the catalogue.
+    seat : "sphere", "post", "glue", "screw", "insert" or None
+        What each stem ends in: a printed sphere, or a seat for a bought marker: a post with a
+        shoulder (a hole in the marker's base), a pad (a flat base glued on), a bore (a threaded
+        stud screwed in) or a heat-set insert hole.  None: the catalogue marker's own attachment
+        (``marker``), else a printed sphere.  With a catalogue marker the seat must suit it
+        (:data:`SEATS_FOR`): a printed sphere in its place, or its attachment (a threaded marker
+        takes a bore or an insert).
     marker : str or None
         A catalogue marker (``starforge.markers``: name or TOML file); its attachment, base and
         centre height shape the seat, and its diameter must be the family's.
@@ -67,12 +81,14 @@ class BodySpec:
         stem diameter.  Kept below the lowest marker (at most standoff - 0.1).  [0, 4].
     standoff_mm : float
         Gap between the lowest finished sphere and the plate (room for the foil), [0.2, 10].
-    clearance_mm : float
-        Least gap between a stem and another (finished) sphere or stem, [0, 2].
+    clearance_mm : float or None
+        Least gap between a stem and another (finished) marker or stem, [0, 4]; None: two
+        nozzle widths (:data:`CLEARANCE_NOZZLES`), so a slicer keeps the two apart instead of
+        fusing them or stringing between them.
     max_tilt_deg : float
         A stem leans at most this far from vertical, [0, 60] (FDM: keep it <= 45).
     nozzle_mm : float
-        The printer's nozzle: engraved strokes, counters and gaps are at least 1.5 x as wide,
+        The printer's nozzle: engraved strokes, counters and gaps are at least 2 x as wide,
         [0.1, 1.2].
     label : bool
         Engrave the star id on the plate.
@@ -87,7 +103,7 @@ class BodySpec:
     """
 
     coating_mm: float = 0.2
-    tip: Literal["sphere", "post", "glue", "screw", "insert"] = "sphere"
+    seat: Literal["sphere", "post", "glue", "screw", "insert"] | None = None
     marker: str | None = None
     post_mm: float = 1.5
     post_length_mm: float = 2.0
@@ -95,7 +111,7 @@ class BodySpec:
     min_stem_mm: float = 0.8
     fillet_mm: float | None = None
     standoff_mm: float = 1.0
-    clearance_mm: float = 0.3
+    clearance_mm: float | None = None
     max_tilt_deg: float = 40.0
     nozzle_mm: float = 0.4
     label: bool = True
@@ -107,8 +123,8 @@ class BodySpec:
 
     def __post_init__(self) -> None:
         require(
-            self.tip in ("sphere", "post", "glue", "screw", "insert"),
-            f"tip must be sphere, post, glue, screw or insert, got {self.tip!r}",
+            self.seat is None or self.seat in SEATS,
+            f"seat must be one of {', '.join(SEATS)}, got {self.seat!r}",
         )
         in_range("coating_mm", self.coating_mm, 0.0, 10.0)
         in_range("post_mm", self.post_mm, 0.8, 4.0)
@@ -123,7 +139,8 @@ class BodySpec:
         if self.fillet_mm is not None:
             in_range("fillet_mm", self.fillet_mm, 0.0, 4.0)
         in_range("standoff_mm", self.standoff_mm, 0.2, 10.0)
-        in_range("clearance_mm", self.clearance_mm, 0.0, 2.0)
+        if self.clearance_mm is not None:
+            in_range("clearance_mm", self.clearance_mm, 0.0, 4.0)
         in_range("max_tilt_deg", self.max_tilt_deg, 0.0, 60.0)
         in_range("nozzle_mm", self.nozzle_mm, 0.1, 1.2)
         in_range("label_mm", self.label_mm, 1.5, 8.0)
@@ -138,13 +155,17 @@ class BodySpec:
             return float(self.stem_mm)
         return float(min(4.0, max(self.min_stem_mm, 0.45 * marker_mm)))
 
+    def clearance(self) -> float:
+        """The stem clearance in effect, mm: ``clearance_mm``, else two nozzle widths."""
+        return CLEARANCE_NOZZLES * self.nozzle_mm if self.clearance_mm is None else float(self.clearance_mm)
+
     def fillet_for(self, marker_mm: float) -> float:
         """The fillet (radius added at the stem root) in effect, mm."""
         return self.stem_for(marker_mm) / 2 if self.fillet_mm is None else float(self.fillet_mm)
 
     def label_height(self) -> float:
         """Digit height in effect, mm: 5 pixels of :func:`starforge.cad.label.pixel_mm` (strokes,
-        counters and gaps are whole pixels, each at least 1.5 nozzle widths)."""
+        counters and gaps are whole pixels, each at least 2 nozzle widths)."""
         from starforge.cad.label import ROWS, pixel_mm
 
         return ROWS * pixel_mm(self.label_mm, self.nozzle_mm)
@@ -166,6 +187,9 @@ class Body:
     stems : tuple of Cylinder        stem axes (root on the plate -> sphere)
     mount : str                      mount template name
     label : str                      engraved text
+    label_counters : tuple           the label's counters (raised islands inside 0, 4, 6, 8, 9) as
+                                     (x0, x1, z0, z1) mm on the plate's top face (placement frame)
+    label_face_y : float or None     that face's height, mm (the engraving reaches label_depth below)
     """
 
     star_id: int
@@ -178,6 +202,8 @@ class Body:
     stems: tuple
     mount: str
     label: str
+    label_counters: tuple = ()
+    label_face_y: float | None = None
 
     @property
     def centres_array(self) -> np.ndarray:
@@ -259,10 +285,26 @@ def route_stems(
 
 
 # ---------------------------------------------------------------------------------------------
-def _seat(spec: BodySpec, marker_mm: float):
-    """(tip kind, marker type or None) for a body: the catalogue entry, when given, decides."""
+def body_spec_for(marker: str | None, seat: str | None, marker_mm: float) -> BodySpec:
+    """The default body for a catalogue ``marker`` (or None) and a ``seat`` (or None), checked
+    against ``marker_mm`` up front (the marker's diameter, the seat suiting it); what
+    ``starforge stars --mount`` designs a family for."""
+    spec = BodySpec(marker=marker, seat=seat)
+    seat_kind(spec, marker_mm)
+    return spec
+
+
+def seat_kind(spec: BodySpec, marker_mm: float):
+    """(seat kind, marker type or None) for a body: ``spec.seat``, by default the catalogue
+    marker's attachment (a printed sphere without one).  Raises StarforgeError for a marker of
+    another diameter, a seat that does not suit the marker, or a threaded seat without one."""
     if spec.marker is None:
-        return spec.tip, None
+        kind = spec.seat or "sphere"
+        require(
+            kind in ("sphere", "post", "glue"),
+            f"seat {kind} needs a catalogue marker (--marker NAME: its thread and stud)",
+        )
+        return kind, None
     from starforge.markers import load_marker
 
     mt = load_marker(spec.marker)
@@ -270,7 +312,12 @@ def _seat(spec: BodySpec, marker_mm: float):
         abs(mt.diameter_mm - marker_mm) <= 0.05,
         f"marker {mt.name} is {mt.diameter_mm:g} mm; this family is designed for {marker_mm:g} mm markers",
     )
-    return mt.attach, mt
+    kind = spec.seat or mt.attach
+    require(
+        kind in SEATS_FOR[mt.attach],
+        f"seat {kind} does not suit marker {mt.name} ({mt.attach}); choose one of {', '.join(SEATS_FOR[mt.attach])}",
+    )
+    return kind, mt
 
 
 def _seat_depth(kind: str, mt, spec: BodySpec, marker_mm: float) -> float:
@@ -282,17 +329,28 @@ def _seat_depth(kind: str, mt, spec: BodySpec, marker_mm: float) -> float:
         return rf + 1.0
     if kind in ("post", "glue"):
         return mt.centre_height_mm + 1.0
-    from starforge.markers import THREADS
-
-    bore, insert_d, insert_len = THREADS[mt.thread]
-    hole_len = mt.stud_length_mm + 0.5 if kind == "screw" else max(insert_len, mt.stud_length_mm) + 0.5
+    _, hole_len, _ = seat_hole(kind, mt)
     return mt.centre_height_mm + hole_len + 1.0
+
+
+def seat_hole(kind: str, mt) -> tuple[float, float, float]:
+    """(diameter, depth, least wall round it), mm, of a threaded marker's hole: the ISO 2306
+    tap drill for ``screw`` (the stud's length + 0.5 mm deep, a 1.2 mm wall), the insert's
+    published hole for ``insert`` (its length, or the stud's if longer, + 0.5 mm); see
+    :data:`starforge.markers.THREAD_SOURCES`."""
+    from starforge.markers import INSERT_HOLE_EXTRA_MM, THREADS
+
+    th = THREADS[mt.thread]
+    if kind == "screw":
+        return th.tap_drill_mm, mt.stud_length_mm + 0.5, 1.2
+    depth = max(th.insert_length_mm, mt.stud_length_mm) + INSERT_HOLE_EXTRA_MM
+    return th.insert_hole_mm, depth, th.insert_wall_mm
 
 
 def plate_gap_mm(spec: BodySpec, marker_mm: float) -> float:
     """How far the plate's top face lies below the lowest finished marker's surface, mm: the
     standoff, or more where a bought marker's seat reaches further down."""
-    kind, mt = _seat(spec, marker_mm)
+    kind, mt = seat_kind(spec, marker_mm)
     rf = marker_mm / 2
     return max(spec.standoff_mm, _seat_depth(kind, mt, spec, marker_mm) + 0.5 - rf)
 
@@ -332,15 +390,8 @@ def _tip_parts(kind: str, mt, spec: BodySpec, cen, u, marker_mm: float, stem_r: 
         if kind == "post":  # the pin stops short of the hole's bottom: the base seats on the shoulder
             adds.append(Cylinder(seat - 0.2 * u, seat + (depth - POST_PLAY_MM) * u, pin / 2))
         return seat - 0.5 * u, adds, cuts  # the stem runs into the pad: one piece
-    from starforge.markers import THREADS
-
-    bore, insert_d, insert_len = THREADS[mt.thread]
-    hole_d, hole_len = (
-        (bore, mt.stud_length_mm + 0.5)
-        if kind == "screw"
-        else (insert_d, max(insert_len, mt.stud_length_mm) + 0.5)
-    )
-    boss_d = max(hole_d + 2.4, 2 * stem_r + 0.4)
+    hole_d, hole_len, wall = seat_hole(kind, mt)
+    boss_d = max(hole_d + 2 * wall, 2 * stem_r + 0.4)
     boss_len = hole_len + 1.0
     adds.append(Cylinder(seat - boss_len * u, seat, boss_d / 2))
     cuts.append(Cylinder(seat - hole_len * u, seat + 0.5 * u, hole_d / 2))
@@ -363,7 +414,7 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
     rf = marker_mm / 2
     stem_mm = spec.stem_for(marker_mm)
     rs = stem_mm / 2
-    kind, mt = _seat(spec, marker_mm)
+    kind, mt = seat_kind(spec, marker_mm)
     require(
         spec.coating_mm <= marker_mm / 2,
         f"coating_mm must be in [0, {marker_mm / 2:g}] (half the marker diameter), got {spec.coating_mm}",
@@ -379,7 +430,7 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
         require(spec.post_mm < marker_mm, f"post_mm={spec.post_mm} must be < marker_mm={marker_mm}")
     below = plate_gap_mm(spec, marker_mm) + rf
     y_top = float(c[:, 1].min() - below)
-    roots = route_stems(c, rf, rs, y_top, spec.clearance_mm, spec.max_tilt_deg)
+    roots = route_stems(c, rf, rs, y_top, spec.clearance(), spec.max_tilt_deg)
     # the material under the label: thinner mounts cannot take a deep engraving
     floor = mount["thickness_mm"]
     if mount.kind == "magnet":
@@ -434,7 +485,34 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
         stems=tuple(stems),
         mount=mount.name,
         label=text if spec.label else "",
+        label_counters=tuple(label_counters(text, label_h, mg.label_centre)) if spec.label else (),
+        label_face_y=float(y_top) if spec.label else None,
     )
+
+
+def closest_features_mm(body: Body) -> float:
+    """The smallest gap between features of two different markers, mm: a stem (above the
+    plate, as routed: root -> marker centre) and another marker's finished sphere, or two stems.
+    What :func:`route_stems` keeps at least ``BodySpec.clearance()``; an independent re-check
+    (exact segment distances).  The plate joins every stem on purpose and does not count."""
+    c = body.centres_array
+    rf = body.marker_mm / 2
+    gaps = []
+    segs = []
+    for st in body.stems:
+        p0, p1 = np.array(st.p0), np.array(st.p1)
+        u = (p1 - p0) / np.linalg.norm(p1 - p0)
+        root = p0 + u * (0.3 / max(u[1], 1e-6))  # where it leaves the plate
+        segs.append((root, p1, st.radius_mm))
+    for i, (a0, a1, ra) in enumerate(segs):
+        for j in range(len(c)):
+            if j != i:
+                d = segment_segment_distance(a0, a1, c[j], c[j])
+                gaps.append(d - ra - rf)
+        for k in range(i + 1, len(segs)):
+            b0, b1, rb = segs[k]
+            gaps.append(segment_segment_distance(a0, a1, b0, b1) - ra - rb)
+    return float(min(gaps)) if gaps else float("inf")
 
 
 def body_bounds(body: Body, finished: bool = True) -> np.ndarray:

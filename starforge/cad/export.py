@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from starforge.cad.body import Body, BodySpec, body_bounds, build_body, fit_report
+from starforge.cad.body import Body, BodySpec, body_bounds, build_body, closest_features_mm, fit_report
 from starforge.cad.mounts import Mount
 from starforge.errors import StarforgeError
 from starforge.io import atomic_write_json
@@ -321,6 +321,13 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick
             "mesh_volume_mm3": round(float(mesh.volume), 6),
             "files": [],
         }
+        entry["closest_features_mm"] = round(closest_features_mm(b), 6)  # two markers' stems/spheres
+        if b.label_counters:  # what must stay standing in the engraved id, printing frame
+            entry["label_counters_print_mm"] = [
+                np.round(np.array([[x0, b.label_face_y, z0], [x1, b.label_face_y, z1]]) @ T[:3, :3].T + T[:3, 3], 6)
+                .tolist()
+                for x0, x1, z0, z1 in b.label_counters
+            ]
         vis = sphere_visibility(b)
         entry["visibility"] = [round(float(v), 4) for v in vis]
         low = [f"{'ABCD'[i]} {v:.2f}" for i, v in enumerate(vis) if v < spec.min_visibility]

@@ -2,7 +2,7 @@
 
 Every glyph is 3 x 5 square pixels of side ``pixel_mm``; a stroke, a counter (the raised island
 inside a 0, 6, 8, 9) and the gap between two strokes are whole pixels, so none is narrower than
-one pixel.  :func:`pixel_mm` makes a pixel at least 1.5 nozzle widths (an extrusion is about 1.1
+one pixel.  :func:`pixel_mm` makes a pixel at least 2 nozzle widths (an extrusion is about 1.1
 nozzle widths in PrusaSlicer's defaults), so the slicer keeps every counter and every groove.
 Seven-segment digits (the previous engraving) left a counter of 0.19 x the digit height and cut
 overlapping segment boxes whose faces met at nearly, not exactly, equal coordinates: slivers
@@ -40,8 +40,9 @@ FONT = {
 COLS, ROWS = 3, 5
 #: pixels between two glyphs
 GAP = 1
-#: a pixel is at least this many nozzle widths (strokes, counters and gaps are whole pixels)
-PIXEL_PER_NOZZLE = 1.5
+#: a pixel is at least this many nozzle widths (strokes, counters and gaps are whole pixels):
+#: Slic3r 1.3 at a 0.4 mm nozzle dropped 0.6 mm counters (1.5 widths) and kept 0.75 mm ones
+PIXEL_PER_NOZZLE = 2.0
 #: every label coordinate is a multiple of this, mm (exact in float32 below 16 m)
 GRID_MM = 1.0 / 1024
 

@@ -25,13 +25,20 @@ from pathlib import Path
 
 import numpy as np
 
-from starforge.cad.primitives import Box, Cylinder
+from starforge.cad.primitives import Box, Cylinder, Revolved
 from starforge.catalog import list_templates, load_template
 from starforge.spec import in_range, require
 
 COMMON = ("thickness_mm", "margin_mm")
 #: candidate spots per side of a footprint at most (a label or hole spot search stays bounded)
 MAX_GRID = 400
+#: the longest bridge a pocket's ceiling may span, mm (FDM prints about this much unsupported
+#: across a gap without sagging; wider pockets narrow to it under a 45 deg chamfer)
+PRINTABLE_BRIDGE_MM = 5.0
+#: the strap tunnel's roof steps up and in by a multiple of this, mm (45 deg; exact in binary),
+#: in at most :data:`STRAP_MAX_STEPS` steps (each a ledge that overhangs by one step)
+STRAP_STEP_MM = 0.25
+STRAP_MAX_STEPS = 12
 #: the strap tunnel is this much wider than the strap (mm)
 STRAP_PLAY_MM = 0.5
 KINDS: dict[str, tuple[str, ...]] = {
@@ -251,11 +258,11 @@ def mount_geometry(
     if kind == "adhesive":
         fp = _at_least(fp, p["pad_width_mm"] + 2 * p["rim_mm"], p["pad_length_mm"] + 2 * p["rim_mm"])
     if kind == "magnet":
-        t = max(t, p["magnet_height_mm"] + p["floor_mm"])
+        t = max(t, p["magnet_height_mm"] + magnet_chamfer_mm(p) + p["floor_mm"])
         d = p["magnet_mm"] + 2 * p["wall_mm"]
         fp = _at_least(fp, d, d)
     if kind == "strap":
-        t = p["thickness_mm"] + p["slot_mm"] + p["floor_mm"]  # roof, tunnel, floor
+        t = p["thickness_mm"] + p["slot_mm"] + strap_roof_mm(p) + p["floor_mm"]  # roof, vault, tunnel, floor
         fp = _at_least(fp, 0.0, p["strap_width_mm"] + STRAP_PLAY_MM + 2 * p["wall_mm"])
     if kind == "saddle":
         fp = _at_least(fp, p["channel_mm"] + 2 * p["land_mm"], 0.0)
@@ -291,23 +298,56 @@ def mount_geometry(
         sub.append(Cylinder((xm, yc, z0 - 1.0), (xm, yc, z1 + 1.0), R))
     if kind == "strap":
         # the tunnel: through along x, strap_width (+ play) wide along z at the plate's middle,
-        # slot_mm high above a floor_mm floor; the roof above it is thickness_mm thick
-        y0 = y_bottom + p["floor_mm"]
-        sub.append(
-            Box(
-                (xm, y0 + p["slot_mm"] / 2, zm),
-                (w + 2.0, p["slot_mm"], p["strap_width_mm"] + STRAP_PLAY_MM),
-            )
-        )
+        # slot_mm high above a floor_mm floor, then (for a tunnel wider than a printable bridge)
+        # a roof stepping in by one step per step of height (45 deg) down to that bridge; the
+        # plate above it is thickness_mm thick.  Coordinates on a 1/1024 mm grid: the steps'
+        # faces meet exactly (no slivers).
+        g = 1.0 / 1024
+        snap = lambda v: round(v / g) * g  # noqa: E731
+        y0, zc, xc = snap(y_bottom + p["floor_mm"]), snap(zm), snap(xm)
+        wide = snap(p["strap_width_mm"] + STRAP_PLAY_MM)
+        top = y0 + snap(p["slot_mm"])
+        xs = snap(w + 2.0)
+        sub.append(Box((xc, (y0 + top) / 2, zc), (xs, top - y0, wide)))
+        n, step = strap_roof(p)
+        for k in range(1, n + 1):
+            hi = top + k * step
+            sub.append(Box((xc, (y0 + hi) / 2, zc), (xs, hi - y0, wide - 2 * k * step)))
     if kind == "adhesive":
         rd = p["recess_mm"]
         sub.append(Box((xm, y_bottom + rd / 2 - 0.5, zm), (p["pad_width_mm"], rd + 1.0, p["pad_length_mm"])))
     if kind == "magnet":
+        # the pocket, then a 45 deg chamfer narrowing its ceiling to a printable bridge
         r = p["magnet_mm"] / 2
         h = p["magnet_height_mm"]
-        sub.append(Cylinder((xm, y_bottom - 1.0, zm), (xm, y_bottom + h, zm), r))
+        ch = magnet_chamfer_mm(p)
+        prof = [(0.0, r), (1.0 + h, r)] + ([(1.0 + h + ch, r - ch)] if ch > 0 else [])
+        sub.append(Revolved((xm, y_bottom - 1.0, zm), (xm, y_bottom + h + ch, zm), prof))
     add.append(Box((xm, (y_top + y_bottom) / 2, zm), (w, y_top - y_bottom, ln)))
     return MountGeometry(tuple(add), tuple(sub), (x0, x1, z0, z1), y_bottom, label_centre)
+
+
+def strap_roof(p) -> tuple[int, float]:
+    """(steps, step mm) of the strap tunnel's roof: each step as high as it steps in from each
+    side (45 deg), enough to narrow the ceiling to :data:`PRINTABLE_BRIDGE_MM`; the step is the
+    smallest multiple of :data:`STRAP_STEP_MM` that needs at most :data:`STRAP_MAX_STEPS`."""
+    half = (p["strap_width_mm"] + STRAP_PLAY_MM - PRINTABLE_BRIDGE_MM) / 2
+    if half <= 1e-9:
+        return 0, STRAP_STEP_MM
+    step = STRAP_STEP_MM * max(1, math.ceil(half / (STRAP_STEP_MM * STRAP_MAX_STEPS) - 1e-9))
+    return math.ceil(half / step - 1e-9), step
+
+
+def strap_roof_mm(p) -> float:
+    """Height of the strap tunnel's stepped roof above ``slot_mm``, mm."""
+    n, step = strap_roof(p)
+    return n * step
+
+
+def magnet_chamfer_mm(p) -> float:
+    """Height of the 45 deg chamfer over a magnet pocket, mm: it narrows the ceiling from
+    ``magnet_mm`` to :data:`PRINTABLE_BRIDGE_MM` (0 for a pocket that narrow already)."""
+    return max(0.0, (p["magnet_mm"] - PRINTABLE_BRIDGE_MM) / 2)
 
 
 def saddle_profile(p) -> tuple[float, float]:

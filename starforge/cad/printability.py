@@ -8,7 +8,8 @@ The mesh is cut at the middle of every layer.  Per layer:
   (a print would start it on nothing);
 * what a layer adds beyond the layer below grown by ``layer * tan(overhang_deg)``, split into
   **bridges** (a piece held by the layer below at two or more separate places: the printer
-  spans it, as across the strap's tunnel) and **overhangs** (held along one edge only: a
+  spans it, as across the strap's tunnel, or a ceiling held all round its outline, as over a
+  magnet pocket) and **overhangs** (held along one edge only: a
   sphere's underside, the saddle channel's shallow vault);
 * the first layer's area (the bed contact) and whether the body's centre of mass lies over
   the convex hull of that contact (it cannot tip over while it is printed).
@@ -24,7 +25,7 @@ import numpy as np
 
 #: starforge's criteria for "prints without supports" (see :func:`printable`)
 MIN_CONTACT_MM2 = 25.0
-MAX_BRIDGE_MM = 15.0
+MAX_BRIDGE_MM = 5.0
 COM_MARGIN_MM = 0.5
 
 
@@ -53,6 +54,13 @@ def _anchors(piece, support):
 
     merged = linemerge(lines) if len(lines) > 1 else lines[0]
     return len(getattr(merged, "geoms", [merged])), unary_union(lines)
+
+
+def _held_all_round(piece, support) -> bool:
+    """Whether ``piece``'s outer boundary rests on ``support`` all the way round: it closes a
+    pocket from above (a bridge held on every side), not an overhang held along one edge (a
+    ring round a stem rests on its *inner* boundary)."""
+    return piece.exterior.difference(support.buffer(1e-6)).length < 1e-4
 
 
 def _span(piece, anchors, step_mm: float = 0.1) -> float:
@@ -104,6 +112,8 @@ def layer_report(mesh, layer_mm: float = 0.2, overhang_deg: float = 45.0) -> dic
                     if piece.area < 1e-3:
                         continue
                     count, where = _anchors(piece, grown)
+                    if count < 2 and _held_all_round(piece, grown):  # a pocket's ceiling
+                        count, where = 2, piece.exterior
                     if count >= 2:
                         b += piece.area
                         spans.append(_span(piece, where))

@@ -29,9 +29,13 @@ def mount_depth_mm(mount: Mount) -> float:
     p = mount.params
     t = p["thickness_mm"]
     if mount.kind == "magnet":
-        return max(t, p["magnet_height_mm"] + p["floor_mm"])
+        from starforge.cad.mounts import magnet_chamfer_mm
+
+        return max(t, p["magnet_height_mm"] + magnet_chamfer_mm(p) + p["floor_mm"])
     if mount.kind == "strap":
-        return t + p["slot_mm"] + p["floor_mm"]
+        from starforge.cad.mounts import strap_roof_mm
+
+        return t + p["slot_mm"] + strap_roof_mm(p) + p["floor_mm"]
     if mount.kind == "saddle":
         from starforge.cad.mounts import saddle_profile
 

@@ -96,7 +96,17 @@ def describe_bodies(family, mount, sets, ids, allow_oversize, **body_options):
     from starforge.errors import StarforgeError
 
     m = load_mount(mount or family.spec.mount or "flat", parse_sets(sets))
+    # the marker and seat the family was designed for, unless told otherwise
+    if body_options.get("marker") is None and getattr(family.spec, "marker", None) is not None:
+        body_options["marker"] = family.spec.marker
+        if body_options.get("seat") is None:
+            body_options["seat"] = family.spec.seat
+    elif body_options.get("seat") is None and body_options.get("marker") is None:
+        body_options["seat"] = getattr(family.spec, "seat", None)
     spec = body_spec_from_options(**body_options)
+    from starforge.cad.body import seat_kind
+
+    seat_kind(spec, family.spec.marker_mm)  # the seat suits the marker, before any star is built
     id_list = parse_ids(ids)
     bodies = family_bodies(family, id_list, m, spec)
     try:
@@ -165,8 +175,11 @@ IDS = typer.Option(None, "--ids", help="Star ids, e.g. 1,2,5 or 1-4 (default: al
 SETS = typer.Option(
     None, "--set", help="Mount parameter override KEY=VALUE (repeatable), e.g. --set holes=2."
 )
-TIP = typer.Option(
-    None, "--tip", help="sphere (printed, default), post, glue, screw or insert (a seat for a bought marker)."
+SEAT = typer.Option(
+    None,
+    "--seat",
+    help="What each stem ends in: sphere (printed), glue, post, screw or insert (a seat for a bought "
+    "--marker; default: the marker's own attachment, else the family's, else sphere).",
 )
 MARKER = typer.Option(
     None,
@@ -174,14 +187,14 @@ MARKER = typer.Option(
     help="A bought marker from the catalogue (see `starforge templates markers`) or a TOML file.",
 )
 NOZZLE = typer.Option(
-    None, "--nozzle-mm", help="Printer nozzle, mm: engraved strokes are 1.5 x wider (default 0.4)."
+    None, "--nozzle-mm", help="Printer nozzle, mm: engraved strokes and counters are 2 x wider (default 0.4)."
 )
 COATING = typer.Option(
     None, "--coating-mm", help="Coating allowance on the diameter (default 0.2: 3.8 printed, 4 finished)."
 )
 STEM = typer.Option(None, "--stem-mm", help="Stem diameter, mm (default: 0.45 x the marker, at least 0.8).")
 MIN_STEM = typer.Option(None, "--min-stem-mm", help="Printable minimum stem diameter, mm (default 0.8).")
-POST = typer.Option(None, "--post-mm", help="Post diameter for --tip post, mm (default 1.5).")
+POST = typer.Option(None, "--post-mm", help="Post diameter for --seat post, mm (default 1.5).")
 NO_LABEL = typer.Option(False, "--no-label", help="Do not engrave the star id.")
 
 
@@ -200,7 +213,7 @@ def export_cmd(
     mount: str = MOUNT,
     ids: str = IDS,
     sets: list[str] = SETS,
-    tip: str = TIP,
+    seat: str = SEAT,
     marker: str = MARKER,
     nozzle_mm: float = NOZZLE,
     coating_mm: float = COATING,
@@ -262,7 +275,7 @@ def export_cmd(
             sets,
             ids,
             allow_oversize,
-            tip=tip,
+            seat=seat,
             marker=marker,
             nozzle_mm=nozzle_mm,
             coating_mm=coating_mm,

@@ -16,9 +16,9 @@ from starforge.cli.export import (
     NO_LABEL,
     NOZZLE,
     POST,
+    SEAT,
     SETS,
     STEM,
-    TIP,
 )
 
 _FILE = typer.Argument(..., help="family.json (or its folder).")
@@ -33,7 +33,7 @@ def preview_cmd(
     mount: str = MOUNT,
     ids: str = IDS,
     sets: list[str] = SETS,
-    tip: str = TIP,
+    seat: str = SEAT,
     marker: str = MARKER,
     nozzle_mm: float = NOZZLE,
     coating_mm: float = COATING,
@@ -61,7 +61,7 @@ def preview_cmd(
         sets,
         ids,
         allow_oversize,
-        tip=tip,
+        seat=seat,
         marker=marker,
         nozzle_mm=nozzle_mm,
         coating_mm=coating_mm,

@@ -19,7 +19,12 @@ def stars_cmd(
     box: tuple[float, float, float] = typer.Option(
         None, "--box", help="Size limit X Y Z in mm (physical star)."
     ),
-    marker: float = typer.Option(None, "--marker", help="Marker sphere diameter, mm."),
+    marker: str = typer.Option(
+        None,
+        "--marker",
+        help="Marker diameter in mm, or a bought marker from the catalogue (`starforge templates markers`) "
+        "or a TOML file: its diameter, and with --mount its seat's room.",
+    ),
     delta: float = typer.Option(None, "--delta", help="Minimal length variation (pool step), mm."),
     gap: float = typer.Option(None, "--gap", help="Minimum clear gap between spheres, mm."),
     rule: str = typer.Option(None, "--rule", help="face (default) or pair (the paper's)."),
@@ -67,6 +72,12 @@ def stars_cmd(
         "--mount",
         help="Design for this mount (see `starforge mounts`): reserve its room, check every body.",
     ),
+    seat: str = typer.Option(
+        None,
+        "--seat",
+        help="With --mount: what each stem ends in, sphere (printed), glue, post, screw or insert "
+        "(default: the catalogue marker's attachment, else sphere); its room is reserved.",
+    ),
     name: str = typer.Option(None, "--name", help="Family name (default: the spec's name)."),
     out: Path = typer.Option(None, "--out", help="Output folder (default: out/<name>)."),
     force: bool = typer.Option(False, "--force", help="Overwrite existing outputs."),
@@ -102,9 +113,20 @@ def stars_cmd(
         from starforge.tracking.presets import star_spec_overrides
 
         data.update(star_spec_overrides(preset))
+    marker_name = None
+    if marker is not None:
+        from starforge.catalog import marker_diameter_mm
+
+        try:
+            float(str(marker).strip().removesuffix("mm"))
+        except ValueError:
+            marker_name = str(marker).strip()
+        marker = marker_diameter_mm(marker)
     overrides = {
         "box_mm": list(box) if box is not None else None,
         "marker_mm": marker,
+        "marker": marker_name,
+        "seat": seat,
         "delta_mm": delta,
         "gap_mm": gap,
         "rule": rule,
@@ -124,15 +146,21 @@ def stars_cmd(
     data.setdefault("name", spec_name)
     star_filter = None
     if data.get("mount") is not None:
+        from starforge.cad.body import body_spec_for
         from starforge.cad.mounts import load_mount
         from starforge.cad.reserve import bodies_fit, mount_reserve_mm
 
         m = load_mount(data["mount"])
+        body = body_spec_for(data.get("marker"), data.get("seat"), float(data.get("marker_mm", 4.0)))
         if reserve is None:
-            data["reserve_mm"] = list(mount_reserve_mm(m, float(data.get("marker_mm", 4.0))))
+            data["reserve_mm"] = list(mount_reserve_mm(m, float(data.get("marker_mm", 4.0)), body))
 
-        def star_filter(V, _m=m, _d=data):
-            return bodies_fit(V, float(_d.get("marker_mm", 4.0)), _d["box_mm"], _m)
+        def star_filter(V, _m=m, _d=data, _b=body):
+            return bodies_fit(V, float(_d.get("marker_mm", 4.0)), _d["box_mm"], _m, _b)
+    elif seat is not None:
+        from starforge.errors import StarforgeError
+
+        raise StarforgeError("--seat shapes the printed body: give --mount too (see `starforge mounts`)")
 
     s = spec_from_mapping(data)
     check_name(s.name, "--name")

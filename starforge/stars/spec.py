@@ -62,6 +62,12 @@ class StarSpec:
         The mount the family is printed with (``starforge mounts``): its room is reserved from
         its geometry (:func:`starforge.cad.reserve.mount_reserve_mm`) and every star's printed
         body is checked against the limit, so ``export`` with this mount never refuses.
+    marker : str or None
+        The catalogue marker the bodies are designed for (``templates/markers``, or a TOML file);
+        ``marker_mm`` is its diameter.  With ``mount``, its seat's room is reserved too.
+    seat : str or None
+        What each stem ends in (sphere, glue, post, screw, insert; see
+        :class:`starforge.cad.body.BodySpec`); None: the marker's own attachment, else a sphere.
     name : str
         Family name; the default output folder is ``out/<name>``.
     description : str
@@ -85,6 +91,8 @@ class StarSpec:
     time_limit_s: float = 60.0
     reserve_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mount: str | None = None
+    marker: str | None = None
+    seat: str | None = None
     name: str = "custom"
     description: str = ""
 
@@ -96,6 +104,10 @@ class StarSpec:
         require(
             self.marker_mm >= 0.5,
             f"marker_mm must be >= 0.5 mm (retroreflective markers are about 2-40 mm), got {self.marker_mm:g}",
+        )
+        require(
+            self.seat is None or self.seat in ("sphere", "glue", "post", "screw", "insert"),
+            f"seat must be one of sphere, glue, post, screw, insert, got {self.seat!r}",
         )
         positive("delta_mm", self.delta_mm)
         require(
