@@ -28,7 +28,14 @@ def sweep_cmd(
     ),
     samples: int = typer.Option(200_000, "--samples", help="Random candidates per interval cell (its verified family)."),
     min_depth: float = typer.Option(None, "--min-depth", help="Smallest star depth, mm (default: half the marker)."),
-    workers: int = typer.Option(0, "--workers", help="Processes (0: every core)."),
+    workers: int = typer.Option(
+        0, "--workers", help="Local worker processes (0: every core; 1: in this process). Small sweeps run in process."
+    ),
+    scheduler: str = typer.Option(
+        None,
+        "--scheduler",
+        help="Address of a dask scheduler to run the cells on (default: $STARFORGE_SCHEDULER, else this machine).",
+    ),
     seed: int = typer.Option(0, "--seed", help="Random seed for the sampled cells."),
     out: str = typer.Option("out/sweep", "--out", help="Output folder."),
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
@@ -52,8 +59,20 @@ def sweep_cmd(
     names = ["sweep.csv", "sweep.png"]
     check_writable(out, names, force)
     n = len(deltas) * len(cubes)
+    say = console(stderr=True)
     with progress() as bar:
         task = bar.add_task("cells", total=n)
+        plain = bar.disable and not quiet  # not a terminal: plain progress lines for logs
+
+        def tick(d, t):
+            bar.update(task, completed=d, total=t)
+            if plain and (d == t or d % max(1, t // 10) == 0):
+                say.print(f"sweep: {d}/{t} cells done")
+
+        def where(p):
+            if not quiet:
+                say.print(f"sweep: {n} cells on {p.describe()}")
+
         rows = sweep(
             marker,
             deltas,
@@ -64,7 +83,9 @@ def sweep_cmd(
             workers or None,
             seed,
             min_depth,
-            progress=lambda d, t: bar.update(task, completed=d, total=t),
+            progress=tick,
+            scheduler=scheduler,
+            on_plan=where,
         )
     with staged_output(out, force) as stage:
         atomic_write_text(stage / "sweep.csv", rows_csv(rows))
