@@ -237,10 +237,14 @@ def map_tasks(
         tb = [float(x) for x in task_bytes]
     p = plan(n, seconds, workers, scheduler)
     client = cluster = None
-    if p.mode == "remote":
-        client = _connect(p.address)
-        p = plan(n, seconds, workers, scheduler, client=client)
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    if p.mode != "serial":  # dask's own reconnect and shutdown chatter: our one line says it
+        quiet.setLevel(logging.CRITICAL)
     try:
+        if p.mode == "remote":
+            client = _connect(p.address)
+            p = plan(n, seconds, workers, scheduler, client=client)
         require_task_memory(tb, p, what, advice)
         if on_plan is not None:
             on_plan(p)
@@ -255,10 +259,13 @@ def map_tasks(
             cluster, client = _local_cluster(p)
         return _run_on(client, fn, items, ticker, p)
     finally:
-        if client is not None:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+        try:
+            if client is not None:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+        finally:
+            quiet.setLevel(level)
 
 
 def _run_on(client, fn, items, ticker: _Progress, p: Plan) -> list:

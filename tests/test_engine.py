@@ -138,3 +138,39 @@ def test_plan_runs_small_work_in_process_and_splits_memory():
 def test_results_come_back_in_item_order_in_process():
     got = engine.map_tasks(abs, [-3, 1, -2], workers=1)
     assert got == [3, 1, 2]
+
+
+def test_a_scheduler_that_goes_away_is_one_error(monkeypatch):
+    import socket
+    import subprocess
+    import sys
+
+    pytest.importorskip("distributed")
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    port = sock.getsockname()[1]
+    sock.close()
+    addr = f"tcp://127.0.0.1:{port}"
+    dask = os.path.join(os.path.dirname(sys.executable), "dask")
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    sched = subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"], **quiet)
+    work = subprocess.Popen([dask, "worker", addr, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"], **quiet)
+    try:
+        monkeypatch.setattr(E, "CHUNK_SUBSETS", 500)
+        monkeypatch.setattr(engine, "CONNECT_TIMEOUT_S", 60.0)  # slow start on a loaded machine
+
+        def kill_scheduler(done, total):
+            if sched.poll() is None:
+                sched.kill()
+                sched.wait()
+
+        with pytest.raises(StarforgeError, match=f"lost the dask scheduler at {addr} mid-run"):
+            E.enumerate_candidates(SPEC, scheduler=addr, progress=kill_scheduler)
+    finally:
+        for proc in (work, sched):
+            if proc.poll() is None:
+                proc.terminate()
+                try:
+                    proc.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    proc.kill()

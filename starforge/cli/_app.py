@@ -61,6 +61,12 @@ def _root(
         None, "--max-memory", help="Memory any command may plan to use, e.g. 2G (default: half this machine's)."
     ),
     max_seconds: float = typer.Option(None, "--max-seconds", help="Time any command may plan to take, s (default 7200)."),
+    scheduler: str = typer.Option(
+        None,
+        "--scheduler",
+        help="Run parallel work (enumeration chunks, sweep cells) on the dask scheduler at this address "
+        "(default: $STARFORGE_SCHEDULER; unset: this machine).",
+    ),
 ) -> None:
     """Design optical motion-capture markers: unique marker-star families, printable bodies,
     prop marker placement and the files trackers load."""
@@ -73,6 +79,10 @@ def _root(
     if max_seconds is not None:
         os.environ[budget.ENV_SECONDS] = repr(float(max_seconds))
         budget.time_limit_s()  # validates
+    if scheduler:
+        from starforge.engine import ENV_SCHEDULER
+
+        os.environ[ENV_SCHEDULER] = scheduler
     if version:
         from starforge import __version__
 
