@@ -6,7 +6,8 @@ from pathlib import Path
 
 import typer
 
-from starforge.cli._app import app, console, progress
+from starforge.cli._app import app, console
+from starforge.cli._jobs import job_progress
 
 
 @app.command(
@@ -44,16 +45,7 @@ def place_batch_cmd(
     out = Path(out)
     check_writable(out, [name for name, _ in todo] + ["batch.csv"], force)
     est = [job_bytes(spec, job[3]) for _, job in todo]
-    say = console(stderr=True)
-    with progress() as bar:
-        task = bar.add_task("placements", total=len(todo))
-        plain = bar.disable and not quiet
-
-        def tick(d, t):
-            bar.update(task, completed=d, total=t)
-            if plain:
-                say.print(f"place-batch: {d}/{t} placements done")
-
+    with job_progress("place-batch", "placements", len(todo), quiet) as (tick, where):
         results = engine.map_tasks(
             place_job,
             [job for _, job in todo],
@@ -64,7 +56,7 @@ def place_batch_cmd(
             progress=tick,
             what=f"a batch of {len(todo)} placements",
             advice="lower the spec's sites, resolution or orientations, or use workers with more memory",
-            on_plan=(lambda p: say.print(f"place-batch: {len(todo)} placements on {p.describe()}")) if not quiet else None,
+            on_plan=where,
         )
     lines = ["job,prop,rig,markers,total_cost"]
     with staged_output(out, force) as stage:

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import typer
 
-from starforge.cli._app import app, console, progress
+from starforge.cli._app import app, console
+from starforge.cli._jobs import job_progress
 
 
 @app.command(
@@ -59,20 +60,7 @@ def sweep_cmd(
     names = ["sweep.csv", "sweep.png"]
     check_writable(out, names, force)
     n = len(deltas) * len(cubes)
-    say = console(stderr=True)
-    with progress() as bar:
-        task = bar.add_task("cells", total=n)
-        plain = bar.disable and not quiet  # not a terminal: plain progress lines for logs
-
-        def tick(d, t):
-            bar.update(task, completed=d, total=t)
-            if plain and (d == t or d % max(1, t // 10) == 0):
-                say.print(f"sweep: {d}/{t} cells done")
-
-        def where(p):
-            if not quiet:
-                say.print(f"sweep: {n} cells on {p.describe()}")
-
+    with job_progress("sweep", "cells", n, quiet) as (tick, where):
         rows = sweep(
             marker,
             deltas,
