@@ -419,8 +419,8 @@ def enumerate_candidates(
     """Every star (up to relabelling and mirroring) whose centres provably fit ``spec``'s limit.
 
     The admissible 6-subsets are cut into chunks of consecutive ranks (:func:`chunks`), each one
-    task of :func:`starforge.engine.map_tasks` (:func:`enumerate_chunk`): in this process for
-    small specs, on a local dask cluster for large ones, or on the cluster at ``scheduler`` (or
+    task of :func:`starforge.engine.map_tasks` (:func:`enumerate_chunk`): in this process (the
+    compiled kernel runs on every core), or on the cluster at ``scheduler`` (or
     ``STARFORGE_SCHEDULER``).  The result is sorted, so it does not depend on where or in which
     order the chunks ran.
 
@@ -430,8 +430,7 @@ def enumerate_candidates(
     progress : callable or None
         ``progress(done, total)`` in labelled candidates, after each chunk.
     workers : int or None
-        Threads in process, or worker processes of a local cluster (default: every core).
-        The result does not depend on it.
+        Threads in process (default: every core).  The result does not depend on it.
     scheduler : str or None
         Address of a dask scheduler (default: ``STARFORGE_SCHEDULER``; unset: this machine).
     """
@@ -445,7 +444,12 @@ def enumerate_candidates(
     parts = chunks(spec)
     est = estimate(spec)
     cores = max(1, min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS))
-    p = engine.plan(len(parts), est["seconds"] * cores, workers, scheduler)
+    # without a scheduler the chunks run in this process: the compiled kernel already uses every
+    # core, and its memory is one batch plus the kept stars, as on a cluster's client; a local
+    # cluster would only add its start-up
+    remote = engine.scheduler_address(scheduler) is not None
+    seconds = est["seconds"] * cores if remote else 0.0
+    p = engine.plan(len(parts), seconds, workers, scheduler)
     threads = workers if p.mode == "serial" else 1
     tick = None
     if progress is not None:
@@ -458,7 +462,7 @@ def enumerate_candidates(
         enumerate_chunk,
         [(spec, r, c, threads) for r, c in parts],
         task_bytes=[chunk_bytes(c) for _, c in parts],
-        seconds=est["seconds"] * cores,
+        seconds=seconds,
         workers=workers,
         scheduler=scheduler,
         progress=tick,
