@@ -174,3 +174,47 @@ def test_a_scheduler_that_goes_away_is_one_error(monkeypatch):
                     proc.wait(timeout=30)
                 except subprocess.TimeoutExpired:
                     proc.kill()
+
+
+def test_stage_counts_match_a_brute_force_recount():
+    """Every stage count of the chunked enumeration, recounted in numpy over every labelled
+    candidate, with the fit decided by ``decide_fit`` (no cone test): the cone test that skips
+    the search never changes a decision, and the chunks lose or repeat nothing."""
+    from starforge.geometry.fit import decide_fit
+    from starforge.geometry.tetra import canonical_assignments, tetra_width
+
+    spec, got = SPEC, E.enumerate_candidates(SPEC, workers=1).stats
+    n, m = spec.pool_size, spec.grid_steps
+    sub = E._subsets_from(n, m, np.array([k * m for k in range(6)], dtype=np.int64), 10**7)
+    L = E.edge_pool(spec)[sub[:, canonical_assignments()]].reshape(-1, 6)
+    u, U, v, V, w, W = L.T
+    cx = (u * u + w * w - v * v) / (2 * u)
+    cy2 = w * w - cx * cx
+    cy = np.sqrt(np.maximum(cy2, 1e-300))
+    dx = (u * u + V * V - W * W) / (2 * u)
+    dy = (V * V - U * U + w * w - 2 * dx * cx) / (2 * cy)
+    dz2 = V * V - dx * dx - dy * dy
+    real = (cy2 > 1e-9) & (dz2 > 1e-9)
+    width = np.where(real, tetra_width(np.where(real[:, None], L, 10.0)), 0.0)
+    deep = real & (width >= spec.depth_mm - 1e-9)
+    lim = np.sort(np.array(spec.centre_limit_mm))
+    narrow = deep & (width <= lim[0] + 1e-9)
+    P = np.zeros((len(L), 4, 3))
+    P[:, 1, 0] = u
+    P[:, 2, 0], P[:, 2, 1] = cx, cy
+    P[:, 3, 0], P[:, 3, 1], P[:, 3, 2] = dx, dy, np.sqrt(np.maximum(dz2, 0))
+    Q = P[narrow] - P[narrow].mean(axis=1, keepdims=True)
+    ev = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", Q, Q) / 4)  # ascending
+    ky = (np.cumsum(ev, axis=1) <= np.cumsum(lim**2) / 4 + 1e-9).all(axis=1)
+    status, _, _ = decide_fit(P[narrow][ky], lim)
+    want = {
+        "labelled": len(L),
+        "realisable": int(real.sum()),
+        "deep_enough": int(deep.sum()),
+        "width_ok": int(narrow.sum()),
+        "kyfan_ok": int(ky.sum()),
+        "no_fit": int((status == 0).sum()),
+        "undecided": int((status == -1).sum()),
+        "fitting": int((status == 1).sum()),
+    }
+    assert {k: got[k] for k in want} == want
