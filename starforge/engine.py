@@ -311,10 +311,13 @@ def _run_on(client, fn, items, ticker: _Progress, p: Plan) -> list:
 def threads_for_task() -> int | None:
     """Compiled-kernel threads a task should use: 1 inside a dask worker (each worker thread
     is one core's share), None (every core) in process."""
-    try:
-        from distributed import get_worker
+    import sys
 
-        get_worker()
-    except (ImportError, ValueError):
+    dist = sys.modules.get("distributed")  # a worker has it imported; never import it just to ask
+    if dist is None:
+        return None
+    try:
+        dist.get_worker()
+    except (AttributeError, ValueError):
         return None
     return 1
