@@ -24,8 +24,11 @@ def sweep_cmd(
     ),
     cube: str = typer.Option("10:50:5", "--cube", help="Cube sides, mm: start:stop:step or a,b,c."),
     rule: str = typer.Option("face,pair", "--rule", help="Rules: face, pair or face,pair."),
-    exhaustive: int = typer.Option(
-        20_000_000, "--exhaustive", help="Largest cell (labelled candidates) enumerated exhaustively; larger: an interval."
+    exhaustive: str = typer.Option(
+        "20000000",
+        "--exhaustive",
+        help="Largest cell (labelled candidates) enumerated exhaustively; larger: an interval.  "
+        "auto: every cell whose enumeration fits one worker's memory.",
     ),
     samples: int = typer.Option(200_000, "--samples", help="Random candidates per interval cell (its verified family)."),
     min_depth: float = typer.Option(None, "--min-depth", help="Smallest star depth, mm (default: half the marker)."),
@@ -50,6 +53,13 @@ def sweep_cmd(
         raise StarforgeError(f"seed must be >= 0, got {seed}")
     if workers < 0:
         raise StarforgeError(f"workers must be >= 0, got {workers}")
+    if exhaustive.strip().lower() == "auto":
+        exhaustive_n = None
+    else:
+        try:
+            exhaustive_n = int(exhaustive.replace("_", "").replace(",", ""))
+        except ValueError:
+            raise StarforgeError(f"exhaustive must be a count of labelled candidates or auto, got {exhaustive!r}") from None
     deltas = parse_range(delta, "delta")
     cubes = parse_range(cube, "cube")
     rules = [r.strip() for r in rule.split(",") if r.strip()]
@@ -66,7 +76,7 @@ def sweep_cmd(
             deltas,
             cubes,
             tuple(rules),
-            exhaustive,
+            exhaustive_n,
             samples,
             workers or None,
             seed,

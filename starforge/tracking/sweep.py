@@ -297,6 +297,25 @@ def cell_estimate(marker_mm: float, delta: float, cube: float, rules, exhaustive
     )
 
 
+#: the most labelled candidates a sweep cell enumerates exhaustively
+MAX_EXHAUSTIVE = 300_000_000
+
+
+def _auto_limit(marker_mm: float, delta: float, cube: float, rules, samples: int, share: float) -> int:
+    """The cell's exhaustive threshold under ``--exhaustive auto``: its own labelled count when
+    its enumeration fits ``share`` bytes (one worker's memory) and MAX_EXHAUSTIVE, else -1
+    (an interval)."""
+    from starforge.stars.enumerate import labelled_count
+    from starforge.stars.spec import StarSpec
+
+    try:
+        n = labelled_count(StarSpec(box_mm=(cube, cube, cube), marker_mm=marker_mm, delta_mm=delta))
+    except StarforgeError:
+        return 0
+    _, nbytes = cell_estimate(marker_mm, delta, cube, rules, n, samples)
+    return n if (n <= MAX_EXHAUSTIVE and nbytes <= share) else -1
+
+
 def estimate_cells(marker_mm: float, deltas, cubes, rules, exhaustive_labelled: int, samples: int) -> tuple[float, float]:
     """Rough single-core seconds for a whole sweep and the peak bytes of its largest cell
     (for the bounded-cost check)."""
@@ -309,7 +328,7 @@ def sweep(
     deltas,
     cubes,
     rules=("face", "pair"),
-    exhaustive_labelled: int = EXHAUSTIVE_LABELLED,
+    exhaustive_labelled: int | None = EXHAUSTIVE_LABELLED,
     samples: int = SAMPLES,
     workers: int | None = None,
     seed: int = 0,
@@ -323,38 +342,38 @@ def sweep(
     core, or the cluster at ``scheduler`` / ``STARFORGE_SCHEDULER``); rows sorted, so they do
     not depend on where or in which order the cells ran.
 
-    ``progress(done, total)`` after each finished cell; ``on_plan(plan)`` once, before the first.
+    ``exhaustive_labelled=None`` ("auto"): every cell whose enumeration fits one worker's memory
+    (and has at most :data:`MAX_EXHAUSTIVE` labelled candidates) is exhaustive, the others
+    intervals.  ``progress(done, total)`` after each finished cell; ``on_plan(plan)`` once,
+    before the first.
     """
     from starforge import engine
     from starforge.budget import require_time
 
     positive("marker_mm", marker_mm)
-    require(exhaustive_labelled >= 0, f"exhaustive_labelled must be >= 0, got {exhaustive_labelled}")
-    require(
-        exhaustive_labelled <= 300_000_000,
-        f"exhaustive_labelled must be <= 300,000,000, got {exhaustive_labelled:,}",
-    )
+    if exhaustive_labelled is not None:
+        require(exhaustive_labelled >= 0, f"exhaustive_labelled must be >= 0, got {exhaustive_labelled}")
+        require(
+            exhaustive_labelled <= MAX_EXHAUSTIVE,
+            f"exhaustive_labelled must be <= {MAX_EXHAUSTIVE:,}, got {exhaustive_labelled:,}",
+        )
     require(100 <= samples <= 10_000_000, f"samples must be in [100, 10000000], got {samples}")
     for r in rules:
         require(r in ("face", "pair"), f"rule must be face or pair, got {r!r}")
     require(
         workers is None or 0 <= workers <= 256, f"workers must be in [0, 256] (0: every core), got {workers}"
     )
+    pairs = [(float(d), float(c)) for d in deltas for c in cubes]
+    if exhaustive_labelled is None:
+        share = engine.plan(len(pairs), math.inf, workers or None, scheduler).task_bytes
+        limits = [_auto_limit(marker_mm, d, c, rules, samples, share) for d, c in pairs]
+    else:
+        limits = [int(exhaustive_labelled)] * len(pairs)
     cells = [
-        (
-            float(marker_mm),
-            float(d),
-            float(c),
-            tuple(rules),
-            int(exhaustive_labelled),
-            int(samples),
-            int(seed),
-            min_depth_mm,
-        )
-        for d in deltas
-        for c in cubes
+        (float(marker_mm), d, c, tuple(rules), lim, int(samples), int(seed), min_depth_mm)
+        for (d, c), lim in zip(pairs, limits, strict=True)
     ]
-    est = [cell_estimate(marker_mm, c[1], c[2], rules, exhaustive_labelled, samples) for c in cells]
+    est = [cell_estimate(marker_mm, c[1], c[2], rules, c[4], samples) for c in cells]
     seconds = sum(e[0] for e in est)
     what = f"a sweep of {len(cells)} cells"
     advice = "use a larger --delta, smaller --cube values or fewer of them, or lower --exhaustive"
