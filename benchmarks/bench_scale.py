@@ -166,7 +166,7 @@ def sweep_exact(args) -> dict:
     from starforge import engine
     from starforge.stars.enumerate import estimate
     from starforge.stars.spec import StarSpec
-    from starforge.tracking.sweep import parse_range, rows_csv, sweep
+    from starforge.tracking.sweep import SAMPLES, _auto_limit, parse_range, rows_csv, sweep
 
     deltas, cubes = parse_range("0.5:3:0.5", "delta"), parse_range("10:50:5", "cube")
     p = engine.plan(len(deltas) * len(cubes), float("inf"), args.workers)
@@ -178,12 +178,13 @@ def sweep_exact(args) -> dict:
             except ValueError:
                 continue
             est = estimate(spec)
+            lim = _auto_limit(4.0, d, c, ("face", "pair"), SAMPLES, p.task_bytes)
             cells.append({"delta": d, "cube": c, "labelled": est["labelled"],
-                          "fits_worker_memory": est["bytes"] <= p.task_bytes,
+                          "exhaustive_under_auto": lim >= est["labelled"],
                           "est_cpu_s_2cores": round(est["seconds"] * 2, 1)})
-    exact = [x for x in cells if x["fits_worker_memory"]]
+    exact = [x for x in cells if x["exhaustive_under_auto"]]
     res = {"n_cells": len(cells), "worker_memory_bytes": int(p.task_bytes), "workers": p.workers,
-           "cells_fit_memory": len(exact), "cells": cells, "load_before": _load()}
+           "cells_exhaustive_under_auto": len(exact), "cells": cells, "load_before": _load()}
     if args.run:  # the whole default sweep, every cell that fits a worker's memory exhaustive
         t = time.perf_counter()
         rows = sweep(4.0, deltas, cubes, exhaustive_labelled=None, workers=args.workers)
