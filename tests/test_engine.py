@@ -218,3 +218,13 @@ def test_stage_counts_match_a_brute_force_recount():
         "fitting": int((status == 1).sum()),
     }
     assert {k: got[k] for k in want} == want
+
+
+def test_global_scheduler_option_reaches_the_enumeration(tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv(engine.ENV_SCHEDULER, raising=False)  # restored after the test
+    monkeypatch.setattr(engine, "CONNECT_TIMEOUT_S", 1.0)
+    out = tmp_path / "fam"
+    rc = main(["--scheduler", "127.0.0.1:9", "stars", "--box", "14", "10", "24", "--out", str(out), "-q"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err.startswith("error: cannot reach the dask scheduler") and "\n" not in err
+    assert not out.exists()
