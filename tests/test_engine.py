@@ -221,7 +221,7 @@ def test_stage_counts_match_a_brute_force_recount():
 
 
 def test_global_scheduler_option_reaches_the_enumeration(tmp_path, capsys, monkeypatch):
-    monkeypatch.delenv(engine.ENV_SCHEDULER, raising=False)  # restored after the test
+    monkeypatch.setenv(engine.ENV_SCHEDULER, "")  # recorded, so the option's setting is undone after
     monkeypatch.setattr(engine, "CONNECT_TIMEOUT_S", 1.0)
     out = tmp_path / "fam"
     rc = main(["--scheduler", "127.0.0.1:9", "stars", "--box", "14", "10", "24", "--out", str(out), "-q"])
