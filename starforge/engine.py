@@ -282,30 +282,46 @@ def _run_on(client, fn, items, ticker: _Progress, p: Plan) -> list:
             for fut in as_completed(futures):
                 if interrupted():
                     raise KeyboardInterrupt
-                if fut.status == "error":
-                    exc = fut.exception()
-                    if isinstance(exc, (StarforgeError, ValueError)):
-                        raise exc
+                if fut.cancelled():  # the scheduler went away
+                    raise StarforgeError(f"lost the dask scheduler at {where} mid-run; nothing was written")
+                try:
+                    # waits if the worker that held this result died since: the task reruns
+                    res = fut.result()
+                except Exception as exc:
+                    if _is_lost(exc):
+                        raise
                     if type(exc).__name__ == "KilledWorker":
                         raise StarforgeError(
                             f"a task of {ticker.label} killed {p.describe()}'s workers repeatedly "
                             f"(out of memory?); nothing was written"
                         ) from None
-                    raise exc
-                if fut.status != "finished":  # cancelled: the scheduler went away
-                    raise StarforgeError(f"lost the dask scheduler at {where} mid-run; nothing was written")
-                out[index[fut.key]] = fut.result()
+                    raise _TaskFailed(exc) from None  # the task's own error, as raised
+                out[index[fut.key]] = res
                 fut.release()
                 ticker.tick()
-    except (OSError, TimeoutError) as exc:
-        raise StarforgeError(
-            f"lost the dask scheduler at {where} mid-run ({type(exc).__name__}); nothing was written"
-        ) from None
-    except Exception as exc:  # distributed's CancelledError when the scheduler goes away
-        if "Cancelled" in type(exc).__name__ or type(exc).__name__ == "CommClosedError":
-            raise StarforgeError(f"lost the dask scheduler at {where} mid-run; nothing was written") from None
+    except _TaskFailed as failed:
+        raise failed.exc from None
+    except Exception as exc:
+        if _is_lost(exc):
+            raise StarforgeError(
+                f"lost the dask scheduler at {where} mid-run ({type(exc).__name__}); nothing was written"
+            ) from None
         raise
     return out
+
+
+class _TaskFailed(Exception):
+    """A task's own exception, carried past the connection-loss handlers."""
+
+    def __init__(self, exc: BaseException):
+        super().__init__(str(exc))
+        self.exc = exc
+
+
+def _is_lost(exc: BaseException) -> bool:
+    """The client lost its scheduler: cancelled futures, closed comms, connection timeouts."""
+    name = type(exc).__name__
+    return "Cancelled" in name or name in ("CommClosedError", "TimeoutError", "ConnectionRefusedError", "StreamClosedError")
 
 
 def threads_for_task() -> int | None:

@@ -228,3 +228,9 @@ def test_global_scheduler_option_reaches_the_enumeration(tmp_path, capsys, monke
     err = capsys.readouterr().err.strip()
     assert rc == 2 and err.startswith("error: cannot reach the dask scheduler") and "\n" not in err
     assert not out.exists()
+
+
+def test_a_tasks_own_error_comes_back_as_raised(cluster, tmp_path):
+    missing = str(tmp_path / "no-such-file")
+    with pytest.raises(FileNotFoundError):  # not mistaken for a lost connection (an OSError too)
+        engine.map_tasks(os.stat, [str(tmp_path), missing], scheduler=cluster.scheduler_address)
