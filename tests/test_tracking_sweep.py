@@ -188,3 +188,15 @@ def test_interval_lower_ends_never_fall_below_a_smaller_cube():
     out = {(r["rule"], r["cube_mm"]): r for r in carry_bounds(rows)}
     assert out[("face", 45.0)]["stars"] == 800 and "40 mm cube" in out[("face", 45.0)]["note"]
     assert out[("face", 40.0)]["stars"] == 800 and out[("pair", 45.0)]["stars"] == 10
+
+
+def test_exhaustive_auto_follows_a_workers_memory(monkeypatch):
+    from starforge.budget import ENV_MEMORY
+
+    kw = dict(rules=("face",), exhaustive_labelled=None, samples=1_000, workers=1)
+    monkeypatch.setenv(ENV_MEMORY, "1G")  # every cell's enumeration fits
+    rows = sweep(4.0, [3.0], [18.0, 22.0], **kw)
+    assert [r["method"] for r in rows] == ["exhaustive", "exhaustive"]
+    monkeypatch.setenv(ENV_MEMORY, "205M")  # below any enumeration's estimate (200 MB of base)
+    rows = sweep(4.0, [3.0], [18.0, 22.0], **kw)
+    assert [r["method"] for r in rows] == ["interval", "interval"]

@@ -134,6 +134,12 @@ def _root(
         None, "--max-memory", help="Memory any command may plan to use, e.g. 2G (default: half this machine's)."
     ),
     max_seconds: float = typer.Option(None, "--max-seconds", help="Time any command may plan to take, s (default 7200)."),
+    scheduler: str = typer.Option(
+        None,
+        "--scheduler",
+        help="Run parallel work (enumeration chunks, sweep cells) on the dask scheduler at this address "
+        "(default: $STARFORGE_SCHEDULER; unset: this machine).",
+    ),
 ) -> None:
     """Design optical motion-capture markers: unique marker-star families, printable bodies,
     prop marker placement and the files trackers load."""
@@ -145,6 +151,10 @@ def _root(
         os.environ[budget.ENV_MEMORY] = str(budget.parse_bytes(max_memory, "--max-memory"))
     if max_seconds is not None:
         os.environ[budget.ENV_SECONDS] = repr(budget.parse_seconds(max_seconds, "--max-seconds"))
+    if scheduler:
+        from starforge.engine import ENV_SCHEDULER
+
+        os.environ[ENV_SCHEDULER] = scheduler
     if version:
         from starforge import __version__
 

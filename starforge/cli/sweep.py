@@ -6,7 +6,8 @@ from pathlib import Path
 
 import typer
 
-from starforge.cli._app import app, console, progress
+from starforge.cli._app import app, console
+from starforge.cli._jobs import job_progress
 
 
 @app.command(
@@ -23,12 +24,22 @@ def sweep_cmd(
     ),
     cube: str = typer.Option("10:50:5", "--cube", help="Cube sides, mm: start:stop:step or a,b,c."),
     rule: str = typer.Option("face,pair", "--rule", help="Rules: face, pair or face,pair."),
-    exhaustive: int = typer.Option(
-        20_000_000, "--exhaustive", help="Largest cell (labelled candidates) enumerated exhaustively; larger: an interval."
+    exhaustive: str = typer.Option(
+        "20000000",
+        "--exhaustive",
+        help="Largest cell (labelled candidates) enumerated exhaustively; larger: an interval.  "
+        "auto: every cell whose enumeration fits one worker's memory.",
     ),
     samples: int = typer.Option(200_000, "--samples", help="Random candidates per interval cell (its verified family)."),
     min_depth: float = typer.Option(None, "--min-depth", help="Smallest star depth, mm (default: half the marker)."),
-    workers: int = typer.Option(0, "--workers", help="Processes (0: every core)."),
+    workers: int = typer.Option(
+        0, "--workers", help="Local worker processes (0: every core; 1: in this process). Small sweeps run in process."
+    ),
+    scheduler: str = typer.Option(
+        None,
+        "--scheduler",
+        help="Address of a dask scheduler to run the cells on (default: $STARFORGE_SCHEDULER, else this machine).",
+    ),
     seed: int = typer.Option(0, "--seed", help="Random seed for the sampled cells."),
     out: str = typer.Option("out/sweep", "--out", help="Output folder."),
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
@@ -42,6 +53,13 @@ def sweep_cmd(
         raise StarforgeError(f"seed must be >= 0, got {seed}")
     if workers < 0:
         raise StarforgeError(f"workers must be >= 0, got {workers}")
+    if exhaustive.strip().lower() == "auto":
+        exhaustive_n = None
+    else:
+        try:
+            exhaustive_n = int(exhaustive.replace("_", "").replace(",", ""))
+        except ValueError:
+            raise StarforgeError(f"exhaustive must be a count of labelled candidates or auto, got {exhaustive!r}") from None
     deltas = parse_range(delta, "delta")
     cubes = parse_range(cube, "cube")
     rules = [r.strip() for r in rule.split(",") if r.strip()]
@@ -52,19 +70,20 @@ def sweep_cmd(
     names = ["sweep.csv", "sweep.png"]
     check_writable(out, names, force)
     n = len(deltas) * len(cubes)
-    with progress() as bar:
-        task = bar.add_task("cells", total=n)
+    with job_progress("sweep", "cells", n, quiet) as (tick, where):
         rows = sweep(
             marker,
             deltas,
             cubes,
             tuple(rules),
-            exhaustive,
+            exhaustive_n,
             samples,
             workers or None,
             seed,
             min_depth,
-            progress=lambda d, t: bar.update(task, completed=d, total=t),
+            progress=tick,
+            scheduler=scheduler,
+            on_plan=where,
         )
     with staged_output(out, force) as stage:
         atomic_write_text(stage / "sweep.csv", rows_csv(rows))

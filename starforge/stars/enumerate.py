@@ -26,6 +26,7 @@ certified upper bounds (a bound over fitting + undecided covers every star that 
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass
 
@@ -99,8 +100,6 @@ def admissible_subsets(n: int, m: int) -> int:
 
 def estimate(spec: StarSpec) -> dict:
     """Labelled candidates, seconds (2 cores) and bytes the enumeration of ``spec`` needs."""
-    import os
-
     labelled = labelled_count(spec)
     cores = max(1, min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS))
     seconds = labelled * SECONDS_PER_LABELLED * 2 / cores  # the rate was measured on 2 cores
@@ -318,39 +317,66 @@ def _covariance_fits(P: np.ndarray, limit: np.ndarray) -> tuple[np.ndarray, np.n
     return (e <= lim).all(axis=1), np.prod(ext, axis=1)
 
 
-def enumerate_candidates(spec: StarSpec, progress=None, workers: int | None = None) -> Candidates:
-    """Every star (up to relabelling and mirroring) whose centres provably fit ``spec``'s limit.
+#: subsets per enumeration chunk (one task: about 4 M labelled candidates, 1-2 s on one core)
+CHUNK_SUBSETS = BATCH_SUBSETS
 
-    Parameters
-    ----------
-    spec : StarSpec
-    progress : callable or None
-        ``progress(done, total)`` in labelled candidates, after each batch.
-    workers : int or None
-        Threads (default: every core).  The result does not depend on it.
-    """
-    t0 = time.perf_counter()
-    check_size(spec)
+
+def unrank_subset(rank: int, n: int, m: int) -> np.ndarray:
+    """The admissible 6-subset of range(n) (elements >= m apart) of lexicographic ``rank``, (6,).
+
+    Admissible subsets c and plain 6-subsets b of range(n - 5 (m - 1)) correspond one to one
+    (``c_j = b_j + j (m - 1)``), in the same order; b is unranked in the combinatorial number
+    system."""
+    free = n - (m - 1) * 5
+    r = int(rank)
+    out = np.empty(6, dtype=np.int64)
+    x = 0
+    for i in range(6):
+        while True:
+            c = math.comb(free - x - 1, 5 - i)
+            if r < c:
+                out[i] = x + i * (m - 1)
+                x += 1
+                break
+            r -= c
+            x += 1
+    return out
+
+
+def chunks(spec: StarSpec, size: int | None = None) -> list[tuple[int, int]]:
+    """(first rank, subsets) of each enumeration chunk (``size`` subsets, default
+    :data:`CHUNK_SUBSETS`), in rank order."""
+    size = int(size or CHUNK_SUBSETS)
+    total = admissible_subsets(spec.pool_size, spec.grid_steps)
+    return [(r, min(size, total - r)) for r in range(0, total, size)]
+
+
+def enumerate_chunk(args: tuple) -> dict:
+    """One task of the enumeration: the admissible subsets of ranks ``[rank, rank + count)``.
+
+    ``args = (spec, rank, count, threads)``; ``threads``: compiled-kernel threads (None: every
+    core).  Returns the stage counts (8,) int64 and, compactly, the fitting stars (pool indices
+    int16 (k, 6) and box volumes (k,)) and the undecided ones (int16 (q, 6)), in the order
+    found; the caller sorts.  A pure function of its input."""
+    spec, rank, count, threads = args
     pool = edge_pool(spec)
     lo = float(pool[0])
     step = float(spec.delta_mm)
     limit = np.sort(np.array(spec.centre_limit_mm, dtype=float))
     m = spec.grid_steps
     assign = canonical_assignments().astype(np.int64)
-    total = labelled_count(spec)
     mode = 0 if spec.box_method == "exact" else 1
-    if workers is not None:
-        numba.set_num_threads(max(1, min(int(workers), numba.config.NUMBA_NUM_THREADS)))
+    if threads is not None:
+        numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     counts = np.zeros(8, dtype=np.int64)
     fit_idx, fit_vol, und_idx = [], [], []
-    start = np.array([k * m for k in range(6)], dtype=np.int64)
-    if 5 * m > len(pool) - 1:
-        start[0] = -1
-    done = 0
-    while start[0] >= 0:
-        sub = _subsets_from(len(pool), m, start, BATCH_SUBSETS)
+    start = unrank_subset(rank, len(pool), m)
+    left = int(count)
+    while left > 0:
+        sub = _subsets_from(len(pool), m, start, min(BATCH_SUBSETS, left))
         if not len(sub):
             break
+        left -= len(sub)
         codes = np.empty((len(sub), len(assign)), dtype=np.int8)
         vols = np.empty((len(sub), len(assign)))
         _classify(sub, assign, lo, step, limit, spec.depth_mm, SLACK_MM, 100_000, mode, codes, vols)
@@ -371,17 +397,88 @@ def enumerate_candidates(spec: StarSpec, progress=None, workers: int | None = No
             fit_vol.append(vols[s, a])
             s, a = np.nonzero(codes == UNDECIDED)
             und_idx.append(np.take_along_axis(sub[s], assign[a], axis=1).astype(np.int16))
-        done += len(sub) * len(assign)
-        if progress is not None:
-            progress(done, total)
-    index = np.concatenate(fit_idx) if fit_idx else np.zeros((0, 6), np.int16)
-    volume = np.concatenate(fit_vol) if fit_vol else np.zeros(0)
-    undecided = np.concatenate(und_idx) if und_idx else np.zeros((0, 6), np.int16)
+    return {
+        "counts": counts,
+        "fit": np.concatenate(fit_idx) if fit_idx else np.zeros((0, 6), np.int16),
+        "volume": np.concatenate(fit_vol) if fit_vol else np.zeros(0),
+        "undecided": np.concatenate(und_idx) if und_idx else np.zeros((0, 6), np.int16),
+    }
+
+
+def chunk_bytes(count: int) -> float:
+    """Peak memory of one enumeration chunk of ``count`` subsets, bytes: a batch's codes and
+    volumes, its subsets, and the kept stars (at most a quarter of its labelled candidates,
+    the generous share :func:`estimate` uses)."""
+    b = min(count, BATCH_SUBSETS)
+    return b * 30 * 9 + b * 12 + count * 30 / 4 * BYTES_PER_CANDIDATE
+
+
+def enumerate_candidates(
+    spec: StarSpec, progress=None, workers: int | None = None, scheduler: str | None = None
+) -> Candidates:
+    """Every star (up to relabelling and mirroring) whose centres provably fit ``spec``'s limit.
+
+    The admissible 6-subsets are cut into chunks of consecutive ranks (:func:`chunks`), each one
+    task of :func:`starforge.engine.map_tasks` (:func:`enumerate_chunk`): in this process (the
+    compiled kernel runs on every core), or on the cluster at ``scheduler`` (or
+    ``STARFORGE_SCHEDULER``).  The result is sorted, so it does not depend on where or in which
+    order the chunks ran.
+
+    Parameters
+    ----------
+    spec : StarSpec
+    progress : callable or None
+        ``progress(done, total)`` in labelled candidates, after each chunk.
+    workers : int or None
+        Threads in process (default: every core).  The result does not depend on it.
+    scheduler : str or None
+        Address of a dask scheduler (default: ``STARFORGE_SCHEDULER``; unset: this machine).
+    """
+    from starforge import engine
+
+    t0 = time.perf_counter()
+    check_size(spec)
+    pool = edge_pool(spec)
+    total = labelled_count(spec)
+    mode = 0 if spec.box_method == "exact" else 1
+    parts = chunks(spec)
+    est = estimate(spec)
+    cores = max(1, min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS))
+    # without a scheduler the chunks run in this process: the compiled kernel already uses every
+    # core, and its memory is one batch plus the kept stars, as on a cluster's client; a local
+    # cluster would only add its start-up
+    remote = engine.scheduler_address(scheduler) is not None
+    seconds = est["seconds"] * cores if remote else 0.0
+    p = engine.plan(len(parts), seconds, workers, scheduler)
+    threads = workers if p.mode == "serial" else 1
+    tick = None
+    if progress is not None:
+        sizes = np.cumsum([c for _, c in parts]) * 30
+
+        def tick(done, _n):
+            progress(int(sizes[done - 1]), total)
+
+    results = engine.map_tasks(
+        enumerate_chunk,
+        [(spec, r, c, threads) for r, c in parts],
+        task_bytes=[chunk_bytes(c) for _, c in parts],
+        seconds=seconds,
+        workers=workers,
+        scheduler=scheduler,
+        progress=tick,
+        what=f"enumerating {total:,} labelled candidates",
+        advice="raise delta_mm or tolerance_mm, or use workers with more memory",
+    )
+    counts = np.sum([r["counts"] for r in results], axis=0) if results else np.zeros(8, np.int64)
+    index = np.concatenate([r["fit"] for r in results]) if results else np.zeros((0, 6), np.int16)
+    volume = np.concatenate([r["volume"] for r in results]) if results else np.zeros(0)
+    undecided = np.concatenate([r["undecided"] for r in results]) if results else np.zeros((0, 6), np.int16)
+    done = int(sum(c for _, c in parts) * 30)
     order = np.lexsort(index.T[::-1])  # deterministic: lexicographic on pool indices
     stats = {
         "pool_size": len(pool),
-        "tolerance_steps": m,
-        "labelled": int(done),
+        "tolerance_steps": spec.grid_steps,
+        "labelled": done,
         "realisable": int(done - counts[UNREALISABLE]),
         "deep_enough": int(done - counts[: TOO_THIN + 1].sum()),
         "width_ok": int(done - counts[: TOO_WIDE + 1].sum()),

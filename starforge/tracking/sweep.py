@@ -44,8 +44,9 @@ COLUMNS = (
     "optimal",
     "method",
     "note",
-    "seconds",
 )
+#: run time per cell stays in the rows (benchmarks read it) but not in the CSV: the same
+#: inputs give the same CSV byte for byte, wherever and however fast the cells ran
 #: labelled candidates up to which a cell is enumerated exhaustively (about 2-5 s on one core)
 EXHAUSTIVE_LABELLED = 20_000_000
 #: random candidates drawn per interval cell (fixed: the same seed gives the same family)
@@ -278,30 +279,51 @@ def run_cell(args: tuple) -> list[dict]:
 BYTES_PER_TRIPLE = 150.0
 
 
-def estimate_cells(marker_mm: float, deltas, cubes, rules, exhaustive_labelled: int, samples: int) -> tuple[float, float]:
-    """Rough single-core seconds for a whole sweep and the peak bytes of its largest cell
-    (for the bounded-cost check)."""
+def cell_estimate(marker_mm: float, delta: float, cube: float, rules, exhaustive_labelled: int, samples: int) -> tuple[float, float]:
+    """(single-core seconds, peak bytes) of one cell, rough (for the bounded-cost checks)."""
     from starforge.stars.enumerate import SECONDS_PER_LABELLED
     from starforge.stars.enumerate import estimate as enum_estimate
     from starforge.stars.spec import StarSpec
 
-    total, peak = 0.0, 0.0
-    for d in deltas:
-        for c in cubes:
-            try:
-                spec = StarSpec(box_mm=(c, c, c), marker_mm=marker_mm, delta_mm=d)
-            except StarforgeError:
-                continue
-            est = enum_estimate(spec)
-            n = est["labelled"]
-            if n <= exhaustive_labelled:
-                total += n * SECONDS_PER_LABELLED * 4 + 1.0
-                peak = max(peak, est["bytes"])
-            else:
-                triples = math.comb(spec.pool_size, 3)
-                total += len(rules) * samples * 2e-5 + triples * 2e-7 * spec.grid_steps**3
-                peak = max(peak, triples * BYTES_PER_TRIPLE + 100e6)
-    return total, peak
+    try:
+        spec = StarSpec(box_mm=(cube, cube, cube), marker_mm=marker_mm, delta_mm=delta)
+    except StarforgeError:
+        return 0.0, 0.0
+    est = enum_estimate(spec)
+    n = est["labelled"]
+    if n <= exhaustive_labelled:
+        return n * SECONDS_PER_LABELLED * 4 + 1.0, est["bytes"]
+    triples = math.comb(spec.pool_size, 3)
+    return (
+        len(rules) * samples * 2e-5 + triples * 2e-7 * spec.grid_steps**3,
+        triples * BYTES_PER_TRIPLE + 100e6,
+    )
+
+
+#: the most labelled candidates a sweep cell enumerates exhaustively
+MAX_EXHAUSTIVE = 300_000_000
+
+
+def _auto_limit(marker_mm: float, delta: float, cube: float, rules, samples: int, share: float) -> int:
+    """The cell's exhaustive threshold under ``--exhaustive auto``: its own labelled count when
+    its enumeration fits ``share`` bytes (one worker's memory) and MAX_EXHAUSTIVE, else -1
+    (an interval)."""
+    from starforge.stars.enumerate import labelled_count
+    from starforge.stars.spec import StarSpec
+
+    try:
+        n = labelled_count(StarSpec(box_mm=(cube, cube, cube), marker_mm=marker_mm, delta_mm=delta))
+    except StarforgeError:
+        return 0
+    _, nbytes = cell_estimate(marker_mm, delta, cube, rules, n, samples)
+    return n if (n <= MAX_EXHAUSTIVE and nbytes <= share) else -1
+
+
+def estimate_cells(marker_mm: float, deltas, cubes, rules, exhaustive_labelled: int, samples: int) -> tuple[float, float]:
+    """Rough single-core seconds for a whole sweep and the peak bytes of its largest cell
+    (for the bounded-cost check)."""
+    est = [cell_estimate(marker_mm, d, c, rules, exhaustive_labelled, samples) for d in deltas for c in cubes]
+    return sum(e[0] for e in est), max((e[1] for e in est), default=0.0)
 
 
 def sweep(
@@ -309,71 +331,74 @@ def sweep(
     deltas,
     cubes,
     rules=("face", "pair"),
-    exhaustive_labelled: int = EXHAUSTIVE_LABELLED,
+    exhaustive_labelled: int | None = EXHAUSTIVE_LABELLED,
     samples: int = SAMPLES,
     workers: int | None = None,
     seed: int = 0,
     min_depth_mm: float | None = None,
     progress=None,
+    scheduler: str | None = None,
+    on_plan=None,
 ) -> list[dict]:
-    """Every (delta, cube) cell on ``workers`` processes (default: every core); rows sorted.
+    """Every (delta, cube) cell, each one task of :func:`starforge.engine.map_tasks` (in
+    process for small sweeps, else a local dask cluster of ``workers`` processes, default every
+    core, or the cluster at ``scheduler`` / ``STARFORGE_SCHEDULER``); rows sorted, so they do
+    not depend on where or in which order the cells ran.
 
-    ``progress(done, total)`` after each finished cell.
+    ``exhaustive_labelled=None`` ("auto"): every cell whose enumeration fits one worker's memory
+    (and has at most :data:`MAX_EXHAUSTIVE` labelled candidates) is exhaustive, the others
+    intervals.  ``progress(done, total)`` after each finished cell; ``on_plan(plan)`` once,
+    before the first.
     """
-    import os
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    from starforge.budget import require_memory, require_time
+    from starforge import engine
+    from starforge.budget import require_time
 
     positive("marker_mm", marker_mm)
-    require(exhaustive_labelled >= 0, f"exhaustive_labelled must be >= 0, got {exhaustive_labelled}")
-    require(
-        exhaustive_labelled <= 300_000_000,
-        f"exhaustive_labelled must be <= 300,000,000, got {exhaustive_labelled:,}",
-    )
+    if exhaustive_labelled is not None:
+        require(exhaustive_labelled >= 0, f"exhaustive_labelled must be >= 0, got {exhaustive_labelled}")
+        require(
+            exhaustive_labelled <= MAX_EXHAUSTIVE,
+            f"exhaustive_labelled must be <= {MAX_EXHAUSTIVE:,}, got {exhaustive_labelled:,}",
+        )
     require(100 <= samples <= 10_000_000, f"samples must be in [100, 10000000], got {samples}")
     for r in rules:
         require(r in ("face", "pair"), f"rule must be face or pair, got {r!r}")
     require(
         workers is None or 0 <= workers <= 256, f"workers must be in [0, 256] (0: every core), got {workers}"
     )
-    workers = workers or os.cpu_count() or 1
-    seconds, cell_bytes = estimate_cells(marker_mm, deltas, cubes, rules, exhaustive_labelled, samples)
-    what = f"a sweep of {len(deltas) * len(cubes)} cells"
-    advice = "use a larger --delta, smaller --cube values or fewer of them, or lower --exhaustive"
-    workers = max(1, min(workers, len(deltas) * len(cubes)))
-    require_memory(cell_bytes * workers, f"{what} on {workers} processes", advice)
-    require_time(seconds / workers, what, advice)
-    cells = [
-        (
-            float(marker_mm),
-            float(d),
-            float(c),
-            tuple(rules),
-            int(exhaustive_labelled),
-            int(samples),
-            int(seed),
-            min_depth_mm,
-        )
-        for d in deltas
-        for c in cubes
-    ]
-    rows: list[dict] = []
-    if workers == 1:
-        for i, cell in enumerate(cells):
-            rows.extend(run_cell(cell))
-            if progress:
-                progress(i + 1, len(cells))
+    pairs = [(float(d), float(c)) for d in deltas for c in cubes]
+    if exhaustive_labelled is None:
+        share = engine.plan(len(pairs), math.inf, workers or None, scheduler).task_bytes
+        limits = [_auto_limit(marker_mm, d, c, rules, samples, share) for d, c in pairs]
     else:
-        import multiprocessing
-
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
-            futs = [ex.submit(run_cell, c) for c in cells]
-            for i, f in enumerate(as_completed(futs)):
-                rows.extend(f.result())
-                if progress:
-                    progress(i + 1, len(cells))
+        limits = [int(exhaustive_labelled)] * len(pairs)
+    cells = [
+        (float(marker_mm), d, c, tuple(rules), lim, int(samples), int(seed), min_depth_mm)
+        for (d, c), lim in zip(pairs, limits, strict=True)
+    ]
+    est = [cell_estimate(marker_mm, c[1], c[2], rules, c[4], samples) for c in cells]
+    seconds = sum(e[0] for e in est)
+    what = f"a sweep of {len(cells)} cells"
+    advice = "use a larger --delta, smaller --cube values or fewer of them, or lower --exhaustive"
+    # the estimate leaves out the exact selection's time; workers asked for by number get a
+    # local cluster whatever the estimate says
+    plan_seconds = math.inf if (workers or 0) > 1 else seconds
+    p = engine.plan(len(cells), plan_seconds, workers or None, scheduler)
+    if p.mode != "remote":  # a remote cluster's size is known once connected; its memory is checked per task
+        require_time(seconds / p.workers, what, advice)
+    results = engine.map_tasks(
+        run_cell,
+        cells,
+        task_bytes=[e[1] for e in est],
+        seconds=plan_seconds,
+        workers=workers or None,
+        scheduler=scheduler,
+        progress=progress,
+        what=what,
+        advice=advice,
+        on_plan=on_plan,
+    )
+    rows: list[dict] = [row for cell_rows in results for row in cell_rows]
     rows.sort(key=lambda r: (r["rule"], r["delta_mm"], r["cube_mm"]))
     return carry_bounds(rows)
 

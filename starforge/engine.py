@@ -1,0 +1,339 @@
+"""The one engine for parallel work: independent pure tasks on dask.distributed, or in process.
+
+Every parallel job of starforge (sweep cells, enumeration chunks, batch placements) is a list
+of tasks ``fn(item)``: ``fn`` a module-level function, ``item`` a small picklable value, the
+result a compact value (arrays, a few rows).  :func:`map_tasks` runs them and returns the
+results **in item order**, whatever the number of workers and whichever finishes first, so
+the output is the same byte for byte on one process, on this machine's cores or on a cluster.
+
+Where the tasks run (:func:`plan`):
+
+* ``--scheduler ADDRESS`` (or the environment variable ``STARFORGE_SCHEDULER``): an existing
+  dask cluster (``dask scheduler`` / ``dask worker``, dask-jobqueue, dask-kubernetes).
+* otherwise, when the estimated work is at least :data:`LOCAL_CLUSTER_SECONDS` and more than
+  one worker is allowed: a local cluster sized to this machine (one single-threaded worker
+  process per core, TCP on loopback), started for the run and closed after it.
+* otherwise in this process, one task after another: starting a local cluster costs seconds
+  (2-4 s measured here for 2 workers), more than a small job takes.
+
+Memory: each task's peak is estimated before submission and must fit one worker thread's
+share of its worker's memory limit (local cluster: the command's memory budget,
+:mod:`starforge.budget`, divided among the workers); otherwise the run is refused in one line.
+Local workers run one task at a time, so the estimates bound what each worker holds.
+
+Faults: a worker that dies mid-run has its tasks rerun elsewhere by the scheduler (the results
+are pure, so nothing changes).  A scheduler that cannot be reached, or that goes away, raises
+:class:`~starforge.errors.StarforgeError` with one line; callers publish nothing then.
+
+Progress: ``progress(done, total)`` after each finished task; and one plain log line per
+roughly 10 % on the ``starforge.engine`` logger.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from starforge.errors import StarforgeError
+
+ENV_SCHEDULER = "STARFORGE_SCHEDULER"
+#: estimated single-core work (s) from which a local cluster is started (below: in process)
+LOCAL_CLUSTER_SECONDS = 20.0
+#: seconds to wait when connecting to a scheduler, and for its first worker
+CONNECT_TIMEOUT_S = 10.0
+
+log = logging.getLogger("starforge.engine")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Where a job runs.
+
+    mode : "serial" (in this process), "local" (a local cluster started for the job) or
+           "remote" (an existing scheduler)
+    workers : int                 worker threads that run tasks at once
+    task_bytes : float            the memory one task may use, bytes
+    address : str or None         the scheduler's address (remote)
+    """
+
+    mode: str
+    workers: int
+    task_bytes: float
+    address: str | None = None
+
+    def describe(self) -> str:
+        if self.mode == "serial":
+            return "in process"
+        if self.mode == "local":
+            return f"a local dask cluster of {self.workers} worker processes"
+        return f"the dask cluster at {self.address} ({self.workers} worker threads)"
+
+
+def scheduler_address(scheduler: str | None = None) -> str | None:
+    """The scheduler to use: ``scheduler`` if given, else ``STARFORGE_SCHEDULER``, else None."""
+    addr = scheduler if scheduler else os.environ.get(ENV_SCHEDULER, "").strip() or None
+    if addr is not None and "://" not in addr:
+        addr = f"tcp://{addr}"
+    return addr
+
+
+def local_workers(workers: int | None = None) -> int:
+    """Worker processes of a local cluster: ``workers`` or every core."""
+    return max(1, int(workers) if workers else (os.cpu_count() or 1))
+
+
+def plan(
+    n_tasks: int,
+    seconds: float = math.inf,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    client=None,
+) -> Plan:
+    """Decide where ``n_tasks`` tasks of about ``seconds`` single-core seconds in all run (see
+    the module docstring).  ``client``: a connected client, for a remote plan's capacity."""
+    from starforge.budget import memory_limit_bytes
+
+    if threads_for_task() == 1:  # a task's own parallel work stays in its worker (never nested)
+        return Plan("serial", 1, float(memory_limit_bytes()))
+    addr = scheduler_address(scheduler)
+    if addr is not None:
+        if client is None:
+            return Plan("remote", 1, math.inf, addr)
+        threads, per_thread = cluster_capacity(client)
+        return Plan("remote", threads, per_thread, addr)
+    w = min(local_workers(workers), max(1, n_tasks))
+    if w == 1 or seconds < LOCAL_CLUSTER_SECONDS:
+        return Plan("serial", 1, float(memory_limit_bytes()))
+    return Plan("local", w, memory_limit_bytes() / w)
+
+
+def cluster_capacity(client) -> tuple[int, float]:
+    """(worker threads, the smallest memory one thread may use) of a connected cluster."""
+    from starforge.budget import memory_limit_bytes
+
+    info = client.scheduler_info()
+    workers = info.get("workers", {})
+    threads = sum(int(w.get("nthreads", 1)) for w in workers.values())
+    shares = [
+        (w.get("memory_limit") or memory_limit_bytes()) / max(1, int(w.get("nthreads", 1)))
+        for w in workers.values()
+    ]
+    return max(1, threads), (min(shares) if shares else float(memory_limit_bytes()))
+
+
+def require_task_memory(task_bytes: Sequence[float], p: Plan, what: str, advice: str) -> None:
+    """Refuse in one line when the largest task does not fit one worker thread's memory."""
+    from starforge.budget import format_bytes
+
+    if not len(task_bytes):
+        return
+    worst = max(range(len(task_bytes)), key=lambda i: task_bytes[i])
+    need = float(task_bytes[worst])
+    if not need <= p.task_bytes:
+        raise StarforgeError(
+            f"{what}: task {worst} needs about {format_bytes(need)} of memory, above the "
+            f"{format_bytes(p.task_bytes)} each worker of {p.describe()} may use; {advice}"
+        )
+
+
+def _connect(addr: str):
+    from distributed import Client
+
+    try:
+        client = Client(addr, timeout=f"{CONNECT_TIMEOUT_S}s", set_as_default=False)
+    except (OSError, TimeoutError) as exc:
+        raise StarforgeError(
+            f"cannot reach the dask scheduler at {addr} ({type(exc).__name__}); start one with "
+            f"`dask scheduler`, or unset --scheduler / {ENV_SCHEDULER} to run on this machine"
+        ) from None
+    try:
+        client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError):
+        client.close()
+        raise StarforgeError(
+            f"the dask scheduler at {addr} has no workers; start some with `dask worker {addr}`"
+        ) from None
+    return client
+
+
+def _local_cluster(p: Plan):
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(
+        n_workers=p.workers,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address=None,
+        memory_limit=int(p.task_bytes),
+        silence_logs=logging.ERROR,
+    )
+    return cluster, Client(cluster, set_as_default=False)
+
+
+class _Progress:
+    def __init__(self, total: int, label: str, progress):
+        self.total, self.label, self.progress = total, label, progress
+        self.done, self.next_log = 0, 0.1
+
+    def tick(self) -> None:
+        self.done += 1
+        if self.progress is not None:
+            self.progress(self.done, self.total)
+        if self.done / max(1, self.total) >= self.next_log or self.done == self.total:
+            log.info("%s: %d/%d done", self.label, self.done, self.total)
+            while self.next_log <= self.done / max(1, self.total):
+                self.next_log += 0.1
+
+
+def map_tasks(
+    fn: Callable[[Any], Any],
+    items: Sequence[Any],
+    *,
+    task_bytes: Sequence[float] | float | None = None,
+    seconds: float = math.inf,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    what: str = "tasks",
+    advice: str = "use smaller pieces of work",
+    on_plan: Callable[[Plan], None] | None = None,
+) -> list:
+    """``[fn(x) for x in items]``, run where :func:`plan` decides; results in item order.
+
+    Parameters
+    ----------
+    fn : callable
+        A module-level (picklable) pure function of one item.
+    items : sequence
+        Small picklable inputs, one per task.
+    task_bytes : sequence of float, float or None
+        Estimated peak memory of each task (or of every task), bytes; checked against one
+        worker's share before anything is submitted.
+    seconds : float
+        Estimated single-core seconds of all tasks together (decides in process vs a cluster).
+    workers : int or None
+        Local worker processes (default: every core); 1 runs in process.
+    scheduler : str or None
+        Address of an existing dask scheduler (default: ``STARFORGE_SCHEDULER``, else local).
+    progress : callable or None
+        ``progress(done, total)`` after each finished task.
+    what, advice : str
+        The job and what to change, for the one-line refusals.
+    on_plan : callable or None
+        Called with the :class:`Plan` before the first task (to tell the user where it runs).
+    """
+    items = list(items)
+    n = len(items)
+    if task_bytes is None:
+        tb = [0.0] * n
+    elif isinstance(task_bytes, (int, float)):
+        tb = [float(task_bytes)] * n
+    else:
+        tb = [float(x) for x in task_bytes]
+    p = plan(n, seconds, workers, scheduler)
+    client = cluster = None
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    if p.mode != "serial":  # dask's own reconnect and shutdown chatter: our one line says it
+        quiet.setLevel(logging.CRITICAL)
+    try:
+        if p.mode == "remote":
+            client = _connect(p.address)
+            p = plan(n, seconds, workers, scheduler, client=client)
+        require_task_memory(tb, p, what, advice)
+        if on_plan is not None:
+            on_plan(p)
+        ticker = _Progress(n, what, progress)
+        if p.mode == "serial":
+            out = []
+            for x in items:
+                out.append(fn(x))
+                ticker.tick()
+            return out
+        if p.mode == "local":
+            cluster, client = _local_cluster(p)
+        return _run_on(client, fn, items, ticker, p)
+    finally:
+        try:
+            if client is not None:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+        finally:
+            quiet.setLevel(level)
+
+
+def _run_on(client, fn, items, ticker: _Progress, p: Plan) -> list:
+    from distributed import as_completed
+
+    from starforge.io import interrupted
+
+    futures = client.map(fn, items, pure=False)
+    index = {f.key: i for i, f in enumerate(futures)}
+    out: list = [None] * len(items)
+    where = p.address or "the local cluster"
+    try:
+        with client.as_current():
+            for fut in as_completed(futures):
+                if interrupted():
+                    raise KeyboardInterrupt
+                if fut.cancelled():  # the scheduler went away
+                    raise StarforgeError(f"lost the dask scheduler at {where} mid-run; nothing was written")
+                try:
+                    # waits if the worker that held this result died since: the task reruns
+                    res = fut.result()
+                except Exception as exc:
+                    if _is_lost(exc):
+                        raise
+                    if type(exc).__name__ == "KilledWorker":
+                        raise StarforgeError(
+                            f"a task of {ticker.label} killed {p.describe()}'s workers repeatedly "
+                            f"(out of memory?); nothing was written"
+                        ) from None
+                    raise _TaskFailed(exc) from None  # the task's own error, as raised
+                out[index[fut.key]] = res
+                fut.release()
+                ticker.tick()
+    except _TaskFailed as failed:
+        raise failed.exc from None
+    except Exception as exc:
+        if _is_lost(exc):
+            raise StarforgeError(
+                f"lost the dask scheduler at {where} mid-run ({type(exc).__name__}); nothing was written"
+            ) from None
+        raise
+    return out
+
+
+class _TaskFailed(Exception):
+    """A task's own exception, carried past the connection-loss handlers."""
+
+    def __init__(self, exc: BaseException):
+        super().__init__(str(exc))
+        self.exc = exc
+
+
+def _is_lost(exc: BaseException) -> bool:
+    """The client lost its scheduler: cancelled futures, closed comms, connection timeouts."""
+    name = type(exc).__name__
+    return "Cancelled" in name or name in ("CommClosedError", "TimeoutError", "ConnectionRefusedError", "StreamClosedError")
+
+
+def threads_for_task() -> int | None:
+    """Compiled-kernel threads a task should use: 1 inside a dask worker (each worker thread
+    is one core's share), None (every core) in process."""
+    import sys
+
+    dist = sys.modules.get("distributed")  # a worker has it imported; never import it just to ask
+    if dist is None:
+        return None
+    try:
+        dist.get_worker()
+    except (AttributeError, ValueError):
+        return None
+    return 1

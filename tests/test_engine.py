@@ -1,0 +1,236 @@
+"""The engine on a real dask cluster: 2 worker processes over TCP on loopback.
+
+Equality with the serial run (enumeration and sweep), a worker killed mid-run (same result),
+an unreachable scheduler (one line, exit 2, nothing published), and the plan / memory checks.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from starforge import engine
+from starforge.cli import main
+from starforge.errors import StarforgeError
+from starforge.stars import enumerate as E
+from starforge.stars.spec import StarSpec
+
+SPEC = StarSpec(box_mm=(14, 10, 30), delta_mm=1.0, tolerance_mm=2.0)  # 814k labelled, ~1 s
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    distributed = pytest.importorskip("distributed")
+    lc = distributed.LocalCluster(
+        n_workers=2,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        protocol="tcp",
+        dashboard_address=None,
+        silence_logs=logging.ERROR,
+    )
+    yield lc
+    lc.close()
+
+
+@pytest.fixture(scope="module")
+def serial():
+    return E.enumerate_candidates(SPEC, workers=1)
+
+
+def _same(a, b):
+    assert a.index.tobytes() == b.index.tobytes()
+    assert a.box_volume.tobytes() == b.box_volume.tobytes()
+    assert a.undecided.tobytes() == b.undecided.tobytes()
+    sa = {k: v for k, v in a.stats.items() if k != "seconds"}
+    sb = {k: v for k, v in b.stats.items() if k != "seconds"}
+    assert sa == sb
+
+
+def test_unrank_matches_the_lexicographic_walk():
+    n, m = 13, 2
+    start = np.array([k * m for k in range(6)], dtype=np.int64)
+    walk = E._subsets_from(n, m, start, 10_000)
+    assert len(walk) == E.admissible_subsets(n, m)
+    for r in (0, 1, 7, len(walk) // 2, len(walk) - 1):
+        assert E.unrank_subset(r, n, m).tolist() == walk[r].tolist()
+
+
+def test_chunked_enumeration_equals_one_chunk(serial, monkeypatch):
+    monkeypatch.setattr(E, "CHUNK_SUBSETS", 997)  # many uneven chunks, in process
+    assert len(E.chunks(SPEC)) > 20
+    _same(E.enumerate_candidates(SPEC, workers=1), serial)
+
+
+def test_enumeration_on_the_cluster_equals_serial(cluster, serial, monkeypatch):
+    monkeypatch.setattr(E, "CHUNK_SUBSETS", 2000)
+    seen = []
+    got = E.enumerate_candidates(SPEC, scheduler=cluster.scheduler_address, progress=lambda d, t: seen.append(d))
+    _same(got, serial)
+    assert seen == sorted(seen) and seen[-1] == serial.stats["labelled"]
+
+
+def test_a_killed_worker_changes_nothing(cluster, serial, monkeypatch):
+    from distributed import Client
+
+    monkeypatch.setattr(E, "CHUNK_SUBSETS", 1000)
+    with Client(cluster.scheduler_address, set_as_default=False) as c:
+        pids = sorted(c.run(os.getpid).values())
+    killed = []
+
+    def kill_one(done, total):
+        if not killed:
+            os.kill(pids[0], signal.SIGKILL)  # mid-run: most chunks are still queued
+            killed.append(done)
+
+    got = E.enumerate_candidates(SPEC, scheduler=cluster.scheduler_address, progress=kill_one)
+    assert killed and killed[0] < serial.stats["labelled"]
+    _same(got, serial)
+    with Client(cluster.scheduler_address, set_as_default=False) as c:
+        c.wait_for_workers(2, timeout=60)  # the nanny restarted the worker for the next tests
+        assert pids[0] not in c.run(os.getpid).values()
+
+
+def test_sweep_on_the_cluster_equals_serial(cluster, tmp_path):
+    from starforge.tracking.sweep import rows_csv, sweep
+
+    # interval cells (seeded samples and the pool bound): exhaustive cells' exact selection has
+    # a wall-clock limit (spec.time_limit_s), so on a loaded machine their bound may differ
+    args = (4.0, [2.0, 3.0], [18.0, 24.0], ("face", "pair"), 0, 1_000)
+    a = rows_csv(sweep(*args, workers=1))
+    b = rows_csv(sweep(*args, scheduler=cluster.scheduler_address))
+    assert a == b and a.count("\n") == 9
+
+
+def test_unreachable_scheduler_is_one_line_and_publishes_nothing(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(engine, "CONNECT_TIMEOUT_S", 1.0)
+    out = tmp_path / "sw"
+    rc = main(["sweep", "--delta", "3", "--cube", "18", "--samples", "1000", "--scheduler",
+               "127.0.0.1:9", "--out", str(out), "-q"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert err.startswith("error: cannot reach the dask scheduler at tcp://127.0.0.1:9") and "\n" not in err
+    assert not out.exists()
+
+
+def test_the_environment_variable_names_the_scheduler(monkeypatch):
+    monkeypatch.setenv(engine.ENV_SCHEDULER, "10.0.0.1:8786")
+    assert engine.scheduler_address() == "tcp://10.0.0.1:8786"
+    assert engine.scheduler_address("tls://h:1") == "tls://h:1"
+    monkeypatch.delenv(engine.ENV_SCHEDULER)
+    assert engine.scheduler_address() is None
+
+
+def test_plan_runs_small_work_in_process_and_splits_memory():
+    assert engine.plan(100, seconds=1.0, workers=4).mode == "serial"
+    assert engine.plan(1, seconds=1e6, workers=4).mode == "serial"
+    p = engine.plan(100, seconds=1e6, workers=4)
+    assert p.mode == "local" and p.workers == 4
+    with pytest.raises(StarforgeError, match="task 1 needs about"):
+        engine.require_task_memory([1.0, 2 * p.task_bytes], p, "a job", "split it")
+
+
+def test_results_come_back_in_item_order_in_process():
+    got = engine.map_tasks(abs, [-3, 1, -2], workers=1)
+    assert got == [3, 1, 2]
+
+
+def test_a_scheduler_that_goes_away_is_one_error(monkeypatch):
+    import socket
+    import subprocess
+    import sys
+
+    pytest.importorskip("distributed")
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    port = sock.getsockname()[1]
+    sock.close()
+    addr = f"tcp://127.0.0.1:{port}"
+    dask = os.path.join(os.path.dirname(sys.executable), "dask")
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    sched = subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"], **quiet)
+    work = subprocess.Popen([dask, "worker", addr, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"], **quiet)
+    try:
+        monkeypatch.setattr(E, "CHUNK_SUBSETS", 500)
+        monkeypatch.setattr(engine, "CONNECT_TIMEOUT_S", 60.0)  # slow start on a loaded machine
+
+        def kill_scheduler(done, total):
+            if sched.poll() is None:
+                sched.kill()
+                sched.wait()
+
+        with pytest.raises(StarforgeError, match=f"lost the dask scheduler at {addr} mid-run"):
+            E.enumerate_candidates(SPEC, scheduler=addr, progress=kill_scheduler)
+    finally:
+        for proc in (work, sched):
+            if proc.poll() is None:
+                proc.terminate()
+                try:
+                    proc.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+
+
+def test_stage_counts_match_a_brute_force_recount():
+    """Every stage count of the chunked enumeration, recounted in numpy over every labelled
+    candidate, with the fit decided by ``decide_fit`` (no cone test): the cone test that skips
+    the search never changes a decision, and the chunks lose or repeat nothing."""
+    from starforge.geometry.fit import decide_fit
+    from starforge.geometry.tetra import canonical_assignments, tetra_width
+
+    spec, got = SPEC, E.enumerate_candidates(SPEC, workers=1).stats
+    n, m = spec.pool_size, spec.grid_steps
+    sub = E._subsets_from(n, m, np.array([k * m for k in range(6)], dtype=np.int64), 10**7)
+    L = E.edge_pool(spec)[sub[:, canonical_assignments()]].reshape(-1, 6)
+    u, U, v, V, w, W = L.T
+    cx = (u * u + w * w - v * v) / (2 * u)
+    cy2 = w * w - cx * cx
+    cy = np.sqrt(np.maximum(cy2, 1e-300))
+    dx = (u * u + V * V - W * W) / (2 * u)
+    dy = (V * V - U * U + w * w - 2 * dx * cx) / (2 * cy)
+    dz2 = V * V - dx * dx - dy * dy
+    real = (cy2 > 1e-9) & (dz2 > 1e-9)
+    width = np.where(real, tetra_width(np.where(real[:, None], L, 10.0)), 0.0)
+    deep = real & (width >= spec.depth_mm - 1e-9)
+    lim = np.sort(np.array(spec.centre_limit_mm))
+    narrow = deep & (width <= lim[0] + 1e-9)
+    P = np.zeros((len(L), 4, 3))
+    P[:, 1, 0] = u
+    P[:, 2, 0], P[:, 2, 1] = cx, cy
+    P[:, 3, 0], P[:, 3, 1], P[:, 3, 2] = dx, dy, np.sqrt(np.maximum(dz2, 0))
+    Q = P[narrow] - P[narrow].mean(axis=1, keepdims=True)
+    ev = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", Q, Q) / 4)  # ascending
+    ky = (np.cumsum(ev, axis=1) <= np.cumsum(lim**2) / 4 + 1e-9).all(axis=1)
+    status, _, _ = decide_fit(P[narrow][ky], lim)
+    want = {
+        "labelled": len(L),
+        "realisable": int(real.sum()),
+        "deep_enough": int(deep.sum()),
+        "width_ok": int(narrow.sum()),
+        "kyfan_ok": int(ky.sum()),
+        "no_fit": int((status == 0).sum()),
+        "undecided": int((status == -1).sum()),
+        "fitting": int((status == 1).sum()),
+    }
+    assert {k: got[k] for k in want} == want
+
+
+def test_global_scheduler_option_reaches_the_enumeration(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv(engine.ENV_SCHEDULER, "")  # recorded, so the option's setting is undone after
+    monkeypatch.setattr(engine, "CONNECT_TIMEOUT_S", 1.0)
+    out = tmp_path / "fam"
+    rc = main(["--scheduler", "127.0.0.1:9", "stars", "--box", "14", "10", "24", "--out", str(out), "-q"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err.startswith("error: cannot reach the dask scheduler") and "\n" not in err
+    assert not out.exists()
+
+
+def test_a_tasks_own_error_comes_back_as_raised(cluster, tmp_path):
+    missing = str(tmp_path / "no-such-file")
+    with pytest.raises(FileNotFoundError):  # not mistaken for a lost connection (an OSError too)
+        engine.map_tasks(os.stat, [str(tmp_path), missing], scheduler=cluster.scheduler_address)
