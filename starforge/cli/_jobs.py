@@ -10,17 +10,15 @@ from starforge.cli._app import console, progress
 @contextmanager
 def job_progress(label: str, noun: str, total: int, quiet: bool):
     """Yield ``(tick, where)`` for :func:`starforge.engine.map_tasks`'s ``progress`` and
-    ``on_plan``: a progress bar on a terminal, else a plain line per tenth of the tasks (for
-    logs); ``where`` says once where the tasks run.  ``quiet``: neither."""
+    ``on_plan``: a progress bar on a terminal, else the heartbeat's plain line every few seconds
+    (:func:`starforge.cli._app.progress`, for logs); ``where`` says once where the tasks run.
+    ``quiet``: neither."""
     say = console(stderr=True)
-    with progress() as bar:
+    with progress(disable=True if quiet else None) as bar:
         task = bar.add_task(noun, total=total)
-        plain = bar.disable and not quiet
 
         def tick(done: int, n: int) -> None:
             bar.update(task, completed=done, total=n)
-            if plain and (done == n or done % max(1, n // 10) == 0):
-                say.print(f"{label}: {done}/{n} {noun} done")
 
         def where(plan) -> None:
             if not quiet:
