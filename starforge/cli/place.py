@@ -183,9 +183,13 @@ def run_cmd(
             def cb(stage, done, total):
                 bar.update(task, description=stage, completed=done, total=total)
 
-            res = place(p, s, seed=seed, progress=cb, avoid=avoid_faces, grip=cap)
-            bar.update(task, description="writing")
             with staged_output(out, force) as stage:
+                # the pictures are drawn while the layouts are evaluated on fresh poses
+                res = place(
+                    p, s, seed=seed, progress=cb, avoid=avoid_faces, grip=cap,
+                    on_layout=lambda r: renderer.submit(r, stage),
+                )  # fmt: skip
+                bar.update(task, description="writing")
                 write_outputs(res, stage, renderer=renderer, bases_stl=bases_stl)
     from starforge.props.files import summary_lines
 
