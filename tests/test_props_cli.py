@@ -302,3 +302,49 @@ def test_grip_no_hand_and_bases_stl(tmp_path, capsys):
     assert code == 0, err
     doc = json.loads((tmp_path / "n" / "placement.json").read_text())
     assert doc["hand"] == [] and doc["sites"]["under_hand"] == 0
+
+
+@pytest.fixture
+def avoid_seen(monkeypatch):
+    """Stop ``place`` where the files to avoid are read; keep the prop and the files it was given."""
+    import starforge.props.mesh as mesh
+    import starforge.stars.avoid as av
+    from starforge.errors import StarforgeError
+
+    seen = []
+
+    def fake_load(prop, units):
+        seen.append(("prop", prop))
+        return object()
+
+    def fake_faces(paths):
+        seen.append(("avoid", [str(p) for p in paths]))
+        raise StarforgeError("stopped before the placement (test)")
+
+    monkeypatch.setattr(mesh, "load_prop", fake_load)
+    monkeypatch.setattr(av, "faces_to_avoid", fake_faces)
+    return seen
+
+
+@pytest.mark.parametrize(
+    "args,prop,files",
+    [
+        (["--avoid", "A.json", "B.xml"], "hammer", ["A.json", "B.xml"]),  # B is a file, not PROP
+        (["--avoid", "A.json", "--avoid", "B.xml"], "hammer", ["A.json", "B.xml"]),
+        (["box", "--avoid", "A.json", "B.xml", "C.vsk"], "box", ["A.json", "B.xml", "C.vsk"]),
+        (["--avoid", "A.json", "B.xml", "-q", "racket"], "racket", ["A.json", "B.xml"]),  # an option ends the list
+        (["--avoid=A.json", "B.xml"], "hammer", ["A.json", "B.xml"]),
+    ],
+)
+def test_avoid_takes_every_value_up_to_the_next_option(tmp_path, capsys, avoid_seen, args, prop, files):
+    code, _, err = _run(["place", *args, "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and "stopped before the placement" in err
+    assert avoid_seen == [("prop", prop), ("avoid", files)]
+
+
+def test_spread_flag_leaves_other_arguments_alone():
+    from starforge.cli._multi import spread_flag
+
+    args = ["hammer", "--out", "o", "--seed", "3", "-q"]
+    assert spread_flag("--avoid", args) == args
+    assert spread_flag("--avoid", ["--avoid", "A", "--", "B"]) == ["--avoid", "A", "--", "B"]
