@@ -271,13 +271,34 @@ def test_pictures_drawn_in_a_child_process_are_identical(tmp_path, capsys):
     out = tmp_path / "cli"
     assert _run(["place", "shield", *FAST, "--seed", "6", "--out", str(out)], capsys)[0] == 0
     spec = with_overrides(load_spec("default"), sites=250, resolution=2, restarts=2)
-    res = place(load_prop("shield"), spec, seed=6)
+    early = []
+    res = place(load_prop("shield"), spec, seed=6, on_layout=early.append)
+    # the CLI draws from the result handed over before the evaluation: same layout, no evaluation yet
+    (first,) = early
+    assert first.marker_sites == res.marker_sites and not first.evaluation and res.evaluation
     here = tmp_path / "here"
     here.mkdir()
-    write_outputs(res, here)  # drawn in this process
-    for name in ("convergence.png", "layout.png", "markers.csv", "prop_markers.glb"):
+    write_outputs(res, here)  # drawn in this process, from the final result
+    for name in ("convergence.png", "layout.png", "guide.png", "guide.pdf", "markers.csv", "prop_markers.glb"):
         assert (out / name).read_bytes() == (here / name).read_bytes(), name
     assert not list(out.glob(".render*"))
+
+
+def test_guide_pdf_in_standard_fonts_unless_a_text_needs_more(tmp_path):
+    """guide.pdf names PDF's standard fonts and embeds none; a prop name outside Latin-1 keeps
+    the embedded fonts (the standard ones cannot draw it)."""
+    from dataclasses import replace
+
+    from starforge.props.placement import run_placement
+    from starforge.render.props import guide_files, plot_data
+
+    data = plot_data(run_placement("box", sites=150, resolution=1, orientations=6))
+    guide_files(data, tmp_path)
+    pdf = (tmp_path / "guide.pdf").read_bytes()
+    assert b"/Helvetica" in pdf and b"DejaVu" not in pdf
+    guide_files(replace(data, name="box \u03a9"), tmp_path)
+    pdf = (tmp_path / "guide.pdf").read_bytes()
+    assert b"/Helvetica" not in pdf and b"DejaVu" in pdf
 
 
 def test_grip_no_hand_and_bases_stl(tmp_path, capsys):
