@@ -369,3 +369,28 @@ def test_spread_flag_leaves_other_arguments_alone():
     args = ["hammer", "--out", "o", "--seed", "3", "-q"]
     assert spread_flag("--avoid", args) == args
     assert spread_flag("--avoid", ["--avoid", "A", "--", "B"]) == ["--avoid", "A", "--", "B"]
+
+
+def test_render_processes_fork_beside_the_heartbeat_only(capsys):
+    """Off a terminal the CLI's heartbeat thread runs; it holds its print lock across forks, so the
+    pictures still get their render processes; any other thread keeps them in-process."""
+    import os
+    import threading
+
+    from starforge.cli._app import start_heartbeat
+    from starforge.render.props import BackgroundRenderer
+
+    if not hasattr(os, "fork"):
+        pytest.skip("no os.fork")
+    stop = start_heartbeat("place", interval_s=0.01)
+    try:
+        assert BackgroundRenderer()._fork
+        with BackgroundRenderer() as r:  # forks beside a heartbeat printing every 10 ms
+            assert r._pid is not None
+        other = threading.Thread(target=threading.Event().wait, args=(0.5,), daemon=True)
+        other.start()
+        assert not BackgroundRenderer()._fork
+        other.join()
+    finally:
+        stop()
+    capsys.readouterr()

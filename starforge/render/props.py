@@ -419,14 +419,14 @@ class BackgroundRenderer:
     import for the two, not two competing with the parent for the cores).  Both wait for
     :meth:`submit`, which hands them the plot data and the folder; :meth:`wait` collects them
     (the first reports the second's outcome in its own exit status) and raises if drawing
-    failed.  Without ``os.fork`` (or when other threads run, where forking is unsafe) the same
-    pictures are drawn in-process by :meth:`wait`.  The pictures are byte-identical either way.
+    failed.  Without ``os.fork`` (or when other threads run that are not marked ``fork_safe``,
+    where forking is unsafe) the same pictures are drawn in-process by :meth:`wait`.  The pictures are byte-identical either way.
     """
 
     def __init__(self, enabled: bool = True):
         import threading
 
-        self._fork = enabled and hasattr(os, "fork") and threading.active_count() == 1
+        self._fork = enabled and hasattr(os, "fork") and _only_fork_safe_threads(threading)
         self._pid: int | None = None  # the first render process
         self._writes: list[int] = []  # write end of each role's pipe, open until submitted
         self._job: tuple | None = None
@@ -497,6 +497,13 @@ class BackgroundRenderer:
                 os.kill(self._pid, signal.SIGKILL)  # the second still leaves at end-of-file
             os.waitpid(self._pid, 0)
             self._pid = None
+
+
+def _only_fork_safe_threads(threading) -> bool:
+    """True when every thread but this one declares itself safe to fork beside (``fork_safe``:
+    the CLI's progress heartbeat holds a lock across forks while it prints)."""
+    me = threading.current_thread()
+    return all(t is me or getattr(t, "fork_safe", False) for t in threading.enumerate())
 
 
 def _warm(role: str) -> None:
