@@ -14,8 +14,13 @@
   process, the median of 3.
 * ``targets``: each with its measured value and a met flag.
 
-Run: ``python benchmarks/bench_place.py [--props hammer,box]``.  Timings depend on the load:
-the JSON records ``/proc/loadavg`` before and after.
+``hammer_cli_cpu_s``: the CPU seconds of those processes (user + system, the render
+processes included), a figure that depends far less on the load than the wall time.
+
+Run: ``python benchmarks/bench_place.py [--props hammer,box]``; a mesh of your own with
+``--mesh FILE --units mm`` (several ``--mesh`` allowed; the grip with ``--grip`` or none with
+``--grip none``): the same rows and targets on it, and the CLI timed on it.  Timings depend on
+the load: the JSON records ``/proc/loadavg`` before and after.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import subprocess
 import sys
 import tempfile
@@ -43,6 +49,7 @@ def _load() -> str:
 
 
 def _prop_row(prop: str, **kw) -> dict:
+    kw = {k: v for k, v in kw.items() if v is not None}
     from starforge.props.placement import run_placement
 
     t = time.perf_counter()
@@ -68,10 +75,10 @@ def _prop_row(prop: str, **kw) -> dict:
     }
 
 
-def _paper_row(prop: str) -> dict:
+def _paper_row(prop: str, **kw) -> dict:
     from starforge.props.placement import run_placement
 
-    res = run_placement(prop, "paper", markers=10)
+    res = run_placement(prop, "paper", markers=10, **{k: v for k, v in kw.items() if v is not None})
     c = res.centres()
     d = np.linalg.norm(c[:, None] - c[None], axis=2)
     d[np.diag_indices(len(c))] = np.inf
@@ -87,26 +94,39 @@ def _paper_row(prop: str) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--props", default=",".join(PROPS), help="comma-separated built-in props")
+    ap.add_argument("--mesh", action="append", default=[], help="a mesh file of your own (instead of the built-ins)")
+    ap.add_argument("--units", default="m", help="units of --mesh: m, cm or mm")
+    ap.add_argument("--grip", default=None, help="--grip of place for --mesh (x0,y0,z0,x1,y1,z1[,r] m, or none)")
     ap.add_argument("--cli-runs", type=int, default=3)
     a = ap.parse_args()
-    props = [p for p in a.props.split(",") if p]
+    props = list(a.mesh) or [p for p in a.props.split(",") if p]
+    kw = {"units": a.units, "grip": a.grip} if a.mesh else {}
     out: dict = {"machine": platform.machine(), "cpus": os.cpu_count(), "load_before": _load()}
-    out["props"] = {p: _prop_row(p) for p in props}
+    out["props"] = {p: _prop_row(p, **kw) for p in props}
     out["small_rig"] = {
-        p: {k: v for k, v in _prop_row(p, rig="small4").items() if k in ("cost", "cost_greedy_local_search", "cost_best_of_1000_random", "evaluation", "seconds")}
+        p: {k: v for k, v in _prop_row(p, rig="small4", **kw).items() if k in ("cost", "cost_greedy_local_search", "cost_best_of_1000_random", "evaluation", "seconds")}
         for p in props
     }  # fmt: skip
-    out["paper_defects"] = {p: _paper_row(p) for p in props}
+    out["paper_defects"] = {p: _paper_row(p, **kw) for p in props}
+    cli_prop = [a.mesh[0], "--units", a.units] + (["--grip", a.grip] if a.grip and a.grip != "none" else []) + (
+        ["--no-hand"] if a.grip == "none" else []
+    ) if a.mesh else []  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
-        runs = []
+        runs, cpu = [], []
         for _ in range(a.cli_runs):
             t = time.perf_counter()
+            c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
             subprocess.run(
-                [sys.executable, "-m", "starforge", "place", "--out", str(Path(tmp) / "h"), "-q", "--force"], check=True
+                [sys.executable, "-m", "starforge", "place", *cli_prop, "--out", str(Path(tmp) / "h"), "-q", "--force"],
+                check=True,
             )
             runs.append(time.perf_counter() - t)
+            c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu.append(c1.ru_utime + c1.ru_stime - c0.ru_utime - c0.ru_stime)
+    out["cli_prop"] = a.mesh[0] if a.mesh else "hammer"
     out["hammer_cli_runs_s"] = [round(x, 2) for x in runs]
     out["hammer_cli_s"] = round(float(np.median(runs)), 2) if runs else None
+    out["hammer_cli_cpu_s"] = round(float(np.median(cpu)), 2) if cpu else None
     out["load_after"] = _load()
     rows = out["props"]
     worst_default = min(r["evaluation"]["default"]["tracked"] for r in rows.values())

@@ -271,13 +271,34 @@ def test_pictures_drawn_in_a_child_process_are_identical(tmp_path, capsys):
     out = tmp_path / "cli"
     assert _run(["place", "shield", *FAST, "--seed", "6", "--out", str(out)], capsys)[0] == 0
     spec = with_overrides(load_spec("default"), sites=250, resolution=2, restarts=2)
-    res = place(load_prop("shield"), spec, seed=6)
+    early = []
+    res = place(load_prop("shield"), spec, seed=6, on_layout=early.append)
+    # the CLI draws from the result handed over before the evaluation: same layout, no evaluation yet
+    (first,) = early
+    assert first.marker_sites == res.marker_sites and not first.evaluation and res.evaluation
     here = tmp_path / "here"
     here.mkdir()
-    write_outputs(res, here)  # drawn in this process
-    for name in ("convergence.png", "layout.png", "markers.csv", "prop_markers.glb"):
+    write_outputs(res, here)  # drawn in this process, from the final result
+    for name in ("convergence.png", "layout.png", "guide.png", "guide.pdf", "markers.csv", "prop_markers.glb"):
         assert (out / name).read_bytes() == (here / name).read_bytes(), name
     assert not list(out.glob(".render*"))
+
+
+def test_guide_pdf_in_standard_fonts_unless_a_text_needs_more(tmp_path):
+    """guide.pdf names PDF's standard fonts and embeds none; a prop name outside Latin-1 keeps
+    the embedded fonts (the standard ones cannot draw it)."""
+    from dataclasses import replace
+
+    from starforge.props.placement import run_placement
+    from starforge.render.props import guide_files, plot_data
+
+    data = plot_data(run_placement("box", sites=150, resolution=1, orientations=6))
+    guide_files(data, tmp_path)
+    pdf = (tmp_path / "guide.pdf").read_bytes()
+    assert b"/Helvetica" in pdf and b"DejaVu" not in pdf
+    guide_files(replace(data, name="box \u03a9"), tmp_path)
+    pdf = (tmp_path / "guide.pdf").read_bytes()
+    assert b"/Helvetica" not in pdf and b"DejaVu" in pdf
 
 
 def test_grip_no_hand_and_bases_stl(tmp_path, capsys):
@@ -302,3 +323,74 @@ def test_grip_no_hand_and_bases_stl(tmp_path, capsys):
     assert code == 0, err
     doc = json.loads((tmp_path / "n" / "placement.json").read_text())
     assert doc["hand"] == [] and doc["sites"]["under_hand"] == 0
+
+
+@pytest.fixture
+def avoid_seen(monkeypatch):
+    """Stop ``place`` where the files to avoid are read; keep the prop and the files it was given."""
+    import starforge.props.mesh as mesh
+    import starforge.stars.avoid as av
+    from starforge.errors import StarforgeError
+
+    seen = []
+
+    def fake_load(prop, units):
+        seen.append(("prop", prop))
+        return object()
+
+    def fake_faces(paths):
+        seen.append(("avoid", [str(p) for p in paths]))
+        raise StarforgeError("stopped before the placement (test)")
+
+    monkeypatch.setattr(mesh, "load_prop", fake_load)
+    monkeypatch.setattr(av, "faces_to_avoid", fake_faces)
+    return seen
+
+
+@pytest.mark.parametrize(
+    "args,prop,files",
+    [
+        (["--avoid", "A.json", "B.xml"], "hammer", ["A.json", "B.xml"]),  # B is a file, not PROP
+        (["--avoid", "A.json", "--avoid", "B.xml"], "hammer", ["A.json", "B.xml"]),
+        (["box", "--avoid", "A.json", "B.xml", "C.vsk"], "box", ["A.json", "B.xml", "C.vsk"]),
+        (["--avoid", "A.json", "B.xml", "-q", "racket"], "racket", ["A.json", "B.xml"]),  # an option ends the list
+        (["--avoid=A.json", "B.xml"], "hammer", ["A.json", "B.xml"]),
+    ],
+)
+def test_avoid_takes_every_value_up_to_the_next_option(tmp_path, capsys, avoid_seen, args, prop, files):
+    code, _, err = _run(["place", *args, "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and "stopped before the placement" in err
+    assert avoid_seen == [("prop", prop), ("avoid", files)]
+
+
+def test_spread_flag_leaves_other_arguments_alone():
+    from starforge.cli._multi import spread_flag
+
+    args = ["hammer", "--out", "o", "--seed", "3", "-q"]
+    assert spread_flag("--avoid", args) == args
+    assert spread_flag("--avoid", ["--avoid", "A", "--", "B"]) == ["--avoid", "A", "--", "B"]
+
+
+def test_render_processes_fork_beside_the_heartbeat_only(capsys):
+    """Off a terminal the CLI's heartbeat thread runs; it holds its print lock across forks, so the
+    pictures still get their render processes; any other thread keeps them in-process."""
+    import os
+    import threading
+
+    from starforge.cli._app import start_heartbeat
+    from starforge.render.props import BackgroundRenderer
+
+    if not hasattr(os, "fork"):
+        pytest.skip("no os.fork")
+    stop = start_heartbeat("place", interval_s=0.01)
+    try:
+        assert BackgroundRenderer()._fork
+        with BackgroundRenderer() as r:  # forks beside a heartbeat printing every 10 ms
+            assert r._pid is not None
+        other = threading.Thread(target=threading.Event().wait, args=(0.5,), daemon=True)
+        other.start()
+        assert not BackgroundRenderer()._fork
+        other.join()
+    finally:
+        stop()
+    capsys.readouterr()

@@ -289,3 +289,21 @@ def test_the_evaluation_agrees_with_the_compiled_table():
     assert agree >= 0.99  # sight lines that graze an edge may go either way in float32 embree
     # a marker the table counts as seen by two cameras, the evaluation does too, and back
     assert ((bits.sum(axis=2) >= 2) == (hits.sum(axis=2) >= 2)).mean() >= 0.99
+
+
+def test_a_mesh_is_held_by_its_handle_not_by_a_blade():
+    """The sword's mesh (no grip of its own as a file) is held at its hilt, not its thin tip; a
+    blade alone (4 mm thick) has no handle; a turned box's sections measure its true widths."""
+    import trimesh
+
+    from starforge.props.builtin import builtin_mesh
+    from starforge.props.hand import default_grip, graspable_grip, section_widths
+
+    sword = builtin_mesh("sword")
+    g = default_grip(sword, "sword.stl")  # a file: no built-in grip
+    assert max(g.a[2], g.b[2]) < 0.2 < 0.9 * float(sword.bounds[1][2])
+    assert graspable_grip(trimesh.creation.box(extents=(0.04, 0.004, 0.3))) is None
+    box = trimesh.creation.box(extents=(0.05, 0.02, 0.3))
+    box.apply_transform(trimesh.transformations.rotation_matrix(np.radians(30), [0, 0, 1]))
+    w = section_widths(box, 2, np.linspace(-0.14, 0.14, 8))
+    assert np.allclose(w[:, 0], 0.05) and np.allclose(w[:, 1], 0.02)

@@ -99,6 +99,24 @@ def _state_line(command: str, seconds: float) -> str:
     return text
 
 
+_FORK_LOCK: list = []
+
+
+def _fork_safe_lock():
+    """The heartbeat's print lock, held across every ``os.fork`` of this process (registered
+    once): a child forked while the heartbeat runs (the pictures' render processes) never
+    inherits stderr's lock taken, so the heartbeat thread is safe to fork beside."""
+    import os
+    import threading
+
+    if not _FORK_LOCK:
+        lock = threading.Lock()
+        if hasattr(os, "register_at_fork"):
+            os.register_at_fork(before=lock.acquire, after_in_parent=lock.release, after_in_child=lock.release)
+        _FORK_LOCK.append(lock)
+    return _FORK_LOCK[0]
+
+
 def start_heartbeat(command: str, interval_s: float = HEARTBEAT_S):
     """Print a plain progress line on stderr every ``interval_s`` until the returned stop function
     is called: long work (numba's first compile included) shows progress without a terminal."""
@@ -108,15 +126,18 @@ def start_heartbeat(command: str, interval_s: float = HEARTBEAT_S):
     stop = threading.Event()
     t0 = time.monotonic()
     _state[:] = ["working", None, None]
+    lock = _fork_safe_lock()
 
     def beat() -> None:
         while not stop.wait(interval_s):
             try:
-                print(_state_line(command, time.monotonic() - t0), file=sys.stderr, flush=True)
+                with lock:  # never forked half-way through a line (stderr's lock held)
+                    print(_state_line(command, time.monotonic() - t0), file=sys.stderr, flush=True)
             except (OSError, ValueError):  # stderr closed: nobody is reading
                 return
 
     th = threading.Thread(target=beat, name="starforge-heartbeat", daemon=True)
+    th.fork_safe = True  # a process forked while it runs inherits no lock it holds (see above)
     th.start()
 
     def stop_fn() -> None:

@@ -28,3 +28,35 @@ def more_values(flag: str, given, extra) -> list[Path]:
     if bad:
         raise StarforgeError(f"no such option: {bad[0]}")
     return [Path(p) for p in given] + [Path(p) for p in extra]
+
+
+def spread_flag(flag: str, args: list[str]) -> list[str]:
+    """``args`` with every bare value that follows ``flag`` (up to the next option or ``--``)
+    given its own ``flag``: ``--avoid A B hammer`` -> ``--avoid A --avoid B --avoid hammer``.
+
+    For a command that also has an optional positional argument (``place [PROP]``), where
+    click would otherwise take the second value for the positional: the rule is that every
+    value after the flag until the next option belongs to the flag, so a positional comes
+    before the flag or after another option.
+    """
+    out: list[str] = []
+    taking = False
+    for a in args:
+        if a == "--":
+            taking = False
+            out.append(a)
+            continue
+        if a.startswith("-") and a != "-":
+            taking = a == flag or a.startswith(flag + "=")
+            out.append(a)
+            if a == flag:
+                taking = "value"  # the flag's own value comes next
+            continue
+        if taking == "value":
+            taking = True
+            out.append(a)
+        elif taking:
+            out += [flag, a]
+        else:
+            out.append(a)
+    return out

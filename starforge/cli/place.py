@@ -22,8 +22,12 @@ class _DefaultGroup(TyperGroup):
     """Dispatch to a subcommand when the first argument names one, else to the default command."""
 
     def parse_args(self, ctx, args):
+        from starforge.cli._multi import spread_flag
+
         if not args or (args[0] not in self.commands and args[0] not in ctx.help_option_names):
             args = [_DEFAULT, *args]
+        if args[0] == _DEFAULT:  # --avoid A B: every value up to the next option is a file to avoid
+            args = [_DEFAULT, *spread_flag("--avoid", list(args[1:]))]
         return super().parse_args(ctx, args)
 
 
@@ -119,7 +123,10 @@ def run_cmd(
         False, "--bases-stl", help="Also write prop_bases.stl: the prop with a flat pad under every marker (for printing)."
     ),
     avoid: list[Path] = typer.Option(
-        None, "--avoid", help="Placements, star families or tracker files of bodies already in the room."
+        None,
+        "--avoid",
+        help="Placements, star families or tracker files of bodies already in the room; several may follow one "
+        "flag (--avoid A B): every value up to the next option is one, so give PROP before --avoid.",
     ),
     units: str = typer.Option("m", "--units", help="Units of a mesh file: m, cm or mm."),
     forbid_mesh: str = typer.Option(None, "--forbid-mesh", help="Mesh of a constrained area (no markers)."),
@@ -186,9 +193,13 @@ def run_cmd(
             def cb(stage, done, total):
                 bar.update(task, description=stage, completed=done, total=total)
 
-            res = place(p, s, seed=seed, progress=cb, avoid=avoid_faces, grip=cap)
-            bar.update(task, description="writing")
             with staged_output(out, force) as stage:
+                # the pictures are drawn while the layouts are evaluated on fresh poses
+                res = place(
+                    p, s, seed=seed, progress=cb, avoid=avoid_faces, grip=cap,
+                    on_layout=lambda r: renderer.submit(r, stage),
+                )  # fmt: skip
+                bar.update(task, description="writing")
                 write_outputs(res, stage, renderer=renderer, bases_stl=bases_stl)
     from starforge.props.files import summary_lines
 

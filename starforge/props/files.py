@@ -326,7 +326,7 @@ def write_outputs(res: PlacementResult, folder: Path, render: bool = True, rende
         from starforge.render.props import BackgroundRenderer
 
         renderer = BackgroundRenderer(enabled=False)
-    if render:
+    if render and not renderer.submitted:  # the CLI submits as soon as the layout is chosen
         renderer.submit(res, folder)
     names = []
     atomic_write_text(folder / "markers.csv", markers_csv(res.marker_points, res.marker_normals))

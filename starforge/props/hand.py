@@ -6,7 +6,10 @@ fingers close around) and the part's radius; the hand is one capsule around it, 
 (:func:`hand_capsule`: palm and fingers wrapped round the grip), which hides whatever lies inside it from every camera and covers the surface it
 encloses (no marker can be stuck under the hand).  ``--grip`` gives the segment in the prop
 frame (metres); without it, a built-in prop has its own grip (:data:`GRIPS`) and a mesh gets
-its thinnest end: of the ends of its bounding box along the axes at least half as long as the
+its handle (:func:`graspable_grip`): the longest run, at least 40 mm, of cross-sections a hand
+closes around (12-60 mm across along their principal axes: a blade, a plate or a body is
+none), the palm (at most a quarter of the prop's length) at the run's end nearer the prop's end.  A mesh without one gets its thinnest
+end: of the ends of its bounding box along the axes at least half as long as the
 longest (the quarter of the box next to each face), the one whose cross-section (the vertices' farthest distance from the section's centre)
 is smallest, the grip running a palm's width (:data:`PALM_M`, at most a quarter of the length)
 along that axis.  The forearm is not modelled (its direction depends on how the prop
@@ -88,11 +91,109 @@ def parse_grip(text: str) -> Capsule:
     return hand_capsule(v[:3], v[3:6], r)
 
 
+#: a cross-section a hand closes around: its narrower principal width at least this (m; a blade
+#: or a plate is thinner) and its wider one at most :data:`GRASP_MAX_M`
+GRASP_MIN_M = 0.012
+GRASP_MAX_M = 0.06
+#: a handle is at least this long (m) of consecutive such sections
+GRASP_RUN_M = 0.04
+#: the sections are this far apart along the axis (m), at most :data:`_MAX_SLICES` of them
+SLICE_M = 0.004
+_MAX_SLICES = 400
+
+
+def section_widths(mesh, axis: int, heights: np.ndarray) -> np.ndarray:
+    """(k, 4) float: per plane ``x[axis] = heights[k]`` the cross-section's two principal widths
+    (wider first, m) and its centre in the other two axes (nan where the plane misses the
+    mesh).  The section is the points where the mesh's edges cross the plane; its widths are
+    its extents along the principal axes of those points (so a turned blade stays thin)."""
+    v = np.asarray(mesh.vertices, float)
+    e = np.asarray(mesh.edges_unique, int)
+    others = [i for i in range(3) if i != axis]
+    t0, t1 = v[e[:, 0], axis], v[e[:, 1], axis]
+    lo_t, hi_t = np.minimum(t0, t1), np.maximum(t0, t1)
+    h = np.asarray(heights, float)
+    first = np.searchsorted(h, lo_t, side="left")
+    last = np.searchsorted(h, hi_t, side="right")
+    n = np.maximum(last - first, 0)
+    edge = np.repeat(np.arange(len(e)), n)
+    k = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + np.repeat(first, n)
+    a, b = v[e[edge, 0]], v[e[edge, 1]]
+    da = b[:, axis] - a[:, axis]
+    f = np.where(np.abs(da) > 1e-15, (h[k] - a[:, axis]) / np.where(np.abs(da) > 1e-15, da, 1.0), 0.5)
+    pts = (a + f[:, None] * (b - a))[:, others]
+    out = np.full((len(h), 4), np.nan)
+    order = np.argsort(k, kind="stable")
+    k, pts = k[order], pts[order]
+    bounds = np.searchsorted(k, np.arange(len(h) + 1))
+    for i in range(len(h)):
+        q = pts[bounds[i] : bounds[i + 1]]
+        if len(q) < 3:
+            continue
+        c = q.mean(axis=0)
+        _, vecs = np.linalg.eigh(np.cov((q - c).T) + 1e-18 * np.eye(2))
+        proj = (q - c) @ vecs
+        w = np.sort(proj.max(axis=0) - proj.min(axis=0))[::-1]
+        mid = (q.max(axis=0) + q.min(axis=0)) / 2
+        out[i] = [w[0], w[1], mid[0], mid[1]]
+    return out
+
+
+def graspable_grip(mesh):
+    """The longest handle of the mesh, or None: a run of at least :data:`GRASP_RUN_M` of
+    consecutive cross-sections (every :data:`SLICE_M` along each axis at least half as long as
+    the longest) that a hand closes around (:data:`GRASP_MIN_M` to :data:`GRASP_MAX_M` across;
+    a blade, a plate or a wide body is none).  The grip covers a palm's width of it at the
+    run's end nearer the prop's end, or its middle.  Returns ``(a, b, part_radius)``."""
+    lo, hi = np.asarray(mesh.bounds, float)
+    ext = hi - lo
+    best = None
+    for ax in np.argsort(-ext, kind="stable").tolist():
+        if ext[ax] < 0.5 * ext.max():
+            continue
+        n = int(min(_MAX_SLICES, max(10, ext[ax] // SLICE_M)))
+        step = ext[ax] / n
+        h = lo[ax] + (np.arange(n) + 0.5) * step
+        w = section_widths(mesh, ax, h)
+        ok = (w[:, 1] >= GRASP_MIN_M) & (w[:, 0] <= GRASP_MAX_M)  # nan compares False
+        i = 0
+        while i < n:
+            if not ok[i]:
+                i += 1
+                continue
+            j = i
+            while j < n and ok[j]:
+                j += 1
+            length = (j - i) * step
+            if length >= GRASP_RUN_M - 1e-12 and (best is None or length > best[0] + 1e-9):
+                best = (length, ax, i, j, h, w, step)
+            i = j
+    if best is None:
+        return None
+    length, ax, i, j, h, w, step = best
+    others = [k for k in range(3) if k != ax]
+    palm = min(PALM_M, length, 0.25 * ext[ax])  # at most a quarter of the prop, as for an end
+    run_lo, run_hi = h[i] - step / 2, h[j - 1] + step / 2
+    if run_lo - lo[ax] <= hi[ax] - run_hi:  # the run's end nearer the prop's end
+        start = run_lo
+    else:
+        start = run_hi - palm
+    under = np.arange(i, j)[(h[i:j] >= start - step) & (h[i:j] <= start + palm + step)]  # the palm's sections
+    a = np.zeros(3)
+    a[others] = np.nanmean(w[under, 2:], axis=0)
+    b = a.copy()
+    a[ax], b[ax] = start, start + palm
+    return a, b, float(np.nanmax(w[under, 0]) / 2)
+
+
 def default_grip(mesh, name: str = "", builtin: bool = False) -> Capsule:
     """The hand at a sensible graspable part (see the module docstring)."""
     if builtin and name in GRIPS:
         a, b, r = GRIPS[name]
         return hand_capsule(a, b, r)
+    handle = graspable_grip(mesh)
+    if handle is not None:
+        return hand_capsule(*handle)
     lo, hi = np.asarray(mesh.bounds, float)
     ext = hi - lo
     v = np.asarray(mesh.vertices, float)

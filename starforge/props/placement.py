@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -270,7 +270,9 @@ def run_placement(
     return place(load_prop(prop, units), s, seed=seed, progress=progress, avoid=avoid_faces, grip=cap)
 
 
-def place(prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None, grip=None) -> PlacementResult:
+def place(
+    prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None, grip=None, on_layout=None
+) -> PlacementResult:
     """Optimize a marker set on ``prop`` (a :class:`starforge.props.mesh.PropMesh`).
 
     Parameters
@@ -286,6 +288,10 @@ def place(prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None, grip=
         objective): the layout's triangles keep ``avoid_tolerance_mm`` from them.
     grip : starforge.props.hand.Capsule, optional
         The hand (default: the prop's grip, when ``spec.hand``).
+    on_layout : callable, optional
+        ``on_layout(result)`` as soon as the layout is chosen, before the fresh-pose evaluation
+        (the tracked objective): ``result`` then lacks only ``evaluation`` and that step's
+        warnings (the CLI starts drawing the pictures, which need neither).
     """
     require(isinstance(seed, int) and seed >= 0, f"seed must be an integer >= 0, got {seed}")
     rng = np.random.default_rng(seed)
@@ -296,8 +302,11 @@ def place(prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None, grip=
     warnings = prop_name_warnings(prop) + check_scale(prop, load_rig(spec.rig), spec.marker_diameter_m)
     prep = prepare(prop, spec, rng, vis_cb, timings, grip)
     if spec.objective == "tracked":
-        return _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress)
-    return _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress)
+        return _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress, on_layout)
+    res = _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress)
+    if on_layout is not None:
+        on_layout(res)
+    return res
 
 
 def _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress) -> PlacementResult:
@@ -354,7 +363,7 @@ def _validator(prop, spec, seed, prep, centres, prob):
     return validate
 
 
-def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress) -> PlacementResult:
+def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress, on_layout=None) -> PlacementResult:
     """The tracked objective (:mod:`starforge.props.tracked`) over camera-loss scenarios, then
     the chosen layout and both baselines checked on fresh poses (:mod:`starforge.props.evaluate`)."""
     from starforge.props.evaluate import evaluate_layouts
@@ -403,6 +412,14 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         markers=terms["markers"],
         coverage=terms["untracked"],
     )
+    res = PlacementResult(
+        prop, spec, seed, rig, prep.poses, sites, prep.removed["constrained"], prob.visibility, chosen, cost, ann,
+        seen[list(chosen)], timings, table.rays, opt, (), prob.spacing, seat=prep.seat,
+        seat_report=prep.seat_report, capsules=prep.capsules, removed=prep.removed,
+        marker_masks=table.masks[list(chosen)],
+    )  # fmt: skip
+    if on_layout is not None:
+        on_layout(res)
     layouts = {"default": chosen, "greedy_local_search": opt.baselines["greedy_local_search"]["sites"]}
     if opt.baselines["best_of_random"]["sites"] is not None:
         layouts["best_of_random"] = opt.baselines["best_of_random"]["sites"]
@@ -434,12 +451,7 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         )
     if ev.get("default") and ev["default"]["tracked"] < max(v["tracked"] for k, v in ev.items() if not k.startswith("_")):
         warnings.append("on the fresh evaluation poses a baseline layout tracked more poses than the chosen one")
-    return PlacementResult(
-        prop, spec, seed, rig, prep.poses, sites, prep.removed["constrained"], prob.visibility, chosen, cost, ann,
-        seen[list(chosen)], timings, table.rays, opt, tuple(warnings), prob.spacing, seat=prep.seat,
-        seat_report=prep.seat_report, capsules=prep.capsules, removed=prep.removed, evaluation=ev,
-        marker_masks=table.masks[list(chosen)],
-    )  # fmt: skip
+    return replace(res, warnings=tuple(warnings), evaluation=ev)
 
 
 #: a scored marker may lie this far from the prop's surface (m), or 1 % of the prop's size if more

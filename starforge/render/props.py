@@ -365,10 +365,35 @@ def guide_files(res, folder: str | Path) -> list[str]:
     fig, plt = guide_figure(res)
     save_png(fig, Path(folder) / "guide.png", dpi=110)
     buf = io.BytesIO()
-    fig.savefig(buf, format="pdf", metadata={"Creator": None, "Producer": None, "CreationDate": None})
+    with _pdf_fonts(fig):
+        fig.savefig(buf, format="pdf", metadata={"Creator": None, "Producer": None, "CreationDate": None})
     atomic_write_bytes(Path(folder) / "guide.pdf", buf.getvalue())
     plt.close(fig)
     return ["guide.png", "guide.pdf"]
+
+
+def _pdf_fonts(fig):
+    """The PDF's text in PDF's standard fonts (Helvetica, Courier: every reader has them) rather
+    than embedded subsets of DejaVu: no fontTools import and no subsetting (about 0.3-0.5 s of
+    a CLI run's critical path) and a file a third the size.  Only where every string on the
+    page is Latin-1 (what the standard fonts cover); otherwise the embedded fonts as before."""
+    import contextlib
+    import logging
+
+    import matplotlib
+
+    texts = [t.get_text() for t in fig.findobj(lambda a: hasattr(a, "get_text") and hasattr(a, "get_fontname"))]
+    try:
+        "".join(texts).encode("latin-1")
+    except UnicodeEncodeError:
+        return contextlib.nullcontext()
+    stack = contextlib.ExitStack()
+    stack.enter_context(matplotlib.rc_context({"pdf.use14corefonts": True}))
+    log = logging.getLogger("matplotlib.font_manager")  # 'no normal weight of Helvetica, using medium'
+    level = log.level
+    log.setLevel(logging.ERROR)
+    stack.callback(log.setLevel, level)
+    return stack
 
 
 #: what each render process draws: the two placement pictures, and the rigging guide
@@ -385,102 +410,155 @@ def _draw(role: str, data: PlotData, folder: Path) -> None:
 
 
 class BackgroundRenderer:
-    """Draw the pictures in two forked child processes: ``convergence.png`` and ``layout.png``
+    """Draw the pictures in two forked render processes: ``convergence.png`` and ``layout.png``
     in one, the rigging guide in the other (they draw at the same time on two cores).
 
-    Entering forks the children, which import matplotlib at once (start-up cost that then
-    overlaps the parent's own imports and computation) and wait.  :meth:`submit` hands them the
-    plot data and the folder; :meth:`wait` collects them and raises if drawing failed.  Without
-    ``os.fork`` (or when other threads run, where forking is unsafe) the same pictures are drawn
-    in-process by :meth:`wait`.  The pictures are byte-identical either way.
+    Entering forks the first render process, which imports matplotlib at once (start-up cost
+    that then overlaps the parent's own imports and computation), loads its fonts, and only
+    then forks the second from itself, which so starts with matplotlib already imported (one
+    import for the two, not two competing with the parent for the cores).  Both wait for
+    :meth:`submit`, which hands them the plot data and the folder; :meth:`wait` collects them
+    (the first reports the second's outcome in its own exit status) and raises if drawing
+    failed.  Without ``os.fork`` (or when other threads run that are not marked ``fork_safe``,
+    where forking is unsafe) the same pictures are drawn in-process by :meth:`wait`.  The pictures are byte-identical either way.
     """
 
     def __init__(self, enabled: bool = True):
         import threading
 
-        self._fork = enabled and hasattr(os, "fork") and threading.active_count() == 1
-        self._kids: list[tuple[int, int | None]] = []  # (pid, write end)
+        self._fork = enabled and hasattr(os, "fork") and _only_fork_safe_threads(threading)
+        self._pid: int | None = None  # the first render process
+        self._writes: list[int] = []  # write end of each role's pipe, open until submitted
         self._job: tuple | None = None
         self._sent: Path | None = None
 
     def __enter__(self) -> BackgroundRenderer:
         if self._fork:
-            for role in _ROLES:
-                r, w = os.pipe()
-                pid = os.fork()
-                if pid == 0:  # child: never returns
+            pipes = [os.pipe() for _ in _ROLES]
+            pid = os.fork()
+            if pid == 0:  # render process: never returns
+                for _, w in pipes:
                     os.close(w)
-                    for _, other in self._kids:
-                        if other is not None:
-                            os.close(other)
-                    _child(r, role)
+                _first([r for r, _ in pipes])
+            for r, _ in pipes:
                 os.close(r)
-                self._kids.append((pid, w))
+            self._pid, self._writes = pid, [w for _, w in pipes]
         return self
+
+    @property
+    def submitted(self) -> bool:
+        """Whether :meth:`submit` was called (the pictures are being drawn or wait for :meth:`wait`)."""
+        return self._job is not None or self._sent is not None
 
     def submit(self, res, folder: str | Path) -> None:
         """Start drawing the pictures of ``res`` into ``folder``."""
         data, folder = plot_data(res), Path(folder)
-        if not self._kids:
+        if self._pid is None:
             self._job = (data, folder)
             return
         job = folder / ".render.pkl"
         job.write_bytes(pickle.dumps((data, str(folder)), protocol=pickle.HIGHEST_PROTOCOL))
         self._sent = job
-        for k, (pid, w) in enumerate(self._kids):
-            os.write(w, str(job).encode())
+        for w in self._writes:
+            try:
+                os.write(w, str(job).encode())
+            except OSError:  # that process is gone: wait() reports the failure
+                pass
             os.close(w)
-            self._kids[k] = (pid, None)
+        self._writes = []
 
     def wait(self) -> list[str]:
         """Wait for the pictures; return their file names."""
         names = [n for role in _ROLES for n in NAMES[role]]
-        if not self._kids:
+        if self._pid is None:
             if self._job is not None:
                 data, folder = self._job
                 for role in _ROLES:
                     _draw(role, data, folder)
                 self._job = None
             return names
-        failed = False
-        for pid, _ in self._kids:
-            _, status = os.waitpid(pid, 0)
-            failed |= status != 0
-        self._kids = []
+        _, status = os.waitpid(self._pid, 0)
+        self._pid = None
         if self._sent is not None:
-            self._sent.unlink(missing_ok=True)  # both children have read it
+            self._sent.unlink(missing_ok=True)  # both render processes have read it
             self._sent = None
-        if failed:
+        if status != 0:
             raise RuntimeError("drawing the placement pictures failed in a render process")
         return names
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        for pid, w in self._kids:
-            if w is not None:
-                os.close(w)  # the child sees end-of-file and leaves
+        for w in self._writes:
+            os.close(w)  # the render processes see end-of-file and leave
+        self._writes = []
+        if self._pid is not None:
             if exc_type is not None:
                 import signal
 
-                os.kill(pid, signal.SIGKILL)
-            os.waitpid(pid, 0)
-        self._kids = []
+                os.kill(self._pid, signal.SIGKILL)  # the second still leaves at end-of-file
+            os.waitpid(self._pid, 0)
+            self._pid = None
 
 
-def _child(read_fd: int, role: str) -> None:
-    """Body of a render process: import matplotlib, wait for a job, draw its part, exit."""
-    code = 1
+def _only_fork_safe_threads(threading) -> bool:
+    """True when every thread but this one declares itself safe to fork beside (``fork_safe``:
+    the CLI's progress heartbeat holds a lock across forks while it prints)."""
+    me = threading.current_thread()
+    return all(t is me or getattr(t, "fork_safe", False) for t in threading.enumerate())
+
+
+def _warm(role: str) -> None:
+    """What a render process does while the placement is still running: import pyplot (and the
+    PDF backend for the guide) and draw a little text, so that the font files are loaded and
+    the glyph caches filled before the real pictures arrive (none of this changes them)."""
+    import io
+
+    plt = pyplot()
+    fig = plt.figure(figsize=(1, 1))
+    fig.text(0.5, 0.5, "0123456789 mm", fontsize=8)
+    fig.text(0.5, 0.2, "0123456789 mm", fontsize=7.5, family="monospace")
+    fig.savefig(io.BytesIO(), format="png", dpi=_DPI)
+    if role == "guide":
+        import matplotlib.backends.backend_pdf  # noqa: F401
+    plt.close(fig)
+
+
+def _serve(read_fd: int, role: str, warm: bool = True) -> int:
+    """Wait for a job on ``read_fd`` and draw ``role``'s part of it; 0 when done (or when the
+    parent closed the pipe without a job), 1 when drawing failed."""
     try:
-        pyplot()
+        if warm:
+            _warm(role)
         with os.fdopen(read_fd, "rb") as fh:
             message = fh.read()
-        if not message:
-            code = 0
-        else:
+        if message:
             job = Path(message.decode())
             data, folder = pickle.loads(job.read_bytes())
             _draw(role, data, Path(folder))
-            code = 0
+        return 0
     except BaseException:  # reported by the parent through the exit status
+        return 1
+
+
+def _first(reads: list[int]) -> None:
+    """Body of the first render process: warm up, fork one process for each further role
+    (matplotlib already imported), draw its own role, and exit 0 only if every role drew."""
+    code = 1
+    try:
+        _warm(_ROLES[0])
+        kids = []
+        for k in range(1, len(_ROLES)):
+            pid = os.fork()
+            if pid == 0:
+                for j, r in enumerate(reads):
+                    if j != k:
+                        os.close(r)
+                os._exit(_serve(reads[k], _ROLES[k]))
+            os.close(reads[k])
+            kids.append(pid)
+        code = _serve(reads[0], _ROLES[0], warm=False)
+        for pid in kids:
+            code |= int(os.waitpid(pid, 0)[1] != 0)
+    except BaseException:
         code = 1
     finally:
         os._exit(code)
