@@ -34,7 +34,7 @@ import numba
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.geometry.fit import SLACK_MM, STACK, cone_excludes, decide_ws
+from starforge.geometry.fit import SLACK_MM, STACK, caps_exclude, cone_excludes, decide_ws
 from starforge.geometry.sym3 import sym3_eigvals
 from starforge.geometry.tetra import canonical_assignments
 from starforge.stars.spec import StarSpec
@@ -233,6 +233,7 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode,
         L = np.empty(6)
         ws = np.empty(8 * 6 + 18 + 3 * STACK)  # the fit decision's working memory, once per subset
         iws = np.empty(STACK, np.int64)
+        cbuf = np.empty(8 * 6)  # caps_exclude's scratch
         for a in range(assign.shape[0]):
             for j in range(6):
                 L[j] = lo + step * subsets[s, assign[a, j]]
@@ -283,7 +284,7 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode,
             if mode == 1:
                 codes[s, a] = 7
                 continue
-            if cone_excludes(P, lim, slack):
+            if cone_excludes(P, lim, slack) or caps_exclude(P, lim, slack, cbuf):
                 codes[s, a] = 4  # proven not to fit, without the search
                 continue
             st, _ = decide_ws(P, lim, slack, 1, max_cells, R, ws, iws)
