@@ -110,10 +110,22 @@ def try_candidate(c, s, x, y, L2, L3, npair):
 @_jit
 def inner(D, npair, a1, L2, L3, u, v, x, y, out):
     """Exact inner problem; on success writes (cos psi, sin psi) into out and returns True."""
+    project(D, npair, a1, u, v, x, y)
+    return inner_xy(npair, L2, L3, x, y, out)
+
+
+@_jit
+def project(D, npair, a1, u, v, x, y):
+    """The plane basis (u, v) orthogonal to a1 and the pair vectors' coordinates (x, y) in it."""
     plane_basis(a1, u, v)
     for j in range(npair):
         x[j] = dot3(D[j], u)
         y[j] = dot3(D[j], v)
+
+
+@_jit
+def inner_xy(npair, L2, L3, x, y, out):
+    """:func:`inner` on coordinates already projected (:func:`project`)."""
     if try_candidate(1.0, 0.0, x, y, L2, L3, npair):
         out[0], out[1] = 1.0, 0.0
         return True
@@ -175,6 +187,13 @@ def accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
         L3[j] = lim[2]
     if not inner(D, npair, a1, L2, L3, u, v, x, y, cs):
         return False
+    frame_rows(a1, u, v, cs, R)
+    return True
+
+
+@_jit
+def frame_rows(a1, u, v, cs, R):
+    """R's rows: a1, a2 = cos psi u + sin psi v, a3 = a1 x a2 (``cs`` = (cos psi, sin psi))."""
     c, s = cs[0], cs[1]
     for i in range(3):
         R[0, i] = a1[i]
@@ -182,7 +201,6 @@ def accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
     R[2, 0] = a1[1] * R[1, 2] - a1[2] * R[1, 1]
     R[2, 1] = a1[2] * R[1, 0] - a1[0] * R[1, 2]
     R[2, 2] = a1[0] * R[1, 1] - a1[1] * R[1, 0]
-    return True
 
 
 @_jit
@@ -328,13 +346,13 @@ STACK = 64 + 3 * 64
 def workspace_size(k: int) -> int:
     """Floats :func:`decide_ws` needs for a set of ``k`` points."""
     npair = k * (k - 1) // 2
-    return 8 * npair + 18 + 3 * STACK
+    return 9 * npair + 18 + 3 * STACK
 
 
 @_jit
 def decide_one(P, lim, slack, start, max_cells, R):
     k = P.shape[0]
-    ws = np.empty(8 * (k * (k - 1) // 2) + 18 + 3 * STACK)
+    ws = np.empty(9 * (k * (k - 1) // 2) + 18 + 3 * STACK)
     iws = np.empty(STACK, np.int64)
     return decide_ws(P, lim, slack, start, max_cells, R, ws, iws)
 
@@ -352,7 +370,8 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws):
     y = ws[o + 2 * npair : o + 3 * npair]
     L2 = ws[o + 3 * npair : o + 4 * npair]
     L3 = ws[o + 4 * npair : o + 5 * npair]
-    o += 5 * npair
+    pa = ws[o + 5 * npair : o + 6 * npair]  # |d . a1| at the cell's centre
+    o += 6 * npair
     u = ws[o : o + 3]
     v = ws[o + 3 : o + 6]
     a1 = ws[o + 6 : o + 9]
@@ -436,8 +455,11 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws):
         ct, st = math.cos(theta), math.sin(theta)
         # axis 1: lower bound of the width over the cell
         low = 0.0
+        w1 = 0.0
         for j in range(npair):
             p = abs(dot3(D[j], a1))
+            pa[j] = p
+            w1 = max(w1, p)
             cp = p / dn[j] if dn[j] > 0 else 0.0
             sp = math.sqrt(max(0.0, 1.0 - cp * cp))
             # |d| cos(psi + theta), clipped at 0 when psi + theta >= pi/2
@@ -446,15 +468,26 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws):
                 low = val
         if low > lim[0]:
             continue
-        if accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
-            return 1, cells
+        # accept (as at the critical directions), with the widths and the projection reused
+        projected = False
+        if w1 <= lim[0] + 1e-9:
+            for j in range(npair):
+                L2[j] = lim[1]
+                L3[j] = lim[2]
+            project(D, npair, a1, u, v, x, y)
+            projected = True
+            if inner_xy(npair, L2, L3, x, y, cs):
+                frame_rows(a1, u, v, cs, R)
+                return 1, cells
         for j in range(npair):
-            along = abs(dot3(D[j], a1))
+            along = pa[j]
             perp = math.sqrt(max(0.0, dn[j] * dn[j] - along * along))
             sj = st * along + (1.0 - ct) * perp
             L2[j] = lim[1] + sj
             L3[j] = lim[2] + sj
-        if not inner(D, npair, a1, L2, L3, u, v, x, y, cs):
+        if not projected:
+            project(D, npair, a1, u, v, x, y)
+        if not inner_xy(npair, L2, L3, x, y, cs):
             continue
         if theta <= theta_min:
             open_small = True

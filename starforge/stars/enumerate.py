@@ -231,7 +231,7 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode,
         P = np.zeros((4, 3))
         R = np.empty((3, 3))
         L = np.empty(6)
-        ws = np.empty(8 * 6 + 18 + 3 * STACK)  # the fit decision's working memory, once per subset
+        ws = np.empty(9 * 6 + 18 + 3 * STACK)  # the fit decision's working memory, once per subset
         iws = np.empty(STACK, np.int64)
         cbuf = np.empty(8 * 6)  # caps_exclude's scratch
         for a in range(assign.shape[0]):
