@@ -14,7 +14,9 @@ Pipeline, per labelled candidate (no Python loop per star; numba, parallel over 
 5. necessary fit conditions: the width is at most the shortest limit side, and Ky Fan's bounds on
    the covariance eigenvalues (the k smallest sum to at most the sum of the k shortest limit sides
    squared over 4; variance along a direction is at most a quarter of the width squared);
-6. the fit decision (:mod:`starforge.geometry.fit`): proven to fit (a rotation is found), proven
+6. the fit decision (:mod:`starforge.geometry.fit`): first two quick no-fit proofs
+   (:func:`~starforge.geometry.fit.cone_excludes`, :func:`~starforge.geometry.fit.caps_exclude`),
+   then the search: proven to fit (a rotation is found), proven
    not to fit, or undecided (fits, if at all, with less than :data:`~starforge.geometry.fit.SLACK_MM`
    to spare).  ``box_method="covariance"`` replaces it with the paper's test (the covariance box
    must fit).
