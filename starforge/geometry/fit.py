@@ -47,7 +47,9 @@ undecided ones too.
 
 Before the search, the seven directions where the width of a tetrahedron has its local minima
 (the four face normals and the three common normals of opposite edges) are tried as ``a_1``:
-most sets that fit are accepted there.
+most sets that fit are accepted there.  Callers deciding many sets run two quick no-fit
+proofs first (:func:`cone_excludes`, :func:`caps_exclude`, both widened by the slack so they
+never reject a set the search would leave undecided).
 
 The kernel is compiled with numba (serial, GIL released; :func:`decide_fit` spreads sets over
 threads, each set independent, so results do not depend on the thread count).
@@ -110,10 +112,22 @@ def try_candidate(c, s, x, y, L2, L3, npair):
 @_jit
 def inner(D, npair, a1, L2, L3, u, v, x, y, out):
     """Exact inner problem; on success writes (cos psi, sin psi) into out and returns True."""
+    project(D, npair, a1, u, v, x, y)
+    return inner_xy(npair, L2, L3, x, y, out)
+
+
+@_jit
+def project(D, npair, a1, u, v, x, y):
+    """The plane basis (u, v) orthogonal to a1 and the pair vectors' coordinates (x, y) in it."""
     plane_basis(a1, u, v)
     for j in range(npair):
         x[j] = dot3(D[j], u)
         y[j] = dot3(D[j], v)
+
+
+@_jit
+def inner_xy(npair, L2, L3, x, y, out):
+    """:func:`inner` on coordinates already projected (:func:`project`)."""
     if try_candidate(1.0, 0.0, x, y, L2, L3, npair):
         out[0], out[1] = 1.0, 0.0
         return True
@@ -175,6 +189,13 @@ def accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
         L3[j] = lim[2]
     if not inner(D, npair, a1, L2, L3, u, v, x, y, cs):
         return False
+    frame_rows(a1, u, v, cs, R)
+    return True
+
+
+@_jit
+def frame_rows(a1, u, v, cs, R):
+    """R's rows: a1, a2 = cos psi u + sin psi v, a3 = a1 x a2 (``cs`` = (cos psi, sin psi))."""
     c, s = cs[0], cs[1]
     for i in range(3):
         R[0, i] = a1[i]
@@ -182,7 +203,6 @@ def accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
     R[2, 0] = a1[1] * R[1, 2] - a1[2] * R[1, 1]
     R[2, 1] = a1[2] * R[1, 0] - a1[0] * R[1, 2]
     R[2, 2] = a1[0] * R[1, 1] - a1[1] * R[1, 0]
-    return True
 
 
 @_jit
@@ -224,6 +244,102 @@ def cone_excludes(P, lim, slack):
     return False
 
 
+def caps_workspace_size(k: int) -> int:
+    """Floats :func:`caps_exclude` needs for a set of ``k`` points."""
+    return 8 * (k * (k - 1) // 2)
+
+
+@_jit
+def caps_exclude(P, lim, slack, buf):
+    """A second quick proof that the points do not fit ``lim + slack`` (sorted; each side widened
+    by ``slack``), sharper than :func:`cone_excludes`: all the cones at once instead of two at a
+    time.  True only when proven; ``buf``: :func:`caps_workspace_size` floats of scratch.
+
+    As in :func:`cone_excludes`, a fitting box's longest axis a3 lies within ``c_d = asin(r /
+    |d|)`` of the line of every pair vector d longer than ``r = hypot(l1, l2)`` (both widened by
+    ``slack``).  Take the narrowest such cone, around e_0 = d_0 / |d_0|, and the sign of a3 with
+    ``a3 . e_0 >= 0``: a3 is in the cap C(e_0, c_0).  For every other long pair with ``c_0 + c_d
+    < pi/2`` only one of the caps C(+-e_d, c_d) can meet C(e_0, c_0) (the other's centre is at
+    least pi/2 from e_0), the one on e_0's side, so a3 is in that cap too (pairs with wider
+    cones are left out: fewer conditions, still necessary).  So a3 lies in the intersection K of
+    caps of radius < pi/2, all in the open hemisphere around e_0; K is convex.  If K is not empty
+    it holds a cap's centre (when K is a whole cap) or a point where two boundary circles cross
+    (a corner of K).  None of these candidates inside every cap (with ``1e-9`` of float noise
+    counted in K's favour) proves K empty: the points do not fit.  Widened by ``slack`` like
+    :func:`cone_excludes`, it never turns an undecided set into a rejected one."""
+    k = P.shape[0]
+    npair = k * (k - 1) // 2
+    r = math.hypot(lim[0] + slack, lim[1] + slack)
+    E = buf[: 3 * npair].reshape((npair, 3))
+    F = buf[3 * npair : 6 * npair].reshape((npair, 3))
+    A = buf[6 * npair : 7 * npair]
+    C = buf[7 * npair : 8 * npair]
+    m = 0
+    for i in range(k):
+        for j in range(i + 1, k):
+            d0, d1, d2 = P[j, 0] - P[i, 0], P[j, 1] - P[i, 1], P[j, 2] - P[i, 2]
+            nd = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            if nd <= r:
+                continue
+            E[m, 0], E[m, 1], E[m, 2] = d0 / nd, d1 / nd, d2 / nd
+            A[m] = math.asin(r / nd)
+            m += 1
+    if m < 3:
+        return False  # two cones are cone_excludes' case
+    b = 0
+    for j in range(1, m):
+        if A[j] < A[b]:
+            b = j
+    n = 0
+    for j in range(m):
+        if j != b and A[b] + A[j] >= 0.5 * math.pi - 1e-9:
+            continue
+        sg = -1.0 if dot3(E[b], E[j]) < 0 else 1.0
+        F[n, 0], F[n, 1], F[n, 2] = sg * E[j, 0], sg * E[j, 1], sg * E[j, 2]
+        C[n] = math.cos(A[j])
+        n += 1
+    if n < 3:
+        return False
+    tol = 1e-9
+    for a in range(n):  # a whole cap inside the others: its centre is in K
+        inside = True
+        for c in range(n):
+            if dot3(F[a], F[c]) < C[c] - tol:
+                inside = False
+                break
+        if inside:
+            return False
+    for a in range(n):  # the corners: x . F[a] = C[a], x . F[b] = C[b], |x| = 1
+        for b2 in range(a + 1, n):
+            g = dot3(F[a], F[b2])
+            den = 1.0 - g * g
+            if den <= 1e-12:
+                continue
+            al = (C[a] - g * C[b2]) / den
+            be = (C[b2] - g * C[a]) / den
+            g2 = 1.0 - (al * al + be * be + 2 * al * be * g)
+            if g2 < -1e-12:
+                continue  # the two circles do not cross
+            gm = math.sqrt(max(0.0, g2))
+            n0 = F[a, 1] * F[b2, 2] - F[a, 2] * F[b2, 1]
+            n1 = F[a, 2] * F[b2, 0] - F[a, 0] * F[b2, 2]
+            n2 = F[a, 0] * F[b2, 1] - F[a, 1] * F[b2, 0]
+            nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+            n0, n1, n2 = n0 / nn, n1 / nn, n2 / nn
+            for sgn in (-1.0, 1.0):
+                x0 = al * F[a, 0] + be * F[b2, 0] + sgn * gm * n0
+                x1 = al * F[a, 1] + be * F[b2, 1] + sgn * gm * n1
+                x2 = al * F[a, 2] + be * F[b2, 2] + sgn * gm * n2
+                inside = True
+                for c in range(n):
+                    if x0 * F[c, 0] + x1 * F[c, 1] + x2 * F[c, 2] < C[c] - tol:
+                        inside = False
+                        break
+                if inside:
+                    return False
+    return True
+
+
 #: stack entries of the branch and bound (12 root cells + 3 per level below, deep enough for
 #: any cell size reachable in double precision)
 STACK = 64 + 3 * 64
@@ -232,13 +348,13 @@ STACK = 64 + 3 * 64
 def workspace_size(k: int) -> int:
     """Floats :func:`decide_ws` needs for a set of ``k`` points."""
     npair = k * (k - 1) // 2
-    return 8 * npair + 18 + 3 * STACK
+    return 9 * npair + 18 + 3 * STACK
 
 
 @_jit
 def decide_one(P, lim, slack, start, max_cells, R):
     k = P.shape[0]
-    ws = np.empty(8 * (k * (k - 1) // 2) + 18 + 3 * STACK)
+    ws = np.empty(9 * (k * (k - 1) // 2) + 18 + 3 * STACK)
     iws = np.empty(STACK, np.int64)
     return decide_ws(P, lim, slack, start, max_cells, R, ws, iws)
 
@@ -256,7 +372,8 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws):
     y = ws[o + 2 * npair : o + 3 * npair]
     L2 = ws[o + 3 * npair : o + 4 * npair]
     L3 = ws[o + 4 * npair : o + 5 * npair]
-    o += 5 * npair
+    pa = ws[o + 5 * npair : o + 6 * npair]  # |d . a1| at the cell's centre
+    o += 6 * npair
     u = ws[o : o + 3]
     v = ws[o + 3 : o + 6]
     a1 = ws[o + 6 : o + 9]
@@ -340,8 +457,11 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws):
         ct, st = math.cos(theta), math.sin(theta)
         # axis 1: lower bound of the width over the cell
         low = 0.0
+        w1 = 0.0
         for j in range(npair):
             p = abs(dot3(D[j], a1))
+            pa[j] = p
+            w1 = max(w1, p)
             cp = p / dn[j] if dn[j] > 0 else 0.0
             sp = math.sqrt(max(0.0, 1.0 - cp * cp))
             # |d| cos(psi + theta), clipped at 0 when psi + theta >= pi/2
@@ -350,15 +470,26 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws):
                 low = val
         if low > lim[0]:
             continue
-        if accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
-            return 1, cells
+        # accept (as at the critical directions), with the widths and the projection reused
+        projected = False
+        if w1 <= lim[0] + 1e-9:
+            for j in range(npair):
+                L2[j] = lim[1]
+                L3[j] = lim[2]
+            project(D, npair, a1, u, v, x, y)
+            projected = True
+            if inner_xy(npair, L2, L3, x, y, cs):
+                frame_rows(a1, u, v, cs, R)
+                return 1, cells
         for j in range(npair):
-            along = abs(dot3(D[j], a1))
+            along = pa[j]
             perp = math.sqrt(max(0.0, dn[j] * dn[j] - along * along))
             sj = st * along + (1.0 - ct) * perp
             L2[j] = lim[1] + sj
             L3[j] = lim[2] + sj
-        if not inner(D, npair, a1, L2, L3, u, v, x, y, cs):
+        if not projected:
+            project(D, npair, a1, u, v, x, y)
+        if not inner_xy(npair, L2, L3, x, y, cs):
             continue
         if theta <= theta_min:
             open_small = True

@@ -14,7 +14,9 @@ Pipeline, per labelled candidate (no Python loop per star; numba, parallel over 
 5. necessary fit conditions: the width is at most the shortest limit side, and Ky Fan's bounds on
    the covariance eigenvalues (the k smallest sum to at most the sum of the k shortest limit sides
    squared over 4; variance along a direction is at most a quarter of the width squared);
-6. the fit decision (:mod:`starforge.geometry.fit`): proven to fit (a rotation is found), proven
+6. the fit decision (:mod:`starforge.geometry.fit`): first two quick no-fit proofs
+   (:func:`~starforge.geometry.fit.cone_excludes`, :func:`~starforge.geometry.fit.caps_exclude`),
+   then the search: proven to fit (a rotation is found), proven
    not to fit, or undecided (fits, if at all, with less than :data:`~starforge.geometry.fit.SLACK_MM`
    to spare).  ``box_method="covariance"`` replaces it with the paper's test (the covariance box
    must fit).
@@ -34,7 +36,7 @@ import numba
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.geometry.fit import SLACK_MM, STACK, cone_excludes, decide_ws
+from starforge.geometry.fit import SLACK_MM, STACK, caps_exclude, cone_excludes, decide_ws
 from starforge.geometry.sym3 import sym3_eigvals
 from starforge.geometry.tetra import canonical_assignments
 from starforge.stars.spec import StarSpec
@@ -231,8 +233,9 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode,
         P = np.zeros((4, 3))
         R = np.empty((3, 3))
         L = np.empty(6)
-        ws = np.empty(8 * 6 + 18 + 3 * STACK)  # the fit decision's working memory, once per subset
+        ws = np.empty(9 * 6 + 18 + 3 * STACK)  # the fit decision's working memory, once per subset
         iws = np.empty(STACK, np.int64)
+        cbuf = np.empty(8 * 6)  # caps_exclude's scratch
         for a in range(assign.shape[0]):
             for j in range(6):
                 L[j] = lo + step * subsets[s, assign[a, j]]
@@ -283,7 +286,7 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode,
             if mode == 1:
                 codes[s, a] = 7
                 continue
-            if cone_excludes(P, lim, slack):
+            if cone_excludes(P, lim, slack) or caps_exclude(P, lim, slack, cbuf):
                 codes[s, a] = 4  # proven not to fit, without the search
                 continue
             st, _ = decide_ws(P, lim, slack, 1, max_cells, R, ws, iws)
