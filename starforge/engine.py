@@ -169,6 +169,9 @@ def _local_cluster(p: Plan):
         processes=True,
         host="127.0.0.1",
         dashboard_address=None,
+        # the scheduler's HTTP routes (/health, /metrics) on a free port: the default 8787 may be
+        # taken (a notebook's cluster, a second starforge run), which dask reports as a warning
+        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
         memory_limit=int(p.task_bytes),
         silence_logs=logging.ERROR,
     )

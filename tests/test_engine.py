@@ -32,6 +32,9 @@ def cluster():
         host="127.0.0.1",
         protocol="tcp",
         dashboard_address=None,
+        # the scheduler's HTTP routes (/health, /metrics) on a free port: the default 8787 may be
+        # taken (a notebook's cluster, a second starforge run), which dask reports as a warning
+        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
         silence_logs=logging.ERROR,
     )
     yield lc

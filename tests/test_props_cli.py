@@ -371,26 +371,35 @@ def test_spread_flag_leaves_other_arguments_alone():
     assert spread_flag("--avoid", ["--avoid", "A", "--", "B"]) == ["--avoid", "A", "--", "B"]
 
 
-def test_render_processes_fork_beside_the_heartbeat_only(capsys):
-    """Off a terminal the CLI's heartbeat thread runs; it holds its print lock across forks, so the
-    pictures still get their render processes; any other thread keeps them in-process."""
-    import os
-    import threading
+_FORK_CHECK = """
+import os, threading
+from starforge.cli._app import start_heartbeat
+from starforge.render.props import BackgroundRenderer
+stop = start_heartbeat("place", interval_s=0.01)
+try:
+    assert BackgroundRenderer()._fork
+    with BackgroundRenderer() as r:  # forks beside a heartbeat printing every 10 ms
+        assert r._pid is not None
+    other = threading.Thread(target=threading.Event().wait, args=(0.5,), daemon=True)
+    other.start()
+    assert not BackgroundRenderer()._fork
+    other.join()
+finally:
+    stop()
+print("ok")
+"""
 
-    from starforge.cli._app import start_heartbeat
-    from starforge.render.props import BackgroundRenderer
+
+def test_render_processes_fork_beside_the_heartbeat_only():
+    """Off a terminal the CLI's heartbeat thread runs; it holds its print lock across forks, so the
+    pictures still get their render processes; any other thread keeps them in-process.  Run in a
+    fresh interpreter: threads that earlier tests leave behind (a dask client's, a pool's) would
+    rightly keep the renderer in-process here."""
+    import os
+    import subprocess
+    import sys
 
     if not hasattr(os, "fork"):
         pytest.skip("no os.fork")
-    stop = start_heartbeat("place", interval_s=0.01)
-    try:
-        assert BackgroundRenderer()._fork
-        with BackgroundRenderer() as r:  # forks beside a heartbeat printing every 10 ms
-            assert r._pid is not None
-        other = threading.Thread(target=threading.Event().wait, args=(0.5,), daemon=True)
-        other.start()
-        assert not BackgroundRenderer()._fork
-        other.join()
-    finally:
-        stop()
-    capsys.readouterr()
+    res = subprocess.run([sys.executable, "-c", _FORK_CHECK], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0 and res.stdout.strip().endswith("ok"), res.stderr[-2000:]
