@@ -256,8 +256,16 @@ def discard_stages(timeout_s: float = 5.0) -> bool:
     The caller exits right after; the lock stays held so that no publish starts."""
     if not _publishing.acquire(timeout=timeout_s):
         return False
+    import time
+
     for stage in list(_stages):
-        shutil.rmtree(stage, ignore_errors=True)
+        # a worker thread may still be writing a file into it (e.g. a STEP file begun before the
+        # signal): remove until the folder is gone, for a bounded time
+        for _ in range(50):
+            shutil.rmtree(stage, ignore_errors=True)
+            if not os.path.lexists(stage):
+                break
+            time.sleep(0.02)
     return True
 
 

@@ -23,6 +23,7 @@ in bodies.json.  A family made with ``starforge stars --mount NAME`` never needs
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -176,6 +177,7 @@ def export_family(
     rep.timings["describe_s"] = time.perf_counter() - t0
     meshes: list = []
     pool = step_job = None
+    stop = threading.Event()  # set when this thread leaves early (an error, Ctrl-C): the STEP thread stops
     tick = _Ticker(progress, len(bodies) * (2 if "step" in formats else 1))
     if "step" in formats:
         # the exact solids (OpenCascade) are built in a second thread while this one meshes: the
@@ -185,7 +187,7 @@ def export_family(
 
         pool = ThreadPoolExecutor(1, thread_name_prefix="starforge-step")
         plates = list(zip(plate_names(len(beds)), beds, strict=True)) if plate else []
-        step_job = pool.submit(_step_bodies, bodies, to_print, stage, plates, tick)
+        step_job = pool.submit(_step_bodies, bodies, to_print, stage, plates, tick, stop)
     try:
         t1 = time.perf_counter()
         _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick)
@@ -194,6 +196,7 @@ def export_family(
             _, volumes, t_step = step_job.result()
     finally:
         if pool is not None:
+            stop.set()  # harmless after a normal end; otherwise no STEP file is begun after this
             pool.shutdown(wait=True, cancel_futures=True)
     if step_job is not None:
         for entry, b, vol in zip(rep.bodies, bodies, volumes, strict=True):
@@ -348,16 +351,23 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick
         tick()
 
 
-def _step_bodies(bodies, to_print, stage, plates=(), tick=None) -> tuple[list, list[float], float]:
+def _step_bodies(bodies, to_print, stage, plates=(), tick=None, stop=None) -> tuple[list, list[float], float]:
     """Per body: the exact solid in its printing orientation, named and coloured, written to
     ``<name>.step``; then per (name, layout) of ``plates`` the assembly ``<name>.step``.
-    Returns (solids, their volumes in mm^3, seconds)."""
+    Returns (solids, their volumes in mm^3, seconds).  ``stop``: an event; once it is set (the
+    caller left early, e.g. after Ctrl-C) no further file is begun, so nothing is written into a
+    stage folder being removed."""
     from starforge.cad.occ import assembly, body_solid, placed, write_step
     from starforge.colours import body_colour
 
     t = time.perf_counter()
     solids, volumes = [], []
+    def stopped() -> bool:
+        return stop is not None and stop.is_set()
+
     for b, T in zip(bodies, to_print, strict=True):
+        if stopped():
+            raise StarforgeError("STEP export stopped")
         solid = placed(body_solid(b), T, b.name, body_colour(b.star_id - 1))
         write_step(solid, stage / f"{b.name}.step")
         solids.append(solid)
@@ -365,5 +375,7 @@ def _step_bodies(bodies, to_print, stage, plates=(), tick=None) -> tuple[list, l
         if tick is not None:
             tick()
     for name, lay in plates:
+        if stopped():
+            raise StarforgeError("STEP export stopped")
         write_step(assembly([solids[i] for i in lay.members], lay.transforms, name), stage / f"{name}.step")
     return solids, volumes, time.perf_counter() - t
