@@ -333,7 +333,7 @@ def test_cli_in_process_agrees(files, tmp_path):
     "args, signame",
     [
         (("stars",), "SIGINT"),
-        (("place", "run", "hammer", "--orientations", "64"), "SIGINT"),
+        (("place", "run", "hammer", "--orientations", "256", "--sites", "2000"), "SIGINT"),  # ~13 s of work
         (("check", "{family}", "--frames", "200000"), "SIGINT"),
         (("stars",), "SIGTERM"),
         (("export", "{family}", "--allow-oversize"), "SIGTERM"),
