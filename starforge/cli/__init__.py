@@ -124,6 +124,21 @@ def _install_signals():
     return done, undo
 
 
+def _quiet_interrupts(previous):
+    """An unraisable-exception hook: a Ctrl-C that lands inside a callback Python cannot raise
+    from (numba compiles inside llvmlite's ctypes callbacks) is recorded as an interrupt, without
+    the 'Exception ignored in ... Traceback' print; anything else goes to ``previous``."""
+    from starforge.io import note_interrupt
+
+    def hook(unraisable) -> None:
+        if unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt):
+            note_interrupt()
+            return
+        previous(unraisable)
+
+    return hook
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console-script entry point; returns (and exits with) the process exit code."""
     from starforge.io import interrupted, reset_interrupt
@@ -132,6 +147,8 @@ def main(argv: list[str] | None = None) -> int:
     reset_interrupt()
     _stopped_by[0] = None
     done, undo = _install_signals()
+    previous_hook = sys.unraisablehook
+    sys.unraisablehook = _quiet_interrupts(previous_hook)
     try:
         code = _run(argv)
         # every Ctrl-C or SIGTERM ends here: raised, turned into click's Abort, or swallowed by a
@@ -143,6 +160,7 @@ def main(argv: list[str] | None = None) -> int:
                 code = 128 + signum
                 _report_stop(signum)
     finally:
+        sys.unraisablehook = previous_hook
         undo()
         reset_interrupt()  # library calls after this command are not affected
     if argv is None:
