@@ -122,31 +122,29 @@ def _origin(text: str, p: float, centre_xz) -> tuple[float, float]:
     return (_snap(float(centre_xz[0]) - w / 2), _snap(float(centre_xz[1]) - h / 2))
 
 
-def label_rects(text: str, height_mm: float, centre_xz) -> list[tuple[float, float, float, float]]:
-    """Engraved rectangles ``(x0, x1, z0, z1)``, mm, in the plate plane (read from +y, up the
-    page -z: the first row has the smallest z)."""
+def _placed(text: str, height_mm: float, centre_xz, cells) -> list[tuple[float, float, float, float]]:
+    """Glyph cells ``(c0, r0, c1, r1)`` (pixels, from ``cells(ch)``) of every character of the
+    label, as ``(x0, x1, z0, z1)`` rectangles in mm in the plate plane."""
     _check(text)
     p = _snap(height_mm / ROWS)
     x_left, z_top = _origin(text, p, centre_xz)
     out = []
     for k, ch in enumerate(text):
         base = k * (COLS + GAP)
-        for c0, r0, c1, r1 in glyph_rects(ch):
+        for c0, r0, c1, r1 in cells(ch):
             out.append((x_left + (base + c0) * p, x_left + (base + c1) * p, z_top + r0 * p, z_top + r1 * p))
     return out
 
 
+def label_rects(text: str, height_mm: float, centre_xz) -> list[tuple[float, float, float, float]]:
+    """Engraved rectangles ``(x0, x1, z0, z1)``, mm, in the plate plane (read from +y, up the
+    page -z: the first row has the smallest z)."""
+    return _placed(text, height_mm, centre_xz, glyph_rects)
+
+
 def label_counters(text: str, height_mm: float, centre_xz) -> list[tuple[float, float, float, float]]:
     """Counter pixels ``(x0, x1, z0, z1)``, mm, of the label (what must stay standing)."""
-    _check(text)
-    p = _snap(height_mm / ROWS)
-    x_left, z_top = _origin(text, p, centre_xz)
-    out = []
-    for k, ch in enumerate(text):
-        base = k * (COLS + GAP)
-        for c, r in glyph_counters(ch):
-            out.append((x_left + (base + c) * p, x_left + (base + c + 1) * p, z_top + r * p, z_top + (r + 1) * p))
-    return out
+    return _placed(text, height_mm, centre_xz, lambda ch: [(c, r, c + 1, r + 1) for c, r in glyph_counters(ch)])
 
 
 def label_boxes(text: str, height_mm: float, centre_xz, y_top: float, depth_mm: float) -> list[Box]:
