@@ -45,6 +45,18 @@ def f2s(x: float) -> str:
     return repr(float(x))
 
 
+def noise_note(tolerances: dict, gates: str, verb: str = "keep", tail: str = "") -> str | None:
+    """The comment a file carries about the noise its tolerances assume (None when the
+    tolerances were not derived from a noise): ``gates`` names the file's own fields."""
+    t = tolerances
+    if "noise_mm" not in t:
+        return None
+    return (
+        f"starforge: {gates} {verb} >= {100 * t['keep']:g} % of frames at {t['noise_mm']:g} mm "
+        f"marker noise per axis (see trackers.json){tail}"
+    )
+
+
 def xml_bytes(root: ET.Element, comment: str | None = None) -> bytes:
     """UTF-8 XML with a declaration; ``comment`` goes first inside the root element."""
     if comment:

@@ -30,7 +30,7 @@ import numpy as np
 
 from starforge.colours import body_colour
 from starforge.errors import StarforgeError
-from starforge.tracking.formats._common import WriteContext, f2s, num, parse_xml, xml_bytes
+from starforge.tracking.formats._common import WriteContext, f2s, noise_note, num, parse_xml, xml_bytes
 
 SUFFIX = ".motive"
 MAX_MARKERS = None
@@ -88,12 +88,7 @@ def motive_xml(
 
 def write(name: str, P, ctx: WriteContext) -> bytes:
     t = ctx.tolerances
-    comment = None
-    if "noise_mm" in t:
-        comment = (
-            f"starforge: MaxMarkerDeflection keeps >= {100 * t['keep']:g} % of frames at {t['noise_mm']:g} mm "
-            f"marker noise per axis (see trackers.json); coordinates in metres"
-        )
+    comment = noise_note(t, "MaxMarkerDeflection", "keeps", "; coordinates in metres")
     return motive_xml(
         name,
         P,

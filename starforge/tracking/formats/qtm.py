@@ -18,7 +18,7 @@ import numpy as np
 
 from starforge.colours import body_colour
 from starforge.errors import StarforgeError
-from starforge.tracking.formats._common import WriteContext, f2s, num, parse_xml, xml_bytes
+from starforge.tracking.formats._common import WriteContext, f2s, noise_note, num, parse_xml, xml_bytes
 
 SUFFIX = ".xml"
 
@@ -66,12 +66,7 @@ def qtm_xml(
 
 def write(name: str, P, ctx: WriteContext) -> bytes:
     t = ctx.tolerances
-    comment = None
-    if "noise_mm" in t:
-        comment = (
-            f"starforge: BoneLengthTolerance and MaximumResidual keep >= {100 * t['keep']:g} % of frames at "
-            f"{t['noise_mm']:g} mm marker noise per axis (see trackers.json)"
-        )
+    comment = noise_note(t, "BoneLengthTolerance and MaximumResidual")
     return qtm_xml(
         [(name, P)],
         t.get("bone_length_tolerance_mm", 2.0),
