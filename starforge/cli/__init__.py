@@ -58,14 +58,14 @@ STOP_DEADLINE_S = 1.0
 _reported = threading.Lock()  # held by whoever reports the stop (the command, or the last resort)
 
 
-def _watch_signals(read_fd: int, done: threading.Event) -> None:
+def _watch_signals(read_fd: int, done: threading.Event, discard_stages) -> None:
     """The last resort, in a thread: Python runs a signal handler only between bytecodes of the
     main thread, and a compiled kernel (numba, HiGHS) does not return to Python until it is done.
     The signal's number also arrives on ``read_fd`` (signal.set_wakeup_fd) while such a kernel
     runs without the GIL; if the command has not ended STOP_DEADLINE_S later, remove its stage
-    folders (never in the middle of a publish), print the one line and exit at once."""
-    from starforge.io import discard_stages
-
+    folders (never in the middle of a publish), print the one line and exit at once.  It imports
+    nothing itself (``discard_stages`` comes in): a module lock it held while the process forks
+    would stay taken in the child forever."""
     while True:
         try:
             data = os.read(read_fd, 1)
@@ -107,7 +107,15 @@ def _install_signals():
         old_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
     except (ValueError, OSError):
         old_fd = None
-    watcher = threading.Thread(target=_watch_signals, args=(read_fd, done), name="starforge-signals", daemon=True)
+    from starforge.io import discard_stages  # imported here, never in the thread
+
+    watcher = threading.Thread(
+        target=_watch_signals, args=(read_fd, done, discard_stages), name="starforge-signals", daemon=True
+    )
+    # safe to fork beside (starforge.render.props forks render processes): it imports nothing and
+    # holds no lock while it waits in os.read, and a render process drops the wakeup fd, so it
+    # never writes into the watcher's pipe
+    watcher.fork_safe = True
     watcher.start()
 
     def undo() -> None:

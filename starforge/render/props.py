@@ -439,6 +439,7 @@ class BackgroundRenderer:
             if pid == 0:  # render process: never returns
                 for _, w in pipes:
                     os.close(w)
+                _leave_parent_signals()
                 _first([r for r, _ in pipes])
             for r, _ in pipes:
                 os.close(r)
@@ -497,6 +498,24 @@ class BackgroundRenderer:
                 os.kill(self._pid, signal.SIGKILL)  # the second still leaves at end-of-file
             os.waitpid(self._pid, 0)
             self._pid = None
+
+
+def _leave_parent_signals() -> None:
+    """In a render process: stop writing signal numbers into the parent's wakeup pipe (the
+    CLI's last-resort watcher reads it; a signal meant for this process is not the parent's) and
+    close this process's copy of its write end.  A Ctrl-C still ends the drawing (the parent
+    sees the failed status)."""
+    import signal
+
+    try:
+        fd = signal.set_wakeup_fd(-1)
+    except (ValueError, OSError):  # not the main thread, or no wakeup fd set
+        return
+    if fd >= 0:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
 
 
 def _only_fork_safe_threads(threading) -> bool:
