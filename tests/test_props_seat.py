@@ -211,6 +211,26 @@ def test_evaluation_spread_rule_matches_svd():
         assert got[k] == (spread >= math.sqrt(2) / 3 * 0.015)
 
 
+def test_paired_comparison_counts_discordant_poses_and_its_exact_p_value():
+    from scipy.stats import binomtest
+
+    from starforge.props.evaluate import mcnemar_exact, paired
+
+    rng = np.random.default_rng(11)
+    a = rng.random(1000) < 0.995
+    b = rng.random(1000) < 0.997
+    got = paired(a, b)
+    assert got["poses_only_it_tracks"] == sum(bool(y and not x) for x, y in zip(a, b, strict=True))
+    assert got["poses_only_default_tracks"] == sum(bool(x and not y) for x, y in zip(a, b, strict=True))
+    # the tracked fractions differ by exactly the discordant poses
+    assert (b.sum() - a.sum()) == got["poses_only_it_tracks"] - got["poses_only_default_tracks"]
+    for k, n in ((0, 0), (0, 1), (1, 3), (0, 3), (2, 9), (5, 5), (0, 20), (40, 70)):
+        want = 1.0 if k + n == 0 else binomtest(k, k + n, 0.5).pvalue  # independent: scipy's exact test
+        assert mcnemar_exact(k, n) == pytest.approx(want, rel=1e-9)
+        assert mcnemar_exact(k, n) == mcnemar_exact(n, k)
+    assert mcnemar_exact(0, 3) == 0.25 and mcnemar_exact(0, 6) < 0.05
+
+
 def test_landmarks_from_the_bounding_box():
     from starforge.props.guide import landmarks
 

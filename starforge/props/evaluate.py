@@ -102,15 +102,47 @@ def evaluate_layouts(mesh, layouts: dict, rig, pivot, settings, seed: int, min_h
     alive = alive_masks(C, settings.cameras_lost, len(poses), rng)
     every = np.full(len(poses), np.uint64((1 << C) - 1) if C < 64 else np.uint64(2**64 - 1))
     out = {"_poses": len(poses), "_cameras_lost": int(round(settings.cameras_lost * C))}
+    per_pose = {}
     for name, (c, n) in layouts.items():
         c, n = np.asarray(c, float), np.asarray(n, float)
         if not len(poses) or not len(c):
             out[name] = {"tracked": 0.0, "tracked_all_cameras": 0.0, "markers_reconstructed": 0.0}
+            per_pose[name] = np.zeros(len(poses), bool)
             continue
         hits = camera_hits(mesh, c, n, rig, poses, capsules, grazing_limit_deg)
+        per_pose[name] = tracked_poses(hits, alive, c, min_height_mm)
         out[name] = {
-            "tracked": float(tracked_poses(hits, alive, c, min_height_mm).mean()),
+            "tracked": float(per_pose[name].mean()),
             "tracked_all_cameras": float(tracked_poses(hits, every, c, min_height_mm).mean()),
             "markers_reconstructed": float(reconstructed(hits, alive).mean()),
         }
+    if "default" in per_pose:  # each other layout against the default, pose by pose
+        for name, t in per_pose.items():
+            if name != "default":
+                out[name].update(paired(per_pose["default"], t))
     return out
+
+
+def paired(default: np.ndarray, other: np.ndarray) -> dict:
+    """The two layouts on the same poses: the poses only ``other`` tracks, those only
+    ``default`` tracks, and the exact two-sided McNemar p-value (a binomial test of the
+    discordant poses against an even split: the chance of a split at least this uneven when
+    neither layout is better)."""
+    only_other = int(np.sum(other & ~default))
+    only_default = int(np.sum(default & ~other))
+    return {
+        "poses_only_it_tracks": only_other,
+        "poses_only_default_tracks": only_default,
+        "paired_p_value": mcnemar_exact(only_other, only_default),
+    }
+
+
+def mcnemar_exact(b: int, c: int) -> float:
+    """Exact two-sided McNemar p-value of ``b`` against ``c`` discordant pairs (1 when none):
+    ``min(1, 2 P(X <= min(b, c)))`` for ``X ~ Binomial(b + c, 1/2)``."""
+    n = b + c
+    if n == 0:
+        return 1.0
+    k = min(b, c)
+    tail = sum(math.comb(n, i) for i in range(k + 1)) / 2.0**n
+    return min(1.0, 2.0 * tail)

@@ -449,8 +449,18 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         warnings.append(
             f"{terms['avoid_conflicts']} marker triangle(s) within {ts.avoid_tolerance_mm:g} mm of another prop's"
         )
-    if ev.get("default") and ev["default"]["tracked"] < max(v["tracked"] for k, v in ev.items() if not k.startswith("_")):
-        warnings.append("on the fresh evaluation poses a baseline layout tracked more poses than the chosen one")
+    ahead = [
+        f"{k.replace('_', ' ')} ({v['poses_only_it_tracks']} poses only it tracks, {v['poses_only_default_tracks']} "
+        f"only the chosen one; paired exact test p = {v['paired_p_value']:.2g}"
+        + ("" if v["paired_p_value"] < 0.05 else ": within the evaluation's noise") + ")"
+        for k, v in ev.items()
+        if not k.startswith("_") and k != "default" and ev.get("default") and v["tracked"] > ev["default"]["tracked"]
+    ]
+    if ahead:
+        warnings.append(
+            f"on the {ev['_poses']} fresh evaluation poses a baseline layout tracked more poses than the chosen one: "
+            + "; ".join(ahead)
+        )
     return replace(res, warnings=tuple(warnings), evaluation=ev)
 
 
