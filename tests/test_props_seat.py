@@ -141,6 +141,32 @@ def test_hand_grip_parsing_and_default():
     assert max(g.a[2], g.b[2]) < 0.2 and g.radius == pytest.approx(0.015 + FINGERS_M, abs=2e-3)
 
 
+def test_a_small_prop_is_pinched_by_the_fingertips_and_a_large_one_held_in_a_fist():
+    import trimesh
+
+    from starforge.props.hand import FINGERTIP_M, PINCH_BELOW_M, PINCH_M, default_hand, inside_capsules
+
+    small = trimesh.creation.box(extents=(0.09, 0.02, 0.01))  # a bottle opener's size
+    tips, rest = default_hand(small, "opener.stl")
+    fine = small
+    for _ in range(6):
+        fine = fine.subdivide()
+    surf = np.asarray(fine.vertices)  # points on the surface, about 1.5 mm apart
+    # the rest of the hand lies beyond the prop's end: it covers no surface point
+    assert not inside_capsules(surf, (rest,)).any()
+    # the fingertips cover the end's surface over about PINCH_M, not a fist's 90 mm
+    covered = surf[inside_capsules(surf, (tips,))]
+    assert len(covered)
+    span = np.ptp(covered[:, 0])
+    assert span <= PINCH_M + 2 * (tips.radius) + 1e-9 and span < 0.045
+    assert tips.radius <= 0.012 + FINGERTIP_M  # the section's half-diagonal plus a fingertip
+    # the hand sits at the same end as the fingertips
+    assert np.sign(rest.a[0]) == np.sign(np.mean(covered[:, 0])) != 0
+    # a prop a fist closes round keeps one capsule
+    big = trimesh.creation.box(extents=(PINCH_BELOW_M + 0.1, 0.03, 0.03))
+    assert len(default_hand(big, "bat.stl")) == 1
+
+
 def test_the_hand_hides_what_lies_behind_it():
     """Compiled capsule test against a numpy brute force over points along each sight line."""
     from starforge.props.hand import Capsule, capsule_arrays

@@ -270,3 +270,23 @@ def test_untracked_poses_are_warned_and_recorded(tmp_path, capsys):
     assert sc["count"] == 2 * doc["poses"]["count"] and sc["cameras_lost"] == 2 and sc["cameras"] == 4
     assert len(warned) == 1 and f"of {sc['count']}: {doc['poses']['count']} poses" in warned[0]
     assert "not tracked" in capsys.readouterr().err
+
+
+def test_spaced_capacity_is_a_lower_bound_and_exact_on_a_line():
+    import itertools
+
+    from starforge.props.tracked import spaced_capacity
+
+    line = np.column_stack([np.arange(0, 0.0841, 0.001), np.zeros(85), np.zeros(85)])
+    assert spaced_capacity(line, 0.02, 7) == 5  # 0, 20, 40, 60, 80 mm: no sixth fits
+    assert spaced_capacity(line, 0.02, 3) == 3  # stops at enough
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        pts = rng.random((9, 3)) * 0.05
+        got = spaced_capacity(pts, 0.02, 9)
+        d = np.linalg.norm(pts[:, None] - pts[None], axis=2)
+        best = max(
+            len(c) for r in range(1, 10) for c in itertools.combinations(range(9), r)
+            if all(d[i, j] >= 0.02 for i, j in itertools.combinations(c, 2))
+        )  # brute force: the largest set that keeps the spacing
+        assert 1 <= got <= best

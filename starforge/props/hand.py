@@ -54,13 +54,13 @@ class Capsule:
         return {"a": [round(float(x), 9) + 0.0 for x in self.a], "b": [round(float(x), 9) + 0.0 for x in self.b], "radius": round(float(self.radius), 9)}
 
 
-def hand_capsule(a, b, part_radius: float) -> Capsule:
+def hand_capsule(a, b, part_radius: float, fingers_m: float = FINGERS_M) -> Capsule:
     """The hand around the grip ``a``-``b`` (the stretch of the part the palm covers, m) of a part
-    ``part_radius`` thick: a capsule of radius ``part_radius + FINGERS_M`` whose core is shortened
+    ``part_radius`` thick: a capsule of radius ``part_radius + fingers_m`` whose core is shortened
     so that where it meets the part's surface it covers ``a``-``b`` and no more (a capsule reaches
     ``sqrt(R^2 - r^2)`` past its core's ends at distance ``r`` from the axis)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
-    R = part_radius + FINGERS_M
+    R = part_radius + fingers_m
     reach = math.sqrt(max(R * R - part_radius * part_radius, 0.0))
     L = float(np.linalg.norm(b - a))
     u = (b - a) / L if L > 0 else np.zeros(3)
@@ -191,9 +191,64 @@ def default_grip(mesh, name: str = "", builtin: bool = False) -> Capsule:
     if builtin and name in GRIPS:
         a, b, r = GRIPS[name]
         return hand_capsule(a, b, r)
+    return hand_capsule(*grip_segment(mesh))
+
+
+#: a prop whose longest side is shorter than this (m) is held by the fingertips, not in a fist
+PINCH_BELOW_M = 0.12
+#: what fingertips add around the pinched part (m; a fingertip pad is 15-20 mm thick, so the
+#: tips of thumb and finger on either side reach about 10 mm past the surface they press on)
+FINGERTIP_M = 0.010
+#: the stretch of the part the fingertips cover along the grip (m; a fingertip is ~20 mm wide)
+PINCH_M = 0.02
+#: the rest of the hand beside the pinched end: a capsule this thick (radius, m) and long (m),
+#: starting just past the prop's end on the grip's axis
+HAND_RADIUS_M = 0.025
+HAND_LENGTH_M = 0.08
+
+
+def default_hand(mesh, name: str = "", builtin: bool = False) -> tuple[Capsule, ...]:
+    """The hand as capsules: :func:`default_grip` (a fist round the grip) for a prop at least
+    :data:`PINCH_BELOW_M` long or a built-in; a smaller prop is pinched at the same place
+    (:func:`pinch`), since a hand cannot close a fist round a part shorter than its palm."""
+    lo, hi = np.asarray(mesh.bounds, float)
+    if (builtin and name in GRIPS) or float(np.max(hi - lo)) >= PINCH_BELOW_M:
+        return (default_grip(mesh, name, builtin),)
+    return pinch(mesh, *grip_segment(mesh))
+
+
+def pinch(mesh, a, b, part_radius: float) -> tuple[Capsule, Capsule]:
+    """A small prop held by the fingertips at the grip ``a``-``b`` (the segment a fist would
+    cover, along one axis of the bounding box): the fingertips, a capsule :data:`FINGERTIP_M`
+    past the part over the :data:`PINCH_M` of the grip nearer the prop's end, and the rest of the
+    hand beyond that end (a capsule of :data:`HAND_RADIUS_M` on the grip's axis, just clear of
+    the prop: it hides what lies behind it but covers no surface).  A simplification, as the fist
+    is: where the fingers run and the palm sits depends on how the prop is held."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    lo, hi = np.asarray(mesh.bounds, float)
+    ax = int(np.argmax(np.abs(b - a)))
+    s0, s1 = sorted((float(a[ax]), float(b[ax])))
+    near_lo = s0 - lo[ax] <= hi[ax] - s1  # the grip's end nearer the prop's end
+    tip0, tip1 = a.copy(), a.copy()
+    if near_lo:
+        tip0[ax], tip1[ax] = s0, min(s1, s0 + PINCH_M)
+        h0 = lo[ax] - HAND_RADIUS_M - 0.002
+        h1 = h0 - HAND_LENGTH_M
+    else:
+        tip0[ax], tip1[ax] = max(s0, s1 - PINCH_M), s1
+        h0 = hi[ax] + HAND_RADIUS_M + 0.002
+        h1 = h0 + HAND_LENGTH_M
+    ha, hb = a.copy(), a.copy()
+    ha[ax], hb[ax] = h0, h1
+    return hand_capsule(tip0, tip1, part_radius, FINGERTIP_M), Capsule(tuple(ha), tuple(hb), HAND_RADIUS_M)
+
+
+def grip_segment(mesh) -> tuple[np.ndarray, np.ndarray, float]:
+    """Where a mesh without a grip of its own is held: its handle (:func:`graspable_grip`) or
+    else its thinnest end (see the module docstring).  Returns ``(a, b, part_radius)``, m."""
     handle = graspable_grip(mesh)
     if handle is not None:
-        return hand_capsule(*handle)
+        return handle
     lo, hi = np.asarray(mesh.bounds, float)
     ext = hi - lo
     v = np.asarray(mesh.vertices, float)
@@ -219,7 +274,7 @@ def default_grip(mesh, name: str = "", builtin: bool = False) -> Capsule:
     a[others] = c
     b = a.copy()
     a[ax], b[ax] = start, start + length
-    return hand_capsule(a, b, min(r, 0.05))
+    return a, b, min(r, 0.05)
 
 
 def inside_capsules(points: np.ndarray, caps) -> np.ndarray:

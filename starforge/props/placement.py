@@ -91,12 +91,12 @@ class Prepared:
 def hand_capsules(prop, spec: PlaceSpec, grip=None) -> tuple:
     """The hand holding ``prop``: ``grip`` (a Capsule, or None for the default grip), nothing
     when the spec has no hand."""
-    from starforge.props.hand import default_grip
+    from starforge.props.hand import default_hand
 
     if not spec.hand:
         return ()
     if grip is None:
-        grip = default_grip(prop.mesh, prop.name, builtin=prop.source == "builtin")
+        return default_hand(prop.mesh, prop.name, builtin=prop.source == "builtin")
     return (grip,)
 
 
@@ -368,19 +368,29 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
     the chosen layout and both baselines checked on fresh poses (:mod:`starforge.props.evaluate`)."""
     from starforge.props.evaluate import evaluate_layouts
     from starforge.props.optimizer import ChainResult
-    from starforge.props.tracked import Problem, loss_scenarios, optimize, spacing_m
+    from starforge.props.tracked import Problem, loss_scenarios, optimize, spaced_capacity, spacing_m
 
     t = time.perf_counter()
     ts, table, sites, rig = spec.track, prep.table, prep.sites, prep.rig
     centres = sites.points + prep.seat.centre_height_m * sites.normals
     seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, np.random.default_rng(seed + LOSS_SEED_OFFSET))
     ext = np.sort(np.asarray(prop.mesh.extents))
+    spacing = spacing_m(ts.marker_mm, rig, ts.gap_px)
+    warnings = list(warnings)
+    fit = spaced_capacity(centres, spacing, ts.target_markers)
+    if fit < ts.target_markers:  # a small prop: markers closer than the spacing merge in the images
+        n = max(ts.min_markers, fit)
+        warnings.append(
+            f"only {fit} markers fit {spacing * 1000:.1f} mm apart on the usable sites: {n} markers placed, "
+            f"not {ts.target_markers}" + (" (some closer than the spacing)" if n > fit else "")
+        )
+        ts = replace(ts, target_markers=n)
     prob = Problem(
         centres,
         seen,
         seen.mean(axis=1),
         ts,
-        spacing_m(ts.marker_mm, rig, ts.gap_px),
+        spacing,
         max(ts.spread_fraction * float(ext[1]), 1e-4),
         None if avoid is None or not len(avoid) else np.asarray(avoid, float),
     )
@@ -435,7 +445,6 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         spec.grazing_limit_deg,
     )
     t = _tick(timings, "evaluate_s", t)
-    warnings = list(warnings)
     lost = int(round(ts.cameras_lost * len(rig.cameras)))
     if terms["untracked"] > 0:
         warnings.append(

@@ -121,6 +121,25 @@ def spacing_m(marker_mm: float, rig, gap_px: float) -> float:
     return marker_mm / 1000.0 + gap_px * worst
 
 
+def spaced_capacity(points: np.ndarray, spacing: float, enough: int) -> int:
+    """How many of ``points`` (m) can be taken at least ``spacing`` apart, up to ``enough``: a
+    farthest-point traversal from the first point (each step takes the point farthest from those
+    taken) until the farthest is closer than ``spacing``.  A lower bound on the largest such set
+    (finding that is NP-hard), exact in the common case where it reaches ``enough``."""
+    pts = np.asarray(points, float)
+    if not len(pts):
+        return 0
+    d = np.linalg.norm(pts - pts[0], axis=1)
+    taken = 1
+    while taken < enough:
+        k = int(np.argmax(d))
+        if d[k] < spacing:
+            break
+        taken += 1
+        d = np.minimum(d, np.linalg.norm(pts - pts[k], axis=1))
+    return taken
+
+
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _screen_tracked(cnt0, s10, s20, seen_c, pts_c, mom_c, min_spread2):
     """(k,) fraction of poses tracked when candidate c joins a layout whose seen markers per pose
