@@ -290,3 +290,21 @@ def test_spaced_capacity_is_a_lower_bound_and_exact_on_a_line():
             if all(d[i, j] >= 0.02 for i, j in itertools.combinations(c, 2))
         )  # brute force: the largest set that keeps the spacing
         assert 1 <= got <= best
+
+
+def test_line_reach_bounds_the_spread_of_every_subset():
+    from starforge.props.tracked import line_reach
+
+    rng = np.random.default_rng(4)
+    for scale in ((0.1, 0.01, 0.004), (0.1, 0.1, 0.1), (0.2, 0.002, 0.0)):
+        pts = rng.random((30, 3)) * scale
+        bound = line_reach(pts)
+        for _ in range(50):
+            sub = pts[rng.choice(30, size=int(rng.integers(3, 30)), replace=False)]
+            q = sub - sub.mean(axis=0)
+            sv = np.linalg.svd(q, compute_uv=False)
+            rms = math.sqrt((sv[1] ** 2 + sv[2] ** 2) / len(sub))  # independent: its own best-fit line
+            assert rms <= bound + 1e-12
+    # two rows 13.4 mm apart (a comb's two faces): no subset spans a 15 mm triangle
+    rows = np.array([[x, 0.0, z] for x in np.linspace(0, 0.08, 9) for z in (-0.0067, 0.0067)])
+    assert line_reach(rows) == pytest.approx(0.0067, abs=1e-9)

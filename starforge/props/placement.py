@@ -368,7 +368,15 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
     the chosen layout and both baselines checked on fresh poses (:mod:`starforge.props.evaluate`)."""
     from starforge.props.evaluate import evaluate_layouts
     from starforge.props.optimizer import ChainResult
-    from starforge.props.tracked import Problem, loss_scenarios, optimize, spaced_capacity, spacing_m
+    from starforge.props.tracked import (
+        TRIANGLE_SPREAD,
+        Problem,
+        line_reach,
+        loss_scenarios,
+        optimize,
+        spaced_capacity,
+        spacing_m,
+    )
 
     t = time.perf_counter()
     ts, table, sites, rig = spec.track, prep.table, prep.sites, prep.rig
@@ -385,6 +393,13 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
             f"not {ts.target_markers}" + (" (some closer than the spacing)" if n > fit else "")
         )
         ts = replace(ts, target_markers=n)
+    rho = line_reach(centres)
+    if rho < TRIANGLE_SPREAD * ts.min_height_mm / 1000.0:
+        warnings.append(
+            f"every usable site lies within {rho * 1000:.1f} mm of one line: no markers on them span the "
+            f"{ts.min_height_mm:g} mm triangle a tracker needs, so no layout can be tracked; a smaller --marker "
+            "or --base-mm seats markers on more of the prop"
+        )
     prob = Problem(
         centres,
         seen,

@@ -140,6 +140,21 @@ def spaced_capacity(points: np.ndarray, spacing: float, enough: int) -> int:
     return taken
 
 
+def line_reach(points: np.ndarray) -> float:
+    """An upper bound (m) on how far ``points`` lie from some line: the largest distance from a
+    line along their principal axis, through the centroid or through the middle of their extent
+    across it, whichever is less.  Any subset's RMS distance from its own best-fit line is at
+    most its RMS distance from that line, so at most this: when it is below the tracked test's
+    spread, no subset of the points can be tracked."""
+    pts = np.asarray(points, float)
+    if len(pts) < 2:
+        return 0.0
+    c = pts - pts.mean(axis=0)
+    across = (c @ np.linalg.svd(c, full_matrices=False)[2].T)[:, 1:]  # (n, 2) across the axis
+    mid = (across.max(axis=0) + across.min(axis=0)) / 2
+    return float(min(np.linalg.norm(across, axis=1).max(), np.linalg.norm(across - mid, axis=1).max()))
+
+
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _screen_tracked(cnt0, s10, s20, seen_c, pts_c, mom_c, min_spread2):
     """(k,) fraction of poses tracked when candidate c joins a layout whose seen markers per pose
