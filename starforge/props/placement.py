@@ -397,8 +397,9 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
     if rho < TRIANGLE_SPREAD * ts.min_height_mm / 1000.0:
         warnings.append(
             f"every usable site lies within {rho * 1000:.1f} mm of one line: no markers on them span the "
-            f"{ts.min_height_mm:g} mm triangle a tracker needs, so no layout can be tracked; a smaller --marker "
-            "or --base-mm seats markers on more of the prop"
+            f"{ts.min_height_mm:g} mm triangle a tracker needs, so no layout of them can be tracked; try another "
+            "--marker (a smaller base seats on more of the prop, a taller one holds its ball farther from a thin "
+            "prop's faces)"
         )
     prob = Problem(
         centres,
