@@ -240,7 +240,11 @@ def placement_json(res: PlacementResult) -> dict:
                 f"optimizer's poses), {ev['_cameras_lost']} of {len(res.rig.cameras)} cameras lost at random in each, "
                 "the hand at the grip; tracked: >= 3 markers each seen by 2 surviving cameras, not in a line"
             ),
-            **{k: {kk: _r(vv) for kk, vv in v.items()} for k, v in ev.items() if not k.startswith("_")},
+            **{
+                k: {kk: vv if isinstance(vv, int) else _r(vv) for kk, vv in v.items()}  # pose counts stay integers
+                for k, v in ev.items()
+                if not k.startswith("_")
+            },
         }
     return doc
 
