@@ -23,7 +23,6 @@ in bodies.json.  A family made with ``starforge stars --mount NAME`` never needs
 
 from __future__ import annotations
 
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -152,7 +151,8 @@ def export_family(
     """Write the bodies of a family into ``stage`` (see the module docstring for the files).
 
     ``progress(done, total)`` is called after each star's mesh files and after each star's STEP
-    file (from the STEP thread; total = stars x 2 with STEP).  ``bodies``: the descriptions from
+    file (from the thread reading the STEP worker, :mod:`starforge.cad.step_worker`; total =
+    stars x 2 with STEP).  ``bodies``: the descriptions from
     :func:`family_bodies` for the same family, ids, mount and spec, when the caller already has
     them (they are described here otherwise).
     """
@@ -176,28 +176,30 @@ def export_family(
     to_print, beds = print_layout(bodies, bed_mm, gap_mm)
     rep.timings["describe_s"] = time.perf_counter() - t0
     meshes: list = []
-    pool = step_job = None
-    stop = threading.Event()  # set when this thread leaves early (an error, Ctrl-C): the STEP thread stops
+    step_job = None
     tick = _Ticker(progress, len(bodies) * (2 if "step" in formats else 1))
     if "step" in formats:
-        # the exact solids (OpenCascade) are built in a second thread while this one meshes: the
-        # kernels share nothing and each body's STEP file depends only on that body, so the files
-        # are the same whichever thread finishes first
-        from concurrent.futures import ThreadPoolExecutor
+        # the exact solids (OpenCascade) are built in a second process while this one meshes
+        # (OCCT holds the GIL: a thread would stall the meshes); each body's STEP file depends
+        # only on that body, so the files are the same whichever side finishes first
+        from starforge.cad import step_worker
+        from starforge.colours import body_colour
 
-        pool = ThreadPoolExecutor(1, thread_name_prefix="starforge-step")
-        plates = list(zip(plate_names(len(beds)), beds, strict=True)) if plate else []
-        step_job = pool.submit(_step_bodies, bodies, to_print, stage, plates, tick, stop)
+        plates = [(n, lay.members, lay.transforms) for n, lay in zip(plate_names(len(beds)), beds, strict=True)]
+        step_job = step_worker.start(
+            bodies, to_print, [body_colour(b.star_id - 1) for b in bodies], stage, plates if plate else [], tick
+        )
+    done = False
     try:
         t1 = time.perf_counter()
         _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick)
         t_mesh = time.perf_counter() - t1
         if step_job is not None:
-            _, volumes, t_step = step_job.result()
+            volumes, t_step = step_job.result()
+        done = True
     finally:
-        if pool is not None:
-            stop.set()  # harmless after a normal end; otherwise no STEP file is begun after this
-            pool.shutdown(wait=True, cancel_futures=True)
+        if step_job is not None and not done:
+            step_job.kill()  # an error or Ctrl-C here: no STEP file is begun after this
     if step_job is not None:
         for entry, b, vol in zip(rep.bodies, bodies, volumes, strict=True):
             entry["step_volume_mm3"] = round(vol, 6)
@@ -349,33 +351,3 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick
             entry["files"].append(f"{b.name}.3mf")
         rep.bodies.append(entry)
         tick()
-
-
-def _step_bodies(bodies, to_print, stage, plates=(), tick=None, stop=None) -> tuple[list, list[float], float]:
-    """Per body: the exact solid in its printing orientation, named and coloured, written to
-    ``<name>.step``; then per (name, layout) of ``plates`` the assembly ``<name>.step``.
-    Returns (solids, their volumes in mm^3, seconds).  ``stop``: an event; once it is set (the
-    caller left early, e.g. after Ctrl-C) no further file is begun, so nothing is written into a
-    stage folder being removed."""
-    from starforge.cad.occ import assembly, body_solid, placed, write_step
-    from starforge.colours import body_colour
-
-    t = time.perf_counter()
-    solids, volumes = [], []
-    def stopped() -> bool:
-        return stop is not None and stop.is_set()
-
-    for b, T in zip(bodies, to_print, strict=True):
-        if stopped():
-            raise StarforgeError("STEP export stopped")
-        solid = placed(body_solid(b), T, b.name, body_colour(b.star_id - 1))
-        write_step(solid, stage / f"{b.name}.step")
-        solids.append(solid)
-        volumes.append(float(solid.volume))
-        if tick is not None:
-            tick()
-    for name, lay in plates:
-        if stopped():
-            raise StarforgeError("STEP export stopped")
-        write_step(assembly([solids[i] for i in lay.members], lay.transforms, name), stage / f"{name}.step")
-    return solids, volumes, time.perf_counter() - t
