@@ -14,7 +14,7 @@ from functools import lru_cache
 import numpy as np
 
 from starforge.cad.body import Body
-from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere
+from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere, merge_coaxial
 from starforge.errors import StarforgeError
 
 
@@ -99,7 +99,7 @@ def body_manifold(body: Body, sphere_segments: int = 64, cylinder_segments: int 
     """The body as one Manifold: (union of ``add``) minus (union of ``subtract``)."""
     from manifold3d import Manifold, OpType
 
-    adds = [primitive_manifold(p, sphere_segments, cylinder_segments) for p in body.add]
+    adds = [primitive_manifold(p, sphere_segments, cylinder_segments) for p in merge_coaxial(body.add)]
     solid = Manifold.batch_boolean(adds, OpType.Add)
     if body.subtract:
         cuts = [primitive_manifold(p, sphere_segments, cylinder_segments) for p in body.subtract]

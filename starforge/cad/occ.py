@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from starforge.cad.body import Body
-from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere
+from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere, merge_coaxial
 from starforge.errors import StarforgeError
 
 #: the header's time stamp: fixed, so the same solid gives the same file
@@ -116,11 +116,11 @@ def _revolved_solid(p: Revolved):
     return BRepPrimAPI_MakeRevol(face, gp_Ax1(_pnt(o), gp_Dir(*map(float, u))), 2 * np.pi).Shape()
 
 
-def _sphere_axes(body: Body) -> dict:
-    """{index in body.add of a sphere: its stem's direction} (stems end at their sphere's centre)."""
+def _sphere_axes(body: Body, parts) -> dict:
+    """{index in ``parts`` of a sphere: its stem's direction} (stems end at their sphere's centre)."""
     out = {}
     ends = {tuple(np.round(s.p1, 9)): np.subtract(s.p1, s.p0) for s in body.stems}
-    for i, p in enumerate(body.add):
+    for i, p in enumerate(parts):
         if isinstance(p, Sphere):
             u = ends.get(tuple(np.round(p.centre, 9)))
             if u is not None:
@@ -131,6 +131,56 @@ def _sphere_axes(body: Body) -> dict:
 def _disjoint(a, b) -> bool:
     """Whether two (2, 3) bounds are apart (a positive gap on some axis)."""
     return bool((a[0] > b[1] + 1e-6).any() or (b[0] > a[1] + 1e-6).any())
+
+
+def _cuts(subtract) -> list:
+    """(solid, (2, 3) bounds) per cut: boxes that span the same height (y) range, such as an
+    engraved id's pixel runs, as one prism of their outline (the same solid: a union of boxes
+    over one y range is the union of their rectangles, extruded), the rest one by one."""
+    from starforge.geometry.outline import rect_union_outlines
+
+    spans: dict = {}
+    for c in subtract:
+        if isinstance(c, Box):
+            b = c.bounds()
+            spans.setdefault((b[0, 1], b[1, 1]), []).append(c)
+    out, done = [], set()
+    for c in subtract:
+        key = (c.bounds()[0, 1], c.bounds()[1, 1]) if isinstance(c, Box) else None
+        if key is None or len(spans[key]) < 2:
+            out.append((primitive_solid(c), c.bounds()))
+            continue
+        if key in done:
+            continue
+        done.add(key)
+        boxes = [b.bounds() for b in spans[key]]
+        rects = [(b[0, 0], b[1, 0], b[0, 2], b[1, 2]) for b in boxes]  # (x0, x1, z0, z1)
+        for outer, holes in rect_union_outlines(rects):
+            pts = outer[:, 0], outer[:, 1]
+            lo = np.array([pts[0].min(), key[0], pts[1].min()])
+            hi = np.array([pts[0].max(), key[1], pts[1].max()])
+            out.append((_prism(outer, holes, key[0], key[1] - key[0]), np.array([lo, hi])))
+    return out
+
+
+def _prism(outer, holes, y0: float, height: float):
+    """The solid between y = ``y0`` and ``y0 + height`` over a polygon with holes, given as
+    (k, 2) (x, z) corners (outer counter-clockwise in (x, z), holes clockwise)."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace, BRepBuilderAPI_MakePolygon
+    from OCP.BRepPrimAPI import BRepPrimAPI_MakePrism
+    from OCP.gp import gp_Vec
+
+    def wire(loop):
+        poly = BRepBuilderAPI_MakePolygon()
+        for x, z in loop:
+            poly.Add(_pnt((x, y0, z)))
+        poly.Close()
+        return poly.Wire()
+
+    make = BRepBuilderAPI_MakeFace(wire(outer), True)
+    for h in holes:
+        make.Add(wire(h))
+    return BRepPrimAPI_MakePrism(make.Face(), gp_Vec(0.0, float(height), 0.0)).Shape()
 
 
 def _shape_list(shapes):
@@ -177,25 +227,27 @@ def body_solid(body: Body) -> Solid:
 
     (union of ``add``) minus (union of ``subtract``), evaluated in the order that is fastest
     for OCCT and gives the same solid: a cut whose bounds meet only a plate's is made on that
-    plate before the union ((A u B) - C = (A - C) u B when C misses B).  Coplanar faces left by
-    the booleans are merged (ShapeUpgrade_UnifySameDomain), as build123d's ``clean`` does.
+    plate before the union ((A u B) - C = (A - C) u B when C misses B), and a vertical stem with
+    its root fillet is one solid of revolution (:func:`~starforge.cad.primitives.merge_coaxial`),
+    boxes cut over one height range (the id's pixel runs) one prism of their outline (:func:`_cuts`).
+    Coplanar faces left by the booleans are merged (ShapeUpgrade_UnifySameDomain).
     """
     from OCP.ShapeUpgrade import ShapeUpgrade_UnifySameDomain
 
-    axes = _sphere_axes(body)
-    adds = [primitive_solid(p, axes.get(i)) for i, p in enumerate(body.add)]
-    plates = [i for i, p in enumerate(body.add) if isinstance(p, Box)]
-    others = [i for i in range(len(body.add)) if i not in plates]
-    other_bounds = [body.add[i].bounds() for i in others]
+    parts = merge_coaxial(body.add)
+    axes = _sphere_axes(body, parts)
+    adds = [primitive_solid(p, axes.get(i)) for i, p in enumerate(parts)]
+    plates = [i for i, p in enumerate(parts) if isinstance(p, Box)]
+    others = [i for i in range(len(parts)) if i not in plates]
+    other_bounds = [parts[i].bounds() for i in others]
     early: dict[int, list] = {i: [] for i in plates}
     late = []
-    for c in body.subtract:
-        cb = c.bounds()
-        hit = [i for i in plates if not _disjoint(cb, body.add[i].bounds())]
+    for solid, cb in _cuts(body.subtract):
+        hit = [i for i in plates if not _disjoint(cb, parts[i].bounds())]
         if len(hit) == 1 and all(_disjoint(cb, ob) for ob in other_bounds):
-            early[hit[0]].append(primitive_solid(c))
+            early[hit[0]].append(solid)
         else:
-            late.append(primitive_solid(c))
+            late.append(solid)
     for i in plates:
         if early[i]:
             adds[i] = _boolean("cut", [adds[i]], early[i])
