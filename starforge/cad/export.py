@@ -156,13 +156,6 @@ def export_family(
     :func:`family_bodies` for the same family, ids, mount and spec, when the caller already has
     them (they are described here otherwise).
     """
-    from trimesh.util import concatenate as trimesh_concatenate
-
-    from starforge.cad.mesh import check_shell
-    from starforge.cad.threemf import threemf_bytes
-    from starforge.colours import body_colour
-    from starforge.render.raster import thumbnail_png
-
     formats = tuple(formats)
     bad = [f for f in formats if f not in CAD_FORMATS]
     if bad:
@@ -190,12 +183,19 @@ def export_family(
             bodies, to_print, [body_colour(b.star_id - 1) for b in bodies], stage, plates if plate else [], tick
         )
     done = False
+    plate_docs: list = []
+    rep.timings.update(mesh_s=0.0, plate_s=0.0, step_s=0.0)
     try:
         t1 = time.perf_counter()
         _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick)
-        t_mesh = time.perf_counter() - t1
+        rep.timings["mesh_s"] = time.perf_counter() - t1
+        if plate:  # while the STEP worker still runs
+            t3 = time.perf_counter()
+            for name, lay in zip(plate_names(len(beds)), beds, strict=True):
+                plate_docs.append(_mesh_plate(name, lay, bodies, meshes, formats, stage))
+            rep.timings["plate_s"] = time.perf_counter() - t3
         if step_job is not None:
-            volumes, t_step = step_job.result()
+            volumes, rep.timings["step_s"] = step_job.result()
         done = True
     finally:
         if step_job is not None and not done:
@@ -204,46 +204,8 @@ def export_family(
         for entry, b, vol in zip(rep.bodies, bodies, volumes, strict=True):
             entry["step_volume_mm3"] = round(vol, 6)
             entry["files"].append(f"{b.name}.step")
-    else:
-        t_step = 0.0
-    rep.timings["mesh_s"] = t_mesh
-    rep.timings["step_s"] = t_step
-    plate_docs = []
-    if plate:
-        t3 = time.perf_counter()
-        for name, lay in zip(plate_names(len(beds)), beds, strict=True):
-            files = []
-            moved = [meshes[i].copy().apply_transform(T) for i, T in zip(lay.members, lay.transforms, strict=True)]
-            for i, mv in zip(lay.members, moved, strict=True):
-                check_shell(mv.vertices, mv.faces, f"{name}: {bodies[i].name}")
-            if "stl" in formats:
-                (stage / f"{name}.stl").write_bytes(trimesh_concatenate(moved).export(file_type="stl"))
-                files.append(f"{name}.stl")
-            if "3mf" in formats:
-                cols = [body_colour(bodies[i].star_id - 1) for i in lay.members]
-                v = np.concatenate([m.vertices for m in moved])
-                offsets = np.cumsum([0] + [len(m.vertices) for m in moved[:-1]])
-                f = np.concatenate([m.faces + o for m, o in zip(moved, offsets, strict=True)])
-                face_cols = np.repeat(np.array(cols, float), [len(m.faces) for m in moved], axis=0)
-                thumb = thumbnail_png(v, f, colour=face_cols)
-                (stage / f"{name}.3mf").write_bytes(
-                    threemf_bytes(moved, [bodies[i].name for i in lay.members], thumb, cols)
-                )
-                files.append(f"{name}.3mf")
-            if "step" in formats:  # written by _step_bodies
-                files.append(f"{name}.step")
-            plate_docs.append(
-                {
-                    "name": name,
-                    "bed_mm": list(lay.bed_mm),
-                    "gap_mm": lay.gap_mm,
-                    "bodies": [bodies[i].name for i in lay.members],
-                    "footprints_mm": np.round(lay.footprints, 6).tolist(),
-                    "print_to_bed": [np.round(T, 9).tolist() for T in lay.transforms],
-                    "files": files,
-                }
-            )
-        rep.timings["plate_s"] = time.perf_counter() - t3
+        for doc in plate_docs:
+            doc["files"].append(f"{doc['name']}.step")
     if preview:
         from starforge.render.bodies import render_body_png, render_sheet_png
 
@@ -278,6 +240,48 @@ def export_family(
     return rep
 
 
+def _mesh_plate(name, lay, bodies, meshes, formats, stage) -> dict:
+    """One bed's STL / 3MF from the bodies' meshes (printing orientation, (v, f) arrays) moved
+    by the layout's translations; its bodies.json entry (the STEP worker adds ``<name>.step``)."""
+    from starforge.cad.mesh import MeshArrays, check_shell
+    from starforge.cad.stl import stl_bytes
+    from starforge.cad.threemf import threemf_bytes
+    from starforge.colours import body_colour
+    from starforge.render.raster import thumbnail_png
+
+    files = []
+    moved = []
+    for i, T in zip(lay.members, lay.transforms, strict=True):
+        T = np.asarray(T, float)
+        if not np.array_equal(T[:3, :3], np.eye(3)):
+            raise ValueError("a bed layout only translates bodies")
+        v, f = meshes[i]
+        mv = MeshArrays(v + T[:3, 3], f)
+        check_shell(mv.vertices, mv.faces, f"{name}: {bodies[i].name}")  # float32 rounding moves with it
+        moved.append(mv)
+    v = np.concatenate([m.vertices for m in moved])
+    offsets = np.cumsum([0] + [len(m.vertices) for m in moved[:-1]])
+    f = np.concatenate([m.faces + o for m, o in zip(moved, offsets, strict=True)])
+    if "stl" in formats:
+        (stage / f"{name}.stl").write_bytes(stl_bytes(v, f))
+        files.append(f"{name}.stl")
+    if "3mf" in formats:
+        cols = [body_colour(bodies[i].star_id - 1) for i in lay.members]
+        face_cols = np.repeat(np.array(cols, float), [len(m.faces) for m in moved], axis=0)
+        thumb = thumbnail_png(v, f, colour=face_cols)
+        (stage / f"{name}.3mf").write_bytes(threemf_bytes(moved, [bodies[i].name for i in lay.members], thumb, cols))
+        files.append(f"{name}.3mf")
+    return {
+        "name": name,
+        "bed_mm": list(lay.bed_mm),
+        "gap_mm": lay.gap_mm,
+        "bodies": [bodies[i].name for i in lay.members],
+        "footprints_mm": np.round(lay.footprints, 6).tolist(),
+        "print_to_bed": [np.round(T, 9).tolist() for T in lay.transforms],
+        "files": files,
+    }
+
+
 class _Ticker:
     """``progress(done, total)`` after each unit of work, from either thread (one lock)."""
 
@@ -297,15 +301,17 @@ class _Ticker:
 def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick) -> None:
     """Per body: the mesh in its printing orientation (appended to ``meshes``), its STL / 3MF
     files and its bodies.json entry (appended to ``rep.bodies``)."""
-    from starforge.cad.mesh import body_mesh, check_shell
+    from starforge.cad.mesh import MeshArrays, body_arrays, check_shell, mesh_volume
+    from starforge.cad.stl import stl_bytes
     from starforge.cad.threemf import threemf_bytes
     from starforge.cad.visibility import sphere_visibility
     from starforge.colours import body_colour
     from starforge.render.raster import thumbnail_png
 
     for b, fit, T in zip(bodies, fits, to_print, strict=True):
-        mesh = body_mesh(b, spec.sphere_segments, spec.cylinder_segments)
-        mesh.apply_transform(T)  # printing orientation: plate down on Z = 0
+        v, f = body_arrays(b, spec.sphere_segments, spec.cylinder_segments, check=False)  # checked below
+        T = np.asarray(T, float)
+        mesh = MeshArrays(v @ T[:3, :3].T + T[:3, 3], f)  # printing orientation: plate down on Z = 0
         check_shell(mesh.vertices, mesh.faces, b.name)  # as the file will hold it (float32)
         meshes.append(mesh)
         colour = body_colour(b.star_id - 1)
@@ -320,10 +326,10 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick
             "stem_roots_mm": [list(s.p0) for s in b.stems],
             "label": b.label,
             "colour_rgb": list(colour),
-            "print_height_mm": round(float(mesh.bounds[1, 2]), 6),
+            "print_height_mm": round(float(mesh.vertices[:, 2].max()), 6),
             "placement_to_print": np.round(T, 9).tolist(),
             "print_to_placement": np.round(np.linalg.inv(T), 9).tolist(),
-            "mesh_volume_mm3": round(float(mesh.volume), 6),
+            "mesh_volume_mm3": round(mesh_volume(mesh.vertices, mesh.faces), 6),
             "files": [],
         }
         entry["closest_features_mm"] = round(closest_features_mm(b), 6)  # two markers' stems/spheres
@@ -343,7 +349,7 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick
         if not fit.fits:
             rep.warnings.append(fit.message(b.name) + " (exported with --allow-oversize)")
         if "stl" in formats:
-            (stage / f"{b.name}.stl").write_bytes(mesh.export(file_type="stl"))
+            (stage / f"{b.name}.stl").write_bytes(stl_bytes(mesh.vertices, mesh.faces))
             entry["files"].append(f"{b.name}.stl")
         if "3mf" in formats:
             thumb = thumbnail_png(mesh.vertices, mesh.faces, colour=colour)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from starforge.cad.body import Body
-from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere, merge_coaxial
+from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere, merge_coaxial, plate_cuts
 from starforge.errors import StarforgeError
 
 #: the header's time stamp: fixed, so the same solid gives the same file
@@ -128,11 +128,6 @@ def _sphere_axes(body: Body, parts) -> dict:
     return out
 
 
-def _disjoint(a, b) -> bool:
-    """Whether two (2, 3) bounds are apart (a positive gap on some axis)."""
-    return bool((a[0] > b[1] + 1e-6).any() or (b[0] > a[1] + 1e-6).any())
-
-
 def _cuts(subtract) -> list:
     """(solid, (2, 3) bounds) per cut: boxes that span the same height (y) range, such as an
     engraved id's pixel runs, as one prism of their outline (the same solid: a union of boxes
@@ -237,20 +232,16 @@ def body_solid(body: Body) -> Solid:
     parts = merge_coaxial(body.add)
     axes = _sphere_axes(body, parts)
     adds = [primitive_solid(p, axes.get(i)) for i, p in enumerate(parts)]
-    plates = [i for i, p in enumerate(parts) if isinstance(p, Box)]
-    others = [i for i in range(len(parts)) if i not in plates]
-    other_bounds = [parts[i].bounds() for i in others]
-    early: dict[int, list] = {i: [] for i in plates}
+    cuts = _cuts(body.subtract)
+    early: dict[int, list] = {}
     late = []
-    for solid, cb in _cuts(body.subtract):
-        hit = [i for i in plates if not _disjoint(cb, parts[i].bounds())]
-        if len(hit) == 1 and all(_disjoint(cb, ob) for ob in other_bounds):
-            early[hit[0]].append(solid)
-        else:
+    for (solid, _), plate in zip(cuts, plate_cuts(parts, [cb for _, cb in cuts]), strict=True):
+        if plate is None:
             late.append(solid)
-    for i in plates:
-        if early[i]:
-            adds[i] = _boolean("cut", [adds[i]], early[i])
+        else:
+            early.setdefault(plate, []).append(solid)
+    for i, tools in early.items():
+        adds[i] = _boolean("cut", [adds[i]], tools)
     shape = _boolean("fuse", adds[:1], adds[1:]) if len(adds) > 1 else adds[0]
     if late:
         shape = _boolean("cut", [shape], late)
@@ -345,7 +336,9 @@ def _xcaf(item):
             part = shapes.AddShape(s.shape, False)
             name_and_colour(part, s)
             comp = shapes.AddComponent(top, part, TopLoc_Location(_trsf(T)))
-            name_and_colour(comp, s)
+            # the instance carries the name only: a colour there too becomes an overriding style,
+            # which OCCT writes in an order that changes from run to run
+            name_and_colour(comp, Solid(s.shape, s.label, None))
         shapes.UpdateAssemblies()
     return doc
 

@@ -130,6 +130,26 @@ def fillet_profile(stem_radius_mm: float, fillet_mm: float, buried_mm: float, fa
 Primitive = Sphere | Cylinder | Box | Revolved
 
 
+def plate_cuts(parts, cut_bounds, margin_mm: float = 1e-6) -> list:
+    """Which cuts can be made on a plate before the union: per cut (its (2, 3) bounds, mm), the
+    index in ``parts`` of the one :class:`Box` it meets when its bounds stay more than
+    ``margin_mm`` clear of every other part's, else None.  (A u B) - C = (A - C) u B when C
+    misses B, and cutting a box is far cheaper than cutting the finished body, in both backends.
+    """
+    boxes = [i for i, p in enumerate(parts) if isinstance(p, Box)]
+    bounds = [p.bounds() for p in parts]
+
+    def apart(a, b) -> bool:
+        return bool((a[0] > b[1] + margin_mm).any() or (b[0] > a[1] + margin_mm).any())
+
+    out = []
+    for cb in cut_bounds:
+        hit = [i for i in boxes if not apart(cb, bounds[i])]
+        others_clear = all(apart(cb, bounds[i]) for i in range(len(parts)) if i not in boxes)
+        out.append(hit[0] if len(hit) == 1 and others_clear else None)
+    return out
+
+
 def merge_coaxial(parts) -> tuple:
     """``parts`` with each cylinder and the solid of revolution that shares its start and axis
     (a vertical stem and its root fillet) replaced by one :class:`Revolved`: the fillet's profile

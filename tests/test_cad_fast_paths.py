@@ -1,5 +1,6 @@
-"""What the backends build faster must be the same solid: a vertical stem with its root fillet
-as one solid of revolution (merge_coaxial), an engraving's boxes as one prism (occ._cuts)."""
+"""What the export does faster must give the same result: a vertical stem with its root fillet
+as one solid of revolution (merge_coaxial), an engraving's boxes as one prism (occ._cuts), the
+STL written from arrays (stl.stl_bytes), the mesh volume without trimesh (mesh.mesh_volume)."""
 
 from __future__ import annotations
 
@@ -82,3 +83,23 @@ def test_the_engraving_prism_is_the_union_of_its_boxes(mount):
         lo = np.array(box.CornerMin().Coord())
         hi = np.array(box.CornerMax().Coord())
         assert (lo >= bounds[0] - 1e-6).all() and (hi <= bounds[1] + 1e-6).all()
+
+
+def test_stl_from_arrays_reloads_as_the_mesh_with_its_volume(tmp_path):
+    import trimesh
+
+    from starforge.cad.mesh import body_arrays, mesh_volume
+    from starforge.cad.stl import face_normals, stl_bytes
+
+    s = load_family(DATA).stars[1]
+    v, f = body_arrays(build_body(s.id, s.vertices, 4.0, load_mount("flat"), BodySpec()))
+    (tmp_path / "a.stl").write_bytes(stl_bytes(v, f))
+    back = trimesh.load(tmp_path / "a.stl", force="mesh")
+    assert back.is_watertight and back.is_volume and len(back.faces) == len(f)
+    ref = trimesh.Trimesh(v, f, process=False)
+    assert mesh_volume(v, f) == pytest.approx(ref.volume, rel=1e-12)
+    assert back.volume == pytest.approx(ref.volume, rel=1e-6)  # float32 corners
+    raw = np.frombuffer((tmp_path / "a.stl").read_bytes()[84:], dtype=np.uint8).reshape(-1, 50)
+    normals = raw[:, :12].copy().view("<f4").reshape(-1, 3)
+    assert np.allclose(normals, ref.face_normals, atol=1e-6)
+    assert np.allclose(face_normals(v, f), ref.face_normals, atol=1e-12)
