@@ -147,6 +147,7 @@ def export_family(
     allow_oversize: bool = False,
     progress=None,
     bodies=None,
+    step_worker=None,
 ) -> ExportReport:
     """Write the bodies of a family into ``stage`` (see the module docstring for the files).
 
@@ -154,7 +155,9 @@ def export_family(
     file (from the thread reading the STEP worker, :mod:`starforge.cad.step_worker`; total =
     stars x 2 with STEP).  ``bodies``: the descriptions from
     :func:`family_bodies` for the same family, ids, mount and spec, when the caller already has
-    them (they are described here otherwise).
+    them (they are described here otherwise).  ``step_worker``: a
+    :class:`~starforge.cad.step_worker.StepProcess` the caller launched earlier (so that its
+    kernel loads while the caller reads and checks its inputs); one is launched here otherwise.
     """
     formats = tuple(formats)
     bad = [f for f in formats if f not in CAD_FORMATS]
@@ -175,12 +178,18 @@ def export_family(
         # the exact solids (OpenCascade) are built in a second process while this one meshes
         # (OCCT holds the GIL: a thread would stall the meshes); each body's STEP file depends
         # only on that body, so the files are the same whichever side finishes first
-        from starforge.cad import step_worker
+        from starforge.cad import step_worker as step_worker_mod
         from starforge.colours import body_colour
 
         plates = [(n, lay.members, lay.transforms) for n, lay in zip(plate_names(len(beds)), beds, strict=True)]
-        step_job = step_worker.start(
-            bodies, to_print, [body_colour(b.star_id - 1) for b in bodies], stage, plates if plate else [], tick
+        step_job = step_worker_mod.start(
+            bodies,
+            to_print,
+            [body_colour(b.star_id - 1) for b in bodies],
+            stage,
+            plates if plate else [],
+            tick,
+            worker=step_worker,
         )
     done = False
     plate_docs: list = []

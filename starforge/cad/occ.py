@@ -21,6 +21,11 @@ from starforge.errors import StarforgeError
 
 #: the header's time stamp: fixed, so the same solid gives the same file
 STEP_TIMESTAMP = "2000-01-01T00:00:00"
+#: write each face's parameter-space curves too (OCCT's write.surfacecurve.mode)?  They repeat
+#: what the 3D edges and surfaces already define, and readers rebuild them (OCCT does on import);
+#: without them a body's file is 2.4 x smaller and the STEP side of an export about 0.45 s
+#: faster (25 bodies and their plate)
+STEP_PCURVES = False
 
 
 @dataclass(frozen=True)
@@ -371,7 +376,7 @@ def write_step(item, path) -> None:
     header.SetName(TCollection_HAsciiString(item.label))
     header.SetTimeStamp(TCollection_HAsciiString(STEP_TIMESTAMP))
     header.SetOriginatingSystem(TCollection_HAsciiString("starforge"))
-    Interface_Static.SetIVal_s("write.surfacecurve.mode", 1)
+    Interface_Static.SetIVal_s("write.surfacecurve.mode", int(STEP_PCURVES))
     Interface_Static.SetIVal_s("write.precision.mode", 0)
     writer.Transfer(doc, STEPControl_StepModelType.STEPControl_AsIs)
     if writer.Write(str(path)) != IFSelect_ReturnStatus.IFSelect_RetDone:

@@ -50,8 +50,17 @@ def run_job(job: dict, say) -> None:
 
 def main() -> None:
     """Worker entry: the job from stdin (pickle), progress lines to stdout, ``error <message>``
-    and exit status 1 for a StarforgeError (a traceback on stderr for anything else)."""
-    job = pickle.load(sys.stdin.buffer)
+    and exit status 1 for a StarforgeError (a traceback on stderr for anything else).  The
+    kernel is loaded first, while the caller may still be describing the job; an empty stdin
+    (the caller changed its mind) ends the worker quietly."""
+    import OCP.TopoDS  # noqa: F401  (OCP's one large extension module: most of the import time)
+
+    import starforge.cad.occ  # noqa: F401
+
+    data = sys.stdin.buffer.read()
+    if not data:
+        return
+    job = pickle.loads(data)
     out = sys.stdout
 
     def say(line: str) -> None:
@@ -67,17 +76,20 @@ def main() -> None:
 
 
 class StepProcess:
-    """A running STEP worker: :meth:`result` waits for it, :meth:`kill` ends it early."""
+    """A STEP worker: launched at once (it loads the kernel), given its job by :meth:`send`;
+    :meth:`result` waits for it, :meth:`kill` ends it early.  A context manager: leaving the
+    ``with`` block ends a worker that has not finished (harmless after :meth:`result`)."""
 
-    def __init__(self, job: dict, tick=None) -> None:
+    def __init__(self) -> None:
         import starforge
 
         root = str(Path(starforge.__file__).resolve().parent.parent)
         self.t0 = time.perf_counter()
-        self.n = len(job["bodies"])
-        self.volumes: list = [None] * self.n
+        self.volumes: list = []
         self.error = ""
         self.finished = False
+        self.sent = False
+        self.tick = None
         self.stderr = tempfile.TemporaryFile()
         self.proc = subprocess.Popen(
             [sys.executable, "-c", _BOOT, root],
@@ -85,9 +97,20 @@ class StepProcess:
             stdout=subprocess.PIPE,
             stderr=self.stderr,
         )
-        self.tick = tick
         self.reader = threading.Thread(target=self._read, name="starforge-step", daemon=True)
         self.reader.start()
+
+    def __enter__(self) -> StepProcess:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.kill()
+
+    def send(self, job: dict, tick=None) -> None:
+        """Hand the worker its job (see :func:`start`); ``tick()`` after each body's file."""
+        self.volumes = [None] * len(job["bodies"])
+        self.tick = tick
+        self.sent = True
         try:
             self.proc.stdin.write(pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL))
             self.proc.stdin.close()
@@ -108,7 +131,9 @@ class StepProcess:
                 self.finished = True
 
     def result(self) -> tuple[list[float], float]:
-        """(volumes of the bodies' solids, mm^3, in order; seconds from start to end)."""
+        """(volumes of the bodies' solids, mm^3, in order; seconds from launch to end)."""
+        if not self.sent:
+            raise RuntimeError("result() before send(): the worker has no job")
         code = self.proc.wait()
         self.reader.join()
         self.proc.stdout.close()
@@ -130,15 +155,16 @@ class StepProcess:
             self.proc.kill()
         self.proc.wait()
         self.reader.join()
-        self.proc.stdout.close()
-        self.stderr.close()
+        for f in (self.proc.stdin, self.proc.stdout, self.stderr):
+            if not f.closed:
+                f.close()
 
 
-def start(bodies, transforms, colours, stage, plates=(), tick=None) -> StepProcess:
-    """Launch the worker for ``bodies`` (:class:`~starforge.cad.body.Body`), their printing
-    ``transforms`` (4, 4) and ``colours`` ((r, g, b) 0..255), writing into ``stage``; ``plates``:
-    (name, member indices, (4, 4) bed transforms) per plate; ``tick()`` after each body's file."""
-    job = {
+def job_for(bodies, transforms, colours, stage, plates=()) -> dict:
+    """The worker's job: ``bodies`` (:class:`~starforge.cad.body.Body`), their printing
+    ``transforms`` (4, 4), ``colours`` ((r, g, b) 0..255), the ``stage`` folder to write into,
+    and per plate (name, member indices, (4, 4) bed transforms)."""
+    return {
         "bodies": list(bodies),
         "transforms": [[list(map(float, row)) for row in T] for T in transforms],
         "colours": [tuple(int(c) for c in col) for col in colours],
@@ -147,4 +173,11 @@ def start(bodies, transforms, colours, stage, plates=(), tick=None) -> StepProce
             (name, list(members), [[list(map(float, row)) for row in T] for T in ts]) for name, members, ts in plates
         ],
     }
-    return StepProcess(job, tick)
+
+
+def start(bodies, transforms, colours, stage, plates=(), tick=None, worker: StepProcess | None = None) -> StepProcess:
+    """Launch a worker (or use ``worker``, launched earlier) and hand it the job of
+    :func:`job_for`; ``tick()`` after each body's file."""
+    worker = worker if worker is not None else StepProcess()
+    worker.send(job_for(bodies, transforms, colours, stage, plates), tick)
+    return worker
