@@ -201,7 +201,7 @@ def _boolean(kind: str, args, tools):
     op = BRepAlgoAPI_Fuse() if kind == "fuse" else BRepAlgoAPI_Cut()
     op.SetArguments(_shape_list(args))
     op.SetTools(_shape_list(tools))
-    op.SetRunParallel(True)
+    op.SetRunParallel(False)  # one core each: the export meshes on the other
     op.Build()
     if not op.IsDone():
         raise StarforgeError(f"OCCT boolean {kind} failed")
