@@ -166,35 +166,41 @@ def export_family(
     stage = Path(stage)
     rep = ExportReport()
     t0 = time.perf_counter()
-    if bodies is None:
-        bodies = family_bodies(family, ids, mount, spec)
-    fits = check_fit(bodies, family.spec.box_mm, mount.name, allow_oversize)
-    to_print, beds = print_layout(bodies, bed_mm, gap_mm)
-    rep.timings["describe_s"] = time.perf_counter() - t0
-    meshes: list = []
     step_job = None
-    tick = _Ticker(progress, len(bodies) * (2 if "step" in formats else 1))
-    if "step" in formats:
+    if "step" in formats and step_worker is None:
         # the exact solids (OpenCascade) are built in a second process while this one meshes
-        # (OCCT holds the GIL: a thread would stall the meshes); each body's STEP file depends
-        # only on that body, so the files are the same whichever side finishes first
-        from starforge.cad import step_worker as step_worker_mod
-        from starforge.colours import body_colour
+        # (OCCT holds the GIL: a thread would stall the meshes); launched first, so that it
+        # loads the kernel while the bodies are described here
+        from starforge.cad.step_worker import StepProcess
 
-        plates = [(n, lay.members, lay.transforms) for n, lay in zip(plate_names(len(beds)), beds, strict=True)]
-        step_job = step_worker_mod.start(
-            bodies,
-            to_print,
-            [body_colour(b.star_id - 1) for b in bodies],
-            stage,
-            plates if plate else [],
-            tick,
-            worker=step_worker,
-        )
+        step_worker = StepProcess()
     done = False
     plate_docs: list = []
     rep.timings.update(mesh_s=0.0, plate_s=0.0, step_s=0.0)
     try:
+        if bodies is None:
+            bodies = family_bodies(family, ids, mount, spec)
+        fits = check_fit(bodies, family.spec.box_mm, mount.name, allow_oversize)
+        to_print, beds = print_layout(bodies, bed_mm, gap_mm)
+        rep.timings["describe_s"] = time.perf_counter() - t0
+        meshes: list = []
+        tick = _Ticker(progress, len(bodies) * (2 if "step" in formats else 1))
+        if "step" in formats:
+            # each body's STEP file depends only on that body: the files are the same whichever
+            # side finishes first
+            from starforge.cad import step_worker as step_worker_mod
+            from starforge.colours import body_colour
+
+            plates = [(n, lay.members, lay.transforms) for n, lay in zip(plate_names(len(beds)), beds, strict=True)]
+            step_job = step_worker_mod.start(
+                bodies,
+                to_print,
+                [body_colour(b.star_id - 1) for b in bodies],
+                stage,
+                plates if plate else [],
+                tick,
+                worker=step_worker,
+            )
         t1 = time.perf_counter()
         _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick)
         rep.timings["mesh_s"] = time.perf_counter() - t1
@@ -207,8 +213,8 @@ def export_family(
             volumes, rep.timings["step_s"] = step_job.result()
         done = True
     finally:
-        if step_job is not None and not done:
-            step_job.kill()  # an error or Ctrl-C here: no STEP file is begun after this
+        if step_worker is not None and not done:
+            step_worker.kill()  # an error or Ctrl-C here: no STEP file is begun after this
     if step_job is not None:
         for entry, b, vol in zip(rep.bodies, bodies, volumes, strict=True):
             entry["step_volume_mm3"] = round(vol, 6)

@@ -40,16 +40,10 @@ def _frame(axis: np.ndarray) -> np.ndarray:
 @lru_cache(maxsize=16)
 def _sphere_scale(segments: int) -> float:
     """Radius factor giving a tessellated sphere the exact sphere's volume."""
-    v = _unit_sphere(int(segments)).volume()
-    return float((4.0 / 3.0 * np.pi / v) ** (1.0 / 3.0))
-
-
-@lru_cache(maxsize=16)
-def _unit_sphere(segments: int):
-    """The tessellated unit sphere (an immutable Manifold, shared by every sphere of a run)."""
     from manifold3d import Manifold
 
-    return Manifold.sphere(1.0, int(segments))
+    v = Manifold.sphere(1.0, int(segments)).volume()
+    return float((4.0 / 3.0 * np.pi / v) ** (1.0 / 3.0))
 
 
 def _placement(axis, origin) -> np.ndarray:
@@ -81,18 +75,20 @@ def _circle_scale(segments: int) -> float:
     return float(np.sqrt(2 * np.pi / (n * np.sin(2 * np.pi / n))))
 
 
-def primitive_manifold(p, sphere_segments: int = 64, cylinder_segments: int = 32):
+def primitive_manifold(p, sphere_segments: int = 64, cylinder_segments: int = 32, unit_sphere=None):
     """One primitive as a manifold3d Manifold.
 
     Curved primitives are tessellated volume-preserving: the polygon's radius is scaled so
     that a sphere (cylinder) mesh holds the exact sphere's (cylinder's) volume; the surface
-    stays within ``radius * (1 - cos(pi / segments))`` of the exact one.
+    stays within ``radius * (1 - cos(pi / segments))`` of the exact one.  ``unit_sphere``: a
+    ``Manifold.sphere(1, sphere_segments)`` to scale and place instead of tessellating again.
     """
     from manifold3d import CrossSection, Manifold
 
-    if isinstance(p, Sphere):  # one unit sphere per tessellation, scaled and placed
+    if isinstance(p, Sphere):  # the unit sphere (made here unless given), scaled and placed
         r = p.radius_mm * _sphere_scale(sphere_segments)
-        return _unit_sphere(int(sphere_segments)).scale([r, r, r]).translate(p.centre)
+        unit = unit_sphere if unit_sphere is not None else Manifold.sphere(1.0, int(sphere_segments))
+        return unit.scale([r, r, r]).translate(p.centre)
     if isinstance(p, Box):
         return Manifold.cube(p.size, center=True).translate(p.centre)
     if isinstance(p, Cylinder):
@@ -125,7 +121,12 @@ def body_manifold(body: Body, sphere_segments: int = 64, cylinder_segments: int 
     from manifold3d import Manifold, OpType
 
     parts = merge_coaxial(body.add)
-    adds = [primitive_manifold(p, sphere_segments, cylinder_segments) for p in parts]
+    # one unit sphere per body, scaled and placed for each of its spheres.  Not one per process:
+    # manifold3d orders a boolean's triangles by the ids its meshes were created with, so a
+    # sphere shared between bodies (created once, before the rest) would give the second export
+    # in a process other triangle orders than the first
+    unit = Manifold.sphere(1.0, int(sphere_segments))
+    adds = [primitive_manifold(p, sphere_segments, cylinder_segments, unit) for p in parts]
     early: dict[int, list] = {}
     late = []
     for c, plate in zip(body.subtract, plate_cuts(parts, [c.bounds() for c in body.subtract], CUT_MARGIN_MM), strict=True):
