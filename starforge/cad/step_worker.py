@@ -53,6 +53,14 @@ def main() -> None:
     and exit status 1 for a StarforgeError (a traceback on stderr for anything else).  The
     kernel is loaded first, while the caller may still be describing the job; an empty stdin
     (the caller changed its mind) ends the worker quietly."""
+    import os
+
+    # the protocol gets the original stdout to itself; anything the kernel prints there (C++
+    # streams) goes to stderr, which the caller keeps for an error message
+    out = os.fdopen(os.dup(sys.stdout.fileno()), "w", encoding="utf-8")
+    sys.stdout.flush()
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
+
     import OCP.TopoDS  # noqa: F401  (OCP's one large extension module: most of the import time)
 
     import starforge.cad.occ  # noqa: F401
@@ -61,7 +69,6 @@ def main() -> None:
     if not data:
         return
     job = pickle.loads(data)
-    out = sys.stdout
 
     def say(line: str) -> None:
         out.write(line + "\n")
@@ -147,6 +154,8 @@ class StepProcess:
             self.stderr.close()
             raise StarforgeError(f"STEP export failed (exit status {code}): {lines[-1] if lines else 'no message'}")
         self.stderr.close()
+        if any(v is None for v in self.volumes):
+            raise StarforgeError("STEP export failed: the worker did not report every body")
         return self.volumes, seconds
 
     def kill(self) -> None:
