@@ -118,3 +118,28 @@ def test_a_mesh_failure_stops_the_worker(tmp_path, monkeypatch):
     assert len(jobs) == 1
     assert jobs[0].proc.returncode is not None  # ended (killed), not left running
     assert jobs[0].proc.returncode != 0 or jobs[0].finished
+
+
+IMPORTS = """
+import sys
+from pathlib import Path
+from starforge import load_family
+from starforge.cad.body import BodySpec
+from starforge.cad.export import export_family
+from starforge.cad.mounts import load_mount
+export_family(load_family(sys.argv[1]), Path(sys.argv[2]), load_mount("flat"), BodySpec(), ids=[1])
+print(sorted(m for m in ("build123d", "OCP", "trimesh", "scipy") if m in sys.modules))
+"""
+
+
+def test_the_exporting_process_loads_no_cad_kernel(tmp_path):
+    """STEP, STL and 3MF of a star without build123d, OCP, trimesh or scipy in the exporting
+    process (build123d alone took 2-4 s to import): the kernel loads in the STEP worker."""
+    import subprocess
+    import sys
+
+    res = subprocess.run(
+        [sys.executable, "-c", IMPORTS, str(DATA), str(tmp_path)], check=True, capture_output=True, text=True
+    )
+    assert res.stdout.strip().splitlines()[-1] == "[]"
+    assert sorted(p.name for p in tmp_path.glob("star_001.*")) == ["star_001.3mf", "star_001.step", "star_001.stl"]
