@@ -1,4 +1,4 @@
-"""Both backends build the same body: STEP (build123d) and STL/3MF (manifold3d).
+"""Both backends build the same body: STEP (OpenCascade) and STL/3MF (manifold3d).
 
 Files are written under tmp_path and reloaded with build123d / trimesh; volumes, validity,
 single-solid-ness and the sphere centres are measured on the reloaded files.
@@ -52,13 +52,18 @@ def _occ_sphere_centres(solid):
     """Centres of the spherical faces of an OCCT solid (from the surface definitions)."""
     from OCP.BRepAdaptor import BRepAdaptor_Surface
     from OCP.GeomAbs import GeomAbs_Sphere
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
 
     out = []
-    for f in solid.faces():
-        s = BRepAdaptor_Surface(f.wrapped)
+    ex = TopExp_Explorer(solid.shape, TopAbs_FACE)
+    while ex.More():
+        s = BRepAdaptor_Surface((getattr(TopoDS, "Face_s", None) or TopoDS.Face)(ex.Current()))
         if s.GetType() == GeomAbs_Sphere:
             p = s.Sphere().Location()
             out.append((p.X(), p.Y(), p.Z()))
+        ex.Next()
     return np.unique(np.round(np.array(out), 9), axis=0)
 
 

@@ -1,5 +1,6 @@
-"""The export builds STEP solids in a second thread: the files must be what a serial build
-writes, bodies.json must not depend on it, and progress must count every unit of work once."""
+"""The export builds STEP solids in a second process: the files must be what a serial build
+writes, bodies.json must not depend on it, progress must count every unit of work once, and a
+failure on either side leaves no worker behind and no STEP file begun afterwards."""
 
 from __future__ import annotations
 
@@ -81,3 +82,64 @@ def test_mesh_files_and_entries_do_not_depend_on_step(both):
         assert {k: v for k, v in ea.items() if k not in ("files", "step_volume_mm3")} == {
             k: v for k, v in eb.items() if k != "files"
         }
+
+
+def test_a_worker_error_is_one_clear_error(tmp_path):
+    """The worker's StarforgeError (here: an unwritable folder) comes back as the parent's."""
+    from starforge.cad import step_worker
+    from starforge.cad.export import family_bodies, print_layout
+    from starforge.errors import StarforgeError
+
+    fam = load_family(DATA)
+    bodies = family_bodies(fam, [1], load_mount("flat"), BodySpec())
+    transforms, _ = print_layout(bodies, (200.0, 200.0), 5.0)
+    job = step_worker.start(bodies, transforms, [(1, 2, 3)], tmp_path / "missing")
+    with pytest.raises(StarforgeError, match="could not write STEP file"):
+        job.result()
+    assert job.proc.returncode == 1
+
+
+def test_a_mesh_failure_stops_the_worker(tmp_path, monkeypatch):
+    """When the mesh side fails, the worker is killed before the error leaves export_family."""
+    import starforge.cad.export as export_mod
+    from starforge.cad import step_worker
+    from starforge.errors import StarforgeError
+
+    jobs = []
+    real_start = step_worker.start
+    monkeypatch.setattr(step_worker, "start", lambda *a, **k: jobs.append(real_start(*a, **k)) or jobs[-1])
+
+    def boom(*args, **kwargs):
+        raise StarforgeError("mesh side failed")
+
+    monkeypatch.setattr(export_mod, "_mesh_bodies", boom)
+    with pytest.raises(StarforgeError, match="mesh side failed"):
+        export_family(load_family(DATA), tmp_path, load_mount("flat"), BodySpec(), ids=[1, 2])
+    assert len(jobs) == 1
+    assert jobs[0].proc.returncode is not None  # ended (killed), not left running
+    assert jobs[0].proc.returncode != 0 or jobs[0].finished
+
+
+IMPORTS = """
+import sys
+from pathlib import Path
+from starforge import load_family
+from starforge.cad.body import BodySpec
+from starforge.cad.export import export_family
+from starforge.cad.mounts import load_mount
+export_family(load_family(sys.argv[1]), Path(sys.argv[2]), load_mount("flat"), BodySpec(), ids=[1])
+print(sorted(m for m in ("build123d", "OCP", "trimesh", "scipy") if m in sys.modules))
+"""
+
+
+def test_the_exporting_process_loads_no_cad_kernel(tmp_path):
+    """STEP, STL and 3MF of a star without build123d, OCP, trimesh or scipy in the exporting
+    process (build123d alone took 2-4 s to import): the kernel loads in the STEP worker."""
+    import subprocess
+    import sys
+
+    res = subprocess.run(
+        [sys.executable, "-c", IMPORTS, str(DATA), str(tmp_path)], check=True, capture_output=True, text=True
+    )
+    assert res.stdout.strip().splitlines()[-1] == "[]"
+    assert sorted(p.name for p in tmp_path.glob("star_001.*")) == ["star_001.3mf", "star_001.step", "star_001.stl"]

@@ -7,7 +7,7 @@ orientation (plate down on Z = 0, the body's up along +Z, centred on the Z axis;
 transform from that orientation back to family.json's placement frame.  Files (``<name>`` =
 ``star_<id>``, id zero-padded to 3)::
 
-    <name>.step   one solid named <name>, coloured (build123d / OpenCascade)
+    <name>.step   one solid named <name>, coloured (OpenCascade through OCP)
     <name>.stl    one watertight shell (manifold3d), binary STL, mm
     <name>.3mf    the same mesh, one named, coloured object, with a thumbnail, mm
     plate.step / .stl / .3mf   every selected body on one bed (an assembly of named, coloured
@@ -23,7 +23,6 @@ in bodies.json.  A family made with ``starforge stars --mount NAME`` never needs
 
 from __future__ import annotations
 
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -148,21 +147,18 @@ def export_family(
     allow_oversize: bool = False,
     progress=None,
     bodies=None,
+    step_worker=None,
 ) -> ExportReport:
     """Write the bodies of a family into ``stage`` (see the module docstring for the files).
 
     ``progress(done, total)`` is called after each star's mesh files and after each star's STEP
-    file (from the STEP thread; total = stars x 2 with STEP).  ``bodies``: the descriptions from
+    file (from the thread reading the STEP worker, :mod:`starforge.cad.step_worker`; total =
+    stars x 2 with STEP).  ``bodies``: the descriptions from
     :func:`family_bodies` for the same family, ids, mount and spec, when the caller already has
-    them (they are described here otherwise).
+    them (they are described here otherwise).  ``step_worker``: a
+    :class:`~starforge.cad.step_worker.StepProcess` the caller launched earlier (so that its
+    kernel loads while the caller reads and checks its inputs); one is launched here otherwise.
     """
-    from trimesh.util import concatenate as trimesh_concatenate
-
-    from starforge.cad.mesh import check_shell
-    from starforge.cad.threemf import threemf_bytes
-    from starforge.colours import body_colour
-    from starforge.render.raster import thumbnail_png
-
     formats = tuple(formats)
     bad = [f for f in formats if f not in CAD_FORMATS]
     if bad:
@@ -170,78 +166,61 @@ def export_family(
     stage = Path(stage)
     rep = ExportReport()
     t0 = time.perf_counter()
-    if bodies is None:
-        bodies = family_bodies(family, ids, mount, spec)
-    fits = check_fit(bodies, family.spec.box_mm, mount.name, allow_oversize)
-    to_print, beds = print_layout(bodies, bed_mm, gap_mm)
-    rep.timings["describe_s"] = time.perf_counter() - t0
-    meshes: list = []
-    pool = step_job = None
-    stop = threading.Event()  # set when this thread leaves early (an error, Ctrl-C): the STEP thread stops
-    tick = _Ticker(progress, len(bodies) * (2 if "step" in formats else 1))
-    if "step" in formats:
-        # the exact solids (OpenCascade) are built in a second thread while this one meshes: the
-        # kernels share nothing and each body's STEP file depends only on that body, so the files
-        # are the same whichever thread finishes first
-        from concurrent.futures import ThreadPoolExecutor
+    step_job = None
+    if "step" in formats and step_worker is None:
+        # the exact solids (OpenCascade) are built in a second process while this one meshes
+        # (OCCT holds the GIL: a thread would stall the meshes); launched first, so that it
+        # loads the kernel while the bodies are described here
+        from starforge.cad.step_worker import StepProcess
 
-        pool = ThreadPoolExecutor(1, thread_name_prefix="starforge-step")
-        plates = list(zip(plate_names(len(beds)), beds, strict=True)) if plate else []
-        step_job = pool.submit(_step_bodies, bodies, to_print, stage, plates, tick, stop)
+        step_worker = StepProcess()
+    done = False
+    plate_docs: list = []
+    rep.timings.update(mesh_s=0.0, plate_s=0.0, step_s=0.0)
     try:
+        if bodies is None:
+            bodies = family_bodies(family, ids, mount, spec)
+        fits = check_fit(bodies, family.spec.box_mm, mount.name, allow_oversize)
+        to_print, beds = print_layout(bodies, bed_mm, gap_mm)
+        rep.timings["describe_s"] = time.perf_counter() - t0
+        meshes: list = []
+        tick = _Ticker(progress, len(bodies) * (2 if "step" in formats else 1))
+        if "step" in formats:
+            # each body's STEP file depends only on that body: the files are the same whichever
+            # side finishes first
+            from starforge.cad import step_worker as step_worker_mod
+            from starforge.colours import body_colour
+
+            plates = [(n, lay.members, lay.transforms) for n, lay in zip(plate_names(len(beds)), beds, strict=True)]
+            step_job = step_worker_mod.start(
+                bodies,
+                to_print,
+                [body_colour(b.star_id - 1) for b in bodies],
+                stage,
+                plates if plate else [],
+                tick,
+                worker=step_worker,
+            )
         t1 = time.perf_counter()
         _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick)
-        t_mesh = time.perf_counter() - t1
+        rep.timings["mesh_s"] = time.perf_counter() - t1
+        if plate:  # while the STEP worker still runs
+            t3 = time.perf_counter()
+            for name, lay in zip(plate_names(len(beds)), beds, strict=True):
+                plate_docs.append(_mesh_plate(name, lay, bodies, meshes, formats, stage))
+            rep.timings["plate_s"] = time.perf_counter() - t3
         if step_job is not None:
-            _, volumes, t_step = step_job.result()
+            volumes, rep.timings["step_s"] = step_job.result()
+        done = True
     finally:
-        if pool is not None:
-            stop.set()  # harmless after a normal end; otherwise no STEP file is begun after this
-            pool.shutdown(wait=True, cancel_futures=True)
+        if step_worker is not None and not done:
+            step_worker.kill()  # an error or Ctrl-C here: no STEP file is begun after this
     if step_job is not None:
         for entry, b, vol in zip(rep.bodies, bodies, volumes, strict=True):
             entry["step_volume_mm3"] = round(vol, 6)
             entry["files"].append(f"{b.name}.step")
-    else:
-        t_step = 0.0
-    rep.timings["mesh_s"] = t_mesh
-    rep.timings["step_s"] = t_step
-    plate_docs = []
-    if plate:
-        t3 = time.perf_counter()
-        for name, lay in zip(plate_names(len(beds)), beds, strict=True):
-            files = []
-            moved = [meshes[i].copy().apply_transform(T) for i, T in zip(lay.members, lay.transforms, strict=True)]
-            for i, mv in zip(lay.members, moved, strict=True):
-                check_shell(mv.vertices, mv.faces, f"{name}: {bodies[i].name}")
-            if "stl" in formats:
-                (stage / f"{name}.stl").write_bytes(trimesh_concatenate(moved).export(file_type="stl"))
-                files.append(f"{name}.stl")
-            if "3mf" in formats:
-                cols = [body_colour(bodies[i].star_id - 1) for i in lay.members]
-                v = np.concatenate([m.vertices for m in moved])
-                offsets = np.cumsum([0] + [len(m.vertices) for m in moved[:-1]])
-                f = np.concatenate([m.faces + o for m, o in zip(moved, offsets, strict=True)])
-                face_cols = np.repeat(np.array(cols, float), [len(m.faces) for m in moved], axis=0)
-                thumb = thumbnail_png(v, f, colour=face_cols)
-                (stage / f"{name}.3mf").write_bytes(
-                    threemf_bytes(moved, [bodies[i].name for i in lay.members], thumb, cols)
-                )
-                files.append(f"{name}.3mf")
-            if "step" in formats:  # written by _step_bodies
-                files.append(f"{name}.step")
-            plate_docs.append(
-                {
-                    "name": name,
-                    "bed_mm": list(lay.bed_mm),
-                    "gap_mm": lay.gap_mm,
-                    "bodies": [bodies[i].name for i in lay.members],
-                    "footprints_mm": np.round(lay.footprints, 6).tolist(),
-                    "print_to_bed": [np.round(T, 9).tolist() for T in lay.transforms],
-                    "files": files,
-                }
-            )
-        rep.timings["plate_s"] = time.perf_counter() - t3
+        for doc in plate_docs:
+            doc["files"].append(f"{doc['name']}.step")
     if preview:
         from starforge.render.bodies import render_body_png, render_sheet_png
 
@@ -276,6 +255,48 @@ def export_family(
     return rep
 
 
+def _mesh_plate(name, lay, bodies, meshes, formats, stage) -> dict:
+    """One bed's STL / 3MF from the bodies' meshes (printing orientation, (v, f) arrays) moved
+    by the layout's translations; its bodies.json entry (the STEP worker adds ``<name>.step``)."""
+    from starforge.cad.mesh import MeshArrays, check_shell
+    from starforge.cad.stl import stl_bytes
+    from starforge.cad.threemf import threemf_bytes
+    from starforge.colours import body_colour
+    from starforge.render.raster import thumbnail_png
+
+    files = []
+    moved = []
+    for i, T in zip(lay.members, lay.transforms, strict=True):
+        T = np.asarray(T, float)
+        if not np.array_equal(T[:3, :3], np.eye(3)):
+            raise ValueError("a bed layout only translates bodies")
+        v, f = meshes[i]
+        mv = MeshArrays(v + T[:3, 3], f)
+        check_shell(mv.vertices, mv.faces, f"{name}: {bodies[i].name}")  # float32 rounding moves with it
+        moved.append(mv)
+    v = np.concatenate([m.vertices for m in moved])
+    offsets = np.cumsum([0] + [len(m.vertices) for m in moved[:-1]])
+    f = np.concatenate([m.faces + o for m, o in zip(moved, offsets, strict=True)])
+    if "stl" in formats:
+        (stage / f"{name}.stl").write_bytes(stl_bytes(v, f))
+        files.append(f"{name}.stl")
+    if "3mf" in formats:
+        cols = [body_colour(bodies[i].star_id - 1) for i in lay.members]
+        face_cols = np.repeat(np.array(cols, float), [len(m.faces) for m in moved], axis=0)
+        thumb = thumbnail_png(v, f, colour=face_cols)
+        (stage / f"{name}.3mf").write_bytes(threemf_bytes(moved, [bodies[i].name for i in lay.members], thumb, cols))
+        files.append(f"{name}.3mf")
+    return {
+        "name": name,
+        "bed_mm": list(lay.bed_mm),
+        "gap_mm": lay.gap_mm,
+        "bodies": [bodies[i].name for i in lay.members],
+        "footprints_mm": np.round(lay.footprints, 6).tolist(),
+        "print_to_bed": [np.round(T, 9).tolist() for T in lay.transforms],
+        "files": files,
+    }
+
+
 class _Ticker:
     """``progress(done, total)`` after each unit of work, from either thread (one lock)."""
 
@@ -295,15 +316,17 @@ class _Ticker:
 def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick) -> None:
     """Per body: the mesh in its printing orientation (appended to ``meshes``), its STL / 3MF
     files and its bodies.json entry (appended to ``rep.bodies``)."""
-    from starforge.cad.mesh import body_mesh, check_shell
+    from starforge.cad.mesh import MeshArrays, body_arrays, check_shell, mesh_volume
+    from starforge.cad.stl import stl_bytes
     from starforge.cad.threemf import threemf_bytes
     from starforge.cad.visibility import sphere_visibility
     from starforge.colours import body_colour
     from starforge.render.raster import thumbnail_png
 
     for b, fit, T in zip(bodies, fits, to_print, strict=True):
-        mesh = body_mesh(b, spec.sphere_segments, spec.cylinder_segments)
-        mesh.apply_transform(T)  # printing orientation: plate down on Z = 0
+        v, f = body_arrays(b, spec.sphere_segments, spec.cylinder_segments, check=False)  # checked below
+        T = np.asarray(T, float)
+        mesh = MeshArrays(v @ T[:3, :3].T + T[:3, 3], f)  # printing orientation: plate down on Z = 0
         check_shell(mesh.vertices, mesh.faces, b.name)  # as the file will hold it (float32)
         meshes.append(mesh)
         colour = body_colour(b.star_id - 1)
@@ -318,10 +341,10 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick
             "stem_roots_mm": [list(s.p0) for s in b.stems],
             "label": b.label,
             "colour_rgb": list(colour),
-            "print_height_mm": round(float(mesh.bounds[1, 2]), 6),
+            "print_height_mm": round(float(mesh.vertices[:, 2].max()), 6),
             "placement_to_print": np.round(T, 9).tolist(),
             "print_to_placement": np.round(np.linalg.inv(T), 9).tolist(),
-            "mesh_volume_mm3": round(float(mesh.volume), 6),
+            "mesh_volume_mm3": round(mesh_volume(mesh.vertices, mesh.faces), 6),
             "files": [],
         }
         entry["closest_features_mm"] = round(closest_features_mm(b), 6)  # two markers' stems/spheres
@@ -341,7 +364,7 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick
         if not fit.fits:
             rep.warnings.append(fit.message(b.name) + " (exported with --allow-oversize)")
         if "stl" in formats:
-            (stage / f"{b.name}.stl").write_bytes(mesh.export(file_type="stl"))
+            (stage / f"{b.name}.stl").write_bytes(stl_bytes(mesh.vertices, mesh.faces))
             entry["files"].append(f"{b.name}.stl")
         if "3mf" in formats:
             thumb = thumbnail_png(mesh.vertices, mesh.faces, colour=colour)
@@ -349,33 +372,3 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick
             entry["files"].append(f"{b.name}.3mf")
         rep.bodies.append(entry)
         tick()
-
-
-def _step_bodies(bodies, to_print, stage, plates=(), tick=None, stop=None) -> tuple[list, list[float], float]:
-    """Per body: the exact solid in its printing orientation, named and coloured, written to
-    ``<name>.step``; then per (name, layout) of ``plates`` the assembly ``<name>.step``.
-    Returns (solids, their volumes in mm^3, seconds).  ``stop``: an event; once it is set (the
-    caller left early, e.g. after Ctrl-C) no further file is begun, so nothing is written into a
-    stage folder being removed."""
-    from starforge.cad.occ import assembly, body_solid, placed, write_step
-    from starforge.colours import body_colour
-
-    t = time.perf_counter()
-    solids, volumes = [], []
-    def stopped() -> bool:
-        return stop is not None and stop.is_set()
-
-    for b, T in zip(bodies, to_print, strict=True):
-        if stopped():
-            raise StarforgeError("STEP export stopped")
-        solid = placed(body_solid(b), T, b.name, body_colour(b.star_id - 1))
-        write_step(solid, stage / f"{b.name}.step")
-        solids.append(solid)
-        volumes.append(float(solid.volume))
-        if tick is not None:
-            tick()
-    for name, lay in plates:
-        if stopped():
-            raise StarforgeError("STEP export stopped")
-        write_step(assembly([solids[i] for i in lay.members], lay.transforms, name), stage / f"{name}.step")
-    return solids, volumes, time.perf_counter() - t

@@ -130,6 +130,67 @@ def fillet_profile(stem_radius_mm: float, fillet_mm: float, buried_mm: float, fa
 Primitive = Sphere | Cylinder | Box | Revolved
 
 
+def plate_cuts(parts, cut_bounds, margin_mm: float = 1e-6) -> list:
+    """Which cuts can be made on a plate before the union: per cut (its (2, 3) bounds, mm), the
+    index in ``parts`` of the one :class:`Box` it meets when its bounds stay more than
+    ``margin_mm`` clear of every other part's, else None.  (A u B) - C = (A - C) u B when C
+    misses B, and cutting a box is far cheaper than cutting the finished body, in both backends.
+    """
+    boxes = [i for i, p in enumerate(parts) if isinstance(p, Box)]
+    bounds = [p.bounds() for p in parts]
+
+    def apart(a, b) -> bool:
+        return bool((a[0] > b[1] + margin_mm).any() or (b[0] > a[1] + margin_mm).any())
+
+    out = []
+    for cb in cut_bounds:
+        hit = [i for i in boxes if not apart(cb, bounds[i])]
+        others_clear = all(apart(cb, bounds[i]) for i in range(len(parts)) if i not in boxes)
+        out.append(hit[0] if len(hit) == 1 and others_clear else None)
+    return out
+
+
+def merge_coaxial(parts) -> tuple:
+    """``parts`` with each cylinder and the solid of revolution that shares its start and axis
+    (a vertical stem and its root fillet) replaced by one :class:`Revolved`: the fillet's profile
+    continued at the cylinder's radius up to its end.
+
+    The union is the same solid (the fillet's profile never drops below the stem's radius, so
+    max(profile, stem) is the merged profile), built as one primitive: the backends then skip a
+    boolean between two surfaces that touch tangentially at the fillet's top, the slowest one of
+    a body in OCCT and a source of slivers in the mesh.  Only exact matches merge (start and
+    axis equal, the profile ending at the cylinder's radius (to 1e-9 mm, then set to it), inside
+    its length); everything else
+    is returned as given, in order (a merged pair at the cylinder's place).
+    """
+    parts = list(parts)
+    used: set[int] = set()
+    out: list = []
+    revs = [(i, p) for i, p in enumerate(parts) if isinstance(p, Revolved)]
+    for i, p in enumerate(parts):
+        if i in used:
+            continue
+        if isinstance(p, Cylinder) and p.length_mm > 0:
+            u = np.subtract(p.p1, p.p0) / p.length_mm
+            for j, r in revs:
+                if j in used or r.p0 != p.p0:
+                    continue
+                t_end, r_end = r.profile[-1]
+                if (
+                    np.linalg.norm(np.cross(r.axis, u)) <= 1e-12
+                    and float(r.axis @ u) > 0
+                    and abs(r_end - p.radius_mm) <= 1e-9
+                    and all(rr >= p.radius_mm - 1e-9 for _, rr in r.profile)
+                    and t_end < p.length_mm
+                ):
+                    used.add(j)
+                    prof = (*r.profile[:-1], (t_end, p.radius_mm), (p.length_mm, p.radius_mm))
+                    p = Revolved(p.p0, p.p1, prof)
+                    break
+        out.append(p)
+    return tuple(out)
+
+
 def point_segment_distance(points, a, b) -> np.ndarray:
     """Distance from each point to the segment ``a``-``b``.
 

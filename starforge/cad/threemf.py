@@ -39,7 +39,8 @@ def _rels(thumbnail: bool) -> str:
 
 
 def threemf_bytes(meshes, names, thumbnail_png: bytes | None = None, colours=None) -> bytes:
-    """A 3MF package holding ``meshes`` (trimesh.Trimesh, mm), one object each, named ``names``,
+    """A 3MF package holding ``meshes`` (anything with ``vertices`` and ``faces``: a trimesh.Trimesh,
+    a :class:`~starforge.cad.mesh.MeshArrays`; mm), one object each, named ``names``,
     with an optional package thumbnail (PNG bytes) and per-object colours ((r, g, b) 0..255,
     the 3MF core ``basematerials``)."""
     out = io.StringIO()

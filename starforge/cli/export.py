@@ -252,96 +252,106 @@ def export_cmd(
     from starforge.io import read_json, staged_output
 
     cad, trk = split_formats(formats)
-    src = file / "family.json" if file.is_dir() else file
-    out = out if out is not None else default_out(src, bool(cad))
-    family = None
-    if cad:
-        from starforge.stars.model import FORMAT, load_family
+    worker = None
+    try:
+        src = file / "family.json" if file.is_dir() else file
+        out = out if out is not None else default_out(src, bool(cad))
+        family = None
+        if cad:
+            from starforge.stars.model import FORMAT, load_family
 
-        data = read_json(src, what="family file")
-        if data.get("format") != FORMAT:
-            raise StarforgeError(
-                f"CAD formats ({', '.join(cad)}) need a family.json; {src} is {data.get('format')!r}"
-            )
-        family = load_family(src)
-        from starforge.cad.export import expected_files, export_family, print_layout
-        from starforge.io import check_writable
+            data = read_json(src, what="family file")
+            if data.get("format") != FORMAT:
+                raise StarforgeError(
+                    f"CAD formats ({', '.join(cad)}) need a family.json; {src} is {data.get('format')!r}"
+                )
+            family = load_family(src)
+            if "step" in cad:  # its worker loads the CAD kernel while the bodies are described and checked
+                from starforge.cad.step_worker import StepProcess
 
-        bed_mm = parse_bed(bed)
-        # fail before the work, not after: mount, stems, ids, fit, existing files
-        m, spec, id_list, bodies = describe_bodies(
-            family,
-            mount,
-            sets,
-            ids,
-            allow_oversize,
-            seat=seat,
-            marker=marker,
-            nozzle_mm=nozzle_mm,
-            coating_mm=coating_mm,
-            stem_mm=stem_mm,
-            min_stem_mm=min_stem_mm,
-            post_mm=post_mm,
-            label=False if no_label else None,
-        )
-        _, beds = print_layout(bodies, bed_mm, gap)
-        check_writable(out, expected_files(bodies, cad, not no_plate, preview, len(beds)), force)
-    elif ids or sets or preview:
-        raise StarforgeError("--ids, --set and --preview apply to CAD formats (step, stl, 3mf)")
-    if trk:
-        from starforge.spec import non_negative
-        from starforge.tracking.bodies import load_bodies
-        from starforge.tracking.export import check_exportable
-        from starforge.tracking.formats import parse_formats
-
-        non_negative("noise", noise)
-
-        trk = parse_formats(trk)
-        bodyset = load_bodies(src)  # read and checked before any file is written
-        check_exportable(bodyset, trk, id_start)
-        if not cad:
+                worker = StepProcess()
+            from starforge.cad.export import expected_files, export_family, print_layout
             from starforge.io import check_writable
 
-            check_writable(
-                out, [f"{f}/{b.name}" for f in trk for b in bodyset.bodies] + ["trackers.json"], force
+            bed_mm = parse_bed(bed)
+            # fail before the work, not after: mount, stems, ids, fit, existing files
+            m, spec, id_list, bodies = describe_bodies(
+                family,
+                mount,
+                sets,
+                ids,
+                allow_oversize,
+                seat=seat,
+                marker=marker,
+                nozzle_mm=nozzle_mm,
+                coating_mm=coating_mm,
+                stem_mm=stem_mm,
+                min_stem_mm=min_stem_mm,
+                post_mm=post_mm,
+                label=False if no_label else None,
             )
-    rep = None
-    written: list = []
-    with staged_output(out, force) as stage:
-        if cad:
-            with progress() as bar:
-                task = bar.add_task("bodies", total=len(bodies))
-                rep = export_family(
-                    family,
-                    stage,
-                    m,
-                    spec,
-                    formats=cad,
-                    ids=id_list,
-                    bed_mm=bed_mm,
-                    gap_mm=gap,
-                    plate=not no_plate,
-                    preview=preview,
-                    allow_oversize=allow_oversize,
-                    progress=lambda done, total: bar.update(task, completed=done, total=total),
-                    bodies=bodies,
-                )
-            written.extend(rep.files)
+            _, beds = print_layout(bodies, bed_mm, gap)
+            check_writable(out, expected_files(bodies, cad, not no_plate, preview, len(beds)), force)
+        elif ids or sets or preview:
+            raise StarforgeError("--ids, --set and --preview apply to CAD formats (step, stl, 3mf)")
         if trk:
-            import json
+            from starforge.spec import non_negative
+            from starforge.tracking.bodies import load_bodies
+            from starforge.tracking.export import check_exportable
+            from starforge.tracking.formats import parse_formats
 
-            from starforge.tracking.export import write_bodies
+            non_negative("noise", noise)
 
-            summary = write_bodies(bodyset, trk, stage, id_start, noise)
-            summary = {
-                "format": "starforge.trackers",
-                "version": 1,
-                "input": str(src),
-                "id_start": id_start,
-                **summary,
-            }
-            (stage / "trackers.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-            written.extend([*summary["files"], "trackers.json"])
+            trk = parse_formats(trk)
+            bodyset = load_bodies(src)  # read and checked before any file is written
+            check_exportable(bodyset, trk, id_start)
+            if not cad:
+                from starforge.io import check_writable
+
+                check_writable(
+                    out, [f"{f}/{b.name}" for f in trk for b in bodyset.bodies] + ["trackers.json"], force
+                )
+        rep = None
+        written: list = []
+        with staged_output(out, force) as stage:
+            if cad:
+                with progress() as bar:
+                    task = bar.add_task("bodies", total=len(bodies))
+                    rep = export_family(
+                        family,
+                        stage,
+                        m,
+                        spec,
+                        formats=cad,
+                        ids=id_list,
+                        bed_mm=bed_mm,
+                        gap_mm=gap,
+                        plate=not no_plate,
+                        preview=preview,
+                        allow_oversize=allow_oversize,
+                        progress=lambda done, total: bar.update(task, completed=done, total=total),
+                        bodies=bodies,
+                        step_worker=worker,
+                    )
+                written.extend(rep.files)
+            if trk:
+                import json
+
+                from starforge.tracking.export import write_bodies
+
+                summary = write_bodies(bodyset, trk, stage, id_start, noise)
+                summary = {
+                    "format": "starforge.trackers",
+                    "version": 1,
+                    "input": str(src),
+                    "id_start": id_start,
+                    **summary,
+                }
+                (stage / "trackers.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+                written.extend([*summary["files"], "trackers.json"])
+    finally:
+        if worker is not None:
+            worker.kill()  # ended already, or never given a job (a refusal above)
     err = console(stderr=True)
     for w in bodyset.warnings if trk else ():
         err.print(f"warning: {w}", soft_wrap=True, markup=False)

@@ -130,6 +130,11 @@ def png_bytes(rgba: np.ndarray) -> bytes:
     )
 
 
-def thumbnail_png(vertices, faces, size_px: int = 256, colour=(140, 158, 191)) -> bytes:
-    """A shaded three-quarter picture of a mesh as it lies on the bed, PNG bytes."""
-    return png_bytes(rasterize(vertices, faces, size_px, colour))
+def thumbnail_png(vertices, faces, size_px: int = 256, colour=(140, 158, 191), supersample: int = 1) -> bytes:
+    """A shaded three-quarter picture of a mesh as it lies on the bed, PNG bytes.
+
+    One sample per pixel by default: a 3MF thumbnail is shown small (a file list, a slicer's
+    plate list), and 2 x 2 supersampling made it 2.4 x slower (about 70 -> 30 ms for a 13k
+    triangle body), the largest cost of an export's mesh side after the booleans.
+    """
+    return png_bytes(rasterize(vertices, faces, size_px, colour, supersample))
