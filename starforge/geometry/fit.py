@@ -535,30 +535,19 @@ def decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1):
         work[i] = c
 
 
-#: sets per thread task of :func:`decide_fit` (below twice this, one thread does it all)
+#: sets per thread task of :func:`decide_fit` (up to this many, one thread does it all)
 CHUNK = 256
 
 
 def _decide_all(P, lim, slack, start, max_cells, status, R, work) -> None:
     """Every set, over up to ``NUMBA_NUM_THREADS`` threads (each set is independent, so the
     result does not depend on the thread count or the chunking)."""
-    import os
+    from starforge.engine import over_ranges
 
-    n = len(P)
-    threads = max(1, min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS, n // CHUNK))
-    if threads == 1:
-        decide_range(P, lim, slack, start, max_cells, status, R, work, 0, n)
-        return
-    from concurrent.futures import ThreadPoolExecutor
+    def run(i0, i1):
+        decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1)
 
-    edges = list(range(0, n, CHUNK)) + [n]
-    with ThreadPoolExecutor(threads) as ex:
-        futs = [
-            ex.submit(decide_range, P, lim, slack, start, max_cells, status, R, work, a, b)
-            for a, b in zip(edges[:-1], edges[1:], strict=True)
-        ]
-        for f in futs:
-            f.result()
+    over_ranges(run, len(P), CHUNK)
 
 
 def fits_limit(ext, limit) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Enumerate every star of an edge-length pool that fits a size limit, compiled and streamed.
 
-Pipeline, per labelled candidate (no Python loop per star; numba, parallel over subsets):
+Pipeline, per labelled candidate (no Python loop per star; numba, subsets spread over threads):
 
 1. pool: ``l_min + k * delta`` (mm);
 2. every 6-subset of the pool whose lengths differ pairwise by at least the tolerance (so that
@@ -135,9 +135,9 @@ def pilot(spec: StarSpec, samples: int = PILOT_SUBSETS) -> tuple[float, float]:
     codes = np.empty((len(sub), len(assign)), dtype=np.int8)
     vols = np.empty((len(sub), len(assign)))
     args = (assign, lo, float(spec.delta_mm), limit, spec.depth_mm, SLACK_MM, 100_000, mode)
-    _classify(sub[:1], *args, codes[:1], vols[:1])  # compile or load the kernel outside the timing
+    classify(sub[:1], *args, codes[:1], vols[:1])  # compile or load the kernel outside the timing
     t = time.perf_counter()
-    _classify(sub, *args, codes, vols)
+    classify(sub, *args, codes, vols, chunk=16)  # on every thread, as the enumeration runs
     rate = max(SECONDS_PER_LABELLED, (time.perf_counter() - t) / codes.size)
     return rate, float(np.isin(codes, (FIT, NECESSARY_OK)).mean())
 
@@ -222,14 +222,38 @@ def _width(L0, L1, L2, L3, L4, L5, vol6):
     return w
 
 
-@numba.njit(cache=True, parallel=True, nogil=True)  # nogil: Ctrl-C is answered while it runs
-def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode, codes, volumes):
-    """Outcome code and fitting-box volume of every labelled candidate of ``subsets``.
+#: subsets per thread task of :func:`classify`
+THREAD_SUBSETS = 2048
+
+
+def classify(
+    subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode, codes, volumes, threads=None, chunk=THREAD_SUBSETS
+):
+    """Outcome code and fitting-box volume of every labelled candidate of ``subsets`` (s, 6),
+    written into ``codes`` (s, 30) int8 and ``volumes`` (s, 30): the serial kernel
+    :func:`_classify` over ranges of ``chunk`` subsets on up to ``threads`` threads
+    (:func:`starforge.engine.over_ranges`; each subset independent, so the result does not
+    depend on the thread count).
 
     mode 0: the exact fit decision; mode 1: stop after the necessary tests (NECESSARY_OK).
     """
+    from starforge.engine import over_ranges
+
+    args = (subsets, assign, float(lo), float(step), lim, float(min_depth), float(slack), int(max_cells), int(mode))
+
+    def run(i0, i1):
+        _classify(*args, codes, volumes, i0, i1)
+
+    over_ranges(run, len(subsets), chunk, threads)
+
+
+@numba.njit(cache=True, nogil=True)  # nogil: threads run it side by side; Ctrl-C is answered
+def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode, codes, volumes, s0, s1):
+    """:func:`classify` for subsets ``s0 .. s1 - 1`` (serial: numba's ``parallel=True`` costs
+    seconds of compile on a first run)."""
     eps = 1e-9
-    for s in numba.prange(subsets.shape[0]):
+    start = 1 + 0 * s0  # a plain int64 (not the literal 1): decide_ws compiles once for all callers
+    for s in range(s0, s1):
         P = np.zeros((4, 3))
         R = np.empty((3, 3))
         L = np.empty(6)
@@ -289,7 +313,7 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode,
             if cone_excludes(P, lim, slack) or caps_exclude(P, lim, slack, cbuf):
                 codes[s, a] = 4  # proven not to fit, without the search
                 continue
-            st, _ = decide_ws(P, lim, slack, 1, max_cells, R, ws, iws)
+            st, _ = decide_ws(P, lim, slack, start, max_cells, R, ws, iws)
             if st == 1:
                 codes[s, a] = 6
                 vol = 1.0
@@ -369,8 +393,6 @@ def enumerate_chunk(args: tuple) -> dict:
     m = spec.grid_steps
     assign = canonical_assignments().astype(np.int64)
     mode = 0 if spec.box_method == "exact" else 1
-    if threads is not None:
-        numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     counts = np.zeros(8, dtype=np.int64)
     fit_idx, fit_vol, und_idx = [], [], []
     start = unrank_subset(rank, len(pool), m)
@@ -382,7 +404,7 @@ def enumerate_chunk(args: tuple) -> dict:
         left -= len(sub)
         codes = np.empty((len(sub), len(assign)), dtype=np.int8)
         vols = np.empty((len(sub), len(assign)))
-        _classify(sub, assign, lo, step, limit, spec.depth_mm, SLACK_MM, 100_000, mode, codes, vols)
+        classify(sub, assign, lo, step, limit, spec.depth_mm, SLACK_MM, 100_000, mode, codes, vols, threads)
         counts += np.bincount(codes.ravel(), minlength=8)
         if mode == 1:
             s, a = np.nonzero(codes == NECESSARY_OK)
