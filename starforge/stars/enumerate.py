@@ -256,9 +256,9 @@ def classify(
     volumes[:] = np.nan
     if mode == 1:
         return
-    s_all, a_all = np.nonzero(codes == NECESSARY_OK)
-    for b in range(0, len(s_all), DECIDE_SETS):
-        s, a = s_all[b : b + DECIDE_SETS], a_all[b : b + DECIDE_SETS]
+    left = np.flatnonzero(codes == NECESSARY_OK)
+    for b in range(0, len(left), DECIDE_SETS):
+        s, a = np.divmod(left[b : b + DECIDE_SETS], codes.shape[1])
         L = float(lo) + float(step) * np.take_along_axis(subsets[s], assign[a], axis=1)
         P = _centres(L)
         status = np.zeros(len(P), dtype=np.int8)
@@ -459,10 +459,12 @@ def enumerate_chunk(args: tuple) -> dict:
 
 def chunk_bytes(count: int) -> float:
     """Peak memory of one enumeration chunk of ``count`` subsets, bytes: a batch's codes and
-    volumes, its subsets, and the kept stars (at most a quarter of its labelled candidates,
-    the generous share :func:`estimate` uses)."""
+    volumes, the positions of the candidates left for the fit decision (9 bytes each, all of
+    them at worst) and one block of their points and rotations (:data:`DECIDE_SETS`), its
+    subsets, and the kept stars (at most a quarter of its labelled candidates, the generous
+    share :func:`estimate` uses)."""
     b = min(count, BATCH_SUBSETS)
-    return b * 30 * 9 + b * 12 + count * 30 / 4 * BYTES_PER_CANDIDATE
+    return b * 30 * (9 + 9) + DECIDE_SETS * 400 + b * 12 + count * 30 / 4 * BYTES_PER_CANDIDATE
 
 
 def enumerate_candidates(
