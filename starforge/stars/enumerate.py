@@ -142,13 +142,22 @@ def pilot(spec: StarSpec, samples: int = PILOT_SUBSETS) -> tuple[float, float]:
     return rate, float(np.isin(codes, (FIT, NECESSARY_OK)).mean())
 
 
+def check_memory(spec: StarSpec) -> dict:
+    """Refuse, before any work, an enumeration past the memory limit (one line); returns
+    :func:`estimate`.  No compiled code runs (:func:`check_size` adds the time)."""
+    from starforge.budget import require_memory
+
+    est = estimate(spec)
+    require_memory(est["bytes"], *_what_advice(spec, est))
+    return est
+
+
 def check_size(spec: StarSpec) -> None:
     """Refuse, before any work, an enumeration past the memory or time limit (one line).  The
     time is the labelled count times a rate measured on a pilot sample of the spec's own stars."""
     from starforge.budget import require_memory, require_time
 
-    est = estimate(spec)
-    require_memory(est["bytes"], *_what_advice(spec, est))
+    est = check_memory(spec)
     if est["labelled"] and est["seconds"] > 2.0:  # cheap specs need no pilot
         rate, fit_share = pilot(spec)
         est["seconds"] = est["labelled"] * rate
