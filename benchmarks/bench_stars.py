@@ -3,7 +3,8 @@
     python benchmarks/bench_stars.py [--repeat 2] [--skip-large] [--start-only]
 
 ``stars_first_run_vs_warm`` (issue 20): the finger default warm and on an empty numba cache
-(median of 3 fresh processes each, with the load average); ``--start-only`` runs just that.
+(median of 3 fresh processes each, wall and CPU seconds, with the load average);
+``--start-only`` runs just that.
 
 Each case is one `starforge stars` command in a fresh process (start-up, enumeration, fit
 decision, selection, placement, verification, writing); wall-clock seconds and the peak
@@ -103,9 +104,12 @@ def _fit_decision_speed() -> dict:
 def _stars_seconds(out: Path, cache: str) -> dict:
     """One plain ``starforge stars`` (the finger default) in a fresh process with the numba
     cache folder ``cache``: wall seconds, the load average before it, the run's stage timings."""
+    import resource
+
     load = os.getloadavg()[0]
     env = dict(os.environ, STARFORGE_CACHE_DIR=cache)
     env.pop("NUMBA_CACHE_DIR", None)
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     subprocess.run(
         [sys.executable, "-m", "starforge", "stars", "--out", str(out), "-q", "--force"],
@@ -114,8 +118,11 @@ def _stars_seconds(out: Path, cache: str) -> dict:
         env=env,
     )
     wall = time.perf_counter() - t
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
     run = json.loads((out / "run.json").read_text())
-    return {"seconds": round(wall, 2), "load_1min_before": round(load, 2), "stages_s": run["seconds"]}
+    # CPU seconds (all threads) are less disturbed than wall time on a shared machine
+    return {"seconds": round(wall, 2), "cpu_s": round(cpu, 2), "load_1min_before": round(load, 2), "stages_s": run["seconds"]}
 
 
 def first_run_vs_warm(repeat: int = 3) -> dict:
@@ -129,12 +136,16 @@ def first_run_vs_warm(repeat: int = 3) -> dict:
         cold = [_stars_seconds(tmp / f"cold{i}", str(tmp / f"cold-cache{i}")) for i in range(repeat)]
         warm = [_stars_seconds(tmp / f"warm{i}", warm_cache) for i in range(repeat)]
         same = len({(tmp / d / "family.json").read_bytes() for d in [f"cold{i}" for i in range(repeat)] + [f"warm{i}" for i in range(repeat)]}) == 1
-    med = lambda rows: sorted(r["seconds"] for r in rows)[len(rows) // 2]  # noqa: E731
+    med = lambda rows, k="seconds": sorted(r[k] for r in rows)[len(rows) // 2]  # noqa: E731
     w, c = med(warm), med(cold)
+    wc, cc = med(warm, "cpu_s"), med(cold, "cpu_s")
     return {
         "warm_s_median": w,
         "first_run_s_median": c,
         "first_run_over_warm": round(c / w, 2),
+        "warm_cpu_s_median": wc,
+        "first_run_cpu_s_median": cc,
+        "first_run_over_warm_cpu": round(cc / wc, 2),
         "same_family_json": same,
         "warm_runs": warm,
         "first_runs": cold,

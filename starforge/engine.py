@@ -340,3 +340,40 @@ def threads_for_task() -> int | None:
     except (AttributeError, ValueError):
         return None
     return 1
+
+
+def kernel_threads(threads: int | None = None) -> int:
+    """Threads a compiled kernel may use in this process: ``threads`` (None: every core; 1
+    inside a dask worker, see :func:`threads_for_task`), never more than ``NUMBA_NUM_THREADS``."""
+    import numba
+
+    if threads is None:
+        threads = threads_for_task()
+    cap = numba.config.NUMBA_NUM_THREADS
+    if threads is None:
+        return max(1, min(os.cpu_count() or 1, cap))
+    return max(1, min(int(threads), cap))
+
+
+def over_ranges(kernel: Callable[[int, int], Any], n: int, chunk: int, threads: int | None = None) -> None:
+    """``kernel(i0, i1)`` over ``[0, n)`` cut into ranges of ``chunk``, on up to ``threads``
+    threads (:func:`kernel_threads`).  For compiled kernels that release the GIL and write
+    each index's result in place: every index is done once whatever the thread count, so the
+    result does not depend on it.  A serial kernel spread this way costs no parallel compile
+    (numba's ``parallel=True`` adds seconds to a first run).  An exception (Ctrl-C included)
+    cancels the ranges not yet started and is raised."""
+    threads = min(kernel_threads(threads), max(1, -(-n // max(1, chunk))))
+    if threads <= 1:
+        kernel(0, n)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    ex = ThreadPoolExecutor(threads)
+    try:
+        futs = [ex.submit(kernel, a, min(a + chunk, n)) for a in range(0, n, chunk)]
+        for f in futs:
+            f.result()
+    except BaseException:
+        ex.shutdown(wait=False, cancel_futures=True)
+        raise
+    ex.shutdown()

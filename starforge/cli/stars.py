@@ -94,7 +94,7 @@ def stars_cmd(
     from starforge import __version__
     from starforge.catalog import load_template
     from starforge.io import check_name, check_writable, staged_output
-    from starforge.stars.enumerate import check_size
+    from starforge.stars.enumerate import check_memory, check_size
     from starforge.stars.family import make_family
     from starforge.stars.model import family_csv
     from starforge.stars.spec import spec_from_mapping
@@ -167,7 +167,37 @@ def stars_cmd(
     out_dir = out if out is not None else Path("out") / s.name
     names = ["family.json", "family.csv", "run.json"] + (["family.png"] if preview else [])
     check_writable(out_dir, names, force)  # fail before the long work
-    check_size(s)  # memory and time estimated before the long work
+    from starforge.stars import warmup
+
+    check_memory(s)  # a spec too large is refused before anything compiles
+    helper = warmup.start()  # a first run compiles on two cores (nothing on a warm cache)
+    try:
+        if helper is not None:
+            warmup.compile_fit_decision()
+        check_size(s)  # memory and time estimated before the long work
+        family = _make(s, ctx, avoid, star_filter, make_family)
+    except BaseException:
+        warmup.finish(helper, 0.0)  # an error or Ctrl-C does not wait for the helper
+        raise
+    warmup.finish(helper)
+    doc = family.to_json()
+    problems = check_family(json.loads(json.dumps(doc)))
+    if problems:  # the generator and the independent checker disagree: a bug, never a user error
+        raise RuntimeError(f"internal error: the family failed its independent check: {problems[0]}")
+    with staged_output(out_dir, force) as stage:
+        (stage / "family.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        (stage / "family.csv").write_text(family_csv(family), encoding="utf-8")
+        run = {"seconds": family.timings, "verified": True, "starforge": __version__}
+        (stage / "run.json").write_text(json.dumps(run, indent=2) + "\n", encoding="utf-8")
+        if preview:
+            from starforge.render.stars import family_sheet
+
+            family_sheet(family, stage / "family.png")
+    _report(family, out_dir, time.perf_counter() - t0, quiet)
+
+
+def _make(s, ctx, avoid, star_filter, make_family):
+    """The bodies to avoid, then the family, with a progress bar."""
     avoid = more_values("--avoid", avoid, ctx.args)
     avoid_faces, avoid_sources = None, None
     if avoid:
@@ -184,23 +214,9 @@ def stars_cmd(
         def tick(done, total):
             bar.update(task, completed=done, total=total)
 
-        family = make_family(
+        return make_family(
             s, progress=tick, avoid_faces_mm=avoid_faces, avoid_sources=avoid_sources, star_filter=star_filter
         )
-    doc = family.to_json()
-    problems = check_family(json.loads(json.dumps(doc)))
-    if problems:  # the generator and the independent checker disagree: a bug, never a user error
-        raise RuntimeError(f"internal error: the family failed its independent check: {problems[0]}")
-    with staged_output(out_dir, force) as stage:
-        (stage / "family.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-        (stage / "family.csv").write_text(family_csv(family), encoding="utf-8")
-        run = {"seconds": family.timings, "verified": True, "starforge": __version__}
-        (stage / "run.json").write_text(json.dumps(run, indent=2) + "\n", encoding="utf-8")
-        if preview:
-            from starforge.render.stars import family_sheet
-
-            family_sheet(family, stage / "family.png")
-    _report(family, out_dir, time.perf_counter() - t0, quiet)
 
 
 def _report(family, out_dir: Path, seconds: float, quiet: bool) -> None:

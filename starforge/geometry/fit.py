@@ -527,38 +527,33 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws):
 
 @_jit
 def decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1):
-    """decide_one for sets i0..i1-1 (serial; callers spread ranges over threads, the GIL is
-    released).  Not ``parallel=True``: numba's parallel compile costs seconds on a cold cache."""
+    """:func:`decide_one` for sets i0..i1-1 (serial; callers spread ranges over threads, the GIL
+    is released), with the working memory allocated once.  The one compiled entry to the fit
+    decision: :func:`decide_fit` and the enumeration (:mod:`starforge.stars.enumerate`) both
+    run it, so its code is compiled (and cached) once.  Not ``parallel=True``: numba's parallel
+    compile costs seconds on a cold cache."""
+    k = P.shape[1]
+    ws = np.empty(9 * (k * (k - 1) // 2) + 18 + 3 * STACK)
+    iws = np.empty(STACK, np.int64)
     for i in range(i0, i1):
-        st, c = decide_one(P[i], lim, slack, start, max_cells, R[i])
+        st, c = decide_ws(P[i], lim, slack, start, max_cells, R[i], ws, iws)
         status[i] = st
         work[i] = c
 
 
-#: sets per thread task of :func:`decide_fit` (below twice this, one thread does it all)
+#: sets per thread task of :func:`decide_fit` (up to this many, one thread does it all)
 CHUNK = 256
 
 
-def _decide_all(P, lim, slack, start, max_cells, status, R, work) -> None:
-    """Every set, over up to ``NUMBA_NUM_THREADS`` threads (each set is independent, so the
-    result does not depend on the thread count or the chunking)."""
-    import os
+def _decide_all(P, lim, slack, start, max_cells, status, R, work, threads=None) -> None:
+    """Every set, over up to ``threads`` threads (default: every core; each set is independent,
+    so the result does not depend on the thread count or the chunking)."""
+    from starforge.engine import over_ranges
 
-    n = len(P)
-    threads = max(1, min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS, n // CHUNK))
-    if threads == 1:
-        decide_range(P, lim, slack, start, max_cells, status, R, work, 0, n)
-        return
-    from concurrent.futures import ThreadPoolExecutor
+    def run(i0, i1):
+        decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1)
 
-    edges = list(range(0, n, CHUNK)) + [n]
-    with ThreadPoolExecutor(threads) as ex:
-        futs = [
-            ex.submit(decide_range, P, lim, slack, start, max_cells, status, R, work, a, b)
-            for a, b in zip(edges[:-1], edges[1:], strict=True)
-        ]
-        for f in futs:
-            f.result()
+    over_ranges(run, len(P), CHUNK, threads)
 
 
 def fits_limit(ext, limit) -> np.ndarray:

@@ -103,6 +103,25 @@ def _family_frames(e1: np.ndarray, e2: np.ndarray, theta: np.ndarray):
     return np.stack([n1, n2, n3], axis=-2), ok
 
 
+def _box_volumes(P: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """Volumes of the boxes of point sets P (n, k, 3) along frames A (n, f, s, 3, 3) (rows are
+    the axes): (n, f, s).  Axis by axis and point by point on (n, f, s) arrays, which is several
+    times faster than one einsum over (n, f, s, k, 3) and its strided reductions; the sums are
+    taken in the order ``einsum`` takes them here ((x0 a0 + x2 a2) + x1 a1) and the product as
+    ``np.prod`` does, so the volumes are the same floats (checked bit for bit)."""
+    ext = []
+    for a in range(3):
+        Aa = A[..., a, :]
+        hi = lo = None
+        for k in range(P.shape[1]):
+            x = P[:, k, :, None, None]
+            p = (x[:, 0] * Aa[..., 0] + x[:, 2] * Aa[..., 2]) + x[:, 1] * Aa[..., 1]
+            hi = p if hi is None else np.maximum(hi, p)
+            lo = p if lo is None else np.minimum(lo, p)
+        ext.append(hi - lo)
+    return ext[0] * ext[1] * ext[2]
+
+
 def min_volume_box(points: np.ndarray, samples: int = 24, refine: int = 40):
     """Minimum-volume oriented box of small point sets (exact in the face-flush case, refined otherwise).
 
@@ -153,9 +172,7 @@ def min_volume_box(points: np.ndarray, samples: int = 24, refine: int = 40):
 
     def volumes(th):
         A, ok = _family_frames(e1, e2, th)
-        proj = np.einsum("nkj,nfsaj->nfska", P, A)
-        v = np.prod(proj.max(axis=3) - proj.min(axis=3), axis=-1)
-        return np.where(ok, v, np.inf), A
+        return np.where(ok, _box_volumes(P, A), np.inf), A
 
     v, _ = volumes(theta)
     j = v.argmin(axis=2)

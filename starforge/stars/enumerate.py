@@ -1,6 +1,6 @@
 """Enumerate every star of an edge-length pool that fits a size limit, compiled and streamed.
 
-Pipeline, per labelled candidate (no Python loop per star; numba, parallel over subsets):
+Pipeline, per labelled candidate (no Python loop per star; numba, subsets spread over threads):
 
 1. pool: ``l_min + k * delta`` (mm);
 2. every 6-subset of the pool whose lengths differ pairwise by at least the tolerance (so that
@@ -36,7 +36,7 @@ import numba
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.geometry.fit import SLACK_MM, STACK, caps_exclude, cone_excludes, decide_ws
+from starforge.geometry.fit import SLACK_MM, caps_exclude, cone_excludes
 from starforge.geometry.sym3 import sym3_eigvals
 from starforge.geometry.tetra import canonical_assignments
 from starforge.stars.spec import StarSpec
@@ -135,11 +135,21 @@ def pilot(spec: StarSpec, samples: int = PILOT_SUBSETS) -> tuple[float, float]:
     codes = np.empty((len(sub), len(assign)), dtype=np.int8)
     vols = np.empty((len(sub), len(assign)))
     args = (assign, lo, float(spec.delta_mm), limit, spec.depth_mm, SLACK_MM, 100_000, mode)
-    _classify(sub[:1], *args, codes[:1], vols[:1])  # compile or load the kernel outside the timing
+    classify(sub[:1], *args, codes[:1], vols[:1])  # compile or load the kernel outside the timing
     t = time.perf_counter()
-    _classify(sub, *args, codes, vols)
+    classify(sub, *args, codes, vols, chunk=16)  # on every thread, as the enumeration runs
     rate = max(SECONDS_PER_LABELLED, (time.perf_counter() - t) / codes.size)
     return rate, float(np.isin(codes, (FIT, NECESSARY_OK)).mean())
+
+
+def check_memory(spec: StarSpec) -> dict:
+    """Refuse, before any work, an enumeration past the memory limit (one line); returns
+    :func:`estimate`.  No compiled code runs (:func:`check_size` adds the time)."""
+    from starforge.budget import require_memory
+
+    est = estimate(spec)
+    require_memory(est["bytes"], *_what_advice(spec, est))
+    return est
 
 
 def check_size(spec: StarSpec) -> None:
@@ -147,8 +157,7 @@ def check_size(spec: StarSpec) -> None:
     time is the labelled count times a rate measured on a pilot sample of the spec's own stars."""
     from starforge.budget import require_memory, require_time
 
-    est = estimate(spec)
-    require_memory(est["bytes"], *_what_advice(spec, est))
+    est = check_memory(spec)
     if est["labelled"] and est["seconds"] > 2.0:  # cheap specs need no pilot
         rate, fit_share = pilot(spec)
         est["seconds"] = est["labelled"] * rate
@@ -222,25 +231,95 @@ def _width(L0, L1, L2, L3, L4, L5, vol6):
     return w
 
 
-@numba.njit(cache=True, parallel=True, nogil=True)  # nogil: Ctrl-C is answered while it runs
-def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode, codes, volumes):
-    """Outcome code and fitting-box volume of every labelled candidate of ``subsets``.
+#: subsets per thread task of :func:`classify`
+THREAD_SUBSETS = 2048
+#: sets handed to the fit decision at once (bounds its working memory: points, rotations)
+DECIDE_SETS = 1 << 16
+
+
+def classify(
+    subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode, codes, volumes, threads=None, chunk=THREAD_SUBSETS
+):
+    """Outcome code and fitting-box volume of every labelled candidate of ``subsets`` (s, 6),
+    written into ``codes`` (s, 30) int8 and ``volumes`` (s, 30), on up to ``threads`` threads
+    (:func:`starforge.engine.over_ranges`; each candidate independent, so the result does not
+    depend on the thread count).
+
+    Two passes: the serial kernel :func:`_classify` runs the necessary tests (and in mode 0 the
+    quick no-fit proofs) over ranges of ``chunk`` subsets; the candidates left
+    (``NECESSARY_OK``) then go, :data:`DECIDE_SETS` at a time, to the fit decision's one compiled
+    entry (:func:`starforge.geometry.fit.decide_range`, shared with ``decide_fit``, so a first
+    run compiles that code once).
 
     mode 0: the exact fit decision; mode 1: stop after the necessary tests (NECESSARY_OK).
     """
+    from starforge.engine import over_ranges
+    from starforge.geometry.fit import _decide_all
+
+    args = (subsets, assign, float(lo), float(step), lim, float(min_depth), float(slack), int(mode))
+
+    def run(i0, i1):
+        _classify(*args, codes, i0, i1)
+
+    over_ranges(run, len(subsets), chunk, threads)
+    volumes[:] = np.nan
+    if mode == 1:
+        return
+    left = np.flatnonzero(codes == NECESSARY_OK)
+    for b in range(0, len(left), DECIDE_SETS):
+        s, a = np.divmod(left[b : b + DECIDE_SETS], codes.shape[1])
+        L = float(lo) + float(step) * np.take_along_axis(subsets[s], assign[a], axis=1)
+        P = _centres(L)
+        status = np.zeros(len(P), dtype=np.int8)
+        R = np.empty((len(P), 3, 3))
+        work = np.zeros(len(P), dtype=np.int64)
+        _decide_all(P, lim, float(slack), 1, int(max_cells), status, R, work, threads)
+        codes[s, a] = np.where(status == 1, FIT, np.where(status == 0, NO_FIT, UNDECIDED))
+        fit = status == 1
+        volumes[s[fit], a[fit]] = _box_volume(P[fit], R[fit])
+
+
+def _centres(L: np.ndarray) -> np.ndarray:
+    """Sphere centres (n, 4, 3) of realisable stars from lengths (n, 6) (u, U, v, V, w, W), mm:
+    the trilateration of :func:`_classify`, operation for operation, so the floats are the
+    ones its tests saw (A at the origin, B on +x, C in the xy-plane, D above it)."""
+    u, U, v, V, w, W = L.T
+    cx = (u * u + w * w - v * v) / (2 * u)
+    cy = np.sqrt(w * w - cx * cx)
+    dx = (u * u + V * V - W * W) / (2 * u)
+    dy = (V * V - U * U + w * w - 2 * dx * cx) / (2 * cy)
+    dz = np.sqrt(V * V - dx * dx - dy * dy)
+    P = np.zeros((len(L), 4, 3))
+    P[:, 1, 0] = u
+    P[:, 2, 0], P[:, 2, 1] = cx, cy
+    P[:, 3, 0], P[:, 3, 1], P[:, 3, 2] = dx, dy, dz
+    return P
+
+
+def _box_volume(P: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Volume of the box of each point set (n, 4, 3) along the rows of R (n, 3, 3), mm^3 (sums
+    and products in a fixed order: the same floats whatever the batch)."""
+    vol = np.ones(len(P))
+    for k in range(3):
+        p = R[:, k, None, 0] * P[:, :, 0] + R[:, k, None, 1] * P[:, :, 1] + R[:, k, None, 2] * P[:, :, 2]
+        vol = vol * (p.max(axis=1) - p.min(axis=1))
+    return vol
+
+
+@numba.njit(cache=True, nogil=True)  # nogil: threads run it side by side; Ctrl-C is answered
+def _classify(subsets, assign, lo, step, lim, min_depth, slack, mode, codes, s0, s1):
+    """The first pass of :func:`classify` for subsets ``s0 .. s1 - 1``: realisable, deep
+    enough, narrow enough, Ky Fan, and in mode 0 the quick no-fit proofs; what is left is
+    ``NECESSARY_OK`` (serial: numba's ``parallel=True`` costs seconds of compile on a first run)."""
     eps = 1e-9
-    for s in numba.prange(subsets.shape[0]):
+    for s in range(s0, s1):
         P = np.zeros((4, 3))
-        R = np.empty((3, 3))
         L = np.empty(6)
-        ws = np.empty(9 * 6 + 18 + 3 * STACK)  # the fit decision's working memory, once per subset
-        iws = np.empty(STACK, np.int64)
         cbuf = np.empty(8 * 6)  # caps_exclude's scratch
         for a in range(assign.shape[0]):
             for j in range(6):
                 L[j] = lo + step * subsets[s, assign[a, j]]
             u, U, v, V, w, W = L[0], L[1], L[2], L[3], L[4], L[5]
-            volumes[s, a] = np.nan
             cx = (u * u + w * w - v * v) / (2 * u)
             cy2 = w * w - cx * cx
             if cy2 <= 1e-9:
@@ -283,29 +362,10 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode,
             ):
                 codes[s, a] = 3
                 continue
-            if mode == 1:
-                codes[s, a] = 7
-                continue
-            if cone_excludes(P, lim, slack) or caps_exclude(P, lim, slack, cbuf):
+            if mode == 0 and (cone_excludes(P, lim, slack) or caps_exclude(P, lim, slack, cbuf)):
                 codes[s, a] = 4  # proven not to fit, without the search
                 continue
-            st, _ = decide_ws(P, lim, slack, 1, max_cells, R, ws, iws)
-            if st == 1:
-                codes[s, a] = 6
-                vol = 1.0
-                for k in range(3):
-                    hi = -1e300
-                    lo_ = 1e300
-                    for i in range(4):
-                        p = R[k, 0] * P[i, 0] + R[k, 1] * P[i, 1] + R[k, 2] * P[i, 2]
-                        hi = max(hi, p)
-                        lo_ = min(lo_, p)
-                    vol *= hi - lo_
-                volumes[s, a] = vol
-            elif st == 0:
-                codes[s, a] = 4
-            else:
-                codes[s, a] = 5
+            codes[s, a] = 7
 
 
 def _covariance_fits(P: np.ndarray, limit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -369,8 +429,6 @@ def enumerate_chunk(args: tuple) -> dict:
     m = spec.grid_steps
     assign = canonical_assignments().astype(np.int64)
     mode = 0 if spec.box_method == "exact" else 1
-    if threads is not None:
-        numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     counts = np.zeros(8, dtype=np.int64)
     fit_idx, fit_vol, und_idx = [], [], []
     start = unrank_subset(rank, len(pool), m)
@@ -382,7 +440,7 @@ def enumerate_chunk(args: tuple) -> dict:
         left -= len(sub)
         codes = np.empty((len(sub), len(assign)), dtype=np.int8)
         vols = np.empty((len(sub), len(assign)))
-        _classify(sub, assign, lo, step, limit, spec.depth_mm, SLACK_MM, 100_000, mode, codes, vols)
+        classify(sub, assign, lo, step, limit, spec.depth_mm, SLACK_MM, 100_000, mode, codes, vols, threads)
         counts += np.bincount(codes.ravel(), minlength=8)
         if mode == 1:
             s, a = np.nonzero(codes == NECESSARY_OK)
@@ -410,10 +468,12 @@ def enumerate_chunk(args: tuple) -> dict:
 
 def chunk_bytes(count: int) -> float:
     """Peak memory of one enumeration chunk of ``count`` subsets, bytes: a batch's codes and
-    volumes, its subsets, and the kept stars (at most a quarter of its labelled candidates,
-    the generous share :func:`estimate` uses)."""
+    volumes, the positions of the candidates left for the fit decision (9 bytes each, all of
+    them at worst) and one block of their points and rotations (:data:`DECIDE_SETS`), its
+    subsets, and the kept stars (at most a quarter of its labelled candidates, the generous
+    share :func:`estimate` uses)."""
     b = min(count, BATCH_SUBSETS)
-    return b * 30 * 9 + b * 12 + count * 30 / 4 * BYTES_PER_CANDIDATE
+    return b * 30 * (9 + 9) + DECIDE_SETS * 400 + b * 12 + count * 30 / 4 * BYTES_PER_CANDIDATE
 
 
 def enumerate_candidates(

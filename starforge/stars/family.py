@@ -52,14 +52,16 @@ def margins(lengths: np.ndarray) -> list[dict]:
     pair_m = np.full(n, np.inf)
     if n > 1:
         forms = L[:, RELABELLINGS]  # (n, 24, 6)
-        for i in range(n):
+        rows = max(1, int(32e6 // (n * 24 * 6 * 8)))  # stars per block (about 32 MB of differences)
+        for i0 in range(0, n, rows):
+            i1 = min(n, i0 + rows)
             # both lengths of pair k differ by min(|a_k - b_k|, |A_k - B_k|); a pair of stars is
             # told apart by the best pair; the worst relabelling decides.
-            d = np.abs(forms[None, i, 0, :] - forms[:, :, :])  # (n, 24, 6)
-            both = np.minimum(d[..., 0::2], d[..., 1::2]).max(axis=2)  # (n, 24)
-            worst = both.min(axis=1)
-            worst[i] = np.inf
-            pair_m[i] = worst.min()
+            d = np.abs(forms[i0:i1, None, None, 0, :] - forms[None])  # (b, n, 24, 6)
+            both = np.minimum(d[..., 0::2], d[..., 1::2]).max(axis=3)  # (b, n, 24)
+            worst = both.min(axis=2)  # (b, n)
+            worst[np.arange(i1 - i0), np.arange(i0, i1)] = np.inf
+            pair_m[i0:i1] = worst.min(axis=1)
     return [
         {
             "internal_mm": float(internal[i]),

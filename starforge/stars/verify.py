@@ -28,8 +28,55 @@ def verify_seconds(n_stars: int) -> float:
     return SECONDS_PER_STAR * n_stars + SECONDS_PER_PAIR * n_stars * n_stars
 
 
-def _dist(P, a, b) -> float:
-    return float(np.linalg.norm(np.asarray(P[a]) - np.asarray(P[b])))
+def _star_checks(V: np.ndarray, stars: list, slack_mm: float) -> dict:
+    """The per-star quantities of :func:`check_family` for stars (n, 4, 3), computed from the
+    vertices alone: edge lengths (u, U, v, V, w, W), the six sorted, the depth (smallest
+    vertex-face height or opposite-edge distance), each face's sorted sides, whether the
+    vertices lie in the stored box and whether the stored transform is a proper rotation."""
+    n = len(V)
+    edges = [(0, 1), (2, 3), (1, 2), (0, 3), (0, 2), (1, 3)]  # u, U, v, V, w, W
+    edge = np.stack([np.linalg.norm(V[:, a] - V[:, b], axis=-1) for a, b in edges], axis=1).reshape(n, 6)
+    pairs = list(itertools.combinations(range(4), 2))
+    dist = np.stack([np.linalg.norm(V[:, a] - V[:, b], axis=-1) for a, b in pairs], axis=1).reshape(n, 6)
+    heights = []
+    for a, b, c in _FACES:
+        (d,) = {0, 1, 2, 3} - {a, b, c}
+        nrm = np.cross(V[:, b] - V[:, a], V[:, c] - V[:, a])
+        dot = np.abs(np.einsum("ij,ij->i", V[:, d] - V[:, a], nrm))
+        heights.append(dot / np.maximum(np.linalg.norm(nrm, axis=-1), 1e-300))
+    for (a, b), (c, d) in _PAIRS:
+        nrm = np.cross(V[:, b] - V[:, a], V[:, d] - V[:, c])
+        nn = np.linalg.norm(nrm, axis=-1)
+        dot = np.abs(np.einsum("ij,ij->i", V[:, c] - V[:, a], nrm))
+        heights.append(np.where(nn > 1e-12, dot / np.where(nn > 1e-12, nn, 1.0), np.inf))
+    faces = np.sort(
+        np.stack(
+            [
+                np.stack([np.linalg.norm(V[:, a] - V[:, b], axis=-1), np.linalg.norm(V[:, b] - V[:, c], axis=-1),
+                          np.linalg.norm(V[:, a] - V[:, c], axis=-1)], axis=-1)
+                for a, b, c in _FACES
+            ],
+            axis=1,
+        ).reshape(n, 4, 3),
+        axis=2,
+    )
+    ext = np.array([np.asarray(s["obb"]["extents"], dtype=float) for s in stars]).reshape(n, 3)
+    lo = np.stack([-ext[:, 0] / 2, -ext[:, 1] / 2, np.zeros(n)], axis=1)[:, None] - slack_mm
+    hi = np.stack([ext[:, 0] / 2, ext[:, 1] / 2, ext[:, 2]], axis=1)[:, None] + slack_mm
+    inside = ((V >= lo) & (V <= hi)).all(axis=(1, 2))
+    R = np.array([np.asarray(s["obb"]["transform"], dtype=float)[:3, :3] for s in stars]).reshape(n, 3, 3)
+    # np.allclose(R R^T, I, atol=1e-7) per star (its default rtol 1e-5 on the diagonal)
+    orth = (np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)) <= 1e-7 + 1e-5 * np.eye(3)).all(axis=(1, 2))
+    rotation = orth & (np.abs(np.linalg.det(R) - 1) < 1e-7) if n else np.zeros(0, bool)
+    return {
+        "edge": edge,
+        "sorted": np.sort(dist, axis=1),
+        "depth": np.min(np.stack(heights, axis=1), axis=1) if n else np.zeros(0),
+        "faces": faces,
+        "ext": ext,
+        "inside": inside,
+        "rotation": rotation,
+    }
 
 
 def check_family(data: dict, slack_mm: float = 1e-6) -> list[str]:
@@ -49,65 +96,64 @@ def check_family(data: dict, slack_mm: float = 1e-6) -> list[str]:
     problems: list[str] = []
     stars = data["stars"]
     names = ["u", "U", "v", "V", "w", "W"]
-    faces_all = []  # (star id, face index, sorted sides)
+    # the per-star checks run on every star at once (numpy over the stars), then report in star
+    # order, so a family of hundreds is checked in milliseconds
+    ok, Ps = [], []
     for s in stars:
-        sid = s["id"]
         P = np.asarray(s["vertices"], dtype=float)
-        if P.shape != (4, 3):
-            problems.append(f"star {sid}: vertices are not 4 x 3")
+        good = P.shape == (4, 3) and bool(np.isfinite(P).all()) and float(np.abs(P).max()) <= 1e5
+        ok.append(good)
+        if good:
+            Ps.append(P)
+    V = np.array(Ps).reshape(-1, 4, 3)
+    checks = _star_checks(V, [s for s, g in zip(stars, ok, strict=True) if g], slack_mm)
+    faces_all = []  # (star id, face index, sorted sides)
+    k = 0
+    for s, good in zip(stars, ok, strict=True):
+        sid = s["id"]
+        if not good:
+            P = np.asarray(s["vertices"], dtype=float)
+            if P.shape != (4, 3):
+                problems.append(f"star {sid}: vertices are not 4 x 3")
+            else:
+                problems.append(f"star {sid}: vertices are not finite coordinates within 100 m")
             continue
-        if not np.isfinite(P).all() or np.abs(P).max() > 1e5:
-            problems.append(f"star {sid}: vertices are not finite coordinates within 100 m")
-            continue
+        c = {key: val[k] for key, val in checks.items()}
+        k += 1
         # 1. stored lengths match the vertices
-        edges = {"u": (0, 1), "U": (2, 3), "v": (1, 2), "V": (0, 3), "w": (0, 2), "W": (1, 3)}
-        for k in names:
-            d = _dist(P, *edges[k])
-            if abs(d - float(s["lengths"][k])) > slack_mm:
-                problems.append(f"star {sid}: |{k}| is {d:.6f} mm at the vertices, {s['lengths'][k]} stored")
+        for j, name in enumerate(names):
+            d = float(c["edge"][j])
+            if abs(d - float(s["lengths"][name])) > slack_mm:
+                problems.append(f"star {sid}: |{name}| is {d:.6f} mm at the vertices, {s['lengths'][name]} stored")
         # 2. all six lengths differ by >= the tolerance (delta for version 1 files)
-        ls = sorted(_dist(P, a, b) for a, b in itertools.combinations(range(4), 2))
-        for a, b in itertools.pairwise(ls):
+        ls = c["sorted"]
+        for a, b in itertools.pairwise(ls.tolist()):
             if b - a < within - slack_mm:
                 problems.append(f"star {sid}: two edge lengths differ by {b - a:.6f} mm < {within} mm")
         # 2b. deep enough: the smallest width over directions, brute force over the candidates of
         # a tetrahedron (vertex-face heights and opposite-edge distances)
-        if depth > 0:
-            heights = []
-            for a, b, c in _FACES:
-                (d,) = {0, 1, 2, 3} - {a, b, c}
-                nrm = np.cross(P[b] - P[a], P[c] - P[a])
-                heights.append(abs(np.dot(P[d] - P[a], nrm)) / max(np.linalg.norm(nrm), 1e-300))
-            for (a, b), (c, d) in _PAIRS:
-                nrm = np.cross(P[b] - P[a], P[d] - P[c])
-                if np.linalg.norm(nrm) > 1e-12:
-                    heights.append(abs(np.dot(P[c] - P[a], nrm)) / np.linalg.norm(nrm))
-            if min(heights) < depth - slack_mm:
-                problems.append(f"star {sid}: depth {min(heights):.4f} mm < min_depth {depth} mm")
+        if depth > 0 and c["depth"] < depth - slack_mm:
+            problems.append(f"star {sid}: depth {c['depth']:.4f} mm < min_depth {depth} mm")
         # 3. spheres do not overlap
         if ls[0] < marker - slack_mm:
             problems.append(f"star {sid}: two sphere centres are {ls[0]:.4f} mm apart (< marker {marker})")
         # 4. every face is scalene
-        for fi, (a, b, c) in enumerate(_FACES):
-            sides = sorted([_dist(P, a, b), _dist(P, b, c), _dist(P, a, c)])
+        for fi in range(4):
+            sides = c["faces"][fi].tolist()
             if min(sides[1] - sides[0], sides[2] - sides[1]) < within - slack_mm:
                 problems.append(f"star {sid}: face {fi} is not scalene")
             faces_all.append((sid, fi, sides))
         # 5. the fit: vertices inside the stored box (placement frame), box + one marker inside the limit
-        ext = np.asarray(s["obb"]["extents"], dtype=float)
-        lo = np.array([-ext[0] / 2, -ext[1] / 2, 0.0]) - slack_mm
-        hi = np.array([ext[0] / 2, ext[1] / 2, ext[2]]) + slack_mm
-        if not ((P >= lo).all() and (P <= hi).all()):
+        if not c["inside"]:
             problems.append(f"star {sid}: a sphere centre lies outside its reported box")
+        ext = c["ext"]
         phys = sorted(float(e) + marker for e in ext)
         phys = [p + r for p, r in zip(phys, reserve, strict=True)]
         for e, lim in zip(phys, limit, strict=True):
             if e > lim + slack_mm:
                 problems.append(f"star {sid}: box {phys} (with spheres) does not fit the limit {limit}")
                 break
-        T = np.asarray(s["obb"]["transform"], dtype=float)
-        R = T[:3, :3]
-        if not (np.allclose(R @ R.T, np.eye(3), atol=1e-7) and abs(np.linalg.det(R) - 1) < 1e-7):
+        if not c["rotation"]:
             problems.append(f"star {sid}: obb transform is not a proper rotation")
     # 6. the rule across the family (vectorised over pairs; the relabellings come from itertools)
     if rule == "face":

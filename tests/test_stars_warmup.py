@@ -1,0 +1,54 @@
+"""The first-run helper compiles exactly the kernels ``stars`` then loads: on a fresh cache,
+after the helper, the enumeration's first pass and the selection's kernels come from the cache
+(no compile) when called the way ``stars`` calls them; and nothing is left running."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+HELPER = (
+    "from starforge.stars import warmup\n"
+    "cold = warmup.cache_is_cold()\n"
+    "p = warmup.start()\n"
+    "warmup.finish(p, 300)\n"
+    "print(cold, p is not None, p.returncode if p else None, warmup.cache_is_cold())\n"
+)
+
+AFTER = """
+import json
+import numpy as np
+from starforge.stars import enumerate as E, select as S
+from starforge.stars.rules import window_rows
+from starforge.stars.spec import StarSpec
+
+spec = StarSpec(box_mm=(16, 12, 24), delta_mm=2.0, box_method="covariance")  # no fit search
+res = E.enumerate_chunk((spec, 0, 64, None))
+idx = res["fit"][:40]
+star_of, row, n_rows = window_rows(idx, "face", 1, spec.pool_size)
+ptr, rows = S._csr(star_of, row, len(idx))
+order = np.arange(len(idx))
+g = S.greedy(order, ptr, rows, n_rows)
+S.ils(g, order, ptr, rows, n_rows, iterations=20)
+out = {}
+for f in (E._classify, E._subsets_from, S._greedy, S._update_kernel, S._two_swap):
+    out[f.py_func.__name__] = [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]
+print(json.dumps(out))
+"""
+
+
+def test_helper_fills_the_cache_stars_then_loads(tmp_path):
+    env = dict(os.environ, STARFORGE_CACHE_DIR=str(tmp_path / "cache"))
+    env.pop("NUMBA_CACHE_DIR", None)
+    first = subprocess.run([sys.executable, "-c", HELPER], env=env, capture_output=True, text=True, check=True)
+    cold, started, rc, cold_after = first.stdout.split()
+    if (os.cpu_count() or 1) < 2:
+        assert started == "False"
+        return
+    assert (cold, started, rc, cold_after) == ("True", "True", "0", "False")
+    after = subprocess.run([sys.executable, "-c", AFTER], env=env, capture_output=True, text=True, check=True)
+    stats = json.loads(after.stdout.strip().splitlines()[-1])
+    for name, (hits, misses) in stats.items():
+        assert hits >= 1 and misses == 0, (name, hits, misses)
