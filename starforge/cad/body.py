@@ -46,6 +46,9 @@ SEATS_FOR = {
 POST_PLAY_MM = 0.3
 #: a stem's root fillet reaches this far into the plate below its face (one solid, no seam)
 FILLET_BURIED_MM = 0.3
+#: a root fillet's top ends this far inside its stem (beyond the stem's tilt and both circles'
+#: tessellation, < 0.01 mm at the default segments), so the stem swallows the fillet's flat end
+FILLET_INSET_MM = 0.05
 
 
 @dataclass(frozen=True)
@@ -398,6 +401,23 @@ def _tip_parts(kind: str, mt, spec: BodySpec, cen, u, marker_mm: float, stem_r: 
     return seat - (boss_len - 0.5) * u, adds, cuts  # into the boss, below the hole
 
 
+def root_fillet(root, u, stem_radius_mm: float, fillet_mm: float) -> Revolved:
+    """The fillet round a stem's root (the plate's face at ``root`` (3,), the stem along the unit
+    ``u``), revolved about the plate's normal; its top ends inside the stem's cross-section at
+    that height (a tilted stem's axis has moved ``height * tan(tilt)`` from the root by then), by
+    :data:`FILLET_INSET_MM`.  A stem tilted so far that the arc cannot end inside at full height
+    gets a lower fillet."""
+    rs, f = float(stem_radius_mm), float(fillet_mm)
+    u = np.asarray(u, float)
+    tan = math.sqrt(max(0.0, 1.0 - u[1] ** 2)) / max(u[1], 1e-9)
+    room = 0.9 * rs - FILLET_INSET_MM  # the arc's end stays at least 0.1 rs from the axis
+    if tan > 0 and f * tan > room:
+        f = max(room, 0.0) / tan
+    inset = f * tan + FILLET_INSET_MM
+    root = np.asarray(root, float)
+    return Revolved(root - FILLET_BURIED_MM * UP, root + f * UP, fillet_profile(rs, f, FILLET_BURIED_MM, inset_mm=inset))
+
+
 def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: BodySpec) -> Body:
     """The body description of one star (pure: no CAD kernel involved).
 
@@ -465,9 +485,7 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
         stems.append(stem)
         adds.append(stem)
         if fillet > 0:  # a fillet round the root, about the plate's normal: no notch at the plate
-            adds.append(
-                Revolved(root - FILLET_BURIED_MM * UP, root + fillet * UP, fillet_profile(rs, fillet, FILLET_BURIED_MM))
-            )
+            adds.append(root_fillet(root, u, rs, fillet))
         adds.extend(parts)
         subs.extend(cuts)
     adds.extend(mg.add)
