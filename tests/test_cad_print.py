@@ -281,13 +281,14 @@ def test_bought_markers_sit_on_seats_at_the_designed_centre(marker):
         u = (centre - np.array(stem.p0)) / np.linalg.norm(centre - np.array(stem.p0))
         seat = centre - mt.centre_height_mm * u
         # the seat (shoulder, pad or boss top) ends exactly at the marker's base plane
-        tops = [p for p in b.add if isinstance(p, Cylinder) and np.allclose(p.p1, seat, atol=1e-9)]
+        tops = [p for p in b.add if isinstance(p, Cylinder | Revolved) and np.allclose(p.p1, seat, atol=1e-9)]
         assert tops, f"no seat at the base plane of marker {k}"
+        top_r = tops[0].radius_mm if isinstance(tops[0], Cylinder) else tops[0].profile[-1][1]
         if mt.attach in ("screw", "insert"):
             holes = [
                 p for p in b.subtract if isinstance(p, Cylinder) and np.linalg.norm(np.array(p.p1) - seat) < 1.0
             ]
-            assert holes and all(h.radius_mm * 2 < tops[0].radius_mm * 2 - 2.0 for h in holes)
+            assert holes and all(h.radius_mm * 2 < top_r * 2 - 2.0 for h in holes)
     assert body_mesh(b).is_watertight
 
 
