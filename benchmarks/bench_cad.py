@@ -34,6 +34,12 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 MOUNTS = ("flat", "saddle", "magnet", "adhesive", "strap")
+
+
+def _progress(msg: str) -> None:
+    """One line on stderr (long runs show where they are), with the machine's load."""
+    load = open("/proc/loadavg").read().split()[0] if os.path.exists("/proc/loadavg") else "?"
+    print(f"bench_cad: {msg} (load {load})", file=sys.stderr, flush=True)
 LAYER_MM = 0.2
 
 
@@ -96,11 +102,15 @@ def _manifold(path: Path) -> dict:
     import numpy as np
     import trimesh
 
+    from starforge.cad.printability import flat_levels
+
     m = trimesh.load(path, force="mesh")
     e = np.sort(m.edges, axis=1)
     _, cnt = np.unique(e, axis=0, return_counts=True)
     row = {"file": path.name, "nonmanifold_edges": int((cnt > 2).sum()), "open_edges": int((cnt == 1).sum()),
-           "shells": int(m.body_count)}
+           "shells": int(m.body_count),
+           # flat levels under one 0.4 mm extrusion squared: slivers, not designed faces
+           "sliver_levels": sum(a < 0.16 for _, a, _ in flat_levels(m.vertices, m.faces))}
     if shutil.which("admesh") and path.suffix == ".stl":
         rep = subprocess.run(["admesh", str(path)], capture_output=True, text=True, timeout=120).stdout
         fixes = {k: int(v) for k, v in re.findall(r"(Degenerate facets|Edges fixed|Facets removed|Facets added|Facets reversed)\s*:\s*(\d+)", rep)}
@@ -117,6 +127,7 @@ def _judge(
     slice_limit: int | None = None,
     analysis_limit: int | None = None,
     slice_ids=None,
+    slice_plates: bool = True,
 ) -> dict:
     """Layer analysis, manifold checks and slicing of what an export wrote into ``stage``.
     ``slice_limit``: slice only the first that many single stars (and every plate);
@@ -137,6 +148,7 @@ def _judge(
         "nonmanifold_edges": sum(r["nonmanifold_edges"] for r in man),
         "open_edges": sum(r["open_edges"] for r in man),
         "single_star_files_not_one_shell": sum(r["shells"] != 1 for r in man if r["file"].startswith("star_")),
+        "sliver_flat_levels": sum(r["sliver_levels"] for r in man),
         "admesh_fixes": sum(r.get("admesh_fixes", 0) for r in man) if shutil.which("admesh") else "not installed",
     }
     analysed = singles[: analysis_limit if analysis_limit is not None else len(singles)]
@@ -159,12 +171,13 @@ def _judge(
         depth = doc["body_spec"]["label_depth_mm"]
         for p in doc["plates"]:
             heights[p["name"]] = max(heights[n] for n in p["bodies"])
-        chosen = [f for f in files if not f.name.startswith("star_")]
+        chosen = [f for f in files if not f.name.startswith("star_")] if slice_plates else []
         keep = {f.stem for f in singles[: slice_limit if slice_limit is not None else len(singles)]}
         if slice_ids:
             keep = {f"star_{int(i):03d}" for i in slice_ids} & {f.stem for f in singles}
         chosen += [f for f in files if f.name.startswith("star_") and f.stem in keep]
         jobs_ = [(f, sl) for sl in slicers for f in chosen if not (sl == "slic3r" and f.suffix == ".3mf")]
+        _progress(f"slicing {len(jobs_)} files in {jobs} jobs")
         t = time.perf_counter()
         with ThreadPoolExecutor(jobs) as ex:
             sliced = list(
@@ -178,9 +191,10 @@ def _judge(
             "files": len(sliced),
             "per_slicer": {sl: sum(x["slicer"] == sl for x in sliced) for sl in slicers},
             "single_stars_sliced": len(keep),
+            "single_star_files": len(singles),
             "sliced_ok": sum(x["ok"] for x in sliced),
             "with_warnings": sum(bool(x["warnings"]) for x in sliced),
-            "warnings": [(x["file"], x["slicer"], x["warnings"]) for x in sliced if x["warnings"]][:5],
+            "warnings": [(x["file"], x["slicer"], x["warnings"][:1]) for x in sliced if x["warnings"]],
             "failures": [x for x in sliced if not x["ok"]][:5],
             "counters": sum(x.get("counters", 0) for x in sliced),
             "counters_lost": sum(x.get("counters_lost", 0) for x in sliced),
@@ -292,11 +306,14 @@ def main() -> None:
         default="",
         help="slice only these single stars of each finger family (and every plate); default: all",
     )
-    ap.add_argument("--limb-slice", type=int, default=3, help="single limb stars sliced per marker")
-    ap.add_argument("--limb-analyse", type=int, default=10, help="single limb stars layer-analysed per marker")
+    ap.add_argument("--limb-slice", default="3", help="single limb stars sliced per marker (a number or all)")
+    ap.add_argument("--limb-analyse", default="10", help="single limb stars layer-analysed per marker (a number or all)")
+    ap.add_argument("--limb-plates", action="store_true", help="slice the limb plates too (slow: many large bodies)")
+    ap.add_argument("--slicers", default=",".join(SLICERS), help="which installed slicers to run (comma list)")
     ap.add_argument("--speed-only", action="store_true", help="only the issue-20 export timings")
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=3, help="export-speed runs (0: skip the speed figures)")
     args = ap.parse_args()
+    count = lambda v: None if v == "all" else int(v)  # noqa: E731
     if args.speed_only:
         print(
             json.dumps(
@@ -316,7 +333,7 @@ def main() -> None:
     from starforge.stars.spec import StarSpec
 
     slicer = shutil.which("prusa-slicer") if not args.no_slicer else None
-    slicers = [] if args.no_slicer else [n for n in SLICERS if shutil.which(n)]
+    slicers = [] if args.no_slicer else [n for n in args.slicers.split(",") if n in SLICERS and shutil.which(n)]
     out: dict = {
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}",
         "prusa_slicer": slicer,
@@ -364,6 +381,7 @@ def main() -> None:
             ids = [int(x) for x in args.finger_slice_ids.split(",")] if args.finger_slice_ids else None
             row.update(_judge(stage, rep, doc, slicers, args.jobs, slice_ids=ids))
         out["mounts"][name] = row
+        _progress(f"finger family on {name}: done")
 
     if "flat" in families:
         with tempfile.TemporaryDirectory() as tmp:
@@ -413,9 +431,19 @@ def main() -> None:
             doc = json.loads((stage / "bodies.json").read_text())
             row["bodies_fit"] = sum(b["fits"] for b in rep.bodies)
             row.update(
-                _judge(stage, rep, doc, slicers, args.jobs, slice_limit=args.limb_slice, analysis_limit=args.limb_analyse)
+                _judge(
+                    stage,
+                    rep,
+                    doc,
+                    slicers,
+                    args.jobs,
+                    slice_limit=count(args.limb_slice),
+                    analysis_limit=count(args.limb_analyse),
+                    slice_plates=args.limb_plates,
+                )
             )
         out["limb"][mk] = row
+        _progress(f"limb family with {mk}: done")
 
     rows = [r for r in out["mounts"].values() if "refused" not in r]
     limb = [r for r in out["limb"].values() if "refused" not in r]
@@ -496,7 +524,8 @@ def main() -> None:
             "met": all(r["export_25_with_plate_s"] <= 5.0 for r in rows),
         },
     }
-    out["issue_20_export_speed"] = export_speed(args.repeat)
+    if args.repeat > 0:
+        out["issue_20_export_speed"] = export_speed(args.repeat)
     print(json.dumps(out, indent=2))
 
 
