@@ -128,6 +128,7 @@ def _judge(
     analysis_limit: int | None = None,
     slice_ids=None,
     slice_plates: bool = True,
+    single_formats=("stl", "3mf"),
 ) -> dict:
     """Layer analysis, manifold checks and slicing of what an export wrote into ``stage``.
     ``slice_limit``: slice only the first that many single stars (and every plate);
@@ -175,7 +176,7 @@ def _judge(
         keep = {f.stem for f in singles[: slice_limit if slice_limit is not None else len(singles)]}
         if slice_ids:
             keep = {f"star_{int(i):03d}" for i in slice_ids} & {f.stem for f in singles}
-        chosen += [f for f in files if f.name.startswith("star_") and f.stem in keep]
+        chosen += [f for f in files if f.name.startswith("star_") and f.stem in keep and f.suffix[1:] in single_formats]
         jobs_ = [(f, sl) for sl in slicers for f in chosen if not (sl == "slic3r" and f.suffix == ".3mf")]
         _progress(f"slicing {len(jobs_)} files in {jobs} jobs")
         t = time.perf_counter()
@@ -191,6 +192,7 @@ def _judge(
             "files": len(sliced),
             "per_slicer": {sl: sum(x["slicer"] == sl for x in sliced) for sl in slicers},
             "single_stars_sliced": len(keep),
+            "single_star_formats_sliced": list(single_formats),
             "single_star_files": len(singles),
             "sliced_ok": sum(x["ok"] for x in sliced),
             "with_warnings": sum(bool(x["warnings"]) for x in sliced),
@@ -310,10 +312,12 @@ def main() -> None:
     ap.add_argument("--limb-analyse", default="10", help="single limb stars layer-analysed per marker (a number or all)")
     ap.add_argument("--limb-plates", action="store_true", help="slice the limb plates too (slow: many large bodies)")
     ap.add_argument("--slicers", default=",".join(SLICERS), help="which installed slicers to run (comma list)")
+    ap.add_argument("--single-formats", default="stl,3mf", help="single-star files sliced: stl, 3mf or both")
     ap.add_argument("--speed-only", action="store_true", help="only the issue-20 export timings")
     ap.add_argument("--repeat", type=int, default=3, help="export-speed runs (0: skip the speed figures)")
     args = ap.parse_args()
     count = lambda v: None if v == "all" else int(v)  # noqa: E731
+    fmts = tuple(args.single_formats.split(","))
     if args.speed_only:
         print(
             json.dumps(
@@ -379,7 +383,7 @@ def main() -> None:
             vols = [abs(b["mesh_volume_mm3"] / b["step_volume_mm3"] - 1) * 100 for b in rep.bodies]
             row["step_vs_stl_volume_percent_worst"] = round(max(vols), 6)
             ids = [int(x) for x in args.finger_slice_ids.split(",")] if args.finger_slice_ids else None
-            row.update(_judge(stage, rep, doc, slicers, args.jobs, slice_ids=ids))
+            row.update(_judge(stage, rep, doc, slicers, args.jobs, slice_ids=ids, single_formats=fmts))
         out["mounts"][name] = row
         _progress(f"finger family on {name}: done")
 
@@ -440,6 +444,7 @@ def main() -> None:
                     slice_limit=count(args.limb_slice),
                     analysis_limit=count(args.limb_analyse),
                     slice_plates=args.limb_plates,
+                    single_formats=fmts,
                 )
             )
         out["limb"][mk] = row
