@@ -78,10 +78,11 @@ def _slice(path: Path, out: Path, slicer: str = "prusa-slicer", counters=None, d
         return {"file": path.name, "slicer": slicer, "ok": False, "warnings": [], "sliced_top_mm": None,
                 "seconds": round(time.perf_counter() - t, 2), "error": f"timed out after {SLICE_TIMEOUT_S} s"}
     if slicer.endswith("-svg"):
-        ok = res.returncode == 0 and g.exists()
+        svg = g.with_suffix(".svg")  # Slic3r swaps the output's extension for .svg
+        ok = res.returncode == 0 and svg.exists()
         log = res.stdout + res.stderr
-        if g.exists():
-            g.unlink()
+        if svg.exists():
+            svg.unlink()
         return {"file": path.name, "slicer": slicer, "ok": ok, "sliced_top_mm": None,
                 "warnings": [ln.strip() for ln in log.splitlines() if re.search(r"warn|unable|error", ln, re.I)][:3],
                 "seconds": round(time.perf_counter() - t, 2), "error": "" if ok else log[-300:]}
