@@ -22,16 +22,17 @@ import zlib
 import numpy as np
 import pytest
 
-from starforge.cad.body import BodySpec, build_body, fit_report, label_boxes
+from starforge.cad.body import FILLET_INSET_MM, BodySpec, build_body, fit_report, label_boxes
 from starforge.cad.mounts import list_mounts, load_mount
 from starforge.cad.primitives import Cylinder, Revolved
-from starforge.cad.printability import layer_report, printable
+from starforge.cad.printability import flat_levels, layer_report, printable
 from tests.conftest import run_cli
 from tests.test_cad_backends import _sphere_centres_from_mesh
 
 FINGER_BOX = (20.8, 12.6, 48.3)
 MOUNTS = [m.name for m in list_mounts()]
 PRUSA = shutil.which("prusa-slicer")
+SLIC3R = shutil.which("slic3r")
 
 
 @pytest.fixture(scope="module")
@@ -221,6 +222,49 @@ def test_prusaslicer_slices_the_files_as_written(made_for, tmp_path, mount, name
     assert abs(max(zs) - height) <= 0.2  # within one layer: the body lies flat, as written
 
 
+#: star 17 of the 25-star finger family made for the flat mount (``stars --count 25 --mount
+#: flat``), and where the plate put it: with the fillet flush with its stems, this one body
+#: alone at this spot made Slic3r 1.3 fail 12 loops ("Unable to close this loop")
+FLAT17 = [
+    [2.39394319, 2.380913243, 0.0],
+    [-5.342627944, -2.380913243, 8.586062871],
+    [5.342627944, -2.38091324, 17.631797037],
+    [-5.342627944, 2.380913243, 35.670652743],
+]
+FLAT17_ON_PLATE = (127.024, 58.3)
+
+
+def _slic3r_warnings(path, tmp_path) -> list[str]:
+    """Slic3r 1.3's complaints slicing ``path`` at 0.2 mm layers (slices only, as SVG)."""
+    res = subprocess.run(
+        [SLIC3R, str(path), "--layer-height", "0.2", "--first-layer-height", "0.2", "--nozzle-diameter", "0.4",
+         "--export-svg", "-o", str(tmp_path / "slices.svg")],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert res.returncode == 0 and (tmp_path / "slices.svg").exists(), res.stdout[-2000:] + res.stderr[-2000:]
+    return [ln.strip() for ln in (res.stdout + res.stderr).splitlines() if re.search(r"warn|unable|error", ln, re.I)]
+
+
+@pytest.mark.skipif(SLIC3R is None, reason="Slic3r is not installed here (Debian: apt-get install slic3r)")
+def test_slic3r_closes_every_loop_of_a_body_where_the_plate_puts_it(tmp_path):
+    from starforge.cad.mesh import body_mesh
+    from starforge.cad.plate import print_transform
+
+    mesh = body_mesh(build_body(17, FLAT17, 4.0, load_mount("flat"), BodySpec()))
+    mesh.apply_transform(print_transform(mesh.bounds))
+    mesh.apply_translation([FLAT17_ON_PLATE[0] - mesh.bounds[0, 0], FLAT17_ON_PLATE[1] - mesh.bounds[0, 1], 0.0])
+    mesh.export(tmp_path / "star_017.stl")
+    assert _slic3r_warnings(tmp_path / "star_017.stl", tmp_path) == []
+
+
+@pytest.mark.skipif(SLIC3R is None, reason="Slic3r is not installed here (Debian: apt-get install slic3r)")
+def test_slic3r_slices_a_plate_without_a_warning(made_for, tmp_path):
+    _, _, out, _ = made_for("flat")
+    assert _slic3r_warnings(out / "plate.stl", tmp_path) == []
+
+
 @pytest.mark.parametrize("marker", ["4mm-flat", "6.4mm-post", "9.5mm-m3", "12.7mm-m3", "14mm-m4"])
 def test_bought_markers_sit_on_seats_at_the_designed_centre(marker):
     from starforge.cad.mesh import body_mesh
@@ -237,13 +281,14 @@ def test_bought_markers_sit_on_seats_at_the_designed_centre(marker):
         u = (centre - np.array(stem.p0)) / np.linalg.norm(centre - np.array(stem.p0))
         seat = centre - mt.centre_height_mm * u
         # the seat (shoulder, pad or boss top) ends exactly at the marker's base plane
-        tops = [p for p in b.add if isinstance(p, Cylinder) and np.allclose(p.p1, seat, atol=1e-9)]
+        tops = [p for p in b.add if isinstance(p, Cylinder | Revolved) and np.allclose(p.p1, seat, atol=1e-9)]
         assert tops, f"no seat at the base plane of marker {k}"
+        top_r = tops[0].radius_mm if isinstance(tops[0], Cylinder) else tops[0].profile[-1][1]
         if mt.attach in ("screw", "insert"):
             holes = [
                 p for p in b.subtract if isinstance(p, Cylinder) and np.linalg.norm(np.array(p.p1) - seat) < 1.0
             ]
-            assert holes and all(h.radius_mm * 2 < tops[0].radius_mm * 2 - 2.0 for h in holes)
+            assert holes and all(h.radius_mm * 2 < top_r * 2 - 2.0 for h in holes)
     assert body_mesh(b).is_watertight
 
 
@@ -279,14 +324,72 @@ def test_stems_scale_with_the_marker_and_have_a_fillet_at_the_root():
         root = np.array(stem.p0) + u * (0.3 / u[1])
         assert np.allclose(np.array(fl.p0) + [0, 0.3, 0], root)
         prof = np.array(fl.profile)
-        assert prof[0, 1] == pytest.approx(rs + f) and prof[-1, 1] == pytest.approx(rs)
-        # the arc: every facet corner on the circle of radius f round (plate + f, rs + f)
+        # the arc ends FILLET_INSET_MM inside the stem, plus the tilt's shift of the stem's axis
+        tan = np.sqrt(1 - u[1] ** 2) / u[1]
+        inset = f * tan + FILLET_INSET_MM
+        assert prof[0, 1] == pytest.approx(rs + f - inset) and prof[-1, 1] == pytest.approx(rs - inset)
+        # the arc: every facet corner on the circle of radius f round (plate + f, rs + f - inset)
         t0 = fl.p0[1]
         arc = prof[1:]
-        centre = np.array([plate_top - t0 + f, rs + f])
+        centre = np.array([plate_top - t0 + f, rs + f - inset])
         assert np.allclose(np.linalg.norm(arc - centre, axis=1), f)
         assert (np.diff(arc[:, 1]) < 0).all()  # narrowing upward: nothing overhangs
         assert fl.volume() > np.pi * rs**2 * (prof[-1, 0] - prof[0, 0])  # it adds material round the stem
+
+
+def _fillet_top_ring_inside_stem(fl, stem, samples: int = 72) -> float:
+    """Least distance (mm) from the fillet's top ring (profile's last point, revolved) in to
+    the stem's surface: > 0 when the ring lies strictly inside the stem."""
+    from starforge.cad.primitives import point_segment_distance
+
+    t, r = fl.profile[-1]
+    a = np.linspace(0, 2 * np.pi, samples, endpoint=False)
+    top = np.array(fl.p0) + t * np.array(fl.axis)
+    ring = top + r * np.column_stack([np.cos(a), np.zeros_like(a), np.sin(a)])
+    return float(stem.radius_mm - point_segment_distance(ring, stem.p0, stem.p1).max())
+
+
+@pytest.mark.parametrize("mount", MOUNTS)
+def test_no_flat_level_is_made_of_slivers(mount):
+    """Issue 21: a root fillet's flat end flush with its stem left horizontal sliver triangles
+    (0.006 mm^2 in all, at the fillet's top, z = 2.9 mm on the flat mount) where the two
+    tessellations of the stem's circle disagree; Slic3r's 0.2 mm layer plane at 2.9 mm met
+    them and could not close its loops.  Every flat level of the mesh as written (float32) is
+    now a face somebody designed, at least one extrusion squared, and every fillet's top ring
+    lies inside its stem (tilted ones included), checked with exact segment distances."""
+    from starforge.cad.mesh import body_mesh
+    from starforge.cad.plate import print_transform
+    from starforge.cad.printability import flat_levels
+
+    spec = BodySpec()
+    # stem 1 has to lean (sphere 0 sits right above its root), the others stand upright
+    c = np.array([[0, 6, 0], [2.5, 0, 1.0], [14, 1, 2], [3, 2, 18]], float)
+    b = build_body(7, c, 4.0, load_mount(mount), spec)
+    tilts = [np.degrees(np.arccos(np.subtract(s.p1, s.p0)[1] / s.length_mm)) for s in b.stems]
+    assert max(tilts) > 5 and min(tilts) < 1e-6
+    mesh = body_mesh(b)
+    mesh.apply_transform(print_transform(mesh.bounds))
+    levels = flat_levels(mesh.vertices, mesh.faces)
+    assert levels and levels[0][0] == pytest.approx(0.0, abs=1e-6)
+    thin = [(round(z, 4), a) for z, a, _ in levels if a < spec.nozzle_mm**2]
+    assert thin == []
+    fillets = [p for p in b.add if isinstance(p, Revolved)]
+    for fl, stem in zip(fillets, b.stems, strict=True):
+        assert _fillet_top_ring_inside_stem(fl, stem) >= FILLET_INSET_MM - 1e-6
+
+
+def test_flat_levels_finds_the_faces_of_a_box_and_a_sliver():
+    import trimesh
+
+    box = trimesh.creation.box((4.0, 3.0, 2.0))
+    levels = flat_levels(box.vertices, box.faces)
+    assert [(round(z, 6), round(a, 6), n) for z, a, n in levels] == [(-1.0, 12.0, 2), (1.0, 12.0, 2)]
+    # a flat sliver 1e-4 mm wide, 1 mm long, at z = 0.5: found as its own level of 5e-5 mm^2
+    v = np.vstack([box.vertices, [[0, 0, 0.5], [1, 0, 0.5], [0.5, 1e-4, 0.5]]])
+    f = np.vstack([box.faces, [[8, 9, 10]]])
+    levels = flat_levels(v, f)
+    assert [round(z, 6) for z, _, _ in levels] == [-1.0, 0.5, 1.0]
+    assert levels[1][1] == pytest.approx(5e-5, rel=1e-3) and levels[1][2] == 1
 
 
 def test_strap_and_saddle_room_is_what_their_geometry_needs():

@@ -18,10 +18,10 @@ import subprocess
 import numpy as np
 import pytest
 
-from starforge.cad.body import BodySpec, build_body, seat_hole
+from starforge.cad.body import SEAT_CONE_MIN_DEG, BodySpec, build_body, seat_hole
 from starforge.cad.mesh import body_mesh, shell_defects
 from starforge.cad.mounts import load_mount
-from starforge.cad.primitives import Cylinder, Sphere
+from starforge.cad.primitives import Cylinder, Revolved, Sphere
 from starforge.markers import THREADS, load_marker
 from tests.conftest import main
 
@@ -103,8 +103,10 @@ def test_insert_holes_follow_the_published_insert():
     b = build_body(1, c, 12.7, load_mount("flat"), BodySpec(marker="12.7mm-m3"))
     holes = [p for p in b.subtract if isinstance(p, Cylinder) and p.radius_mm == pytest.approx(2.0)]
     assert len(holes) == 4 and all(h.length_mm == pytest.approx(depth + 0.5) for h in holes)
-    bosses = [p for p in b.add if isinstance(p, Cylinder) and p.radius_mm == pytest.approx(2.0 + wall)]
+    bosses = [p for p in b.add if isinstance(p, Revolved) and p.profile[-1][1] == pytest.approx(2.0 + wall)]
     assert len(bosses) == 4
+    for boss in bosses:  # the boss's full width reaches depth + 1 mm below the seat
+        assert boss.profile[-1][0] - boss.profile[-2][0] == pytest.approx(depth + 1.0)
     assert not [p for p in b.add if isinstance(p, Sphere)]
 
 
@@ -199,3 +201,60 @@ def test_export_seat_errors_are_one_line_before_any_star(tmp_path, capsys):
     assert code == 2 and err.startswith("error: seat screw needs a catalogue marker") and not (tmp_path / "o").exists()
     code, _, err = _run(["export", fam, "--tip", "glue", "--out", tmp_path / "o"], capsys)
     assert code == 2 and "--tip" in err  # the seat option is --seat now; --tip is the accuracy target of stars
+
+
+#: spheres 0 and 1 overlap in x-z: stem 0 has to lean past sphere 1 (scaled by the marker size)
+LEANING = np.array([[0, 6, 0], [2.5, 0, 1.0], [14, 1, 2], [3, 2, 18]], float)
+
+
+def _seat_blocks(b):
+    """The bought-marker seat blocks (pads, bosses) of a body: revolved, ending in a cylinder."""
+    return [p for p in b.add if isinstance(p, Revolved) and len(p.profile) == 3 and p.profile[1][1] == p.profile[2][1]]
+
+
+@pytest.mark.parametrize("marker", ["4mm-flat", "6.4mm-post", "9.5mm-m3", "12.7mm-m3", "14mm-m4"])
+def test_seat_blocks_stand_on_a_cone_that_starts_inside_the_stem(marker):
+    """Pads and insert bosses keep their width and length under the marker's base plane, and
+    flare out from inside the stem at 45 deg less the stem's tilt (at least SEAT_CONE_MIN_DEG):
+    no flat ledge, and on a stem up to 20 deg from vertical no side below 45 deg."""
+    mt = load_marker(marker)
+    d = mt.diameter_mm
+    b = build_body(1, LEANING * d / 4, d, load_mount("flat", {"holes": 0}), BodySpec(marker=marker, label=False))
+    blocks = _seat_blocks(b)
+    assert len(blocks) == 4
+    for blk, stem, centre in zip(blocks, b.stems, LEANING * d / 4, strict=True):
+        u = np.subtract(stem.p1, stem.p0) / stem.length_mm
+        assert np.allclose(blk.axis, u)
+        assert np.allclose(blk.p1, centre - mt.centre_height_mm * u)  # the top is the marker's base plane
+        (t0, r0), (t1, r1), (t2, r2) = blk.profile
+        assert t0 == 0.0 and r0 < stem.radius_mm  # starts inside the stem
+        assert r1 == r2 > stem.radius_mm and t2 - t1 == pytest.approx(1.0 if mt.attach in ("glue", "post") else
+                                                                      seat_hole(mt.attach, mt)[1] + 1.0)
+        half_angle = np.degrees(np.arctan2(r1 - r0, t1 - t0))
+        tilt = np.degrees(np.arccos(u[1]))
+        root = np.array(stem.p0) + u * (0.3 / u[1])
+        if np.allclose(blk.p0, root):  # a block this near the plate: its cone starts at the root, steeper
+            assert (np.array(blk.p0) - root) @ u == pytest.approx(0.0, abs=1e-9)
+            continue
+        assert (np.array(blk.p0) - root) @ u > 0  # never below the plate's face
+        assert half_angle >= SEAT_CONE_MIN_DEG - 1e-9
+        if tilt <= 20.0:
+            assert half_angle + tilt <= 45.0 + 1e-6
+    assert max(np.degrees(np.arccos(np.subtract(s.p1, s.p0)[1] / s.length_mm)) for s in b.stems) > 1.0
+
+
+@pytest.mark.parametrize("marker", ["4mm-flat", "6.4mm-post"])
+def test_a_seat_on_a_leaning_stem_starts_nothing_in_mid_air(marker):
+    """Issue 21: the limb families' pads and bosses on leaning stems began as islands in
+    mid-air (their lowest rim, below where they met the stem); the layer analysis of the mesh
+    in its printing orientation finds none now."""
+    from starforge.cad.body import body_bounds
+    from starforge.cad.plate import print_transform
+    from starforge.cad.printability import layer_report
+
+    d = load_marker(marker).diameter_mm
+    b = build_body(1, LEANING * d / 4, d, load_mount("flat", {"holes": 0}), BodySpec(marker=marker, label=False))
+    mesh = body_mesh(b)
+    mesh.apply_transform(print_transform(body_bounds(b)))
+    rep = layer_report(mesh)
+    assert rep["midair_islands"] == [] and rep["max_bridge_mm"] <= 5.0

@@ -46,6 +46,13 @@ SEATS_FOR = {
 POST_PLAY_MM = 0.3
 #: a stem's root fillet reaches this far into the plate below its face (one solid, no seam)
 FILLET_BURIED_MM = 0.3
+#: a root fillet's top ends this far inside its stem (beyond the stem's tilt and both circles'
+#: tessellation, < 0.01 mm at the default segments), so the stem swallows the fillet's flat end
+FILLET_INSET_MM = 0.05
+#: a seat wider than its stem (a pad, an insert boss) stands on a cone round the stem that
+#: flares out to it: its half-angle is 45 deg less the stem's tilt (every side then rises at
+#: least 45 deg from the bed), but at least this much (the cone stays short on steep stems)
+SEAT_CONE_MIN_DEG = 25.0
 
 
 @dataclass(frozen=True)
@@ -360,10 +367,11 @@ def root_fillet_mm(spec: BodySpec, marker_mm: float) -> float:
     return float(min(spec.fillet_for(marker_mm), plate_gap_mm(spec, marker_mm) - 0.1))
 
 
-def _tip_parts(kind: str, mt, spec: BodySpec, cen, u, marker_mm: float, stem_r: float):
+def _tip_parts(kind: str, mt, spec: BodySpec, cen, u, marker_mm: float, stem_r: float, root=None):
     """(what the stem runs to, parts added, parts cut) for one marker's seat.
 
-    ``cen`` is the marker centre, ``u`` the unit stem direction (root -> centre).  Bought markers
+    ``cen`` is the marker centre, ``u`` the unit stem direction (root -> centre), ``root`` where
+    the stem leaves the plate (a seat block's cone starts no lower).  Bought markers
     sit on a seat whose top lies ``centre_height`` below the centre along the stem, so the marker
     ends up exactly where family.json puts it.
     """
@@ -385,17 +393,63 @@ def _tip_parts(kind: str, mt, spec: BodySpec, cen, u, marker_mm: float, stem_r: 
     seat = cen - h_c * u  # the marker's base plane meets the stem axis here
     adds, cuts = [], []
     if kind in ("post", "glue"):
-        pad = Cylinder(seat - 1.0 * u, seat, max(base, 2 * stem_r + 0.4) / 2)
-        adds.append(pad)
+        adds.append(seat_block(seat, u, 1.0, max(base, 2 * stem_r + 0.4) / 2, stem_r, root))
         if kind == "post":  # the pin stops short of the hole's bottom: the base seats on the shoulder
             adds.append(Cylinder(seat - 0.2 * u, seat + (depth - POST_PLAY_MM) * u, pin / 2))
         return seat - 0.5 * u, adds, cuts  # the stem runs into the pad: one piece
     hole_d, hole_len, wall = seat_hole(kind, mt)
     boss_d = max(hole_d + 2 * wall, 2 * stem_r + 0.4)
     boss_len = hole_len + 1.0
-    adds.append(Cylinder(seat - boss_len * u, seat, boss_d / 2))
+    adds.append(seat_block(seat, u, boss_len, boss_d / 2, stem_r, root))
     cuts.append(Cylinder(seat - hole_len * u, seat + 0.5 * u, hole_d / 2))
     return seat - (boss_len - 0.5) * u, adds, cuts  # into the boss, below the hole
+
+
+def root_fillet(root, u, stem_radius_mm: float, fillet_mm: float) -> Revolved:
+    """The fillet round a stem's root (the plate's face at ``root`` (3,), the stem along the unit
+    ``u``), revolved about the plate's normal; its top ends inside the stem's cross-section at
+    that height (a tilted stem's axis has moved ``height * tan(tilt)`` from the root by then), by
+    :data:`FILLET_INSET_MM`.  A stem tilted so far that the arc cannot end inside at full height
+    gets a lower fillet."""
+    rs, f = float(stem_radius_mm), float(fillet_mm)
+    u = np.asarray(u, float)
+    tan = math.sqrt(max(0.0, 1.0 - u[1] ** 2)) / max(u[1], 1e-9)
+    room = 0.9 * rs - FILLET_INSET_MM  # the arc's end stays at least 0.1 rs from the axis
+    if tan > 0 and f * tan > room:
+        f = max(room, 0.0) / tan
+    inset = f * tan + FILLET_INSET_MM
+    root = np.asarray(root, float)
+    return Revolved(root - FILLET_BURIED_MM * UP, root + f * UP, fillet_profile(rs, f, FILLET_BURIED_MM, inset_mm=inset))
+
+
+def seat_block(seat, u, length_mm: float, radius_mm: float, stem_radius_mm: float, root=None) -> Revolved:
+    """A seat's block (a pad or an insert boss): a cylinder of ``radius_mm`` and ``length_mm``
+    along the unit stem direction ``u`` (3,), its top face the marker's base plane at ``seat``
+    (3,) mm, standing on a cone that flares out from inside the stem (``stem_radius_mm``).
+
+    The cone's half-angle about the stem is 45 deg less the stem's tilt, at least
+    :data:`SEAT_CONE_MIN_DEG`: on a stem up to 20 deg from vertical every side of it rises at
+    least 45 deg from the bed.  Without it the block's rim overhangs the stem flat, and on a tilted
+    stem its lowest rim starts in mid-air (the limb families' post pads and insert bosses).  It
+    starts :data:`FILLET_INSET_MM` inside the stem, so the stem swallows its flat end, and no
+    lower than the stem's ``root`` (3,) on the plate (steeper where the stem is that short)."""
+    u = np.asarray(u, float)
+    seat = np.asarray(seat, float)
+    R, rs = float(radius_mm), float(stem_radius_mm)
+    tilt = math.degrees(math.acos(min(1.0, max(-1.0, u[1]))))
+    flare = R - (rs - FILLET_INSET_MM)
+    if flare <= 0:  # no wider than the stem: a plain cylinder (a revolved rectangle)
+        return Revolved(seat - length_mm * u, seat, ((0.0, R), (length_mm, R)))
+    alpha = math.radians(max(45.0 - tilt, SEAT_CONE_MIN_DEG))
+    cone = flare / math.tan(alpha)
+    if root is not None:  # the stem's length from its root to the block's bottom
+        room = float((seat - length_mm * u - np.asarray(root, float)) @ u)
+        cone = min(cone, max(room, 1e-3))
+    return Revolved(
+        seat - (length_mm + cone) * u,
+        seat,
+        ((0.0, rs - FILLET_INSET_MM), (cone, R), (cone + length_mm, R)),
+    )
 
 
 def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: BodySpec) -> Body:
@@ -460,14 +514,12 @@ def build_body(star_id: int, centres, marker_mm: float, mount: Mount, spec: Body
     for root, cen in zip(roots, c, strict=True):
         u = (cen - root) / np.linalg.norm(cen - root)
         start = root - u * (0.3 / max(u[1], 1e-6))  # 0.3 mm into the plate
-        end, parts, cuts = _tip_parts(kind, mt, spec, cen, u, marker_mm, rs)
+        end, parts, cuts = _tip_parts(kind, mt, spec, cen, u, marker_mm, rs, root)
         stem = Cylinder(start, end, rs)
         stems.append(stem)
         adds.append(stem)
         if fillet > 0:  # a fillet round the root, about the plate's normal: no notch at the plate
-            adds.append(
-                Revolved(root - FILLET_BURIED_MM * UP, root + fillet * UP, fillet_profile(rs, fillet, FILLET_BURIED_MM))
-            )
+            adds.append(root_fillet(root, u, rs, fillet))
         adds.extend(parts)
         subs.extend(cuts)
     adds.extend(mg.add)

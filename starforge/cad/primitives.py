@@ -116,15 +116,22 @@ class Revolved:
         return float(np.pi * (h * (a * a + a * b + b * b) / 3.0).sum())
 
 
-def fillet_profile(stem_radius_mm: float, fillet_mm: float, buried_mm: float, facets: int = 6) -> tuple:
+def fillet_profile(
+    stem_radius_mm: float, fillet_mm: float, buried_mm: float, facets: int = 6, inset_mm: float = 0.0
+) -> tuple:
     """``(t, r)`` profile of a stem root filleted into a plate: ``buried_mm`` inside the plate at the
-    full radius, then a concave quarter circle of radius ``fillet_mm`` from ``stem + fillet`` at the
-    plate's face (t = ``buried_mm``) up to the stem's radius, as ``facets`` chords."""
-    rs, f, e = float(stem_radius_mm), float(fillet_mm), float(buried_mm)
+    full radius, then a concave quarter circle of radius ``fillet_mm`` from ``stem + fillet - inset``
+    at the plate's face (t = ``buried_mm``) up to ``stem - inset``, as ``facets`` chords.
+
+    ``inset_mm`` > 0 ends the arc (and the flat end that closes the solid) inside the stem, so
+    the stem swallows that end whole: an end flush with the stem's surface leaves horizontal
+    sliver faces where two tessellations of the same circle disagree, and a slicer whose layer
+    plane meets them cannot close its loops (Slic3r 1.3 on the flat mount's plate)."""
+    rs, f, e, s = float(stem_radius_mm), float(fillet_mm), float(buried_mm), float(inset_mm)
     a = np.linspace(0.0, np.pi / 2, int(facets) + 1)
-    # arc centre (r, t) = (rs + f, e + f): from angle pi (r = rs + f... ) round to the stem
-    arc = [(e + f - f * np.cos(x), rs + f - f * np.sin(x)) for x in a]
-    return ((0.0, rs + f), *arc)
+    # arc centre (r, t) = (rs + f - s, e + f): from the plate's face round to r = rs - s
+    arc = [(e + f - f * np.cos(x), rs - s + f - f * np.sin(x)) for x in a]
+    return ((0.0, rs + f - s), *arc)
 
 
 Primitive = Sphere | Cylinder | Box | Revolved

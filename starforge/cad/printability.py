@@ -149,6 +149,29 @@ def layer_report(mesh, layer_mm: float = 0.2, overhang_deg: float = 45.0) -> dic
     }
 
 
+def flat_levels(vertices, faces) -> list[tuple[float, float, int]]:
+    """The mesh's flat (horizontal) faces by height, as a reader of the STL finds them: per
+    distinct float32 height shared by the three corners of at least one triangle,
+    ``(z_mm, area_mm2, triangles)``, lowest first.
+
+    A level whose area is far below one extrusion squared is not a face anyone designed: it is
+    slivers where two tessellations of one surface disagree, and a slicer whose layer plane
+    meets such a level exactly may fail to close that layer's loops (Slic3r 1.3: "Unable to
+    close this loop").  Parameters: vertices (n, 3) float mm, faces (m, 3) int."""
+    v = np.asarray(vertices, dtype=np.float32)
+    t = v[np.asarray(faces, dtype=np.int64)]
+    z = t[:, :, 2]
+    flat = (z[:, 0] == z[:, 1]) & (z[:, 1] == z[:, 2])
+    if not flat.any():
+        return []
+    tf = t[flat].astype(np.float64)
+    area = np.linalg.norm(np.cross(tf[:, 1] - tf[:, 0], tf[:, 2] - tf[:, 0]), axis=1) / 2
+    levels, idx = np.unique(z[flat, 0], return_inverse=True)
+    sums = np.bincount(idx, weights=area, minlength=len(levels))
+    counts = np.bincount(idx, minlength=len(levels))
+    return [(float(h), float(a), int(c)) for h, a, c in zip(levels, sums, counts, strict=True)]
+
+
 def printable(report: dict) -> list[str]:
     """What keeps a body from printing without supports, by starforge's criteria (empty: none).
 
