@@ -31,10 +31,11 @@ def _inside(p, pts) -> np.ndarray:
     return (t >= prof[0, 0]) & (t <= prof[-1, 0]) & (r <= lim)
 
 
-def test_a_vertical_stem_and_its_fillet_merge_into_the_same_solid():
+@pytest.mark.parametrize("inset", [0.0, 0.05, 0.3])
+def test_a_vertical_stem_and_its_fillet_merge_into_the_same_solid(inset):
     root = np.array([1.0, 2.0, 3.0])
     stem = Cylinder(root - [0, 0.3, 0], root + [0, 6.0, 0], 0.9)
-    fillet = Revolved(root - [0, 0.3, 0], root + [0, 0.45, 0], fillet_profile(0.9, 0.45, 0.3))
+    fillet = Revolved(root - [0, 0.3, 0], root + [0, 0.45, 0], fillet_profile(0.9, 0.45, 0.3, inset_mm=inset))
     tilted = Cylinder(root - [0.1, 0.3, 0], root + [2.0, 6.0, 0], 0.9)
     merged = merge_coaxial([stem, fillet, tilted])
     assert len(merged) == 2 and isinstance(merged[0], Revolved) and merged[1] == tilted

@@ -7,6 +7,7 @@ its long side along the finger, and the cameras look at it from above.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -157,18 +158,40 @@ def plate_cuts(parts, cut_bounds, margin_mm: float = 1e-6) -> list:
     return out
 
 
+def _clip_profile(profile, radius_mm: float, length_mm: float) -> tuple:
+    """The ``(t, r)`` profile of the union of a solid of revolution (``profile``, t from 0) and
+    a cylinder of ``radius_mm`` on t in [0, ``length_mm``] about the same axis: max(r(t),
+    radius) with the crossings put in, runs at the cylinder's radius collapsed to their ends."""
+    rs = float(radius_mm)
+    pts: list[tuple[float, float]] = []
+    for (t0, r0), (t1, r1) in itertools.pairwise(profile):
+        if not pts:
+            pts.append((float(t0), max(float(r0), rs)))
+        if (r0 - rs) * (r1 - rs) < 0:  # the segment crosses the cylinder's surface
+            pts.append((float(t0 + (t1 - t0) * (rs - r0) / (r1 - r0)), rs))
+        pts.append((float(t1), max(float(r1), rs)))
+    if pts[-1][0] < length_mm:
+        pts.append((float(length_mm), rs))
+    out = [pts[0]]
+    for i in range(1, len(pts)):
+        inner = 0 < i < len(pts) - 1
+        if inner and pts[i][1] == rs and out[-1][1] == rs and pts[i + 1][1] == rs:
+            continue
+        if pts[i][0] > out[-1][0] or pts[i][1] != out[-1][1]:
+            out.append(pts[i])
+    return tuple(out)
+
+
 def merge_coaxial(parts) -> tuple:
     """``parts`` with each cylinder and the solid of revolution that shares its start and axis
-    (a vertical stem and its root fillet) replaced by one :class:`Revolved`: the fillet's profile
-    continued at the cylinder's radius up to its end.
+    (a vertical stem and its root fillet) replaced by one :class:`Revolved`: the profile
+    max(fillet, stem radius) over the stem's length (:func:`_clip_profile`).
 
-    The union is the same solid (the fillet's profile never drops below the stem's radius, so
-    max(profile, stem) is the merged profile), built as one primitive: the backends then skip a
-    boolean between two surfaces that touch tangentially at the fillet's top, the slowest one of
-    a body in OCCT and a source of slivers in the mesh.  Only exact matches merge (start and
-    axis equal, the profile ending at the cylinder's radius (to 1e-9 mm, then set to it), inside
-    its length); everything else
-    is returned as given, in order (a merged pair at the cylinder's place).
+    The union is the same solid, built as one primitive: the backends then skip a boolean
+    between two surfaces that meet at the fillet's top, the slowest one of a body in OCCT and a
+    source of slivers in the mesh.  Only exact matches merge (start and axis equal, the
+    profile's t increasing from 0 and ending inside the cylinder's length); everything else is
+    returned as given, in order (a merged pair at the cylinder's place).
     """
     parts = list(parts)
     used: set[int] = set()
@@ -182,17 +205,16 @@ def merge_coaxial(parts) -> tuple:
             for j, r in revs:
                 if j in used or r.p0 != p.p0:
                     continue
-                t_end, r_end = r.profile[-1]
+                ts = [t for t, _ in r.profile]
                 if (
                     np.linalg.norm(np.cross(r.axis, u)) <= 1e-12
                     and float(r.axis @ u) > 0
-                    and abs(r_end - p.radius_mm) <= 1e-9
-                    and all(rr >= p.radius_mm - 1e-9 for _, rr in r.profile)
-                    and t_end < p.length_mm
+                    and ts[0] == 0.0
+                    and all(b > a for a, b in itertools.pairwise(ts))
+                    and ts[-1] < p.length_mm
                 ):
                     used.add(j)
-                    prof = (*r.profile[:-1], (t_end, p.radius_mm), (p.length_mm, p.radius_mm))
-                    p = Revolved(p.p0, p.p1, prof)
+                    p = Revolved(p.p0, p.p1, _clip_profile(r.profile, p.radius_mm, p.length_mm))
                     break
         out.append(p)
     return tuple(out)
