@@ -167,7 +167,7 @@ def stars_cmd(
     out_dir = out if out is not None else Path("out") / s.name
     names = ["family.json", "family.csv", "run.json"] + (["family.png"] if preview else [])
     check_writable(out_dir, names, force)  # fail before the long work
-    check_size(s)  # memory and time estimated before the long work
+    check_size(s, allow_stream=True)  # memory and time estimated before the long work
     avoid = more_values("--avoid", avoid, ctx.args)
     avoid_faces, avoid_sources = None, None
     if avoid:
