@@ -459,6 +459,50 @@ def ils(
     return np.flatnonzero(P.in_fam), it
 
 
+def _restart_task(args: tuple) -> tuple[np.ndarray, int]:
+    """One ILS restart (a task of :func:`ils_restarts`): ``(start, order, ptr, rows, n_rows,
+    bound, seed)`` -> (family, iterations used).  A pure function of its input."""
+    start, order, ptr, rows, n_rows, bound, seed = args
+    return ils(start, order, ptr, rows, n_rows, iterations=ILS_RESTART_ITERATIONS, bound=bound, seed=seed)
+
+
+def ils_restarts(chosen, start, order, ptr, rows, n_rows, bound: int, restarts: int = ILS_RESTARTS):
+    """The ILS restarts with seeds 1..``restarts`` from ``start``, after the first walk found
+    ``chosen``: in seed order, a restart's family replaces the best so far when it is larger, and
+    the restarts stop once the best reaches ``bound``.  Returns (best, iterations, restarts run).
+
+    The restarts are independent, so with a dask scheduler (``--scheduler`` /
+    ``STARFORGE_SCHEDULER``) they run at once on the cluster (:func:`starforge.engine.map_tasks`)
+    and their results are then taken in seed order exactly as above (the ones past the stop are
+    dropped): the same family and counts byte for byte, whatever the number of workers and the
+    order they finish in.  Otherwise they run here one after another, stopping at the bound.
+    """
+    from starforge import engine
+
+    seeds = list(range(1, restarts + 1))
+    if len(chosen) >= bound or not seeds:
+        return chosen, 0, 0
+    if engine.plan(len(seeds), 0.0).mode == "serial":  # no scheduler: lazily, so the stop saves work
+        results = (_restart_task((start, order, ptr, rows, n_rows, bound, s)) for s in seeds)
+    else:
+        results = iter(
+            engine.map_tasks(
+                _restart_task,
+                [(start, order, ptr, rows, n_rows, bound, s) for s in seeds],
+                what=f"{len(seeds)} ILS restarts",
+            )
+        )
+    used = ran = 0
+    for got, k in results:
+        used += k
+        ran += 1
+        if len(got) > len(chosen):
+            chosen = got
+        if len(chosen) >= bound:
+            break
+    return chosen, used, ran
+
+
 #: HiGHS branch-and-bound work budget, in nonzeros x nodes: a deterministic effort limit (the
 #: wall-clock limit is only a safety net; a run it cuts is not used, so results stay reproducible)
 MILP_WORK = 8_000_000
@@ -555,14 +599,8 @@ def select_family(
             # small instances: a few short restarts with other fixed seeds before the exact solver
             # (a tight packing that one walk misses is often found by another within ~1 s, and a
             # family that reaches the certified bound is proven optimal without the solver)
-            for seed in range(1, ILS_RESTARTS + 1):
-                if len(chosen) >= bound:
-                    break
-                got, k = ils(start, order, ptr, rows, n_rows, iterations=ILS_RESTART_ITERATIONS, bound=bound, seed=seed)
-                used += k
-                restarts += 1
-                if len(got) > len(chosen):
-                    chosen = got
+            chosen, k, restarts = ils_restarts(chosen, start, order, ptr, rows, n_rows, bound)
+            used += k
         info.update(
             ils=int(len(chosen)),
             ils_iterations=int(used),

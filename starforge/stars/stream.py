@@ -199,6 +199,14 @@ def _greedy_windows(index, order, used, edges, n_keys, m, base):
     return out
 
 
+def range_cap(held: float = 0.0) -> int:
+    """Stars one volume range may hold when it is sorted: a third of what the memory limit
+    leaves beside ``held`` bytes and the base (a larger range is split by volume again)."""
+    from starforge.budget import memory_limit_bytes
+
+    return max(1, int((memory_limit_bytes() - STREAM_BASE_BYTES - held) // (3 * SORT_BYTES_PER_STAR)))
+
+
 def _ordered_pieces(idx, vol, pool, lo: float, hi: float, cap: int):
     """(index, volume) of the stars in volume range [lo, hi), in compactness order, as pieces of at
     most about ``cap`` stars: a range above the cap is split into 16 equal volume ranges again
@@ -238,7 +246,6 @@ def stream_family(
     ``bound`` (the certified block bound), ``info`` (selection notes) and ``seconds``
     (enumerate, select).  ``on_chunk(done_chunks)`` is called after each chunk is spilled.
     """
-    from starforge.budget import memory_limit_bytes
     from starforge.stars.enumerate import edge_pool, enumeration_stats, index_dtype, no_pool_error, run_chunks
     from starforge.stars.family import avoid_mask
     from starforge.stars.select import _count_blocks
@@ -285,7 +292,7 @@ def stream_family(
         used = np.zeros(_bitmap_sizes(spec)[1], dtype=np.bool_)
         edges = np.concatenate([FACE_EDGES, VERTEX_EDGES]).astype(np.int64)
         n_keys = 4 if spec.rule == "face" else 8
-        cap = max(1, int((memory_limit_bytes() - STREAM_BASE_BYTES - used.nbytes - faces_seen.nbytes) // (3 * SORT_BYTES_PER_STAR)))
+        cap = range_cap(used.nbytes + faces_seen.nbytes)
         chosen = []
         width = vmax / BUCKETS
         for k in range(BUCKETS):
