@@ -461,13 +461,16 @@ def ils(
 
 def _restart_task(args: tuple) -> tuple[np.ndarray, int]:
     """One ILS restart (a task of :func:`ils_restarts`): ``(start, order, ptr, rows, n_rows,
-    bound, seed)`` -> (family, iterations used).  A pure function of its input."""
-    start, order, ptr, rows, n_rows, bound, seed = args
-    return ils(start, order, ptr, rows, n_rows, iterations=ILS_RESTART_ITERATIONS, bound=bound, seed=seed)
+    bound, seed, iterations)`` -> (family, iterations used).  A pure function of its input."""
+    start, order, ptr, rows, n_rows, bound, seed, iterations = args
+    return ils(start, order, ptr, rows, n_rows, iterations=iterations, bound=bound, seed=seed)
 
 
-def ils_restarts(chosen, start, order, ptr, rows, n_rows, bound: int, restarts: int = ILS_RESTARTS):
-    """The ILS restarts with seeds 1..``restarts`` from ``start``, after the first walk found
+def ils_restarts(
+    chosen, start, order, ptr, rows, n_rows, bound: int, restarts: int = ILS_RESTARTS,
+    iterations: int = ILS_RESTART_ITERATIONS,
+):
+    """The ILS restarts (``iterations`` each) with seeds 1..``restarts`` from ``start``, after the first walk found
     ``chosen``: in seed order, a restart's family replaces the best so far when it is larger, and
     the restarts stop once the best reaches ``bound``.  Returns (best, iterations, restarts run).
 
@@ -483,12 +486,12 @@ def ils_restarts(chosen, start, order, ptr, rows, n_rows, bound: int, restarts: 
     if len(chosen) >= bound or not seeds:
         return chosen, 0, 0
     if engine.plan(len(seeds), 0.0).mode == "serial":  # no scheduler: lazily, so the stop saves work
-        results = (_restart_task((start, order, ptr, rows, n_rows, bound, s)) for s in seeds)
+        results = (_restart_task((start, order, ptr, rows, n_rows, bound, s, iterations)) for s in seeds)
     else:
         results = iter(
             engine.map_tasks(
                 _restart_task,
-                [(start, order, ptr, rows, n_rows, bound, s) for s in seeds],
+                [(start, order, ptr, rows, n_rows, bound, s, iterations) for s in seeds],
                 what=f"{len(seeds)} ILS restarts",
             )
         )
