@@ -149,7 +149,7 @@ def _spread_count(index: np.ndarray, order: np.ndarray, spec: StarSpec, pool_siz
     return best
 
 
-def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
+def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, deterministic: bool = False):
     """Select the family among ``index`` (see :func:`make_family`); returns (Selection, bound)."""
     m = spec.grid_steps
     star_of, row, n_rows = window_rows(index, spec.rule, m, len(pool))
@@ -174,6 +174,7 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
                 bound=bound,
                 n_undecided=len(und),
                 milp_work=work,
+                deterministic=deterministic,
             )
             info.update(sel.info)
             if len(sel.chosen) < spec.count:
@@ -186,7 +187,8 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
             sel = Selection(chosen, sel.upper_bound, info)
     else:
         sel = select_family(
-            index, pool, volume, star_of, row, n_rows, spec, bound=bound, n_undecided=len(und), milp_work=work
+            index, pool, volume, star_of, row, n_rows, spec, bound=bound, n_undecided=len(und), milp_work=work,
+            deterministic=deterministic,
         )
     ub = sel.upper_bound
     if len(und) and sel.info.get("milp_status") == "optimal" and ub > len(sel.chosen):
@@ -198,7 +200,8 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
         s2, r2, n2 = window_rows(both, spec.rule, m, len(pool))
         p2, rows2 = _csr(s2, r2, len(both))
         opt, dual, status, reproducible = milp(
-            p2, rows2, n2, np.arange(len(both)), spec.time_limit_s, node_budget(len(rows2), work)
+            p2, rows2, n2, np.arange(len(both)), None if deterministic else spec.time_limit_s,
+            node_budget(len(rows2), work),
         )
         if reproducible:
             b2 = len(opt) if status == "optimal" else dual
@@ -217,6 +220,7 @@ def make_family(
     avoid_sources: list[dict] | None = None,
     milp_work: int | None = None,
     star_filter=None,
+    deterministic: bool = False,
 ) -> Family:
     """Enumerate, select and place a family for ``spec``.
 
@@ -225,7 +229,9 @@ def make_family(
     ``milp_work``: the exact solver's deterministic work budget (nonzeros x nodes; default
     :data:`starforge.stars.select.MILP_WORK`).  ``star_filter(vertices (n, 4, 3)) -> (n,) bool``
     keeps only stars it accepts (e.g. whose printed body with its mount fits the limit): the
-    ones it rejects are replaced by selecting again without them.
+    ones it rejects are replaced by selecting again without them.  ``deterministic``: the exact
+    solver is stopped by its node budget alone, never by ``spec.time_limit_s`` (the same family
+    on any machine; see :func:`starforge.stars.select.select_family`).
 
     Raises StarforgeError when no star fits, or when ``spec.count`` exceeds what is achievable
     (naming the largest family found and the certified bound).
@@ -267,7 +273,7 @@ def make_family(
     rounds = 0
     while True:
         keep = np.flatnonzero(~excluded)
-        sel, ub = _choose(index[keep], volume[keep], und, bound, spec, pool, work)
+        sel, ub = _choose(index[keep], volume[keep], und, bound, spec, pool, work, deterministic)
         chosen = keep[np.sort(sel.chosen)]
         L = pool[index[chosen]]
         placed = place_stars(vertices_from_lengths(L), spec.centre_limit_mm, spec.box_method)

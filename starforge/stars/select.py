@@ -520,8 +520,11 @@ def node_budget(nonzeros: int, work: int = MILP_WORK) -> int:
     return int(max(20, min(MILP_NODE_LIMIT, work // max(1, nonzeros))))
 
 
-def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float, node_limit: int = MILP_NODE_LIMIT):
+def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float | None, node_limit: int = MILP_NODE_LIMIT):
     """Exact set packing over ``cols`` with HiGHS.
+
+    ``time_limit`` (s): a wall-clock safety limit; None: none, the node limit alone stops the
+    solver (deterministic: the same answer on any machine, however fast).
 
     Returns (chosen, dual_bound, status, reproducible): ``reproducible`` is True when HiGHS
     stopped at optimality or at the node limit (the same input gives the same answer), False
@@ -543,7 +546,8 @@ def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float, node_limit: int
         constraints=LinearConstraint(A, -np.inf, 1),
         integrality=np.ones(len(cols)),
         bounds=Bounds(0, 1),
-        options={"time_limit": float(time_limit), "node_limit": int(node_limit), "disp": False},
+        options={"node_limit": int(node_limit), "disp": False}
+        | ({} if time_limit is None else {"time_limit": float(time_limit)}),
     )
     chosen = cols[np.flatnonzero(res.x > 0.5)] if res.x is not None else np.zeros(0, dtype=np.intp)
     dual = getattr(res, "mip_dual_bound", None)
@@ -566,6 +570,7 @@ def select_family(
     bound: int | None = None,
     n_undecided: int = 0,
     milp_work: int = MILP_WORK,
+    deterministic: bool = False,
 ) -> Selection:
     """Choose the family among the candidates (see module docstring).
 
@@ -575,6 +580,9 @@ def select_family(
     ``n_undecided``: stars left out of ``index`` that might fit; the solver's dual bound covers
     ``index`` only, so it certifies ``dual + n_undecided`` (an optimal family over a superset
     loses at most those stars when they are removed).
+    ``deterministic``: the exact solver runs without its wall-clock safety limit
+    (``spec.time_limit_s``), stopped by the node budget alone, so the family and bound are the
+    same on any machine (the sweep's exhaustive cells).
     """
     n = len(index)
     ptr, rows = _csr(star_of, row, n)
@@ -617,7 +625,8 @@ def select_family(
         # by the wall-clock safety limit is not used, so the same spec gives the same family
         t2 = time.perf_counter()
         nodes = node_budget(nnz, milp_work)
-        m_chosen, dual, status, reproducible = milp(ptr, rows, n_rows, np.arange(n), spec.time_limit_s, nodes)
+        wall = None if deterministic else spec.time_limit_s
+        m_chosen, dual, status, reproducible = milp(ptr, rows, n_rows, np.arange(n), wall, nodes)
         info.update(
             milp_columns=int(n), milp_node_budget=nodes, milp_status=status, milp_used=bool(reproducible)
         )
