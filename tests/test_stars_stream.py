@@ -144,3 +144,13 @@ def test_finger_at_half_a_millimetre_is_streamed_and_bounded(half, monkeypatch):
         E.check_size(half, allow_stream=True)
     assert "\n" not in str(err.value)
     assert S.stream_bytes(half, 280e6) < 4 * 2**30  # the estimate behind the run in the README
+
+
+def test_ordered_is_the_compactness_order(cands):
+    rng = np.random.default_rng(0)
+    idx, vol, pool = cands.index, cands.box_volume.copy(), cands.pool_mm
+    want = compactness_order(idx, pool, vol)
+    assert np.array_equal(S.ordered(idx, pool, vol), want)
+    # many ties in the rounded volume: the full key decides among them
+    vol = np.round(rng.integers(0, 50, len(idx)) * 1.25 + rng.random(len(idx)) * 1e-11, 12)
+    assert np.array_equal(S.ordered(idx, pool, vol), compactness_order(idx, pool, vol))

@@ -11,8 +11,8 @@ after another, and which key windows are used so far.  So:
    keys marked in a bitmap over pool triples (for the certified bound), and the stars appended to
    spill files on disk, one per range of box volume (:data:`BUCKETS` equal ranges);
 2. the ranges are read back in order, each sorted in compactness order
-   (:func:`starforge.stars.select.compactness_order`; its first key is the rounded volume, so the
-   ranges concatenate to the global order) and run through the greedy with a bitmap of used key
+   (:func:`ordered`, the permutation of :func:`starforge.stars.select.compactness_order`; its
+   first key is the rounded volume, so the ranges concatenate to the global order) and run through the greedy with a bitmap of used key
    windows (:func:`_greedy_windows`); a range too large for memory is split by volume again.
 
 The family is the one the in-memory greedy gives on the same candidates, star for star
@@ -207,20 +207,37 @@ def range_cap(held: float = 0.0) -> int:
     return max(1, int((memory_limit_bytes() - STREAM_BASE_BYTES - held) // (3 * SORT_BYTES_PER_STAR)))
 
 
+def ordered(idx: np.ndarray, pool: np.ndarray, vol: np.ndarray) -> np.ndarray:
+    """:func:`starforge.stars.select.compactness_order`, the same permutation, cheaper on many
+    stars: one sort by rounded volume, then the full key only among stars of equal rounded
+    volume (the stars are distinct, so the order is total and the two agree)."""
+    v = np.round(vol, 9)
+    o = np.argsort(v, kind="stable")
+    vs = v[o]
+    same = vs[1:] == vs[:-1]
+    if not same.any():
+        return o
+    grp = np.concatenate([[0], np.cumsum(~same)])
+    pos = np.flatnonzero(np.bincount(grp)[grp] > 1)
+    sub = o[pos]
+    ix = idx[sub]
+    keys = [ix[:, k] for k in range(5, -1, -1)]
+    o[pos] = sub[np.lexsort((*keys, pool[ix].sum(axis=1), grp[pos]))]
+    return o
+
+
 def _ordered_pieces(idx, vol, pool, lo: float, hi: float, cap: int):
     """(index, volume) of the stars in volume range [lo, hi), in compactness order, as pieces of at
     most about ``cap`` stars: a range above the cap is split into 16 equal volume ranges again
     (all stars of one rounded volume stay together, so the pieces concatenate in order)."""
-    from starforge.stars.select import compactness_order
-
     if len(idx) <= cap or not hi > lo:
-        order = compactness_order(idx, pool, vol)
+        order = ordered(idx, pool, vol)
         yield idx[order], vol[order]
         return
     v = np.round(vol, 9)
     sub = np.clip(((v - lo) * (16 / (hi - lo))).astype(np.int64), 0, 15)
     if (sub == sub[0]).all() and np.unique(v).size == 1:
-        order = compactness_order(idx, pool, vol)
+        order = ordered(idx, pool, vol)
         yield idx[order], vol[order]
         return
     w = (hi - lo) / 16
