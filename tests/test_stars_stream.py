@@ -154,3 +154,25 @@ def test_ordered_is_the_compactness_order(cands):
     # many ties in the rounded volume: the full key decides among them
     vol = np.round(rng.integers(0, 50, len(idx)) * 1.25 + rng.random(len(idx)) * 1e-11, 12)
     assert np.array_equal(S.ordered(idx, pool, vol), compactness_order(idx, pool, vol))
+
+
+def test_the_spill_folder_is_removed_after_success_and_failure(tmp_path, monkeypatch):
+    monkeypatch.setenv("STARFORGE_SPILL_DIR", str(tmp_path))
+    seen = []
+    add = S._Spill.add
+
+    def spy(self, *a):
+        seen.append(sorted(p.name for p in tmp_path.iterdir()))
+        return add(self, *a)
+
+    monkeypatch.setattr(S._Spill, "add", spy)
+    S.stream_family(SPEC)
+    assert seen and seen[0][0].startswith("starforge-spill-") and not list(tmp_path.iterdir())
+
+    def boom(self, *a):
+        raise RuntimeError("disk gone")
+
+    monkeypatch.setattr(S._Spill, "add", boom)
+    with pytest.raises(RuntimeError, match="disk gone"):
+        S.stream_family(SPEC)
+    assert not list(tmp_path.iterdir())

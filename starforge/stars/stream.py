@@ -253,7 +253,6 @@ def stream_family(
     avoid_faces_mm: np.ndarray | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
-    on_chunk=None,
 ) -> dict:
     """Enumerate ``spec`` on the engine and select its family by the streamed greedy.
 
@@ -261,8 +260,10 @@ def stream_family(
     ``stats`` (the enumeration's counts, as :class:`~starforge.stars.enumerate.Candidates`),
     ``candidates`` and ``undecided`` (stars after the rule's and the avoided faces' filter),
     ``bound`` (the certified block bound), ``info`` (selection notes) and ``seconds``
-    (enumerate, select).  ``on_chunk(done_chunks)`` is called after each chunk is spilled.
+    (enumerate, select).  The spill folder is removed afterwards, also after an error or a
+    signal (:func:`starforge.io.scratch_folder`).
     """
+    from starforge.io import scratch_folder
     from starforge.stars.enumerate import edge_pool, enumeration_stats, index_dtype, no_pool_error, run_chunks
     from starforge.stars.family import avoid_mask
     from starforge.stars.select import _count_blocks
@@ -274,8 +275,7 @@ def stream_family(
     vmax = _volume_max(spec)
     counts = np.zeros(8, dtype=np.int64)
     tally = {"fitting": 0, "candidates": 0, "undecided": 0, "chunks": 0}
-    folder = Path(tempfile.mkdtemp(prefix="starforge-spill-", dir=spill_dir()))
-    try:
+    with scratch_folder("starforge-spill-", spill_dir()) as folder:
         spill = _Spill(folder, index_dtype(p))
 
         def consume(_i, res):
@@ -295,8 +295,6 @@ def stream_family(
                 faces_seen[_face_codes(und, p)] = True
             spill.add(_bucket_of(vol, vmax), fit, vol)
             tally["chunks"] += 1
-            if on_chunk is not None:
-                on_chunk(tally["chunks"])
 
         labelled = run_chunks(spec, consume, progress, workers, scheduler)
         spill.flush()
@@ -322,8 +320,6 @@ def stream_family(
         index = np.concatenate(chosen) if chosen else np.zeros((0, 6), np.int16)
         index = index[np.lexsort(index.T[::-1])]
         t_sel = time.perf_counter() - t1
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
     # the certified bound: the block bound over the distinct face keys of every star that fits
     # or is undecided (the same set block_bound sees in memory)
     codes = np.flatnonzero(faces_seen)
