@@ -1,6 +1,6 @@
 """Selection for specs whose candidates do not fit in memory: the greedy, streamed.
 
-At ``delta_mm = 0.5`` on the finger box the enumeration finds about 280 M fitting stars:
+At ``delta_mm = 0.5`` on the finger box the enumeration finds over 300 M fitting stars:
 gathered with their key windows (:func:`starforge.stars.rules.window_rows`) they would need
 tens of GB.  What the paper's greedy needs is much less: the stars in compactness order, one
 after another, and which key windows are used so far.  So:
