@@ -1,7 +1,8 @@
 """Scale-out figures as JSON (issue 19): the engine on 1 and 2 local workers, a huge enumeration.
 
     python benchmarks/bench_scale.py scaling [--samples 40000]
-    python benchmarks/bench_scale.py delta05 [--chunks 6] [--workers 2]
+    python benchmarks/bench_scale.py delta05 [--chunks 6] [--workers 2] [--first K]
+    python benchmarks/bench_scale.py progress OUTDIR     (a run of benchmarks/run_delta05.sh)
     python benchmarks/bench_scale.py sweep-exact [--run]
 
 * ``scaling``: the same sweep (interval cells: seeded, pure CPU) in process and on a local
@@ -10,7 +11,11 @@
 * ``delta05``: ``stars --delta 0.5`` on the finger box.  Its enumeration (about 14e9 labelled
   candidates) runs as chunks on local workers; ``--chunks`` chunks spread evenly over the rank
   range are run (``--chunks 0``: all of them) and timed per worker, with each worker's peak
-  memory; the whole run's time is extrapolated from them for this machine's workers and for 32.
+  memory; the whole run's time is extrapolated from them for this machine's workers and for 32
+  (``--first K``: only chunks K.. are sampled, and the estimates cover those).
+* ``progress``: the figures of a real run (``bash benchmarks/run_delta05.sh OUTDIR``: scheduler,
+  2 workers and the command at ``nice -n 19``, sampled every 30 s) from its logs, finished or not:
+  chunks done, worker CPU s per chunk, peak RSS per worker and of the client.
 * ``sweep-exact``: the default sweep (0.5:3:0.5 x 10:50:5) with every cell whose enumeration
   fits one worker's memory made exhaustive (``sweep --exhaustive auto``): which cells, their
   estimated cost; ``--run`` runs it.
@@ -104,7 +109,7 @@ def delta05(args) -> dict:
     parts = E.chunks(spec)
     labelled = E.labelled_count(spec)
     if args.chunks:
-        pick = np.unique(np.linspace(0, len(parts) - 1, args.chunks).round().astype(int))
+        pick = np.unique(np.linspace(args.first, len(parts) - 1, args.chunks).round().astype(int))
     else:
         pick = np.arange(len(parts))
     lc, client, start = _cluster(args.workers)
@@ -143,7 +148,8 @@ def delta05(args) -> dict:
         client.close()
         lc.close()
     sampled = sum(parts[i][1] for i in pick) * 30
-    share = sampled / labelled
+    # with --first, the estimates cover the chunks from that index on
+    share = sampled / (sum(c for _, c in parts[args.first :]) * 30)
     cpu_total = sum(cpu) / share
     res.update(
         sampled_labelled=int(sampled),
@@ -196,6 +202,61 @@ def sweep_exact(args) -> dict:
     return res
 
 
+def progress(args) -> dict:
+    """Figures of a ``benchmarks/run_delta05.sh`` run from its logs (finished or not): chunks
+    done, worker CPU s per chunk (all and the last ten minutes), peak RSS per worker and of the
+    client, and the load seen."""
+    import datetime as dt
+    import re
+
+    from starforge.stars import enumerate as E
+
+    spec = _finger(0.5)
+    parts = E.chunks(spec)
+    size = E.CHUNK_SUBSETS * 30
+    R = args.dir
+    start = dt.datetime.strptime(open(f"{R}/start").read().strip(), "%Y-%m-%dT%H:%M:%SZ")
+    text = open(f"{R}/client.log").read()
+    prog = [(int(m[1]), int(m[2].replace(",", ""))) for m in re.finditer(r": (\d+) s, enumerating ([\d,]+)/", text)]
+    rows, cur = [], None
+    for line in open(f"{R}/sample.log"):
+        if line.startswith("=="):
+            hms = dt.datetime.strptime(line.split()[1], "%H:%M:%S").time()
+            t = (dt.datetime.combine(start.date(), hms) - start).total_seconds() % 86400
+            cur = {"t": t, "load": float(line.split()[3]), "worker": {}, "client": None}
+            rows.append(cur)
+        elif cur is not None and "rss_kb" in line:
+            pid, role, rss, hwm, cpu = re.match(r"(\d+) (\w+) rss_kb=(\d+) hwm_kb=(\d+) cpu_s=(\d+)", line).groups()
+            if role == "worker":
+                cur["worker"][pid] = (int(hwm), int(cpu))
+            elif role == "client":
+                cur["client"] = (int(hwm), int(cpu))
+    rows = [r for r in rows if r["worker"]]
+
+    def chunks_at(t):
+        return max([lab // size for s, lab in prog if s <= t], default=0)
+
+    last = rows[-1]
+    done, cpu = chunks_at(last["t"]), sum(c for _, c in last["worker"].values())
+    back = next((r for r in rows if r["t"] >= last["t"] - 600), rows[0])
+    d_chunks = max(1, done - chunks_at(back["t"]))
+    d_cpu = cpu - sum(c for _, c in back["worker"].values())
+    return {
+        "finished": os.path.exists(f"{R}/end") and "exit 0" in text,
+        "elapsed_s": last["t"],
+        "chunks_done": int(done),
+        "chunks_total": len(parts),
+        "worker_cpu_s": cpu,
+        "cpu_s_per_chunk": round(cpu / max(1, done), 3),
+        "cpu_s_per_chunk_last_10_min": round(d_cpu / d_chunks, 3),
+        "wall_s_per_chunk_last_10_min": round((last["t"] - back["t"]) / d_chunks, 3),
+        "worker_peak_rss_mib": sorted(round(max(r["worker"].get(p, (0, 0))[0] for r in rows) / 1024) for p in last["worker"]),
+        "client_peak_rss_mib": round(max((r["client"] or (0, 0))[0] for r in rows) / 1024),
+        "client_cpu_s": (last["client"] or (0, 0))[1],
+        "load_min_max": [min(r["load"] for r in rows), max(r["load"] for r in rows)],
+    }
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="case", required=True)
@@ -204,11 +265,14 @@ def main(argv=None) -> None:
     b = sub.add_parser("delta05")
     b.add_argument("--chunks", type=int, default=6)
     b.add_argument("--workers", type=int, default=2)
+    b.add_argument("--first", type=int, default=0, help="sample only chunks from this index on")
+    d = sub.add_parser("progress", help="figures of a benchmarks/run_delta05.sh run from its logs")
+    d.add_argument("dir")
     c = sub.add_parser("sweep-exact")
     c.add_argument("--workers", type=int, default=2)
     c.add_argument("--run", action="store_true", help="run the sweep (long: tens of minutes on 2 cores)")
     args = ap.parse_args(argv)
-    fn = {"scaling": scaling, "delta05": delta05, "sweep-exact": sweep_exact}[args.case]
+    fn = {"scaling": scaling, "delta05": delta05, "sweep-exact": sweep_exact, "progress": progress}[args.case]
     res = {"case": args.case, "cpus": os.cpu_count(), **fn(args)}
     json.dump(res, sys.stdout, indent=1)
     print()

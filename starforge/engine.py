@@ -205,8 +205,13 @@ def map_tasks(
     what: str = "tasks",
     advice: str = "use smaller pieces of work",
     on_plan: Callable[[Plan], None] | None = None,
+    consume: Callable[[int, Any], None] | None = None,
 ) -> list:
     """``[fn(x) for x in items]``, run where :func:`plan` decides; results in item order.
+
+    With ``consume``, each result is handed to ``consume(i, result)`` as it arrives (in
+    completion order; the caller makes what it builds independent of that order) and is not
+    kept, so the client holds one result at a time; the list returned is then empty.
 
     Parameters
     ----------
@@ -229,6 +234,8 @@ def map_tasks(
         The job and what to change, for the one-line refusals.
     on_plan : callable or None
         Called with the :class:`Plan` before the first task (to tell the user where it runs).
+    consume : callable or None
+        ``consume(i, result)`` per finished task instead of collecting the results.
     """
     items = list(items)
     n = len(items)
@@ -254,13 +261,18 @@ def map_tasks(
         ticker = _Progress(n, what, progress)
         if p.mode == "serial":
             out = []
-            for x in items:
-                out.append(fn(x))
+            for i, x in enumerate(items):
+                res = fn(x)
+                if consume is None:
+                    out.append(res)
+                else:
+                    consume(i, res)
+                del res
                 ticker.tick()
             return out
         if p.mode == "local":
             cluster, client = _local_cluster(p)
-        return _run_on(client, fn, items, ticker, p)
+        return _run_on(client, fn, items, ticker, p, consume)
     finally:
         try:
             if client is not None:
@@ -271,14 +283,14 @@ def map_tasks(
             quiet.setLevel(level)
 
 
-def _run_on(client, fn, items, ticker: _Progress, p: Plan) -> list:
+def _run_on(client, fn, items, ticker: _Progress, p: Plan, consume=None) -> list:
     from distributed import as_completed
 
     from starforge.io import interrupted
 
     futures = client.map(fn, items, pure=False)
     index = {f.key: i for i, f in enumerate(futures)}
-    out: list = [None] * len(items)
+    out: list = [None] * len(items) if consume is None else []
     where = p.address or "the local cluster"
     try:
         with client.as_current():
@@ -299,7 +311,11 @@ def _run_on(client, fn, items, ticker: _Progress, p: Plan) -> list:
                             f"(out of memory?); nothing was written"
                         ) from None
                     raise _TaskFailed(exc) from None  # the task's own error, as raised
-                out[index[fut.key]] = res
+                if consume is None:
+                    out[index[fut.key]] = res
+                else:
+                    consume(index[fut.key], res)
+                del res
                 fut.release()
                 ticker.tick()
     except _TaskFailed as failed:

@@ -240,6 +240,19 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
         _stages.discard(stage)
 
 
+@contextmanager
+def scratch_folder(prefix: str, where: str | Path | None = None) -> Iterator[Path]:
+    """A temporary working folder (in ``where``, default the system's temporary folder), removed
+    afterwards, also by the CLI's last-resort exit after a signal (it is kept with the stages)."""
+    folder = Path(tempfile.mkdtemp(prefix=prefix, dir=where))
+    _stages.add(folder)
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+        _stages.discard(folder)
+
+
 #: errors of a full or read-only file system while writing (ENOSPC, EDQUOT, EFBIG, EROFS)
 _FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS}
 

@@ -237,3 +237,61 @@ def test_a_tasks_own_error_comes_back_as_raised(cluster, tmp_path):
     missing = str(tmp_path / "no-such-file")
     with pytest.raises(FileNotFoundError):  # not mistaken for a lost connection (an OSError too)
         engine.map_tasks(os.stat, [str(tmp_path), missing], scheduler=cluster.scheduler_address)
+
+
+def test_ils_restarts_on_the_cluster_are_the_serial_ones(cluster, monkeypatch):
+    """The exact selection's ILS restarts as tasks on 2 workers: the same family, iterations and
+    restart count as one after another here, with the stop at the bound emulated in seed order."""
+    from starforge.stars import select as sel
+    from starforge.stars.rules import internal_ok, window_rows
+
+    monkeypatch.delenv(engine.ENV_SCHEDULER, raising=False)
+    c = E.enumerate_candidates(StarSpec(box_mm=(14, 10, 30), delta_mm=1.0, tolerance_mm=1.0), workers=1)
+    ok = internal_ok(c.index, "face", 1)
+    index, volume = c.index[ok], c.box_volume[ok]
+    star_of, row, n_rows = window_rows(index, "face", 1, len(c.pool_mm))
+    ptr, rows = sel._csr(star_of, row, len(index))
+    order = sel.compactness_order(index, c.pool_mm, volume)
+    start, _ = sel.local_search(sel.greedy(order, ptr, rows, n_rows), order, ptr, rows, n_rows)
+    first, _ = sel.ils(start, order, ptr, rows, n_rows, iterations=20)
+
+    def both(bound):
+        args = (first, start, order, ptr, rows, n_rows, bound)
+        here = sel.ils_restarts(*args, iterations=60)
+        monkeypatch.setenv(engine.ENV_SCHEDULER, cluster.scheduler_address)
+        try:
+            there = sel.ils_restarts(*args, iterations=60)
+        finally:
+            monkeypatch.delenv(engine.ENV_SCHEDULER)
+        assert here[0].tobytes() == there[0].tobytes() and here[1:] == there[1:]
+        return here
+
+    best, used, ran = both(10**6)  # never reached: every restart runs
+    assert ran == sel.ILS_RESTARTS and len(best) > len(first)
+    _, _, ran = both(len(best))  # reached by some seed: the restarts after it are dropped
+    assert 1 <= ran <= sel.ILS_RESTARTS
+    # independent check of the family: no two of its stars share a window row
+    used_rows = np.concatenate([rows[ptr[s] : ptr[s + 1]] for s in best.tolist()])
+    assert len(np.unique(used_rows)) == len(used_rows)
+
+
+def test_streamed_selection_on_the_cluster_is_the_serial_one(cluster, serial):
+    """The streamed path (chunk results consumed as they arrive, in completion order) gives the
+    same family on 2 workers as in process, and the in-memory greedy's family."""
+    from dataclasses import replace
+
+    from starforge.stars import stream as S
+    from starforge.stars.rules import internal_ok, window_rows
+    from starforge.stars.select import _csr, compactness_order, greedy
+
+    spec = replace(SPEC, select="greedy")
+    here = S.stream_family(spec, workers=1)
+    there = S.stream_family(spec, scheduler=cluster.scheduler_address)
+    assert here["index"].tobytes() == there["index"].tobytes()
+    assert (here["bound"], here["candidates"], here["stats"]) == (there["bound"], there["candidates"], there["stats"])
+    ok = internal_ok(serial.index, "face", SPEC.grid_steps)
+    index, volume = serial.index[ok], serial.box_volume[ok]
+    star_of, row, n_rows = window_rows(index, "face", SPEC.grid_steps, len(serial.pool_mm))
+    ptr, rows = _csr(star_of, row, len(index))
+    want = index[greedy(compactness_order(index, serial.pool_mm, volume), ptr, rows, n_rows)]
+    assert here["index"].tobytes() == want[np.lexsort(want.T[::-1])].astype(np.int16).tobytes()

@@ -200,3 +200,35 @@ def test_exhaustive_auto_follows_a_workers_memory(monkeypatch):
     monkeypatch.setenv(ENV_MEMORY, "205M")  # below any enumeration's estimate (200 MB of base)
     rows = sweep(4.0, [3.0], [18.0, 22.0], **kw)
     assert [r["method"] for r in rows] == ["interval", "interval"]
+
+
+def test_exhaustive_cells_ignore_the_wall_clock(monkeypatch):
+    """The exact path of an exhaustive cell is stopped by its node budget alone: a wall-clock
+    limit that would cut the solver is never passed (same stars, bound and proof on any
+    machine), whereas a cut run (the stars command's safety limit) is reported as not used."""
+    import starforge.stars.select as sel
+    from starforge.stars.enumerate import enumerate_candidates
+    from starforge.stars.rules import internal_ok, window_rows
+    from starforge.stars.spec import StarSpec
+
+    c = enumerate_candidates(StarSpec(box_mm=(16, 12, 24), delta_mm=2.0))
+    index = c.index[internal_ok(c.index, "face", 1)]
+    star_of, row, n_rows = window_rows(index, "face", 1, len(c.pool_mm))
+    ptr, rows = sel._csr(star_of, row, len(index))
+    cols = np.arange(len(index))
+    a = sel.milp(ptr, rows, n_rows, cols, None, 40)  # the node budget alone
+    b = sel.milp(ptr, rows, n_rows, cols, 1e3, 40)  # a wall-clock limit that does not cut
+    cut = sel.milp(ptr, rows, n_rows, cols, 1e-3, 40)
+    assert a[0].tobytes() == b[0].tobytes() and a[1:] == b[1:] and a[3]
+    assert cut[2] == "time limit" and not cut[3]
+    # and the sweep's cells ask for it: no wall-clock limit reaches the solver
+    seen = []
+    real = sel.milp
+
+    def spy(ptr, rows, n_rows, cols, time_limit, node_limit=sel.MILP_NODE_LIMIT):
+        seen.append(time_limit)
+        return real(ptr, rows, n_rows, cols, time_limit, node_limit)
+
+    monkeypatch.setattr(sel, "milp", spy)
+    row = run_cell((4.0, 3.0, 18.0, ("face", "pair"), 10**9, 1000, 0, None))
+    assert seen and all(t is None for t in seen) and all(r["method"] == "exhaustive" for r in row)

@@ -169,12 +169,12 @@ def stars_cmd(
     check_writable(out_dir, names, force)  # fail before the long work
     from starforge.stars import warmup
 
-    check_memory(s)  # a spec too large is refused before anything compiles
+    check_memory(s, allow_stream=True)  # a spec too large is refused before anything compiles
     helper = warmup.start()  # a first run compiles on two cores (nothing on a warm cache)
     try:
         if helper is not None:
             warmup.compile_fit_decision()
-        check_size(s)  # memory and time estimated before the long work
+        check_size(s, allow_stream=True)  # memory and time estimated before the long work
         family = _make(s, ctx, avoid, star_filter, make_family)
     except BaseException:
         warmup.finish(helper, 0.0)  # an error or Ctrl-C does not wait for the helper

@@ -142,36 +142,65 @@ def pilot(spec: StarSpec, samples: int = PILOT_SUBSETS) -> tuple[float, float]:
     return rate, float(np.isin(codes, (FIT, NECESSARY_OK)).mean())
 
 
-def check_memory(spec: StarSpec) -> dict:
+#: tolerance in pool steps up to which a spec whose candidates do not fit in memory is selected
+#: by the streamed greedy (:mod:`starforge.stars.stream`): it checks ``m**3`` key windows per key
+#: of every fitting star, so its time grows with the cube of the tolerance in steps
+STREAM_MAX_STEPS = 2
+
+
+def check_memory(spec: StarSpec, allow_stream: bool = False) -> dict:
     """Refuse, before any work, an enumeration past the memory limit (one line); returns
-    :func:`estimate`.  No compiled code runs (:func:`check_size` adds the time)."""
+    :func:`estimate`.  No compiled code runs (:func:`check_size` adds the time).  With
+    ``allow_stream`` a spec the streamed greedy may take (tolerance up to
+    :data:`STREAM_MAX_STEPS` pool steps) is left to :func:`check_size`, which decides after its
+    pilot."""
     from starforge.budget import require_memory
 
     est = estimate(spec)
-    require_memory(est["bytes"], *_what_advice(spec, est))
+    if not (allow_stream and spec.grid_steps <= STREAM_MAX_STEPS):
+        require_memory(est["bytes"], *_what_advice(spec, est))
     return est
 
 
-def check_size(spec: StarSpec) -> None:
+def check_size(spec: StarSpec, allow_stream: bool = False) -> str:
     """Refuse, before any work, an enumeration past the memory or time limit (one line).  The
-    time is the labelled count times a rate measured on a pilot sample of the spec's own stars."""
-    from starforge.budget import require_memory, require_time
+    time is the labelled count times a rate measured on a pilot sample of the spec's own stars.
 
-    est = check_memory(spec)
+    Returns where the candidates go: ``"memory"`` (gathered, then selected in memory) or, with
+    ``allow_stream``, ``"stream"`` when they would not fit in memory but the streamed greedy
+    (:func:`starforge.stars.stream.stream_family`) holds them within the memory and disk limits.
+    """
+    from starforge.budget import memory_limit_bytes, require_memory, require_time
+    from starforge.stars.rules import window_bytes
+
+    est = estimate(spec)
+    fits, piloted = None, False
     if est["labelled"] and est["seconds"] > 2.0:  # cheap specs need no pilot
         rate, fit_share = pilot(spec)
         est["seconds"] = est["labelled"] * rate
-        # the selection's key windows grow with the cube of the tolerance in pool steps
-        from starforge.stars.rules import window_bytes
-
         fits = est["labelled"] * fit_share
-        require_memory(
-            window_bytes(fits, spec.rule, spec.grid_steps),
-            f"selecting among about {fits:,.0f} fitting stars (a pilot sample) with a tolerance of "
-            f"{spec.grid_steps} pool steps ({spec.grid_steps**3:,} key windows per face)",
-            "lower tolerance_mm or raise delta_mm",
-        )
+        piloted = True
+    # the selection's key windows grow with the cube of the tolerance in pool steps
+    in_memory = est["bytes"] <= memory_limit_bytes() and (
+        fits is None or window_bytes(fits, spec.rule, spec.grid_steps) <= memory_limit_bytes()
+    )
+    path = "memory"
+    if not in_memory and allow_stream and piloted and spec.grid_steps <= STREAM_MAX_STEPS:
+        from starforge.stars.stream import require_stream
+
+        require_stream(spec, est["labelled"], fits)
+        path = "stream"
+    else:
+        require_memory(est["bytes"], *_what_advice(spec, est))
+        if fits is not None:
+            require_memory(
+                window_bytes(fits, spec.rule, spec.grid_steps),
+                f"selecting among about {fits:,.0f} fitting stars (a pilot sample) with a tolerance of "
+                f"{spec.grid_steps} pool steps ({spec.grid_steps**3:,} key windows per face)",
+                "lower tolerance_mm or raise delta_mm",
+            )
     require_time(est["seconds"], *_what_advice(spec, est))
+    return path
 
 
 def _what_advice(spec: StarSpec, est: dict) -> tuple[str, str]:
@@ -414,13 +443,19 @@ def chunks(spec: StarSpec, size: int | None = None) -> list[tuple[int, int]]:
     return [(r, min(size, total - r)) for r in range(0, total, size)]
 
 
+def index_dtype(pool_size: int) -> type:
+    """The narrowest integer type that holds pool indices: uint8 up to 256 lengths, else int16."""
+    return np.uint8 if pool_size <= 256 else np.int16
+
+
 def enumerate_chunk(args: tuple) -> dict:
     """One task of the enumeration: the admissible subsets of ranks ``[rank, rank + count)``.
 
     ``args = (spec, rank, count, threads)``; ``threads``: compiled-kernel threads (None: every
     core).  Returns the stage counts (8,) int64 and, compactly, the fitting stars (pool indices
-    int16 (k, 6) and box volumes (k,)) and the undecided ones (int16 (q, 6)), in the order
-    found; the caller sorts.  A pure function of its input."""
+    (k, 6) in :func:`index_dtype`, 1 byte each for pools up to 256 lengths, and box volumes
+    (k,) float64, kept exact: the selection orders by them) and the undecided ones (q, 6), in
+    the order found; the caller sorts.  A pure function of its input."""
     spec, rank, count, threads = args
     pool = edge_pool(spec)
     lo = float(pool[0])
@@ -429,6 +464,7 @@ def enumerate_chunk(args: tuple) -> dict:
     m = spec.grid_steps
     assign = canonical_assignments().astype(np.int64)
     mode = 0 if spec.box_method == "exact" else 1
+    dt = index_dtype(len(pool))
     counts = np.zeros(8, dtype=np.int64)
     fit_idx, fit_vol, und_idx = [], [], []
     start = unrank_subset(rank, len(pool), m)
@@ -450,19 +486,19 @@ def enumerate_chunk(args: tuple) -> dict:
             fits, vol = _covariance_fits(vertices_from_lengths(pool[idx]), limit)
             counts[FIT] += int(fits.sum())
             counts[NO_FIT] += int((~fits).sum())
-            fit_idx.append(idx[fits].astype(np.int16))
+            fit_idx.append(idx[fits].astype(dt))
             fit_vol.append(vol[fits])
         else:
             s, a = np.nonzero(codes == FIT)
-            fit_idx.append(np.take_along_axis(sub[s], assign[a], axis=1).astype(np.int16))
+            fit_idx.append(np.take_along_axis(sub[s], assign[a], axis=1).astype(dt))
             fit_vol.append(vols[s, a])
             s, a = np.nonzero(codes == UNDECIDED)
-            und_idx.append(np.take_along_axis(sub[s], assign[a], axis=1).astype(np.int16))
+            und_idx.append(np.take_along_axis(sub[s], assign[a], axis=1).astype(dt))
     return {
         "counts": counts,
-        "fit": np.concatenate(fit_idx) if fit_idx else np.zeros((0, 6), np.int16),
+        "fit": np.concatenate(fit_idx) if fit_idx else np.zeros((0, 6), dt),
         "volume": np.concatenate(fit_vol) if fit_vol else np.zeros(0),
-        "undecided": np.concatenate(und_idx) if und_idx else np.zeros((0, 6), np.int16),
+        "undecided": np.concatenate(und_idx) if und_idx else np.zeros((0, 6), dt),
     }
 
 
@@ -476,34 +512,13 @@ def chunk_bytes(count: int) -> float:
     return b * 30 * (9 + 9) + DECIDE_SETS * 400 + b * 12 + count * 30 / 4 * BYTES_PER_CANDIDATE
 
 
-def enumerate_candidates(
-    spec: StarSpec, progress=None, workers: int | None = None, scheduler: str | None = None
-) -> Candidates:
-    """Every star (up to relabelling and mirroring) whose centres provably fit ``spec``'s limit.
-
-    The admissible 6-subsets are cut into chunks of consecutive ranks (:func:`chunks`), each one
-    task of :func:`starforge.engine.map_tasks` (:func:`enumerate_chunk`): in this process (the
-    compiled kernel runs on every core), or on the cluster at ``scheduler`` (or
-    ``STARFORGE_SCHEDULER``).  The result is sorted, so it does not depend on where or in which
-    order the chunks ran.
-
-    Parameters
-    ----------
-    spec : StarSpec
-    progress : callable or None
-        ``progress(done, total)`` in labelled candidates, after each chunk.
-    workers : int or None
-        Threads in process (default: every core).  The result does not depend on it.
-    scheduler : str or None
-        Address of a dask scheduler (default: ``STARFORGE_SCHEDULER``; unset: this machine).
-    """
+def run_chunks(spec: StarSpec, consume, progress=None, workers: int | None = None, scheduler: str | None = None):
+    """Run every enumeration chunk of ``spec`` on the engine and hand each result (a dict of
+    :func:`enumerate_chunk`) to ``consume(i, result)`` as it arrives, in any order.  Returns
+    the labelled candidates looked at.  See :func:`enumerate_candidates` for the options."""
     from starforge import engine
 
-    t0 = time.perf_counter()
-    check_size(spec)
-    pool = edge_pool(spec)
     total = labelled_count(spec)
-    mode = 0 if spec.box_method == "exact" else 1
     parts = chunks(spec)
     est = estimate(spec)
     cores = max(1, min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS))
@@ -521,7 +536,7 @@ def enumerate_candidates(
         def tick(done, _n):
             progress(int(sizes[done - 1]), total)
 
-    results = engine.map_tasks(
+    engine.map_tasks(
         enumerate_chunk,
         [(spec, r, c, threads) for r, c in parts],
         task_bytes=[chunk_bytes(c) for _, c in parts],
@@ -531,33 +546,78 @@ def enumerate_candidates(
         progress=tick,
         what=f"enumerating {total:,} labelled candidates",
         advice="raise delta_mm or tolerance_mm, or use workers with more memory",
+        consume=consume,
     )
-    counts = np.sum([r["counts"] for r in results], axis=0) if results else np.zeros(8, np.int64)
-    index = np.concatenate([r["fit"] for r in results]) if results else np.zeros((0, 6), np.int16)
-    volume = np.concatenate([r["volume"] for r in results]) if results else np.zeros(0)
-    undecided = np.concatenate([r["undecided"] for r in results]) if results else np.zeros((0, 6), np.int16)
-    done = int(sum(c for _, c in parts) * 30)
-    order = np.lexsort(index.T[::-1])  # deterministic: lexicographic on pool indices
-    stats = {
-        "pool_size": len(pool),
+    return int(sum(c for _, c in parts) * 30)
+
+
+def enumeration_stats(spec: StarSpec, counts: np.ndarray, labelled: int, fitting: int) -> dict:
+    """The enumeration's counts per stage (the ``stats`` of :class:`Candidates`, less seconds)."""
+    mode = 0 if spec.box_method == "exact" else 1
+    return {
+        "pool_size": spec.pool_size,
         "tolerance_steps": spec.grid_steps,
-        "labelled": done,
-        "realisable": int(done - counts[UNREALISABLE]),
-        "deep_enough": int(done - counts[: TOO_THIN + 1].sum()),
-        "width_ok": int(done - counts[: TOO_WIDE + 1].sum()),
-        "kyfan_ok": int(done - counts[: KY_FAN + 1].sum()),
+        "labelled": labelled,
+        "realisable": int(labelled - counts[UNREALISABLE]),
+        "deep_enough": int(labelled - counts[: TOO_THIN + 1].sum()),
+        "width_ok": int(labelled - counts[: TOO_WIDE + 1].sum()),
+        "kyfan_ok": int(labelled - counts[: KY_FAN + 1].sum()),
         "no_fit": int(counts[NO_FIT]),
         "undecided": int(counts[UNDECIDED]),
-        "fitting": int(len(index)),
+        "fitting": int(fitting),
         "fit_test": "exact" if mode == 0 else "covariance",
         "fit_slack_mm": SLACK_MM if mode == 0 else None,
     }
+
+
+def no_pool_error(spec: StarSpec) -> StarforgeError:
+    return StarforgeError(
+        f"the edge-length pool ({spec.pool_size} lengths) holds no 6 lengths that differ pairwise by the "
+        f"tolerance {spec.tol_mm:g} mm; lower tolerance_mm or enlarge the box"
+    )
+
+
+def enumerate_candidates(
+    spec: StarSpec, progress=None, workers: int | None = None, scheduler: str | None = None
+) -> Candidates:
+    """Every star (up to relabelling and mirroring) whose centres provably fit ``spec``'s limit.
+
+    The admissible 6-subsets are cut into chunks of consecutive ranks (:func:`chunks`), each one
+    task of :func:`starforge.engine.map_tasks` (:func:`enumerate_chunk`): in this process (the
+    compiled kernel runs on every core), or on the cluster at ``scheduler`` (or
+    ``STARFORGE_SCHEDULER``).  The result is sorted, so it does not depend on where or in which
+    order the chunks ran.  (Specs whose candidates do not fit in memory go through
+    :mod:`starforge.stars.stream` instead.)
+
+    Parameters
+    ----------
+    spec : StarSpec
+    progress : callable or None
+        ``progress(done, total)`` in labelled candidates, after each chunk.
+    workers : int or None
+        Threads in process (default: every core).  The result does not depend on it.
+    scheduler : str or None
+        Address of a dask scheduler (default: ``STARFORGE_SCHEDULER``; unset: this machine).
+    """
+    t0 = time.perf_counter()
+    check_size(spec)
+    pool = edge_pool(spec)
+    results: dict[int, dict] = {}
+
+    def keep(i, res):
+        results[i] = res
+
+    done = run_chunks(spec, keep, progress, workers, scheduler)
+    rs = [results[i] for i in sorted(results)]
+    counts = np.sum([r["counts"] for r in rs], axis=0) if rs else np.zeros(8, np.int64)
+    index = np.concatenate([r["fit"] for r in rs]).astype(np.int16) if rs else np.zeros((0, 6), np.int16)
+    volume = np.concatenate([r["volume"] for r in rs]) if rs else np.zeros(0)
+    undecided = np.concatenate([r["undecided"] for r in rs]).astype(np.int16) if rs else np.zeros((0, 6), np.int16)
+    order = np.lexsort(index.T[::-1])  # deterministic: lexicographic on pool indices
+    stats = enumeration_stats(spec, counts, done, len(index))
     stats["seconds"] = time.perf_counter() - t0
     if not len(index) and not stats["labelled"]:
-        raise StarforgeError(
-            f"the edge-length pool ({len(pool)} lengths) holds no 6 lengths that differ pairwise by the "
-            f"tolerance {spec.tol_mm:g} mm; lower tolerance_mm or enlarge the box"
-        )
+        raise no_pool_error(spec)
     undecided = undecided[np.lexsort(undecided.T[::-1])] if len(undecided) else undecided
     return Candidates(
         pool_mm=pool, index=index[order], box_volume=volume[order], undecided=undecided, stats=stats

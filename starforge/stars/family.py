@@ -17,7 +17,7 @@ from starforge.geometry.rigid import (
 )
 from starforge.geometry.tetra import face_sides, tetra_width, vertices_from_lengths
 from starforge.stars.boxes import place_stars
-from starforge.stars.enumerate import Candidates, enumerate_candidates
+from starforge.stars.enumerate import Candidates, edge_pool, enumerate_candidates
 from starforge.stars.model import Family, Star
 from starforge.stars.rules import internal_ok, window_rows
 from starforge.stars.select import block_bound, greedy, select_family
@@ -151,7 +151,7 @@ def _spread_count(index: np.ndarray, order: np.ndarray, spec: StarSpec, pool_siz
     return best
 
 
-def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
+def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, deterministic: bool = False):
     """Select the family among ``index`` (see :func:`make_family`); returns (Selection, bound)."""
     m = spec.grid_steps
     star_of, row, n_rows = window_rows(index, spec.rule, m, len(pool))
@@ -176,6 +176,7 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
                 bound=bound,
                 n_undecided=len(und),
                 milp_work=work,
+                deterministic=deterministic,
             )
             info.update(sel.info)
             if len(sel.chosen) < spec.count:
@@ -188,7 +189,8 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
             sel = Selection(chosen, sel.upper_bound, info)
     else:
         sel = select_family(
-            index, pool, volume, star_of, row, n_rows, spec, bound=bound, n_undecided=len(und), milp_work=work
+            index, pool, volume, star_of, row, n_rows, spec, bound=bound, n_undecided=len(und), milp_work=work,
+            deterministic=deterministic,
         )
     ub = sel.upper_bound
     if len(und) and sel.info.get("milp_status") == "optimal" and ub > len(sel.chosen):
@@ -200,7 +202,8 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
         s2, r2, n2 = window_rows(both, spec.rule, m, len(pool))
         p2, rows2 = _csr(s2, r2, len(both))
         opt, dual, status, reproducible = milp(
-            p2, rows2, n2, np.arange(len(both)), spec.time_limit_s, node_budget(len(rows2), work)
+            p2, rows2, n2, np.arange(len(both)), None if deterministic else spec.time_limit_s,
+            node_budget(len(rows2), work),
         )
         if reproducible:
             b2 = len(opt) if status == "optimal" else dual
@@ -219,6 +222,7 @@ def make_family(
     avoid_sources: list[dict] | None = None,
     milp_work: int | None = None,
     star_filter=None,
+    deterministic: bool = False,
 ) -> Family:
     """Enumerate, select and place a family for ``spec``.
 
@@ -227,7 +231,9 @@ def make_family(
     ``milp_work``: the exact solver's deterministic work budget (nonzeros x nodes; default
     :data:`starforge.stars.select.MILP_WORK`).  ``star_filter(vertices (n, 4, 3)) -> (n,) bool``
     keeps only stars it accepts (e.g. whose printed body with its mount fits the limit): the
-    ones it rejects are replaced by selecting again without them.
+    ones it rejects are replaced by selecting again without them.  ``deterministic``: the exact
+    solver is stopped by its node budget alone, never by ``spec.time_limit_s`` (the same family
+    on any machine; see :func:`starforge.stars.select.select_family`).
 
     Raises StarforgeError when no star fits, or when ``spec.count`` exceeds what is achievable
     (naming the largest family found and the certified bound).
@@ -236,6 +242,11 @@ def make_family(
 
     work = MILP_WORK if milp_work is None else int(milp_work)
     t0 = time.perf_counter()
+    if candidates is None:
+        from starforge.stars.enumerate import check_size
+
+        if check_size(spec, allow_stream=True) == "stream":
+            return _streamed_family(spec, progress, avoid_faces_mm, avoid_sources, star_filter, t0)
     cands = candidates if candidates is not None else enumerate_candidates(spec, progress=progress)
     t_enum = time.perf_counter() - t0
     m = spec.grid_steps
@@ -250,11 +261,7 @@ def make_family(
         else und
     )
     if len(index) == 0:
-        raise StarforgeError(
-            f"no star fits: box_mm {list(spec.box_mm)} with {spec.marker_mm:g} mm markers, delta_mm "
-            f"{spec.delta_mm:g}, tolerance {spec.tol_mm:g} mm and min_depth_mm {spec.depth_mm:g} admits no "
-            f"tetrahedron (try a smaller delta_mm, tolerance or min_depth_mm, or a larger box)"
-        )
+        raise _no_star(spec)
     # certified: every star that really fits is proven to fit here or undecided
     bound_set = np.concatenate([index, und]) if len(und) else index
     bound = block_bound(bound_set, m)
@@ -268,7 +275,7 @@ def make_family(
     rounds = 0
     while True:
         keep = np.flatnonzero(~excluded)
-        sel, ub = _choose(index[keep], volume[keep], und, bound, spec, pool, work)
+        sel, ub = _choose(index[keep], volume[keep], und, bound, spec, pool, work, deterministic)
         chosen = keep[np.sort(sel.chosen)]
         L = pool[index[chosen]]
         placed = place_stars(vertices_from_lengths(L), spec.centre_limit_mm, spec.box_method)
@@ -286,6 +293,55 @@ def make_family(
     if excluded.any():  # the solver's bound was over a reduced set: keep the block bound only
         ub = bound
     t_sel = time.perf_counter() - t1
+    info = dict(sel.info)
+    info["proven_optimal"] = bool(spec.count is None and len(chosen) >= ub)
+    return _assemble(
+        spec, pool, index[chosen], L, placed, info, ub, cands.stats, len(index), len(und), avoid_sources,
+        {"enumerate": t_enum, "select": t_sel}, t0,
+    )
+
+
+def _streamed_family(spec: StarSpec, progress, avoid_faces_mm, avoid_sources, star_filter, t0) -> Family:
+    """:func:`make_family` for a spec whose candidates do not fit in memory: the streamed greedy
+    (:mod:`starforge.stars.stream`)."""
+    from starforge.stars.stream import stream_family
+
+    if spec.count is not None or star_filter is not None:
+        raise StarforgeError(
+            f"{'--count' if spec.count is not None else '--mount'} needs every candidate in memory, and this "
+            f"spec's do not fit (its family is selected by the streamed greedy); raise delta_mm or tolerance_mm"
+        )
+    res = stream_family(spec, progress=progress, avoid_faces_mm=avoid_faces_mm)
+    pool = edge_pool(spec)
+    index = res["index"]
+    if not len(index):
+        raise _no_star(spec)
+    t1 = time.perf_counter()
+    L = pool[index]
+    placed = place_stars(vertices_from_lengths(L), spec.centre_limit_mm, spec.box_method)
+    info = dict(res["info"])
+    info["filtered_out"] = 0
+    info["proven_optimal"] = bool(len(index) >= res["bound"])
+    secs = res["seconds"]
+    return _assemble(
+        spec, pool, index, L, placed, info, res["bound"], res["stats"], res["candidates"], res["undecided"],
+        avoid_sources, {"enumerate": secs["enumerate"], "select": secs["select"] + time.perf_counter() - t1}, t0,
+    )
+
+
+def _no_star(spec: StarSpec) -> StarforgeError:
+    return StarforgeError(
+        f"no star fits: box_mm {list(spec.box_mm)} with {spec.marker_mm:g} mm markers, delta_mm "
+        f"{spec.delta_mm:g}, tolerance {spec.tol_mm:g} mm and min_depth_mm {spec.depth_mm:g} admits no "
+        f"tetrahedron (try a smaller delta_mm, tolerance or min_depth_mm, or a larger box)"
+    )
+
+
+def _assemble(
+    spec, pool, chosen_index, L, placed, info, ub, enum_stats, n_candidates, n_undecided, avoid_sources, secs, t0
+) -> Family:
+    """The family from its chosen stars (pool indices (k, 6), lengths, placements): accuracy,
+    margins, ids (most accurate first) and the summary."""
     for i, item in enumerate(placed):
         if not item[4]:  # cannot happen for enumerated candidates; guard the invariant loudly
             raise RuntimeError(f"internal error: selected star {L[i].tolist()} does not fit")
@@ -293,7 +349,7 @@ def make_family(
     tip = np.asarray(spec.tip_mm if spec.tip_mm is not None else default_tip_mm(spec.box_mm), dtype=float)
     acc = accuracy(V, tip, spec.noise_mm)
     # most accurate first (worst-case tip error with one marker hidden), then pool indices
-    keys = [index[chosen][:, k] for k in range(5, -1, -1)]
+    keys = [chosen_index[:, k] for k in range(5, -1, -1)]
     order = np.lexsort((*keys, np.round([a["tip_tre_hidden_mm"] for a in acc], 9)))
     marg = margins(L[order])
     depth = tetra_width(L[order])
@@ -314,13 +370,12 @@ def make_family(
                 accuracy=acc[i],
             )
         )
-    info = dict(sel.info)
-    info["proven_optimal"] = bool(spec.count is None and len(chosen) >= ub)
     timings = {k: info.pop(k) for k in list(info) if k.endswith("_s") and k != "time_limit_s"}
-    enum_stats = {k: v for k, v in cands.stats.items() if k != "seconds"}
+    enum_stats = {k: v for k, v in enum_stats.items() if k != "seconds"}
     timings.update(
-        enumerate=round(t_enum, 3), select=round(t_sel, 3), total=round(time.perf_counter() - t0, 3)
+        enumerate=round(secs["enumerate"], 3), select=round(secs["select"], 3), total=round(time.perf_counter() - t0, 3)
     )
+    n_chosen = len(chosen_index)
     summary = {
         "size": len(stars),
         "rule": spec.rule,
@@ -328,10 +383,10 @@ def make_family(
         "tolerance_mm": spec.tol_mm,
         "min_depth_mm": spec.depth_mm,
         "pool_mm": [round(float(x), 9) for x in pool],
-        "candidates": int(len(index)),
-        "undecided": int(len(und)),
+        "candidates": int(n_candidates),
+        "undecided": int(n_undecided),
         "enumeration": enum_stats,
-        "best_found": int(len(chosen)) if spec.count is None else None,
+        "best_found": int(n_chosen) if spec.count is None else None,
         "upper_bound": ub,
         "upper_bound_basis": (
             "face-block count over every star that fits or is undecided (a superset of all fitting stars)"

@@ -459,6 +459,53 @@ def ils(
     return np.flatnonzero(P.in_fam), it
 
 
+def _restart_task(args: tuple) -> tuple[np.ndarray, int]:
+    """One ILS restart (a task of :func:`ils_restarts`): ``(start, order, ptr, rows, n_rows,
+    bound, seed, iterations)`` -> (family, iterations used).  A pure function of its input."""
+    start, order, ptr, rows, n_rows, bound, seed, iterations = args
+    return ils(start, order, ptr, rows, n_rows, iterations=iterations, bound=bound, seed=seed)
+
+
+def ils_restarts(
+    chosen, start, order, ptr, rows, n_rows, bound: int, restarts: int = ILS_RESTARTS,
+    iterations: int = ILS_RESTART_ITERATIONS,
+):
+    """The ILS restarts (``iterations`` each) with seeds 1..``restarts`` from ``start``, after the first walk found
+    ``chosen``: in seed order, a restart's family replaces the best so far when it is larger, and
+    the restarts stop once the best reaches ``bound``.  Returns (best, iterations, restarts run).
+
+    The restarts are independent, so with a dask scheduler (``--scheduler`` /
+    ``STARFORGE_SCHEDULER``) they run at once on the cluster (:func:`starforge.engine.map_tasks`)
+    and their results are then taken in seed order exactly as above (the ones past the stop are
+    dropped): the same family and counts byte for byte, whatever the number of workers and the
+    order they finish in.  Otherwise they run here one after another, stopping at the bound.
+    """
+    from starforge import engine
+
+    seeds = list(range(1, restarts + 1))
+    if len(chosen) >= bound or not seeds:
+        return chosen, 0, 0
+    if engine.plan(len(seeds), 0.0).mode == "serial":  # no scheduler: lazily, so the stop saves work
+        results = (_restart_task((start, order, ptr, rows, n_rows, bound, s, iterations)) for s in seeds)
+    else:
+        results = iter(
+            engine.map_tasks(
+                _restart_task,
+                [(start, order, ptr, rows, n_rows, bound, s, iterations) for s in seeds],
+                what=f"{len(seeds)} ILS restarts",
+            )
+        )
+    used = ran = 0
+    for got, k in results:
+        used += k
+        ran += 1
+        if len(got) > len(chosen):
+            chosen = got
+        if len(chosen) >= bound:
+            break
+    return chosen, used, ran
+
+
 #: HiGHS branch-and-bound work budget, in nonzeros x nodes: a deterministic effort limit (the
 #: wall-clock limit is only a safety net; a run it cuts is not used, so results stay reproducible)
 MILP_WORK = 8_000_000
@@ -473,8 +520,11 @@ def node_budget(nonzeros: int, work: int = MILP_WORK) -> int:
     return int(max(20, min(MILP_NODE_LIMIT, work // max(1, nonzeros))))
 
 
-def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float, node_limit: int = MILP_NODE_LIMIT):
+def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float | None, node_limit: int = MILP_NODE_LIMIT):
     """Exact set packing over ``cols`` with HiGHS.
+
+    ``time_limit`` (s): a wall-clock safety limit; None: none, the node limit alone stops the
+    solver (deterministic: the same answer on any machine, however fast).
 
     Returns (chosen, dual_bound, status, reproducible): ``reproducible`` is True when HiGHS
     stopped at optimality or at the node limit (the same input gives the same answer), False
@@ -496,7 +546,8 @@ def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float, node_limit: int
         constraints=LinearConstraint(A, -np.inf, 1),
         integrality=np.ones(len(cols)),
         bounds=Bounds(0, 1),
-        options={"time_limit": float(time_limit), "node_limit": int(node_limit), "disp": False},
+        options={"node_limit": int(node_limit), "disp": False}
+        | ({} if time_limit is None else {"time_limit": float(time_limit)}),
     )
     chosen = cols[np.flatnonzero(res.x > 0.5)] if res.x is not None else np.zeros(0, dtype=np.intp)
     dual = getattr(res, "mip_dual_bound", None)
@@ -519,6 +570,7 @@ def select_family(
     bound: int | None = None,
     n_undecided: int = 0,
     milp_work: int = MILP_WORK,
+    deterministic: bool = False,
 ) -> Selection:
     """Choose the family among the candidates (see module docstring).
 
@@ -528,6 +580,9 @@ def select_family(
     ``n_undecided``: stars left out of ``index`` that might fit; the solver's dual bound covers
     ``index`` only, so it certifies ``dual + n_undecided`` (an optimal family over a superset
     loses at most those stars when they are removed).
+    ``deterministic``: the exact solver runs without its wall-clock safety limit
+    (``spec.time_limit_s``), stopped by the node budget alone, so the family and bound are the
+    same on any machine (the sweep's exhaustive cells).
     """
     n = len(index)
     ptr, rows = _csr(star_of, row, n)
@@ -555,14 +610,8 @@ def select_family(
             # small instances: a few short restarts with other fixed seeds before the exact solver
             # (a tight packing that one walk misses is often found by another within ~1 s, and a
             # family that reaches the certified bound is proven optimal without the solver)
-            for seed in range(1, ILS_RESTARTS + 1):
-                if len(chosen) >= bound:
-                    break
-                got, k = ils(start, order, ptr, rows, n_rows, iterations=ILS_RESTART_ITERATIONS, bound=bound, seed=seed)
-                used += k
-                restarts += 1
-                if len(got) > len(chosen):
-                    chosen = got
+            chosen, k, restarts = ils_restarts(chosen, start, order, ptr, rows, n_rows, bound)
+            used += k
         info.update(
             ils=int(len(chosen)),
             ils_iterations=int(used),
@@ -576,7 +625,8 @@ def select_family(
         # by the wall-clock safety limit is not used, so the same spec gives the same family
         t2 = time.perf_counter()
         nodes = node_budget(nnz, milp_work)
-        m_chosen, dual, status, reproducible = milp(ptr, rows, n_rows, np.arange(n), spec.time_limit_s, nodes)
+        wall = None if deterministic else spec.time_limit_s
+        m_chosen, dual, status, reproducible = milp(ptr, rows, n_rows, np.arange(n), wall, nodes)
         info.update(
             milp_columns=int(n), milp_node_budget=nodes, milp_status=status, milp_used=bool(reproducible)
         )

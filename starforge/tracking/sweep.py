@@ -7,6 +7,9 @@ Every (delta, cube) cell is honest about what it knows, and the CSV says which:
   to enumerate every star that fits (:func:`starforge.stars.enumerate.enumerate_candidates`, the
   exact fit decision) and select a maximum family (:func:`starforge.stars.family.make_family`);
   ``stars`` is that family, ``upper_bound`` its certified bound (equal when proven optimal).
+  The exact solver there is stopped by a node budget alone (:data:`SWEEP_MILP_WORK`), never by
+  the wall clock, so a cell reads the same on any machine; when the budget runs out before the
+  proof, the cell keeps the best family and the certified bound, with ``optimal`` false.
 * ``interval``: larger pools get a certified interval.  The lower end is a verified family from
   a randomised constructive greedy with a fixed number of samples (same seed, same family; no
   time cap): random tetrahedra inside random sub-cubes of the centre cube and random compact
@@ -51,7 +54,9 @@ COLUMNS = (
 EXHAUSTIVE_LABELLED = 20_000_000
 #: random candidates drawn per interval cell (fixed: the same seed gives the same family)
 SAMPLES = 200_000
-#: the exact solver's work budget per exhaustive cell (a tenth of a stars run's)
+#: the exact solver's work budget per exhaustive cell (a tenth of a stars run's); it is the only
+#: limit there (no wall-clock limit: a cell's family, bound and "optimal" are the same on any
+#: machine; a cell whose budget runs out before the proof is reported with optimal = false)
 SWEEP_MILP_WORK = 800_000
 
 
@@ -234,7 +239,9 @@ def run_cell(args: tuple) -> list[dict]:
         for r in rules:
             t1 = time.perf_counter()
             try:
-                fam = make_family(replace(spec0, rule=r), candidates=cands, milp_work=SWEEP_MILP_WORK)
+                fam = make_family(
+                    replace(spec0, rule=r), candidates=cands, milp_work=SWEEP_MILP_WORK, deterministic=True
+                )
                 n, ub, opt = len(fam.stars), fam.summary["upper_bound"], bool(fam.summary["optimal"])
             except StarforgeError:
                 n, ub, opt = 0, 0, True
