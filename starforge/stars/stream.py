@@ -171,32 +171,27 @@ def _greedy_windows(index, order, used, edges, n_keys, m, base):
             lo = min(a, b, c)
             hi = max(a, b, c)
             keys[k, 0], keys[k, 1], keys[k, 2] = lo, a + b + c - lo - hi, hi
-        free = True
-        for k in range(n_keys):
-            t = 0 if k < 4 else 1
-            for o0 in range(m):
-                for o1 in range(m):
-                    for o2 in range(m):
-                        code = ((t * base + keys[k, 0] - o0 + m) * base + keys[k, 1] - o1 + m) * base + keys[k, 2] - o2 + m
-                        if used[code]:
-                            free = False
-                            break
-                    if not free:
-                        break
-                if not free:
-                    break
-            if not free:
-                break
-        if free:
+        if _windows(keys, n_keys, m, base, used, False):
             out[q] = True
-            for k in range(n_keys):
-                t = 0 if k < 4 else 1
-                for o0 in range(m):
-                    for o1 in range(m):
-                        for o2 in range(m):
-                            code = ((t * base + keys[k, 0] - o0 + m) * base + keys[k, 1] - o1 + m) * base + keys[k, 2] - o2 + m
-                            used[code] = True
+            _windows(keys, n_keys, m, base, used, True)
     return out
+
+
+@numba.njit(cache=True, inline="always")
+def _windows(keys, n_keys, m, base, used, mark):
+    """Every key window of the star's ``keys`` (see :func:`_greedy_windows`): with ``mark``,
+    set them in ``used`` and return True; else whether none of them is used yet."""
+    for k in range(n_keys):
+        t = 0 if k < 4 else 1
+        for o0 in range(m):
+            for o1 in range(m):
+                for o2 in range(m):
+                    code = ((t * base + keys[k, 0] - o0 + m) * base + keys[k, 1] - o1 + m) * base + keys[k, 2] - o2 + m
+                    if mark:
+                        used[code] = True
+                    elif used[code]:
+                        return False
+    return True
 
 
 def range_cap(held: float = 0.0) -> int:
