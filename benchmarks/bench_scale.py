@@ -172,7 +172,15 @@ def sweep_exact(args) -> dict:
     from starforge import engine
     from starforge.stars.enumerate import estimate
     from starforge.stars.spec import StarSpec
-    from starforge.tracking.sweep import SAMPLES, _auto_limit, parse_range, rows_csv, sweep
+    from starforge.tracking.sweep import (
+        SAMPLES,
+        _auto_limit,
+        cell_estimate,
+        parse_range,
+        rows_csv,
+        run_cell,
+        sweep,
+    )
 
     deltas, cubes = parse_range("0.5:3:0.5", "delta"), parse_range("10:50:5", "cube")
     p = engine.plan(len(deltas) * len(cubes), float("inf"), args.workers)
@@ -187,10 +195,24 @@ def sweep_exact(args) -> dict:
             lim = _auto_limit(4.0, d, c, ("face", "pair"), SAMPLES, p.task_bytes)
             cells.append({"delta": d, "cube": c, "labelled": est["labelled"],
                           "exhaustive_under_auto": lim >= est["labelled"],
-                          "est_cpu_s_2cores": round(est["seconds"] * 2, 1)})
+                          # the sweep's own estimate (a pilot sample for the larger cells)
+                          "est_cpu_s": round(cell_estimate(4.0, d, c, ("face", "pair"), max(lim, 0), SAMPLES)[0], 1)})
     exact = [x for x in cells if x["exhaustive_under_auto"]]
     res = {"n_cells": len(cells), "worker_memory_bytes": int(p.task_bytes), "workers": p.workers,
-           "cells_exhaustive_under_auto": len(exact), "cells": cells, "load_before": _load()}
+           "cells_exhaustive_under_auto": len(exact),
+           "est_cpu_s_all_cells": round(sum(x["est_cpu_s"] for x in cells), 1),
+           "cells": cells, "load_before": _load()}
+    measured = []
+    for tok in filter(None, (args.measure or "").split(",")):  # the estimate against a real run
+        d, c = (float(x) for x in tok.split(":"))
+        est = cell_estimate(4.0, d, c, ("face", "pair"), 10**12, SAMPLES)[0]
+        t = time.process_time()
+        rows = run_cell((4.0, d, c, ("face", "pair"), 10**12, SAMPLES, 0, None))
+        cpu = time.process_time() - t
+        measured.append({"delta": d, "cube": c, "est_cpu_s": round(est, 1), "cpu_s": round(cpu, 1),
+                         "ratio": round(cpu / est, 2), "stars": [r["stars"] for r in rows]})
+    if measured:
+        res["estimate_vs_run"] = measured
     if args.run:  # the whole default sweep, every cell that fits a worker's memory exhaustive
         t = time.perf_counter()
         rows = sweep(4.0, deltas, cubes, exhaustive_labelled=None, workers=args.workers)
@@ -271,6 +293,8 @@ def main(argv=None) -> None:
     c = sub.add_parser("sweep-exact")
     c.add_argument("--workers", type=int, default=2)
     c.add_argument("--run", action="store_true", help="run the sweep (long: tens of minutes on 2 cores)")
+    c.add_argument("--measure", default="", help="cells DELTA:CUBE,... run exhaustively in process (one core) "
+                   "and timed against the sweep's estimate")
     args = ap.parse_args(argv)
     fn = {"scaling": scaling, "delta05": delta05, "sweep-exact": sweep_exact, "progress": progress}[args.case]
     res = {"case": args.case, "cpus": os.cpu_count(), **fn(args)}

@@ -232,3 +232,28 @@ def test_exhaustive_cells_ignore_the_wall_clock(monkeypatch):
     monkeypatch.setattr(sel, "milp", spy)
     row = run_cell((4.0, 3.0, 18.0, ("face", "pair"), 10**9, 1000, 0, None))
     assert seen and all(t is None for t in seen) and all(r["method"] == "exhaustive" for r in row)
+
+
+def test_large_exhaustive_cells_are_timed_by_their_own_pilot(monkeypatch):
+    """A cube cell whose fixed-rate guess is past PILOT_ABOVE_S is estimated from its pilot's
+    CPU rate and fit share (enumeration + one selection per rule); small cells never pay for a
+    pilot.  The pilot itself is the enumeration's, classified exactly as the enumeration does."""
+    from starforge.stars.enumerate import labelled_count, pilot
+    from starforge.tracking import sweep as S
+
+    calls = []
+
+    def fake(marker, delta, cube):
+        calls.append((marker, delta, cube))
+        return 1e-5, 0.1
+
+    monkeypatch.setattr(S, "_cell_pilot", fake)
+    small = S.cell_estimate(4.0, 2.0, 20.0, ("face",), 10**12, 1000)[0]
+    assert not calls and small == pytest.approx(labelled_count(StarSpec(box_mm=(20,) * 3, marker_mm=4, delta_mm=2.0)) * 8e-7 + 1)
+    n = labelled_count(StarSpec(box_mm=(25,) * 3, marker_mm=4, delta_mm=1.0))
+    big = S.cell_estimate(4.0, 1.0, 25.0, ("face", "pair"), 10**12, 1000)[0]
+    assert calls == [(4.0, 1.0, 25.0)]
+    assert big == pytest.approx(n * 1e-5 + 2 * n * 0.1 * S.SELECT_SECONDS_PER_FIT + 1)
+    # the real pilot on one thread: a CPU rate at least the fixed floor, a share in [0, 1]
+    rate, share = pilot(StarSpec(box_mm=(20,) * 3, marker_mm=4, delta_mm=2.0), samples=16, cpu=True)
+    assert rate >= 4e-7 and 0 <= share <= 1

@@ -27,6 +27,7 @@ curve point.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 
@@ -286,8 +287,30 @@ def run_cell(args: tuple) -> list[dict]:
 BYTES_PER_TRIPLE = 150.0
 
 
+#: CPU seconds per fitting star and rule of an exhaustive cell's selection (measured: 1.6-5.5 s
+#: for 0.32-0.92 M fitting stars in cubes of 20 and 40 mm, the sweep's work budget, load 10-13)
+SELECT_SECONDS_PER_FIT = 6e-6
+#: an exhaustive cell whose fixed-rate guess exceeds this many seconds is timed by a pilot
+PILOT_ABOVE_S = 2.0
+
+
+@functools.lru_cache(maxsize=1024)
+def _cell_pilot(marker_mm: float, delta: float, cube: float) -> tuple[float, float]:
+    """(CPU seconds per labelled candidate on one core, share that fit) of a cube cell, from the
+    enumeration's pilot sample (:func:`starforge.stars.enumerate.pilot`, about 0.1-0.4 s): in a
+    cube far more candidates reach the fit decision than in a finger box, and deciding them is
+    harder (near-symmetric limits), so the fixed rate was up to 8x low there."""
+    from starforge.stars.enumerate import pilot
+    from starforge.stars.spec import StarSpec
+
+    return pilot(StarSpec(box_mm=(cube, cube, cube), marker_mm=marker_mm, delta_mm=delta), cpu=True)
+
+
 def cell_estimate(marker_mm: float, delta: float, cube: float, rules, exhaustive_labelled: int, samples: int) -> tuple[float, float]:
-    """(single-core seconds, peak bytes) of one cell, rough (for the bounded-cost checks)."""
+    """(single-core seconds, peak bytes) of one cell, rough (for the bounded-cost checks).  An
+    exhaustive cell is its enumeration plus one selection per rule; past :data:`PILOT_ABOVE_S`
+    at the fixed rate, both come from a pilot sample of the cell's own stars
+    (:func:`_cell_pilot`)."""
     from starforge.stars.enumerate import SECONDS_PER_LABELLED
     from starforge.stars.enumerate import estimate as enum_estimate
     from starforge.stars.spec import StarSpec
@@ -299,7 +322,11 @@ def cell_estimate(marker_mm: float, delta: float, cube: float, rules, exhaustive
     est = enum_estimate(spec)
     n = est["labelled"]
     if n <= exhaustive_labelled:
-        return n * SECONDS_PER_LABELLED * 4 + 1.0, est["bytes"]
+        guess = n * SECONDS_PER_LABELLED * 4 + 1.0
+        if guess > PILOT_ABOVE_S:
+            rate, share = _cell_pilot(float(marker_mm), float(delta), float(cube))
+            guess = n * rate + len(rules) * n * share * SELECT_SECONDS_PER_FIT + 1.0
+        return guess, est["bytes"]
     triples = math.comb(spec.pool_size, 3)
     return (
         len(rules) * samples * 2e-5 + triples * 2e-7 * spec.grid_steps**3,
@@ -387,8 +414,7 @@ def sweep(
     seconds = sum(e[0] for e in est)
     what = f"a sweep of {len(cells)} cells"
     advice = "use a larger --delta, smaller --cube values or fewer of them, or lower --exhaustive"
-    # the estimate leaves out the exact selection's time; workers asked for by number get a
-    # local cluster whatever the estimate says
+    # workers asked for by number get a local cluster whatever the estimate says
     plan_seconds = math.inf if (workers or 0) > 1 else seconds
     p = engine.plan(len(cells), plan_seconds, workers or None, scheduler)
     if p.mode != "remote":  # a remote cluster's size is known once connected; its memory is checked per task
