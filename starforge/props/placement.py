@@ -49,6 +49,7 @@ class PlacementResult:
     removed: dict = field(default_factory=dict)  # sampled sites removed, by reason
     evaluation: dict = field(default_factory=dict)  # starforge.props.evaluate on fresh poses
     marker_masks: np.ndarray = field(default=None, repr=False)  # (m, poses) uint64 camera bits
+    shortfall: dict = field(default_factory=dict)  # below track.target_tracked on the held-out sample: why
 
     @property
     def marker_points(self) -> np.ndarray:
@@ -336,31 +337,99 @@ VALIDATION_SEED_OFFSET = 2_000_029
 LOSS_SEED_OFFSET = 3_000_017
 
 
-def _validator(prop, spec, seed, prep, centres, prob):
-    """``validate(layouts) -> costs`` on held-out scenarios: ``track.validation_poses`` fresh
-    random poses with their own camera losses, a table built for the candidates' sites only."""
+def _held_out(prop, spec, seed, prep, sites, hand=True):
+    """(seen (len(sites), scenarios) bool, every (len(sites), poses) uint64 camera masks) on the
+    held-out sample: ``track.validation_poses`` fresh random poses (generator ``seed +``
+    :data:`VALIDATION_SEED_OFFSET`, never the evaluation's) with their own camera losses; the
+    table is built for ``sites`` only.  ``hand=False``: the same poses without the hand."""
     from starforge.props.evaluate import random_poses
     from starforge.props.hand import capsule_arrays
-    from starforge.props.tracked import Problem, loss_scenarios
+    from starforge.props.tracked import loss_scenarios
     from starforge.props.visibility import compute_table
 
-    ts, sites, rig = spec.track, prep.sites, prep.rig
+    ts, rig = spec.track, prep.rig
+    vrng = np.random.default_rng(seed + VALIDATION_SEED_OFFSET)
+    poses = random_poses(rig.volume, ts.validation_poses, prep.poses.pivot, vrng)
+    table = compute_table(
+        prop.mesh, prep.sites.points[sites], prep.sites.normals[sites], rig, poses, spec.grazing_limit_deg,
+        radius_m=prep.seat.ball_radius_m, centre_m=prep.seat.centre_height_m, occlusion=spec.occlusion,
+        occluders=capsule_arrays(prep.capsules if hand else ()),
+    )  # fmt: skip
+    seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, vrng)
+    return seen, table.masks
+
+
+def _validator(prop, spec, seed, prep, centres, prob):
+    """``validate(layouts) -> [{"untracked", "cost"}]``: each layout's untracked fraction and cost
+    on the held-out scenarios (:func:`_held_out`)."""
+    from starforge.props.tracked import Problem
 
     def validate(layouts):
         union = sorted({int(x) for lay in layouts for x in lay})
-        vrng = np.random.default_rng(seed + VALIDATION_SEED_OFFSET)
-        poses = random_poses(rig.volume, ts.validation_poses, prep.poses.pivot, vrng)
-        table = compute_table(
-            prop.mesh, sites.points[union], sites.normals[union], rig, poses, spec.grazing_limit_deg,
-            radius_m=prep.seat.ball_radius_m, centre_m=prep.seat.centre_height_m, occlusion=spec.occlusion,
-            occluders=capsule_arrays(prep.capsules),
-        )  # fmt: skip
-        seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, vrng)
-        held = Problem(centres[union], seen, seen.mean(axis=1), ts, prob.spacing, prob.spread_target, prob.avoid_faces)
+        seen, _ = _held_out(prop, spec, seed, prep, union)
+        held = Problem(centres[union], seen, seen.mean(axis=1), spec.track, prob.spacing, prob.spread_target, prob.avoid_faces)
         at = {s: i for i, s in enumerate(union)}
-        return [held.cost([at[int(x)] for x in lay]) for lay in layouts]
+        out = []
+        for lay in layouts:
+            t = held.terms([at[int(x)] for x in lay])
+            out.append({"untracked": t["untracked"], "cost": t["total"]})
+        return out
 
     return validate
+
+
+def _shortfall(prop, spec, seed, prep, prob, chosen, removed, fit) -> dict:
+    """Why the chosen layout is tracked in fewer held-out scenarios than ``track.target_tracked``:
+    the same scenarios re-scored with every camera and without the hand, the untracked ones split
+    into too few markers seen and markers in a line, and the sites the layout had to work with."""
+    from starforge.props.tracked import Problem
+
+    ts, idx = spec.track, list(chosen)
+    seen, masks = _held_out(prop, spec, seed, prep, idx)
+    held = Problem(prob.points[idx], seen, seen.mean(axis=1), ts, prob.spacing, prob.spread_target)
+    everything = np.repeat(np.bitwise_count(masks) >= 2, seen.shape[1] // masks.shape[1], axis=1)
+    seen_nh, _ = _held_out(prop, spec, seed, prep, idx, hand=False) if prep.capsules else (seen, None)
+    marks = list(range(len(idx)))
+    tracked = 1.0 - held.terms(marks)["untracked"]
+    few = float(((seen.sum(axis=0) < 3)).mean())
+    out = {
+        "target": ts.target_tracked,
+        "validation_tracked": tracked,
+        "scenarios": int(seen.shape[1]),
+        "untracked_too_few_seen": few,
+        "untracked_in_a_line": max(0.0, 1.0 - tracked - few),
+        "tracked_with_every_camera": 1.0 - Problem(prob.points[idx], everything, everything.mean(axis=1), ts, prob.spacing, prob.spread_target).terms(marks)["untracked"],
+        "tracked_without_the_hand": 1.0 - Problem(prob.points[idx], seen_nh, seen_nh.mean(axis=1), ts, prob.spacing, prob.spread_target).terms(marks)["untracked"],
+        "markers": len(idx),
+        "markers_asked": spec.track.target_markers,
+        "markers_that_fit_at_the_spacing": fit,
+        "usable_sites": len(prep.sites),
+        "sites_under_the_hand": removed["under_hand"],
+    }
+    return out
+
+
+def shortfall_warning(sf: dict, spacing_m: float, hand: bool) -> str:
+    """One line: how far below the target the layout is on the held-out scenarios, the cause the
+    numbers point to, and what to change."""
+    cause = []
+    if sf["markers_that_fit_at_the_spacing"] < sf["markers_asked"]:
+        cause.append(
+            f"only {sf['markers_that_fit_at_the_spacing']} markers fit {spacing_m * 1000:.1f} mm apart on its "
+            f"{sf['usable_sites']} usable sites" + (f" ({sf['sites_under_the_hand']} sites under the hand)" if hand else "")
+        )
+    share = sf["untracked_too_few_seen"] / max(1e-12, 1.0 - sf["validation_tracked"])
+    cause.append(f"{100 * share:.0f} % of the untracked scenarios see fewer than 3 markers, the rest see them in a line")
+    helps = [f"with every camera {100 * sf['tracked_with_every_camera']:.1f} %"]
+    if hand:
+        helps.append(f"without the hand {100 * sf['tracked_without_the_hand']:.1f} %")
+    advice = "a smaller --marker or --base-mm (more markers fit, more sites seat)"
+    if hand:
+        advice += ", another --grip or --no-hand"
+    return (
+        f"the layout is tracked in {100 * sf['validation_tracked']:.1f} % of {sf['scenarios']} held-out scenarios, "
+        f"below the {100 * sf['target']:g} % target ({', '.join(helps)}): {'; '.join(cause)}; try {advice}"
+    )
 
 
 def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress, on_layout=None) -> PlacementResult:
@@ -369,9 +438,7 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
     from starforge.props.evaluate import evaluate_layouts
     from starforge.props.optimizer import ChainResult
     from starforge.props.tracked import (
-        TRIANGLE_SPREAD,
         Problem,
-        line_reach,
         loss_scenarios,
         optimize,
         spaced_capacity,
@@ -393,14 +460,6 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
             f"not {ts.target_markers}" + (" (some closer than the spacing)" if n > fit else "")
         )
         ts = replace(ts, target_markers=n)
-    rho = line_reach(centres)
-    if rho < TRIANGLE_SPREAD * ts.min_height_mm / 1000.0:
-        warnings.append(
-            f"every usable site lies within {rho * 1000:.1f} mm of one line: no markers on them span the "
-            f"{ts.min_height_mm:g} mm triangle a tracker needs, so no layout of them can be tracked; try another "
-            "--marker (a smaller base seats on more of the prop, a taller one holds its ball farther from a thin "
-            "prop's faces)"
-        )
     prob = Problem(
         centres,
         seen,
@@ -417,6 +476,12 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
     opt = optimize(prob, rng, run_cb, validate)
     t = _tick(timings, "optimize_s", t)
     chosen, terms = opt.sites, opt.terms
+    shortfall = {}
+    won = opt.baselines["selection"]["candidates"][opt.baselines["selection"]["winner"]]
+    if won["validation_tracked"] is not None and won["validation_tracked"] < ts.target_tracked:
+        shortfall = _shortfall(prop, spec, seed, prep, prob, chosen, prep.removed, fit)
+        warnings.append(shortfall_warning(shortfall, prob.spacing, bool(prep.capsules)))
+        t = _tick(timings, "shortfall_s", t)
     runs = tuple(
         ChainResult(c.sites, c.cost, c.iterations, c.history, c.history, np.full(len(c.history), len(c.sites), np.int16), {}, {"all": c.accepted})
         for c in opt.runs
@@ -442,7 +507,7 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         prop, spec, seed, rig, prep.poses, sites, prep.removed["constrained"], prob.visibility, chosen, cost, ann,
         seen[list(chosen)], timings, table.rays, opt, (), prob.spacing, seat=prep.seat,
         seat_report=prep.seat_report, capsules=prep.capsules, removed=prep.removed,
-        marker_masks=table.masks[list(chosen)],
+        marker_masks=table.masks[list(chosen)], shortfall=shortfall,
     )  # fmt: skip
     if on_layout is not None:
         on_layout(res)

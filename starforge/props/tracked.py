@@ -29,8 +29,12 @@ move; its proposal ratio is taken as 1, exact for a symmetric neighbourhood and 
 heuristic otherwise), cooled geometrically with a convergence stop, annealing the cost without
 its near-symmetry term.  The greedy layout, the best random layout as it is, and every chain's
 best and the best random layout after the swap search are the candidates; with a held-out
-sample (``validate``) they are ranked by their cost on both samples together, so the result is
-never worse than either baseline on that ranking, and placement.json reports what each gave.
+sample (``validate``: random poses with their own camera losses and seed, never the
+evaluation's) they are ranked by their tracked fraction there, then by their cost on both
+samples together, so the result is never behind either baseline on that ranking, and
+placement.json reports what each gave.  The searched scenarios cannot rank the tracked fraction
+(the candidates were fitted to them and are tracked in nearly all); a sample of 3000 poses x 2
+camera losses resolves gaps of a few in a thousand.
 Measured in the previous session (unseated sites), chains from a random start, polished, beat
 greedy + swap search on 3 of the 7 built-ins; on seated sites, with the hand and camera loss,
 they beat it on none (ties or losses on all 7), so the default runs no chain.
@@ -81,7 +85,8 @@ class TrackSettings:
     restarts: int = 2
     t0: float = 0.1
     random_layouts: int = 1000
-    validation_poses: int = 400  # held-out random poses that rank the final candidates (0: none)
+    validation_poses: int = 3000  # held-out random poses that rank the final candidates (0: none)
+    target_tracked: float = 0.99  # below this tracked fraction on the held-out poses: a warning saying why
 
     def __post_init__(self):
         in_range("marker_mm", self.marker_mm, 1.0, 50.0)
@@ -104,6 +109,7 @@ class TrackSettings:
         non_negative("t0", self.t0)
         in_range("random_layouts", self.random_layouts, 0, 10**6)
         in_range("validation_poses", self.validation_poses, 0, 100_000)
+        in_range("target_tracked", self.target_tracked, 0.0, 1.0)
 
 
 def spacing_m(marker_mm: float, rig, gap_px: float) -> float:
@@ -508,9 +514,13 @@ class Optimized:
 def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=None) -> Optimized:
     """Baselines, chains from the best random layout, the best polished (see the module docstring).
 
-    ``validate``: optional ``validate(list of site tuples) -> costs`` on scenarios the optimizer
-    did not search (a held-out sample); the candidates are then ranked by their cost on both
-    samples together (a larger sample of the same objective), and ``selection_cost`` says so."""
+    ``validate``: optional ``validate(list of site tuples) -> list of {"untracked", "cost"}`` on
+    scenarios the optimizer did not search (a held-out sample, its own seed).  The candidates are
+    then ranked by their tracked fraction on that sample first (what the independent evaluation
+    measures; the searched scenarios cannot rank it: every candidate is tracked in nearly all of
+    them, having been fitted to them), then by their cost on both samples together.  Without it,
+    by their cost on the searched scenarios.  ``baselines["selection"]`` names the winner and
+    gives every candidate's scores."""
     s = prob.settings
     sec = {}
     t = time.perf_counter()
@@ -528,37 +538,58 @@ def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=No
             progress(k + 1, s.restarts)
     sec["chains_s"] = round(time.perf_counter() - t, 3)
     t = time.perf_counter()
-    # every chain's best and the best random layout are polished by the same swap search (the
-    # greedy layout already is); the cheapest wins
-    starts = {tuple(r.sites) for r in runs}
+    # the baselines themselves compete; every chain's best and the best random layout are
+    # polished by the same swap search (the greedy layout already is)
+    cands: dict[str, tuple[int, ...]] = {"greedy_local_search": tuple(greedy)}
     if r_sites is not None:
-        starts.add(tuple(r_sites))
-    cands = [(g_cost, tuple(greedy))]
-    if r_sites is not None:
-        cands.append((r_cost, tuple(r_sites)))  # the baseline itself competes too
-    for start in sorted(starts):
-        polished = local_search(prob, list(start))
-        cands.append((prob.cost(polished), tuple(polished)))
+        cands["best_of_random"] = tuple(r_sites)
+        cands["best_of_random_polished"] = tuple(local_search(prob, list(r_sites)))
+    for k, r in enumerate(runs):
+        cands[f"chain_{k}_polished"] = tuple(local_search(prob, list(r.sites)))
+    costs = {name: prob.cost(list(sites)) for name, sites in cands.items()}
     sec["polish_s"] = round(time.perf_counter() - t, 3)
-    held = [0.0] * len(cands)
+    held = {name: None for name in cands}
     if validate is not None:
         t = time.perf_counter()
-        held = list(validate([c[1] for c in cands]))
+        held = dict(zip(cands, validate(list(cands.values())), strict=True))
         sec["validate_s"] = round(time.perf_counter() - t, 3)
-    ranked = [(c + h, sites) for (c, sites), h in zip(cands, held, strict=True)]
-    best = list(min(ranked)[1])
-    sel = {"greedy": ranked[0][0], "random": ranked[1][0] if r_sites is not None else None}
+
+    def key(name):  # first listed wins a tie: the greedy layout, then the random baseline
+        h = held[name]
+        if h is None:
+            return (costs[name],)
+        return (h["untracked"], costs[name] + h["cost"])
+
+    order = sorted(cands, key=key)  # stable
+    winner = order[0]
+    best = list(cands[winner])
+    sel_cost = {n: costs[n] + (held[n]["cost"] if held[n] is not None else 0.0) for n in cands}
+    selection = {
+        "winner": winner,
+        "validated": validate is not None,
+        "candidates": {
+            n: {
+                "sites": [int(x) for x in cands[n]],
+                "cost": costs[n],
+                "validation_tracked": None if held[n] is None else 1.0 - held[n]["untracked"],
+                "validation_cost": None if held[n] is None else held[n]["cost"],
+                "selection_cost": sel_cost[n],
+            }
+            for n in order
+        },
+    }
     baselines = {
-        "greedy_local_search": {"cost": g_cost, "sites": [int(x) for x in greedy], "selection_cost": sel["greedy"]},
+        "greedy_local_search": {"cost": g_cost, "sites": [int(x) for x in greedy], "selection_cost": sel_cost["greedy_local_search"]},
         "best_of_random": {
             "layouts": s.random_layouts,
             "cost": None if r_sites is None else r_cost,
             "sites": None if r_sites is None else [int(x) for x in r_sites],
             "median_cost": float(np.median(r_costs)) if r_costs else None,
-            "selection_cost": sel["random"],
+            "selection_cost": sel_cost.get("best_of_random"),
         },
-        "selection_cost": min(ranked)[0],
+        "selection_cost": sel_cost[winner],
         "validated": validate is not None,
+        "selection": selection,
         "chains": [{"cost": r.cost, "iterations": r.iterations, "accepted": r.accepted} for r in runs],
     }
     return Optimized(tuple(int(x) for x in best), prob.terms(best), baselines, tuple(runs), sec)
