@@ -340,3 +340,56 @@ def test_line_reach_bounds_the_spread_of_every_subset():
     # two rows 13.4 mm apart (a comb's two faces): no subset spans a 15 mm triangle
     rows = np.array([[x, 0.0, z] for x in np.linspace(0, 0.08, 9) for z in (-0.0067, 0.0067)])
     assert line_reach(rows) == pytest.approx(0.0067, abs=1e-9)
+
+
+def test_line_reach_refined_is_tighter_and_still_a_bound():
+    """A comb's spine: two rows of ball centres 13.4 mm apart (a 3 mm part, 5.2 mm posts), each
+    4 mm wide, turned off the axes and with one end missing (the hand): the refined line proves
+    that no subset spans a 15 mm triangle, which the principal axis alone does not."""
+    from starforge.props.tracked import line_reach
+
+    rng = np.random.default_rng(7)
+    x = rng.uniform(0, 0.1, 60)
+    pts = np.column_stack([x, rng.uniform(-0.002, 0.002, 60), np.where(rng.random(60) < 0.5, -0.0067, 0.0067)])
+    pts = pts[(x > 0.03) | (pts[:, 2] > 0)]  # the hand took one row's end: the principal axis tilts
+    a = 0.4
+    turn = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+    pts = pts @ turn.T + 0.3
+    need = TRIANGLE_SPREAD * 0.015
+    bound = line_reach(pts)
+    assert bound < need  # no layout on these sites can be tracked
+    # a brute-force check of the bound's meaning: no subset's RMS distance from its own line exceeds it
+    for _ in range(300):
+        sub = pts[rng.choice(len(pts), size=int(rng.integers(3, 8)), replace=False)]
+        sv = np.linalg.svd(sub - sub.mean(axis=0), compute_uv=False)
+        assert math.sqrt((sv[1] ** 2 + sv[2] ** 2) / len(sub)) <= bound + 1e-12
+
+
+def test_spaced_triple_matches_a_brute_force_search():
+    import itertools
+
+    from starforge.props.tracked import spaced_triple
+
+    rng = np.random.default_rng(5)
+    for n in (0, 2, 3, 5, 8, 12):
+        for _ in range(15):
+            pts = rng.random((n, 3)) * 0.04
+            d = np.linalg.norm(pts[:, None] - pts[None], axis=2)
+            brute = any(min(d[i, j], d[i, k], d[j, k]) >= 0.02 for i, j, k in itertools.combinations(range(n), 3))
+            assert spaced_triple(pts, 0.02) == brute
+
+
+def test_a_prop_no_layout_can_track_is_refused_up_front(tmp_path, capsys):
+    """A 3 mm strip 11 mm wide: every ball centre lies within 7 mm of one line, so no markers on it
+    span a 15 mm triangle: one error line before any visibility table, exit 2, nothing written."""
+    import trimesh
+
+    strip = trimesh.creation.box(extents=(0.1, 0.011, 0.003))
+    path = tmp_path / "strip.stl"
+    strip.export(path)
+    out = tmp_path / "out"
+    assert run_cli(["place", path, "--no-hand", "--out", out, "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: no layout on this prop can be tracked")
+    assert "15 mm triangle" in err[0] and "--marker" in err[0]
+    assert not out.exists()

@@ -137,6 +137,8 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
             f"(curved, near an edge or the ball cuts in); fewer than the {need} markers needed: try a "
             "smaller --marker or --base-mm, or --no-hand"
         )
+    if spec.objective == "tracked":
+        check_trackable(kept.points + seat.centre_height_m * kept.normals, spec, rig, seat, removed)
     t = _tick(timings, "sample_s", t)
     pivot = np.asarray(prop.mesh.bounds, dtype=float).mean(axis=0)
     check_cost(prop, spec, rig, len(kept), spec.resolution**3 * spec.orientations)  # before building them
@@ -156,6 +158,39 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
     )
     _tick(timings, "visibility_s", t)
     return Prepared(kept, removed, rig, poses, table, seat, report, caps)
+
+
+def check_trackable(centres: np.ndarray, spec: PlaceSpec, rig, seat, removed: dict) -> None:
+    """Refuse, before the visibility table, seated sites on which no layout can ever be tracked:
+    no three of them lie the marker spacing apart (closer markers merge in the images), or every
+    ball centre lies so near one line that no markers on them span the tracker's triangle
+    (:func:`starforge.props.tracked.line_reach`, an upper bound: never a false alarm).  Both are
+    proofs about every layout, not a search that failed."""
+    from starforge.props.tracked import TRIANGLE_SPREAD, line_reach, spaced_triple, spacing_m
+
+    ts = spec.track
+    hand = f"; {removed['under_hand']} sites under the hand (another --grip or --no-hand frees them)" if removed["under_hand"] else ""
+    advice = (
+        "; try another --marker or --base-mm (a smaller base seats on more of the prop, a taller marker "
+        "holds its ball farther from a thin prop's faces)" + hand
+    )
+    spacing = spacing_m(ts.marker_mm, rig, ts.gap_px)
+    if not spaced_triple(centres, spacing):
+        raise StarforgeError(
+            f"no layout on this prop can be tracked: no three of its {len(centres)} usable sites lie "
+            f"{spacing * 1000:.1f} mm apart (closer {ts.marker_mm:g} mm markers merge in the camera images), "
+            f"and a tracker needs three{advice}"
+        )
+    rho = line_reach(centres)
+    need = TRIANGLE_SPREAD * ts.min_height_mm / 1000.0
+    if rho < need:
+        raise StarforgeError(
+            f"no layout on this prop can be tracked: every ball centre on its {len(centres)} usable sites "
+            f"({seat.name} markers, centres {seat.centre_height_m * 1000:g} mm off the surface) lies within "
+            f"{rho * 1000:.2f} mm of one line, so no markers on them span the {ts.min_height_mm:g} mm triangle a "
+            f"tracker needs (an RMS distance of {need * 1000:.2f} mm from their line; a thin part's two faces hold "
+            f"their balls its thickness plus {2 * seat.centre_height_m * 1000:g} mm apart){advice}"
+        )
 
 
 def check_cost(prop, spec: PlaceSpec, rig, sites: int, poses: int) -> None:

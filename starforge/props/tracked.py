@@ -130,8 +130,11 @@ def spacing_m(marker_mm: float, rig, gap_px: float) -> float:
 def spaced_capacity(points: np.ndarray, spacing: float, enough: int) -> int:
     """How many of ``points`` (m) can be taken at least ``spacing`` apart, up to ``enough``: a
     farthest-point traversal from the first point (each step takes the point farthest from those
-    taken) until the farthest is closer than ``spacing``.  A lower bound on the largest such set
-    (finding that is NP-hard), exact in the common case where it reaches ``enough``."""
+    taken) until the farthest is closer than ``spacing``; when that stops short of ``enough``, also
+    a greedy that takes the point with the fewest untaken neighbours closer than ``spacing`` (it
+    packs a narrow strip the traversal leaves gaps in), and the larger count.  A lower bound on
+    the largest such set (finding that is NP-hard), exact in the common case where it reaches
+    ``enough``."""
     pts = np.asarray(points, float)
     if not len(pts):
         return 0
@@ -143,22 +146,66 @@ def spaced_capacity(points: np.ndarray, spacing: float, enough: int) -> int:
             break
         taken += 1
         d = np.minimum(d, np.linalg.norm(pts - pts[k], axis=1))
-    return taken
+    if taken >= enough or len(pts) > 5000:
+        return taken
+    near = np.linalg.norm(pts[:, None] - pts[None], axis=2) < spacing  # the diagonal included
+    free = np.ones(len(pts), dtype=bool)
+    packed = 0
+    while free.any() and packed < enough:
+        deg = near[:, free].sum(axis=1)
+        k = int(np.flatnonzero(free)[np.argmin(deg[free])])
+        free &= ~near[k]
+        packed += 1
+    return max(taken, packed)
 
 
 def line_reach(points: np.ndarray) -> float:
-    """An upper bound (m) on how far ``points`` lie from some line: the largest distance from a
-    line along their principal axis, through the centroid or through the middle of their extent
-    across it, whichever is less.  Any subset's RMS distance from its own best-fit line is at
-    most its RMS distance from that line, so at most this: when it is below the tracked test's
-    spread, no subset of the points can be tracked."""
+    """An upper bound (m) on how far ``points`` lie from some line: the largest distance of a
+    point from a line, for the best of a few lines (along the principal axis through the centroid
+    and through the middle of the extent across it, then that line's direction and offset refined
+    by a Nelder-Mead search for the least largest distance).  Any subset's RMS distance from its
+    own best-fit line is at most its RMS distance from any line, so at most this: when it is below
+    the tracked test's spread, no subset of the points can be tracked.  Every line tried gives a
+    valid bound; the search only makes it tighter (a search, not the exact minimax line)."""
     pts = np.asarray(points, float)
     if len(pts) < 2:
         return 0.0
-    c = pts - pts.mean(axis=0)
-    across = (c @ np.linalg.svd(c, full_matrices=False)[2].T)[:, 1:]  # (n, 2) across the axis
+    centroid = pts.mean(axis=0)
+    c = pts - centroid
+    axes = np.linalg.svd(c, full_matrices=False)[2]
+    if len(axes) < 3:  # two points: a line through both
+        return 0.0
+    across = c @ axes[1:].T  # (n, 2) across the principal axis
     mid = (across.max(axis=0) + across.min(axis=0)) / 2
-    return float(min(np.linalg.norm(across, axis=1).max(), np.linalg.norm(across - mid, axis=1).max()))
+    starts = [np.zeros(2), mid]
+    best = min(float(np.linalg.norm(across - o, axis=1).max()) for o in starts)
+
+    def reach(x):  # the line through centroid + o (across) along the axis tilted by (a, b)
+        d = axes[0] + x[0] * axes[1] + x[1] * axes[2]
+        d = d / np.linalg.norm(d)
+        q = c - (x[2] * axes[1] + x[3] * axes[2])
+        return float(np.linalg.norm(q - np.outer(q @ d, d), axis=1).max())
+
+    from scipy.optimize import minimize
+
+    scale = float(np.abs(across).max()) or 1.0
+    for o in starts:
+        r = minimize(reach, np.array([0.0, 0.0, o[0], o[1]]), method="Nelder-Mead",
+                     options={"initial_simplex": np.array([[0, 0, o[0], o[1]], [0.05, 0, o[0], o[1]], [0, 0.05, o[0], o[1]],
+                                                           [0, 0, o[0] + 0.2 * scale, o[1]], [0, 0, o[0], o[1] + 0.2 * scale]]),
+                              "xatol": 1e-9, "fatol": 1e-9 * scale, "maxiter": 2000})  # fmt: skip
+        best = min(best, reach(r.x))  # re-evaluated: the bound is the distance from that very line
+    return best
+
+
+def spaced_triple(points: np.ndarray, spacing: float) -> bool:
+    """Whether three of ``points`` lie pairwise at least ``spacing`` apart (exact: a pair far
+    apart and a point far from both, counted by a boolean matrix product)."""
+    pts = np.asarray(points, float)
+    if len(pts) < 3:
+        return False
+    far = (np.linalg.norm(pts[:, None] - pts[None], axis=2) >= spacing).astype(np.float32)
+    return bool(((far @ far) * far).max() > 0.5)
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
