@@ -393,3 +393,36 @@ def test_a_prop_no_layout_can_track_is_refused_up_front(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("error: no layout on this prop can be tracked")
     assert "15 mm triangle" in err[0] and "--marker" in err[0]
     assert not out.exists()
+
+
+def test_held_out_polish_never_loses_and_ends_where_no_swap_helps():
+    """The held-out polish on random problems: it never adds close pairs, never tracks fewer of
+    the tuning scenarios than its start, and (screening every site) stops only where a brute
+    force over every single swap finds none that tracks more without a close pair, or ties and
+    costs less on the searched scenarios."""
+    from starforge.props.tracked import held_out_polish
+
+    moved = 0
+    for seed in range(4):
+        searched = _problem(seed, sites=30, poses=40)
+        rng = np.random.default_rng(100 + seed)
+        pool = np.sort(rng.choice(30, size=20, replace=False))
+        tuning = Problem(searched.points[pool], rng.random((20, 50)) < 0.4, rng.random(20), TrackSettings(), 0.02, 0.03)
+        start = rng.choice(20, size=5, replace=False).tolist()
+
+        def key(lay, searched=searched, tuning=tuning, pool=pool):
+            t = searched.terms([int(pool[i]) for i in lay])
+            return (t["close_pairs"], tuning.terms(lay)["untracked"], t["total"])
+
+        got = held_out_polish(tuning, searched, start, pool, rounds=50, top=20)
+        assert len(set(got)) == len(got) == 5 and all(0 <= i < 20 for i in got)
+        assert key(got) <= key(start)
+        moved += key(got) < key(start)
+        k0 = key(got)
+        for k in range(5):
+            for c in set(range(20)) - set(got):
+                trial = got[:k] + [c] + got[k + 1 :]
+                kt = key(trial)
+                better = kt < k0 and kt[1] <= k0[1] + 1e-12 and (kt[1] < k0[1] - 1e-12 or kt[2] < k0[2] - 1e-12)
+                assert not better, (trial, kt, k0)
+    assert moved  # not a test of a search that never moves

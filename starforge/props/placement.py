@@ -372,36 +372,63 @@ VALIDATION_SEED_OFFSET = 2_000_029
 LOSS_SEED_OFFSET = 3_000_017
 
 
-def _held_out(prop, spec, seed, prep, sites, hand=True):
-    """(seen (len(sites), scenarios) bool, every (len(sites), poses) uint64 camera masks) on the
-    held-out sample: ``track.validation_poses`` fresh random poses (generator ``seed +``
-    :data:`VALIDATION_SEED_OFFSET`, never the evaluation's) with their own camera losses; the
-    table is built for ``sites`` only.  ``hand=False``: the same poses without the hand."""
-    from starforge.props.evaluate import random_poses
-    from starforge.props.hand import capsule_arrays
-    from starforge.props.tracked import loss_scenarios
-    from starforge.props.visibility import compute_table
+#: the tuning sample that the held-out polish searches (never the ranking's or the evaluation's)
+TUNING_SEED_OFFSET = 4_000_037
 
-    ts, rig = spec.track, prep.rig
-    vrng = np.random.default_rng(seed + VALIDATION_SEED_OFFSET)
-    poses = random_poses(rig.volume, ts.validation_poses, prep.poses.pivot, vrng)
-    table = compute_table(
-        prop.mesh, prep.sites.points[sites], prep.sites.normals[sites], rig, poses, spec.grazing_limit_deg,
-        radius_m=prep.seat.ball_radius_m, centre_m=prep.seat.centre_height_m, occlusion=spec.occlusion,
-        occluders=capsule_arrays(prep.capsules if hand else ()),
-    )  # fmt: skip
-    seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, vrng)
-    return seen, table.masks
+
+class _HeldOut:
+    """A held-out sample: ``track.validation_poses`` fresh random poses (generator ``seed +
+    offset``), each met ``track.loss_patterns`` times with its own random camera losses, drawn
+    as :func:`starforge.props.tracked.loss_scenarios` draws them; tables are built on demand
+    for the sites (and poses) asked."""
+
+    def __init__(self, prop, spec, seed: int, prep, offset: int):
+        from starforge.props.evaluate import random_poses
+        from starforge.props.tracked import alive_masks
+
+        ts, rig = spec.track, prep.rig
+        rng = np.random.default_rng(seed + offset)
+        self.poses = random_poses(rig.volume, ts.validation_poses, prep.poses.pivot, rng)
+        self.patterns = ts.loss_patterns if int(round(ts.cameras_lost * len(rig.cameras))) > 0 else 1
+        self.alive = alive_masks(len(rig.cameras), ts.cameras_lost, len(self.poses) * self.patterns, rng)
+        self.prop, self.spec, self.prep = prop, spec, prep
+
+    def seen(self, sites, poses=None, hand: bool = True):
+        """(seen (len(sites), scenarios) bool, masks (len(sites), poses) uint64): the scenarios
+        of ``poses`` (indices, default all), without the hand when ``hand`` is false."""
+        from starforge.props.hand import capsule_arrays
+        from starforge.props.rig import Poses
+        from starforge.props.visibility import compute_table
+
+        prep, spec = self.prep, self.spec
+        k = np.arange(len(self.poses)) if poses is None else np.asarray(poses, dtype=np.int64)
+        sub = Poses(self.poses.rotations[k], self.poses.translations[k], self.poses.pivot)
+        table = compute_table(
+            self.prop.mesh, prep.sites.points[sites], prep.sites.normals[sites], prep.rig, sub,
+            spec.grazing_limit_deg, radius_m=prep.seat.ball_radius_m, centre_m=prep.seat.centre_height_m,
+            occlusion=spec.occlusion, occluders=capsule_arrays(prep.capsules if hand else ()),
+        )  # fmt: skip
+        L = self.patterns
+        scen = (k[:, None] * L + np.arange(L)[None]).ravel()  # scenario j of pose k: k * L + j
+        seen = np.bitwise_count(table.masks[:, np.repeat(np.arange(len(k)), L)] & self.alive[scen][None]) >= 2
+        return seen, table.masks
+
+
+def _held_out(prop, spec, seed, prep, sites, hand=True):
+    """The ranking sample (:data:`VALIDATION_SEED_OFFSET`; never the evaluation's) for ``sites``."""
+    return _HeldOut(prop, spec, seed, prep, VALIDATION_SEED_OFFSET).seen(sites, hand=hand)
 
 
 def _validator(prop, spec, seed, prep, centres, prob):
     """``validate(layouts) -> [{"untracked", "cost"}]``: each layout's untracked fraction and cost
-    on the held-out scenarios (:func:`_held_out`)."""
+    on the ranking sample (:func:`_held_out`)."""
     from starforge.props.tracked import Problem
+
+    sample = _HeldOut(prop, spec, seed, prep, VALIDATION_SEED_OFFSET)
 
     def validate(layouts):
         union = sorted({int(x) for lay in layouts for x in lay})
-        seen, _ = _held_out(prop, spec, seed, prep, union)
+        seen, _ = sample.seen(union)
         held = Problem(centres[union], seen, seen.mean(axis=1), spec.track, prob.spacing, prob.spread_target, prob.avoid_faces)
         at = {s: i for i, s in enumerate(union)}
         out = []
@@ -411,6 +438,44 @@ def _validator(prop, spec, seed, prep, centres, prob):
         return out
 
     return validate
+
+
+#: at most this many sites take part in the held-out polish (the winner's, every candidate's,
+#: then the winner's nearest neighbours)
+POLISH_SITES = 120
+
+
+def _polisher(prop, spec, seed, prep, centres, prob):
+    """``polish(sites) -> sites``: :func:`starforge.props.tracked.held_out_polish` on the hard
+    poses of a tuning sample of its own (:data:`TUNING_SEED_OFFSET`: neither the ranking sample
+    nor the evaluation), the poses in which ``sites`` leave fewer than ``spare_markers`` seen in
+    some scenario; the sites near the winner's and the other candidates' take part."""
+    from starforge.props.tracked import Problem, held_out_polish
+
+    ts = spec.track
+
+    def polish(sites, others=()):
+        sample = _HeldOut(prop, spec, seed, prep, TUNING_SEED_OFFSET)
+        sites = [int(x) for x in sites]
+        seen, _ = sample.seen(sites)
+        L = sample.patterns
+        few = (seen.sum(axis=0) < max(3, ts.spare_markers)).reshape(-1, L).any(axis=1)
+        hard = np.flatnonzero(few)
+        if not len(hard):
+            return tuple(sites)
+        pool = list(dict.fromkeys(sites + sorted({int(x) for o in others for x in o})))
+        near = range(len(prob.points)) if len(prob.points) <= POLISH_SITES else prob.knn[sites].T.ravel().tolist()
+        for i in near:  # nearest neighbours of every marker first, then the next nearest
+            if len(pool) >= POLISH_SITES:
+                break
+            if int(i) not in pool:
+                pool.append(int(i))
+        hseen, _ = sample.seen(pool, hard)
+        tuning = Problem(centres[pool], hseen, hseen.mean(axis=1), ts, prob.spacing, prob.spread_target, prob.avoid_faces)
+        found = held_out_polish(tuning, prob, list(range(len(sites))), np.asarray(pool))
+        return tuple(pool[i] for i in found)
+
+    return polish
 
 
 def _shortfall(prop, spec, seed, prep, prob, chosen, removed, fit) -> dict:
@@ -505,10 +570,11 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         None if avoid is None or not len(avoid) else np.asarray(avoid, float),
     )
     run_cb = (lambda d, n: progress("optimizing", d, n)) if progress else None
-    validate = None
+    validate = polish = None
     if ts.validation_poses:
         validate = _validator(prop, spec, seed, prep, centres, prob)
-    opt = optimize(prob, rng, run_cb, validate)
+        polish = _polisher(prop, spec, seed, prep, centres, prob)
+    opt = optimize(prob, rng, run_cb, validate, polish)
     t = _tick(timings, "optimize_s", t)
     chosen, terms = opt.sites, opt.terms
     shortfall = {}
