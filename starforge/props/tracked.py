@@ -458,13 +458,14 @@ def held_out_polish(tuning: Problem, searched: Problem, start: list[int], pool: 
     searched scenarios.  Returns ``tuning`` indices.  The tracked counts of every swap are
     screened at once (compiled), then the ``top`` best checked exactly."""
 
-    def key(lay):
-        t = searched.terms([int(pool[i]) for i in lay])
-        return (t["close_pairs"] + t["avoid_conflicts"], tuning.terms(lay, symmetry=False)["untracked"], t["total"])
+    eps = 0.5 / max(1, tuning.poses)
+
+    def cheap(lay):  # close pairs + conflicts on the searched sites, untracked on the tuning ones
+        t = searched.terms([int(pool[i]) for i in lay], symmetry=False)
+        return t["close_pairs"] + t["avoid_conflicts"], tuning.terms(lay, symmetry=False)["untracked"]
 
     cur = list(start)
-    best = key(cur)
-    P = max(1, tuning.poses)
+    best = (*cheap(cur), searched.cost([int(pool[i]) for i in cur]))
     for _ in range(rounds):
         improved = False
         for k in range(len(cur)):
@@ -474,12 +475,19 @@ def held_out_polish(tuning: Problem, searched: Problem, start: list[int], pool: 
                 return cur
             frac = tuning.tracked_additions(rest, free)
             # only swaps that track at least as many scenarios as now can win
-            ok = frac >= 1.0 - best[1] - 0.5 / P
+            ok = frac >= 1.0 - best[1] - eps
             for c in free[ok][np.argsort(-frac[ok], kind="stable")[:top]].tolist():
                 trial = rest[:k] + [c] + rest[k:]
-                tk = key(trial)
-                if tk < best and (tk[1] < best[1] - 0.5 / P or tk[2] < best[2] - 1e-12):
-                    cur, best, improved = trial, tk, True
+                close, untracked = cheap(trial)
+                if close > best[0] or untracked > best[1] + eps:
+                    continue
+                g = [int(pool[i]) for i in trial]
+                if untracked < best[1] - eps:  # tracks more: the cost only for the record
+                    cur, best, improved = trial, (close, untracked, searched.cost(g)), True
+                    break
+                total = searched.cost(g, bound=best[2])  # a tie: only a lower cost wins
+                if total < best[2] - 1e-12:
+                    cur, best, improved = trial, (close, untracked, total), True
                     break
         if not improved:
             break
