@@ -32,7 +32,9 @@ best and the best random layout after the swap search are the candidates; with a
 sample (``validate``: random poses with their own camera losses and seed, never the
 evaluation's) they are ranked by their tracked fraction there, then by their cost on both
 samples together, so the result is never behind either baseline on that ranking, and
-placement.json reports what each gave.  The searched scenarios cannot rank the tracked fraction
+placement.json reports what each gave.  With ``polish`` the leader and the cheapest candidate
+also compete after :func:`held_out_polish` on a tuning sample of their own (not the ranking
+sample, so the ranking is not biased towards them).  The searched scenarios cannot rank the tracked fraction
 (the candidates were fitted to them and are tracked in nearly all); a sample of 3000 poses x 2
 camera losses resolves gaps of a few in a thousand.
 Measured in the previous session (unseated sites), chains from a random start, polished, beat
