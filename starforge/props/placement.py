@@ -181,8 +181,8 @@ def check_trackable(centres: np.ndarray, spec: PlaceSpec, rig, seat, removed: di
             f"{spacing * 1000:.1f} mm apart (closer {ts.marker_mm:g} mm markers merge in the camera images), "
             f"and a tracker needs three{advice}"
         )
-    rho = line_reach(centres)
     need = TRIANGLE_SPREAD * ts.min_height_mm / 1000.0
+    rho = line_reach(centres, refine_below=2.0 * need)  # past twice the spread the search is not run
     if rho < need:
         raise StarforgeError(
             f"no layout on this prop can be tracked: every ball centre on its {len(centres)} usable sites "

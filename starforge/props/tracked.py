@@ -161,14 +161,16 @@ def spaced_capacity(points: np.ndarray, spacing: float, enough: int) -> int:
     return max(taken, packed)
 
 
-def line_reach(points: np.ndarray) -> float:
+def line_reach(points: np.ndarray, refine_below: float = math.inf) -> float:
     """An upper bound (m) on how far ``points`` lie from some line: the largest distance of a
     point from a line, for the best of a few lines (along the principal axis through the centroid
     and through the middle of the extent across it, then that line's direction and offset refined
     by a Nelder-Mead search for the least largest distance).  Any subset's RMS distance from its
     own best-fit line is at most its RMS distance from any line, so at most this: when it is below
     the tracked test's spread, no subset of the points can be tracked.  Every line tried gives a
-    valid bound; the search only makes it tighter (a search, not the exact minimax line)."""
+    valid bound; the search only makes it tighter (a search, not the exact minimax line), and
+    runs only when the first bound is below ``refine_below`` (a caller that needs the bound only
+    against a threshold skips it where the threshold is far)."""
     pts = np.asarray(points, float)
     if len(pts) < 2:
         return 0.0
@@ -181,6 +183,8 @@ def line_reach(points: np.ndarray) -> float:
     mid = (across.max(axis=0) + across.min(axis=0)) / 2
     starts = [np.zeros(2), mid]
     best = min(float(np.linalg.norm(across - o, axis=1).max()) for o in starts)
+    if best >= refine_below:
+        return best
 
     def reach(x):  # the line through centroid + o (across) along the axis tilted by (a, b)
         d = axes[0] + x[0] * axes[1] + x[1] * axes[2]
@@ -195,7 +199,7 @@ def line_reach(points: np.ndarray) -> float:
         r = minimize(reach, np.array([0.0, 0.0, o[0], o[1]]), method="Nelder-Mead",
                      options={"initial_simplex": np.array([[0, 0, o[0], o[1]], [0.05, 0, o[0], o[1]], [0, 0.05, o[0], o[1]],
                                                            [0, 0, o[0] + 0.2 * scale, o[1]], [0, 0, o[0], o[1] + 0.2 * scale]]),
-                              "xatol": 1e-9, "fatol": 1e-9 * scale, "maxiter": 2000})  # fmt: skip
+                              "xatol": 1e-7, "fatol": 1e-7, "maxiter": 800})  # fmt: skip
         best = min(best, reach(r.x))  # re-evaluated: the bound is the distance from that very line
     return best
 
