@@ -205,8 +205,16 @@ def placement_json(res: PlacementResult) -> dict:
                 "best_of_random_sites": res.tracked.baselines["best_of_random"]["sites"],
                 "selection": {
                     "validated": res.tracked.baselines["validated"],
-                    "note": "candidates ranked by their cost on the searched scenarios plus a held-out sample "
-                    "(track.validation_poses random poses, their own camera losses)",
+                    "note": "the candidates (the baselines as they are, the best random layout after the swap "
+                    "search, each chain's best after it) ranked by their tracked fraction on a held-out sample "
+                    f"({spec.track.validation_poses} random poses x their own camera losses, a seed of their own, "
+                    "not the evaluation's), then by their cost on the searched and held-out scenarios together; "
+                    "the first listed wins a tie",
+                    "winner": res.tracked.baselines["selection"]["winner"],
+                    "candidates": {
+                        name: {k: (_r(v) if isinstance(v, float) else v) for k, v in c.items()}
+                        for name, c in res.tracked.baselines["selection"]["candidates"].items()
+                    },
                     "default": _r(res.tracked.baselines["selection_cost"]),
                     "greedy_local_search": _r(res.tracked.baselines["greedy_local_search"]["selection_cost"]),
                     "best_of_random": None
@@ -223,6 +231,7 @@ def placement_json(res: PlacementResult) -> dict:
                 ],
             },
             "marker_centres_m": _r(centres),
+            "below_target": {k: (_r(v) if isinstance(v, float) else v) for k, v in res.shortfall.items()} or None,
             "layouts": {
                 name: {"sites": list(sites), "positions": _r(res.sites.points[list(sites)]), "centres": _r(res.centres(sites))}
                 for name, sites in (

@@ -49,6 +49,7 @@ class PlacementResult:
     removed: dict = field(default_factory=dict)  # sampled sites removed, by reason
     evaluation: dict = field(default_factory=dict)  # starforge.props.evaluate on fresh poses
     marker_masks: np.ndarray = field(default=None, repr=False)  # (m, poses) uint64 camera bits
+    shortfall: dict = field(default_factory=dict)  # below track.target_tracked on the held-out sample: why
 
     @property
     def marker_points(self) -> np.ndarray:
@@ -136,6 +137,8 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
             f"(curved, near an edge or the ball cuts in); fewer than the {need} markers needed: try a "
             "smaller --marker or --base-mm, or --no-hand"
         )
+    if spec.objective == "tracked":
+        check_trackable(kept.points + seat.centre_height_m * kept.normals, spec, rig, seat, removed)
     t = _tick(timings, "sample_s", t)
     pivot = np.asarray(prop.mesh.bounds, dtype=float).mean(axis=0)
     check_cost(prop, spec, rig, len(kept), spec.resolution**3 * spec.orientations)  # before building them
@@ -155,6 +158,39 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
     )
     _tick(timings, "visibility_s", t)
     return Prepared(kept, removed, rig, poses, table, seat, report, caps)
+
+
+def check_trackable(centres: np.ndarray, spec: PlaceSpec, rig, seat, removed: dict) -> None:
+    """Refuse, before the visibility table, seated sites on which no layout can ever be tracked:
+    no three of them lie the marker spacing apart (closer markers merge in the images), or every
+    ball centre lies so near one line that no markers on them span the tracker's triangle
+    (:func:`starforge.props.tracked.line_reach`, an upper bound: never a false alarm).  Both are
+    proofs about every layout, not a search that failed."""
+    from starforge.props.tracked import TRIANGLE_SPREAD, line_reach, spaced_triple, spacing_m
+
+    ts = spec.track
+    hand = f"; {removed['under_hand']} sites under the hand (another --grip or --no-hand frees them)" if removed["under_hand"] else ""
+    advice = (
+        "; try another --marker or --base-mm (a smaller base seats on more of the prop, a taller marker "
+        "holds its ball farther from a thin prop's faces)" + hand
+    )
+    spacing = spacing_m(ts.marker_mm, rig, ts.gap_px)
+    if not spaced_triple(centres, spacing):
+        raise StarforgeError(
+            f"no layout on this prop can be tracked: no three of its {len(centres)} usable sites lie "
+            f"{spacing * 1000:.1f} mm apart (closer {ts.marker_mm:g} mm markers merge in the camera images), "
+            f"and a tracker needs three{advice}"
+        )
+    need = TRIANGLE_SPREAD * ts.min_height_mm / 1000.0
+    rho = line_reach(centres, refine_below=2.0 * need)  # past twice the spread the search is not run
+    if rho < need:
+        raise StarforgeError(
+            f"no layout on this prop can be tracked: every ball centre on its {len(centres)} usable sites "
+            f"({seat.name} markers, centres {seat.centre_height_m * 1000:g} mm off the surface) lies within "
+            f"{rho * 1000:.2f} mm of one line, so no markers on them span the {ts.min_height_mm:g} mm triangle a "
+            f"tracker needs (an RMS distance of {need * 1000:.2f} mm from their line; a thin part's two faces hold "
+            f"their balls its thickness plus {2 * seat.centre_height_m * 1000:g} mm apart){advice}"
+        )
 
 
 def check_cost(prop, spec: PlaceSpec, rig, sites: int, poses: int) -> None:
@@ -336,31 +372,164 @@ VALIDATION_SEED_OFFSET = 2_000_029
 LOSS_SEED_OFFSET = 3_000_017
 
 
-def _validator(prop, spec, seed, prep, centres, prob):
-    """``validate(layouts) -> costs`` on held-out scenarios: ``track.validation_poses`` fresh
-    random poses with their own camera losses, a table built for the candidates' sites only."""
-    from starforge.props.evaluate import random_poses
-    from starforge.props.hand import capsule_arrays
-    from starforge.props.tracked import Problem, loss_scenarios
-    from starforge.props.visibility import compute_table
+#: the tuning sample that the held-out polish searches (never the ranking's or the evaluation's)
+TUNING_SEED_OFFSET = 4_000_037
 
-    ts, sites, rig = spec.track, prep.sites, prep.rig
+
+class _HeldOut:
+    """A held-out sample: ``track.validation_poses`` fresh random poses (generator ``seed +
+    offset``), each met ``track.loss_patterns`` times with its own random camera losses, drawn
+    as :func:`starforge.props.tracked.loss_scenarios` draws them; tables are built on demand
+    for the sites (and poses) asked."""
+
+    def __init__(self, prop, spec, seed: int, prep, offset: int):
+        from starforge.props.evaluate import random_poses
+        from starforge.props.tracked import alive_masks
+
+        ts, rig = spec.track, prep.rig
+        rng = np.random.default_rng(seed + offset)
+        self.poses = random_poses(rig.volume, ts.validation_poses, prep.poses.pivot, rng)
+        self.patterns = ts.loss_patterns if int(round(ts.cameras_lost * len(rig.cameras))) > 0 else 1
+        self.alive = alive_masks(len(rig.cameras), ts.cameras_lost, len(self.poses) * self.patterns, rng)
+        self.prop, self.spec, self.prep = prop, spec, prep
+
+    def seen(self, sites, poses=None, hand: bool = True):
+        """(seen (len(sites), scenarios) bool, masks (len(sites), poses) uint64): the scenarios
+        of ``poses`` (indices, default all), without the hand when ``hand`` is false."""
+        from starforge.props.hand import capsule_arrays
+        from starforge.props.rig import Poses
+        from starforge.props.visibility import compute_table
+
+        prep, spec = self.prep, self.spec
+        k = np.arange(len(self.poses)) if poses is None else np.asarray(poses, dtype=np.int64)
+        sub = Poses(self.poses.rotations[k], self.poses.translations[k], self.poses.pivot)
+        table = compute_table(
+            self.prop.mesh, prep.sites.points[sites], prep.sites.normals[sites], prep.rig, sub,
+            spec.grazing_limit_deg, radius_m=prep.seat.ball_radius_m, centre_m=prep.seat.centre_height_m,
+            occlusion=spec.occlusion, occluders=capsule_arrays(prep.capsules if hand else ()),
+        )  # fmt: skip
+        L = self.patterns
+        scen = (k[:, None] * L + np.arange(L)[None]).ravel()  # scenario j of pose k: k * L + j
+        seen = np.bitwise_count(table.masks[:, np.repeat(np.arange(len(k)), L)] & self.alive[scen][None]) >= 2
+        return seen, table.masks
+
+
+def _held_out(prop, spec, seed, prep, sites, hand=True):
+    """The ranking sample (:data:`VALIDATION_SEED_OFFSET`; never the evaluation's) for ``sites``."""
+    return _HeldOut(prop, spec, seed, prep, VALIDATION_SEED_OFFSET).seen(sites, hand=hand)
+
+
+def _validator(prop, spec, seed, prep, centres, prob):
+    """``validate(layouts) -> [{"untracked", "cost"}]``: each layout's untracked fraction and cost
+    on the ranking sample (:func:`_held_out`)."""
+    from starforge.props.tracked import Problem
+
+    sample = _HeldOut(prop, spec, seed, prep, VALIDATION_SEED_OFFSET)
 
     def validate(layouts):
         union = sorted({int(x) for lay in layouts for x in lay})
-        vrng = np.random.default_rng(seed + VALIDATION_SEED_OFFSET)
-        poses = random_poses(rig.volume, ts.validation_poses, prep.poses.pivot, vrng)
-        table = compute_table(
-            prop.mesh, sites.points[union], sites.normals[union], rig, poses, spec.grazing_limit_deg,
-            radius_m=prep.seat.ball_radius_m, centre_m=prep.seat.centre_height_m, occlusion=spec.occlusion,
-            occluders=capsule_arrays(prep.capsules),
-        )  # fmt: skip
-        seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, vrng)
-        held = Problem(centres[union], seen, seen.mean(axis=1), ts, prob.spacing, prob.spread_target, prob.avoid_faces)
+        seen, _ = sample.seen(union)
+        held = Problem(centres[union], seen, seen.mean(axis=1), spec.track, prob.spacing, prob.spread_target, prob.avoid_faces)
         at = {s: i for i, s in enumerate(union)}
-        return [held.cost([at[int(x)] for x in lay]) for lay in layouts]
+        out = []
+        for lay in layouts:
+            t = held.terms([at[int(x)] for x in lay])
+            out.append({"untracked": t["untracked"], "cost": t["total"]})
+        return out
 
     return validate
+
+
+#: at most this many sites take part in the held-out polish (the winner's, every candidate's,
+#: then the winner's nearest neighbours)
+POLISH_SITES = 120
+
+
+def _polisher(prop, spec, seed, prep, centres, prob):
+    """``polish(sites) -> sites``: :func:`starforge.props.tracked.held_out_polish` on the hard
+    poses of a tuning sample of its own (:data:`TUNING_SEED_OFFSET`: neither the ranking sample
+    nor the evaluation), the poses in which ``sites`` leave fewer than ``spare_markers`` seen in
+    some scenario; the sites near the winner's and the other candidates' take part."""
+    from starforge.props.tracked import Problem, held_out_polish
+
+    ts = spec.track
+
+    def polish(sites, others=()):
+        sample = _HeldOut(prop, spec, seed, prep, TUNING_SEED_OFFSET)
+        sites = [int(x) for x in sites]
+        seen, _ = sample.seen(sites)
+        L = sample.patterns
+        few = (seen.sum(axis=0) < max(3, ts.spare_markers)).reshape(-1, L).any(axis=1)
+        hard = np.flatnonzero(few)
+        if not len(hard):
+            return tuple(sites)
+        pool = list(dict.fromkeys(sites + sorted({int(x) for o in others for x in o})))
+        near = range(len(prob.points)) if len(prob.points) <= POLISH_SITES else prob.knn[sites].T.ravel().tolist()
+        for i in near:  # nearest neighbours of every marker first, then the next nearest
+            if len(pool) >= POLISH_SITES:
+                break
+            if int(i) not in pool:
+                pool.append(int(i))
+        hseen, _ = sample.seen(pool, hard)
+        tuning = Problem(centres[pool], hseen, hseen.mean(axis=1), ts, prob.spacing, prob.spread_target, prob.avoid_faces)
+        found = held_out_polish(tuning, prob, list(range(len(sites))), np.asarray(pool))
+        return tuple(pool[i] for i in found)
+
+    return polish
+
+
+def _shortfall(prop, spec, seed, prep, prob, chosen, removed, fit) -> dict:
+    """Why the chosen layout is tracked in fewer held-out scenarios than ``track.target_tracked``:
+    the same scenarios re-scored with every camera and without the hand, the untracked ones split
+    into too few markers seen and markers in a line, and the sites the layout had to work with."""
+    from starforge.props.tracked import Problem
+
+    ts, idx = spec.track, list(chosen)
+    seen, masks = _held_out(prop, spec, seed, prep, idx)
+    held = Problem(prob.points[idx], seen, seen.mean(axis=1), ts, prob.spacing, prob.spread_target)
+    everything = np.repeat(np.bitwise_count(masks) >= 2, seen.shape[1] // masks.shape[1], axis=1)
+    seen_nh, _ = _held_out(prop, spec, seed, prep, idx, hand=False) if prep.capsules else (seen, None)
+    marks = list(range(len(idx)))
+    tracked = 1.0 - held.terms(marks)["untracked"]
+    few = float(((seen.sum(axis=0) < 3)).mean())
+    out = {
+        "target": ts.target_tracked,
+        "validation_tracked": tracked,
+        "scenarios": int(seen.shape[1]),
+        "untracked_too_few_seen": few,
+        "untracked_in_a_line": max(0.0, 1.0 - tracked - few),
+        "tracked_with_every_camera": 1.0 - Problem(prob.points[idx], everything, everything.mean(axis=1), ts, prob.spacing, prob.spread_target).terms(marks)["untracked"],
+        "tracked_without_the_hand": 1.0 - Problem(prob.points[idx], seen_nh, seen_nh.mean(axis=1), ts, prob.spacing, prob.spread_target).terms(marks)["untracked"],
+        "markers": len(idx),
+        "markers_asked": spec.track.target_markers,
+        "markers_that_fit_at_the_spacing": fit,
+        "usable_sites": len(prep.sites),
+        "sites_under_the_hand": removed["under_hand"],
+    }
+    return out
+
+
+def shortfall_warning(sf: dict, spacing_m: float, hand: bool) -> str:
+    """One line: how far below the target the layout is on the held-out scenarios, the cause the
+    numbers point to, and what to change."""
+    cause = []
+    if sf["markers_that_fit_at_the_spacing"] < sf["markers_asked"]:
+        cause.append(
+            f"only {sf['markers_that_fit_at_the_spacing']} markers fit {spacing_m * 1000:.1f} mm apart on its "
+            f"{sf['usable_sites']} usable sites" + (f" ({sf['sites_under_the_hand']} sites under the hand)" if hand else "")
+        )
+    share = sf["untracked_too_few_seen"] / max(1e-12, 1.0 - sf["validation_tracked"])
+    cause.append(f"{100 * share:.0f} % of the untracked scenarios see fewer than 3 markers, the rest see them in a line")
+    helps = [f"with every camera {100 * sf['tracked_with_every_camera']:.1f} %"]
+    if hand:
+        helps.append(f"without the hand {100 * sf['tracked_without_the_hand']:.1f} %")
+    advice = "a smaller --marker or --base-mm (more markers fit, more sites seat)"
+    if hand:
+        advice += ", another --grip or --no-hand"
+    return (
+        f"the layout is tracked in {100 * sf['validation_tracked']:.1f} % of {sf['scenarios']} held-out scenarios, "
+        f"below the {100 * sf['target']:g} % target ({', '.join(helps)}): {'; '.join(cause)}; try {advice}"
+    )
 
 
 def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress, on_layout=None) -> PlacementResult:
@@ -369,9 +538,7 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
     from starforge.props.evaluate import evaluate_layouts
     from starforge.props.optimizer import ChainResult
     from starforge.props.tracked import (
-        TRIANGLE_SPREAD,
         Problem,
-        line_reach,
         loss_scenarios,
         optimize,
         spaced_capacity,
@@ -393,14 +560,6 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
             f"not {ts.target_markers}" + (" (some closer than the spacing)" if n > fit else "")
         )
         ts = replace(ts, target_markers=n)
-    rho = line_reach(centres)
-    if rho < TRIANGLE_SPREAD * ts.min_height_mm / 1000.0:
-        warnings.append(
-            f"every usable site lies within {rho * 1000:.1f} mm of one line: no markers on them span the "
-            f"{ts.min_height_mm:g} mm triangle a tracker needs, so no layout of them can be tracked; try another "
-            "--marker (a smaller base seats on more of the prop, a taller one holds its ball farther from a thin "
-            "prop's faces)"
-        )
     prob = Problem(
         centres,
         seen,
@@ -411,12 +570,19 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         None if avoid is None or not len(avoid) else np.asarray(avoid, float),
     )
     run_cb = (lambda d, n: progress("optimizing", d, n)) if progress else None
-    validate = None
+    validate = polish = None
     if ts.validation_poses:
         validate = _validator(prop, spec, seed, prep, centres, prob)
-    opt = optimize(prob, rng, run_cb, validate)
+        polish = _polisher(prop, spec, seed, prep, centres, prob)
+    opt = optimize(prob, rng, run_cb, validate, polish)
     t = _tick(timings, "optimize_s", t)
     chosen, terms = opt.sites, opt.terms
+    shortfall = {}
+    won = opt.baselines["selection"]["candidates"][opt.baselines["selection"]["winner"]]
+    if won["validation_tracked"] is not None and won["validation_tracked"] < ts.target_tracked:
+        shortfall = _shortfall(prop, spec, seed, prep, prob, chosen, prep.removed, fit)
+        warnings.append(shortfall_warning(shortfall, prob.spacing, bool(prep.capsules)))
+        t = _tick(timings, "shortfall_s", t)
     runs = tuple(
         ChainResult(c.sites, c.cost, c.iterations, c.history, c.history, np.full(len(c.history), len(c.sites), np.int16), {}, {"all": c.accepted})
         for c in opt.runs
@@ -442,7 +608,7 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         prop, spec, seed, rig, prep.poses, sites, prep.removed["constrained"], prob.visibility, chosen, cost, ann,
         seen[list(chosen)], timings, table.rays, opt, (), prob.spacing, seat=prep.seat,
         seat_report=prep.seat_report, capsules=prep.capsules, removed=prep.removed,
-        marker_masks=table.masks[list(chosen)],
+        marker_masks=table.masks[list(chosen)], shortfall=shortfall,
     )  # fmt: skip
     if on_layout is not None:
         on_layout(res)
