@@ -207,3 +207,21 @@ def test_line_spread_from_running_sums_matches_the_point_set():
         axis = np.linalg.svd(q, full_matrices=False)[2][0] if len(p) > 1 else np.array([1.0, 0, 0])
         want = np.mean(np.sum((q - np.outer(q @ axis, axis)) ** 2, axis=1))
         assert g == pytest.approx(want, abs=1e-9)
+
+
+def test_line_spread_at_least_is_the_comparison_bit_for_bit():
+    """The bounded test answers exactly ``line_spread2(...) >= limit``, limits placed at, just
+    beside and far from each set's own spread (where the bounds cannot decide and where they do)."""
+    from starforge.geometry.sym3 import line_spread2_at_least_many, line_spread2_many, moments
+
+    rng = np.random.default_rng(4)
+    sets = [rng.normal(size=(int(rng.integers(0, 9)), 3)) * rng.uniform(0.001, 1, 3) for _ in range(3000)]
+    sets += [np.outer(np.linspace(0, 1, 5), [1.0, 2.0, -1.0]) + 0.3, np.ones((4, 3))]  # a line, one point
+    cnt = np.array([len(p) for p in sets], dtype=float)
+    s1 = np.array([p.sum(axis=0) if len(p) else np.zeros(3) for p in sets])
+    s2 = np.array([moments(p).sum(axis=0) if len(p) else np.zeros(6) for p in sets])
+    d2 = line_spread2_many(cnt, s1, s2)
+    for limit in (d2, np.nextafter(d2, np.inf), np.nextafter(d2, -np.inf), d2 * 0.5, d2 * 0.9, d2 * 1.5, d2 * 3):
+        for lim in (np.full_like(d2, 1e-4), limit):
+            got = np.array([line_spread2_at_least_many(cnt[i : i + 1], s1[i : i + 1], s2[i : i + 1], lim[i])[0] for i in range(len(d2))])
+            assert np.array_equal(got, d2 >= lim)

@@ -152,3 +152,20 @@ def test_open_shell_with_inward_normals_is_turned_outward():
     m2, _, notes2 = repair_mesh(outward)
     assert not any("inside out" in n for n in notes2)
     assert np.all(np.einsum("ij,ij->i", m2.face_normals, m2.triangles_center) > 0)
+
+
+def test_dart_throw_is_the_greedy_brute_force():
+    """The compiled greedy keeps exactly what a plain O(n^2) pass keeps: visit the points in
+    order, keep one unless a kept one lies within the radius; stop at the limit."""
+    from starforge.props.sites import _dart_throw
+
+    rng = np.random.default_rng(7)
+    for n, radius, limit in ((300, 0.08, 1000), (300, 0.08, 40), (200, 0.0, 50), (5, 10.0, 3)):
+        pts = rng.random((n, 3))
+        kept: list[int] = []
+        for i in range(n):
+            if all(np.linalg.norm(pts[i] - pts[j]) > radius for j in kept):
+                kept.append(i)
+                if len(kept) >= limit:
+                    break
+        assert _dart_throw(pts, radius, limit).tolist() == kept

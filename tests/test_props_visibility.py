@@ -223,3 +223,42 @@ def test_fallback_tracer_agrees_with_embree(box, monkeypatch):
     slow = segment_occluded(box, o, t)
     assert fast.any() and not fast.all()
     assert np.array_equal(fast, slow)
+
+
+def test_kernel_dot_is_the_fused_blas_sum():
+    """The kernels' 3-vector dot product: round(x0*y0), then two fused multiply-adds, each
+    rounded once (what OpenBLAS's ddot computes on an FMA machine), re-checked in exact
+    rational arithmetic."""
+    from fractions import Fraction as F
+
+    from starforge.props.visibility import _dot3
+
+    def fma(a, b, c):
+        return float(F(a) * F(b) + F(c))  # exact product and sum, one rounding
+
+    rng = np.random.default_rng(11)
+    for x, y in zip(rng.normal(size=(400, 3)) * rng.lognormal(size=(400, 1)), rng.normal(size=(400, 3)), strict=True):
+        want = fma(x[2], y[2], fma(x[1], y[1], float(F(x[0]) * F(y[0]))))
+        assert _dot3(*x, *y) == want
+
+
+def test_segment_distance_matches_dense_sampling():
+    from starforge.props.visibility import _seg_seg_dist2
+
+    rng = np.random.default_rng(12)
+    t = np.linspace(0.0, 1.0, 801)
+    for k in range(40):
+        p0, p1, q0, q1 = rng.normal(size=(4, 3))
+        if k % 10 == 0:
+            p1 = p0.copy()  # a point against a segment
+        if k % 10 == 1:
+            q1 = q0.copy()
+        if k % 10 == 2:
+            q1 = q0 + 2.0 * (p1 - p0)  # parallel segments
+        a = p0 + t[:, None] * (p1 - p0)
+        b = q0 + t[:, None] * (q1 - q0)
+        brute = float((((a[:, None] - b[None]) ** 2).sum(axis=2)).min())
+        got = _seg_seg_dist2(*p0, *p1, *q0, *q1)
+        step = (np.linalg.norm(p1 - p0) + np.linalg.norm(q1 - q0)) / 800 / 2  # farthest from a grid point
+        assert got <= brute + 1e-12
+        assert brute - got <= 2 * math.sqrt(got) * step + step**2 + 1e-12

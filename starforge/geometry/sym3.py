@@ -13,13 +13,20 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True, nogil=True)
-def sym3_eigvals(a, b, c, d, e, f):
-    """Ascending eigenvalues of [[a, d, f], [d, b, e], [f, e, c]]."""
+@numba.njit(cache=True, nogil=True, inline="always")
+def _mean_and_spread(a, b, c, d, e, f):
+    """Smith's ``q`` (the mean eigenvalue) and ``p`` (the eigenvalues' spread about it) of
+    [[a, d, f], [d, b, e], [f, e, c]]."""
     q = (a + b + c) / 3
     p1 = d * d + e * e + f * f
     p2 = (a - q) ** 2 + (b - q) ** 2 + (c - q) ** 2 + 2 * p1
-    p = math.sqrt(p2 / 6)
+    return q, math.sqrt(p2 / 6)
+
+
+@numba.njit(cache=True, nogil=True)
+def sym3_eigvals(a, b, c, d, e, f):
+    """Ascending eigenvalues of [[a, d, f], [d, b, e], [f, e, c]]."""
+    q, p = _mean_and_spread(a, b, c, d, e, f)
     if p <= 0:
         return q, q, q
     A, B, C = (a - q) / p, (b - q) / p, (c - q) / p
@@ -31,6 +38,13 @@ def sym3_eigvals(a, b, c, d, e, f):
     return l1, 3 * q - l1 - l3, l3
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _covariance(n, x, y, z, xx, yy, zz, xy, yz, xz):
+    """The covariance entries (xx, yy, zz, xy, yz, xz) of ``n`` > 0 points from their sums."""
+    mx, my, mz = x / n, y / n, z / n
+    return xx / n - mx * mx, yy / n - my * my, zz / n - mz * mz, xy / n - mx * my, yz / n - my * mz, xz / n - mx * mz
+
+
 @numba.njit(cache=True, nogil=True)
 def line_spread2(n, x, y, z, xx, yy, zz, xy, yz, xz):
     """Mean squared distance of ``n`` points from their best-fit line, from the sums of their
@@ -38,11 +52,31 @@ def line_spread2(n, x, y, z, xx, yy, zz, xy, yz, xz):
     largest eigenvalue (>= 0)."""
     if n <= 0:
         return 0.0
-    mx, my, mz = x / n, y / n, z / n
-    cxx, cyy, czz = xx / n - mx * mx, yy / n - my * my, zz / n - mz * mz
-    cxy, cyz, cxz = xy / n - mx * my, yz / n - my * mz, xz / n - mx * mz
+    cxx, cyy, czz, cxy, cyz, cxz = _covariance(n, x, y, z, xx, yy, zz, xy, yz, xz)
     _, _, top = sym3_eigvals(cxx, cyy, czz, cxy, cyz, cxz)
     return max(cxx + cyy + czz - top, 0.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def line_spread2_at_least(n, x, y, z, xx, yy, zz, xy, yz, xz, limit):
+    """``line_spread2(n, ...) >= limit``, the same answer bit for bit, mostly without its
+    arccosine and cosine.
+
+    :func:`sym3_eigvals` returns the largest eigenvalue as ``q + (2 p) cos(phi)`` with
+    ``0 <= phi <= pi / 3``, so ``q <= top <= q + 2 p`` holds for the rounded values too (a
+    rounded product or sum never crosses a bound its exact value respects, and 0 < cos(phi) <= 1):
+    the spread lies between ``trace - (q + 2 p)`` and ``trace - q``, computed with the same
+    operations.  Only where ``limit`` falls between the two is the eigenvalue computed."""
+    if n <= 0:
+        return 0.0 >= limit
+    a, b, c, d, e, f = _covariance(n, x, y, z, xx, yy, zz, xy, yz, xz)
+    trace = a + b + c
+    q, p = _mean_and_spread(a, b, c, d, e, f)
+    if max(trace - q, 0.0) < limit:
+        return False
+    if max(trace - (q + 2 * p), 0.0) >= limit:
+        return True
+    return line_spread2(n, x, y, z, xx, yy, zz, xy, yz, xz) >= limit
 
 
 @numba.njit(cache=True, nogil=True)
@@ -56,6 +90,18 @@ def line_spread2_many(cnt, s1, s2):
         )
     return out
 
+
+
+@numba.njit(cache=True, nogil=True)
+def line_spread2_at_least_many(cnt, s1, s2, limit):
+    """(m,) bool :func:`line_spread2_at_least` of m point sets (counts, sums as in
+    :func:`line_spread2_many`)."""
+    out = np.empty(cnt.shape[0], dtype=np.bool_)
+    for i in range(cnt.shape[0]):
+        out[i] = line_spread2_at_least(
+            cnt[i], s1[i, 0], s1[i, 1], s1[i, 2], s2[i, 0], s2[i, 1], s2[i, 2], s2[i, 3], s2[i, 4], s2[i, 5], limit
+        )
+    return out
 
 def moments(x: np.ndarray) -> np.ndarray:
     """(n, 6) products xx, yy, zz, xy, yz, xz of points (n, 3), the order the kernels take."""

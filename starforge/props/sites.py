@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from starforge.errors import StarforgeError
@@ -47,11 +48,12 @@ class Sites:
         return Sites(self.points[keep], self.normals[keep], self.faces[keep], self.radius_m)
 
 
-def _dart_throw(points: np.ndarray, radius: float, limit: int) -> np.ndarray:
-    """Indices kept by greedy dart throwing over ``points`` (already in random order)."""
+def _dart_throw(points: np.ndarray, radius: float, limit: int, tree=None) -> np.ndarray:
+    """Indices kept by greedy dart throwing over ``points`` (already in random order);
+    ``tree``: a ``cKDTree`` of ``points`` when the caller has one."""
     from scipy.spatial import cKDTree
 
-    tree = cKDTree(points)
+    tree = cKDTree(points) if tree is None else tree
     pairs = tree.query_pairs(radius, output_type="ndarray")
     n = len(points)
     if len(pairs) == 0:
@@ -60,17 +62,27 @@ def _dart_throw(points: np.ndarray, radius: float, limit: int) -> np.ndarray:
     order = np.argsort(both[:, 0], kind="stable")
     both = both[order]
     starts = np.searchsorted(both[:, 0], np.arange(n + 1))
-    nbr = both[:, 1]
-    blocked = np.zeros(n, dtype=bool)
-    kept = []
+    return _greedy_keep(starts, np.ascontiguousarray(both[:, 1]), limit)
+
+
+@numba.njit(cache=True, nogil=True)
+def _greedy_keep(starts, nbr, limit):
+    """Visit candidates 0, 1, ... in order; keep one unless a kept one's neighbour list
+    (``nbr[starts[i]:starts[i + 1]]``, CSR) blocked it; stop at ``limit`` kept."""
+    n = starts.shape[0] - 1
+    blocked = np.zeros(n, dtype=np.bool_)
+    kept = np.empty(min(n, limit), dtype=np.int64)
+    k = 0
     for i in range(n):
         if blocked[i]:
             continue
-        kept.append(i)
-        if len(kept) >= limit:
+        kept[k] = i
+        k += 1
+        if k >= limit:
             break
-        blocked[nbr[starts[i] : starts[i + 1]]] = True
-    return np.asarray(kept, dtype=np.int64)
+        for j in range(starts[i], starts[i + 1]):
+            blocked[nbr[j]] = True
+    return kept[:k]
 
 
 def sample_sites(mesh, count: int, rng: np.random.Generator, oversample: int = 6) -> Sites:
@@ -106,14 +118,17 @@ def sample_sites(mesh, count: int, rng: np.random.Generator, oversample: int = 6
     lo = 0.0
     best = np.arange(min(count, n_dense))
     first = 0.9 * np.sqrt(area / (count * 1.44))
-    kept = _dart_throw(pts, first, count)
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(pts)  # one tree for every radius tried
+    kept = _dart_throw(pts, first, count, tree)
     if len(kept) >= count:
         lo, best = first, kept
     else:
         hi = first
     for _ in range(9):
         mid = 0.5 * (lo + hi)
-        kept = _dart_throw(pts, mid, count)
+        kept = _dart_throw(pts, mid, count, tree)
         if len(kept) >= count:
             lo, best = mid, kept
         else:

@@ -51,7 +51,13 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from starforge.geometry.sym3 import line_spread2, line_spread2_many, moments
+from starforge.geometry.sym3 import (
+    line_spread2,
+    line_spread2_at_least,
+    line_spread2_at_least_many,
+    line_spread2_many,
+    moments,
+)
 from starforge.spec import in_range, non_negative, positive
 
 TRIANGLE_SPREAD = math.sqrt(2.0) / 3.0  # RMS distance from the base line of a triangle of height 1
@@ -224,8 +230,10 @@ def _screen_tracked(cnt0, s10, s20, seen_c, pts_c, mom_c, min_spread2):
     base = np.zeros(P, dtype=np.bool_)
     for p in range(P):
         if cnt0[p] >= 3:
-            d2 = line_spread2(cnt0[p], s10[p, 0], s10[p, 1], s10[p, 2], s20[p, 0], s20[p, 1], s20[p, 2], s20[p, 3], s20[p, 4], s20[p, 5])
-            base[p] = d2 >= min_spread2
+            base[p] = line_spread2_at_least(
+                cnt0[p], s10[p, 0], s10[p, 1], s10[p, 2], s20[p, 0], s20[p, 1], s20[p, 2], s20[p, 3], s20[p, 4], s20[p, 5],
+                min_spread2,
+            )  # fmt: skip
     base_good = base.sum()
     out = np.empty(k)
     for i in numba.prange(k):
@@ -237,12 +245,11 @@ def _screen_tracked(cnt0, s10, s20, seen_c, pts_c, mom_c, min_spread2):
             n = cnt0[p] + 1.0
             ok = False
             if n >= 3:
-                d2 = line_spread2(
+                ok = line_spread2_at_least(
                     n, s10[p, 0] + x, s10[p, 1] + y, s10[p, 2] + z,
                     s20[p, 0] + mom_c[i, 0], s20[p, 1] + mom_c[i, 1], s20[p, 2] + mom_c[i, 2],
-                    s20[p, 3] + mom_c[i, 3], s20[p, 4] + mom_c[i, 4], s20[p, 5] + mom_c[i, 5],
+                    s20[p, 3] + mom_c[i, 3], s20[p, 4] + mom_c[i, 4], s20[p, 5] + mom_c[i, 5], min_spread2,
                 )  # fmt: skip
-                ok = d2 >= min_spread2
             good += int(ok) - int(base[p])
         out[i] = good / P
     return out
@@ -299,7 +306,7 @@ class Problem:
         cnt = seen.sum(axis=0)
         s1 = seen.T @ self.points[idx]
         s2 = seen.T @ self.moments[idx]
-        tracked = (cnt >= 3) & (line_spread2_many(cnt, s1, s2) >= self.min_spread2)
+        tracked = (cnt >= 3) & line_spread2_at_least_many(cnt, s1, s2, self.min_spread2)
         untracked = 1.0 - float(tracked.mean())
         spare_shortfall = float(np.maximum(0.0, s.spare_markers - cnt).mean()) / max(1, s.spare_markers)
         vis = float(self.visibility[idx].mean()) if n else 0.0

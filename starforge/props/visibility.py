@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
+from numba import types
+from numba.extending import intrinsic
 
 from starforge.errors import StarforgeError
 from starforge.spec import in_range
@@ -134,27 +136,47 @@ def check_rig_sees_volume(rig, positions_world: np.ndarray) -> None:
         )
 
 
+@intrinsic
+def _fma(typingctx, a, b, c):
+    """``a * b + c`` rounded once (LLVM's fma): the step of the BLAS dot product that numba's
+    ``@`` on float64 vectors calls (OpenBLAS's ``ddot``), so that the scalar kernels below
+    reproduce its sums bit for bit."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        return builder.fma(*args)
+
+    return sig, codegen
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _dot3(ax, ay, az, bx, by, bz):
+    """The dot product of two 3-vectors, summed as BLAS's ``ddot`` sums it (fused, in order)."""
+    return _fma(az, bz, _fma(ay, by, ax * bx))
+
+
 @numba.njit(cache=True, nogil=True)
-def _seg_seg_dist2(p0, p1, q0, q1):
-    """Squared distance between segments p0-p1 and q0-q1 (closest points, clamped)."""
-    d1 = p1 - p0
-    d2 = q1 - q0
-    r = p0 - q0
-    a = d1 @ d1
-    e = d2 @ d2
-    f = d2 @ r
+def _seg_seg_dist2(p0x, p0y, p0z, p1x, p1y, p1z, q0x, q0y, q0z, q1x, q1y, q1z):
+    """Squared distance between segments p0-p1 and q0-q1 (closest points, clamped), from their
+    coordinates (scalars: no arrays are made in the kernel's inner loop)."""
+    d1x, d1y, d1z = p1x - p0x, p1y - p0y, p1z - p0z
+    d2x, d2y, d2z = q1x - q0x, q1y - q0y, q1z - q0z
+    rx, ry, rz = p0x - q0x, p0y - q0y, p0z - q0z
+    a = _dot3(d1x, d1y, d1z, d1x, d1y, d1z)
+    e = _dot3(d2x, d2y, d2z, d2x, d2y, d2z)
+    f = _dot3(d2x, d2y, d2z, rx, ry, rz)
     s = 0.0
     t = 0.0
     if a <= 1e-300 and e <= 1e-300:
-        return r @ r
+        return _dot3(rx, ry, rz, rx, ry, rz)
     if a <= 1e-300:
         t = min(max(f / e, 0.0), 1.0)
     else:
-        c = d1 @ r
+        c = _dot3(d1x, d1y, d1z, rx, ry, rz)
         if e <= 1e-300:
             s = min(max(-c / a, 0.0), 1.0)
         else:
-            b = d1 @ d2
+            b = _dot3(d1x, d1y, d1z, d2x, d2y, d2z)
             den = a * e - b * b
             if den > 1e-300:
                 s = min(max((b * f - c * e) / den, 0.0), 1.0)
@@ -165,8 +187,10 @@ def _seg_seg_dist2(p0, p1, q0, q1):
             elif t > 1.0:
                 t = 1.0
                 s = min(max((b - c) / a, 0.0), 1.0)
-    w = (p0 + d1 * s) - (q0 + d2 * t)
-    return w @ w
+    wx = (p0x + d1x * s) - (q0x + d2x * t)
+    wy = (p0y + d1y * s) - (q0y + d2y * t)
+    wz = (p0z + d1z * s) - (q0z + d2z * t)
+    return _dot3(wx, wy, wz, wx, wy, wz)
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
@@ -174,27 +198,40 @@ def _view_masks(centres, normals, q, axes, tans, cos_lim, caps, min_cams):
     """(s, P) uint64 camera bits: camera c (position ``q[k, c]`` and axes ``axes[k, c]`` in the
     prop frame at pose k) has site i's ball centre in its field of view, faces it within the
     grazing limit, and the segment between them misses every capsule of ``caps`` (k, 7).  Masks
-    with fewer than ``min_cams`` bits are cleared.  The prop itself is tested afterwards."""
+    with fewer than ``min_cams`` bits are cleared.  The prop itself is tested afterwards.
+
+    Scalar arithmetic throughout (no temporary arrays), with the dot products summed as BLAS
+    sums them on an FMA machine (:func:`_dot3`): the same masks, bit for bit, as the array
+    expressions (``axes[k, c, 2] @ (centres[i] - q[k, c])``, ...) it replaces, and 26 x less
+    CPU on the hammer's table (0.119 -> 0.0046 s)."""
     S = centres.shape[0]
     P, C = q.shape[0], q.shape[1]
+    H = caps.shape[0]
     out = np.zeros((S, P), dtype=np.uint64)
     for k in numba.prange(P):
         for i in range(S):
+            cx, cy, cz = centres[i, 0], centres[i, 1], centres[i, 2]
             m = np.uint64(0)
             cnt = 0
             for c in range(C):
-                d = centres[i] - q[k, c]
-                z = axes[k, c, 2] @ d
+                qx, qy, qz = q[k, c, 0], q[k, c, 1], q[k, c, 2]
+                dx, dy, dz = cx - qx, cy - qy, cz - qz
+                z = _dot3(axes[k, c, 2, 0], axes[k, c, 2, 1], axes[k, c, 2, 2], dx, dy, dz)
                 if z <= 0.0:
                     continue
-                if abs(axes[k, c, 0] @ d) > tans[c, 0] * z or abs(axes[k, c, 1] @ d) > tans[c, 1] * z:
+                if abs(_dot3(axes[k, c, 0, 0], axes[k, c, 0, 1], axes[k, c, 0, 2], dx, dy, dz)) > tans[c, 0] * z:
                     continue
-                dist = math.sqrt(d @ d)
-                if -(d @ normals[i]) < cos_lim * dist:
+                if abs(_dot3(axes[k, c, 1, 0], axes[k, c, 1, 1], axes[k, c, 1, 2], dx, dy, dz)) > tans[c, 1] * z:
+                    continue
+                dist = math.sqrt(_dot3(dx, dy, dz, dx, dy, dz))
+                if -_dot3(dx, dy, dz, normals[i, 0], normals[i, 1], normals[i, 2]) < cos_lim * dist:
                     continue
                 hidden = False
-                for h in range(caps.shape[0]):
-                    if _seg_seg_dist2(centres[i], q[k, c], caps[h, 0:3], caps[h, 3:6]) <= caps[h, 6] * caps[h, 6]:
+                for h in range(H):
+                    d2 = _seg_seg_dist2(
+                        cx, cy, cz, qx, qy, qz, caps[h, 0], caps[h, 1], caps[h, 2], caps[h, 3], caps[h, 4], caps[h, 5]
+                    )
+                    if d2 <= caps[h, 6] * caps[h, 6]:
                         hidden = True
                         break
                 if hidden:
