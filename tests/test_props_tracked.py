@@ -314,6 +314,24 @@ def test_untracked_poses_are_warned_and_recorded(tmp_path, capsys):
     lines = [w for w in doc["warnings"] if "below the 99 % target" in w]
     assert len(lines) == 1 and "--marker" in lines[0] and "--no-hand" in lines[0]
     assert f"{100 * below['validation_tracked']:.1f} %" in lines[0]
+    # 60 sites far apart: over 200,000 spaced layouts, too many to score, and nothing is claimed
+    assert below["ceiling"] is None and "such layouts" not in lines[0]
+
+
+def test_below_target_names_the_exact_ceiling_when_layouts_are_few(tmp_path):
+    """On 20 sites every spaced layout is scored: the ceiling bounds the chosen layout, and the
+    warning line quotes it."""
+    out = tmp_path / "o"
+    args = ["place", "run", "shield", "--rig", "small4", "--sites", "20", "--resolution", "2",
+            "--orientations", "12", "--markers", "4", "--out", out]
+    assert run_cli(args) == 0
+    doc = json.loads((out / "placement.json").read_text())
+    below = doc["tracked"]["below_target"]
+    c = below["ceiling"]
+    assert c is not None and c["scenarios"] == below["scenarios"] and 3 <= c["max_markers_spaced"] <= 4
+    assert below["validation_tracked"] <= c["ceiling"] + 1e-12 < 0.99
+    line = [w for w in doc["warnings"] if "below the 99 % target" in w][0]
+    assert f"does better than {100 * c['ceiling']:.2f} %" in line and f"all {c['layouts']:,} such layouts" in line
 
 
 def test_spaced_capacity_is_a_lower_bound_and_exact_on_a_line():

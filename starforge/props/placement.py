@@ -506,6 +506,12 @@ def _shortfall(prop, spec, seed, prep, prob, chosen, removed, fit) -> dict:
         "usable_sites": len(prep.sites),
         "sites_under_the_hand": removed["under_hand"],
     }
+    from starforge.props.ceiling import tracked_ceiling
+
+    every = np.arange(len(prob.points))
+    out["ceiling"] = tracked_ceiling(
+        prob.points, lambda: _held_out(prop, spec, seed, prep, every)[0], prob.spacing, held.min_spread2, ts.target_markers
+    )
     return out
 
 
@@ -520,6 +526,12 @@ def shortfall_warning(sf: dict, spacing_m: float, hand: bool) -> str:
         )
     share = sf["untracked_too_few_seen"] / max(1e-12, 1.0 - sf["validation_tracked"])
     cause.append(f"{100 * share:.0f} % of the untracked scenarios see fewer than 3 markers, the rest see them in a line")
+    c = sf.get("ceiling")
+    if c is not None:
+        cause.append(
+            f"no layout of markers {spacing_m * 1000:.1f} mm apart on these sites does better than "
+            f"{100 * c['ceiling']:.2f} % of these scenarios (all {c['layouts']:,} such layouts scored)"
+        )
     helps = [f"with every camera {100 * sf['tracked_with_every_camera']:.1f} %"]
     if hand:
         helps.append(f"without the hand {100 * sf['tracked_without_the_hand']:.1f} %")
