@@ -295,20 +295,13 @@ class Problem:
         s = self.settings
         idx = np.asarray(sites, dtype=np.int64)
         n = len(idx)
-        seen = self.seen_f[idx]
-        cnt = seen.sum(axis=0)
-        s1 = seen.T @ self.points[idx]
-        s2 = seen.T @ self.moments[idx]
-        tracked = (cnt >= 3) & (line_spread2_many(cnt, s1, s2) >= self.min_spread2)
+        cnt, tracked = self._seen_counts(idx)
         untracked = 1.0 - float(tracked.mean())
         spare_shortfall = float(np.maximum(0.0, s.spare_markers - cnt).mean()) / max(1, s.spare_markers)
         vis = float(self.visibility[idx].mean()) if n else 0.0
         P = self.points[idx]
         spread = math.sqrt(line_spread2(n, *P.sum(0), *self.moments[idx].sum(0))) if n >= 2 else 0.0
-        close = 0
-        if n >= 2:
-            d = np.linalg.norm(P[:, None] - P[None], axis=2)
-            close = int((d < self.spacing).sum() - n) // 2  # the diagonal's n zeros left out
+        close = self._close_pairs(P)
         cap = s.near_symmetry_target_mm / 1000.0
         out = {
             "untracked": untracked,
@@ -324,6 +317,30 @@ class Problem:
             out["near_symmetry_margin_m"] = self._margin(idx)
         out["total"] = self._total(out)
         return out
+
+    def _seen_counts(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per scenario: how many of the sites ``idx`` are seen, and whether the layout is tracked."""
+        seen = self.seen_f[idx]
+        cnt = seen.sum(axis=0)
+        s1 = seen.T @ self.points[idx]
+        s2 = seen.T @ self.moments[idx]
+        return cnt, (cnt >= 3) & (line_spread2_many(cnt, s1, s2) >= self.min_spread2)
+
+    def _close_pairs(self, P: np.ndarray) -> int:
+        n = len(P)
+        if n < 2:
+            return 0
+        d = np.linalg.norm(P[:, None] - P[None], axis=2)
+        return int((d < self.spacing).sum() - n) // 2  # the diagonal's n zeros left out
+
+    def untracked(self, sites) -> float:
+        """The ``untracked`` term of :meth:`terms` alone."""
+        return 1.0 - float(self._seen_counts(np.asarray(sites, dtype=np.int64))[1].mean())
+
+    def crowding(self, sites) -> int:
+        """The ``close_pairs`` plus ``avoid_conflicts`` terms of :meth:`terms` alone."""
+        P = self.points[np.asarray(sites, dtype=np.int64)]
+        return self._close_pairs(P) + self._avoid_count(P)
 
     def _margin(self, idx: np.ndarray) -> float:
         """The near-symmetry margin of a site set (cached: chains revisit layouts)."""
@@ -467,8 +484,7 @@ def held_out_polish(tuning: Problem, searched: Problem, start: list[int], pool: 
     eps = 0.5 / max(1, tuning.poses)
 
     def cheap(lay):  # close pairs + conflicts on the searched sites, untracked on the tuning ones
-        t = searched.terms([int(pool[i]) for i in lay], symmetry=False)
-        return t["close_pairs"] + t["avoid_conflicts"], tuning.terms(lay, symmetry=False)["untracked"]
+        return searched.crowding([int(pool[i]) for i in lay]), tuning.untracked(lay)
 
     cur = list(start)
     best = (*cheap(cur), searched.cost([int(pool[i]) for i in cur]))
