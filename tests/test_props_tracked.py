@@ -488,3 +488,25 @@ def test_the_polish_is_skipped_only_when_the_leader_tracks_everything_and_costs_
     alone = optimize(prob, np.random.default_rng(0), validate=validate)
     if skip:
         assert opt.sites == alone.sites
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_tracked_additions_match_a_recount_of_every_layout(seed):
+    """The compiled screen (which skips the poses a point cannot untrack) against the exact
+    terms of each layout with the candidate added, on points near a line, where the triangle
+    test is close to its threshold in many poses."""
+    rng = np.random.default_rng(seed)
+    S, P = 50, 120
+    pts = np.column_stack([rng.uniform(-0.1, 0.1, S), rng.normal(0, 0.008, S), rng.normal(0, 0.008, S)])
+    prob = Problem(pts, rng.random((S, P)) < 0.5, rng.random(S), TrackSettings(), 0.02, 0.03)
+    close_calls = 0
+    for n in (0, 2, 3, 5, 7):
+        sites = rng.choice(S, n, replace=False).tolist()
+        cands = np.setdiff1d(np.arange(S), sites)
+        got = prob.tracked_additions(sites, cands)
+        for c, frac in zip(cands.tolist(), got, strict=True):
+            want = 1.0 - prob.untracked([*sites, c])
+            assert round(frac * P) == round(want * P), (n, c)
+        cnt, _ = prob._seen_counts(np.asarray(sites, dtype=np.int64))
+        close_calls += int((cnt >= 3).sum())
+    assert close_calls  # the skip was exercised

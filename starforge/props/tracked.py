@@ -216,25 +216,34 @@ def spaced_triple(points: np.ndarray, spacing: float) -> bool:
     return bool(((far @ far) * far).max() > 0.5)
 
 
+#: relative margin of the skip in :func:`_screen_tracked` (far above the closed form's rounding)
+_SAFE_MARGIN = 1e-3
+
+
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _screen_tracked(cnt0, s10, s20, seen_c, pts_c, mom_c, min_spread2):
     """(k,) fraction of poses tracked when candidate c joins a layout whose seen markers per pose
     have counts ``cnt0`` (P,), coordinate sums ``s10`` (P, 3) and product sums ``s20`` (P, 6);
     ``seen_c`` (k, P) bool, ``pts_c`` (k, 3), ``mom_c`` (k, 6) describe the candidates.  Only the
-    poses that see a candidate change, so the others keep the layout's own verdict."""
+    poses that see a candidate change, so the others keep the layout's own verdict; and a pose
+    whose n seen markers spread enough that n / (n + 1) of their spread still passes (with a
+    margin) stays tracked whatever point joins: the mean squared distance of n + 1 points from
+    their best-fit line is at least n / (n + 1) of that of the n from theirs."""
     k, P = seen_c.shape
     base = np.zeros(P, dtype=np.bool_)
+    safe = np.zeros(P, dtype=np.bool_)
     for p in range(P):
         if cnt0[p] >= 3:
             d2 = line_spread2(cnt0[p], s10[p, 0], s10[p, 1], s10[p, 2], s20[p, 0], s20[p, 1], s20[p, 2], s20[p, 3], s20[p, 4], s20[p, 5])
             base[p] = d2 >= min_spread2
+            safe[p] = d2 * cnt0[p] / (cnt0[p] + 1.0) >= min_spread2 * (1.0 + _SAFE_MARGIN)
     base_good = base.sum()
     out = np.empty(k)
     for i in numba.prange(k):
         good = base_good
         x, y, z = pts_c[i, 0], pts_c[i, 1], pts_c[i, 2]
         for p in range(P):
-            if not seen_c[i, p]:
+            if not seen_c[i, p] or safe[p]:
                 continue
             n = cnt0[p] + 1.0
             ok = False
