@@ -456,3 +456,75 @@ def test_held_out_polish_never_loses_and_ends_where_no_swap_helps():
                 better = kt < k0 and kt[1] <= k0[1] + 1e-12 and (kt[1] < k0[1] - 1e-12 or kt[2] < k0[2] - 1e-12)
                 assert not better, (trial, kt, k0)
     assert moved  # not a test of a search that never moves
+
+
+def test_crowding_and_untracked_are_the_terms_they_stand_for():
+    prob = _problem(4, avoid=np.sort(np.random.default_rng(9).uniform(0.01, 0.2, size=(40, 3)), axis=1))
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        sites = rng.choice(len(prob.points), int(rng.integers(3, 9)), replace=False).tolist()
+        t = prob.terms(sites, symmetry=False)
+        assert prob.untracked(sites) == t["untracked"]
+        assert prob.crowding(sites) == t["close_pairs"] + t["avoid_conflicts"]
+
+
+@pytest.mark.parametrize("case", ["all_tracked", "expensive_leader", "none_tracked_fully"])
+def test_the_polish_is_skipped_only_when_the_leader_tracks_everything_and_costs_least(case):
+    """The held-out polish runs unless the ranking leader tracks every held-out scenario and is
+    the cheapest candidate; skipping it leaves the winner the ranking alone picks."""
+    from starforge.props.tracked import optimize
+
+    base = _problem(5, sites=40, poses=30)
+    prob = Problem(base.points, base.pose_seen, base.visibility, TrackSettings(restarts=0, random_layouts=30), 0.02, 0.03)
+    costliest = []
+
+    def validate(layouts):
+        if not costliest:
+            costliest.append(max(layouts, key=lambda lay: prob.cost(list(lay))))
+        out = []
+        for lay in layouts:
+            u = {"all_tracked": 0.0, "none_tracked_fully": 0.01}.get(case, 0.0 if lay == costliest[0] else 0.5)
+            out.append({"untracked": u, "cost": 0.0})
+        return out
+
+    calls = []
+
+    def polish(sites, others=()):
+        calls.append(tuple(sites))
+        return tuple(sites)
+
+    opt = optimize(prob, np.random.default_rng(0), validate=validate, polish=polish)
+    sel = opt.baselines["selection"]
+    cands = sel["candidates"]
+    lead = min(cands, key=lambda n: (1 - cands[n]["validation_tracked"], cands[n]["selection_cost"]))
+    cheapest = min(cands, key=lambda n: cands[n]["selection_cost"])
+    skip = cands[lead]["validation_tracked"] == 1.0 and cheapest == lead
+    assert skip == (case == "all_tracked")
+    assert (not calls) == skip
+    assert sel["polish"].startswith("skipped") == skip
+    costliest.clear()
+    alone = optimize(prob, np.random.default_rng(0), validate=validate)
+    if skip:
+        assert opt.sites == alone.sites
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_tracked_additions_match_a_recount_of_every_layout(seed):
+    """The compiled screen (which skips the poses a point cannot untrack) against the exact
+    terms of each layout with the candidate added, on points near a line, where the triangle
+    test is close to its threshold in many poses."""
+    rng = np.random.default_rng(seed)
+    S, P = 50, 120
+    pts = np.column_stack([rng.uniform(-0.1, 0.1, S), rng.normal(0, 0.008, S), rng.normal(0, 0.008, S)])
+    prob = Problem(pts, rng.random((S, P)) < 0.5, rng.random(S), TrackSettings(), 0.02, 0.03)
+    close_calls = 0
+    for n in (0, 2, 3, 5, 7):
+        sites = rng.choice(S, n, replace=False).tolist()
+        cands = np.setdiff1d(np.arange(S), sites)
+        got = prob.tracked_additions(sites, cands)
+        for c, frac in zip(cands.tolist(), got, strict=True):
+            want = 1.0 - prob.untracked([*sites, c])
+            assert round(frac * P) == round(want * P), (n, c)
+        cnt, _ = prob._seen_counts(np.asarray(sites, dtype=np.int64))
+        close_calls += int((cnt >= 3).sum())
+    assert close_calls  # the skip was exercised

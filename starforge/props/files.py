@@ -211,6 +211,7 @@ def placement_json(res: PlacementResult) -> dict:
                     "not the evaluation's), then by their cost on the searched and held-out scenarios together; "
                     "the first listed wins a tie",
                     "winner": res.tracked.baselines["selection"]["winner"],
+                    "polish": res.tracked.baselines["selection"].get("polish"),
                     "candidates": {
                         name: {k: (_r(v) if isinstance(v, float) else v) for k, v in c.items()}
                         for name, c in res.tracked.baselines["selection"]["candidates"].items()

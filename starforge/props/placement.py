@@ -380,7 +380,10 @@ class _HeldOut:
     """A held-out sample: ``track.validation_poses`` fresh random poses (generator ``seed +
     offset``), each met ``track.loss_patterns`` times with its own random camera losses, drawn
     as :func:`starforge.props.tracked.loss_scenarios` draws them; tables are built on demand
-    for the sites (and poses) asked."""
+    for the sites (and poses) asked.  A site's row of camera masks depends on that site alone,
+    so the rows over every pose are kept (with and without the hand) and a later call computes
+    only the sites it has not met: the ranking scores the polished layouts on the rows of the
+    candidates they share sites with, and the tuning polish reuses its start's rows."""
 
     def __init__(self, prop, spec, seed: int, prep, offset: int):
         from starforge.props.evaluate import random_poses
@@ -392,39 +395,51 @@ class _HeldOut:
         self.patterns = ts.loss_patterns if int(round(ts.cameras_lost * len(rig.cameras))) > 0 else 1
         self.alive = alive_masks(len(rig.cameras), ts.cameras_lost, len(self.poses) * self.patterns, rng)
         self.prop, self.spec, self.prep = prop, spec, prep
+        self._rows: dict = {}  # (site, hand) -> (poses,) uint64 masks over every pose
 
-    def seen(self, sites, poses=None, hand: bool = True):
-        """(seen (len(sites), scenarios) bool, masks (len(sites), poses) uint64): the scenarios
-        of ``poses`` (indices, default all), without the hand when ``hand`` is false."""
+    def _table(self, sites, k, hand: bool) -> np.ndarray:
         from starforge.props.hand import capsule_arrays
         from starforge.props.rig import Poses
         from starforge.props.visibility import compute_table
 
         prep, spec = self.prep, self.spec
-        k = np.arange(len(self.poses)) if poses is None else np.asarray(poses, dtype=np.int64)
         sub = Poses(self.poses.rotations[k], self.poses.translations[k], self.poses.pivot)
-        table = compute_table(
+        return compute_table(
             self.prop.mesh, prep.sites.points[sites], prep.sites.normals[sites], prep.rig, sub,
             spec.grazing_limit_deg, radius_m=prep.seat.ball_radius_m, centre_m=prep.seat.centre_height_m,
             occlusion=spec.occlusion, occluders=capsule_arrays(prep.capsules if hand else ()),
-        )  # fmt: skip
+        ).masks  # fmt: skip
+
+    def seen(self, sites, poses=None, hand: bool = True):
+        """(seen (len(sites), scenarios) bool, masks (len(sites), poses) uint64): the scenarios
+        of ``poses`` (indices, default all), without the hand when ``hand`` is false."""
+        sites = [int(x) for x in sites]
+        every = np.arange(len(self.poses))
+        k = every if poses is None else np.asarray(poses, dtype=np.int64)
+        masks = np.zeros((len(sites), len(k)), dtype=np.uint64)
+        kept = [i for i, s in enumerate(sites) if (s, hand) in self._rows]
+        for i in kept:
+            masks[i] = self._rows[(sites[i], hand)][k]
+        new = [i for i, s in enumerate(sites) if (s, hand) not in self._rows]
+        if new:
+            idx = [sites[i] for i in new]
+            if poses is None:  # rows over every pose: kept for later calls
+                rows = self._table(idx, every, hand)
+                for s, row in zip(idx, rows, strict=True):
+                    self._rows[(s, hand)] = row
+            else:
+                rows = self._table(idx, k, hand)
+            masks[new] = rows
         L = self.patterns
         scen = (k[:, None] * L + np.arange(L)[None]).ravel()  # scenario j of pose k: k * L + j
-        seen = np.bitwise_count(table.masks[:, np.repeat(np.arange(len(k)), L)] & self.alive[scen][None]) >= 2
-        return seen, table.masks
+        seen = np.bitwise_count(masks[:, np.repeat(np.arange(len(k)), L)] & self.alive[scen][None]) >= 2
+        return seen, masks
 
 
-def _held_out(prop, spec, seed, prep, sites, hand=True):
-    """The ranking sample (:data:`VALIDATION_SEED_OFFSET`; never the evaluation's) for ``sites``."""
-    return _HeldOut(prop, spec, seed, prep, VALIDATION_SEED_OFFSET).seen(sites, hand=hand)
-
-
-def _validator(prop, spec, seed, prep, centres, prob):
+def _validator(sample: _HeldOut, spec, centres, prob):
     """``validate(layouts) -> [{"untracked", "cost"}]``: each layout's untracked fraction and cost
-    on the ranking sample (:func:`_held_out`)."""
+    on the ranking sample (``sample``, :data:`VALIDATION_SEED_OFFSET`)."""
     from starforge.props.tracked import Problem
-
-    sample = _HeldOut(prop, spec, seed, prep, VALIDATION_SEED_OFFSET)
 
     def validate(layouts):
         union = sorted({int(x) for lay in layouts for x in lay})
@@ -453,9 +468,9 @@ def _polisher(prop, spec, seed, prep, centres, prob):
     from starforge.props.tracked import Problem, held_out_polish
 
     ts = spec.track
+    sample = _HeldOut(prop, spec, seed, prep, TUNING_SEED_OFFSET)  # one for every polish: rows shared
 
     def polish(sites, others=()):
-        sample = _HeldOut(prop, spec, seed, prep, TUNING_SEED_OFFSET)
         sites = [int(x) for x in sites]
         seen, _ = sample.seen(sites)
         L = sample.patterns
@@ -478,17 +493,17 @@ def _polisher(prop, spec, seed, prep, centres, prob):
     return polish
 
 
-def _shortfall(prop, spec, seed, prep, prob, chosen, removed, fit) -> dict:
+def _shortfall(sample: _HeldOut, spec, prep, prob, chosen, removed, fit) -> dict:
     """Why the chosen layout is tracked in fewer held-out scenarios than ``track.target_tracked``:
     the same scenarios re-scored with every camera and without the hand, the untracked ones split
     into too few markers seen and markers in a line, and the sites the layout had to work with."""
     from starforge.props.tracked import Problem
 
     ts, idx = spec.track, list(chosen)
-    seen, masks = _held_out(prop, spec, seed, prep, idx)
+    seen, masks = sample.seen(idx)  # the ranking sample
     held = Problem(prob.points[idx], seen, seen.mean(axis=1), ts, prob.spacing, prob.spread_target)
     everything = np.repeat(np.bitwise_count(masks) >= 2, seen.shape[1] // masks.shape[1], axis=1)
-    seen_nh, _ = _held_out(prop, spec, seed, prep, idx, hand=False) if prep.capsules else (seen, None)
+    seen_nh, _ = sample.seen(idx, hand=False) if prep.capsules else (seen, None)
     marks = list(range(len(idx)))
     tracked = 1.0 - held.terms(marks)["untracked"]
     few = float(((seen.sum(axis=0) < 3)).mean())
@@ -510,7 +525,7 @@ def _shortfall(prop, spec, seed, prep, prob, chosen, removed, fit) -> dict:
 
     every = np.arange(len(prob.points))
     out["ceiling"] = tracked_ceiling(
-        prob.points, lambda: _held_out(prop, spec, seed, prep, every)[0], prob.spacing, held.min_spread2, ts.target_markers
+        prob.points, lambda: sample.seen(every)[0], prob.spacing, held.min_spread2, ts.target_markers
     )
     return out
 
@@ -582,9 +597,10 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         None if avoid is None or not len(avoid) else np.asarray(avoid, float),
     )
     run_cb = (lambda d, n: progress("optimizing", d, n)) if progress else None
-    validate = polish = None
+    validate = polish = ranking = None
     if ts.validation_poses:
-        validate = _validator(prop, spec, seed, prep, centres, prob)
+        ranking = _HeldOut(prop, spec, seed, prep, VALIDATION_SEED_OFFSET)
+        validate = _validator(ranking, spec, centres, prob)
         polish = _polisher(prop, spec, seed, prep, centres, prob)
     opt = optimize(prob, rng, run_cb, validate, polish)
     t = _tick(timings, "optimize_s", t)
@@ -592,7 +608,7 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
     shortfall = {}
     won = opt.baselines["selection"]["candidates"][opt.baselines["selection"]["winner"]]
     if won["validation_tracked"] is not None and won["validation_tracked"] < ts.target_tracked:
-        shortfall = _shortfall(prop, spec, seed, prep, prob, chosen, prep.removed, fit)
+        shortfall = _shortfall(ranking, spec, prep, prob, chosen, prep.removed, fit)
         warnings.append(shortfall_warning(shortfall, prob.spacing, bool(prep.capsules)))
         t = _tick(timings, "shortfall_s", t)
     runs = tuple(

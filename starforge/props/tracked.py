@@ -34,7 +34,9 @@ evaluation's) they are ranked by their tracked fraction there, then by their cos
 samples together, so the result is never behind either baseline on that ranking, and
 placement.json reports what each gave.  With ``polish`` the leader and the cheapest candidate
 also compete after :func:`held_out_polish` on a tuning sample of their own (not the ranking
-sample, so the ranking is not biased towards them).  The searched scenarios cannot rank the tracked fraction
+sample, so the ranking is not biased towards them), unless the leader tracks every ranking
+scenario and is the cheapest candidate (a polished layout could then win only by a lower cost
+at the same 100 %; measured, it never did).  The searched scenarios cannot rank the tracked fraction
 (the candidates were fitted to them and are tracked in nearly all); a sample of 3000 poses x 2
 camera losses resolves gaps of a few in a thousand.
 Measured in the previous session (unseated sites), chains from a random start, polished, beat
@@ -220,27 +222,34 @@ def spaced_triple(points: np.ndarray, spacing: float) -> bool:
     return bool(((far @ far) * far).max() > 0.5)
 
 
+#: relative margin of the skip in :func:`_screen_tracked` (far above the closed form's rounding)
+_SAFE_MARGIN = 1e-3
+
+
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _screen_tracked(cnt0, s10, s20, seen_c, pts_c, mom_c, min_spread2):
     """(k,) fraction of poses tracked when candidate c joins a layout whose seen markers per pose
     have counts ``cnt0`` (P,), coordinate sums ``s10`` (P, 3) and product sums ``s20`` (P, 6);
     ``seen_c`` (k, P) bool, ``pts_c`` (k, 3), ``mom_c`` (k, 6) describe the candidates.  Only the
-    poses that see a candidate change, so the others keep the layout's own verdict."""
+    poses that see a candidate change, so the others keep the layout's own verdict; and a pose
+    whose n seen markers spread enough that n / (n + 1) of their spread still passes (with a
+    margin) stays tracked whatever point joins: the mean squared distance of n + 1 points from
+    their best-fit line is at least n / (n + 1) of that of the n from theirs."""
     k, P = seen_c.shape
     base = np.zeros(P, dtype=np.bool_)
+    safe = np.zeros(P, dtype=np.bool_)
     for p in range(P):
         if cnt0[p] >= 3:
-            base[p] = line_spread2_at_least(
-                cnt0[p], s10[p, 0], s10[p, 1], s10[p, 2], s20[p, 0], s20[p, 1], s20[p, 2], s20[p, 3], s20[p, 4], s20[p, 5],
-                min_spread2,
-            )  # fmt: skip
+            d2 = line_spread2(cnt0[p], s10[p, 0], s10[p, 1], s10[p, 2], s20[p, 0], s20[p, 1], s20[p, 2], s20[p, 3], s20[p, 4], s20[p, 5])
+            base[p] = d2 >= min_spread2
+            safe[p] = d2 * cnt0[p] / (cnt0[p] + 1.0) >= min_spread2 * (1.0 + _SAFE_MARGIN)
     base_good = base.sum()
     out = np.empty(k)
     for i in numba.prange(k):
         good = base_good
         x, y, z = pts_c[i, 0], pts_c[i, 1], pts_c[i, 2]
         for p in range(P):
-            if not seen_c[i, p]:
+            if not seen_c[i, p] or safe[p]:
                 continue
             n = cnt0[p] + 1.0
             ok = False
@@ -302,20 +311,13 @@ class Problem:
         s = self.settings
         idx = np.asarray(sites, dtype=np.int64)
         n = len(idx)
-        seen = self.seen_f[idx]
-        cnt = seen.sum(axis=0)
-        s1 = seen.T @ self.points[idx]
-        s2 = seen.T @ self.moments[idx]
-        tracked = (cnt >= 3) & line_spread2_at_least_many(cnt, s1, s2, self.min_spread2)
+        cnt, tracked = self._seen_counts(idx)
         untracked = 1.0 - float(tracked.mean())
         spare_shortfall = float(np.maximum(0.0, s.spare_markers - cnt).mean()) / max(1, s.spare_markers)
         vis = float(self.visibility[idx].mean()) if n else 0.0
         P = self.points[idx]
         spread = math.sqrt(line_spread2(n, *P.sum(0), *self.moments[idx].sum(0))) if n >= 2 else 0.0
-        close = 0
-        if n >= 2:
-            d = np.linalg.norm(P[:, None] - P[None], axis=2)
-            close = int((d < self.spacing).sum() - n) // 2  # the diagonal's n zeros left out
+        close = self._close_pairs(P)
         cap = s.near_symmetry_target_mm / 1000.0
         out = {
             "untracked": untracked,
@@ -331,6 +333,30 @@ class Problem:
             out["near_symmetry_margin_m"] = self._margin(idx)
         out["total"] = self._total(out)
         return out
+
+    def _seen_counts(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per scenario: how many of the sites ``idx`` are seen, and whether the layout is tracked."""
+        seen = self.seen_f[idx]
+        cnt = seen.sum(axis=0)
+        s1 = seen.T @ self.points[idx]
+        s2 = seen.T @ self.moments[idx]
+        return cnt, (cnt >= 3) & line_spread2_at_least_many(cnt, s1, s2, self.min_spread2)
+
+    def _close_pairs(self, P: np.ndarray) -> int:
+        n = len(P)
+        if n < 2:
+            return 0
+        d = np.linalg.norm(P[:, None] - P[None], axis=2)
+        return int((d < self.spacing).sum() - n) // 2  # the diagonal's n zeros left out
+
+    def untracked(self, sites) -> float:
+        """The ``untracked`` term of :meth:`terms` alone."""
+        return 1.0 - float(self._seen_counts(np.asarray(sites, dtype=np.int64))[1].mean())
+
+    def crowding(self, sites) -> int:
+        """The ``close_pairs`` plus ``avoid_conflicts`` terms of :meth:`terms` alone."""
+        P = self.points[np.asarray(sites, dtype=np.int64)]
+        return self._close_pairs(P) + self._avoid_count(P)
 
     def _margin(self, idx: np.ndarray) -> float:
         """The near-symmetry margin of a site set (cached: chains revisit layouts)."""
@@ -474,8 +500,7 @@ def held_out_polish(tuning: Problem, searched: Problem, start: list[int], pool: 
     eps = 0.5 / max(1, tuning.poses)
 
     def cheap(lay):  # close pairs + conflicts on the searched sites, untracked on the tuning ones
-        t = searched.terms([int(pool[i]) for i in lay], symmetry=False)
-        return t["close_pairs"] + t["avoid_conflicts"], tuning.terms(lay, symmetry=False)["untracked"]
+        return searched.crowding([int(pool[i]) for i in lay]), tuning.untracked(lay)
 
     cur = list(start)
     best = (*cheap(cur), searched.cost([int(pool[i]) for i in cur]))
@@ -669,28 +694,38 @@ def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=No
         return (h["untracked"], costs[name] + h["cost"])
 
     order = sorted(cands, key=key)  # stable
+    polished = "none"
     if polish is not None and validate is not None:
         # the leader on the held-out sample and the cheapest candidate, each polished on a tuning
         # sample of its own, compete too, ranked on the same held-out sample as the others
         # (which they were not fitted to)
         t = time.perf_counter()
         cheapest = min(order, key=lambda n: costs[n] + held[n]["cost"])
-        for name, start in (("held_out_polished", order[0]), ("held_out_polished_cheapest", cheapest)):
-            if name != "held_out_polished" and start == order[0]:
-                continue
-            tuned = tuple(int(x) for x in polish(cands[start], [cands[n] for n in order if n != start]))
-            if sorted(tuned) not in [sorted(c) for c in cands.values()]:
-                cands[name] = tuned
-                costs[name] = prob.cost(list(tuned))
-                held[name] = validate([tuned])[0]
+        if held[order[0]]["untracked"] == 0.0 and cheapest == order[0]:
+            # the leader tracks every held-out scenario, so no polished layout can rank above it
+            # by tracking: only by a lower cost at 100 %, and it is already the cheapest.
+            # Skipped: on the 7 built-ins and 4 real meshes the polish
+            # from such a leader never added a candidate (box, shield, sword, umbrella)
+            polished = "skipped: the leader tracks every held-out scenario and costs least"
+        else:
+            polished = "ran"
+            for name, start in (("held_out_polished", order[0]), ("held_out_polished_cheapest", cheapest)):
+                if name != "held_out_polished" and start == order[0]:
+                    continue
+                tuned = tuple(int(x) for x in polish(cands[start], [cands[n] for n in order if n != start]))
+                if sorted(tuned) not in [sorted(c) for c in cands.values()]:
+                    cands[name] = tuned
+                    costs[name] = prob.cost(list(tuned))
+                    held[name] = validate([tuned])[0]
+            order = sorted(cands, key=key)
         sec["held_out_polish_s"] = round(time.perf_counter() - t, 3)
-        order = sorted(cands, key=key)
     winner = order[0]
     best = list(cands[winner])
     sel_cost = {n: costs[n] + (held[n]["cost"] if held[n] is not None else 0.0) for n in cands}
     selection = {
         "winner": winner,
         "validated": validate is not None,
+        "polish": polished,
         "candidates": {
             n: {
                 "sites": [int(x) for x in cands[n]],
