@@ -338,7 +338,7 @@ def test_quick_no_fit_proofs_never_reject_a_star_the_search_keeps(finger_sample)
     extra = 0
     for trial in range(4):
         lim = np.sort(FINGER_LIMIT * (1.0 if trial == 0 else rng.uniform(0.7, 1.2, 3)))
-        status, _, _ = decide_fit(P, lim, prune=False)  # the plain search, without the proofs
+        status, _, _ = decide_fit(P, lim)
         cone = np.array([cone_excludes(p, lim, SLACK_MM) for p in P])
         caps = np.array([caps_exclude(p, lim, SLACK_MM, buf) for p in P])
         assert (status[cone | caps] == NO_FIT).all()
@@ -378,9 +378,9 @@ def test_corner_test_is_sound_against_sampled_directions():
 
 
 def test_pruned_search_returns_what_the_plain_search_returns(finger_sample):
-    """The quick proofs and the corner test only cut work: same outcome and the very same
-    rotation as the plain search (prune=False), on the finger sample under the finger limit and
-    limits around it, never more cells, and clearly fewer in all."""
+    """The corner test only cuts work: same outcome and the very same rotation as the plain
+    search (prune=False), on the finger sample under the finger limit and limits around it,
+    never more cells, and clearly fewer in all."""
     rng = np.random.default_rng(5)
     P = finger_sample
     saved = 0

@@ -61,9 +61,9 @@ undecided ones too.
 
 Before the search, the seven directions where the width of a tetrahedron has its local minima
 (the four face normals and the three common normals of opposite edges) are tried as ``a_1``:
-most sets that fit are accepted there.  The sets that are not meet two quick no-fit proofs
-(:func:`cone_excludes`, :func:`caps_exclude`, both widened by the slack so they never reject a
-set the search would leave undecided), then the search.
+most sets that fit are accepted there.  Callers deciding many sets run two quick no-fit
+proofs first (:func:`cone_excludes`, :func:`caps_exclude`, both widened by the slack so they
+never reject a set the search would leave undecided).
 
 The kernel is compiled with numba (serial, GIL released; :func:`decide_fit` spreads sets over
 threads, each set independent, so results do not depend on the thread count).
@@ -388,13 +388,13 @@ STACK = 64 + 3 * 64
 def workspace_size(k: int) -> int:
     """Floats :func:`decide_ws` needs for a set of ``k`` points."""
     npair = k * (k - 1) // 2
-    return 17 * npair + 30 + 3 * STACK
+    return 9 * npair + 30 + 3 * STACK
 
 
 @_jit
 def decide_one(P, lim, slack, start, max_cells, R, prune):
     k = P.shape[0]
-    ws = np.empty(17 * (k * (k - 1) // 2) + 30 + 3 * STACK)
+    ws = np.empty(9 * (k * (k - 1) // 2) + 30 + 3 * STACK)
     iws = np.empty(STACK, np.int64)
     return decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune)
 
@@ -422,8 +422,6 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
     kid_w = ws[o + 14 : o + 18]
     Cn = ws[o + 18 : o + 30].reshape((4, 3))  # the cell's unit corners
     o += 30
-    cbuf = ws[o : o + 8 * npair]  # caps_exclude's scratch
-    o += 8 * npair
     Ss = ws[o : o + STACK]
     St = ws[o + STACK : o + 2 * STACK]
     Sh = ws[o + 2 * STACK : o + 3 * STACK]
@@ -465,9 +463,6 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
             a1[2] /= nn
             if accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
                 return 1, 7
-    # the quick no-fit proofs, for the sets not accepted there
-    if prune and (cone_excludes(P, lim, slack) or caps_exclude(P, lim, slack, cbuf)):
-        return 0, 7
     theta_min = slack / max(diam, 1e-12)
     l1w = (lim[0] + slack) * (1.0 + 1e-9) + 1e-9
     # 2. branch and bound over cube-map cells, depth first, best child first
@@ -580,13 +575,13 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
 @_jit
 def decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1, prune):
     """:func:`decide_one` for sets i0..i1-1 (serial; callers spread ranges over threads, the GIL
-    is released), with the working memory allocated once (``prune``: 1 with the quick proofs
-    and :func:`corners_exclude`, 0 the plain search).  The one compiled entry to the fit
+    is released), with the working memory allocated once (``prune``: 1 with
+    :func:`corners_exclude`, 0 without).  The one compiled entry to the fit
     decision: :func:`decide_fit` and the enumeration (:mod:`starforge.stars.enumerate`) both
     run it, so its code is compiled (and cached) once.  Not ``parallel=True``: numba's parallel
     compile costs seconds on a cold cache."""
     k = P.shape[1]
-    ws = np.empty(17 * (k * (k - 1) // 2) + 30 + 3 * STACK)
+    ws = np.empty(9 * (k * (k - 1) // 2) + 30 + 3 * STACK)
     iws = np.empty(STACK, np.int64)
     for i in range(i0, i1):
         st, c = decide_ws(P[i], lim, slack, start, max_cells, R[i], ws, iws, prune)
@@ -601,7 +596,7 @@ CHUNK = 256
 def _decide_all(P, lim, slack, start, max_cells, status, R, work, threads=None, prune=True) -> None:
     """Every set, over up to ``threads`` threads (default: every core; each set is independent,
     so the result does not depend on the thread count or the chunking).  ``prune``: with the
-    quick proofs and the corner test (see :func:`decide_fit`; the same outcome either way)."""
+    corner test (:func:`corners_exclude`; the outcome and frames are the same either way)."""
     from starforge.engine import over_ranges
 
     flag = 1 if prune else 0
@@ -640,10 +635,9 @@ def decide_fit(
     max_cells : int
         Work cap per set; past it a set is reported undecided.
     prune : bool
-        Run the quick no-fit proofs (:func:`cone_excludes`, :func:`caps_exclude`) after the
-        critical directions and prune cells with :func:`corners_exclude` too (default).  The
-        outcome and the frame returned are the same without them (the plain search, kept for
-        tests); only the work differs.
+        Prune cells with :func:`corners_exclude` too (default).  The outcome and the frame
+        returned are the same without it (the plain search, kept for tests); only the work
+        differs.
 
     Returns
     -------

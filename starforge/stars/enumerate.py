@@ -14,9 +14,8 @@ Pipeline, per labelled candidate (no Python loop per star; numba, subsets spread
 5. necessary fit conditions: the width is at most the shortest limit side, and Ky Fan's bounds on
    the covariance eigenvalues (the k smallest sum to at most the sum of the k shortest limit sides
    squared over 4; variance along a direction is at most a quarter of the width squared);
-6. the fit decision (:mod:`starforge.geometry.fit`): the seven critical directions, then two
-   quick no-fit proofs (:func:`~starforge.geometry.fit.cone_excludes`,
-   :func:`~starforge.geometry.fit.caps_exclude`),
+6. the fit decision (:mod:`starforge.geometry.fit`): first two quick no-fit proofs
+   (:func:`~starforge.geometry.fit.cone_excludes`, :func:`~starforge.geometry.fit.caps_exclude`),
    then the search: proven to fit (a rotation is found), proven
    not to fit, or undecided (fits, if at all, with less than :data:`~starforge.geometry.fit.SLACK_MM`
    to spare).  ``box_method="covariance"`` replaces it with the paper's test (the covariance box
@@ -37,7 +36,7 @@ import numba
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.geometry.fit import SLACK_MM
+from starforge.geometry.fit import SLACK_MM, caps_exclude, cone_excludes
 from starforge.geometry.sym3 import sym3_eigvals
 from starforge.geometry.tetra import canonical_assignments
 from starforge.stars.spec import StarSpec
@@ -292,8 +291,8 @@ def classify(
     (:func:`starforge.engine.over_ranges`; each candidate independent, so the result does not
     depend on the thread count).
 
-    Two passes: the serial kernel :func:`_classify` runs the necessary tests over ranges of
-    ``chunk`` subsets; the candidates left
+    Two passes: the serial kernel :func:`_classify` runs the necessary tests (and in mode 0 the
+    quick no-fit proofs) over ranges of ``chunk`` subsets; the candidates left
     (``NECESSARY_OK``) then go, :data:`DECIDE_SETS` at a time, to the fit decision's one compiled
     entry (:func:`starforge.geometry.fit.decide_range`, shared with ``decide_fit``, so a first
     run compiles that code once).
@@ -303,7 +302,7 @@ def classify(
     from starforge.engine import over_ranges
     from starforge.geometry.fit import _decide_all
 
-    args = (subsets, assign, float(lo), float(step), lim, float(min_depth))
+    args = (subsets, assign, float(lo), float(step), lim, float(min_depth), float(slack), int(mode))
 
     def run(i0, i1):
         _classify(*args, codes, i0, i1)
@@ -354,14 +353,15 @@ def _box_volume(P: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)  # nogil: threads run it side by side; Ctrl-C is answered
-def _classify(subsets, assign, lo, step, lim, min_depth, codes, s0, s1):
+def _classify(subsets, assign, lo, step, lim, min_depth, slack, mode, codes, s0, s1):
     """The first pass of :func:`classify` for subsets ``s0 .. s1 - 1``: realisable, deep
-    enough, narrow enough, Ky Fan; what is left is
+    enough, narrow enough, Ky Fan, and in mode 0 the quick no-fit proofs; what is left is
     ``NECESSARY_OK`` (serial: numba's ``parallel=True`` costs seconds of compile on a first run)."""
     eps = 1e-9
     for s in range(s0, s1):
         P = np.zeros((4, 3))
         L = np.empty(6)
+        cbuf = np.empty(8 * 6)  # caps_exclude's scratch
         for a in range(assign.shape[0]):
             for j in range(6):
                 L[j] = lo + step * subsets[s, assign[a, j]]
@@ -407,6 +407,9 @@ def _classify(subsets, assign, lo, step, lim, min_depth, codes, s0, s1):
                 or e1 + e2 + e3 > (lim[0] ** 2 + lim[1] ** 2 + lim[2] ** 2) / 4 + eps
             ):
                 codes[s, a] = 3
+                continue
+            if mode == 0 and (cone_excludes(P, lim, slack) or caps_exclude(P, lim, slack, cbuf)):
+                codes[s, a] = 4  # proven not to fit, without the search
                 continue
             codes[s, a] = 7
 
