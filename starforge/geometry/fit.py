@@ -357,7 +357,7 @@ def caps_exclude(P, lim, slack, buf):
 @_jit
 def corners_exclude(D, npair, Cn, l1w):
     """True when no direction of a cube-map cell is thin enough: ``|d . a| > l1w`` for some
-    pair d at every direction a of the cell (proof in :func:`decide_ws`).  ``Cn`` (4, 3): the
+    pair d at every direction a of the cell (proof in the module docstring).  ``Cn`` (4, 3): the
     cell's unit corners in the order (-,-), (-,+), (+,-), (+,+)."""
     # bit i of a mask: corner i is beyond the slab on that side; a triangle of corners is
     # excluded when one side of one slab holds all three of its corners
