@@ -346,3 +346,52 @@ def test_quick_no_fit_proofs_never_reject_a_star_the_search_keeps(finger_sample)
         if trial == 0:
             assert (caps & ~cone).sum() > 50 and (status == NO_FIT).sum() > (caps | cone).sum()
     assert extra > 200
+
+
+def test_corner_test_is_sound_against_sampled_directions():
+    """corners_exclude says no direction of a cube-map cell is thin enough only when none is:
+    checked on directions drawn inside random cells (and at their corners) against random pair
+    vectors; and it does exclude a good share of the cells it is shown."""
+    from starforge.geometry.fit import corners_exclude, cube_dir
+
+    rng = np.random.default_rng(3)
+    a, corner = np.empty(3), np.empty(3)
+    excluded = 0
+    for _ in range(1500):
+        D = rng.normal(size=(6, 3)) * rng.uniform(5, 40)
+        f, h = int(rng.integers(3)), rng.uniform(0.002, 0.5)
+        s, t = rng.uniform(-1 + h, 1 - h, 2)
+        Cn = np.empty((4, 3))
+        for i, (dx, dy) in enumerate(((-1, -1), (-1, 1), (1, -1), (1, 1))):
+            cube_dir(f, s + dx * h, t + dy * h, corner)
+            Cn[i] = corner
+        # around the largest slab value that every corner exceeds: some cells are excluded, some not
+        l1 = float(np.abs(D @ Cn.T).min(axis=1).max() * rng.uniform(0.5, 1.2))
+        if not corners_exclude(D, 6, Cn, l1):
+            continue
+        excluded += 1
+        uv = np.concatenate([rng.uniform(-1, 1, (300, 2)), [[-1, -1], [-1, 1], [1, -1], [1, 1]]])
+        for du, dv in uv:
+            cube_dir(f, s + du * h, t + dv * h, a)
+            assert np.abs(D @ a).max() > l1
+    assert excluded > 200
+
+
+def test_pruned_search_returns_what_the_plain_search_returns(finger_sample):
+    """The corner test only cuts work: same outcome and the very same rotation as the plain
+    search (prune=False), on the finger sample under the finger limit and limits around it,
+    never more cells, and clearly fewer in all."""
+    rng = np.random.default_rng(5)
+    P = finger_sample
+    saved = 0
+    for trial in range(3):
+        lim = np.sort(FINGER_LIMIT * (1.0 if trial == 0 else rng.uniform(0.8, 1.1, 3)))
+        st0, R0, w0 = decide_fit(P, lim, prune=False)
+        st1, R1, w1 = decide_fit(P, lim)
+        assert (st0 == st1).all()
+        assert np.array_equal(R0[st0 == FIT], R1[st1 == FIT])
+        assert (w1 <= w0).all()
+        saved += int(w0.sum() - w1.sum())
+        if trial == 0:
+            assert (st0 == NO_FIT).sum() > 200 and (st0 == FIT).sum() > 200
+    assert saved > 0.05 * w0.sum()

@@ -33,6 +33,20 @@ so the corners are the farthest points) around ``a_1`` is
   ``m' = Q (n x a_1)`` (``a_2'`` has none along ``a_1'``), giving
   ``|d . b - d . a_2'| <= sin(theta) |d . a_1| + (1 - cos(theta)) |d . m| <= s_d``; the same holds
   for ``a_3'``.  So ``(a_1, Q^T a_2', Q^T a_3')`` solves the relaxed inner problem.
+* **pruned**, before those two tests, when the corners show that no direction in it is thin
+  enough (:func:`corners_exclude`): the square on the cube face is the union of two triangles
+  (cut along either diagonal), so every direction of the cell is ``q / |q|`` with q in a flat
+  triangle ``conv(c_i, c_j, c_k)`` of its unit corners, and ``|q| <= 1``.  If some pair has
+  ``d . c > l`` at the three corners of a triangle, then ``d . q > l`` and ``d . (q / |q|) >=
+  d . q > l`` (likewise below ``-l``).  When each of the two triangles (of one of the two
+  diagonal cuts) is excluded this way, with ``l = l_1 + slack`` (plus ``1e-9`` relative and
+  ``1e-9`` mm of float noise), no direction in the cell is thin enough for ``lim + slack``.
+  Widened by the slack, this test never prunes a cell that holds a centre the search would
+  accept, nor one holding the centre of a cell the search leaves open at the smallest size
+  (that centre fits ``lim + slack``: its width is within ``D theta <= slack`` of the cell's
+  lower bound, and ``s_d <= |d| theta <= slack``).  So the search visits the same cells in the
+  same order less whole subtrees that hold neither: the same outcome and the same frame, with
+  less work (a set that ran into ``max_cells`` or the stack may now finish).
 * **accepted** when ``a_1`` at its centre is thin enough and the exact inner problem has a
   solution: that frame is returned (sound; callers re-check it).
 * otherwise split into four.
@@ -340,6 +354,32 @@ def caps_exclude(P, lim, slack, buf):
     return True
 
 
+@_jit
+def corners_exclude(D, npair, Cn, l1w):
+    """True when no direction of a cube-map cell is thin enough: ``|d . a| > l1w`` for some
+    pair d at every direction a of the cell (proof in the module docstring).  ``Cn`` (4, 3): the
+    cell's unit corners in the order (-,-), (-,+), (+,-), (+,+)."""
+    # bit i of a mask: corner i is beyond the slab on that side; a triangle of corners is
+    # excluded when one side of one slab holds all three of its corners
+    t013 = t023 = t012 = t123 = False
+    for j in range(npair):
+        pos = 0
+        neg = 0
+        for i in range(4):
+            g = D[j, 0] * Cn[i, 0] + D[j, 1] * Cn[i, 1] + D[j, 2] * Cn[i, 2]
+            if g > l1w:
+                pos |= 1 << i
+            elif g < -l1w:
+                neg |= 1 << i
+        for m in (pos, neg):
+            t013 = t013 or (m & 11) == 11
+            t023 = t023 or (m & 13) == 13
+            t012 = t012 or (m & 7) == 7
+            t123 = t123 or (m & 14) == 14
+    # the square is the union of triangles (0, 1, 3) and (0, 3, 2), and of (0, 1, 2) and (1, 2, 3)
+    return (t013 and t023) or (t012 and t123)
+
+
 #: stack entries of the branch and bound (12 root cells + 3 per level below, deep enough for
 #: any cell size reachable in double precision)
 STACK = 64 + 3 * 64
@@ -348,19 +388,19 @@ STACK = 64 + 3 * 64
 def workspace_size(k: int) -> int:
     """Floats :func:`decide_ws` needs for a set of ``k`` points."""
     npair = k * (k - 1) // 2
-    return 9 * npair + 18 + 3 * STACK
+    return 9 * npair + 30 + 3 * STACK
 
 
 @_jit
-def decide_one(P, lim, slack, start, max_cells, R):
+def decide_one(P, lim, slack, start, max_cells, R, prune):
     k = P.shape[0]
-    ws = np.empty(9 * (k * (k - 1) // 2) + 18 + 3 * STACK)
+    ws = np.empty(9 * (k * (k - 1) // 2) + 30 + 3 * STACK)
     iws = np.empty(STACK, np.int64)
-    return decide_ws(P, lim, slack, start, max_cells, R, ws, iws)
+    return decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune)
 
 
 @_jit
-def decide_ws(P, lim, slack, start, max_cells, R, ws, iws):
+def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
     """:func:`decide_one` with the working memory passed in (``ws``: ``workspace_size(k)``
     floats, ``iws``: ``STACK`` ints), so a caller deciding many sets allocates once."""
     k = P.shape[0]
@@ -380,7 +420,8 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws):
     corner = ws[o + 9 : o + 12]
     cs = ws[o + 12 : o + 14]
     kid_w = ws[o + 14 : o + 18]
-    o += 18
+    Cn = ws[o + 18 : o + 30].reshape((4, 3))  # the cell's unit corners
+    o += 30
     Ss = ws[o : o + STACK]
     St = ws[o + STACK : o + 2 * STACK]
     Sh = ws[o + 2 * STACK : o + 3 * STACK]
@@ -423,6 +464,7 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws):
             if accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
                 return 1, 7
     theta_min = slack / max(diam, 1e-12)
+    l1w = (lim[0] + slack) * (1.0 + 1e-9) + 1e-9
     # 2. branch and bound over cube-map cells, depth first, best child first
     cap = STACK
     top = 0
@@ -449,10 +491,15 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws):
             return -1, cells
         cube_dir(f, s, t, a1)
         cosmin = 1.0
+        c = 0
         for dx in (-1.0, 1.0):
             for dy in (-1.0, 1.0):
-                cube_dir(f, s + dx * h, t + dy * h, corner)
-                cosmin = min(cosmin, dot3(a1, corner))
+                cn = Cn[c]
+                cube_dir(f, s + dx * h, t + dy * h, cn)
+                cosmin = min(cosmin, dot3(a1, cn))
+                c += 1
+        if prune and corners_exclude(D, npair, Cn, l1w):
+            continue
         theta = math.acos(max(-1.0, min(1.0, cosmin)))
         ct, st = math.cos(theta), math.sin(theta)
         # axis 1: lower bound of the width over the cell
@@ -526,17 +573,18 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws):
 
 
 @_jit
-def decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1):
+def decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1, prune):
     """:func:`decide_one` for sets i0..i1-1 (serial; callers spread ranges over threads, the GIL
-    is released), with the working memory allocated once.  The one compiled entry to the fit
+    is released), with the working memory allocated once (``prune``: 1 with
+    :func:`corners_exclude`, 0 without).  The one compiled entry to the fit
     decision: :func:`decide_fit` and the enumeration (:mod:`starforge.stars.enumerate`) both
     run it, so its code is compiled (and cached) once.  Not ``parallel=True``: numba's parallel
     compile costs seconds on a cold cache."""
     k = P.shape[1]
-    ws = np.empty(9 * (k * (k - 1) // 2) + 18 + 3 * STACK)
+    ws = np.empty(9 * (k * (k - 1) // 2) + 30 + 3 * STACK)
     iws = np.empty(STACK, np.int64)
     for i in range(i0, i1):
-        st, c = decide_ws(P[i], lim, slack, start, max_cells, R[i], ws, iws)
+        st, c = decide_ws(P[i], lim, slack, start, max_cells, R[i], ws, iws, prune)
         status[i] = st
         work[i] = c
 
@@ -545,13 +593,16 @@ def decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1):
 CHUNK = 256
 
 
-def _decide_all(P, lim, slack, start, max_cells, status, R, work, threads=None) -> None:
+def _decide_all(P, lim, slack, start, max_cells, status, R, work, threads=None, prune=True) -> None:
     """Every set, over up to ``threads`` threads (default: every core; each set is independent,
-    so the result does not depend on the thread count or the chunking)."""
+    so the result does not depend on the thread count or the chunking).  ``prune``: with the
+    corner test (:func:`corners_exclude`; the outcome and frames are the same either way)."""
     from starforge.engine import over_ranges
 
+    flag = 1 if prune else 0
+
     def run(i0, i1):
-        decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1)
+        decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1, flag)
 
     over_ranges(run, len(P), CHUNK, threads)
 
@@ -568,7 +619,9 @@ def fits_limit(ext, limit) -> np.ndarray:
     return (lo <= lim[0]) & (mid <= lim[1]) & (hi <= lim[2])
 
 
-def decide_fit(points, limit, slack: float = SLACK_MM, start: int = 1, max_cells: int = MAX_CELLS):
+def decide_fit(
+    points, limit, slack: float = SLACK_MM, start: int = 1, max_cells: int = MAX_CELLS, prune: bool = True
+):
     """Decide, for each point set, whether some rotation fits it in the box ``limit``.
 
     Parameters
@@ -581,6 +634,10 @@ def decide_fit(points, limit, slack: float = SLACK_MM, start: int = 1, max_cells
         Completeness slack, mm (see the module docstring).
     max_cells : int
         Work cap per set; past it a set is reported undecided.
+    prune : bool
+        Prune cells with :func:`corners_exclude` too (default).  The outcome and the frame
+        returned are the same without it (the plain search, kept for tests); only the work
+        differs.
 
     Returns
     -------
@@ -605,6 +662,6 @@ def decide_fit(points, limit, slack: float = SLACK_MM, start: int = 1, max_cells
     R = np.full((n, 3, 3), np.nan)
     work = np.zeros(n, dtype=np.int64)
     if n:
-        _decide_all(P, lim, float(slack), int(start), int(max_cells), status, R, work)
+        _decide_all(P, lim, float(slack), int(start), int(max_cells), status, R, work, prune=prune)
         R[status != FIT] = np.nan
     return status, R, work

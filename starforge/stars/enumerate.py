@@ -115,16 +115,33 @@ def estimate(spec: StarSpec) -> dict:
 PILOT_SUBSETS = 256
 
 
+#: pilot measurements of this process, by (spec, samples, cpu): a ``stars`` run checks its size
+#: up to three times (the command, the family, the enumeration) and measures once
+_PILOTS: dict = {}
+
+
 def pilot(spec: StarSpec, samples: int = PILOT_SUBSETS, cpu: bool = False) -> tuple[float, float]:
     """(wall seconds per labelled candidate, share of labelled candidates that fit), measured on
     ``samples`` admissible 6-subsets drawn uniformly (fixed seed) and classified exactly as the
     enumeration will.  The cost per candidate depends on the spec (how many stars reach the fit
     decision, how hard it is), so a fixed rate can be off by an order of magnitude; a pilot is
-    not (within about 2x).
+    not (within about 2x).  Measured once per spec in a process (later calls return the first
+    measurement).
 
     ``cpu=True``: the rate is CPU seconds of one thread instead (the kernel run on one thread,
     timed with :func:`time.thread_time`), for work that runs one task per core (sweep cells):
     unlike wall time, it does not grow with the load of other jobs on the machine."""
+    key = (spec, int(samples), bool(cpu))
+    try:
+        hash(key)
+    except TypeError:  # a spec holding a list: measured every time
+        return _pilot(spec, int(samples), bool(cpu))
+    if key not in _PILOTS:
+        _PILOTS[key] = _pilot(spec, int(samples), bool(cpu))
+    return _PILOTS[key]
+
+
+def _pilot(spec: StarSpec, samples: int, cpu: bool) -> tuple[float, float]:
     n, m = spec.pool_size, spec.grid_steps
     free = n - (m - 1) * 5
     if free < 6:

@@ -44,11 +44,8 @@ def margins(lengths: np.ndarray) -> list[dict]:
     owner = np.repeat(np.arange(n), 4)
     face_m = np.full(n, np.inf)
     if len(F) > 1:
-        from scipy.spatial import cKDTree
-
         # the nearest other face in the Chebyshev metric (largest sorted-side difference)
-        d, _ = cKDTree(F).query(F, k=2, p=np.inf)
-        np.minimum.at(face_m, owner, d[:, 1])
+        np.minimum.at(face_m, owner, _nearest_other_chebyshev(F))
     pair_m = np.full(n, np.inf)
     if n > 1:
         forms = L[:, RELABELLINGS]  # (n, 24, 6)
@@ -70,6 +67,30 @@ def margins(lengths: np.ndarray) -> list[dict]:
         }
         for i in range(n)
     ]
+
+
+#: faces up to which :func:`_nearest_other_chebyshev` compares every pair (numpy, in blocks)
+#: instead of building a k-d tree (importing scipy.spatial alone costs about 0.1 s)
+BRUTE_FACES = 8192
+
+
+def _nearest_other_chebyshev(F: np.ndarray) -> np.ndarray:
+    """For each row of F (m, 3), the Chebyshev distance to the nearest other row (the same
+    numbers a k-d tree query gives: a maximum of absolute differences is exact)."""
+    m = len(F)
+    if m > BRUTE_FACES:
+        from scipy.spatial import cKDTree
+
+        d, _ = cKDTree(F).query(F, k=2, p=np.inf)
+        return d[:, 1]
+    out = np.empty(m)
+    rows = max(1, int(16e6 // (m * 3 * 8)))  # about 16 MB of differences per block
+    for i0 in range(0, m, rows):
+        i1 = min(m, i0 + rows)
+        d = np.abs(F[i0:i1, None, :] - F[None, :, :]).max(axis=2)
+        d[np.arange(i1 - i0), np.arange(i0, i1)] = np.inf
+        out[i0:i1] = d.min(axis=1)
+    return out
 
 
 def avoid_mask(
