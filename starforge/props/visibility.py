@@ -208,6 +208,17 @@ def _view_masks(centres, normals, q, axes, tans, cos_lim, caps, min_cams):
     P, C = q.shape[0], q.shape[1]
     H = caps.shape[0]
     out = np.zeros((S, P), dtype=np.uint64)
+    # each capsule's bounding sphere: a segment farther than its radius from the centre misses
+    # the capsule (the capsule's points are within half its length plus its radius of it), so
+    # the exact segment-segment test runs only for the segments that pass near; the 1e-6 m
+    # margin keeps rounding on the safe side, so the masks are the same bit for bit
+    mid = np.empty((H, 3))
+    reach2 = np.empty(H)
+    for h in range(H):
+        ax, ay, az = caps[h, 3] - caps[h, 0], caps[h, 4] - caps[h, 1], caps[h, 5] - caps[h, 2]
+        mid[h, 0], mid[h, 1], mid[h, 2] = caps[h, 0] + 0.5 * ax, caps[h, 1] + 0.5 * ay, caps[h, 2] + 0.5 * az
+        r = 0.5 * math.sqrt(ax * ax + ay * ay + az * az) + caps[h, 6] + 1e-6
+        reach2[h] = r * r
     for k in numba.prange(P):
         for i in range(S):
             cx, cy, cz = centres[i, 0], centres[i, 1], centres[i, 2]
@@ -228,6 +239,13 @@ def _view_masks(centres, normals, q, axes, tans, cos_lim, caps, min_cams):
                     continue
                 hidden = False
                 for h in range(H):
+                    # the point of the segment centre -> camera nearest the sphere's centre
+                    mx, my, mz = mid[h, 0] - cx, mid[h, 1] - cy, mid[h, 2] - cz
+                    t = -(mx * dx + my * dy + mz * dz) / (dist * dist)  # (m - c) . (q - c) / |q - c|^2
+                    t = min(max(t, 0.0), 1.0)
+                    ex, ey, ez = mx + t * dx, my + t * dy, mz + t * dz
+                    if ex * ex + ey * ey + ez * ez > reach2[h]:
+                        continue
                     d2 = _seg_seg_dist2(
                         cx, cy, cz, qx, qy, qz, caps[h, 0], caps[h, 1], caps[h, 2], caps[h, 3], caps[h, 4], caps[h, 5]
                     )
