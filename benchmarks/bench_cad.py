@@ -150,11 +150,15 @@ def _judge(
     slice_ids=None,
     slice_plates: bool = True,
     single_formats=("stl", "3mf"),
+    plate_formats=("stl", "3mf"),
+    single_slicers=None,
 ) -> dict:
     """Layer analysis, manifold checks and slicing of what an export wrote into ``stage``.
     ``slice_limit``: slice only the first that many single stars (and every plate);
     ``analysis_limit``: the layer analysis of only the first that many single stars (and every
-    plate).  Manifold checks cover every file."""
+    plate).  Manifold checks cover every file.  ``plate_formats``: the plate files sliced;
+    ``single_slicers``: the slicers for the single stars (default: ``slicers``, which the
+    plates always get)."""
     import trimesh
 
     from starforge.cad.printability import layer_report, printable
@@ -193,12 +197,15 @@ def _judge(
         depth = doc["body_spec"]["label_depth_mm"]
         for p in doc["plates"]:
             heights[p["name"]] = max(heights[n] for n in p["bodies"])
-        chosen = [f for f in files if not f.name.startswith("star_")] if slice_plates else []
+        chosen = [f for f in files if not f.name.startswith("star_") and f.suffix[1:] in plate_formats] if slice_plates else []
         keep = {f.stem for f in singles[: slice_limit if slice_limit is not None else len(singles)]}
         if slice_ids:
             keep = {f"star_{int(i):03d}" for i in slice_ids} & {f.stem for f in singles}
-        chosen += [f for f in files if f.name.startswith("star_") and f.stem in keep and f.suffix[1:] in single_formats]
-        jobs_ = [(f, sl) for sl in slicers for f in chosen if not (sl.startswith("slic3r") and f.suffix == ".3mf")]
+        single_files = [f for f in files if f.name.startswith("star_") and f.stem in keep and f.suffix[1:] in single_formats]
+        jobs_ = [(f, sl) for sl in slicers for f in chosen] + [
+            (f, sl) for sl in (slicers if single_slicers is None else single_slicers) for f in single_files
+        ]
+        jobs_ = [(f, sl) for f, sl in jobs_ if not (sl.startswith("slic3r") and f.suffix == ".3mf")]
         _progress(f"slicing {len(jobs_)} files in {jobs} jobs")
         t = time.perf_counter()
         with ThreadPoolExecutor(jobs) as ex:
@@ -211,7 +218,20 @@ def _judge(
         diffs = [abs(x["sliced_top_mm"] - heights[Path(x["file"]).stem]) for x in sliced if x["ok"] and x["sliced_top_mm"]]
         row["slicer"] = {
             "files": len(sliced),
-            "per_slicer": {sl: sum(x["slicer"] == sl for x in sliced) for sl in slicers},
+            "per_slicer": {sl: sum(x["slicer"] == sl for x in sliced) for sl in sorted({x["slicer"] for x in sliced})},
+            "plates": {
+                sl: {
+                    "files": len(p),
+                    "sliced_ok": sum(x["ok"] for x in p),
+                    "with_warnings": sum(bool(x["warnings"]) for x in p),
+                    "seconds_max": max((x["seconds"] for x in p), default=None),
+                    "seconds_sum": round(sum(x["seconds"] for x in p), 1),
+                }
+                for sl in sorted({x["slicer"] for x in sliced})
+                for p in [[x for x in sliced if x["slicer"] == sl and x["file"].startswith("plate")]]
+                if p
+            },
+            "single_seconds_max": max((x["seconds"] for x in sliced if x["file"].startswith("star_")), default=None),
             "single_stars_sliced": len(keep),
             "single_star_formats_sliced": list(single_formats),
             "single_star_files": len(singles),
@@ -364,11 +384,15 @@ def main() -> None:
     ap.add_argument("--slicers", default="prusa-slicer,slic3r",
                     help="which installed slicers to run (comma list; slic3r-svg: Slic3r's slicing stage only)")
     ap.add_argument("--single-formats", default="stl,3mf", help="single-star files sliced: stl, 3mf or both")
+    ap.add_argument("--plate-formats", default="stl,3mf", help="plate files sliced: stl, 3mf or both")
+    ap.add_argument("--single-slicers", default=None,
+                    help="slicers for the single stars (comma list; default: --slicers, which the plates get)")
     ap.add_argument("--speed-only", action="store_true", help="only the issue-20 export timings")
     ap.add_argument("--repeat", type=int, default=3, help="export-speed runs (0: skip the speed figures)")
     args = ap.parse_args()
     count = lambda v: None if v == "all" else int(v)  # noqa: E731
     fmts = tuple(args.single_formats.split(","))
+    plate_fmts = tuple(args.plate_formats.split(","))
     if args.speed_only:
         print(
             json.dumps(
@@ -388,11 +412,16 @@ def main() -> None:
     from starforge.stars.spec import StarSpec
 
     slicer = shutil.which("prusa-slicer") if not args.no_slicer else None
-    slicers = [] if args.no_slicer else [n for n in args.slicers.split(",") if n in SLICERS and shutil.which(n.removesuffix("-svg"))]
+    installed = lambda v: [] if args.no_slicer else [  # noqa: E731
+        n for n in v.split(",") if n in SLICERS and shutil.which(n.removesuffix("-svg"))
+    ]
+    slicers = installed(args.slicers)
+    single_slicers = None if args.single_slicers is None else installed(args.single_slicers)
     out: dict = {
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}",
         "prusa_slicer": slicer,
         "slicers": slicers,
+        "single_slicers": single_slicers if single_slicers is not None else slicers,
         "load_at_start": open("/proc/loadavg").read().split()[:3] if os.path.exists("/proc/loadavg") else None,
         "mounts": {},
     }
@@ -434,7 +463,10 @@ def main() -> None:
             vols = [abs(b["mesh_volume_mm3"] / b["step_volume_mm3"] - 1) * 100 for b in rep.bodies]
             row["step_vs_stl_volume_percent_worst"] = round(max(vols), 6)
             ids = [int(x) for x in args.finger_slice_ids.split(",")] if args.finger_slice_ids else None
-            row.update(_judge(stage, rep, doc, slicers, args.jobs, slice_ids=ids, single_formats=fmts))
+            row.update(
+                _judge(stage, rep, doc, slicers, args.jobs, slice_ids=ids, single_formats=fmts,
+                       plate_formats=plate_fmts, single_slicers=single_slicers)
+            )
         out["mounts"][name] = row
         _progress(f"finger family on {name}: done")
 
@@ -496,6 +528,8 @@ def main() -> None:
                     analysis_limit=count(args.limb_analyse),
                     slice_plates=args.limb_plates,
                     single_formats=fmts,
+                    plate_formats=plate_fmts,
+                    single_slicers=single_slicers,
                 )
             )
         out["limb"][mk] = row
