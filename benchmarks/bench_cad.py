@@ -148,7 +148,7 @@ def _judge(
     slice_limit: int | None = None,
     analysis_limit: int | None = None,
     slice_ids=None,
-    slice_plates: bool = True,
+    slice_plates: bool | int = True,
     single_formats=("stl", "3mf"),
     plate_formats=("stl", "3mf"),
     single_slicers=None,
@@ -159,6 +159,7 @@ def _judge(
     plate).  Manifold checks cover every file.  ``plate_formats``: the plate files sliced;
     ``single_slicers``: the slicers for the single stars (default: ``slicers``, which the
     plates always get)."""
+    import numpy as np
     import trimesh
 
     from starforge.cad.printability import layer_report, printable
@@ -198,6 +199,10 @@ def _judge(
         for p in doc["plates"]:
             heights[p["name"]] = max(heights[n] for n in p["bodies"])
         chosen = [f for f in files if not f.name.startswith("star_") and f.suffix[1:] in plate_formats] if slice_plates else []
+        if slice_plates is not True and chosen:  # a number: that many beds, evenly spread (first and last)
+            beds = [p["name"] for p in doc["plates"]]
+            picked = {beds[round(i)] for i in np.linspace(0, len(beds) - 1, min(int(slice_plates), len(beds)))}
+            chosen = [f for f in chosen if f.stem in picked]
         keep = {f.stem for f in singles[: slice_limit if slice_limit is not None else len(singles)]}
         if slice_ids:
             keep = {f"star_{int(i):03d}" for i in slice_ids} & {f.stem for f in singles}
@@ -231,6 +236,8 @@ def _judge(
                 for p in [[x for x in sliced if x["slicer"] == sl and x["file"].startswith("plate")]]
                 if p
             },
+            "plate_files_sliced": [f.name for f in chosen],
+            "plate_files": len(plates),
             "single_seconds_max": max((x["seconds"] for x in sliced if x["file"].startswith("star_")), default=None),
             "single_stars_sliced": len(keep),
             "single_star_formats_sliced": list(single_formats),
@@ -380,7 +387,8 @@ def main() -> None:
     )
     ap.add_argument("--limb-slice", default="3", help="single limb stars sliced per marker (a number or all)")
     ap.add_argument("--limb-analyse", default="10", help="single limb stars layer-analysed per marker (a number or all)")
-    ap.add_argument("--limb-plates", action="store_true", help="slice the limb plates too (slow: many large bodies)")
+    ap.add_argument("--limb-plates", nargs="?", const="all", default=None,
+                    help="slice the limb plates too: all (no value) or a number of beds, evenly spread")
     ap.add_argument("--slicers", default="prusa-slicer,slic3r",
                     help="which installed slicers to run (comma list; slic3r-svg: Slic3r's slicing stage only)")
     ap.add_argument("--single-formats", default="stl,3mf", help="single-star files sliced: stl, 3mf or both")
@@ -526,7 +534,7 @@ def main() -> None:
                     args.jobs,
                     slice_limit=count(args.limb_slice),
                     analysis_limit=count(args.limb_analyse),
-                    slice_plates=args.limb_plates,
+                    slice_plates=True if args.limb_plates == "all" else int(args.limb_plates or 0),
                     single_formats=fmts,
                     plate_formats=plate_fmts,
                     single_slicers=single_slicers,
