@@ -139,6 +139,13 @@ def _manifold(path: Path) -> dict:
     return row
 
 
+def _spread(n: int, k: int) -> list[int]:
+    """``k`` of the ids 1..``n``, evenly spread, the first and the last included."""
+    import numpy as np
+
+    return sorted({int(round(x)) for x in np.linspace(1, n, min(k, n))}) if k > 0 else []
+
+
 def _judge(
     stage: Path,
     rep,
@@ -204,7 +211,7 @@ def _judge(
             picked = {beds[round(i)] for i in np.linspace(0, len(beds) - 1, min(int(slice_plates), len(beds)))}
             chosen = [f for f in chosen if f.stem in picked]
         keep = {f.stem for f in singles[: slice_limit if slice_limit is not None else len(singles)]}
-        if slice_ids:
+        if slice_ids is not None:
             keep = {f"star_{int(i):03d}" for i in slice_ids} & {f.stem for f in singles}
         single_files = [f for f in files if f.name.startswith("star_") and f.stem in keep and f.suffix[1:] in single_formats]
         jobs_ = [(f, sl) for sl in slicers for f in chosen] + [
@@ -385,7 +392,9 @@ def main() -> None:
         default="",
         help="slice only these single stars of each finger family (and every plate); default: all",
     )
-    ap.add_argument("--limb-slice", default="3", help="single limb stars sliced per marker (a number or all)")
+    ap.add_argument("--limb-slice", default="3",
+                    help="single limb stars sliced per marker: a number (the first ones), spread:N (N evenly "
+                         "spread, first and last included) or all")
     ap.add_argument("--limb-analyse", default="10", help="single limb stars layer-analysed per marker (a number or all)")
     ap.add_argument("--limb-plates", nargs="?", const="all", default=None,
                     help="slice the limb plates too: all (no value) or a number of beds, evenly spread")
@@ -532,7 +541,8 @@ def main() -> None:
                     doc,
                     slicers,
                     args.jobs,
-                    slice_limit=count(args.limb_slice),
+                    slice_limit=None if args.limb_slice.startswith("spread:") else count(args.limb_slice),
+                    slice_ids=_spread(len(fam), int(args.limb_slice[7:])) if args.limb_slice.startswith("spread:") else None,
                     analysis_limit=count(args.limb_analyse),
                     slice_plates=True if args.limb_plates == "all" else int(args.limb_plates or 0),
                     single_formats=fmts,
