@@ -159,13 +159,16 @@ def _judge(
     single_formats=("stl", "3mf"),
     plate_formats=("stl", "3mf"),
     single_slicers=None,
+    check_all: bool = True,
 ) -> dict:
     """Layer analysis, manifold checks and slicing of what an export wrote into ``stage``.
     ``slice_limit``: slice only the first that many single stars (and every plate);
     ``analysis_limit``: the layer analysis of only the first that many single stars (and every
     plate).  Manifold checks cover every file.  ``plate_formats``: the plate files sliced;
     ``single_slicers``: the slicers for the single stars (default: ``slicers``, which the
-    plates always get)."""
+    plates always get).  ``slice_plates``: a number slices (and layer-analyses) that many beds,
+    evenly spread.  ``check_all`` False: the manifold checks cover every plate and only the single
+    stars sliced (the rest were checked by an earlier run)."""
     import numpy as np
     import trimesh
 
@@ -175,8 +178,15 @@ def _judge(
     singles = sorted(stage.glob("star_*.stl"))
     plates = sorted(stage.glob("plate*.stl"))
     files = singles + sorted(stage.glob("star_*.3mf")) + plates + sorted(stage.glob("plate*.3mf"))
+    beds = [p["name"] for p in doc["plates"]]
+    sampled = slice_plates is not True and bool(slice_plates)  # a number: that many beds, evenly spread
+    picked = {beds[round(i)] for i in np.linspace(0, len(beds) - 1, min(int(slice_plates), len(beds)))} if sampled else set(beds)
+    keep = {f.stem for f in singles[: slice_limit if slice_limit is not None else len(singles)]}
+    if slice_ids is not None:
+        keep = {f"star_{int(i):03d}" for i in slice_ids} & {f.stem for f in singles}
+    checked = files if check_all else [f for f in files if not f.name.startswith("star_") or f.stem in keep]
     with ThreadPoolExecutor(jobs) as ex:
-        man = list(ex.map(_manifold, files))
+        man = list(ex.map(_manifold, checked))
     row["manifold"] = {
         "files": len(man),
         "nonmanifold_edges": sum(r["nonmanifold_edges"] for r in man),
@@ -186,10 +196,12 @@ def _judge(
         "admesh_fixes": sum(r.get("admesh_fixes", 0) for r in man) if shutil.which("admesh") else "not installed",
     }
     analysed = singles[: analysis_limit if analysis_limit is not None else len(singles)]
-    reports = {f.name: layer_report(trimesh.load(f, force="mesh"), LAYER_MM) for f in analysed + plates}
+    analysed_plates = [f for f in plates if f.stem in picked]
+    reports = {f.name: layer_report(trimesh.load(f, force="mesh"), LAYER_MM) for f in analysed + analysed_plates}
     single = [reports[f.name] for f in analysed]
     row["layer_analysis"] = {
         "single_stars_analysed": len(analysed),
+        "plates_analysed": len(analysed_plates),
         "midair_islands_total": sum(len(r["midair_islands"]) for r in reports.values()),
         "not_printable": {k: printable(r) for k, r in reports.items() if printable(r) and k in {f.name for f in singles}},
         "bed_contact_mm2_min": min(r["first_layer_mm2"] for r in single),
@@ -206,13 +218,7 @@ def _judge(
         for p in doc["plates"]:
             heights[p["name"]] = max(heights[n] for n in p["bodies"])
         chosen = [f for f in files if not f.name.startswith("star_") and f.suffix[1:] in plate_formats] if slice_plates else []
-        if slice_plates is not True and chosen:  # a number: that many beds, evenly spread (first and last)
-            beds = [p["name"] for p in doc["plates"]]
-            picked = {beds[round(i)] for i in np.linspace(0, len(beds) - 1, min(int(slice_plates), len(beds)))}
-            chosen = [f for f in chosen if f.stem in picked]
-        keep = {f.stem for f in singles[: slice_limit if slice_limit is not None else len(singles)]}
-        if slice_ids is not None:
-            keep = {f"star_{int(i):03d}" for i in slice_ids} & {f.stem for f in singles}
+        chosen = [f for f in chosen if f.stem in picked]
         single_files = [f for f in files if f.name.startswith("star_") and f.stem in keep and f.suffix[1:] in single_formats]
         jobs_ = [(f, sl) for sl in slicers for f in chosen] + [
             (f, sl) for sl in (slicers if single_slicers is None else single_slicers) for f in single_files
@@ -400,6 +406,8 @@ def main() -> None:
                     help="slice the limb plates too: all (no value) or a number of beds, evenly spread")
     ap.add_argument("--slicers", default="prusa-slicer,slic3r",
                     help="which installed slicers to run (comma list; slic3r-svg: Slic3r's slicing stage only)")
+    ap.add_argument("--limb-check", choices=("all", "sliced"), default="all",
+                    help="limb files manifold-checked: all, or every plate and the single stars sliced")
     ap.add_argument("--single-formats", default="stl,3mf", help="single-star files sliced: stl, 3mf or both")
     ap.add_argument("--plate-formats", default="stl,3mf", help="plate files sliced: stl, 3mf or both")
     ap.add_argument("--single-slicers", default=None,
@@ -548,6 +556,7 @@ def main() -> None:
                     single_formats=fmts,
                     plate_formats=plate_fmts,
                     single_slicers=single_slicers,
+                    check_all=args.limb_check == "all",
                 )
             )
         out["limb"][mk] = row
