@@ -117,6 +117,16 @@ def _slice(path: Path, out: Path, slicer: str = "prusa-slicer", counters=None, d
     return row
 
 
+def _logged(row: dict) -> dict:
+    """One progress line per slice (a run stopped by its time bound still leaves what it sliced)."""
+    _progress(
+        f"sliced {row['file']} ({row['slicer']}): ok {row['ok']}, warnings {len(row['warnings'])}, "
+        f"counters lost {row.get('counters_lost', '-')} of {row.get('counters', '-')}, top {row.get('sliced_top_mm')} mm, "
+        f"{row['seconds']} s"
+    )
+    return row
+
+
 def _manifold(path: Path) -> dict:
     """The file as a reader finds it: edges on more than two faces, open edges, shells
     (trimesh, vertices welded), and admesh's repairs where admesh is installed."""
@@ -229,7 +239,7 @@ def _judge(
         with ThreadPoolExecutor(jobs) as ex:
             sliced = list(
                 ex.map(
-                    lambda fs: _slice(fs[0], stage, fs[1], counters.get(fs[0].stem) if fs[0].suffix == ".stl" else None, depth),
+                    lambda fs: _logged(_slice(fs[0], stage, fs[1], counters.get(fs[0].stem) if fs[0].suffix == ".stl" else None, depth)),
                     jobs_,
                 )
             )
