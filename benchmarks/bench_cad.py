@@ -221,6 +221,7 @@ def _judge(
         "height_mm_max": max(r["height_mm"] for r in single),
     }
     row["closest_features_mm_min"] = min(b["closest_features_mm"] for b in rep.bodies)
+    _progress("checked " + json.dumps({k: row[k] for k in ("manifold", "layer_analysis", "closest_features_mm_min")}))
     if slicers:
         heights = {b["name"]: b["print_height_mm"] for b in rep.bodies}
         counters = {b["name"]: b.get("label_counters_print_mm") for b in rep.bodies}
