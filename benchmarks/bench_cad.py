@@ -117,6 +117,16 @@ def _slice(path: Path, out: Path, slicer: str = "prusa-slicer", counters=None, d
     return row
 
 
+def _logged(row: dict) -> dict:
+    """One progress line per slice (a run stopped by its time bound still leaves what it sliced)."""
+    _progress(
+        f"sliced {row['file']} ({row['slicer']}): ok {row['ok']}, warnings {len(row['warnings'])}, "
+        f"counters lost {row.get('counters_lost', '-')} of {row.get('counters', '-')}, top {row.get('sliced_top_mm')} mm, "
+        f"{row['seconds']} s"
+    )
+    return row
+
+
 def _manifold(path: Path) -> dict:
     """The file as a reader finds it: edges on more than two faces, open edges, shells
     (trimesh, vertices welded), and admesh's repairs where admesh is installed."""
@@ -139,6 +149,13 @@ def _manifold(path: Path) -> dict:
     return row
 
 
+def _spread(n: int, k: int) -> list[int]:
+    """``k`` of the ids 1..``n``, evenly spread, the first and the last included."""
+    import numpy as np
+
+    return sorted({int(round(x)) for x in np.linspace(1, n, min(k, n))}) if k > 0 else []
+
+
 def _judge(
     stage: Path,
     rep,
@@ -148,13 +165,21 @@ def _judge(
     slice_limit: int | None = None,
     analysis_limit: int | None = None,
     slice_ids=None,
-    slice_plates: bool = True,
+    slice_plates: bool | int = True,
     single_formats=("stl", "3mf"),
+    plate_formats=("stl", "3mf"),
+    single_slicers=None,
+    check_all: bool = True,
 ) -> dict:
     """Layer analysis, manifold checks and slicing of what an export wrote into ``stage``.
     ``slice_limit``: slice only the first that many single stars (and every plate);
     ``analysis_limit``: the layer analysis of only the first that many single stars (and every
-    plate).  Manifold checks cover every file."""
+    plate).  Manifold checks cover every file.  ``plate_formats``: the plate files sliced;
+    ``single_slicers``: the slicers for the single stars (default: ``slicers``, which the
+    plates always get).  ``slice_plates``: a number slices (and layer-analyses) that many beds,
+    evenly spread.  ``check_all`` False: the manifold checks cover every plate and only the single
+    stars sliced (the rest were checked by an earlier run)."""
+    import numpy as np
     import trimesh
 
     from starforge.cad.printability import layer_report, printable
@@ -163,8 +188,15 @@ def _judge(
     singles = sorted(stage.glob("star_*.stl"))
     plates = sorted(stage.glob("plate*.stl"))
     files = singles + sorted(stage.glob("star_*.3mf")) + plates + sorted(stage.glob("plate*.3mf"))
+    beds = [p["name"] for p in doc["plates"]]
+    sampled = slice_plates is not True and bool(slice_plates)  # a number: that many beds, evenly spread
+    picked = {beds[round(i)] for i in np.linspace(0, len(beds) - 1, min(int(slice_plates), len(beds)))} if sampled else set(beds)
+    keep = {f.stem for f in singles[: slice_limit if slice_limit is not None else len(singles)]}
+    if slice_ids is not None:
+        keep = {f"star_{int(i):03d}" for i in slice_ids} & {f.stem for f in singles}
+    checked = files if check_all else [f for f in files if not f.name.startswith("star_") or f.stem in keep]
     with ThreadPoolExecutor(jobs) as ex:
-        man = list(ex.map(_manifold, files))
+        man = list(ex.map(_manifold, checked))
     row["manifold"] = {
         "files": len(man),
         "nonmanifold_edges": sum(r["nonmanifold_edges"] for r in man),
@@ -174,10 +206,12 @@ def _judge(
         "admesh_fixes": sum(r.get("admesh_fixes", 0) for r in man) if shutil.which("admesh") else "not installed",
     }
     analysed = singles[: analysis_limit if analysis_limit is not None else len(singles)]
-    reports = {f.name: layer_report(trimesh.load(f, force="mesh"), LAYER_MM) for f in analysed + plates}
+    analysed_plates = [f for f in plates if f.stem in picked]
+    reports = {f.name: layer_report(trimesh.load(f, force="mesh"), LAYER_MM) for f in analysed + analysed_plates}
     single = [reports[f.name] for f in analysed]
     row["layer_analysis"] = {
         "single_stars_analysed": len(analysed),
+        "plates_analysed": len(analysed_plates),
         "midair_islands_total": sum(len(r["midair_islands"]) for r in reports.values()),
         "not_printable": {k: printable(r) for k, r in reports.items() if printable(r) and k in {f.name for f in singles}},
         "bed_contact_mm2_min": min(r["first_layer_mm2"] for r in single),
@@ -187,31 +221,48 @@ def _judge(
         "height_mm_max": max(r["height_mm"] for r in single),
     }
     row["closest_features_mm_min"] = min(b["closest_features_mm"] for b in rep.bodies)
+    _progress("checked " + json.dumps({k: row[k] for k in ("manifold", "layer_analysis", "closest_features_mm_min")}))
     if slicers:
         heights = {b["name"]: b["print_height_mm"] for b in rep.bodies}
         counters = {b["name"]: b.get("label_counters_print_mm") for b in rep.bodies}
         depth = doc["body_spec"]["label_depth_mm"]
         for p in doc["plates"]:
             heights[p["name"]] = max(heights[n] for n in p["bodies"])
-        chosen = [f for f in files if not f.name.startswith("star_")] if slice_plates else []
-        keep = {f.stem for f in singles[: slice_limit if slice_limit is not None else len(singles)]}
-        if slice_ids:
-            keep = {f"star_{int(i):03d}" for i in slice_ids} & {f.stem for f in singles}
-        chosen += [f for f in files if f.name.startswith("star_") and f.stem in keep and f.suffix[1:] in single_formats]
-        jobs_ = [(f, sl) for sl in slicers for f in chosen if not (sl.startswith("slic3r") and f.suffix == ".3mf")]
+        chosen = [f for f in files if not f.name.startswith("star_") and f.suffix[1:] in plate_formats] if slice_plates else []
+        chosen = [f for f in chosen if f.stem in picked]
+        single_files = [f for f in files if f.name.startswith("star_") and f.stem in keep and f.suffix[1:] in single_formats]
+        jobs_ = [(f, sl) for sl in slicers for f in chosen] + [
+            (f, sl) for sl in (slicers if single_slicers is None else single_slicers) for f in single_files
+        ]
+        jobs_ = [(f, sl) for f, sl in jobs_ if not (sl.startswith("slic3r") and f.suffix == ".3mf")]
         _progress(f"slicing {len(jobs_)} files in {jobs} jobs")
         t = time.perf_counter()
         with ThreadPoolExecutor(jobs) as ex:
             sliced = list(
                 ex.map(
-                    lambda fs: _slice(fs[0], stage, fs[1], counters.get(fs[0].stem) if fs[0].suffix == ".stl" else None, depth),
+                    lambda fs: _logged(_slice(fs[0], stage, fs[1], counters.get(fs[0].stem) if fs[0].suffix == ".stl" else None, depth)),
                     jobs_,
                 )
             )
         diffs = [abs(x["sliced_top_mm"] - heights[Path(x["file"]).stem]) for x in sliced if x["ok"] and x["sliced_top_mm"]]
         row["slicer"] = {
             "files": len(sliced),
-            "per_slicer": {sl: sum(x["slicer"] == sl for x in sliced) for sl in slicers},
+            "per_slicer": {sl: sum(x["slicer"] == sl for x in sliced) for sl in sorted({x["slicer"] for x in sliced})},
+            "plates": {
+                sl: {
+                    "files": len(p),
+                    "sliced_ok": sum(x["ok"] for x in p),
+                    "with_warnings": sum(bool(x["warnings"]) for x in p),
+                    "seconds_max": max((x["seconds"] for x in p), default=None),
+                    "seconds_sum": round(sum(x["seconds"] for x in p), 1),
+                }
+                for sl in sorted({x["slicer"] for x in sliced})
+                for p in [[x for x in sliced if x["slicer"] == sl and x["file"].startswith("plate")]]
+                if p
+            },
+            "plate_files_sliced": [f.name for f in chosen],
+            "plate_files": len(plates),
+            "single_seconds_max": max((x["seconds"] for x in sliced if x["file"].startswith("star_")), default=None),
             "single_stars_sliced": len(keep),
             "single_star_formats_sliced": list(single_formats),
             "single_star_files": len(singles),
@@ -358,17 +409,26 @@ def main() -> None:
         default="",
         help="slice only these single stars of each finger family (and every plate); default: all",
     )
-    ap.add_argument("--limb-slice", default="3", help="single limb stars sliced per marker (a number or all)")
+    ap.add_argument("--limb-slice", default="3",
+                    help="single limb stars sliced per marker: a number (the first ones), spread:N (N evenly "
+                         "spread, first and last included) or all")
     ap.add_argument("--limb-analyse", default="10", help="single limb stars layer-analysed per marker (a number or all)")
-    ap.add_argument("--limb-plates", action="store_true", help="slice the limb plates too (slow: many large bodies)")
+    ap.add_argument("--limb-plates", nargs="?", const="all", default=None,
+                    help="slice the limb plates too: all (no value) or a number of beds, evenly spread")
     ap.add_argument("--slicers", default="prusa-slicer,slic3r",
                     help="which installed slicers to run (comma list; slic3r-svg: Slic3r's slicing stage only)")
+    ap.add_argument("--limb-check", choices=("all", "sliced"), default="all",
+                    help="limb files manifold-checked: all, or every plate and the single stars sliced")
     ap.add_argument("--single-formats", default="stl,3mf", help="single-star files sliced: stl, 3mf or both")
+    ap.add_argument("--plate-formats", default="stl,3mf", help="plate files sliced: stl, 3mf or both")
+    ap.add_argument("--single-slicers", default=None,
+                    help="slicers for the single stars (comma list; default: --slicers, which the plates get)")
     ap.add_argument("--speed-only", action="store_true", help="only the issue-20 export timings")
     ap.add_argument("--repeat", type=int, default=3, help="export-speed runs (0: skip the speed figures)")
     args = ap.parse_args()
     count = lambda v: None if v == "all" else int(v)  # noqa: E731
     fmts = tuple(args.single_formats.split(","))
+    plate_fmts = tuple(args.plate_formats.split(","))
     if args.speed_only:
         print(
             json.dumps(
@@ -388,11 +448,16 @@ def main() -> None:
     from starforge.stars.spec import StarSpec
 
     slicer = shutil.which("prusa-slicer") if not args.no_slicer else None
-    slicers = [] if args.no_slicer else [n for n in args.slicers.split(",") if n in SLICERS and shutil.which(n.removesuffix("-svg"))]
+    installed = lambda v: [] if args.no_slicer else [  # noqa: E731
+        n for n in v.split(",") if n in SLICERS and shutil.which(n.removesuffix("-svg"))
+    ]
+    slicers = installed(args.slicers)
+    single_slicers = None if args.single_slicers is None else installed(args.single_slicers)
     out: dict = {
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}",
         "prusa_slicer": slicer,
         "slicers": slicers,
+        "single_slicers": single_slicers if single_slicers is not None else slicers,
         "load_at_start": open("/proc/loadavg").read().split()[:3] if os.path.exists("/proc/loadavg") else None,
         "mounts": {},
     }
@@ -434,7 +499,10 @@ def main() -> None:
             vols = [abs(b["mesh_volume_mm3"] / b["step_volume_mm3"] - 1) * 100 for b in rep.bodies]
             row["step_vs_stl_volume_percent_worst"] = round(max(vols), 6)
             ids = [int(x) for x in args.finger_slice_ids.split(",")] if args.finger_slice_ids else None
-            row.update(_judge(stage, rep, doc, slicers, args.jobs, slice_ids=ids, single_formats=fmts))
+            row.update(
+                _judge(stage, rep, doc, slicers, args.jobs, slice_ids=ids, single_formats=fmts,
+                       plate_formats=plate_fmts, single_slicers=single_slicers)
+            )
         out["mounts"][name] = row
         _progress(f"finger family on {name}: done")
 
@@ -492,10 +560,14 @@ def main() -> None:
                     doc,
                     slicers,
                     args.jobs,
-                    slice_limit=count(args.limb_slice),
+                    slice_limit=None if args.limb_slice.startswith("spread:") else count(args.limb_slice),
+                    slice_ids=_spread(len(fam), int(args.limb_slice[7:])) if args.limb_slice.startswith("spread:") else None,
                     analysis_limit=count(args.limb_analyse),
-                    slice_plates=args.limb_plates,
+                    slice_plates=True if args.limb_plates == "all" else int(args.limb_plates or 0),
                     single_formats=fmts,
+                    plate_formats=plate_fmts,
+                    single_slicers=single_slicers,
+                    check_all=args.limb_check == "all",
                 )
             )
         out["limb"][mk] = row
