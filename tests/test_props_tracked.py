@@ -287,14 +287,19 @@ def test_the_paper_setting_stays_available():
     assert s.objective == "paper" and s.orientations == 1 and s.costs.marker_diameter_m == pytest.approx(0.004)
 
 
+def _shield_in_a_small_room(tmp_path, sites: int) -> dict:
+    """placement.json of 4 markers on the shield in a 4-camera room (``sites`` sampled sites)."""
+    out = tmp_path / "o"
+    args = ["place", "run", "shield", "--rig", "small4", "--sites", str(sites), "--resolution", "2",
+            "--orientations", "12", "--markers", "4", "--out", out]
+    assert run_cli(args) == 0
+    return json.loads((out / "placement.json").read_text())
+
+
 def test_untracked_poses_are_warned_and_recorded(tmp_path, capsys):
     """A 4-camera room and only 4 markers on the shield leave a pose untracked: the run says so
     on stderr and in placement.json."""
-    out = tmp_path / "o"
-    args = ["place", "run", "shield", "--rig", "small4", "--sites", "60", "--resolution", "2",
-            "--orientations", "12", "--markers", "4", "--out", out]
-    assert run_cli(args) == 0
-    doc = json.loads((out / "placement.json").read_text())
+    doc = _shield_in_a_small_room(tmp_path, sites=60)
     frac = doc["tracked"]["tracked_fraction"]
     assert frac < 1.0
     warned = [w for w in doc["warnings"] if "not tracked" in w]
@@ -321,11 +326,7 @@ def test_untracked_poses_are_warned_and_recorded(tmp_path, capsys):
 def test_below_target_names_the_exact_ceiling_when_layouts_are_few(tmp_path):
     """On 20 sites every spaced layout is scored: the ceiling bounds the chosen layout, and the
     warning line quotes it."""
-    out = tmp_path / "o"
-    args = ["place", "run", "shield", "--rig", "small4", "--sites", "20", "--resolution", "2",
-            "--orientations", "12", "--markers", "4", "--out", out]
-    assert run_cli(args) == 0
-    doc = json.loads((out / "placement.json").read_text())
+    doc = _shield_in_a_small_room(tmp_path, sites=20)
     below = doc["tracked"]["below_target"]
     c = below["ceiling"]
     assert c is not None and c["scenarios"] == below["scenarios"] and 3 <= c["max_markers_spaced"] <= 4

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from starforge.geometry.sym3 import line_spread2, moments
+from starforge.geometry.sym3 import line_spread2_at_least, moments
 
 #: the most spaced layouts enumerated (beyond it no ceiling is claimed)
 MAX_LAYOUTS = 200_000
@@ -25,9 +25,9 @@ MAX_WORK = 400_000_000
 
 
 @numba.njit(cache=True, nogil=True)
-def _cliques(far, max_k, cap, out, record):
-    """Sets of 3..max_k indices pairwise ``far`` (ascending, depth first); with ``record``
-    written into ``out`` (cap, max_k; -1 padded).  Returns the count, or -1 past ``cap``."""
+def _cliques(far, max_k, out):
+    """Sets of 3..max_k indices pairwise ``far`` (ascending, depth first), written into ``out``
+    (cap, max_k; -1 padded).  Returns the count, or -1 past ``out``'s rows."""
     n = far.shape[0]
     cur = np.empty(max_k, np.int64)
     nxt = np.zeros(max_k + 1, np.int64)
@@ -51,11 +51,10 @@ def _cliques(far, max_k, cap, out, record):
         cur[depth] = v
         k = depth + 1
         if k >= 3:
-            if count >= cap:
+            if count >= out.shape[0]:
                 return -1
-            if record:
-                for j in range(max_k):
-                    out[count, j] = cur[j] if j < k else -1
+            for j in range(max_k):
+                out[count, j] = cur[j] if j < k else -1
             count += 1
         if k < max_k:
             depth += 1
@@ -89,7 +88,7 @@ def _score(layouts, seen, P, M, min_spread2):
                     xy += M[i, 3]
                     yz += M[i, 4]
                     xz += M[i, 5]
-            if c >= 3 and line_spread2(c, x, y, z, xx, yy, zz, xy, yz, xz) >= min_spread2:
+            if c >= 3 and line_spread2_at_least(c, x, y, z, xx, yy, zz, xy, yz, xz, min_spread2):
                 good += 1
         out[r] = good
     return out
@@ -103,12 +102,9 @@ def spaced_layouts(points: np.ndarray, spacing: float, max_markers: int, cap: in
     P = np.asarray(points, float)
     k = int(max(3, max_markers))
     far = np.linalg.norm(P[:, None] - P[None], axis=2) >= spacing
-    n = _cliques(far, k, cap, np.empty((0, k), np.int64), False)
-    if n < 0:
-        return None
-    out = np.empty((n, k), np.int64)
-    _cliques(far, k, cap, out, True)
-    return out
+    out = np.empty((cap, k), np.int64)  # at most 11 MB at the default cap of 7 markers
+    n = _cliques(far, k, out)
+    return None if n < 0 else out[:n].copy()
 
 
 def tracked_ceiling(points, seen, spacing: float, min_spread2: float, max_markers: int) -> dict | None:
@@ -122,7 +118,7 @@ def tracked_ceiling(points, seen, spacing: float, min_spread2: float, max_marker
     if lay is None:
         return None
     if not len(lay):
-        return {"ceiling": 0.0, "layouts": 0, "best": [], "max_markers_spaced": int(_largest(lay))}
+        return {"ceiling": 0.0, "layouts": 0, "best": [], "max_markers_spaced": 0}
     table = seen() if callable(seen) else seen
     if len(lay) * table.shape[1] > MAX_WORK:
         return None
@@ -132,10 +128,6 @@ def tracked_ceiling(points, seen, spacing: float, min_spread2: float, max_marker
         "ceiling": float(good[b] / table.shape[1]),
         "layouts": int(len(lay)),
         "best": [int(i) for i in lay[b] if i >= 0],
-        "max_markers_spaced": int(_largest(lay)),
+        "max_markers_spaced": int((lay >= 0).sum(axis=1).max()),
         "scenarios": int(table.shape[1]),
     }
-
-
-def _largest(lay: np.ndarray) -> int:
-    return int((lay >= 0).sum(axis=1).max()) if len(lay) else 0
