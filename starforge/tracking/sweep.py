@@ -92,13 +92,6 @@ def parse_range(text: str, name: str) -> list[float]:
     return sorted(set(vals))
 
 
-def _conflicts(key: np.ndarray, chosen: np.ndarray, m: int) -> bool:
-    """Any chosen key (k, 3) within m - 1 grid steps of ``key`` (3,) in every side."""
-    if len(chosen) == 0:
-        return False
-    return bool((np.abs(chosen - key).max(axis=1) <= m - 1).any())
-
-
 def fitting_box_volume(P: np.ndarray, limit: np.ndarray, box_method: str = "exact") -> np.ndarray:
     """Volume (mm^3) of a box that fits the sorted ``limit`` (the exact fit decision's rotation,
     or the paper's covariance box), inf where none does.  ``P`` : (n, 4, 3) mm."""
@@ -124,6 +117,7 @@ def sampled_lower_bound(spec, rng: np.random.Generator, samples: int = SAMPLES, 
     same seed gives the same family.
     """
     from starforge.geometry.tetra import (
+        FACE_EDGES,
         is_realisable,
         lengths_from_vertices,
         tetra_width,
@@ -131,7 +125,8 @@ def sampled_lower_bound(spec, rng: np.random.Generator, samples: int = SAMPLES, 
     )
     from starforge.stars.enumerate import edge_pool
     from starforge.stars.family import margins
-    from starforge.stars.rules import grid_steps, internal_ok, key_triples
+    from starforge.stars.rules import VERTEX_EDGES, grid_steps, internal_ok
+    from starforge.stars.stream import greedy_windows
 
     pool = edge_pool(spec)
     p, lmin, d = len(pool), float(pool[0]), spec.delta_mm
@@ -172,24 +167,15 @@ def sampled_lower_bound(spec, rng: np.random.Generator, samples: int = SAMPLES, 
     idx, first = np.unique(idx, axis=0, return_index=True)
     vol = vol[first]
     order = np.lexsort((pool[idx].sum(axis=1), vol))  # most compact first, like the exhaustive greedy
-    keys = key_triples(idx[order], spec.rule)
-    chosen = []
-    kf = np.zeros((0, 3), dtype=np.int64)
-    kv = np.zeros((0, 3), dtype=np.int64)
-    for j, row in enumerate(order):
-        kk = keys[j]
-        if any(_conflicts(q, kf, m) for q in kk[:4]):
-            continue
-        if spec.rule == "pair" and any(_conflicts(q, kv, m) for q in kk[4:]):
-            continue
-        chosen.append(row)
-        kf = np.vstack([kf, kk[:4]])
-        if spec.rule == "pair":
-            kv = np.vstack([kv, kk[4:]])
-    L = pool[idx[np.array(chosen, dtype=np.intp)]]
+    # the streamed greedy's kernel: a star is kept when none of its keys' windows is used yet
+    used = np.zeros(2 * (p + m) ** 3, dtype=np.bool_)
+    edges = np.concatenate([FACE_EDGES, VERTEX_EDGES]).astype(np.int64)
+    keep = greedy_windows(idx, order.astype(np.int64), used, edges, 4 if spec.rule == "face" else 8, m, p + m)
+    chosen = order[keep]
+    L = pool[idx[chosen]]
     # independent re-check of the uniqueness rule on the lengths themselves
     if len(L) > 1:
-        marg = margins(L)
+        marg = margins(L, pair=spec.rule == "pair")
         key = "family_face_mm" if spec.rule == "face" else "family_pair_mm"
         bad = [i for i, mm in enumerate(marg) if mm[key] < spec.tol_mm - 1e-6]
         if bad:  # cannot happen when the window rule above is right; fail loudly, never overcount
