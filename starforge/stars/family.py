@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from starforge.errors import StarforgeError
+from starforge.errors import NoStarError, StarforgeError
 from starforge.geometry.rigid import (
     default_tip_mm,
     fle_from_sigma,
@@ -348,8 +348,8 @@ def _streamed_family(spec: StarSpec, progress, avoid_faces_mm, avoid_sources, st
     )
 
 
-def _no_star(spec: StarSpec) -> StarforgeError:
-    return StarforgeError(
+def _no_star(spec: StarSpec) -> NoStarError:
+    return NoStarError(
         f"no star fits: box_mm {list(spec.box_mm)} with {spec.marker_mm:g} mm markers, delta_mm "
         f"{spec.delta_mm:g}, tolerance {spec.tol_mm:g} mm and min_depth_mm {spec.depth_mm:g} admits no "
         f"tetrahedron (try a smaller delta_mm, tolerance or min_depth_mm, or a larger box)"
