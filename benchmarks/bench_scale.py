@@ -192,7 +192,7 @@ def sweep_exact(args) -> dict:
             except ValueError:
                 continue
             est = estimate(spec)
-            lim = _auto_limit(4.0, d, c, ("face", "pair"), SAMPLES, p.task_bytes)
+            lim = _auto_limit(4.0, d, c, ("face", "pair"), SAMPLES, p.usable_bytes)
             cells.append({"delta": d, "cube": c, "labelled": est["labelled"],
                           "exhaustive_under_auto": lim >= est["labelled"],
                           # the sweep's own estimate (a pilot sample for the larger cells)

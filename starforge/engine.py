@@ -49,6 +49,10 @@ CONNECT_TIMEOUT_S = 10.0
 log = logging.getLogger("starforge.engine")
 
 
+#: the share of a worker's memory a task may plan on (dask's nanny terminates at 0.95)
+USABLE_SHARE = 0.9
+
+
 @dataclass(frozen=True)
 class Plan:
     """Where a job runs.
@@ -56,7 +60,8 @@ class Plan:
     mode : "serial" (in this process), "local" (a local cluster started for the job) or
            "remote" (an existing scheduler)
     workers : int                 worker threads that run tasks at once
-    task_bytes : float            the memory one task may use, bytes
+    task_bytes : float            one worker thread's share of memory, bytes (a local cluster's
+                                  per-worker limit); a task may plan on :attr:`usable_bytes`
     address : str or None         the scheduler's address (remote)
     """
 
@@ -64,6 +69,12 @@ class Plan:
     workers: int
     task_bytes: float
     address: str | None = None
+
+    @property
+    def usable_bytes(self) -> float:
+        """What one task may plan to use: a margin under the share, because a dask nanny
+        restarts a worker at 95 % of its limit (and pauses it at 80 %)."""
+        return self.task_bytes * USABLE_SHARE
 
     def describe(self) -> str:
         if self.mode == "serial":
@@ -111,6 +122,25 @@ def plan(
     return Plan("local", w, memory_limit_bytes() / w)
 
 
+def plan_with_capacity(n_tasks: int, seconds: float = math.inf, workers: int | None = None, scheduler: str | None = None) -> Plan:
+    """:func:`plan`, with a remote cluster's real size and memory (a short connection), for
+    choices that depend on them before any task exists (a sweep's ``--exhaustive auto``)."""
+    p = plan(n_tasks, seconds, workers, scheduler)
+    if p.mode != "remote":
+        return p
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL)  # dask's connection chatter: our one line says it
+    try:
+        client = _connect(p.address)
+        try:
+            return plan(n_tasks, seconds, workers, scheduler, client=client)
+        finally:
+            client.close()
+    finally:
+        quiet.setLevel(level)
+
+
 def cluster_capacity(client) -> tuple[int, float]:
     """(worker threads, the smallest memory one thread may use) of a connected cluster."""
     from starforge.budget import memory_limit_bytes
@@ -133,10 +163,10 @@ def require_task_memory(task_bytes: Sequence[float], p: Plan, what: str, advice:
         return
     worst = max(range(len(task_bytes)), key=lambda i: task_bytes[i])
     need = float(task_bytes[worst])
-    if not need <= p.task_bytes:
+    if not need <= p.usable_bytes:
         raise StarforgeError(
             f"{what}: task {worst} needs about {format_bytes(need)} of memory, above the "
-            f"{format_bytes(p.task_bytes)} each worker of {p.describe()} may use; {advice}"
+            f"{format_bytes(p.usable_bytes)} a task on each worker of {p.describe()} may use; {advice}"
         )
 
 

@@ -9,3 +9,7 @@ class StarforgeError(ValueError):
     It subclasses ValueError so library callers can catch the usual type; messages name the
     parameter and the allowed range, e.g. ``delta_mm must be > 0, got -1.5``.
     """
+
+
+class NoStarError(StarforgeError):
+    """A spec that admits no star at all (an answer, not a failure: a capacity sweep records 0)."""

@@ -295,3 +295,25 @@ def test_streamed_selection_on_the_cluster_is_the_serial_one(cluster, serial):
     ptr, rows = _csr(star_of, row, len(index))
     want = index[greedy(compactness_order(index, serial.pool_mm, volume), ptr, rows, n_rows)]
     assert here["index"].tobytes() == want[np.lexsort(want.T[::-1])].astype(np.int16).tobytes()
+
+
+def test_auto_sweep_asks_a_remote_cluster_for_its_memory(cluster, monkeypatch):
+    """``--exhaustive auto`` on a scheduler decides each cell against the cluster's real worker
+    memory (a short connection), with a margin under dask's 95 % restart threshold."""
+    from starforge.tracking import sweep as SW
+
+    p = engine.plan_with_capacity(4, scheduler=cluster.scheduler_address)
+    limit = min(w["memory_limit"] for w in cluster.scheduler_info["workers"].values())
+    assert p.mode == "remote" and p.workers == 2 and p.task_bytes == limit
+    assert p.usable_bytes == pytest.approx(engine.USABLE_SHARE * limit)
+    seen = []
+    monkeypatch.setattr(SW, "_auto_limit", lambda *a: seen.append(a[-1]) or 0)
+    SW.sweep(4.0, [3.0], [18.0], exhaustive_labelled=None, samples=1_000, scheduler=cluster.scheduler_address)
+    assert seen == [p.usable_bytes]
+
+
+def test_a_task_planned_above_the_usable_share_is_refused():
+    p = engine.Plan("local", 2, 1e9)
+    engine.require_task_memory([0.9e9], p, "a job", "split it")
+    with pytest.raises(StarforgeError, match="task 0 needs about"):
+        engine.require_task_memory([0.95e9], p, "a job", "split it")

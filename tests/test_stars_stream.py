@@ -176,3 +176,34 @@ def test_the_spill_folder_is_removed_after_success_and_failure(tmp_path, monkeyp
     with pytest.raises(RuntimeError, match="disk gone"):
         S.stream_family(SPEC)
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("rule", ["face", "pair"])
+@pytest.mark.parametrize("m", [1, 2, 3])
+def test_greedy_windows_is_the_brute_force_greedy(rule, m):
+    """The window kernel (the streamed greedy's, and the sweep's sampled cells') keeps exactly the
+    stars a plain greedy keeps: none of its keys within m - 1 pool steps, in every side, of a key
+    of the same type (face or vertex) of a star kept before it."""
+    from starforge.geometry.tetra import FACE_EDGES
+    from starforge.stars.rules import VERTEX_EDGES
+
+    rng = np.random.default_rng(7 + m)
+    p = 24
+    idx = np.array([rng.choice(p, 6, replace=False) for _ in range(1500)], dtype=np.int64)
+    order = rng.permutation(len(idx)).astype(np.int64)
+    keys = key_triples(idx, rule)
+    want, face_kept, vert_kept = [], np.zeros((0, 3), np.int64), np.zeros((0, 3), np.int64)
+    for i in order:
+        f, v = keys[i, :4], keys[i, 4:]
+        hit = lambda ks, kept: len(kept) and (np.abs(ks[:, None] - kept[None]).max(axis=2) <= m - 1).any()  # noqa: E731
+        if hit(f, face_kept) or (rule == "pair" and hit(v, vert_kept)):
+            continue
+        want.append(i)
+        face_kept = np.vstack([face_kept, f])
+        if rule == "pair":
+            vert_kept = np.vstack([vert_kept, v])
+    used = np.zeros(2 * (p + m) ** 3, dtype=np.bool_)
+    edges = np.concatenate([FACE_EDGES, VERTEX_EDGES]).astype(np.int64)
+    got = order[S.greedy_windows(idx, order, used, edges, 4 if rule == "face" else 8, m, p + m)]
+    assert 0 < len(want) < len(idx)
+    assert got.tolist() == want

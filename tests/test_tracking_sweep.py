@@ -257,3 +257,48 @@ def test_large_exhaustive_cells_are_timed_by_their_own_pilot(monkeypatch):
     # the real pilot on one thread: a CPU rate at least the fixed floor, a share in [0, 1]
     rate, share = pilot(StarSpec(box_mm=(20,) * 3, marker_mm=4, delta_mm=2.0), samples=16, cpu=True)
     assert rate >= 4e-7 and 0 <= share <= 1
+
+
+def test_only_no_star_is_a_zero_row(monkeypatch):
+    """A cell whose spec admits no star records 0 stars; any other refusal of its selection (a
+    memory limit, say) fails the cell instead of writing a false 0."""
+    from starforge.errors import NoStarError, StarforgeError
+    from starforge.stars import family as F
+
+    cell = (4.0, 2.0, 20.0, ("face",), 10**9, 1_000, 0, None)
+
+    def refuse(*a, **k):
+        raise StarforgeError("the selection's key windows need 9 GB, above the 4 GB limit")
+
+    monkeypatch.setattr(F, "make_family", refuse)
+    with pytest.raises(StarforgeError, match="key windows"):
+        run_cell(cell)
+
+    def none(spec, *a, **k):
+        raise NoStarError("no star fits")
+
+    monkeypatch.setattr(F, "make_family", none)
+    [row] = run_cell(cell)
+    assert row["stars"] == 0 and row["method"] == "exhaustive"
+
+
+def test_an_exhaustive_cells_memory_estimate_covers_its_selection():
+    """The estimate holds the numpy memory an exhaustive cell really allocates (tracemalloc sees
+    numpy's buffers), enumeration and both rules' selections included."""
+    import tracemalloc
+
+    from starforge.stars.enumerate import labelled_count
+    from starforge.stars.spec import StarSpec
+    from starforge.tracking.sweep import cell_estimate
+
+    d, c = 2.0, 30.0
+    n = labelled_count(StarSpec(box_mm=(c, c, c), marker_mm=4.0, delta_mm=d))
+    _, est = cell_estimate(4.0, d, c, ("face", "pair"), n, 1_000)
+    tracemalloc.start()
+    try:
+        rows = run_cell((4.0, d, c, ("face", "pair"), n, 1_000, 0, None))
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert [r["method"] for r in rows] == ["exhaustive", "exhaustive"] and rows[0]["stars"] > 0
+    assert peak <= est, (peak, est)

@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from starforge.errors import StarforgeError
+from starforge.errors import NoStarError, StarforgeError
 from starforge.geometry.rigid import (
     default_tip_mm,
     fle_from_sigma,
@@ -24,7 +24,7 @@ from starforge.stars.select import block_bound, greedy, select_family
 from starforge.stars.spec import StarSpec
 
 
-def margins(lengths: np.ndarray) -> list[dict]:
+def margins(lengths: np.ndarray, pair: bool = True) -> list[dict]:
     """Per-star margins, mm, for a family of length vectors (n, 6).
 
     internal_mm: the smallest difference between two of the star's own six lengths.
@@ -32,7 +32,8 @@ def margins(lengths: np.ndarray) -> list[dict]:
     star's, or another of its own), where two faces differ by the largest difference of their
     sorted sides (the face rule needs this >= tolerance).
     family_pair_mm: for the paper's rule, the smallest over other stars and relabellings of the
-    largest "both lengths of one opposite pair differ" amount.
+    largest "both lengths of one opposite pair differ" amount; with ``pair=False`` it is left
+    out (it costs n^2 x 144 differences, which a face-rule check does not need).
     """
     from starforge.geometry.tetra import RELABELLINGS
 
@@ -47,7 +48,7 @@ def margins(lengths: np.ndarray) -> list[dict]:
         # the nearest other face in the Chebyshev metric (largest sorted-side difference)
         np.minimum.at(face_m, owner, _nearest_other_chebyshev(F))
     pair_m = np.full(n, np.inf)
-    if n > 1:
+    if pair and n > 1:
         forms = L[:, RELABELLINGS]  # (n, 24, 6)
         rows = max(1, int(32e6 // (n * 24 * 6 * 8)))  # stars per block (about 32 MB of differences)
         for i0 in range(0, n, rows):
@@ -59,14 +60,11 @@ def margins(lengths: np.ndarray) -> list[dict]:
             worst = both.min(axis=2)  # (b, n)
             worst[np.arange(i1 - i0), np.arange(i0, i1)] = np.inf
             pair_m[i0:i1] = worst.min(axis=1)
-    return [
-        {
-            "internal_mm": float(internal[i]),
-            "family_face_mm": float(face_m[i]),
-            "family_pair_mm": float(pair_m[i]),
-        }
-        for i in range(n)
-    ]
+    out = [{"internal_mm": float(internal[i]), "family_face_mm": float(face_m[i])} for i in range(n)]
+    if pair:
+        for i in range(n):
+            out[i]["family_pair_mm"] = float(pair_m[i])
+    return out
 
 
 #: faces up to which :func:`_nearest_other_chebyshev` compares every pair (numpy, in blocks)
@@ -350,8 +348,8 @@ def _streamed_family(spec: StarSpec, progress, avoid_faces_mm, avoid_sources, st
     )
 
 
-def _no_star(spec: StarSpec) -> StarforgeError:
-    return StarforgeError(
+def _no_star(spec: StarSpec) -> NoStarError:
+    return NoStarError(
         f"no star fits: box_mm {list(spec.box_mm)} with {spec.marker_mm:g} mm markers, delta_mm "
         f"{spec.delta_mm:g}, tolerance {spec.tol_mm:g} mm and min_depth_mm {spec.depth_mm:g} admits no "
         f"tetrahedron (try a smaller delta_mm, tolerance or min_depth_mm, or a larger box)"

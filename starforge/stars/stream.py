@@ -13,7 +13,7 @@ after another, and which key windows are used so far.  So:
 2. the ranges are read back in order, each sorted in compactness order
    (:func:`ordered`, the permutation of :func:`starforge.stars.select.compactness_order`; its
    first key is the rounded volume, so the ranges concatenate to the global order) and run through the greedy with a bitmap of used key
-   windows (:func:`_greedy_windows`); a range too large for memory is split by volume again.
+   windows (:func:`greedy_windows`); a range too large for memory is split by volume again.
 
 The family is the one the in-memory greedy gives on the same candidates, star for star
 (``tests/test_stars_stream.py`` checks it), whatever order the chunks finished in.  The upper
@@ -154,7 +154,7 @@ class _Spill:
 
 
 @numba.njit(cache=True)
-def _greedy_windows(index, order, used, edges, n_keys, m, base):
+def greedy_windows(index, order, used, edges, n_keys, m, base):
     """The greedy over stars ``index[order]``: keep each star none of whose key windows is
     used, then mark them.  ``used`` (2 base^3,) bool carries over between calls.  A key
     (sorted pool-index triple s, type t: 0 face, 1 vertex) lies in the windows anchored at
@@ -179,7 +179,7 @@ def _greedy_windows(index, order, used, edges, n_keys, m, base):
 
 @numba.njit(cache=True, inline="always")
 def _windows(keys, n_keys, m, base, used, mark):
-    """Every key window of the star's ``keys`` (see :func:`_greedy_windows`): with ``mark``,
+    """Every key window of the star's ``keys`` (see :func:`greedy_windows`): with ``mark``,
     set them in ``used`` and return True; else whether none of them is used yet."""
     for k in range(n_keys):
         t = 0 if k < 4 else 1
@@ -310,7 +310,7 @@ def stream_family(
             if not len(idx):
                 continue
             for pidx, _pvol in _ordered_pieces(idx, vol, pool, k * width, (k + 1) * width, cap):
-                keep = _greedy_windows(pidx, np.arange(len(pidx), dtype=np.int64), used, edges, n_keys, m, p + m)
+                keep = greedy_windows(pidx, np.arange(len(pidx), dtype=np.int64), used, edges, n_keys, m, p + m)
                 chosen.append(pidx[keep].astype(np.int16))
         index = np.concatenate(chosen) if chosen else np.zeros((0, 6), np.int16)
         index = index[np.lexsort(index.T[::-1])]
