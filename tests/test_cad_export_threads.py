@@ -51,6 +51,12 @@ if sys.argv[3] == "serial":  # one body after the other, as the export did befor
     transforms, _ = print_layout(bodies, (200.0, 200.0), 5.0)
     for b, T in zip(bodies, transforms, strict=True):
         write_step(placed(body_solid(b), T, b.name, body_colour(b.star_id - 1)), out / f"{b.name}.step")
+elif sys.argv[3] == "launched":  # a fresh interpreter, where this process cannot fork
+    from starforge.cad.step_worker import StepProcess
+
+    worker = StepProcess(fork=False)
+    assert not worker.forked
+    export_family(fam, out, mount, spec, ids=[1, 2], plate=False, step_worker=worker)
 else:
     export_family(fam, out, mount, spec, ids=[1, 2], plate=False)
 """
@@ -62,11 +68,12 @@ def test_step_files_equal_a_serial_build(tmp_path):
     import subprocess
     import sys
 
-    for how in ("serial", "threaded"):
+    for how in ("serial", "threaded", "launched"):
         (tmp_path / how).mkdir()
         subprocess.run([sys.executable, "-c", SERIAL, str(DATA), str(tmp_path / how), how], check=True)
     for name in ("star_001.step", "star_002.step"):
         assert (tmp_path / "serial" / name).read_bytes() == (tmp_path / "threaded" / name).read_bytes()
+        assert (tmp_path / "serial" / name).read_bytes() == (tmp_path / "launched" / name).read_bytes()
 
 
 def test_mesh_files_and_entries_do_not_depend_on_step(both):
@@ -84,7 +91,8 @@ def test_mesh_files_and_entries_do_not_depend_on_step(both):
         }
 
 
-def test_a_worker_error_is_one_clear_error(tmp_path):
+@pytest.mark.parametrize("fork", [True, False], ids=["forked", "launched"])
+def test_a_worker_error_is_one_clear_error(tmp_path, fork):
     """The worker's StarforgeError (here: an unwritable folder) comes back as the parent's."""
     from starforge.cad import step_worker
     from starforge.cad.export import family_bodies, print_layout
@@ -93,10 +101,31 @@ def test_a_worker_error_is_one_clear_error(tmp_path):
     fam = load_family(DATA)
     bodies = family_bodies(fam, [1], load_mount("flat"), BodySpec())
     transforms, _ = print_layout(bodies, (200.0, 200.0), 5.0)
-    job = step_worker.start(bodies, transforms, [(1, 2, 3)], tmp_path / "missing")
+    worker = step_worker.StepProcess(fork=fork)
+    job = step_worker.start(bodies, transforms, [(1, 2, 3)], tmp_path / "missing", worker=worker)
     with pytest.raises(StarforgeError, match="could not write STEP file"):
         job.result()
     assert job.proc.returncode == 1
+
+
+@pytest.mark.parametrize("fork", [True, False], ids=["forked", "launched"])
+def test_a_crashing_worker_is_reported_and_reaped(tmp_path, fork):
+    """A worker that dies without a word (here: killed before its job) is one clear error with
+    its exit status, and nothing is left running; a worker never given a job is ended by kill()."""
+    import signal
+
+    from starforge.cad import step_worker
+    from starforge.errors import StarforgeError
+
+    idle = step_worker.StepProcess(fork=fork)
+    idle.kill()
+    assert idle.proc.returncode is not None
+    worker = step_worker.StepProcess(fork=fork)
+    worker.proc.kill()
+    worker.send(step_worker.job_for([], [], [], tmp_path))
+    with pytest.raises(StarforgeError, match=f"exit status {-signal.SIGKILL}"):
+        worker.result()
+    assert worker.proc.returncode == -signal.SIGKILL
 
 
 def test_a_mesh_failure_stops_the_worker(tmp_path, monkeypatch):

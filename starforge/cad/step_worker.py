@@ -2,13 +2,16 @@
 
 OpenCascade's booleans hold Python's global interpreter lock, so a second *thread* building
 the STEP solids stalls the mesh work it was meant to overlap; a second *process* runs on the
-second core.  :func:`start` launches ``python -c`` with this module's :func:`main`, hands it the
-job (body descriptions, printing transforms, colours, plate layouts, the stage folder) as one
-pickle on stdin, and reads one line per finished file back.  The worker writes each body's
-``<name>.step`` in order, then each plate's, all into the caller's staged folder; the caller
-kills it when the export leaves early, so no file is begun into a stage being removed.  Every
-run writes the same files in the same order in a fresh process: OCCT numbers some STEP entities
-with a process-wide counter, so this also keeps the files the same from run to run.
+second core.  :class:`StepProcess` forks that process where it can (:func:`starforge.procs.can_fork`,
+and only while this process has not loaded OCP itself): the child starts with numpy and the body
+code already imported and loads only the kernel.  Elsewhere it launches ``python -c`` with this
+module's :func:`main`.  Either way the worker gets the job (body descriptions, printing
+transforms, colours, plate layouts, the stage folder) as one pickle through a pipe, and sends one
+line per finished file back.  The worker writes each body's ``<name>.step`` in order, then each
+plate's, all into the caller's staged folder; the caller kills it when the export leaves early,
+so no file is begun into a stage being removed.  Every run writes the same files in the same
+order in a process whose kernel is fresh: OCCT numbers some STEP entities with a process-wide
+counter, so this also keeps the files the same from run to run.
 """
 
 from __future__ import annotations
@@ -49,10 +52,8 @@ def run_job(job: dict, say) -> None:
 
 
 def main() -> None:
-    """Worker entry: the job from stdin (pickle), progress lines to stdout, ``error <message>``
-    and exit status 1 for a StarforgeError (a traceback on stderr for anything else).  The
-    kernel is loaded first, while the caller may still be describing the job; an empty stdin
-    (the caller changed its mind) ends the worker quietly."""
+    """Entry of a launched worker (``python -c``): the job from stdin (pickle), progress lines
+    to stdout; see :func:`_serve`."""
     import os
 
     # the protocol gets the original stdout to itself; anything the kernel prints there (C++
@@ -60,14 +61,22 @@ def main() -> None:
     out = os.fdopen(os.dup(sys.stdout.fileno()), "w", encoding="utf-8")
     sys.stdout.flush()
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
+    _leave(_serve(sys.stdin.buffer, out))
 
+
+def _serve(job_in, out) -> int:
+    """Load the kernel, read the job from ``job_in`` (binary file, pickle), build and write it,
+    saying each step on ``out`` (text file); the exit status: 0 when every file was written,
+    1 after ``error <message>`` for a StarforgeError (anything else propagates: a traceback on
+    stderr).  The kernel is loaded first, while the caller may still be describing the job; an
+    empty job (the caller changed its mind) ends the worker quietly, status 0."""
     import OCP.TopoDS  # noqa: F401  (OCP's one large extension module: most of the import time)
 
     import starforge.cad.occ  # noqa: F401
 
-    data = sys.stdin.buffer.read()
+    data = job_in.read()
     if not data:
-        return
+        return 0
     job = pickle.loads(data)
 
     def say(line: str) -> None:
@@ -78,16 +87,108 @@ def main() -> None:
         run_job(job, say)
     except StarforgeError as exc:
         say("error " + str(exc).replace("\n", " "))
-        sys.exit(1)
+        return 1
     say("done")
+    return 0
+
+
+def _leave(code: int) -> None:
+    """Exit now, without the interpreter's clean-up: tearing down OCP's thousands of bound
+    classes and OCCT's static objects takes 0.25-0.3 s of CPU, and the caller waits for the
+    exit.  Every STEP file is closed by then (OCCT closes each as it returns), and so is the
+    protocol's last line (flushed by ``say``)."""
+    import os
+
+    sys.stderr.flush()
+    os._exit(code)
+
+
+def _forked_child(job_fd: int, out_fd: int, err_fd: int) -> None:
+    """Body of a forked worker; never returns.  Python's own SIGINT / SIGTERM handling instead
+    of the parent's (whose handlers would note an interrupt of the parent's command), stdout
+    and stderr into the caller's error file (the kernel's C++ output included), then
+    :func:`_serve`; any exception ends it with status 1 (its traceback in the error file)."""
+    import os
+
+    code = 1
+    try:
+        from starforge.procs import leave_parent_signals
+
+        leave_parent_signals(default_handlers=True)
+        os.dup2(err_fd, 2)
+        os.dup2(err_fd, 1)
+        with os.fdopen(job_fd, "rb") as job_in, os.fdopen(out_fd, "w", encoding="utf-8") as out:
+            code = _serve(job_in, out)
+    except BaseException:
+        try:
+            import traceback
+
+            traceback.print_exc()
+        except BaseException:
+            pass
+    finally:
+        _leave(code)
+
+
+class _Forked:
+    """What :class:`StepProcess` uses of :class:`subprocess.Popen`, for a forked worker: the
+    job's pipe (``stdin``), the protocol's (``stdout``), :meth:`poll`, :meth:`wait`, :meth:`kill`
+    and ``returncode`` (negative: the signal that ended it)."""
+
+    def __init__(self, stderr) -> None:
+        import os
+
+        job_r, job_w = os.pipe()
+        out_r, out_w = os.pipe()
+        sys.stdout.flush()  # nothing buffered here is written twice
+        sys.stderr.flush()
+        pid = os.fork()
+        if pid == 0:
+            os.close(job_w)
+            os.close(out_r)
+            _forked_child(job_r, out_w, stderr.fileno())
+        os.close(job_r)
+        os.close(out_w)
+        self.pid = pid
+        self.returncode: int | None = None
+        self.stdin = os.fdopen(job_w, "wb")
+        self.stdout = os.fdopen(out_r, "rb")
+
+    def _reaped(self, flags: int) -> int | None:
+        import os
+
+        if self.returncode is None:
+            pid, status = os.waitpid(self.pid, flags)
+            if pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def poll(self) -> int | None:
+        import os
+
+        return self._reaped(os.WNOHANG)
+
+    def wait(self) -> int:
+        return self._reaped(0)
+
+    def kill(self) -> None:
+        import os
+        import signal
+
+        if self.returncode is None:  # not reaped yet: the pid is still this worker's
+            os.kill(self.pid, signal.SIGKILL)
 
 
 class StepProcess:
-    """A STEP worker: launched at once (it loads the kernel), given its job by :meth:`send`;
+    """A STEP worker: started at once (it loads the kernel), given its job by :meth:`send`;
     :meth:`result` waits for it, :meth:`kill` ends it early.  A context manager: leaving the
-    ``with`` block ends a worker that has not finished (harmless after :meth:`result`)."""
+    ``with`` block ends a worker that has not finished (harmless after :meth:`result`).
 
-    def __init__(self) -> None:
+    ``fork``: True forks this process, False launches a fresh interpreter, None (default) forks
+    where :func:`starforge.procs.can_fork` allows and OCP is not loaded here (``forked`` says
+    which).  The files are the same bytes either way."""
+
+    def __init__(self, fork: bool | None = None) -> None:
         import starforge
 
         root = str(Path(starforge.__file__).resolve().parent.parent)
@@ -98,12 +199,22 @@ class StepProcess:
         self.sent = False
         self.tick = None
         self.stderr = tempfile.TemporaryFile()
-        self.proc = subprocess.Popen(
-            [sys.executable, "-c", _BOOT, root],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=self.stderr,
-        )
+        if fork is None:
+            from starforge.procs import can_fork
+
+            # a kernel loaded here already would be the child's too, its STEP counters advanced
+            fork = can_fork() and "OCP" not in sys.modules
+        self.forked = bool(fork)
+        if self.forked:
+            self.proc = _Forked(self.stderr)
+        else:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-c", _BOOT, root],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=self.stderr,
+            )
+        self.writer: threading.Thread | None = None
         self.reader = threading.Thread(target=self._read, name="starforge-step", daemon=True)
         self.reader.start()
 
@@ -118,10 +229,18 @@ class StepProcess:
         self.volumes = [None] * len(job["bodies"])
         self.tick = tick
         self.sent = True
+        # from a thread: a job larger than the pipe's buffer (25 bodies: 70 kB, over Linux's
+        # 64 kB) would otherwise hold this process until the worker reads it, after its kernel
+        # has loaded (0.5-0.6 s that the meshes would wait)
+        data = pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
+        self.writer = threading.Thread(target=self._write, args=(data,), name="starforge-step-job", daemon=True)
+        self.writer.start()
+
+    def _write(self, data: bytes) -> None:
         try:
-            self.proc.stdin.write(pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL))
+            self.proc.stdin.write(data)
             self.proc.stdin.close()
-        except OSError:  # the worker died at once: result() says why
+        except (OSError, ValueError):  # the worker died or was killed: result() says why
             pass
 
     def _read(self) -> None:
@@ -142,6 +261,7 @@ class StepProcess:
         if not self.sent:
             raise RuntimeError("result() before send(): the worker has no job")
         code = self.proc.wait()
+        self.writer.join()
         self.reader.join()
         self.proc.stdout.close()
         seconds = time.perf_counter() - self.t0
@@ -163,6 +283,8 @@ class StepProcess:
         if self.proc.poll() is None:
             self.proc.kill()
         self.proc.wait()
+        if self.writer is not None:  # its write fails once the worker is gone
+            self.writer.join()
         self.reader.join()
         for f in (self.proc.stdin, self.proc.stdout, self.stderr):
             if not f.closed:

@@ -112,9 +112,9 @@ def _install_signals():
     watcher = threading.Thread(
         target=_watch_signals, args=(read_fd, done, discard_stages), name="starforge-signals", daemon=True
     )
-    # safe to fork beside (starforge.render.props forks render processes): it imports nothing and
-    # holds no lock while it waits in os.read, and a render process drops the wakeup fd, so it
-    # never writes into the watcher's pipe
+    # safe to fork beside (starforge.render.props forks render processes, starforge.cad.step_worker
+    # its STEP worker): it imports nothing and holds no lock while it waits in os.read, and a
+    # forked child drops the wakeup fd (starforge.procs), so it never writes into the watcher's pipe
     watcher.fork_safe = True
     watcher.start()
 

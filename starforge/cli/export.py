@@ -258,6 +258,10 @@ def export_cmd(
         out = out if out is not None else default_out(src, bool(cad))
         family = None
         if cad:
+            if "step" in cad:  # its worker loads the CAD kernel while the family is read and checked
+                from starforge.cad.step_worker import StepProcess
+
+                worker = StepProcess()
             from starforge.stars.model import FORMAT, load_family
 
             data = read_json(src, what="family file")
@@ -266,10 +270,6 @@ def export_cmd(
                     f"CAD formats ({', '.join(cad)}) need a family.json; {src} is {data.get('format')!r}"
                 )
             family = load_family(src)
-            if "step" in cad:  # its worker loads the CAD kernel while the bodies are described and checked
-                from starforge.cad.step_worker import StepProcess
-
-                worker = StepProcess()
             from starforge.cad.export import expected_files, export_family, print_layout
             from starforge.io import check_writable
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from starforge.procs import leave_parent_signals
 from starforge.render._mpl import pyplot, save_png
 
 _DPI = 100
@@ -424,9 +425,9 @@ class BackgroundRenderer:
     """
 
     def __init__(self, enabled: bool = True):
-        import threading
+        from starforge.procs import can_fork
 
-        self._fork = enabled and hasattr(os, "fork") and _only_fork_safe_threads(threading)
+        self._fork = enabled and can_fork()
         self._pid: int | None = None  # the first render process
         self._writes: list[int] = []  # write end of each role's pipe, open until submitted
         self._job: tuple | None = None
@@ -439,7 +440,7 @@ class BackgroundRenderer:
             if pid == 0:  # render process: never returns
                 for _, w in pipes:
                     os.close(w)
-                _leave_parent_signals()
+                leave_parent_signals()
                 _first([r for r, _ in pipes])
             for r, _ in pipes:
                 os.close(r)
@@ -498,31 +499,6 @@ class BackgroundRenderer:
                 os.kill(self._pid, signal.SIGKILL)  # the second still leaves at end-of-file
             os.waitpid(self._pid, 0)
             self._pid = None
-
-
-def _leave_parent_signals() -> None:
-    """In a render process: stop writing signal numbers into the parent's wakeup pipe (the
-    CLI's last-resort watcher reads it; a signal meant for this process is not the parent's) and
-    close this process's copy of its write end.  A Ctrl-C still ends the drawing (the parent
-    sees the failed status)."""
-    import signal
-
-    try:
-        fd = signal.set_wakeup_fd(-1)
-    except (ValueError, OSError):  # not the main thread, or no wakeup fd set
-        return
-    if fd >= 0:
-        try:
-            os.close(fd)
-        except OSError:
-            pass
-
-
-def _only_fork_safe_threads(threading) -> bool:
-    """True when every thread but this one declares itself safe to fork beside (``fork_safe``:
-    the CLI's progress heartbeat holds a lock across forks while it prints)."""
-    me = threading.current_thread()
-    return all(t is me or getattr(t, "fork_safe", False) for t in threading.enumerate())
 
 
 def _warm(role: str) -> None:
