@@ -291,7 +291,7 @@ def test_family_json_with_spec_keys_left_out_loads_or_says_so_in_one_line(small_
 
 
 def test_nearest_face_distances_match_a_kd_tree():
-    """margins' nearest other face (numpy, in blocks: 1500 faces make four) gives the very
+    """margins' nearest other face (numpy, in blocks: 1500 faces make three) gives the very
     numbers a k-d tree query does, ties and repeated faces included."""
     from scipy.spatial import cKDTree
 

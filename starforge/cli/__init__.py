@@ -171,7 +171,13 @@ def main(argv: list[str] | None = None) -> int:
         sys.unraisablehook = previous_hook
         undo()
         reset_interrupt()  # library calls after this command are not affected
-    if argv is None:
+    if argv is None:  # the console script: the process ends here
+        # everything is written and flushed; freezing what is left spares the interpreter's exit
+        # a last walk over numba's and numpy's objects (measured: 0.15 CPU s, 0.5 s wall under
+        # load, for `starforge stars`); atexit handlers and file flushes run as before
+        import gc
+
+        gc.freeze()
         sys.exit(code)
     return code
 

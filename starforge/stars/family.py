@@ -82,10 +82,13 @@ def _nearest_other_chebyshev(F: np.ndarray) -> np.ndarray:
         d, _ = cKDTree(F).query(F, k=2, p=np.inf)
         return d[:, 1]
     out = np.empty(m)
-    rows = max(1, int(16e6 // (m * 3 * 8)))  # about 16 MB of differences per block
+    rows = max(1, int(8e6 // (m * 8)))  # two blocks of about 8 MB of differences live at once
     for i0 in range(0, m, rows):
         i1 = min(m, i0 + rows)
-        d = np.abs(F[i0:i1, None, :] - F[None, :, :]).max(axis=2)
+        # one side at a time into one (rows, m) block: no (rows, m, 3) temporary
+        d = np.abs(F[i0:i1, None, 0] - F[None, :, 0])
+        for k in (1, 2):
+            np.maximum(d, np.abs(F[i0:i1, None, k] - F[None, :, k]), out=d)
         d[np.arange(i1 - i0), np.arange(i0, i1)] = np.inf
         out[i0:i1] = d.min(axis=1)
     return out

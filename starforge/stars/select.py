@@ -18,6 +18,7 @@ Everything is deterministic: the same spec gives the same family.
 
 from __future__ import annotations
 
+import heapq
 import itertools
 import time
 from dataclasses import dataclass, field
@@ -44,6 +45,13 @@ def _csr(star_of: np.ndarray, row: np.ndarray, n: int):
 
 def compactness_order(index: np.ndarray, pool: np.ndarray, volume: np.ndarray) -> np.ndarray:
     """Most compact first: box volume, then total edge length, then pool indices."""
+    index = np.asarray(index)
+    base = int(index.max()) + 1 if index.size else 1
+    if base**6 < 2**62:  # the six indices as one key: the same order as six keys, sorted once
+        code = index[:, 0].astype(np.int64)
+        for k in range(1, 6):
+            code = code * base + index[:, k]
+        return np.lexsort((code, pool[index].sum(axis=1), np.round(volume, 9)))
     keys = [index[:, k] for k in range(5, -1, -1)]
     return np.lexsort((*keys, pool[index].sum(axis=1), np.round(volume, 9)))
 
@@ -306,9 +314,14 @@ class _Packing:
         return None if a < 0 else (int(a), int(b))
 
     def descend(self, queue: set[int]) -> None:
-        """(1,2)-swaps (and free insertions) until none is left for the queued stars."""
-        while queue:
-            t = min(queue, key=lambda x: self.rank[x])
+        """(1,2)-swaps (and free insertions) until none is left for the queued stars, the most
+        compact queued star first (a heap of ranks: ranks are distinct, so the order is the one
+        of repeatedly taking the queue's minimum)."""
+        rank = self.rank
+        heap = [(int(rank[t]), t) for t in queue]
+        heapq.heapify(heap)
+        while heap:
+            _, t = heapq.heappop(heap)
             queue.discard(t)
             if not self.in_fam[t]:
                 continue
@@ -318,7 +331,10 @@ class _Packing:
             touched = [self.remove(t), self.insert(pair[0]), self.insert(pair[1])]
             touched += self.fill(touched[0])
             for aff in touched:
-                queue.update(self.tight_owners(aff).tolist())
+                for x in self.tight_owners(aff).tolist():
+                    if x not in queue:
+                        queue.add(x)
+                        heapq.heappush(heap, (int(rank[x]), x))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -432,14 +448,19 @@ def ils(
         s = -1
         for _ in range(64):
             batch = rng.integers(0, n, size=1024)
-            own = np.sort(owner[P.padded[batch]], axis=1)  # -1 = free row or pad
-            new = np.concatenate([own[:, :1] >= 0, (own[:, 1:] != own[:, :-1]) & (own[:, 1:] >= 0)], axis=1)
-            distinct = new.sum(axis=1)  # family stars holding the candidate's rows
-            ok = np.flatnonzero((distinct >= 1) & (distinct <= 2) & ~P.in_fam[batch])
-            if len(ok):
-                s = int(batch[ok[0]])
-                held = np.unique(own[ok[0]])
-                held = held[held >= 0]
+            # the first such draw of the batch; its first 64 draws nearly always hold one, so
+            # they are looked at first (the same draw either way)
+            for part in (batch[:64], batch[64:]):
+                own = np.sort(owner[P.padded[part]], axis=1)  # -1 = free row or pad
+                new = np.concatenate([own[:, :1] >= 0, (own[:, 1:] != own[:, :-1]) & (own[:, 1:] >= 0)], axis=1)
+                distinct = new.sum(axis=1)  # family stars holding the candidate's rows
+                ok = np.flatnonzero((distinct >= 1) & (distinct <= 2) & ~P.in_fam[part])
+                if len(ok):
+                    s = int(part[ok[0]])
+                    held = np.unique(own[ok[0]])
+                    held = held[held >= 0]
+                    break
+            if s >= 0:
                 break
         if s < 0:
             break
