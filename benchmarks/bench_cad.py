@@ -74,7 +74,13 @@ def _slice(path: Path, out: Path, slicer: str = "prusa-slicer", counters=None, d
     g = out / (path.name + f".{slicer}.gcode")
     t = time.perf_counter()
     try:
-        res = subprocess.run(SLICERS[slicer](path, g), capture_output=True, text=True, timeout=SLICE_TIMEOUT_S)
+        # a folder of its own per run: Slic3r unpacks a 3MF's 3dmodel.model into its working
+        # folder, so two runs side by side in one folder read each other's half-written model
+        with tempfile.TemporaryDirectory() as cwd:
+            res = subprocess.run(
+                SLICERS[slicer](path.resolve(), g.resolve()), capture_output=True, text=True,
+                timeout=SLICE_TIMEOUT_S, cwd=cwd,
+            )
     except subprocess.TimeoutExpired:  # recorded as a failure, the run goes on
         return {"file": path.name, "slicer": slicer, "ok": False, "warnings": [], "sliced_top_mm": None,
                 "seconds": round(time.perf_counter() - t, 2), "error": f"timed out after {SLICE_TIMEOUT_S} s"}
