@@ -22,6 +22,19 @@ app = typer.Typer(
 )
 
 
+#: set by a command that allows the process to end without the interpreter's teardown
+#: (:func:`allow_quick_exit`); read by :func:`starforge.cli.main`
+_quick_exit = [False]
+
+
+def allow_quick_exit() -> None:
+    """Let the process end without the interpreter's teardown once this command returns
+    (:func:`starforge.cli.main`): for a command whose every output is written, closed and
+    published (``starforge.io``) by the time it returns, and that leaves no thread of its own
+    running."""
+    _quick_exit[0] = True
+
+
 def fail(message: str, code: int = 2) -> typer.Exit:
     """Print ``error: message`` on stderr and return an Exit(code) to raise."""
     print(f"error: {message}", file=sys.stderr)

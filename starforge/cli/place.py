@@ -137,9 +137,11 @@ def run_cmd(
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
+    from starforge.cli._app import allow_quick_exit
     from starforge.errors import StarforgeError
     from starforge.render.props import BackgroundRenderer
 
+    allow_quick_exit()  # every file goes through staged_output; the render processes are waited for
     if seed < 0:
         raise StarforgeError(f"seed must be >= 0, got {seed}")
     # fork the picture-drawing process first, so that its matplotlib import overlaps our work
@@ -233,7 +235,10 @@ def score_cmd(
 ) -> None:
     import json
 
+    from starforge.cli._app import allow_quick_exit
     from starforge.props.files import read_markers_csv
+
+    allow_quick_exit()  # writes nothing but stdout
     from starforge.props.placement import score_layout
 
     p, s = _prop_and_spec(
