@@ -202,14 +202,14 @@ def run_cmd(
                     on_layout=lambda r: renderer.submit(r, stage),
                 )  # fmt: skip
                 bar.update(task, description="writing")
+                # rich imported while the pictures are drawn, not after them
+                err, con = console(stderr=True), None if quiet else console()
                 write_outputs(res, stage, renderer=renderer, bases_stl=bases_stl)
     from starforge.props.files import summary_lines
 
-    err = console(stderr=True)
     for w in res.warnings:
         err.print(f"warning: {w}")
     if not quiet:
-        con = console()
         for line in summary_lines(res):
             con.print(line)
         t = res.timings
