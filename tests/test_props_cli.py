@@ -443,8 +443,9 @@ def test_render_processes_fork_beside_the_signal_watcher_and_leave_its_pipe():
 
 def test_place_as_a_process_ends_without_the_teardown_and_writes_the_same(tmp_path, capsys):
     """``python -m starforge place`` ends with os._exit after its atexit handlers (no module
-    teardown: about 0.3 s CPU): its stdout still arrives in full, its exit code is the command's,
-    and its files are the bytes an in-process run writes (placement.json but for its timings)."""
+    teardown: about 0.3 s CPU) and runs with the cyclic garbage collector paused: its stdout still
+    arrives in full, its exit code is the command's, its files are the bytes an in-process run
+    (collector paused, then on again) writes (placement.json but for its timings)."""
     import os
     import subprocess
     import sys
@@ -456,7 +457,11 @@ def test_place_as_a_process_ends_without_the_teardown_and_writes_the_same(tmp_pa
     )  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
     assert "markers:" in res.stdout and res.stdout.rstrip().endswith("guide.pdf"), res.stdout
+    import gc
+
+    assert gc.isenabled()
     assert _run([*args, "--out", str(tmp_path / "i")], capsys)[0] == 0
+    assert gc.isenabled()  # place pauses the cyclic collector for its run only
     for name in OUTPUTS:
         a, b = (tmp_path / d / name for d in ("p", "i"))
         if name == "placement.json":

@@ -173,9 +173,21 @@ def main(argv: list[str] | None = None) -> int:
         sys.unraisablehook = previous_hook
         undo()
         reset_interrupt()  # library calls after this command are not affected
+        _resume_gc()
     if argv is None:
         _end_process(code)
     return code
+
+
+def _resume_gc() -> None:
+    """Turn the garbage collector back on if a command paused it (:func:`starforge.cli._app.pause_gc`)."""
+    import gc
+
+    from starforge.cli._app import _gc_was
+
+    if _gc_was[0]:
+        gc.enable()
+    _gc_was[0] = None
 
 
 def _end_process(code: int) -> None:

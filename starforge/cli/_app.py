@@ -35,6 +35,23 @@ def allow_quick_exit() -> None:
     _quick_exit[0] = True
 
 
+#: whether the cyclic garbage collector ran before :func:`pause_gc` turned it off
+_gc_was = [None]
+
+
+def pause_gc() -> None:
+    """Turn Python's cyclic garbage collector off until the command returns (
+    :func:`starforge.cli.main` turns it back on): for a short command whose objects are nearly all
+    acyclic and freed by reference counting.  The collector's passes over the heap of numba,
+    scipy and trimesh while they are imported and numba's target is set up cost about 0.3 s of
+    CPU in a ``starforge place`` run, for a few hundred kB of cycles reclaimed."""
+    import gc
+
+    if _gc_was[0] is None:
+        _gc_was[0] = gc.isenabled()
+    gc.disable()
+
+
 def fail(message: str, code: int = 2) -> typer.Exit:
     """Print ``error: message`` on stderr and return an Exit(code) to raise."""
     print(f"error: {message}", file=sys.stderr)

@@ -137,11 +137,12 @@ def run_cmd(
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
-    from starforge.cli._app import allow_quick_exit
+    from starforge.cli._app import allow_quick_exit, pause_gc
     from starforge.errors import StarforgeError
     from starforge.render.props import BackgroundRenderer
 
     allow_quick_exit()  # every file goes through staged_output; the render processes are waited for
+    pause_gc()  # before the render process forks (it draws with the collector off too) and the imports
     if seed < 0:
         raise StarforgeError(f"seed must be >= 0, got {seed}")
     # fork the picture-drawing process first, so that its matplotlib import overlaps our work
