@@ -439,3 +439,84 @@ def test_render_processes_fork_beside_the_signal_watcher_and_leave_its_pipe():
         pytest.skip("no os.fork")
     res = subprocess.run([sys.executable, "-c", _SIGNALS_FORK_CHECK], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0 and res.stdout.strip().endswith("ok"), res.stderr[-2000:]
+
+
+def test_place_as_a_process_ends_without_the_teardown_and_writes_the_same(tmp_path, capsys):
+    """``python -m starforge place`` ends with os._exit after its atexit handlers (no module
+    teardown: about 0.3 s CPU) and runs with the cyclic garbage collector paused: its stdout still
+    arrives in full, its exit code is the command's, its files are the bytes an in-process run
+    (collector paused, then on again) writes (placement.json but for its timings)."""
+    import os
+    import subprocess
+    import sys
+
+    args = ["place", "box", *FAST, "--seed", "3"]
+    res = subprocess.run(
+        [sys.executable, "-m", "starforge", *args, "--out", str(tmp_path / "p")],
+        capture_output=True, text=True, timeout=300, env={**os.environ, "COLUMNS": "200"},
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "markers:" in res.stdout and res.stdout.rstrip().endswith("guide.pdf"), res.stdout
+    import gc
+
+    assert gc.isenabled()
+    assert _run([*args, "--out", str(tmp_path / "i")], capsys)[0] == 0
+    assert gc.isenabled()  # place pauses the cyclic collector for its run only
+    for name in OUTPUTS:
+        a, b = (tmp_path / d / name for d in ("p", "i"))
+        if name == "placement.json":
+            da, db = json.loads(a.read_text()), json.loads(b.read_text())
+            da.pop("timings"), db.pop("timings")
+            assert da == db
+        else:
+            assert a.read_bytes() == b.read_bytes(), name
+    bad = subprocess.run(
+        [sys.executable, "-m", "starforge", *args, "--out", str(tmp_path / "p")], capture_output=True, text=True, timeout=300
+    )  # the outputs exist and no --force: the one-line refusal, exit 2
+    last = bad.stderr.strip().splitlines()[-1]  # after any heartbeat lines of a slow machine
+    assert bad.returncode == 2 and last.startswith("error: ") and "--force" in last, bad.stderr
+
+
+def test_quick_exit_runs_the_atexit_handlers_and_only_when_allowed_and_safe(monkeypatch):
+    """:func:`starforge.cli._end_process`: atexit handlers, then os._exit with the code, after a
+    command that allowed it; the ordinary sys.exit otherwise, under a tracer, or while a
+    non-daemon thread runs."""
+    import atexit
+    import os
+    import sys
+    import threading
+
+    import starforge.cli as cli
+    from starforge.cli._app import _quick_exit
+
+    calls = []
+    monkeypatch.setattr(atexit, "_run_exitfuncs", lambda: calls.append("atexit"))
+    monkeypatch.setattr(os, "_exit", lambda code: calls.append(("_exit", code)))
+    monkeypatch.setattr(sys, "gettrace", lambda: None)
+    monkeypatch.setattr(sys, "getprofile", lambda: None)
+    before = _quick_exit[0]
+    _quick_exit[0] = True
+    try:
+        cli._end_process(3)
+        assert calls == ["atexit", ("_exit", 3)]
+        calls.clear()
+        release = threading.Event()
+        th = threading.Thread(target=release.wait, daemon=False)
+        th.start()
+        try:
+            with pytest.raises(SystemExit) as e:
+                cli._end_process(4)  # the interpreter would wait for that thread: so does the exit
+            assert e.value.code == 4 and calls == []
+        finally:
+            release.set()
+            th.join()
+        monkeypatch.setattr(sys, "gettrace", lambda: (lambda *a: None))
+        with pytest.raises(SystemExit):
+            cli._end_process(0)  # coverage writes its data at the teardown
+        monkeypatch.setattr(sys, "gettrace", lambda: None)
+        _quick_exit[0] = False
+        with pytest.raises(SystemExit):
+            cli._end_process(0)  # a command that did not allow it
+        assert calls == []
+    finally:
+        _quick_exit[0] = before

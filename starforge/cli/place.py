@@ -137,9 +137,12 @@ def run_cmd(
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
+    from starforge.cli._app import allow_quick_exit, pause_gc
     from starforge.errors import StarforgeError
     from starforge.render.props import BackgroundRenderer
 
+    allow_quick_exit()  # every file goes through staged_output; the render processes are waited for
+    pause_gc()  # before the render process forks (it draws with the collector off too) and the imports
     if seed < 0:
         raise StarforgeError(f"seed must be >= 0, got {seed}")
     # fork the picture-drawing process first, so that its matplotlib import overlaps our work
@@ -200,14 +203,14 @@ def run_cmd(
                     on_layout=lambda r: renderer.submit(r, stage),
                 )  # fmt: skip
                 bar.update(task, description="writing")
+                # rich imported while the pictures are drawn, not after them
+                err, con = console(stderr=True), None if quiet else console()
                 write_outputs(res, stage, renderer=renderer, bases_stl=bases_stl)
     from starforge.props.files import summary_lines
 
-    err = console(stderr=True)
     for w in res.warnings:
         err.print(f"warning: {w}")
     if not quiet:
-        con = console()
         for line in summary_lines(res):
             con.print(line)
         t = res.timings
@@ -233,7 +236,10 @@ def score_cmd(
 ) -> None:
     import json
 
+    from starforge.cli._app import allow_quick_exit
     from starforge.props.files import read_markers_csv
+
+    allow_quick_exit()  # writes nothing but stdout
     from starforge.props.placement import score_layout
 
     p, s = _prop_and_spec(
