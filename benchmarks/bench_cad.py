@@ -50,15 +50,18 @@ SLICERS = {
         "--first-layer-height", str(LAYER_MM), "--nozzle-diameter", "0.4", "--center", "100,100",
         "--output", str(g),
     ],
+    # a 3MF's objects keep the file's places (--dont-arrange): Slic3r's command line otherwise
+    # re-arranges a plate's bodies 6 mm apart, which overflows its 200 mm bed and warns so
     "slic3r": lambda f, g: [
         "slic3r", str(f), "--layer-height", str(LAYER_MM), "--first-layer-height", str(LAYER_MM),
-        "--nozzle-diameter", "0.4", "--print-center", "100,100", "-o", str(g),
+        "--nozzle-diameter", "0.4",
+        *(["--dont-arrange"] if f.suffix == ".3mf" else ["--print-center", "100,100"]), "-o", str(g),
     ],
     # Slic3r's slicing stage alone (the layers as SVG, no G-code): where it closes each layer's
     # loops and warns when it cannot; minutes faster on a plate, but no counters or heights
     "slic3r-svg": lambda f, g: [
         "slic3r", str(f), "--layer-height", str(LAYER_MM), "--first-layer-height", str(LAYER_MM),
-        "--nozzle-diameter", "0.4", "--export-svg", "-o", str(g),
+        "--nozzle-diameter", "0.4", *(["--dont-arrange"] if f.suffix == ".3mf" else []), "--export-svg", "-o", str(g),
     ],
 }
 SLICE_TIMEOUT_S = 1800
