@@ -31,6 +31,7 @@ roughly 10 % on the ``starforge.engine`` logger.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -122,23 +123,32 @@ def plan(
     return Plan("local", w, memory_limit_bytes() / w)
 
 
+@contextlib.contextmanager
+def dask_quiet(on: bool = True):
+    """dask's own connection, reconnect and shutdown chatter silenced (``on``) for the block:
+    our one line says what went wrong."""
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    if on:
+        quiet.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        quiet.setLevel(level)
+
+
 def plan_with_capacity(n_tasks: int, seconds: float = math.inf, workers: int | None = None, scheduler: str | None = None) -> Plan:
     """:func:`plan`, with a remote cluster's real size and memory (a short connection), for
     choices that depend on them before any task exists (a sweep's ``--exhaustive auto``)."""
     p = plan(n_tasks, seconds, workers, scheduler)
     if p.mode != "remote":
         return p
-    quiet = logging.getLogger("distributed")
-    level = quiet.level
-    quiet.setLevel(logging.CRITICAL)  # dask's connection chatter: our one line says it
-    try:
+    with dask_quiet():
         client = _connect(p.address)
         try:
             return plan(n_tasks, seconds, workers, scheduler, client=client)
         finally:
             client.close()
-    finally:
-        quiet.setLevel(level)
 
 
 def cluster_capacity(client) -> tuple[int, float]:
@@ -277,40 +287,34 @@ def map_tasks(
         tb = [float(x) for x in task_bytes]
     p = plan(n, seconds, workers, scheduler)
     client = cluster = None
-    quiet = logging.getLogger("distributed")
-    level = quiet.level
-    if p.mode != "serial":  # dask's own reconnect and shutdown chatter: our one line says it
-        quiet.setLevel(logging.CRITICAL)
-    try:
-        if p.mode == "remote":
-            client = _connect(p.address)
-            p = plan(n, seconds, workers, scheduler, client=client)
-        require_task_memory(tb, p, what, advice)
-        if on_plan is not None:
-            on_plan(p)
-        ticker = _Progress(n, what, progress)
-        if p.mode == "serial":
-            out = []
-            for i, x in enumerate(items):
-                res = fn(x)
-                if consume is None:
-                    out.append(res)
-                else:
-                    consume(i, res)
-                del res
-                ticker.tick()
-            return out
-        if p.mode == "local":
-            cluster, client = _local_cluster(p)
-        return _run_on(client, fn, items, ticker, p, consume)
-    finally:
+    with dask_quiet(p.mode != "serial"):
         try:
+            if p.mode == "remote":
+                client = _connect(p.address)
+                p = plan(n, seconds, workers, scheduler, client=client)
+            require_task_memory(tb, p, what, advice)
+            if on_plan is not None:
+                on_plan(p)
+            ticker = _Progress(n, what, progress)
+            if p.mode == "serial":
+                out = []
+                for i, x in enumerate(items):
+                    res = fn(x)
+                    if consume is None:
+                        out.append(res)
+                    else:
+                        consume(i, res)
+                    del res
+                    ticker.tick()
+                return out
+            if p.mode == "local":
+                cluster, client = _local_cluster(p)
+            return _run_on(client, fn, items, ticker, p, consume)
+        finally:
             if client is not None:
                 client.close()
             if cluster is not None:
                 cluster.close()
-        finally:
-            quiet.setLevel(level)
 
 
 def _run_on(client, fn, items, ticker: _Progress, p: Plan, consume=None) -> list:

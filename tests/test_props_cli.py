@@ -103,20 +103,25 @@ def test_place_default_command_writes_everything(tmp_path, capsys):
     assert (np.linalg.norm(pl.positions_m - (a + s[:, None] * (b - a)), axis=1) > hand["radius"]).all()
 
 
-def test_same_seed_same_bytes(tmp_path, capsys):
-    outs = []
-    for k in range(2):
-        out = tmp_path / f"o{k}"
-        assert _run(["place", "run", "bottle", *FAST, "--seed", "9", "--out", str(out)], capsys)[0] == 0
-        outs.append(out)
+def _assert_same_outputs(a_dir, b_dir):
+    """Every output file the same bytes; placement.json the same apart from its timings."""
     for name in OUTPUTS:
-        a, b = (o / name for o in outs)
+        a, b = a_dir / name, b_dir / name
         if name == "placement.json":
             da, db = json.loads(a.read_text()), json.loads(b.read_text())
             da.pop("timings"), db.pop("timings")
             assert da == db
         else:
             assert a.read_bytes() == b.read_bytes(), name
+
+
+def test_same_seed_same_bytes(tmp_path, capsys):
+    outs = []
+    for k in range(2):
+        out = tmp_path / f"o{k}"
+        assert _run(["place", "run", "bottle", *FAST, "--seed", "9", "--out", str(out)], capsys)[0] == 0
+        outs.append(out)
+    _assert_same_outputs(*outs)
 
 
 def test_score_subcommand_rescores_a_layout(tmp_path, capsys):
@@ -462,14 +467,7 @@ def test_place_as_a_process_ends_without_the_teardown_and_writes_the_same(tmp_pa
     assert gc.isenabled()
     assert _run([*args, "--out", str(tmp_path / "i")], capsys)[0] == 0
     assert gc.isenabled()  # place pauses the cyclic collector for its run only
-    for name in OUTPUTS:
-        a, b = (tmp_path / d / name for d in ("p", "i"))
-        if name == "placement.json":
-            da, db = json.loads(a.read_text()), json.loads(b.read_text())
-            da.pop("timings"), db.pop("timings")
-            assert da == db
-        else:
-            assert a.read_bytes() == b.read_bytes(), name
+    _assert_same_outputs(tmp_path / "p", tmp_path / "i")
     bad = subprocess.run(
         [sys.executable, "-m", "starforge", *args, "--out", str(tmp_path / "p")], capture_output=True, text=True, timeout=300
     )  # the outputs exist and no --force: the one-line refusal, exit 2

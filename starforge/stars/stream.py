@@ -177,6 +177,20 @@ def greedy_windows(index, order, used, edges, n_keys, m, base):
     return out
 
 
+def window_greedy(rule: str, pool_size: int, m: int):
+    """The greedy over key windows (:func:`greedy_windows`) as ``keep(index, order)`` -> the kept
+    positions of ``order`` (bool); the used windows carry over from call to call, so stars may
+    come in pieces, in compactness order."""
+    used = np.zeros(2 * (pool_size + m) ** 3, dtype=np.bool_)
+    edges = np.concatenate([FACE_EDGES, VERTEX_EDGES]).astype(np.int64)
+    n_keys = 4 if rule == "face" else 8
+
+    def keep(index: np.ndarray, order: np.ndarray) -> np.ndarray:
+        return greedy_windows(index, np.asarray(order, dtype=np.int64), used, edges, n_keys, m, pool_size + m)
+
+    return keep
+
+
 @numba.njit(cache=True, inline="always")
 def _windows(keys, n_keys, m, base, used, mark):
     """Every key window of the star's ``keys`` (see :func:`greedy_windows`): with ``mark``,
@@ -299,10 +313,8 @@ def stream_family(
             raise no_pool_error(spec)
         # the greedy, range by range in compactness order
         t1 = time.perf_counter()
-        used = np.zeros(_bitmap_sizes(spec)[1], dtype=np.bool_)
-        edges = np.concatenate([FACE_EDGES, VERTEX_EDGES]).astype(np.int64)
-        n_keys = 4 if spec.rule == "face" else 8
-        cap = range_cap(used.nbytes + faces_seen.nbytes)
+        keep_of = window_greedy(spec.rule, p, m)
+        cap = range_cap(_bitmap_sizes(spec)[1] + faces_seen.nbytes)  # the windows' bitmap, 1 byte each
         chosen = []
         width = vmax / BUCKETS
         for k in range(BUCKETS):
@@ -310,8 +322,7 @@ def stream_family(
             if not len(idx):
                 continue
             for pidx, _pvol in _ordered_pieces(idx, vol, pool, k * width, (k + 1) * width, cap):
-                keep = greedy_windows(pidx, np.arange(len(pidx), dtype=np.int64), used, edges, n_keys, m, p + m)
-                chosen.append(pidx[keep].astype(np.int16))
+                chosen.append(pidx[keep_of(pidx, np.arange(len(pidx)))].astype(np.int16))
         index = np.concatenate(chosen) if chosen else np.zeros((0, 6), np.int16)
         index = index[np.lexsort(index.T[::-1])]
         t_sel = time.perf_counter() - t1

@@ -117,7 +117,6 @@ def sampled_lower_bound(spec, rng: np.random.Generator, samples: int = SAMPLES, 
     same seed gives the same family.
     """
     from starforge.geometry.tetra import (
-        FACE_EDGES,
         is_realisable,
         lengths_from_vertices,
         tetra_width,
@@ -125,8 +124,8 @@ def sampled_lower_bound(spec, rng: np.random.Generator, samples: int = SAMPLES, 
     )
     from starforge.stars.enumerate import edge_pool
     from starforge.stars.family import margins
-    from starforge.stars.rules import VERTEX_EDGES, grid_steps, internal_ok
-    from starforge.stars.stream import greedy_windows
+    from starforge.stars.rules import grid_steps, internal_ok
+    from starforge.stars.stream import window_greedy
 
     pool = edge_pool(spec)
     p, lmin, d = len(pool), float(pool[0]), spec.delta_mm
@@ -167,11 +166,8 @@ def sampled_lower_bound(spec, rng: np.random.Generator, samples: int = SAMPLES, 
     idx, first = np.unique(idx, axis=0, return_index=True)
     vol = vol[first]
     order = np.lexsort((pool[idx].sum(axis=1), vol))  # most compact first, like the exhaustive greedy
-    # the streamed greedy's kernel: a star is kept when none of its keys' windows is used yet
-    used = np.zeros(2 * (p + m) ** 3, dtype=np.bool_)
-    edges = np.concatenate([FACE_EDGES, VERTEX_EDGES]).astype(np.int64)
-    keep = greedy_windows(idx, order.astype(np.int64), used, edges, 4 if spec.rule == "face" else 8, m, p + m)
-    chosen = order[keep]
+    # the streamed greedy's: a star is kept when none of its keys' windows is used yet
+    chosen = order[window_greedy(spec.rule, p, m)(idx, order)]
     L = pool[idx[chosen]]
     # independent re-check of the uniqueness rule on the lengths themselves
     if len(L) > 1:
