@@ -101,11 +101,48 @@ def test_exported_files_reload_with_centres(exported):
         assert len(entry["visibility"]) == 4 and all(0 <= x <= 1 for x in entry["visibility"])
 
 
+def _build_items(path):
+    """[(object name, 3x4 build transform)] of a 3MF file, parsed with zipfile + ElementTree."""
+    import xml.etree.ElementTree as ET
+    import zipfile
+
+    ns = "{http://schemas.microsoft.com/3dmanufacturing/core/2015/02}"
+    root = ET.fromstring(zipfile.ZipFile(path).read("3D/3dmodel.model"))
+    names = {o.get("id"): o.get("name") for o in root.iter(f"{ns}object")}
+    out = []
+    for item in root.iter(f"{ns}item"):
+        m = np.array([float(x) for x in item.get("transform", "1 0 0 0 1 0 0 0 1 0 0 0").split()]).reshape(4, 3)
+        out.append((names[item.get("objectid")], m))
+    return out
+
+
+def test_a_single_body_3mf_lies_at_the_bed_centre(exported):
+    """A slicer that keeps a 3MF's places (Slic3r --dont-arrange) finds each single body in the
+    middle of the export's bed: its build item translates the printing-frame vertices, which stay
+    those of the body's STL."""
+    import trimesh
+
+    doc = json.loads((exported / "bodies.json").read_text())
+    assert doc["bed_mm"] == [120.0, 120.0]
+    for entry in doc["bodies"]:
+        (name, m), = _build_items(exported / f"{entry['name']}.3mf")
+        assert name == entry["name"] and np.array_equal(m[:3], np.eye(3))
+        obj = _read_3mf_stdlib(exported / f"{entry['name']}.3mf")[name]
+        stl = trimesh.load(exported / f"{entry['name']}.stl", force="mesh")
+        assert np.allclose(obj.bounds, stl.bounds, atol=1e-4)  # object coordinates: the printing frame
+        assert np.allclose(m[3], entry["print_to_3mf_build_mm"], atol=1e-6)
+        lo, hi = obj.bounds + m[3]
+        assert lo[2] == pytest.approx(0.0, abs=1e-6)
+        assert np.allclose((lo[:2] + hi[:2]) / 2, [60.0, 60.0], atol=1e-4)
+        assert (lo[:2] >= 0).all() and (hi[:2] <= 120).all()
+
+
 def test_plate_holds_every_body_on_the_bed(exported):
     import trimesh
 
     objects = _read_3mf_stdlib(exported / "plate.3mf")
     assert sorted(objects) == ["star_001", "star_003"]
+    assert all(np.array_equal(m, np.eye(4, 3)) for _, m in _build_items(exported / "plate.3mf"))  # placed in its vertices
     assert all(o.is_watertight for o in objects.values())
     plate = trimesh.load(exported / "plate.stl", force="mesh")
     assert plate.body_count == 2 and plate.is_watertight

@@ -202,7 +202,7 @@ def export_family(
                 worker=step_worker,
             )
         t1 = time.perf_counter()
-        _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick)
+        _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick, bed_mm)
         rep.timings["mesh_s"] = time.perf_counter() - t1
         if plate:  # while the STEP worker still runs
             t3 = time.perf_counter()
@@ -241,9 +241,12 @@ def export_family(
         },
         "mount": {"name": mount.name, "kind": mount.kind, "params": mount.params},
         "body_spec": to_mapping(spec),
+        "bed_mm": list(bed_mm),
         "frame": (
             "files: printing orientation (plate down on Z = 0, the body's up along +Z); per body, "
-            "print_to_placement maps them back to family.json's placement frame (+y up, centres unchanged)"
+            "print_to_placement maps them back to family.json's placement frame (+y up, centres unchanged); "
+            "a body's own 3MF keeps these vertices and its build item translates it by print_to_3mf_build_mm "
+            "to the centre of the bed (bed_mm); a plate's files hold its bodies moved by print_to_bed"
         ),
         "bodies": rep.bodies,
         "plates": plate_docs,
@@ -253,6 +256,14 @@ def export_family(
     rep.files = sorted(str(p.relative_to(stage)) for p in stage.rglob("*") if p.is_file())
     rep.timings["total_s"] = time.perf_counter() - t0
     return rep
+
+
+def bed_centre_offset(vertices, bed_mm) -> np.ndarray:
+    """The (x, y, 0) translation (mm) that puts the centre of the vertices' footprint at the
+    centre of a ``bed_mm`` (width, depth) bed whose corner is the origin."""
+    v = np.asarray(vertices, float)
+    centre = (v[:, :2].min(0) + v[:, :2].max(0)) / 2
+    return np.array([bed_mm[0] / 2 - centre[0], bed_mm[1] / 2 - centre[1], 0.0])
 
 
 def _mesh_plate(name, lay, bodies, meshes, formats, stage) -> dict:
@@ -313,9 +324,10 @@ class _Ticker:
             self.progress(self.done, self.total)
 
 
-def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick) -> None:
+def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick, bed_mm) -> None:
     """Per body: the mesh in its printing orientation (appended to ``meshes``), its STL / 3MF
-    files and its bodies.json entry (appended to ``rep.bodies``)."""
+    files and its bodies.json entry (appended to ``rep.bodies``).  A body's 3MF build item
+    centres it on a ``bed_mm`` bed (:func:`bed_centre_offset`)."""
     from starforge.cad.mesh import MeshArrays, body_arrays, check_shell, mesh_volume
     from starforge.cad.stl import stl_bytes
     from starforge.cad.threemf import threemf_bytes
@@ -368,7 +380,9 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick
             entry["files"].append(f"{b.name}.stl")
         if "3mf" in formats:
             thumb = thumbnail_png(mesh.vertices, mesh.faces, colour=colour)
-            (stage / f"{b.name}.3mf").write_bytes(threemf_bytes([mesh], [b.name], thumb, [colour]))
+            offset = bed_centre_offset(mesh.vertices, bed_mm)
+            (stage / f"{b.name}.3mf").write_bytes(threemf_bytes([mesh], [b.name], thumb, [colour], [offset]))
+            entry["print_to_3mf_build_mm"] = np.round(offset, 6).tolist()
             entry["files"].append(f"{b.name}.3mf")
         rep.bodies.append(entry)
         tick()

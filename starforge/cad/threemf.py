@@ -38,11 +38,13 @@ def _rels(thumbnail: bool) -> str:
     )
 
 
-def threemf_bytes(meshes, names, thumbnail_png: bytes | None = None, colours=None) -> bytes:
+def threemf_bytes(meshes, names, thumbnail_png: bytes | None = None, colours=None, offsets=None) -> bytes:
     """A 3MF package holding ``meshes`` (anything with ``vertices`` and ``faces``: a trimesh.Trimesh,
     a :class:`~starforge.cad.mesh.MeshArrays`; mm), one object each, named ``names``,
     with an optional package thumbnail (PNG bytes) and per-object colours ((r, g, b) 0..255,
-    the 3MF core ``basematerials``)."""
+    the 3MF core ``basematerials``).  ``offsets``: per object, an (x, y, z) translation (mm) its
+    build item applies (the 3MF core ``transform``: where a slicer that keeps the file's places
+    puts it on the bed); the object's own vertices stay as given."""
     out = io.StringIO()
     out.write('<?xml version="1.0" encoding="UTF-8"?>\n')
     out.write(
@@ -71,7 +73,15 @@ def threemf_bytes(meshes, names, thumbnail_png: bytes | None = None, colours=Non
         out.write(('<triangle v1="%d" v2="%d" v3="%d"/>\n' * len(f)) % tuple(f.ravel().tolist()))
         out.write("</triangles></mesh></object>\n")
     out.write("</resources>\n<build>\n")
-    out.write("".join(f'<item objectid="{k}"/>\n' for k in range(1, len(meshes) + 1)))
+    if offsets is None:
+        out.write("".join(f'<item objectid="{k}"/>\n' for k in range(1, len(meshes) + 1)))
+    else:  # 3MF's 3x4 row-vector matrix: m00 m01 m02 m10 m11 m12 m20 m21 m22 m30 m31 m32
+        out.write(
+            "".join(
+                f'<item objectid="{k}" transform="1 0 0 0 1 0 0 0 1 {x:.6f} {y:.6f} {z:.6f}"/>\n'
+                for k, (x, y, z) in enumerate(np.asarray(offsets, float).reshape(len(meshes), 3).tolist(), start=1)
+            )
+        )
     out.write("</build>\n</model>\n")
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as z:
