@@ -155,6 +155,20 @@ def _manifold(path: Path) -> dict:
         rep = subprocess.run(["admesh", str(path)], capture_output=True, text=True, timeout=120).stdout
         fixes = {k: int(v) for k, v in re.findall(r"(Degenerate facets|Edges fixed|Facets removed|Facets added|Facets reversed)\s*:\s*(\d+)", rep)}
         row["admesh_fixes"] = sum(fixes.values())
+    twin = path.with_suffix(".stl")
+    if path.suffix == ".3mf" and twin.exists():
+        # the 3MF holds the STL's triangles (a single body's build item moves them onto the
+        # bed centre): a slice of one is a slice of the other's geometry
+        s = trimesh.load(twin, force="mesh")
+        shift = m.bounds[0] - s.bounds[0]
+        if len(s.faces) != len(m.faces) or abs(shift[2]) > 1e-6:
+            row["stl_twin_mm"] = float("inf")
+        else:  # the same triangles, in any order (a reader may list a plate's objects otherwise)
+            from scipy.spatial import cKDTree
+
+            a, b = m.triangles - shift, s.triangles
+            _, j = cKDTree(b.mean(1)).query(a.mean(1))  # each triangle's twin: the nearest centroid
+            row["stl_twin_mm"] = float(np.abs(a - b[j]).max()) if len(np.unique(j)) == len(j) else float("inf")
     return row
 
 
@@ -211,6 +225,8 @@ def _judge(
         "nonmanifold_edges": sum(r["nonmanifold_edges"] for r in man),
         "open_edges": sum(r["open_edges"] for r in man),
         "single_star_files_not_one_shell": sum(r["shells"] != 1 for r in man if r["file"].startswith("star_")),
+        # largest corner difference (mm) between a 3MF's triangles and its STL twin's, less one shift
+        "threemf_vs_stl_mm_max": max((r["stl_twin_mm"] for r in man if "stl_twin_mm" in r), default=None),
         "sliver_flat_levels": sum(r["sliver_levels"] for r in man),
         "admesh_fixes": sum(r.get("admesh_fixes", 0) for r in man) if shutil.which("admesh") else "not installed",
     }
@@ -624,6 +640,10 @@ def main() -> None:
                 and r["manifold"]["admesh_fixes"] in (0, "not installed")
                 for r in everything
             ),
+        },
+        "every 3MF holds its STL's triangles (within 1e-4 mm, less a single body's move to the bed centre)": {
+            "measured": max((r["manifold"]["threemf_vs_stl_mm_max"] or 0.0) for r in everything) if everything else None,
+            "met": bool(everything) and all((r["manifold"]["threemf_vs_stl_mm_max"] or 0.0) <= 1e-4 for r in everything),
         },
         "every file sliced slices in every slicer installed with no warning": {
             "measured": f"{sum(s['sliced_ok'] - s['with_warnings'] for s in sl_all)} of {sum(s['files'] for s in sl_all)} "
