@@ -231,7 +231,7 @@ def _judge(
         "admesh_fixes": sum(r.get("admesh_fixes", 0) for r in man) if shutil.which("admesh") else "not installed",
     }
     analysed = singles[: analysis_limit if analysis_limit is not None else len(singles)]
-    analysed_plates = [f for f in plates if f.stem in picked]
+    analysed_plates = [f for f in plates if f.stem in picked] if slice_plates else []
     reports = {f.name: layer_report(trimesh.load(f, force="mesh"), LAYER_MM) for f in analysed + analysed_plates}
     single = [reports[f.name] for f in analysed]
     row["layer_analysis"] = {
