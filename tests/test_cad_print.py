@@ -234,14 +234,16 @@ FLAT17 = [
 FLAT17_ON_PLATE = (127.024, 58.3)
 
 
-def _slic3r_warnings(path, tmp_path) -> list[str]:
-    """Slic3r 1.3's complaints slicing ``path`` at 0.2 mm layers (slices only, as SVG)."""
+def _slic3r_warnings(path, tmp_path, *extra) -> list[str]:
+    """Slic3r 1.3's complaints slicing ``path`` at 0.2 mm layers (slices only, as SVG; run in
+    ``tmp_path``, where Slic3r unpacks a 3MF's model)."""
     res = subprocess.run(
         [SLIC3R, str(path), "--layer-height", "0.2", "--first-layer-height", "0.2", "--nozzle-diameter", "0.4",
-         "--export-svg", "-o", str(tmp_path / "slices.svg")],
+         *extra, "--export-svg", "-o", str(tmp_path / "slices.svg")],
         capture_output=True,
         text=True,
         timeout=240,
+        cwd=tmp_path,
     )
     assert res.returncode == 0 and (tmp_path / "slices.svg").exists(), res.stdout[-2000:] + res.stderr[-2000:]
     return [ln.strip() for ln in (res.stdout + res.stderr).splitlines() if re.search(r"warn|unable|error", ln, re.I)]
@@ -263,6 +265,15 @@ def test_slic3r_closes_every_loop_of_a_body_where_the_plate_puts_it(tmp_path):
 def test_slic3r_slices_a_plate_without_a_warning(made_for, tmp_path):
     _, _, out, _ = made_for("flat")
     assert _slic3r_warnings(out / "plate.stl", tmp_path) == []
+
+
+@pytest.mark.skipif(SLIC3R is None, reason="Slic3r is not installed here (Debian: apt-get install slic3r)")
+@pytest.mark.parametrize("name", ["star_001.3mf", "plate.3mf"])
+def test_slic3r_keeps_a_3mf_where_it_lies_and_finds_it_on_the_bed(made_for, tmp_path, name):
+    """Slic3r arranging nothing (--dont-arrange) takes the 3MF's own places: a single body at the
+    bed centre, a plate as laid out; neither overflows its 200 mm bed ("might not fit")."""
+    _, _, out, _ = made_for("flat")
+    assert _slic3r_warnings(out / name, tmp_path, "--dont-arrange") == []
 
 
 @pytest.mark.parametrize("marker", ["4mm-flat", "6.4mm-post", "9.5mm-m3", "12.7mm-m3", "14mm-m4"])
