@@ -94,23 +94,33 @@ def dot3(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
+# The kernels below pass floats, not array views, between functions in their inner loops:
+# every array a compiled function receives or slices is reference-counted by numba's runtime
+# with an atomic instruction, and with two threads on shared arrays those atomics took about
+# half of the fit decision's time.  The arithmetic is the same, operation for operation.
+
+
+@_jit
+def basis3(a0, a1, a2):
+    """:func:`plane_basis` as floats: (u0, u1, u2, v0, v1, v2)."""
+    # u orthogonal to a (crossed with the least aligned axis), v = a x u
+    ax, ay, az = abs(a0), abs(a1), abs(a2)
+    if ax <= ay and ax <= az:
+        u0, u1, u2 = 0.0, a2, -a1
+    elif ay <= az:
+        u0, u1, u2 = -a2, 0.0, a0
+    else:
+        u0, u1, u2 = a1, -a0, 0.0
+    nu = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    u0 = u0 / nu
+    u1 = u1 / nu
+    u2 = u2 / nu
+    return u0, u1, u2, a1 * u2 - a2 * u1, a2 * u0 - a0 * u2, a0 * u1 - a1 * u0
+
+
 @_jit
 def plane_basis(a, u, v):
-    # u orthogonal to a (crossed with the least aligned axis), v = a x u
-    ax, ay, az = abs(a[0]), abs(a[1]), abs(a[2])
-    if ax <= ay and ax <= az:
-        u[0], u[1], u[2] = 0.0, a[2], -a[1]
-    elif ay <= az:
-        u[0], u[1], u[2] = -a[2], 0.0, a[0]
-    else:
-        u[0], u[1], u[2] = a[1], -a[0], 0.0
-    nu = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-    u[0] /= nu
-    u[1] /= nu
-    u[2] /= nu
-    v[0] = a[1] * u[2] - a[2] * u[1]
-    v[1] = a[2] * u[0] - a[0] * u[2]
-    v[2] = a[0] * u[1] - a[1] * u[0]
+    u[0], u[1], u[2], v[0], v[1], v[2] = basis3(a[0], a[1], a[2])
 
 
 @_jit
@@ -124,84 +134,94 @@ def try_candidate(c, s, x, y, L2, L3, npair):
 
 
 @_jit
-def inner(D, npair, a1, L2, L3, u, v, x, y, out):
-    """Exact inner problem; on success writes (cos psi, sin psi) into out and returns True."""
-    project(D, npair, a1, u, v, x, y)
-    return inner_xy(npair, L2, L3, x, y, out)
-
-
-@_jit
 def project(D, npair, a1, u, v, x, y):
     """The plane basis (u, v) orthogonal to a1 and the pair vectors' coordinates (x, y) in it."""
-    plane_basis(a1, u, v)
+    u0, u1, u2, v0, v1, v2 = basis3(a1[0], a1[1], a1[2])
+    u[0], u[1], u[2], v[0], v[1], v[2] = u0, u1, u2, v0, v1, v2
     for j in range(npair):
-        x[j] = dot3(D[j], u)
-        y[j] = dot3(D[j], v)
+        x[j] = D[j, 0] * u0 + D[j, 1] * u1 + D[j, 2] * u2
+        y[j] = D[j, 0] * v0 + D[j, 1] * v1 + D[j, 2] * v2
 
 
 @_jit
 def inner_xy(npair, L2, L3, x, y, out):
-    """:func:`inner` on coordinates already projected (:func:`project`)."""
-    if try_candidate(1.0, 0.0, x, y, L2, L3, npair):
-        out[0], out[1] = 1.0, 0.0
-        return True
-    for j in range(npair):
-        A = math.sqrt(x[j] * x[j] + y[j] * y[j])
-        if A <= 1e-300:
-            continue
-        cf, sf = x[j] / A, y[j] / A
-        if A > L2[j]:
-            ca = L2[j] / A
-            sa = math.sqrt(max(0.0, 1.0 - ca * ca))
-            # psi = phi + alpha and psi = phi + pi - alpha
-            c1, s1 = cf * ca - sf * sa, sf * ca + cf * sa
-            if try_candidate(c1, s1, x, y, L2, L3, npair):
-                out[0], out[1] = c1, s1
-                return True
-            c2, s2 = -(cf * ca + sf * sa), -(sf * ca - cf * sa)
-            if try_candidate(c2, s2, x, y, L2, L3, npair):
-                out[0], out[1] = c2, s2
-                return True
-        if A > L3[j]:
-            sb = L3[j] / A
-            cb = math.sqrt(max(0.0, 1.0 - sb * sb))
-            c1, s1 = cf * cb - sf * sb, sf * cb + cf * sb
-            if try_candidate(c1, s1, x, y, L2, L3, npair):
-                out[0], out[1] = c1, s1
-                return True
-            c2, s2 = cf * cb + sf * sb, sf * cb - cf * sb
-            if try_candidate(c2, s2, x, y, L2, L3, npair):
-                out[0], out[1] = c2, s2
+    """The exact inner problem on coordinates already projected (:func:`project`): on success
+    writes (cos psi, sin psi) into out and returns True.  The candidates, in order: psi = 0,
+    then for each pair psi = phi + alpha, phi + pi - alpha (when A > L2) and phi + beta,
+    phi - beta (when A > L3); each is tested as :func:`try_candidate` does."""
+    for j in range(-1, npair):
+        A = cf = sf = 0.0
+        if j >= 0:
+            A = math.sqrt(x[j] * x[j] + y[j] * y[j])
+            if A <= 1e-300:
+                continue
+            cf, sf = x[j] / A, y[j] / A
+        for m in range(4):
+            if j < 0:
+                if m > 0:
+                    break
+                c, s = 1.0, 0.0
+            elif m < 2:
+                if not A > L2[j]:
+                    continue
+                ca = L2[j] / A
+                sa = math.sqrt(max(0.0, 1.0 - ca * ca))
+                # psi = phi + alpha and psi = phi + pi - alpha
+                if m == 0:
+                    c, s = cf * ca - sf * sa, sf * ca + cf * sa
+                else:
+                    c, s = -(cf * ca + sf * sa), -(sf * ca - cf * sa)
+            else:
+                if not A > L3[j]:
+                    continue
+                sb = L3[j] / A
+                cb = math.sqrt(max(0.0, 1.0 - sb * sb))
+                if m == 2:
+                    c, s = cf * cb - sf * sb, sf * cb + cf * sb
+                else:
+                    c, s = cf * cb + sf * sb, sf * cb - cf * sb
+            good = True
+            for i in range(npair):
+                if abs(x[i] * c + y[i] * s) > L2[i] + 1e-9 or abs(y[i] * c - x[i] * s) > L3[i] + 1e-9:
+                    good = False
+                    break
+            if good:
+                out[0], out[1] = c, s
                 return True
     return False
 
 
 @_jit
-def cube_dir(f, s, t, a):
+def unit3(f, s, t):
+    """The unit direction of point (s, t) of cube face f (0: +x, 1: +y, 2: +z), as floats."""
     if f == 0:
-        a[0], a[1], a[2] = 1.0, s, t
+        a0, a1, a2 = 1.0, s, t
     elif f == 1:
-        a[0], a[1], a[2] = t, 1.0, s
+        a0, a1, a2 = t, 1.0, s
     else:
-        a[0], a[1], a[2] = s, t, 1.0
-    n = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
-    a[0] /= n
-    a[1] /= n
-    a[2] /= n
+        a0, a1, a2 = s, t, 1.0
+    n = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    return a0 / n, a1 / n, a2 / n
 
 
 @_jit
-def accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
+def cube_dir(f, s, t, a):
+    a[0], a[1], a[2] = unit3(f, s, t)
+
+
+@_jit
+def accept(D, npair, lim, a1, u, v, x, y, L2, L3, cs, R):
     """Try a1 as the shortest axis with the exact limits; on success fill R (rows)."""
     w1 = 0.0
     for j in range(npair):
-        w1 = max(w1, abs(dot3(D[j], a1)))
+        w1 = max(w1, abs(D[j, 0] * a1[0] + D[j, 1] * a1[1] + D[j, 2] * a1[2]))
     if w1 > lim[0] + 1e-9:
         return False
     for j in range(npair):
         L2[j] = lim[1]
         L3[j] = lim[2]
-    if not inner(D, npair, a1, L2, L3, u, v, x, y, cs):
+    project(D, npair, a1, u, v, x, y)
+    if not inner_xy(npair, L2, L3, x, y, cs):
         return False
     frame_rows(a1, u, v, cs, R)
     return True
@@ -308,7 +328,7 @@ def caps_exclude(P, lim, slack, buf):
     for j in range(m):
         if j != b and A[b] + A[j] >= 0.5 * math.pi - 1e-9:
             continue
-        sg = -1.0 if dot3(E[b], E[j]) < 0 else 1.0
+        sg = -1.0 if E[b, 0] * E[j, 0] + E[b, 1] * E[j, 1] + E[b, 2] * E[j, 2] < 0 else 1.0
         F[n, 0], F[n, 1], F[n, 2] = sg * E[j, 0], sg * E[j, 1], sg * E[j, 2]
         C[n] = math.cos(A[j])
         n += 1
@@ -318,14 +338,14 @@ def caps_exclude(P, lim, slack, buf):
     for a in range(n):  # a whole cap inside the others: its centre is in K
         inside = True
         for c in range(n):
-            if dot3(F[a], F[c]) < C[c] - tol:
+            if F[a, 0] * F[c, 0] + F[a, 1] * F[c, 1] + F[a, 2] * F[c, 2] < C[c] - tol:
                 inside = False
                 break
         if inside:
             return False
     for a in range(n):  # the corners: x . F[a] = C[a], x . F[b] = C[b], |x| = 1
         for b2 in range(a + 1, n):
-            g = dot3(F[a], F[b2])
+            g = F[a, 0] * F[b2, 0] + F[a, 1] * F[b2, 1] + F[a, 2] * F[b2, 2]
             den = 1.0 - g * g
             if den <= 1e-12:
                 continue
@@ -417,7 +437,6 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
     u = ws[o : o + 3]
     v = ws[o + 3 : o + 6]
     a1 = ws[o + 6 : o + 9]
-    corner = ws[o + 9 : o + 12]
     cs = ws[o + 12 : o + 14]
     kid_w = ws[o + 14 : o + 18]
     Cn = ws[o + 18 : o + 30].reshape((4, 3))  # the cell's unit corners
@@ -432,7 +451,7 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
         for j in range(i + 1, k):
             for c in range(3):
                 D[q, c] = P[j, c] - P[i, c]
-            dn[q] = math.sqrt(dot3(D[q], D[q]))
+            dn[q] = math.sqrt(D[q, 0] * D[q, 0] + D[q, 1] * D[q, 1] + D[q, 2] * D[q, 2])
             diam = max(diam, dn[q])
             q += 1
     # 1. the critical directions of a tetrahedron's width (face normals, opposite edges)
@@ -455,13 +474,25 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
             a1[0] = e11 * e22 - e12 * e21
             a1[1] = e12 * e20 - e10 * e22
             a1[2] = e10 * e21 - e11 * e20
-            nn = math.sqrt(dot3(a1, a1))
+            nn = math.sqrt(a1[0] * a1[0] + a1[1] * a1[1] + a1[2] * a1[2])
             if nn <= 1e-12:
                 continue
             a1[0] /= nn
             a1[1] /= nn
             a1[2] /= nn
-            if accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
+            # :func:`accept`, written out (a call passing a dozen arrays per direction cost
+            # more in reference counting than the test itself)
+            w1 = 0.0
+            for j in range(npair):
+                w1 = max(w1, abs(D[j, 0] * a1[0] + D[j, 1] * a1[1] + D[j, 2] * a1[2]))
+            if w1 > lim[0] + 1e-9:
+                continue
+            for j in range(npair):
+                L2[j] = lim[1]
+                L3[j] = lim[2]
+            project(D, npair, a1, u, v, x, y)
+            if inner_xy(npair, L2, L3, x, y, cs):
+                frame_rows(a1, u, v, cs, R)
                 return 1, 7
     theta_min = slack / max(diam, 1e-12)
     l1w = (lim[0] + slack) * (1.0 + 1e-9) + 1e-9
@@ -489,14 +520,15 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
         cells += 1
         if cells > max_cells:
             return -1, cells
-        cube_dir(f, s, t, a1)
+        a10, a11, a12 = unit3(f, s, t)
+        a1[0], a1[1], a1[2] = a10, a11, a12
         cosmin = 1.0
         c = 0
         for dx in (-1.0, 1.0):
             for dy in (-1.0, 1.0):
-                cn = Cn[c]
-                cube_dir(f, s + dx * h, t + dy * h, cn)
-                cosmin = min(cosmin, dot3(a1, cn))
+                c0, c1, c2 = unit3(f, s + dx * h, t + dy * h)
+                Cn[c, 0], Cn[c, 1], Cn[c, 2] = c0, c1, c2
+                cosmin = min(cosmin, a10 * c0 + a11 * c1 + a12 * c2)
                 c += 1
         if prune and corners_exclude(D, npair, Cn, l1w):
             continue
@@ -506,7 +538,7 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
         low = 0.0
         w1 = 0.0
         for j in range(npair):
-            p = abs(dot3(D[j], a1))
+            p = abs(D[j, 0] * a10 + D[j, 1] * a11 + D[j, 2] * a12)
             pa[j] = p
             w1 = max(w1, p)
             cp = p / dn[j] if dn[j] > 0 else 0.0
@@ -545,10 +577,10 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
         for c in range(4):
             kid_s[c] = s + (-hh if c < 2 else hh)
             kid_t[c] = t + (-hh if c % 2 == 0 else hh)
-            cube_dir(f, kid_s[c], kid_t[c], corner)
+            k0, k1, k2 = unit3(f, kid_s[c], kid_t[c])
             w = 0.0
             for j in range(npair):
-                w = max(w, abs(dot3(D[j], corner)))
+                w = max(w, abs(D[j, 0] * k0 + D[j, 1] * k1 + D[j, 2] * k2))
             kid_w[c] = -w
         # push the thinnest last so it is explored first: a stable insertion sort of -width
         # (the order np.argsort gives on 4 values), without allocating
@@ -583,8 +615,23 @@ def decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1, prune
     k = P.shape[1]
     ws = np.empty(9 * (k * (k - 1) // 2) + 30 + 3 * STACK)
     iws = np.empty(STACK, np.int64)
+    # this thread's own copies of the limit, the points and the frame: views of the arrays the
+    # threads share would have their common reference count updated atomically by every thread
+    lim_t = np.empty(3)
+    lim_t[0], lim_t[1], lim_t[2] = lim[0], lim[1], lim[2]
+    Pt = np.empty((k, 3))
+    Rt = np.empty((3, 3))
     for i in range(i0, i1):
-        st, c = decide_ws(P[i], lim, slack, start, max_cells, R[i], ws, iws, prune)
+        for a in range(k):
+            for c in range(3):
+                Pt[a, c] = P[i, a, c]
+        for a in range(3):
+            for c in range(3):
+                Rt[a, c] = R[i, a, c]
+        st, c = decide_ws(Pt, lim_t, slack, start, max_cells, Rt, ws, iws, prune)
+        for a in range(3):
+            for b in range(3):
+                R[i, a, b] = Rt[a, b]
         status[i] = st
         work[i] = c
 

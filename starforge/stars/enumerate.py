@@ -367,10 +367,15 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, mode, codes, s0,
     enough, narrow enough, Ky Fan, and in mode 0 the quick no-fit proofs; what is left is
     ``NECESSARY_OK`` (serial: numba's ``parallel=True`` costs seconds of compile on a first run)."""
     eps = 1e-9
+    # allocated once per range (rows of P that no star writes stay 0), and the limit copied: an
+    # allocation, or a view of an array the threads share, costs atomic updates of numba's
+    # runtime counters that the threads contend for
+    P = np.zeros((4, 3))
+    L = np.empty(6)
+    cbuf = np.empty(8 * 6)  # caps_exclude's scratch
+    lim_t = np.empty(3)
+    lim_t[0], lim_t[1], lim_t[2] = lim[0], lim[1], lim[2]
     for s in range(s0, s1):
-        P = np.zeros((4, 3))
-        L = np.empty(6)
-        cbuf = np.empty(8 * 6)  # caps_exclude's scratch
         for a in range(assign.shape[0]):
             for j in range(6):
                 L[j] = lo + step * subsets[s, assign[a, j]]
@@ -417,7 +422,7 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, mode, codes, s0,
             ):
                 codes[s, a] = 3
                 continue
-            if mode == 0 and (cone_excludes(P, lim, slack) or caps_exclude(P, lim, slack, cbuf)):
+            if mode == 0 and (cone_excludes(P, lim_t, slack) or caps_exclude(P, lim_t, slack, cbuf)):
                 codes[s, a] = 4  # proven not to fit, without the search
                 continue
             codes[s, a] = 7
