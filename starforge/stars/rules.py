@@ -112,7 +112,17 @@ def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
     code = ((tag[None, :, None] * base + anchors[..., 0]) * base + anchors[..., 1]) * base + anchors[..., 2]
     # one entry per (star, row), each star's rows in ascending code order: sort within the star
     # and drop repeats (two keys of one star in one window; none after internal_ok)
-    code = np.sort(code.reshape(n, k * len(offs)), axis=1)
+    code = code.reshape(n, k * len(offs))
+    if code.shape[1] == 4:  # the face rule at m = 1: a sorting network (many 4-element sorts are slow)
+        a, b, c, d = (code[:, i] for i in range(4))
+        a, b = np.minimum(a, b), np.maximum(a, b)
+        c, d = np.minimum(c, d), np.maximum(c, d)
+        a, c = np.minimum(a, c), np.maximum(a, c)
+        b, d = np.minimum(b, d), np.maximum(b, d)
+        b, c = np.minimum(b, c), np.maximum(b, c)
+        code = np.stack([a, b, c, d], axis=1)
+    else:
+        code = np.sort(code, axis=1)
     keep = np.ones(code.shape, dtype=bool)
     keep[:, 1:] = code[:, 1:] != code[:, :-1]
     star = np.broadcast_to(np.arange(n, dtype=np.intp)[:, None], code.shape)[keep]
