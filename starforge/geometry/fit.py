@@ -89,134 +89,127 @@ import numba  # noqa: E402  (compiled kernels; this module is imported only wher
 _jit = numba.njit(cache=True, nogil=True)
 
 
-@_jit
-def dot3(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+# The kernels below pass floats, not array views, between functions in their inner loops:
+# every array a compiled function receives or slices is reference-counted by numba's runtime
+# with an atomic instruction, and with two threads on shared arrays those atomics took about
+# half of the fit decision's time.  The arithmetic is the same, operation for operation.
 
 
 @_jit
-def plane_basis(a, u, v):
+def basis3(a0, a1, a2):
+    """A basis (u, v) of the plane orthogonal to the unit vector a, as six floats."""
     # u orthogonal to a (crossed with the least aligned axis), v = a x u
-    ax, ay, az = abs(a[0]), abs(a[1]), abs(a[2])
+    ax, ay, az = abs(a0), abs(a1), abs(a2)
     if ax <= ay and ax <= az:
-        u[0], u[1], u[2] = 0.0, a[2], -a[1]
+        u0, u1, u2 = 0.0, a2, -a1
     elif ay <= az:
-        u[0], u[1], u[2] = -a[2], 0.0, a[0]
+        u0, u1, u2 = -a2, 0.0, a0
     else:
-        u[0], u[1], u[2] = a[1], -a[0], 0.0
-    nu = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-    u[0] /= nu
-    u[1] /= nu
-    u[2] /= nu
-    v[0] = a[1] * u[2] - a[2] * u[1]
-    v[1] = a[2] * u[0] - a[0] * u[2]
-    v[2] = a[0] * u[1] - a[1] * u[0]
+        u0, u1, u2 = a1, -a0, 0.0
+    nu = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    u0 = u0 / nu
+    u1 = u1 / nu
+    u2 = u2 / nu
+    return u0, u1, u2, a1 * u2 - a2 * u1, a2 * u0 - a0 * u2, a0 * u1 - a1 * u0
+
+
+
+
+#: rows of the per-pair table ``W`` (6, npair) of :func:`decide_ws`: |d|, the in-plane
+#: coordinates (x, y) of d, the limits of the two other axes for d, and |d . a1|
+_DN, _X, _Y, _L2, _L3, _PA = 0, 1, 2, 3, 4, 5
 
 
 @_jit
-def try_candidate(c, s, x, y, L2, L3, npair):
+def project(D, W, npair, a0, a1, a2):
+    """The plane basis (u, v) orthogonal to a = (a0, a1, a2), returned as six floats, and the
+    pair vectors' coordinates in it, written to ``W[_X]`` and ``W[_Y]``."""
+    u0, u1, u2, v0, v1, v2 = basis3(a0, a1, a2)
     for j in range(npair):
-        if abs(x[j] * c + y[j] * s) > L2[j] + 1e-9:
-            return False
-        if abs(y[j] * c - x[j] * s) > L3[j] + 1e-9:
-            return False
-    return True
+        W[_X, j] = D[j, 0] * u0 + D[j, 1] * u1 + D[j, 2] * u2
+        W[_Y, j] = D[j, 0] * v0 + D[j, 1] * v1 + D[j, 2] * v2
+    return u0, u1, u2, v0, v1, v2
 
 
 @_jit
-def inner(D, npair, a1, L2, L3, u, v, x, y, out):
-    """Exact inner problem; on success writes (cos psi, sin psi) into out and returns True."""
-    project(D, npair, a1, u, v, x, y)
-    return inner_xy(npair, L2, L3, x, y, out)
+def inner_xy(W, npair):
+    """The exact inner problem on coordinates already projected (:func:`project`), with the
+    limits ``W[_L2]``, ``W[_L3]``: (True, cos psi, sin psi) for the first candidate that
+    solves it, else (False, 0, 0).  The candidates, in order: psi = 0, then for each pair
+    psi = phi + alpha, phi + pi - alpha (when A > L2) and phi + beta, phi - beta (when
+    A > L3); each must keep ``|x c + y s| <= L2 + 1e-9`` and ``|y c - x s| <= L3 + 1e-9``
+    for every pair."""
+    for j in range(-1, npair):
+        A = cf = sf = 0.0
+        if j >= 0:
+            xj, yj = W[_X, j], W[_Y, j]
+            A = math.sqrt(xj * xj + yj * yj)
+            if A <= 1e-300:
+                continue
+            cf, sf = xj / A, yj / A
+        for m in range(4):
+            if j < 0:
+                if m > 0:
+                    break
+                c, s = 1.0, 0.0
+            elif m < 2:
+                if not A > W[_L2, j]:
+                    continue
+                ca = W[_L2, j] / A
+                sa = math.sqrt(max(0.0, 1.0 - ca * ca))
+                # psi = phi + alpha and psi = phi + pi - alpha
+                if m == 0:
+                    c, s = cf * ca - sf * sa, sf * ca + cf * sa
+                else:
+                    c, s = -(cf * ca + sf * sa), -(sf * ca - cf * sa)
+            else:
+                if not A > W[_L3, j]:
+                    continue
+                sb = W[_L3, j] / A
+                cb = math.sqrt(max(0.0, 1.0 - sb * sb))
+                if m == 2:
+                    c, s = cf * cb - sf * sb, sf * cb + cf * sb
+                else:
+                    c, s = cf * cb + sf * sb, sf * cb - cf * sb
+            good = True
+            for i in range(npair):
+                x, y = W[_X, i], W[_Y, i]
+                if abs(x * c + y * s) > W[_L2, i] + 1e-9 or abs(y * c - x * s) > W[_L3, i] + 1e-9:
+                    good = False
+                    break
+            if good:
+                return True, c, s
+    return False, 0.0, 0.0
 
 
 @_jit
-def project(D, npair, a1, u, v, x, y):
-    """The plane basis (u, v) orthogonal to a1 and the pair vectors' coordinates (x, y) in it."""
-    plane_basis(a1, u, v)
-    for j in range(npair):
-        x[j] = dot3(D[j], u)
-        y[j] = dot3(D[j], v)
-
-
-@_jit
-def inner_xy(npair, L2, L3, x, y, out):
-    """:func:`inner` on coordinates already projected (:func:`project`)."""
-    if try_candidate(1.0, 0.0, x, y, L2, L3, npair):
-        out[0], out[1] = 1.0, 0.0
-        return True
-    for j in range(npair):
-        A = math.sqrt(x[j] * x[j] + y[j] * y[j])
-        if A <= 1e-300:
-            continue
-        cf, sf = x[j] / A, y[j] / A
-        if A > L2[j]:
-            ca = L2[j] / A
-            sa = math.sqrt(max(0.0, 1.0 - ca * ca))
-            # psi = phi + alpha and psi = phi + pi - alpha
-            c1, s1 = cf * ca - sf * sa, sf * ca + cf * sa
-            if try_candidate(c1, s1, x, y, L2, L3, npair):
-                out[0], out[1] = c1, s1
-                return True
-            c2, s2 = -(cf * ca + sf * sa), -(sf * ca - cf * sa)
-            if try_candidate(c2, s2, x, y, L2, L3, npair):
-                out[0], out[1] = c2, s2
-                return True
-        if A > L3[j]:
-            sb = L3[j] / A
-            cb = math.sqrt(max(0.0, 1.0 - sb * sb))
-            c1, s1 = cf * cb - sf * sb, sf * cb + cf * sb
-            if try_candidate(c1, s1, x, y, L2, L3, npair):
-                out[0], out[1] = c1, s1
-                return True
-            c2, s2 = cf * cb + sf * sb, sf * cb - cf * sb
-            if try_candidate(c2, s2, x, y, L2, L3, npair):
-                out[0], out[1] = c2, s2
-                return True
-    return False
+def unit3(f, s, t):
+    """The unit direction of point (s, t) of cube face f (0: +x, 1: +y, 2: +z), as floats."""
+    if f == 0:
+        a0, a1, a2 = 1.0, s, t
+    elif f == 1:
+        a0, a1, a2 = t, 1.0, s
+    else:
+        a0, a1, a2 = s, t, 1.0
+    n = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    return a0 / n, a1 / n, a2 / n
 
 
 @_jit
 def cube_dir(f, s, t, a):
-    if f == 0:
-        a[0], a[1], a[2] = 1.0, s, t
-    elif f == 1:
-        a[0], a[1], a[2] = t, 1.0, s
-    else:
-        a[0], a[1], a[2] = s, t, 1.0
-    n = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
-    a[0] /= n
-    a[1] /= n
-    a[2] /= n
+    a[0], a[1], a[2] = unit3(f, s, t)
 
 
 @_jit
-def accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
-    """Try a1 as the shortest axis with the exact limits; on success fill R (rows)."""
-    w1 = 0.0
-    for j in range(npair):
-        w1 = max(w1, abs(dot3(D[j], a1)))
-    if w1 > lim[0] + 1e-9:
-        return False
-    for j in range(npair):
-        L2[j] = lim[1]
-        L3[j] = lim[2]
-    if not inner(D, npair, a1, L2, L3, u, v, x, y, cs):
-        return False
-    frame_rows(a1, u, v, cs, R)
-    return True
-
-
-@_jit
-def frame_rows(a1, u, v, cs, R):
-    """R's rows: a1, a2 = cos psi u + sin psi v, a3 = a1 x a2 (``cs`` = (cos psi, sin psi))."""
-    c, s = cs[0], cs[1]
-    for i in range(3):
-        R[0, i] = a1[i]
-        R[1, i] = c * u[i] + s * v[i]
-    R[2, 0] = a1[1] * R[1, 2] - a1[2] * R[1, 1]
-    R[2, 1] = a1[2] * R[1, 0] - a1[0] * R[1, 2]
-    R[2, 2] = a1[0] * R[1, 1] - a1[1] * R[1, 0]
+def frame_rows(R, a0, a1, a2, u0, u1, u2, v0, v1, v2, c, s):
+    """R's rows: a, b = cos psi u + sin psi v, a x b (``c, s`` = cos psi, sin psi)."""
+    R[0, 0], R[0, 1], R[0, 2] = a0, a1, a2
+    R[1, 0] = c * u0 + s * v0
+    R[1, 1] = c * u1 + s * v1
+    R[1, 2] = c * u2 + s * v2
+    R[2, 0] = a1 * R[1, 2] - a2 * R[1, 1]
+    R[2, 1] = a2 * R[1, 0] - a0 * R[1, 2]
+    R[2, 2] = a0 * R[1, 1] - a1 * R[1, 0]
 
 
 @_jit
@@ -308,7 +301,7 @@ def caps_exclude(P, lim, slack, buf):
     for j in range(m):
         if j != b and A[b] + A[j] >= 0.5 * math.pi - 1e-9:
             continue
-        sg = -1.0 if dot3(E[b], E[j]) < 0 else 1.0
+        sg = -1.0 if E[b, 0] * E[j, 0] + E[b, 1] * E[j, 1] + E[b, 2] * E[j, 2] < 0 else 1.0
         F[n, 0], F[n, 1], F[n, 2] = sg * E[j, 0], sg * E[j, 1], sg * E[j, 2]
         C[n] = math.cos(A[j])
         n += 1
@@ -318,14 +311,14 @@ def caps_exclude(P, lim, slack, buf):
     for a in range(n):  # a whole cap inside the others: its centre is in K
         inside = True
         for c in range(n):
-            if dot3(F[a], F[c]) < C[c] - tol:
+            if F[a, 0] * F[c, 0] + F[a, 1] * F[c, 1] + F[a, 2] * F[c, 2] < C[c] - tol:
                 inside = False
                 break
         if inside:
             return False
     for a in range(n):  # the corners: x . F[a] = C[a], x . F[b] = C[b], |x| = 1
         for b2 in range(a + 1, n):
-            g = dot3(F[a], F[b2])
+            g = F[a, 0] * F[b2, 0] + F[a, 1] * F[b2, 1] + F[a, 2] * F[b2, 2]
             den = 1.0 - g * g
             if den <= 1e-12:
                 continue
@@ -407,18 +400,8 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
     npair = k * (k - 1) // 2
     D = ws[: 3 * npair].reshape((npair, 3))
     o = 3 * npair
-    dn = ws[o : o + npair]
-    x = ws[o + npair : o + 2 * npair]
-    y = ws[o + 2 * npair : o + 3 * npair]
-    L2 = ws[o + 3 * npair : o + 4 * npair]
-    L3 = ws[o + 4 * npair : o + 5 * npair]
-    pa = ws[o + 5 * npair : o + 6 * npair]  # |d . a1| at the cell's centre
+    W = ws[o : o + 6 * npair].reshape((6, npair))  # rows _DN, _X, _Y, _L2, _L3, _PA
     o += 6 * npair
-    u = ws[o : o + 3]
-    v = ws[o + 3 : o + 6]
-    a1 = ws[o + 6 : o + 9]
-    corner = ws[o + 9 : o + 12]
-    cs = ws[o + 12 : o + 14]
     kid_w = ws[o + 14 : o + 18]
     Cn = ws[o + 18 : o + 30].reshape((4, 3))  # the cell's unit corners
     o += 30
@@ -432,8 +415,8 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
         for j in range(i + 1, k):
             for c in range(3):
                 D[q, c] = P[j, c] - P[i, c]
-            dn[q] = math.sqrt(dot3(D[q], D[q]))
-            diam = max(diam, dn[q])
+            W[_DN, q] = math.sqrt(D[q, 0] * D[q, 0] + D[q, 1] * D[q, 1] + D[q, 2] * D[q, 2])
+            diam = max(diam, W[_DN, q])
             q += 1
     # 1. the critical directions of a tetrahedron's width (face normals, opposite edges)
     if k == 4:
@@ -452,16 +435,26 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
             # e1 = P[j1] - P[j0], e2 = P[j3] - P[j2], a1 = e1 x e2 (scalars: no temporaries)
             e10, e11, e12 = P[j1, 0] - P[j0, 0], P[j1, 1] - P[j0, 1], P[j1, 2] - P[j0, 2]
             e20, e21, e22 = P[j3, 0] - P[j2, 0], P[j3, 1] - P[j2, 1], P[j3, 2] - P[j2, 2]
-            a1[0] = e11 * e22 - e12 * e21
-            a1[1] = e12 * e20 - e10 * e22
-            a1[2] = e10 * e21 - e11 * e20
-            nn = math.sqrt(dot3(a1, a1))
+            a0 = e11 * e22 - e12 * e21
+            a1 = e12 * e20 - e10 * e22
+            a2 = e10 * e21 - e11 * e20
+            nn = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
             if nn <= 1e-12:
                 continue
-            a1[0] /= nn
-            a1[1] /= nn
-            a1[2] /= nn
-            if accept(D, npair, dn, lim, a1, u, v, x, y, L2, L3, cs, R):
+            a0, a1, a2 = a0 / nn, a1 / nn, a2 / nn
+            # accept a as the shortest axis: thin enough, and the exact inner problem solved
+            w1 = 0.0
+            for j in range(npair):
+                w1 = max(w1, abs(D[j, 0] * a0 + D[j, 1] * a1 + D[j, 2] * a2))
+            if w1 > lim[0] + 1e-9:
+                continue
+            for j in range(npair):
+                W[_L2, j] = lim[1]
+                W[_L3, j] = lim[2]
+            u0, u1, u2, v0, v1, v2 = project(D, W, npair, a0, a1, a2)
+            ok, cc, sc = inner_xy(W, npair)
+            if ok:
+                frame_rows(R, a0, a1, a2, u0, u1, u2, v0, v1, v2, cc, sc)
                 return 1, 7
     theta_min = slack / max(diam, 1e-12)
     l1w = (lim[0] + slack) * (1.0 + 1e-9) + 1e-9
@@ -489,14 +482,14 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
         cells += 1
         if cells > max_cells:
             return -1, cells
-        cube_dir(f, s, t, a1)
+        a10, a11, a12 = unit3(f, s, t)
         cosmin = 1.0
         c = 0
         for dx in (-1.0, 1.0):
             for dy in (-1.0, 1.0):
-                cn = Cn[c]
-                cube_dir(f, s + dx * h, t + dy * h, cn)
-                cosmin = min(cosmin, dot3(a1, cn))
+                c0, c1, c2 = unit3(f, s + dx * h, t + dy * h)
+                Cn[c, 0], Cn[c, 1], Cn[c, 2] = c0, c1, c2
+                cosmin = min(cosmin, a10 * c0 + a11 * c1 + a12 * c2)
                 c += 1
         if prune and corners_exclude(D, npair, Cn, l1w):
             continue
@@ -506,13 +499,14 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
         low = 0.0
         w1 = 0.0
         for j in range(npair):
-            p = abs(dot3(D[j], a1))
-            pa[j] = p
+            p = abs(D[j, 0] * a10 + D[j, 1] * a11 + D[j, 2] * a12)
+            W[_PA, j] = p
             w1 = max(w1, p)
-            cp = p / dn[j] if dn[j] > 0 else 0.0
+            dnj = W[_DN, j]
+            cp = p / dnj if dnj > 0 else 0.0
             sp = math.sqrt(max(0.0, 1.0 - cp * cp))
             # |d| cos(psi + theta), clipped at 0 when psi + theta >= pi/2
-            val = dn[j] * (cp * ct - sp * st)
+            val = dnj * (cp * ct - sp * st)
             if cp * ct - sp * st > 0 and val > low:
                 low = val
         if low > lim[0]:
@@ -521,22 +515,24 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
         projected = False
         if w1 <= lim[0] + 1e-9:
             for j in range(npair):
-                L2[j] = lim[1]
-                L3[j] = lim[2]
-            project(D, npair, a1, u, v, x, y)
+                W[_L2, j] = lim[1]
+                W[_L3, j] = lim[2]
+            u0, u1, u2, v0, v1, v2 = project(D, W, npair, a10, a11, a12)
             projected = True
-            if inner_xy(npair, L2, L3, x, y, cs):
-                frame_rows(a1, u, v, cs, R)
+            ok, cc, sc = inner_xy(W, npair)
+            if ok:
+                frame_rows(R, a10, a11, a12, u0, u1, u2, v0, v1, v2, cc, sc)
                 return 1, cells
         for j in range(npair):
-            along = pa[j]
-            perp = math.sqrt(max(0.0, dn[j] * dn[j] - along * along))
+            along = W[_PA, j]
+            dnj = W[_DN, j]
+            perp = math.sqrt(max(0.0, dnj * dnj - along * along))
             sj = st * along + (1.0 - ct) * perp
-            L2[j] = lim[1] + sj
-            L3[j] = lim[2] + sj
+            W[_L2, j] = lim[1] + sj
+            W[_L3, j] = lim[2] + sj
         if not projected:
-            project(D, npair, a1, u, v, x, y)
-        if not inner_xy(npair, L2, L3, x, y, cs):
+            project(D, W, npair, a10, a11, a12)
+        if not inner_xy(W, npair)[0]:
             continue
         if theta <= theta_min:
             open_small = True
@@ -545,10 +541,10 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
         for c in range(4):
             kid_s[c] = s + (-hh if c < 2 else hh)
             kid_t[c] = t + (-hh if c % 2 == 0 else hh)
-            cube_dir(f, kid_s[c], kid_t[c], corner)
+            k0, k1, k2 = unit3(f, kid_s[c], kid_t[c])
             w = 0.0
             for j in range(npair):
-                w = max(w, abs(dot3(D[j], corner)))
+                w = max(w, abs(D[j, 0] * k0 + D[j, 1] * k1 + D[j, 2] * k2))
             kid_w[c] = -w
         # push the thinnest last so it is explored first: a stable insertion sort of -width
         # (the order np.argsort gives on 4 values), without allocating
@@ -583,8 +579,23 @@ def decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1, prune
     k = P.shape[1]
     ws = np.empty(9 * (k * (k - 1) // 2) + 30 + 3 * STACK)
     iws = np.empty(STACK, np.int64)
+    # this thread's own copies of the limit, the points and the frame: views of the arrays the
+    # threads share would have their common reference count updated atomically by every thread
+    lim_t = np.empty(3)
+    lim_t[0], lim_t[1], lim_t[2] = lim[0], lim[1], lim[2]
+    Pt = np.empty((k, 3))
+    Rt = np.empty((3, 3))
     for i in range(i0, i1):
-        st, c = decide_ws(P[i], lim, slack, start, max_cells, R[i], ws, iws, prune)
+        for a in range(k):
+            for c in range(3):
+                Pt[a, c] = P[i, a, c]
+        for a in range(3):
+            for c in range(3):
+                Rt[a, c] = R[i, a, c]
+        st, c = decide_ws(Pt, lim_t, slack, start, max_cells, Rt, ws, iws, prune)
+        for a in range(3):
+            for b in range(3):
+                R[i, a, b] = Rt[a, b]
         status[i] = st
         work[i] = c
 

@@ -50,7 +50,7 @@ def margins(lengths: np.ndarray, pair: bool = True) -> list[dict]:
     pair_m = np.full(n, np.inf)
     if pair and n > 1:
         forms = L[:, RELABELLINGS]  # (n, 24, 6)
-        rows = max(1, int(32e6 // (n * 24 * 6 * 8)))  # stars per block (about 32 MB of differences)
+        rows = max(1, int(2e6 // (n * 24 * 6 * 8)))  # stars per block (about 2 MB of differences: in cache)
         for i0 in range(0, n, rows):
             i1 = min(n, i0 + rows)
             # both lengths of pair k differ by min(|a_k - b_k|, |A_k - B_k|); a pair of stars is

@@ -107,16 +107,40 @@ def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
     n, k, _ = keys.shape
     tag = (np.arange(k) >= 4).astype(np.int64)  # 0 face, 1 vertex
     base = pool_size + m  # room for negative anchors shifted by m
-    offs = np.array([(a, b, c) for a in range(m) for b in range(m) for c in range(m)], dtype=np.int64)
-    anchors = keys[:, :, None, :].astype(np.int64) - offs[None, None] + m  # (n, k, m^3, 3)
-    code = ((tag[None, :, None] * base + anchors[..., 0]) * base + anchors[..., 1]) * base + anchors[..., 2]
+    offs = [(a, b, c) for a in range(m) for b in range(m) for c in range(m)]
+    # code of the window anchored at key - offset (shifted by m), column key * m^3 + offset
+    code = np.empty((n, k * len(offs)), dtype=np.int64)
+    for j in range(k):
+        k0, k1, k2 = (keys[:, j, i].astype(np.int64) for i in range(3))
+        for o, (a, b, c) in enumerate(offs):
+            col = code[:, j * len(offs) + o]
+            np.add(k0, tag[j] * base + m - a, out=col)
+            col *= base
+            col += k1
+            col += m - b
+            col *= base
+            col += k2
+            col += m - c
     # one entry per (star, row), each star's rows in ascending code order: sort within the star
     # and drop repeats (two keys of one star in one window; none after internal_ok)
-    code = np.sort(code.reshape(n, k * len(offs)), axis=1)
+    if code.shape[1] == 4:  # the face rule at m = 1: a sorting network (many 4-element sorts are slow)
+        a, b, c, d = (code[:, i] for i in range(4))
+        a, b = np.minimum(a, b), np.maximum(a, b)
+        c, d = np.minimum(c, d), np.maximum(c, d)
+        a, c = np.minimum(a, c), np.maximum(a, c)
+        b, d = np.minimum(b, d), np.maximum(b, d)
+        b, c = np.minimum(b, c), np.maximum(b, c)
+        code = np.stack([a, b, c, d], axis=1)
+    else:
+        code = np.sort(code, axis=1)
     keep = np.ones(code.shape, dtype=bool)
     keep[:, 1:] = code[:, 1:] != code[:, :-1]
-    star = np.broadcast_to(np.arange(n, dtype=np.intp)[:, None], code.shape)[keep]
-    code = code[keep]
+    if keep.all():  # the usual case: no boolean indexing needed
+        star = np.repeat(np.arange(n, dtype=np.intp), code.shape[1])
+        code = code.ravel()
+    else:
+        star = np.broadcast_to(np.arange(n, dtype=np.intp)[:, None], code.shape)[keep]
+        code = code[keep]
     # rows numbered by ascending code: a dense table when the code space is small (no sort;
     # at most 16 M entries, about 150 MB with the ranks)
     span = 2 * base**3

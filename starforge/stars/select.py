@@ -85,7 +85,8 @@ def _count_blocks(faces: np.ndarray, m: int) -> int:
     """Fewest distinct face blocks of side m over the m^3 placements of the block grid."""
     best = None
     for o in np.ndindex(m, m, m):
-        f = (faces + np.array(o)) // m
+        # (integer floor division is slow in numpy, and with m = 1 the blocks are the keys)
+        f = (faces + np.array(o)) // m if m > 1 else faces
         base = int(f.max()) + 1
         code = (f[:, 0] * base + f[:, 1]) * base + f[:, 2]  # one int64 per block
         if base**3 <= 1 << 26:
