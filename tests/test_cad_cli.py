@@ -14,15 +14,24 @@ from starforge.cli import main
 DATA = Path(__file__).parent / "data" / "cad" / "small_family.json"
 
 
-def _read_3mf_stdlib(path):
-    """{object name: trimesh} parsed with zipfile + ElementTree (independent of any 3MF library)."""
+NS_3MF = "{http://schemas.microsoft.com/3dmanufacturing/core/2015/02}"
+
+
+def _model_3mf(path):
+    """The root element of a 3MF file's model, parsed with zipfile + ElementTree (independent of
+    any 3MF library)."""
     import xml.etree.ElementTree as ET
     import zipfile
 
+    return ET.fromstring(zipfile.ZipFile(path).read("3D/3dmodel.model"))
+
+
+def _read_3mf_stdlib(path):
+    """{object name: trimesh} of a 3MF file (:func:`_model_3mf`)."""
     import trimesh
 
-    ns = "{http://schemas.microsoft.com/3dmanufacturing/core/2015/02}"
-    root = ET.fromstring(zipfile.ZipFile(path).read("3D/3dmodel.model"))
+    ns = NS_3MF
+    root = _model_3mf(path)
     assert root.get("unit") == "millimeter"
     out = {}
     for obj in root.iter(f"{ns}object"):
@@ -102,12 +111,9 @@ def test_exported_files_reload_with_centres(exported):
 
 
 def _build_items(path):
-    """[(object name, 3x4 build transform)] of a 3MF file, parsed with zipfile + ElementTree."""
-    import xml.etree.ElementTree as ET
-    import zipfile
-
-    ns = "{http://schemas.microsoft.com/3dmanufacturing/core/2015/02}"
-    root = ET.fromstring(zipfile.ZipFile(path).read("3D/3dmodel.model"))
+    """[(object name, 3x4 build transform)] of a 3MF file (:func:`_model_3mf`)."""
+    ns = NS_3MF
+    root = _model_3mf(path)
     names = {o.get("id"): o.get("name") for o in root.iter(f"{ns}object")}
     out = []
     for item in root.iter(f"{ns}item"):
