@@ -395,3 +395,87 @@ def test_pruned_search_returns_what_the_plain_search_returns(finger_sample):
         if trial == 0:
             assert (st0 == NO_FIT).sum() > 200 and (st0 == FIT).sum() > 200
     assert saved > 0.05 * w0.sum()
+
+
+def _finger_spec(**kw) -> StarSpec:
+    return StarSpec(box_mm=(20.8, 12.6, 48.3), marker_mm=4, delta_mm=kw.pop("delta_mm", 1.5), **kw)
+
+
+def test_face_table_claims_only_triangles_a_dense_search_cannot_fit():
+    """Every triangle the face table marks is one no rotation of the independent dense search
+    fits into the limit widened by the slack (and many the table leaves unmarked do fit, so
+    the check is not empty); the table is symmetric in its three indices, and marks only
+    triples of lengths a star's face can have."""
+    from starforge.geometry.fit import face_table
+
+    spec = _finger_spec()
+    pool, m, limit = edge_pool(spec), spec.grid_steps, np.sort(spec.centre_limit_mm)
+    T = face_table(pool, m, limit)
+    assert T.shape == (len(pool),) * 3
+    for perm in itertools.permutations(range(3)):
+        assert np.array_equal(T, T.transpose(perm))
+    i, j, k = np.nonzero(T)
+    tri = np.sort(np.stack([i, j, k], axis=1), axis=1)
+    assert ((np.diff(tri, axis=1) >= m).all()) and (pool[tri[:, 0]] + pool[tri[:, 1]] > pool[tri[:, 2]]).all()
+    rng = np.random.default_rng(2)
+    marked = np.unique(tri, axis=0)
+    every = np.array(
+        [t for t in itertools.combinations(range(len(pool)), 3) if t[1] - t[0] >= m and t[2] - t[1] >= m]
+    )
+    every = every[pool[every[:, 0]] + pool[every[:, 1]] > pool[every[:, 2]] + 1e-6]
+    free = every[T[every[:, 0], every[:, 1], every[:, 2]] == 0]
+    assert len(marked) > 100 and len(free) > 100
+
+    def corners(t):  # a triangle placed independently of face_table: random rotation and offset
+        a, b, c = pool[t].T
+        cx = (c * c + b * b - a * a) / (2 * c)
+        P = np.zeros((len(t), 3, 3))
+        P[:, 1, 0], P[:, 2, 0], P[:, 2, 1] = c, cx, np.sqrt(b * b - cx * cx)
+        turn = Rotation.random(len(t), random_state=rng).as_matrix().transpose(0, 2, 1)
+        return P @ turn + rng.normal(size=(len(t), 1, 3))
+
+    wide = limit + SLACK_MM
+    dense = dict(n_rot=1500, keep=4, iters=50)
+    s_marked, _ = dense_best_slack(corners(marked[rng.permutation(len(marked))[:150]]), wide, **dense)
+    assert (s_marked < 0).all()
+    s_free, _ = dense_best_slack(corners(free[rng.permutation(len(free))[:150]]), wide, **dense)
+    assert (s_free >= 0).sum() > 100
+
+
+@pytest.mark.parametrize("box", [(20.8, 12.6, 48.3), (16, 12, 30)])
+def test_face_proof_rejects_only_what_the_plain_search_rejects(box):
+    """Stars the enumeration rejects by a face (the first pass with the face table against the
+    first pass without it) are, one by one, proven not to fit by the plain search
+    (``prune=False``, no quick proofs); and the whole enumeration, codes and box volumes of
+    every labelled candidate, is the same with and without the table."""
+    from starforge.stars import enumerate as E
+
+    spec = StarSpec(box_mm=box, marker_mm=4, delta_mm=1.5)
+    pool, m = edge_pool(spec), spec.grid_steps
+    lim = np.sort(np.array(spec.centre_limit_mm, dtype=float))
+    faces = E.spec_faces(spec)
+    assert faces.any()
+    rng = np.random.default_rng(4)
+    free = len(pool) - (m - 1) * 5
+    draws = np.sort(np.array([rng.choice(free, 6, replace=False) for _ in range(4000)]), axis=1)
+    sub = (draws + np.arange(6) * (m - 1)).astype(np.int16)
+    assign = canonical_assignments().astype(np.int64)
+    args = (sub, assign, float(pool[0]), float(spec.delta_mm), lim, spec.depth_mm, SLACK_MM, 0)
+    first = {}
+    for name, table in (("off", E.NO_FACES), ("on", faces)):
+        codes = np.empty((len(sub), 30), dtype=np.int8)
+        E._classify(*args, table, codes, 0, len(sub))
+        first[name] = codes
+    by_face = (first["on"] == E.NO_FIT) & (first["off"] != E.NO_FIT)
+    assert ((first["on"] == first["off"]) | by_face).all() and by_face.sum() > 200
+    s, a = np.nonzero(by_face)
+    L = pool[np.take_along_axis(sub[s], assign[a], axis=1)]
+    st, _, _ = decide_fit(vertices_from_lengths(L), lim, prune=False)
+    assert (st == NO_FIT).all()
+    out = {}
+    for name, table in (("off", None), ("on", faces)):
+        codes, vols = np.empty((len(sub), 30), dtype=np.int8), np.empty((len(sub), 30))
+        E.classify(*args[:7], 100_000, 0, codes, vols, faces=table)
+        out[name] = codes, vols
+    assert np.array_equal(out["on"][0], out["off"][0])
+    assert np.array_equal(out["on"][1], out["off"][1], equal_nan=True)

@@ -14,9 +14,14 @@ Pipeline, per labelled candidate (no Python loop per star; numba, subsets spread
 5. necessary fit conditions: the width is at most the shortest limit side, and Ky Fan's bounds on
    the covariance eigenvalues (the k smallest sum to at most the sum of the k shortest limit sides
    squared over 4; variance along a direction is at most a quarter of the width squared);
-6. the fit decision (:mod:`starforge.geometry.fit`): first two quick no-fit proofs
-   (:func:`~starforge.geometry.fit.cone_excludes`, :func:`~starforge.geometry.fit.caps_exclude`),
-   then the search: proven to fit (a rotation is found), proven
+6. the fit decision (:mod:`starforge.geometry.fit`): first three quick no-fit proofs, then the
+   search.  The first is a table lookup: a face (three pool lengths) that provably does not fit
+   the limit widened by the slack (:func:`~starforge.geometry.fit.face_table`, decided once per
+   spec and process for every triangle of the pool) rules the star out, and the search could
+   only have said NO_FIT too: a star it calls FIT fits the limit, one it leaves UNDECIDED fits
+   the limit plus the slack, and so would each face (the proof is in ``face_table``).  The
+   other two are :func:`~starforge.geometry.fit.cone_excludes` and
+   :func:`~starforge.geometry.fit.caps_exclude`; then the search: proven to fit (a rotation is found), proven
    not to fit, or undecided (fits, if at all, with less than :data:`~starforge.geometry.fit.SLACK_MM`
    to spare).  ``box_method="covariance"`` replaces it with the paper's test (the covariance box
    must fit).
@@ -36,7 +41,7 @@ import numba
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.geometry.fit import SLACK_MM, caps_exclude, cone_excludes
+from starforge.geometry.fit import SLACK_MM, caps_exclude, cone_excludes, face_table
 from starforge.geometry.sym3 import sym3_eigvals
 from starforge.geometry.tetra import canonical_assignments
 from starforge.stars.spec import StarSpec
@@ -156,14 +161,15 @@ def _pilot(spec: StarSpec, samples: int, cpu: bool) -> tuple[float, float]:
     codes = np.empty((len(sub), len(assign)), dtype=np.int8)
     vols = np.empty((len(sub), len(assign)))
     args = (assign, lo, float(spec.delta_mm), limit, spec.depth_mm, SLACK_MM, 100_000, mode)
-    classify(sub[:1], *args, codes[:1], vols[:1])  # compile or load the kernel outside the timing
+    faces = spec_faces(spec)  # (kept for the enumeration: not part of the rate)
+    classify(sub[:1], *args, codes[:1], vols[:1], faces=faces)  # compile or load the kernel, untimed
     if cpu:
         t = time.thread_time()
-        classify(sub, *args, codes, vols, threads=1)
+        classify(sub, *args, codes, vols, threads=1, faces=faces)
         rate = max(2 * SECONDS_PER_LABELLED, (time.thread_time() - t) / codes.size)
     else:
         t = time.perf_counter()
-        classify(sub, *args, codes, vols, chunk=16)  # on every thread, as the enumeration runs
+        classify(sub, *args, codes, vols, chunk=16, faces=faces)  # on every thread, as the enumeration runs
         rate = max(SECONDS_PER_LABELLED, (time.perf_counter() - t) / codes.size)
     return rate, float(np.isin(codes, (FIT, NECESSARY_OK)).mean())
 
@@ -288,12 +294,48 @@ def _width(L0, L1, L2, L3, L4, L5, vol6):
 
 #: subsets per thread task of :func:`classify`
 THREAD_SUBSETS = 2048
+#: the empty face table: no face proof (mode 1, and pools past the table's size)
+NO_FACES = np.zeros((0, 0, 0), dtype=np.int8)
+#: face tables of this process (:func:`spec_faces`), by pool, tolerance steps and limit
+_FACES: dict = {}
+
+
+def spec_faces(spec: StarSpec, threads: int | None = None) -> np.ndarray:
+    """The face table of ``spec``'s exact fit decision (:func:`~starforge.geometry.fit.face_table`
+    of its pool, tolerance in pool steps, centre limit and :data:`SLACK_MM`); the empty table
+    for ``box_method = "covariance"``.  Computed once per process and kept (the last few): it
+    costs about 5 ms for the finger default, 20 ms at ``delta_mm = 1.0``, 0.16 s at 0.5 CPU
+    seconds, while an enumeration chunk is its own task (:func:`enumerate_chunk`).  A pure
+    function of the spec, so results do not depend on where it was computed."""
+    if spec.box_method != "exact":
+        return NO_FACES
+    pool = edge_pool(spec)
+    limit = tuple(sorted(float(x) for x in spec.centre_limit_mm))
+    key = (len(pool), float(pool[0]), float(spec.delta_mm), int(spec.grid_steps), limit)
+    if key not in _FACES:
+        while len(_FACES) >= 4:
+            _FACES.pop(next(iter(_FACES)))
+        _FACES[key] = face_table(pool, spec.grid_steps, limit, SLACK_MM, threads)
+    return _FACES[key]
 #: sets handed to the fit decision at once (bounds its working memory: points, rotations)
 DECIDE_SETS = 1 << 16
 
 
 def classify(
-    subsets, assign, lo, step, lim, min_depth, slack, max_cells, mode, codes, volumes, threads=None, chunk=THREAD_SUBSETS
+    subsets,
+    assign,
+    lo,
+    step,
+    lim,
+    min_depth,
+    slack,
+    max_cells,
+    mode,
+    codes,
+    volumes,
+    threads=None,
+    chunk=THREAD_SUBSETS,
+    faces=None,
 ):
     """Outcome code and fitting-box volume of every labelled candidate of ``subsets`` (s, 6),
     written into ``codes`` (s, 30) int8 and ``volumes`` (s, 30), on up to ``threads`` threads
@@ -301,7 +343,8 @@ def classify(
     depend on the thread count).
 
     Two passes: the serial kernel :func:`_classify` runs the necessary tests (and in mode 0 the
-    quick no-fit proofs) over ranges of ``chunk`` subsets; the candidates left
+    quick no-fit proofs: the face table ``faces``, :func:`spec_faces` of the same spec, or None
+    for none; then the cones and caps) over ranges of ``chunk`` subsets; the candidates left
     (``NECESSARY_OK``) then go, :data:`DECIDE_SETS` at a time, to the fit decision's one compiled
     entry (:func:`starforge.geometry.fit.decide_range`, shared with ``decide_fit``, so a first
     run compiles that code once).
@@ -311,7 +354,9 @@ def classify(
     from starforge.engine import over_ranges
     from starforge.geometry.fit import _decide_all
 
-    args = (subsets, assign, float(lo), float(step), lim, float(min_depth), float(slack), int(mode))
+    if faces is None:
+        faces = NO_FACES
+    args = (subsets, assign, float(lo), float(step), lim, float(min_depth), float(slack), int(mode), faces)
 
     def run(i0, i1):
         _classify(*args, codes, i0, i1)
@@ -368,9 +413,10 @@ def _box_volume(P: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)  # nogil: threads run it side by side; Ctrl-C is answered
-def _classify(subsets, assign, lo, step, lim, min_depth, slack, mode, codes, s0, s1):
+def _classify(subsets, assign, lo, step, lim, min_depth, slack, mode, faces, codes, s0, s1):
     """The first pass of :func:`classify` for subsets ``s0 .. s1 - 1``: realisable, deep
-    enough, narrow enough, Ky Fan, and in mode 0 the quick no-fit proofs; what is left is
+    enough, narrow enough, Ky Fan, and in mode 0 the quick no-fit proofs (a face in ``faces``,
+    :func:`face_table`, when it is not empty; the cones; the caps); what is left is
     ``NECESSARY_OK`` (serial: numba's ``parallel=True`` costs seconds of compile on a first run)."""
     eps = 1e-9
     # allocated once per range (rows of P that no star writes stay 0), and the limit copied: an
@@ -378,13 +424,16 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, mode, codes, s0,
     # runtime counters that the threads contend for
     P = np.zeros((4, 3))
     L = np.empty(6)
+    ix = np.empty(6, dtype=np.int64)
+    use_faces = mode == 0 and faces.shape[0] > 0
     cbuf = np.empty(8 * 6)  # caps_exclude's scratch
     lim_t = np.empty(3)
     lim_t[0], lim_t[1], lim_t[2] = lim[0], lim[1], lim[2]
     for s in range(s0, s1):
         for a in range(assign.shape[0]):
             for j in range(6):
-                L[j] = lo + step * subsets[s, assign[a, j]]
+                ix[j] = subsets[s, assign[a, j]]
+                L[j] = lo + step * ix[j]
             u, U, v, V, w, W = L[0], L[1], L[2], L[3], L[4], L[5]
             cx = (u * u + w * w - v * v) / (2 * u)
             cy2 = w * w - cx * cx
@@ -427,6 +476,15 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, mode, codes, s0,
                 or e1 + e2 + e3 > (lim[0] ** 2 + lim[1] ** 2 + lim[2] ** 2) / 4 + eps
             ):
                 codes[s, a] = 3
+                continue
+            # a face that does not fit (faces ACD, BCD, ABD, ABC: the first two catch most)
+            if use_faces and (
+                faces[ix[4], ix[3], ix[1]]
+                or faces[ix[2], ix[5], ix[1]]
+                or faces[ix[0], ix[3], ix[5]]
+                or faces[ix[0], ix[2], ix[4]]
+            ):
+                codes[s, a] = 4  # proven not to fit: a face does not fit
                 continue
             if mode == 0 and (cone_excludes(P, lim_t, slack) or caps_exclude(P, lim_t, slack, cbuf)):
                 codes[s, a] = 4  # proven not to fit, without the search
@@ -504,6 +562,7 @@ def enumerate_chunk(args: tuple) -> dict:
     dt = index_dtype(len(pool))
     counts = np.zeros(8, dtype=np.int64)
     fit_idx, fit_vol, und_idx = [], [], []
+    faces = spec_faces(spec, threads)
     start = unrank_subset(rank, len(pool), m)
     left = int(count)
     while left > 0:
@@ -513,7 +572,8 @@ def enumerate_chunk(args: tuple) -> dict:
         left -= len(sub)
         codes = np.empty((len(sub), len(assign)), dtype=np.int8)
         vols = np.empty((len(sub), len(assign)))
-        classify(sub, assign, lo, step, limit, spec.depth_mm, SLACK_MM, 100_000, mode, codes, vols, threads)
+        args = (sub, assign, lo, step, limit, spec.depth_mm, SLACK_MM, 100_000, mode, codes, vols, threads)
+        classify(*args, faces=faces)
         counts += [np.count_nonzero(codes == c) for c in range(8)]  # (faster than np.bincount on int8)
         if mode == 1:
             s, a = np.nonzero(codes == NECESSARY_OK)
