@@ -61,9 +61,10 @@ undecided ones too.
 
 Before the search, the seven directions where the width of a tetrahedron has its local minima
 (the four face normals and the three common normals of opposite edges) are tried as ``a_1``:
-most sets that fit are accepted there.  Callers deciding many sets run two quick no-fit
-proofs first (:func:`cone_excludes`, :func:`caps_exclude`, both widened by the slack so they
-never reject a set the search would leave undecided).
+most sets that fit are accepted there.  Callers deciding many sets may run quick no-fit proofs
+first (:func:`face_table`, :func:`caps_exclude`, :func:`cone_excludes`, all widened by the
+slack so they never reject a set the search would leave undecided; the enumeration runs the
+first two).
 
 The kernel is compiled with numba (serial, GIL released; :func:`decide_fit` spreads sets over
 threads, each set independent, so results do not depend on the thread count).

@@ -14,17 +14,18 @@ Pipeline, per labelled candidate (no Python loop per star; numba, subsets spread
 5. necessary fit conditions: the width is at most the shortest limit side, and Ky Fan's bounds on
    the covariance eigenvalues (the k smallest sum to at most the sum of the k shortest limit sides
    squared over 4; variance along a direction is at most a quarter of the width squared);
-6. the fit decision (:mod:`starforge.geometry.fit`): first three quick no-fit proofs, then the
+6. the fit decision (:mod:`starforge.geometry.fit`): first two quick no-fit proofs, then the
    search.  The first is a table lookup: a face (three pool lengths) that provably does not fit
    the limit widened by the slack (:func:`~starforge.geometry.fit.face_table`, decided once per
    spec and process for every triangle of the pool) rules the star out, and the search could
    only have said NO_FIT too: a star it calls FIT fits the limit, one it leaves UNDECIDED fits
    the limit plus the slack, and so would each face (the proof is in ``face_table``).  The
-   other two are :func:`~starforge.geometry.fit.cone_excludes` and
-   :func:`~starforge.geometry.fit.caps_exclude`; then the search: proven to fit (a rotation is found), proven
-   not to fit, or undecided (fits, if at all, with less than :data:`~starforge.geometry.fit.SLACK_MM`
-   to spare).  ``box_method="covariance"`` replaces it with the paper's test (the covariance box
-   must fit).
+   second is :func:`~starforge.geometry.fit.caps_exclude` (after the face table,
+   :func:`~starforge.geometry.fit.cone_excludes` in front of it cost more than it saved: on the
+   finger default it caught 12 stars the others miss, for 0.07 CPU s).  Then the search: proven
+   to fit (a rotation is found), proven not to fit, or undecided (fits, if at all, with less
+   than :data:`~starforge.geometry.fit.SLACK_MM` to spare).  ``box_method="covariance"``
+   replaces it with the paper's test (the covariance box must fit).
 
 Candidates are the stars proven to fit.  The undecided ones are counted, and kept apart for
 certified upper bounds (a bound over fitting + undecided covers every star that really fits).
@@ -41,7 +42,7 @@ import numba
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.geometry.fit import SLACK_MM, caps_exclude, cone_excludes, face_table
+from starforge.geometry.fit import SLACK_MM, caps_exclude, face_table
 from starforge.geometry.sym3 import sym3_eigvals
 from starforge.geometry.tetra import canonical_assignments
 from starforge.stars.spec import StarSpec
@@ -344,15 +345,42 @@ def classify(
 
     Two passes: the serial kernel :func:`_classify` runs the necessary tests (and in mode 0 the
     quick no-fit proofs: the face table ``faces``, :func:`spec_faces` of the same spec, or None
-    for none; then the cones and caps) over ranges of ``chunk`` subsets; the candidates left
+    for none; then the caps) over ranges of ``chunk`` subsets; the candidates left
     (``NECESSARY_OK``) then go, :data:`DECIDE_SETS` at a time, to the fit decision's one compiled
     entry (:func:`starforge.geometry.fit.decide_range`, shared with ``decide_fit``, so a first
     run compiles that code once).
 
     mode 0: the exact fit decision; mode 1: stop after the necessary tests (NECESSARY_OK).
     """
+    first_pass(subsets, assign, lo, step, lim, min_depth, slack, mode, codes, threads, chunk, faces)
+    volumes[:] = np.nan
+    if mode == 1:
+        return
+    left, status, vol = decide_left(subsets, assign, lo, step, lim, slack, max_cells, codes, threads)
+    s, a = np.divmod(left, codes.shape[1])
+    codes[s, a] = np.where(status == 1, FIT, np.where(status == 0, NO_FIT, UNDECIDED))
+    fit = status == 1
+    volumes[s[fit], a[fit]] = vol
+
+
+def first_pass(
+    subsets,
+    assign,
+    lo,
+    step,
+    lim,
+    min_depth,
+    slack,
+    mode,
+    codes,
+    threads=None,
+    chunk=THREAD_SUBSETS,
+    faces=None,
+):
+    """The first pass of :func:`classify` (:func:`_classify` over ranges of ``chunk`` subsets on
+    up to ``threads`` threads): ``codes`` (s, 30) gets every code but the fit decision's, and
+    ``NECESSARY_OK`` for the candidates left to it."""
     from starforge.engine import over_ranges
-    from starforge.geometry.fit import _decide_all
 
     if faces is None:
         faces = NO_FACES
@@ -362,21 +390,30 @@ def classify(
         _classify(*args, codes, i0, i1)
 
     over_ranges(run, len(subsets), chunk, threads)
-    volumes[:] = np.nan
-    if mode == 1:
-        return
+
+
+def decide_left(subsets, assign, lo, step, lim, slack, max_cells, codes, threads=None):
+    """The fit decision for the candidates the first pass left (``NECESSARY_OK`` in ``codes``),
+    :data:`DECIDE_SETS` at a time.  Returns their flat positions in ``codes`` (row-major order),
+    their status (:data:`~starforge.geometry.fit.FIT`, ``NO_FIT``, ``UNDECIDED``) and the box
+    volumes of those that fit, in that order; ``codes`` is left as it is (the enumeration counts
+    and gathers from these compact arrays instead of scanning ``codes`` again)."""
+    from starforge.geometry.fit import _decide_all
+
     left = np.flatnonzero(codes == NECESSARY_OK)
+    status = np.zeros(len(left), dtype=np.int8)
+    vols = []
     for b in range(0, len(left), DECIDE_SETS):
         s, a = np.divmod(left[b : b + DECIDE_SETS], codes.shape[1])
         L = float(lo) + float(step) * np.take_along_axis(subsets[s], assign[a], axis=1)
         P = _centres(L)
-        status = np.zeros(len(P), dtype=np.int8)
+        st = status[b : b + DECIDE_SETS]
         R = np.empty((len(P), 3, 3))
         work = np.zeros(len(P), dtype=np.int64)
-        _decide_all(P, lim, float(slack), 1, int(max_cells), status, R, work, threads)
-        codes[s, a] = np.where(status == 1, FIT, np.where(status == 0, NO_FIT, UNDECIDED))
-        fit = status == 1
-        volumes[s[fit], a[fit]] = _box_volume(P[fit], R[fit])
+        _decide_all(P, lim, float(slack), 1, int(max_cells), st, R, work, threads)
+        fit = st == 1
+        vols.append(_box_volume(P[fit], R[fit]))
+    return left, status, np.concatenate(vols) if vols else np.zeros(0)
 
 
 def _centres(L: np.ndarray) -> np.ndarray:
@@ -416,7 +453,7 @@ def _box_volume(P: np.ndarray, R: np.ndarray) -> np.ndarray:
 def _classify(subsets, assign, lo, step, lim, min_depth, slack, mode, faces, codes, s0, s1):
     """The first pass of :func:`classify` for subsets ``s0 .. s1 - 1``: realisable, deep
     enough, narrow enough, Ky Fan, and in mode 0 the quick no-fit proofs (a face in ``faces``,
-    :func:`face_table`, when it is not empty; the cones; the caps); what is left is
+    :func:`face_table`, when it is not empty; then the caps); what is left is
     ``NECESSARY_OK`` (serial: numba's ``parallel=True`` costs seconds of compile on a first run)."""
     eps = 1e-9
     # allocated once per range (rows of P that no star writes stay 0), and the limit copied: an
@@ -486,7 +523,7 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, mode, faces, cod
             ):
                 codes[s, a] = 4  # proven not to fit: a face does not fit
                 continue
-            if mode == 0 and (cone_excludes(P, lim_t, slack) or caps_exclude(P, lim_t, slack, cbuf)):
+            if mode == 0 and caps_exclude(P, lim_t, slack, cbuf):
                 codes[s, a] = 4  # proven not to fit, without the search
                 continue
             codes[s, a] = 7
@@ -571,11 +608,11 @@ def enumerate_chunk(args: tuple) -> dict:
             break
         left -= len(sub)
         codes = np.empty((len(sub), len(assign)), dtype=np.int8)
-        vols = np.empty((len(sub), len(assign)))
-        args = (sub, assign, lo, step, limit, spec.depth_mm, SLACK_MM, 100_000, mode, codes, vols, threads)
-        classify(*args, faces=faces)
-        counts += [np.count_nonzero(codes == c) for c in range(8)]  # (faster than np.bincount on int8)
+        first_pass(sub, assign, lo, step, limit, spec.depth_mm, SLACK_MM, mode, codes, threads, faces=faces)
+        # (count_nonzero per code is faster than np.bincount on int8)
+        counts[: NO_FIT + 1] += [np.count_nonzero(codes == c) for c in range(NO_FIT + 1)]
         if mode == 1:
+            counts[NECESSARY_OK] += np.count_nonzero(codes == NECESSARY_OK)
             s, a = np.nonzero(codes == NECESSARY_OK)
             idx = np.take_along_axis(sub[s], assign[a], axis=1)
             from starforge.geometry.tetra import vertices_from_lengths
@@ -586,10 +623,15 @@ def enumerate_chunk(args: tuple) -> dict:
             fit_idx.append(idx[fits].astype(dt))
             fit_vol.append(vol[fits])
         else:
-            s, a = np.nonzero(codes == FIT)
+            pos, status, vol = decide_left(sub, assign, lo, step, limit, SLACK_MM, 100_000, codes, threads)
+            counts[NO_FIT] += np.count_nonzero(status == 0)
+            counts[UNDECIDED] += np.count_nonzero(status == -1)
+            counts[FIT] += len(vol)
+            # in the row-major order of the codes, as a scan of them would give
+            s, a = np.divmod(pos[status == 1], len(assign))
             fit_idx.append(np.take_along_axis(sub[s], assign[a], axis=1).astype(dt))
-            fit_vol.append(vols[s, a])
-            s, a = np.nonzero(codes == UNDECIDED)
+            fit_vol.append(vol)
+            s, a = np.divmod(pos[status == -1], len(assign))
             und_idx.append(np.take_along_axis(sub[s], assign[a], axis=1).astype(dt))
     return {
         "counts": counts,
