@@ -48,7 +48,12 @@ so the corners are the farthest points) around ``a_1`` is
   same order less whole subtrees that hold neither: the same outcome and the same frame, with
   less work (a set that ran into ``max_cells`` or the stack may now finish).
 * **accepted** when ``a_1`` at its centre is thin enough and the exact inner problem has a
-  solution: that frame is returned (sound; callers re-check it).
+  solution: that frame is returned (sound; callers re-check it).  The relaxed problem above is
+  tried first: its limits are the exact ones plus ``s_d >= 0``, so an angle that solves the
+  exact problem solves it too, and the inner solver, exact up to its ``1e-9`` mm, finds one;
+  without a relaxed solution the cell is pruned and the exact problem need not be tried.
+  (The same cells, answers and frames as testing the exact problem first, with fewer calls:
+  checked on the 398,234 finger-default sets that reach the search.)
 * otherwise split into four.
 
 *Completeness up to ``slack``.*  Refinement stops once ``D theta <= slack`` (D: the diameter).
@@ -512,18 +517,8 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
                 low = val
         if low > lim[0]:
             continue
-        # accept (as at the critical directions), with the widths and the projection reused
-        projected = False
-        if w1 <= lim[0] + 1e-9:
-            for j in range(npair):
-                W[_L2, j] = lim[1]
-                W[_L3, j] = lim[2]
-            u0, u1, u2, v0, v1, v2 = project(D, W, npair, a10, a11, a12)
-            projected = True
-            ok, cc, sc = inner_xy(W, npair)
-            if ok:
-                frame_rows(R, a10, a11, a12, u0, u1, u2, v0, v1, v2, cc, sc)
-                return 1, cells
+        # the relaxed inner problem first: without a solution, the exact one (smaller limits)
+        # has none either, and the centre cannot be accepted
         for j in range(npair):
             along = W[_PA, j]
             dnj = W[_DN, j]
@@ -531,10 +526,18 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
             sj = st * along + (1.0 - ct) * perp
             W[_L2, j] = lim[1] + sj
             W[_L3, j] = lim[2] + sj
-        if not projected:
-            project(D, W, npair, a10, a11, a12)
+        u0, u1, u2, v0, v1, v2 = project(D, W, npair, a10, a11, a12)
         if not inner_xy(W, npair)[0]:
             continue
+        # accept (as at the critical directions), with the widths and the projection reused
+        if w1 <= lim[0] + 1e-9:
+            for j in range(npair):
+                W[_L2, j] = lim[1]
+                W[_L3, j] = lim[2]
+            ok, cc, sc = inner_xy(W, npair)
+            if ok:
+                frame_rows(R, a10, a11, a12, u0, u1, u2, v0, v1, v2, cc, sc)
+                return 1, cells
         if theta <= theta_min:
             open_small = True
             continue
