@@ -479,3 +479,27 @@ def test_face_proof_rejects_only_what_the_plain_search_rejects(box):
         out[name] = codes, vols
     assert np.array_equal(out["on"][0], out["off"][0])
     assert np.array_equal(out["on"][1], out["off"][1], equal_nan=True)
+
+
+def test_star_box_volume_is_the_general_formula_bit_for_bit():
+    """The enumeration's box volume leaves out the terms with the zero coordinates of a star
+    placed by the trilateration; the floats must be those of the general formula (every point,
+    every term, left to right), on random stars under random rotations."""
+    from starforge.stars.enumerate import _box_volume, _centres
+
+    rng = np.random.default_rng(8)
+    L = rng.uniform(5, 40, (20_000, 6))
+    L = L[is_realisable(L)][:3000]
+    P = _centres(L)
+    R = Rotation.random(len(P), random_state=rng).as_matrix()
+    q = [
+        [R[:, k, 0] * P[:, i, 0] + R[:, k, 1] * P[:, i, 1] + R[:, k, 2] * P[:, i, 2] for i in range(4)]
+        for k in range(3)
+    ]
+    vol = np.ones(len(P))
+    for k in range(3):
+        hi, lo = q[k][0], q[k][0]
+        for i in range(1, 4):
+            hi, lo = np.maximum(hi, q[k][i]), np.minimum(lo, q[k][i])
+        vol = vol * (hi - lo)
+    assert len(P) > 1000 and np.array_equal(_box_volume(P, R), vol)

@@ -408,11 +408,10 @@ def decide_left(subsets, assign, lo, step, lim, slack, max_cells, codes, threads
         L = float(lo) + float(step) * np.take_along_axis(subsets[s], assign[a], axis=1)
         P = _centres(L)
         st = status[b : b + DECIDE_SETS]
-        R = np.empty((len(P), 3, 3))
+        R = np.zeros((len(P), 3, 3))  # rows of sets that do not fit stay 0 (finite)
         work = np.zeros(len(P), dtype=np.int64)
         _decide_all(P, lim, float(slack), 1, int(max_cells), st, R, work, threads)
-        fit = st == 1
-        vols.append(_box_volume(P[fit], R[fit]))
+        vols.append(_box_volume(P, R)[st == 1])  # (cheaper than copying the fits out first)
     return left, status, np.concatenate(vols) if vols else np.zeros(0)
 
 
@@ -434,18 +433,25 @@ def _centres(L: np.ndarray) -> np.ndarray:
 
 
 def _box_volume(P: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """Volume of the box of each point set (n, 4, 3) along the rows of R (n, 3, 3), mm^3 (sums
-    and products in a fixed order: the same floats whatever the batch)."""
-    vol = np.ones(len(P))
+    """Volume of the box of each star's centres (n, 4, 3), placed by :func:`_centres` (A at the
+    origin, B on +x, C in the xy-plane), along the rows of R (n, 3, 3), mm^3.
+
+    The same floats as the general formula (per axis, each point's ``r0 x + r1 y + r2 z`` left
+    to right, the largest less the smallest, the three sides multiplied): the terms left out
+    are products with coordinates that are exactly 0 (A's, B's y and z, C's z), which change no
+    sum but the sign of a zero, and no side of a realisable star is 0.  Sums and products in a
+    fixed order: the same floats whatever the batch."""
+    u = P[:, 1, 0]
+    cx, cy = P[:, 2, 0], P[:, 2, 1]
+    dx, dy, dz = P[:, 3, 0], P[:, 3, 1], P[:, 3, 2]
+    vol = None
     for k in range(3):
         r0, r1, r2 = R[:, k, 0], R[:, k, 1], R[:, k, 2]
-        # point by point (a reduction over an axis of 4 is slow in numpy): the same floats
-        hi = lo = None
-        for i in range(P.shape[1]):
-            p = r0 * P[:, i, 0] + r1 * P[:, i, 1] + r2 * P[:, i, 2]
-            hi = p if hi is None else np.maximum(hi, p)
-            lo = p if lo is None else np.minimum(lo, p)
-        vol = vol * (hi - lo)
+        # point by point (a reduction over an axis of 4 is slow in numpy); A projects to 0
+        pb, pc, pd = r0 * u, r0 * cx + r1 * cy, r0 * dx + r1 * dy + r2 * dz
+        hi = np.maximum(np.maximum(np.maximum(pb, 0.0), pc), pd)
+        lo = np.minimum(np.minimum(np.minimum(pb, 0.0), pc), pd)
+        vol = hi - lo if vol is None else vol * (hi - lo)
     return vol
 
 
