@@ -138,52 +138,51 @@ def project(D, W, npair, a0, a1, a2):
 
 
 @_jit
+def _keeps(W, npair, c, s):
+    """psi with (cos, sin) = (c, s) keeps every pair within its limits (1e-9 mm of noise)."""
+    for i in range(npair):
+        x, y = W[_X, i], W[_Y, i]
+        if abs(x * c + y * s) > W[_L2, i] + 1e-9 or abs(y * c - x * s) > W[_L3, i] + 1e-9:
+            return False
+    return True
+
+
+@_jit
 def inner_xy(W, npair):
     """The exact inner problem on coordinates already projected (:func:`project`), with the
     limits ``W[_L2]``, ``W[_L3]``: (True, cos psi, sin psi) for the first candidate that
     solves it, else (False, 0, 0).  The candidates, in order: psi = 0, then for each pair
     psi = phi + alpha, phi + pi - alpha (when A > L2) and phi + beta, phi - beta (when
     A > L3); each must keep ``|x c + y s| <= L2 + 1e-9`` and ``|y c - x s| <= L3 + 1e-9``
-    for every pair."""
-    for j in range(-1, npair):
-        A = cf = sf = 0.0
-        if j >= 0:
-            xj, yj = W[_X, j], W[_Y, j]
-            A = math.sqrt(xj * xj + yj * yj)
-            if A <= 1e-300:
-                continue
-            cf, sf = xj / A, yj / A
-        for m in range(4):
-            if j < 0:
-                if m > 0:
-                    break
-                c, s = 1.0, 0.0
-            elif m < 2:
-                if not A > W[_L2, j]:
-                    continue
-                ca = W[_L2, j] / A
-                sa = math.sqrt(max(0.0, 1.0 - ca * ca))
-                # psi = phi + alpha and psi = phi + pi - alpha
-                if m == 0:
-                    c, s = cf * ca - sf * sa, sf * ca + cf * sa
-                else:
-                    c, s = -(cf * ca + sf * sa), -(sf * ca - cf * sa)
-            else:
-                if not A > W[_L3, j]:
-                    continue
-                sb = W[_L3, j] / A
-                cb = math.sqrt(max(0.0, 1.0 - sb * sb))
-                if m == 2:
-                    c, s = cf * cb - sf * sb, sf * cb + cf * sb
-                else:
-                    c, s = cf * cb + sf * sb, sf * cb - cf * sb
-            good = True
-            for i in range(npair):
-                x, y = W[_X, i], W[_Y, i]
-                if abs(x * c + y * s) > W[_L2, i] + 1e-9 or abs(y * c - x * s) > W[_L3, i] + 1e-9:
-                    good = False
-                    break
-            if good:
+    for every pair (:func:`_keeps`).  (Each pair's alpha and beta are worked out once for
+    its two candidates.)"""
+    if _keeps(W, npair, 1.0, 0.0):
+        return True, 1.0, 0.0
+    for j in range(npair):
+        xj, yj = W[_X, j], W[_Y, j]
+        A = math.sqrt(xj * xj + yj * yj)
+        if A <= 1e-300:
+            continue
+        cf, sf = xj / A, yj / A
+        if A > W[_L2, j]:
+            ca = W[_L2, j] / A
+            sa = math.sqrt(max(0.0, 1.0 - ca * ca))
+            # psi = phi + alpha and psi = phi + pi - alpha
+            c, s = cf * ca - sf * sa, sf * ca + cf * sa
+            if _keeps(W, npair, c, s):
+                return True, c, s
+            c, s = -(cf * ca + sf * sa), -(sf * ca - cf * sa)
+            if _keeps(W, npair, c, s):
+                return True, c, s
+        if A > W[_L3, j]:
+            sb = W[_L3, j] / A
+            cb = math.sqrt(max(0.0, 1.0 - sb * sb))
+            # psi = phi + beta and psi = phi - beta
+            c, s = cf * cb - sf * sb, sf * cb + cf * sb
+            if _keeps(W, npair, c, s):
+                return True, c, s
+            c, s = cf * cb + sf * sb, sf * cb - cf * sb
+            if _keeps(W, npair, c, s):
                 return True, c, s
     return False, 0.0, 0.0
 
