@@ -466,18 +466,17 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, mode, faces, cod
     # allocation, or a view of an array the threads share, costs atomic updates of numba's
     # runtime counters that the threads contend for
     P = np.zeros((4, 3))
-    L = np.empty(6)
-    ix = np.empty(6, dtype=np.int64)
     use_faces = mode == 0 and faces.shape[0] > 0
     cbuf = np.empty(8 * 6)  # caps_exclude's scratch
     lim_t = np.empty(3)
     lim_t[0], lim_t[1], lim_t[2] = lim[0], lim[1], lim[2]
+    Ls = np.empty(6)  # the subset's six lengths, worked out once for its 30 assignments
     for s in range(s0, s1):
+        for j in range(6):
+            Ls[j] = lo + step * subsets[s, j]
         for a in range(assign.shape[0]):
-            for j in range(6):
-                ix[j] = subsets[s, assign[a, j]]
-                L[j] = lo + step * ix[j]
-            u, U, v, V, w, W = L[0], L[1], L[2], L[3], L[4], L[5]
+            u, U, v = Ls[assign[a, 0]], Ls[assign[a, 1]], Ls[assign[a, 2]]
+            V, w, W = Ls[assign[a, 3]], Ls[assign[a, 4]], Ls[assign[a, 5]]
             cx = (u * u + w * w - v * v) / (2 * u)
             cy2 = w * w - cx * cx
             if cy2 <= 1e-9:
@@ -522,10 +521,10 @@ def _classify(subsets, assign, lo, step, lim, min_depth, slack, mode, faces, cod
                 continue
             # a face that does not fit (faces ACD, BCD, ABD, ABC: the first two catch most)
             if use_faces and (
-                faces[ix[4], ix[3], ix[1]]
-                or faces[ix[2], ix[5], ix[1]]
-                or faces[ix[0], ix[3], ix[5]]
-                or faces[ix[0], ix[2], ix[4]]
+                faces[subsets[s, assign[a, 4]], subsets[s, assign[a, 3]], subsets[s, assign[a, 1]]]
+                or faces[subsets[s, assign[a, 2]], subsets[s, assign[a, 5]], subsets[s, assign[a, 1]]]
+                or faces[subsets[s, assign[a, 0]], subsets[s, assign[a, 3]], subsets[s, assign[a, 5]]]
+                or faces[subsets[s, assign[a, 0]], subsets[s, assign[a, 2]], subsets[s, assign[a, 4]]]
             ):
                 codes[s, a] = 4  # proven not to fit: a face does not fit
                 continue
