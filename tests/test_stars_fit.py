@@ -460,11 +460,11 @@ def test_face_proof_rejects_only_what_the_plain_search_rejects(box):
     draws = np.sort(np.array([rng.choice(free, 6, replace=False) for _ in range(4000)]), axis=1)
     sub = (draws + np.arange(6) * (m - 1)).astype(np.int16)
     assign = canonical_assignments().astype(np.int64)
-    args = (sub, assign, float(pool[0]), float(spec.delta_mm), lim, spec.depth_mm, SLACK_MM, 0)
+    args = (sub, assign, float(pool[0]), float(spec.delta_mm), lim, spec.depth_mm)
     first = {}
     for name, table in (("off", E.NO_FACES), ("on", faces)):
         codes = np.empty((len(sub), 30), dtype=np.int8)
-        E._classify(*args, table, codes, 0, len(sub))
+        E._classify(*args, 0, table, codes, 0, len(sub))
         first[name] = codes
     by_face = (first["on"] == E.NO_FIT) & (first["off"] != E.NO_FIT)
     assert ((first["on"] == first["off"]) | by_face).all() and by_face.sum() > 200
@@ -475,7 +475,7 @@ def test_face_proof_rejects_only_what_the_plain_search_rejects(box):
     out = {}
     for name, table in (("off", None), ("on", faces)):
         codes, vols = np.empty((len(sub), 30), dtype=np.int8), np.empty((len(sub), 30))
-        E.classify(*args[:7], 100_000, 0, codes, vols, faces=table)
+        E.classify(*args, SLACK_MM, 100_000, 0, codes, vols, faces=table)
         out[name] = codes, vols
     assert np.array_equal(out["on"][0], out["off"][0])
     assert np.array_equal(out["on"][1], out["off"][1], equal_nan=True)

@@ -69,7 +69,7 @@ Before the search, the seven directions where the width of a tetrahedron has its
 most sets that fit are accepted there.  Callers deciding many sets may run quick no-fit proofs
 first (:func:`face_table`, :func:`caps_exclude`, :func:`cone_excludes`, all widened by the
 slack so they never reject a set the search would leave undecided; the enumeration runs the
-first two).
+face table only: behind it the other two caught too few stars to pay for themselves).
 
 The kernel is compiled with numba (serial, GIL released; :func:`decide_fit` spreads sets over
 threads, each set independent, so results do not depend on the thread count).

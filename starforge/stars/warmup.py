@@ -84,7 +84,7 @@ def _helper() -> None:
     sub = np.array([[0, 1, 2, 3, 4, 5]], dtype=np.int16)
     codes = np.empty((1, len(assign)), dtype=np.int8)
     faces = np.zeros((6, 6, 6), dtype=np.int8)  # no claims (the pool indices of sub are < 6)
-    _classify(sub, assign, 10.0, 1.0, np.array([5.0, 10.0, 40.0]), 1.0, 0.01, 0, faces, codes, 0, 1)
+    _classify(sub, assign, 10.0, 1.0, np.array([5.0, 10.0, 40.0]), 1.0, 0, faces, codes, 0, 1)
     _subsets_from(8, 1, np.array([0, 1, 2, 3, 4, 5], dtype=np.int64), 2)
     # two stars sharing a row: greedy, the packing's bookkeeping and the (1,2)-swap
     ptr = np.array([0, 2, 4, 6], dtype=np.int64)
