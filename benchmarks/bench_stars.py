@@ -4,7 +4,8 @@
 
 ``stars_first_run_vs_warm`` (issue 20): the finger default warm and on an empty numba cache
 (median of 3 fresh processes each, wall and CPU seconds, with the load average);
-``--start-only`` runs just that.
+``--start-only`` runs just that; ``--enumeration-only`` (with ``--skip-large``: no ``--delta
+1.0``) the enumeration alone, on every core and on one thread, CPU seconds and stage counts.
 
 Each case is one `starforge stars` command in a fresh process (start-up, enumeration, fit
 decision, selection, placement, verification, writing); wall-clock seconds and the peak
@@ -166,20 +167,28 @@ ENUM_PROBE = (
     "    w, c = time.perf_counter(), time.process_time(); r = enumerate_candidates(spec)\n"
     "    runs.append((time.perf_counter() - w, time.process_time() - c))\n"
     "st = {k: v for k, v in r.stats.items() if k != 'seconds'}\n"
-    "print(json.dumps({'wall_s': sorted(x[0] for x in runs), 'cpu_s_this_process': sorted(x[1] for x in runs), 'stats': st}))\n"
+    "from starforge.geometry.fit import face_table\n"
+    "from starforge.stars.enumerate import SLACK_MM, edge_pool\n"
+    "c = time.process_time(); T = face_table(edge_pool(spec), spec.grid_steps, spec.centre_limit_mm, SLACK_MM)\n"
+    "face = {'cpu_s': round(time.process_time() - c, 4), 'no_fit_triangles': int(T.sum()) // 6}\n"
+    "print(json.dumps({'wall_s': sorted(x[0] for x in runs), 'cpu_s_this_process': sorted(x[1] for x in runs),\n"
+    "                  'stats': st, 'face_table': face}))\n"
 )
 
 
 def _enumeration_speed(skip_large: bool) -> dict:
     """The enumeration alone, as ``stars`` runs it (in process for the finger case, median of 3
-    warm runs; on the engine's local cluster for ``--delta 1.0``, one run), with every stage
-    count (they must not change with any speed-up)."""
+    warm runs, on every core and on one thread; ``--delta 1.0`` one run), with every stage
+    count (they must not change with any speed-up) and what the face table costs (CPU s, built
+    once per spec and process)."""
     out = {}
-    for name, delta, reps in (("finger", 1.5, 3), ("finger_delta_1.0", 1.0, 1)):
+    cases = (("finger", 1.5, 3, None), ("finger_one_thread", 1.5, 3, "1"), ("finger_delta_1.0", 1.0, 1, None))
+    for name, delta, reps, threads in cases:
         if skip_large and delta == 1.0:
             continue
+        env = dict(os.environ, **({"NUMBA_NUM_THREADS": threads} if threads else {}))
         proc = subprocess.run([sys.executable, "-c", ENUM_PROBE, str(delta), str(reps)], check=True,
-                              capture_output=True, text=True)
+                              capture_output=True, text=True, env=env)
         r = json.loads(proc.stdout.strip().splitlines()[-1])
         r["wall_s_median"] = round(r["wall_s"][len(r["wall_s"]) // 2], 3)
         out[name] = r
@@ -194,8 +203,13 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--skip-large", action="store_true", help="skip the delta 1.0 case (about 2 minutes)")
     ap.add_argument("--start-only", action="store_true", help="only the issue-20 warm / first-run figures")
+    ap.add_argument("--enumeration-only", action="store_true", help="only the enumeration's figures")
     args = ap.parse_args()
     res: dict = {"cpu_count": os.cpu_count()}
+    if args.enumeration_only:
+        res["enumeration"] = _enumeration_speed(args.skip_large)
+        print(json.dumps(res, indent=2))
+        return
     if args.start_only:
         res["stars_first_run_vs_warm"] = first_run_vs_warm(max(3, args.repeat))
         print(json.dumps(res, indent=2))
