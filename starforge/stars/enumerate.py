@@ -35,6 +35,7 @@ certified upper bounds (a bound over fitting + undecided covers every star that 
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import time
@@ -88,6 +89,14 @@ class Candidates:
     def lengths(self) -> np.ndarray:
         """(m, 6) float, mm."""
         return self.pool_mm[self.index]
+
+
+@functools.lru_cache(maxsize=1)
+def _assignments() -> np.ndarray:
+    """The 30 labellings (:func:`~starforge.geometry.tetra.canonical_assignments`) as int64, the
+    kernels' type, worked out once per process (15 ms each time: 720 permutations in Python).
+    Shared: not to be written to (a read-only flag would change the kernels' compiled type)."""
+    return canonical_assignments().astype(np.int64)
 
 
 def edge_pool(spec: StarSpec) -> np.ndarray:
@@ -157,7 +166,7 @@ def _pilot(spec: StarSpec, samples: int, cpu: bool) -> tuple[float, float]:
     rng = np.random.default_rng(0)
     draws = np.sort(np.array([rng.choice(free, 6, replace=False) for _ in range(samples)]), axis=1)
     sub = (draws + np.arange(6) * (m - 1)).astype(np.int16)
-    assign = canonical_assignments().astype(np.int64)
+    assign = _assignments()
     limit = np.sort(np.array(spec.centre_limit_mm, dtype=float))
     mode = 0 if spec.box_method == "exact" else 1
     lo = float(edge_pool(spec)[0])
@@ -583,7 +592,7 @@ def enumerate_chunk(args: tuple) -> dict:
     step = float(spec.delta_mm)
     limit = np.sort(np.array(spec.centre_limit_mm, dtype=float))
     m = spec.grid_steps
-    assign = canonical_assignments().astype(np.int64)
+    assign = _assignments()
     mode = 0 if spec.box_method == "exact" else 1
     dt = index_dtype(len(pool))
     counts = np.zeros(8, dtype=np.int64)
