@@ -406,12 +406,14 @@ def test_face_table_claims_only_triangles_a_dense_search_cannot_fit():
     fits into the limit widened by the slack (and many the table leaves unmarked do fit, so
     the check is not empty); the table is symmetric in its three indices, and marks only
     triples of lengths a star's face can have."""
-    from starforge.geometry.fit import face_table
+    from starforge.geometry.fit import FACE_TABLE_MAX_POOL, face_table
 
     spec = _finger_spec()
     pool, m, limit = edge_pool(spec), spec.grid_steps, np.sort(spec.centre_limit_mm)
     T = face_table(pool, m, limit)
     assert T.shape == (len(pool),) * 3
+    # a pool past the table's size gets no claims (the enumeration then runs without them)
+    assert face_table(np.linspace(5, 48, FACE_TABLE_MAX_POOL + 1), m, limit).shape == (0, 0, 0)
     for perm in itertools.permutations(range(3)):
         assert np.array_equal(T, T.transpose(perm))
     i, j, k = np.nonzero(T)
