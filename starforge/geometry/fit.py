@@ -148,6 +148,21 @@ def _keeps(W, npair, c, s):
 
 
 @_jit
+def _pair_candidates(W, npair, cf, sf, co, si, sign):
+    """:func:`inner_xy`'s two candidates of one pair: psi = phi + t, then psi = phi - t
+    (``sign`` 1) or its opposite phi + pi - t (``sign`` -1), with (cos t, sin t) = (co, si)."""
+    c, s = cf * co - sf * si, sf * co + cf * si
+    if _keeps(W, npair, c, s):
+        return True, c, s
+    c, s = cf * co + sf * si, sf * co - cf * si
+    if sign < 0:
+        c, s = -c, -s
+    if _keeps(W, npair, c, s):
+        return True, c, s
+    return False, 0.0, 0.0
+
+
+@_jit
 def inner_xy(W, npair):
     """The exact inner problem on coordinates already projected (:func:`project`), with the
     limits ``W[_L2]``, ``W[_L3]``: (True, cos psi, sin psi) for the first candidate that
@@ -166,23 +181,15 @@ def inner_xy(W, npair):
         cf, sf = xj / A, yj / A
         if A > W[_L2, j]:
             ca = W[_L2, j] / A
-            sa = math.sqrt(max(0.0, 1.0 - ca * ca))
             # psi = phi + alpha and psi = phi + pi - alpha
-            c, s = cf * ca - sf * sa, sf * ca + cf * sa
-            if _keeps(W, npair, c, s):
-                return True, c, s
-            c, s = -(cf * ca + sf * sa), -(sf * ca - cf * sa)
-            if _keeps(W, npair, c, s):
+            ok, c, s = _pair_candidates(W, npair, cf, sf, ca, math.sqrt(max(0.0, 1.0 - ca * ca)), -1.0)
+            if ok:
                 return True, c, s
         if A > W[_L3, j]:
             sb = W[_L3, j] / A
-            cb = math.sqrt(max(0.0, 1.0 - sb * sb))
             # psi = phi + beta and psi = phi - beta
-            c, s = cf * cb - sf * sb, sf * cb + cf * sb
-            if _keeps(W, npair, c, s):
-                return True, c, s
-            c, s = cf * cb + sf * sb, sf * cb - cf * sb
-            if _keeps(W, npair, c, s):
+            ok, c, s = _pair_candidates(W, npair, cf, sf, math.sqrt(max(0.0, 1.0 - sb * sb)), sb, 1.0)
+            if ok:
                 return True, c, s
     return False, 0.0, 0.0
 
