@@ -130,6 +130,11 @@ def estimate(spec: StarSpec) -> dict:
 
 #: admissible 6-subsets drawn for the pilot timing of :func:`check_size`
 PILOT_SUBSETS = 256
+#: the pilot builds the face table (:func:`spec_faces`) for pools of up to this many admissible
+#: triples (about 0.1-0.5 CPU s; the finger pool at delta 0.5: 105,995); past it the table costs
+#: seconds (a 60 mm cube at delta 0.5: 1.0 M triples, 5.7 CPU s), and a spec refused by the size
+#: check would wait for it
+PILOT_FACE_TRIANGLES = 200_000
 
 
 #: pilot measurements of this process, by (spec, samples, cpu): a ``stars`` run checks its size
@@ -173,7 +178,10 @@ def _pilot(spec: StarSpec, samples: int, cpu: bool) -> tuple[float, float]:
     codes = np.empty((len(sub), len(assign)), dtype=np.int8)
     vols = np.empty((len(sub), len(assign)))
     args = (assign, lo, float(spec.delta_mm), limit, spec.depth_mm, SLACK_MM, 100_000, mode)
-    faces = spec_faces(spec)  # (kept for the enumeration: not part of the rate)
+    # the table is kept for the enumeration (not part of the rate); one of many triangles takes
+    # seconds, and the pilot runs before any refusal: then it measures without (a higher rate)
+    n_tri = math.comb(max(0, n - 2 * (m - 1)), 3)
+    faces = spec_faces(spec) if n_tri <= PILOT_FACE_TRIANGLES else NO_FACES
     classify(sub[:1], *args, codes[:1], vols[:1], faces=faces)  # compile or load the kernel, untimed
     if cpu:
         t = time.thread_time()
