@@ -381,8 +381,11 @@ def corners_exclude(D, npair, Cn, l1w):
             t023 = t023 or (m & 13) == 13
             t012 = t012 or (m & 7) == 7
             t123 = t123 or (m & 14) == 14
-    # the square is the union of triangles (0, 1, 3) and (0, 3, 2), and of (0, 1, 2) and (1, 2, 3)
-    return (t013 and t023) or (t012 and t123)
+        # the square is the union of triangles (0, 1, 3) and (0, 3, 2), and of (0, 1, 2) and
+        # (1, 2, 3): once one cut is covered, the other pairs cannot change the answer
+        if (t013 and t023) or (t012 and t123):
+            return True
+    return False
 
 
 #: stack entries of the branch and bound (12 root cells + 3 per level below, deep enough for
