@@ -18,7 +18,6 @@ Everything is deterministic: the same spec gives the same family.
 
 from __future__ import annotations
 
-import heapq
 import itertools
 import time
 from dataclasses import dataclass, field
@@ -131,61 +130,123 @@ def pool_face_bound(pool_mm: np.ndarray, m: int, diagonal_mm: float) -> int:
 def local_search(
     chosen: np.ndarray, order: np.ndarray, ptr: np.ndarray, rows: np.ndarray, n_rows: int, rounds: int = 200
 ) -> tuple[np.ndarray, int]:
-    """(1,2)-swaps until none is left (or ``rounds``); returns the family and the swaps made."""
+    """(1,2)-swaps until none is left (or ``rounds``); returns the family and the swaps made.
+
+    Each round looks at the family as it stood when the round began: it first inserts the stars
+    that were free then and still are, most compact first; then, per family star t (by id), it
+    takes the outside stars whose held rows all belonged to t, most compact first, keeps those
+    that still conflict with nothing but t, and the first two of them that are disjoint replace
+    t.  Compiled (:func:`_local_search`)."""
+    fam, swaps = _local_search(
+        np.asarray(chosen, dtype=np.int64), np.asarray(order, dtype=np.int64), np.asarray(ptr, dtype=np.int64),
+        np.asarray(rows, dtype=np.int64), int(n_rows), int(rounds),
+    )
+    return fam.astype(np.intp), int(swaps)
+
+
+@numba.njit(cache=True, nogil=True)
+def _local_search(chosen, order, ptr, rows, n_rows, rounds):
     n = len(ptr) - 1
-    owner = np.full(n_rows, -1, dtype=np.intp)
-    for s in chosen.tolist():
-        owner[rows[ptr[s] : ptr[s + 1]]] = s
-    in_fam = np.zeros(n, dtype=bool)
-    in_fam[chosen] = True
-    rank = np.empty(n, dtype=np.intp)
-    rank[order] = np.arange(n)
-    star_of_entry = np.repeat(np.arange(n), np.diff(ptr))
+    owner = np.full(n_rows, -1, dtype=np.int64)
+    in_fam = np.zeros(n, dtype=np.bool_)
+    for s in chosen:
+        in_fam[s] = True
+        for j in range(ptr[s], ptr[s + 1]):
+            owner[rows[j]] = s
+    hi = np.empty(n, dtype=np.int64)
+    free = np.zeros(n, dtype=np.bool_)
+    one = np.zeros(n, dtype=np.bool_)
+    lst = np.empty(n, dtype=np.int64)
+    ok = np.empty(n, dtype=np.int64)
+    mark = np.zeros(n_rows, dtype=np.bool_)
+    big = np.int64(2**62)
     swaps = 0
     for _ in range(rounds):
-        own = owner[rows]
-        # distinct owners per candidate: min and max over its entries (-1 = free)
-        big = np.where(own < 0, np.iinfo(np.intp).max, own)
-        lo = np.full(n, np.iinfo(np.intp).max, dtype=np.intp)
-        hi = np.full(n, -1, dtype=np.intp)
-        np.minimum.at(lo, star_of_entry, big)
-        np.maximum.at(hi, star_of_entry, own)
-        free = (hi < 0) & ~in_fam
-        one = (lo == hi) & (hi >= 0) & ~in_fam  # conflicts with exactly one family star
+        # per candidate, the family stars holding its rows: none (free) or exactly one (hi)
+        for c in range(n):
+            lo = big
+            h = -1
+            for j in range(ptr[c], ptr[c + 1]):
+                o = owner[rows[j]]
+                if 0 <= o < lo:
+                    lo = o
+                if o > h:
+                    h = o
+            hi[c] = h
+            free[c] = h < 0 and not in_fam[c]
+            one[c] = lo == h and not in_fam[c]
         progress = False
         # insert free stars first (most compact first)
-        for s in sorted(np.flatnonzero(free).tolist(), key=lambda i: rank[i]):
-            r = rows[ptr[s] : ptr[s + 1]]
-            if (owner[r] < 0).all():
-                owner[r] = s
-                in_fam[s] = True
-                progress = True
-        cand = np.flatnonzero(one)
-        groups: dict[int, list[int]] = {}
-        for s, t in zip(cand.tolist(), hi[cand].tolist(), strict=True):
-            groups.setdefault(t, []).append(s)
-        for t in sorted(groups):
-            if not in_fam[t]:
-                continue
-            members = sorted(groups[t], key=lambda i: rank[i])
-            tr = rows[ptr[t] : ptr[t + 1]]
-            ok = [s for s in members if np.isin(owner[rows[ptr[s] : ptr[s + 1]]], (-1, t)).all()]
-            done = False
-            for a in range(len(ok)):
-                ra = rows[ptr[ok[a]] : ptr[ok[a] + 1]]
-                for b in range(a + 1, len(ok)):
-                    rb = rows[ptr[ok[b]] : ptr[ok[b] + 1]]
-                    if not np.intersect1d(ra, rb).size:
-                        owner[tr] = -1
-                        in_fam[t] = False
-                        owner[ra] = ok[a]
-                        owner[rb] = ok[b]
-                        in_fam[ok[a]] = in_fam[ok[b]] = True
-                        swaps += 1
-                        progress = done = True
+        for r in range(n):
+            c = order[r]
+            if free[c]:
+                clear = True
+                for j in range(ptr[c], ptr[c + 1]):
+                    if owner[rows[j]] >= 0:
+                        clear = False
                         break
-                if done:
-                    break
+                if clear:
+                    for j in range(ptr[c], ptr[c + 1]):
+                        owner[rows[j]] = c
+                    in_fam[c] = True
+                    progress = True
+        # the stars held by one family star t, grouped by t (ascending), most compact first
+        k = 0
+        for r in range(n):
+            c = order[r]
+            if one[c]:
+                lst[k] = c
+                k += 1
+        keys = hi[lst[:k]]
+        srt = np.argsort(keys, kind="mergesort")
+        i = 0
+        while i < k:
+            t = keys[srt[i]]
+            e = i
+            while e < k and keys[srt[e]] == t:
+                e += 1
+            if in_fam[t]:
+                q = 0
+                for g in range(i, e):
+                    s = lst[srt[g]]
+                    good = True
+                    for j in range(ptr[s], ptr[s + 1]):
+                        o = owner[rows[j]]
+                        if o != -1 and o != t:
+                            good = False
+                            break
+                    if good:
+                        ok[q] = s
+                        q += 1
+                done = False
+                for a in range(q):
+                    sa = ok[a]
+                    for j in range(ptr[sa], ptr[sa + 1]):
+                        mark[rows[j]] = True
+                    for b in range(a + 1, q):
+                        sb = ok[b]
+                        apart = True
+                        for j in range(ptr[sb], ptr[sb + 1]):
+                            if mark[rows[j]]:
+                                apart = False
+                                break
+                        if apart:
+                            for j in range(ptr[t], ptr[t + 1]):
+                                owner[rows[j]] = -1
+                            in_fam[t] = False
+                            for j in range(ptr[sa], ptr[sa + 1]):
+                                owner[rows[j]] = sa
+                            for j in range(ptr[sb], ptr[sb + 1]):
+                                owner[rows[j]] = sb
+                            in_fam[sa] = in_fam[sb] = True
+                            swaps += 1
+                            progress = done = True
+                            break
+                    for j in range(ptr[sa], ptr[sa + 1]):
+                        mark[rows[j]] = False
+                    if done:
+                        break
+            i = e
         if not progress:
             break
     return np.flatnonzero(in_fam), swaps
@@ -203,139 +264,77 @@ ILS_RESTART_ITERATIONS = 1000
 
 
 class _Packing:
-    """Incremental set-packing state for :func:`ils`.
+    """Incremental set-packing state for :func:`ils`, as arrays its compiled kernels share.
 
     ``owner[r]`` is the family star holding row r (-1 free).  Per candidate c, over its rows held
     by family stars: ``cnt`` (how many), ``s1`` (sum of owner ids) and ``s2`` (sum of squares).
     c is free iff ``cnt == 0``; its held rows all belong to ONE star t iff
     ``cnt * s2 == s1**2`` (zero variance), and then ``t = s1 // cnt``.  Inserting or removing a
     star only updates the candidates sharing a row with it (row -> candidates index, CSC).
+    ``arrays`` is the tuple every kernel takes (:func:`_set`, :func:`_fill`, :func:`_descend`,
+    :func:`_ils_loop`).
     """
 
     def __init__(self, chosen, ptr, rows, n_rows, rank):
-        import scipy.sparse as sp
-
+        ptr = np.asarray(ptr, dtype=np.int64)
+        rows = np.asarray(rows, dtype=np.int64)
+        rank = np.asarray(rank, dtype=np.int64)
         n = len(ptr) - 1
-        self.n, self.ptr, self.rows, self.rank = n, ptr, rows, rank
-        # row -> candidates (CSC of the incidence), candidates ascending within a row
-        inc = sp.csr_matrix((np.ones(len(rows), dtype=np.int8), rows, ptr), shape=(n, n_rows)).tocsc()
-        self.cands, self.rptr = inc.indices.astype(np.int64), inc.indptr.astype(np.int64)
-        self.ptr64, self.rows64 = np.asarray(ptr, dtype=np.int64), np.asarray(rows, dtype=np.int64)
-        # touched() of one star is at most (its rows) x (the most candidates on a row) entries
-        per_row = np.diff(self.rptr)
-        most = int(np.diff(ptr).max()) * int(per_row.max()) if n and n_rows else 0
-        self._buf = np.empty(max(most, 1), dtype=np.int64)
-        self._lst = np.empty(max(most, 1), dtype=np.int64)
-        self._seen = np.zeros(n, dtype=np.bool_)
-        self.rank64 = np.asarray(rank, dtype=np.int64)
-        # rows per candidate padded with the sentinel row n_rows (never owned), for batch checks
-        counts = np.diff(ptr)
-        width = int(counts.max()) if n else 0
-        dtype = np.int32 if n_rows < 2**31 - 1 else np.int64
-        if n and (counts == width).all():
-            self.padded = rows.reshape(n, width).astype(dtype)
-        else:
-            star_of_entry = np.repeat(np.arange(n, dtype=np.int64), counts)
-            self.padded = np.full((n, width), n_rows, dtype=dtype)
-            self.padded[star_of_entry, np.arange(len(rows)) - np.repeat(ptr[:-1], counts)] = rows
-        self.owner = np.full(n_rows + 1, -1, dtype=np.int64)
-        self.in_fam = np.zeros(n, dtype=bool)
+        self.n, self.n_rows = n, int(n_rows)
+        rptr, cands = _csc(ptr, rows, self.n_rows)  # row -> candidates, ascending within a row
+        # the candidates sharing rows with one star: at most (its rows) x (the most on a row)
+        most = int(np.diff(ptr).max()) * int(np.diff(rptr).max()) if n and n_rows else 0
+        order = np.empty(n, dtype=np.int64)
+        order[rank] = np.arange(n)
         # cnt, s1, s2, tight side by side: an update touches all four of a candidate (one cache line)
-        self.state = np.zeros((n, 4), dtype=np.int64)
-        self.state[:, 3] = -1
-        self.cnt, self.s1, self.s2 = self.state[:, 0], self.state[:, 1], self.state[:, 2]
-        self.tight = self.state[:, 3]  # t if 1-tight with family star t, else -1
-        self.size = 0
-        self.log: list[tuple[int, int]] | None = None  # (+1 insert / -1 remove, star)
-        for s in np.asarray(chosen).tolist():
-            self.insert(s)
-
-    def rows_of(self, s: int) -> np.ndarray:
-        return self.rows[self.ptr[s] : self.ptr[s + 1]]
-
-    def touched(self, s: int) -> np.ndarray:
-        """Candidates sharing a row with s, once per shared row."""
-        k = _gather(s, self.ptr64, self.rows64, self.rptr, self.cands, self._buf)
-        return self._buf[:k].copy()
-
-    def _update(self, s: int, sign: int) -> np.ndarray:
-        k = _update_kernel(
-            s, sign, self.ptr64, self.rows64, self.rptr, self.cands,
-            self.state, self.in_fam, self._buf,
+        state = np.zeros((n, 4), dtype=np.int64)
+        state[:, 3] = -1
+        self.state = state
+        self.cnt, self.s1, self.s2 = state[:, 0], state[:, 1], state[:, 2]
+        self.tight = state[:, 3]  # t if 1-tight with family star t, else -1
+        self.in_fam = np.zeros(n, dtype=np.bool_)
+        self.owner = np.full(self.n_rows, -1, dtype=np.int64)
+        self.arrays = (
+            ptr, rows, rptr, cands, rank, order, state, self.in_fam, self.owner,
+            np.empty(max(most, 1), dtype=np.int64),  # buf: touched candidates
+            np.empty(max(most, 1), dtype=np.int64),  # lst: a star's free or 1-tight neighbours
+            np.zeros(n, dtype=np.bool_),  # seen (all False between calls)
+            np.empty(n + 1, dtype=np.int64),  # heap of queued ranks
+            np.zeros(n, dtype=np.bool_),  # queued
         )
-        return self._buf[:k].copy()
+        _insert_all(np.asarray(chosen, dtype=np.int64), self.arrays)
 
-    def insert(self, s: int) -> np.ndarray:
-        self.owner[self.rows_of(s)] = s
-        self.in_fam[s] = True
-        self.size += 1
-        if self.log is not None:
-            self.log.append((1, s))
-        return self._update(s, 1)
+    @property
+    def size(self) -> int:
+        return int(self.in_fam.sum())
 
-    def remove(self, s: int) -> np.ndarray:
-        self.owner[self.rows_of(s)] = -1
-        self.in_fam[s] = False
-        self.size -= 1
-        if self.log is not None:
-            self.log.append((-1, s))
-        return self._update(s, -1)
+    def insert(self, s: int) -> None:
+        _set(int(s), 1, self.arrays)
 
-    def undo(self) -> None:
-        log, self.log = self.log, None
-        for op, s in reversed(log):
-            if op > 0:
-                self.remove(s)
-            else:
-                self.insert(s)
-        self.log = []
+    def remove(self, s: int) -> None:
+        _set(int(s), -1, self.arrays)
 
-    def fill(self, aff: np.ndarray) -> list[np.ndarray]:
-        """Insert the free candidates among ``aff``, most compact first; returns touched sets."""
-        free = np.unique(aff[(self.cnt[aff] == 0) & ~self.in_fam[aff]])
-        out = []
-        if len(free):
-            for c in free[np.argsort(self.rank[free], kind="stable")].tolist():
-                if self.cnt[c] == 0 and not self.in_fam[c]:
-                    out.append(self.insert(c))
-        return out
+    def undo(self, ops: np.ndarray) -> None:
+        """Revert ``ops`` (s + 1 for an insertion of s, -(s + 1) for a removal), last first."""
+        _undo(np.asarray(ops, dtype=np.int64), 0, len(ops), self.arrays)
 
-    def tight_owners(self, aff: np.ndarray) -> np.ndarray:
-        """Family stars t that some candidate in ``aff`` conflicts with alone (1-tight)."""
-        t = self.tight[aff]
-        return np.unique(t[t >= 0])
 
-    def two_swap(self, t: int):
-        """Best (1,2)-swap for family star t: two disjoint candidates whose only conflict is t,
-        most compact first; None if none."""
-        a, b = _two_swap(
-            t, self.ptr64, self.rows64, self.rptr, self.cands, self.state, self.rank64, self._seen, self._buf,
-            self._lst,
-        )
-        return None if a < 0 else (int(a), int(b))
-
-    def descend(self, queue: set[int]) -> None:
-        """(1,2)-swaps (and free insertions) until none is left for the queued stars, the most
-        compact queued star first (a heap of ranks: ranks are distinct, so the order is the one
-        of repeatedly taking the queue's minimum)."""
-        rank = self.rank
-        heap = [(int(rank[t]), t) for t in queue]
-        heapq.heapify(heap)
-        while heap:
-            _, t = heapq.heappop(heap)
-            queue.discard(t)
-            if not self.in_fam[t]:
-                continue
-            pair = self.two_swap(t)
-            if pair is None:
-                continue
-            touched = [self.remove(t), self.insert(pair[0]), self.insert(pair[1])]
-            touched += self.fill(touched[0])
-            for aff in touched:
-                for x in self.tight_owners(aff).tolist():
-                    if x not in queue:
-                        queue.add(x)
-                        heapq.heappush(heap, (int(rank[x]), x))
+@numba.njit(cache=True, nogil=True)
+def _csc(ptr, rows, n_rows):
+    """The row -> candidates index of the incidence (candidates ascending within a row)."""
+    rptr = np.zeros(n_rows + 1, dtype=np.int64)
+    for j in range(len(rows)):
+        rptr[rows[j] + 1] += 1
+    for r in range(n_rows):
+        rptr[r + 1] += rptr[r]
+    at = rptr[:-1].copy()
+    cands = np.empty(len(rows), dtype=np.int64)
+    for c in range(len(ptr) - 1):
+        for j in range(ptr[c], ptr[c + 1]):
+            r = rows[j]
+            cands[at[r]] = c
+            at[r] += 1
+    return rptr, cands
 
 
 @numba.njit(cache=True, nogil=True)
@@ -390,14 +389,7 @@ def _two_swap(t, ptr, rows, rptr, cands, state, rank, seen, buf, lst):
             m += 1
     for i in range(m):
         seen[lst[i]] = False
-    # by rank (a permutation: no ties), insertion sort: these lists are short
-    for i in range(1, m):
-        c = lst[i]
-        j = i
-        while j > 0 and rank[lst[j - 1]] > rank[c]:
-            lst[j] = lst[j - 1]
-            j -= 1
-        lst[j] = c
+    _sort_by_rank(lst, m, rank)
     for i in range(m - 1):
         a = lst[i]
         for j in range(i + 1, m):
@@ -415,6 +407,270 @@ def _two_swap(t, ptr, rows, rptr, cands, state, rank, seen, buf, lst):
     return -1, -1
 
 
+@numba.njit(cache=True, nogil=True)
+def _sort_by_rank(lst, m, rank):
+    """Sort ``lst[:m]`` by rank (a permutation: no ties).  Insertion sort: these lists are short."""
+    if m > 64:
+        lst[:m] = lst[:m][np.argsort(rank[lst[:m]])]
+        return
+    for i in range(1, m):
+        c = lst[i]
+        j = i
+        while j > 0 and rank[lst[j - 1]] > rank[c]:
+            lst[j] = lst[j - 1]
+            j -= 1
+        lst[j] = c
+
+
+@numba.njit(cache=True, nogil=True)
+def _set(s, sign, P):
+    """Star s enters (sign +1) or leaves (-1) the family: its rows' owner, membership, and the
+    tallies of the candidates sharing its rows (:func:`_update_kernel`)."""
+    ptr, rows, rptr, cands, rank, order, state, in_fam, owner, buf, lst, seen, heap, queued = P
+    v = s if sign > 0 else -1
+    for j in range(ptr[s], ptr[s + 1]):
+        owner[rows[j]] = v
+    in_fam[s] = sign > 0
+    _update_kernel(s, sign, ptr, rows, rptr, cands, state, in_fam, buf)
+
+
+@numba.njit(cache=True, nogil=True)
+def _insert_all(chosen, P):
+    for s in chosen:
+        _set(s, 1, P)
+
+
+@numba.njit(cache=True, nogil=True)
+def _log(ops, k, v):
+    """``ops[k] = v``, growing ``ops`` when full; returns the (possibly new) array."""
+    if k == len(ops):
+        grown = np.empty(2 * len(ops), dtype=np.int64)
+        grown[:k] = ops
+        ops = grown
+    ops[k] = v
+    return ops
+
+
+@numba.njit(cache=True, nogil=True)
+def _undo(ops, k0, k1, P):
+    """Revert ``ops[k0:k1]`` (s + 1: s was inserted; -(s + 1): removed), last first."""
+    for i in range(k1 - 1, k0 - 1, -1):
+        v = ops[i]
+        if v > 0:
+            _set(v - 1, -1, P)
+        else:
+            _set(-v - 1, 1, P)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill(t, P, ops, k):
+    """Insert the candidates sharing a row with star t that are free (nothing of the family
+    holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
+    insertions happen here, so a candidate free now was free when the fill began.)
+    Returns (ops, k)."""
+    ptr, rows, rptr, cands, rank, order, state, in_fam, owner, buf, lst, seen, heap, queued = P
+    m = 0
+    for j in range(ptr[t], ptr[t + 1]):
+        r = rows[j]
+        for q in range(rptr[r], rptr[r + 1]):
+            c = cands[q]
+            if state[c, 0] == 0 and not in_fam[c] and not seen[c]:
+                seen[c] = True
+                lst[m] = c
+                m += 1
+    for i in range(m):
+        seen[lst[i]] = False
+    _sort_by_rank(lst, m, rank)
+    for i in range(m):
+        c = lst[i]
+        if state[c, 0] == 0 and not in_fam[c]:
+            _set(c, 1, P)
+            ops = _log(ops, k, c + 1)
+            k += 1
+    return ops, k
+
+
+@numba.njit(cache=True, nogil=True)
+def _push(heap, hn, v):
+    heap[hn] = v
+    i = hn
+    while i > 0:
+        p = (i - 1) >> 1
+        if heap[p] <= heap[i]:
+            break
+        heap[p], heap[i] = heap[i], heap[p]
+        i = p
+    return hn + 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _pop(heap, hn):
+    top = heap[0]
+    hn -= 1
+    heap[0] = heap[hn]
+    i = 0
+    while True:
+        a = 2 * i + 1
+        if a >= hn:
+            break
+        if a + 1 < hn and heap[a + 1] < heap[a]:
+            a += 1
+        if heap[i] <= heap[a]:
+            break
+        heap[a], heap[i] = heap[i], heap[a]
+        i = a
+    return top, hn
+
+
+@numba.njit(cache=True, nogil=True)
+def _enqueue(P, ops, k0, k1, hn):
+    """Queue (once) every family star that a candidate sharing rows with the stars of
+    ``ops[k0:k1]`` now conflicts with alone (1-tight); returns the heap's size."""
+    ptr, rows, rptr, cands, rank, order, state, in_fam, owner, buf, lst, seen, heap, queued = P
+    for i in range(k0, k1):
+        s = abs(ops[i]) - 1
+        for j in range(ptr[s], ptr[s + 1]):
+            r = rows[j]
+            for q in range(rptr[r], rptr[r + 1]):
+                x = state[cands[q], 3]
+                if x >= 0 and not queued[x]:
+                    queued[x] = True
+                    hn = _push(heap, hn, rank[x])
+    return hn
+
+
+@numba.njit(cache=True, nogil=True)
+def _descend(P, hn, ops, k):
+    """(1,2)-swaps (and free insertions) until none is left for the queued stars, the most
+    compact queued star first (a heap of ranks: ranks are distinct, so the order is the one of
+    repeatedly taking the queue's minimum).  Logs the changes in ``ops`` from ``k`` on;
+    returns (ops, k)."""
+    ptr, rows, rptr, cands, rank, order, state, in_fam, owner, buf, lst, seen, heap, queued = P
+    while hn > 0:
+        r, hn = _pop(heap, hn)
+        t = order[r]
+        queued[t] = False
+        if not in_fam[t]:
+            continue
+        a, b = _two_swap(t, ptr, rows, rptr, cands, state, rank, seen, buf, lst)
+        if a < 0:
+            continue
+        k0 = k
+        _set(t, -1, P)
+        ops = _log(ops, k, -(t + 1))
+        _set(a, 1, P)
+        ops = _log(ops, k + 1, a + 1)
+        _set(b, 1, P)
+        ops = _log(ops, k + 2, b + 1)
+        k += 3
+        ops, k = _fill(t, P, ops, k)
+        hn = _enqueue(P, ops, k0, k, hn)
+    return ops, k
+
+
+@numba.njit(cache=True, nogil=True)
+def _ils_start(P):
+    """The ILS's start: insert every free candidate (most compact first), then (1,2)-swaps
+    around every family star; returns the family's size."""
+    ptr, rows, rptr, cands, rank, order, state, in_fam, owner, buf, lst, seen, heap, queued = P
+    ops = np.empty(64, dtype=np.int64)
+    for r in range(len(order)):
+        c = order[r]
+        if state[c, 0] == 0 and not in_fam[c]:
+            _set(c, 1, P)
+    hn = 0
+    for t in range(len(in_fam)):
+        if in_fam[t]:
+            queued[t] = True
+            hn = _push(heap, hn, rank[t])
+    _descend(P, hn, ops, 0)
+    return np.count_nonzero(in_fam)
+
+
+#: draws per batch of the ILS perturbation
+ILS_BATCH = 1024
+
+
+@numba.njit(cache=True, nogil=True)
+def _ils_loop(P, batches, ctr, iterations, bound):
+    """:func:`ils`'s iterations, resumable: ``ctr`` = (iterations begun, batches drawn in the
+    current iteration's search, searching?, family size, done?).  Each iteration's perturbation
+    takes the first draw, batch after batch (at most 64), of a candidate outside the family
+    whose held rows belong to one or two family stars.  Returns when done (``ctr[4] = 1``) or
+    when it needs a batch past ``batches`` (``ctr[4] = 0``: call again with the next ones)."""
+    ptr, rows, rptr, cands, rank, order, state, in_fam, owner, buf, lst, seen, heap, queued = P
+    n = len(in_fam)
+    it, tries, searching, size = ctr[0], ctr[1], ctr[2], ctr[3]
+    ops = np.empty(256, dtype=np.int64)
+    pos = 0
+    while True:
+        if not searching:
+            if n == 0 or it >= iterations or (bound >= 0 and size >= bound):
+                ctr[4] = 1
+                break
+            it += 1
+            searching = 1
+            tries = 0
+        s = h1 = h2 = -1
+        while tries < 64 and s < 0:
+            if pos == len(batches):
+                ctr[0], ctr[1], ctr[2], ctr[3], ctr[4] = it, tries, searching, size, 0
+                return
+            batch = batches[pos]
+            pos += 1
+            tries += 1
+            for i in range(len(batch)):
+                c = batch[i]
+                if in_fam[c]:
+                    continue
+                o1 = o2 = -1
+                many = False
+                for j in range(ptr[c], ptr[c + 1]):
+                    o = owner[rows[j]]
+                    if o < 0 or o == o1 or o == o2:
+                        continue
+                    if o1 < 0:
+                        o1 = o
+                    elif o2 < 0:
+                        o2 = o
+                    else:
+                        many = True
+                        break
+                if o1 >= 0 and not many:
+                    s = c
+                    h1, h2 = (o1, o2) if o2 < 0 or o1 < o2 else (o2, o1)
+                    break
+        searching = 0
+        if s < 0:
+            ctr[4] = 1
+            break
+        # force s in (removing the one or two stars holding its rows, lowest id first), refill
+        # around them, then (1,2)-swaps around every change
+        _set(h1, -1, P)
+        ops = _log(ops, 0, -(h1 + 1))
+        k = 1
+        if h2 >= 0:
+            _set(h2, -1, P)
+            ops = _log(ops, 1, -(h2 + 1))
+            k = 2
+        _set(s, 1, P)
+        ops = _log(ops, k, s + 1)
+        k += 1
+        ops, k = _fill(h1, P, ops, k)
+        if h2 >= 0:
+            ops, k = _fill(h2, P, ops, k)
+        hn = _enqueue(P, ops, 0, k, 0)
+        ops, k = _descend(P, hn, ops, k)
+        new = size
+        for i in range(k):
+            new += 1 if ops[i] > 0 else -1
+        if new < size:  # smaller: revert (plateau moves are kept: they walk)
+            _undo(ops, 0, k, P)
+        else:
+            size = new
+    ctr[0], ctr[1], ctr[2], ctr[3] = it, tries, searching, size
+
+
 def ils(
     chosen: np.ndarray,
     order: np.ndarray,
@@ -430,55 +686,28 @@ def ils(
     Each iteration force-inserts a random candidate whose held rows belong to one or two family
     stars (removing those), refills free candidates, runs (1,2)-swaps around the change, and
     keeps the result if the family is no smaller (plateau moves walk), else reverts it.
-    Deterministic: the only randomness is ``np.random.default_rng(seed)`` and the budget is an
-    iteration count.  Stops early at ``bound``.  Returns (family, iterations used).
+    Deterministic: the only randomness is ``np.random.default_rng(seed)``, drawn in batches of
+    :data:`ILS_BATCH` (``integers(0, n)``), and the budget is an iteration count.  Stops early
+    at ``bound``.  Returns (family, iterations used).  The loop is compiled
+    (:func:`_ils_loop`); the batches are drawn here ahead of it, in the same stream.
     """
     n = len(ptr) - 1
     rank = np.empty(n, dtype=np.int64)
-    rank[order] = np.arange(n)
+    rank[np.asarray(order)] = np.arange(n)
     P = _Packing(chosen, ptr, rows, n_rows, rank)
     # start from a local optimum w.r.t. free insertions and (1,2)-swaps
-    P.fill(np.arange(n))
-    P.descend(set(np.flatnonzero(P.in_fam).tolist()))
+    size = _ils_start(P.arrays)
     rng = np.random.default_rng(seed)
-    owner = P.owner
-    it = 0
-    while n and it < iterations and (bound is None or P.size < bound):
-        it += 1
-        # perturbation: a random outside candidate held by one or two family stars
-        s = -1
-        for _ in range(64):
-            batch = rng.integers(0, n, size=1024)
-            # the first such draw of the batch; its first 64 draws nearly always hold one, so
-            # they are looked at first (the same draw either way)
-            for part in (batch[:64], batch[64:]):
-                own = np.sort(owner[P.padded[part]], axis=1)  # -1 = free row or pad
-                new = np.concatenate([own[:, :1] >= 0, (own[:, 1:] != own[:, :-1]) & (own[:, 1:] >= 0)], axis=1)
-                distinct = new.sum(axis=1)  # family stars holding the candidate's rows
-                ok = np.flatnonzero((distinct >= 1) & (distinct <= 2) & ~P.in_fam[part])
-                if len(ok):
-                    s = int(part[ok[0]])
-                    held = np.unique(own[ok[0]])
-                    held = held[held >= 0]
-                    break
-            if s >= 0:
-                break
-        if s < 0:
+    ctr = np.array([0, 0, 0, size, 0], dtype=np.int64)
+    limit = -1 if bound is None else int(bound)
+    while n:
+        # at least one batch per iteration: draw for the iterations left (some may go unused;
+        # integers(size=(k, B)) is the same stream as k calls of size B)
+        k = max(1, min(256, int(iterations) - int(ctr[0]) + int(ctr[2])))
+        _ils_loop(P.arrays, rng.integers(0, n, size=(k, ILS_BATCH)), ctr, int(iterations), limit)
+        if ctr[4]:
             break
-        before = P.size
-        P.log = []
-        touched = [P.remove(t) for t in held.tolist()]
-        touched.append(P.insert(s))
-        for aff in touched[: len(held)]:
-            touched += P.fill(aff)
-        queue: set[int] = set()
-        for aff in touched:
-            queue.update(P.tight_owners(aff).tolist())
-        P.descend(queue)
-        if P.size < before:
-            P.undo()
-        P.log = None
-    return np.flatnonzero(P.in_fam), it
+    return np.flatnonzero(P.in_fam), int(ctr[0])
 
 
 def _restart_task(args: tuple) -> tuple[np.ndarray, int]:
