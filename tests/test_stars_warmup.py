@@ -20,7 +20,7 @@ HELPER = (
 AFTER = """
 import json
 import numpy as np
-from starforge.stars import enumerate as E, select as S
+from starforge.stars import enumerate as E, rules as R, select as S
 from starforge.stars.rules import window_rows
 from starforge.stars.spec import StarSpec
 
@@ -31,9 +31,11 @@ star_of, row, n_rows = window_rows(idx, "face", 1, spec.pool_size)
 ptr, rows = S._csr(star_of, row, len(idx))
 order = np.arange(len(idx))
 g = S.greedy(order, ptr, rows, n_rows)
+g, _ = S.local_search(g, order, ptr, rows, n_rows)
 S.ils(g, order, ptr, rows, n_rows, iterations=20)
 out = {}
-for f in (E._classify, E._subsets_from, S._greedy, S._update_kernel, S._two_swap):
+for f in (E._classify, E._subsets_from, R._window_codes, R._dense_rows, S._greedy, S._local_search, S._csc,
+          S._insert_all, S._ils_start, S._ils_loop):
     out[f.py_func.__name__] = [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]
 print(json.dumps(out))
 """

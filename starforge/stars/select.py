@@ -37,22 +37,33 @@ class Selection:
 
 
 def _csr(star_of: np.ndarray, row: np.ndarray, n: int):
-    order = np.argsort(star_of, kind="stable")
+    """(ptr, rows): each star's rows, stars in order, in their given order within a star."""
+    star_of = np.asarray(star_of)
     ptr = np.concatenate([[0], np.cumsum(np.bincount(star_of, minlength=n))])
-    return ptr, row[order]
+    if len(star_of) < 2 or (star_of[1:] >= star_of[:-1]).all():  # already by star (window_rows)
+        return ptr, np.asarray(row)
+    return ptr, row[np.argsort(star_of, kind="stable")]
 
 
 def compactness_order(index: np.ndarray, pool: np.ndarray, volume: np.ndarray) -> np.ndarray:
-    """Most compact first: box volume, then total edge length, then pool indices."""
+    """Most compact first: box volume (rounded to 1e-9 mm^3), then total edge length, then pool
+    indices.  One sort by rounded volume, then the full key only among stars of equal rounded
+    volume: the stars are distinct, so the order is total, and the sort by volume need not be
+    stable (ties are ordered by the full key anyway)."""
     index = np.asarray(index)
-    base = int(index.max()) + 1 if index.size else 1
-    if base**6 < 2**62:  # the six indices as one key: the same order as six keys, sorted once
-        code = index[:, 0].astype(np.int64)
-        for k in range(1, 6):
-            code = code * base + index[:, k]
-        return np.lexsort((code, pool[index].sum(axis=1), np.round(volume, 9)))
-    keys = [index[:, k] for k in range(5, -1, -1)]
-    return np.lexsort((*keys, pool[index].sum(axis=1), np.round(volume, 9)))
+    v = np.round(volume, 9)
+    o = np.argsort(v)
+    vs = v[o]
+    same = vs[1:] == vs[:-1]
+    if not same.any():
+        return o
+    grp = np.concatenate([[0], np.cumsum(~same)])
+    pos = np.flatnonzero(np.bincount(grp)[grp] > 1)
+    sub = o[pos]
+    ix = index[sub]
+    keys = [ix[:, k] for k in range(5, -1, -1)]
+    o[pos] = sub[np.lexsort((*keys, pool[ix].sum(axis=1), grp[pos]))]
+    return o
 
 
 def greedy(order: np.ndarray, ptr: np.ndarray, rows: np.ndarray, n_rows: int) -> np.ndarray:
@@ -269,8 +280,10 @@ class _Packing:
     ``owner[r]`` is the family star holding row r (-1 free).  Per candidate c, over its rows held
     by family stars: ``cnt`` (how many), ``s1`` (sum of owner ids) and ``s2`` (sum of squares).
     c is free iff ``cnt == 0``; its held rows all belong to ONE star t iff
-    ``cnt * s2 == s1**2`` (zero variance), and then ``t = s1 // cnt``.  Inserting or removing a
-    star only updates the candidates sharing a row with it (row -> candidates index, CSC).
+    ``cnt * s2 == s1**2`` (zero variance), and then ``t = s1 // cnt``.  ``tight[c]`` says which:
+    -2 free, t when c is outside the family and 1-tight with t, else -1 (a small array of its
+    own, int32: the searches read only it, and it stays in the CPU cache).  Inserting or removing
+    a star only updates the candidates sharing a row with it (row -> candidates index, CSC).
     ``arrays`` is the tuple every kernel takes (:func:`_set`, :func:`_fill`, :func:`_descend`,
     :func:`_ils_loop`).
     """
@@ -286,21 +299,21 @@ class _Packing:
         most = int(np.diff(ptr).max()) * int(np.diff(rptr).max()) if n and n_rows else 0
         order = np.empty(n, dtype=np.int64)
         order[rank] = np.arange(n)
-        # cnt, s1, s2, tight side by side: an update touches all four of a candidate (one cache line)
-        state = np.zeros((n, 4), dtype=np.int64)
-        state[:, 3] = -1
-        self.state = state
-        self.cnt, self.s1, self.s2 = state[:, 0], state[:, 1], state[:, 2]
-        self.tight = state[:, 3]  # t if 1-tight with family star t, else -1
+        # cnt, s1, s2 side by side: an update touches all three of a candidate
+        self.tally = np.zeros((n, 3), dtype=np.int64)
+        self.cnt, self.s1, self.s2 = self.tally[:, 0], self.tally[:, 1], self.tally[:, 2]
+        self.tight = np.full(n, FREE, dtype=np.int32)
+        self.ntight = np.zeros(n, dtype=np.int32)
         self.in_fam = np.zeros(n, dtype=np.bool_)
         self.owner = np.full(self.n_rows, -1, dtype=np.int64)
         self.arrays = (
-            ptr, rows, rptr, cands, rank, order, state, self.in_fam, self.owner,
+            ptr, rows, rptr, cands, rank, order, self.tally, self.tight, self.ntight, self.in_fam, self.owner,
             np.empty(max(most, 1), dtype=np.int64),  # buf: touched candidates
             np.empty(max(most, 1), dtype=np.int64),  # lst: a star's free or 1-tight neighbours
             np.zeros(n, dtype=np.bool_),  # seen (all False between calls)
             np.empty(n + 1, dtype=np.int64),  # heap of queued ranks
             np.zeros(n, dtype=np.bool_),  # queued
+            np.zeros(4 * max(most, 1) + 1, dtype=np.int64),  # hits: the 1-tight found since a reset
         )
         _insert_all(np.asarray(chosen, dtype=np.int64), self.arrays)
 
@@ -351,39 +364,86 @@ def _gather(s, ptr, rows, rptr, cands, out):
 
 
 @numba.njit(cache=True, nogil=True)
-def _update_kernel(s, sign, ptr, rows, rptr, cands, state, in_fam, out):
-    """:class:`_Packing`'s bookkeeping when star s enters (sign +1) or leaves (-1) the family:
-    per candidate sharing rows with s, the count, sum and sum of squares of the family stars
-    holding its rows (``state`` columns 0-2), then whether they all belong to one star
-    (column 3, ``tight``).  Writes the touched
-    entries into ``out`` (as :func:`_gather`) and returns how many."""
+def _update_kernel(s, sign, ptr, rows, rptr, cands, tally, tight, ntight, in_fam, out, hits):
+    """:class:`_Packing`'s bookkeeping when star s enters (sign +1) or leaves (-1) the family
+    (``in_fam`` already says which): per candidate sharing rows with s, the count, sum and sum
+    of squares of the family stars holding its rows (``tally``), then ``tight`` (as
+    :func:`_tight_of`; s's own too) and ``ntight`` (per family star, the candidates 1-tight with
+    it).  The candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow;
+    -1: it overflowed).  Writes the touched entries into ``out`` (as :func:`_gather`) and
+    returns how many."""
     k = _gather(s, ptr, rows, rptr, cands, out)
     ss = s * s
     for i in range(k):
         c = out[i]
-        state[c, 0] += sign
-        state[c, 1] += sign * s
-        state[c, 2] += sign * ss
+        tally[c, 0] += sign
+        tally[c, 1] += sign * s
+        tally[c, 2] += sign * ss
+    h = hits[0]
     for i in range(k):
         c = out[i]
-        n, s1 = state[c, 0], state[c, 1]
-        if n > 0 and n * state[c, 2] == s1 * s1 and not in_fam[c]:
-            state[c, 3] = s1 // n
+        # _tight_of, written out: a call per candidate costs more than the arithmetic
+        n, s1 = tally[c, 0], tally[c, 1]
+        if n > 0 and n * tally[c, 2] == s1 * s1 and not in_fam[c]:
+            new = s1 // n
+        elif n == 0 and not in_fam[c]:
+            new = -2
         else:
-            state[c, 3] = -1
+            new = -1
+        old = tight[c]
+        if new != old:
+            if old >= 0:
+                ntight[old] -= 1
+            if new >= 0:
+                ntight[new] += 1
+            tight[c] = new
+        if new >= 0 and h >= 0:
+            if h + 1 < len(hits):
+                h += 1
+                hits[h] = c
+            else:
+                h = -1
+    hits[0] = h
+    # s's own (the same unless s holds no row, then it is not among its own neighbours)
+    new = _tight_of(s, tally, in_fam)
+    old = tight[s]
+    if new != old:
+        if old >= 0:
+            ntight[old] -= 1
+        if new >= 0:
+            ntight[new] += 1
+        tight[s] = new
     return k
 
 
+#: ``_Packing.tight`` of a free candidate (no row held by the family)
+FREE = -2
+
+
 @numba.njit(cache=True, nogil=True)
-def _two_swap(t, ptr, rows, rptr, cands, state, rank, seen, buf, lst):
+def _tight_of(c, tally, in_fam):
+    """-2 (FREE) when no family star holds a row of c (then c is not in the family), t when
+    c is outside the family and all its held rows belong to family star t, else -1."""
+    n, s1 = tally[c, 0], tally[c, 1]
+    if n == 0 and not in_fam[c]:
+        return -2
+    if n > 0 and n * tally[c, 2] == s1 * s1 and not in_fam[c]:
+        return s1 // n
+    return -1
+
+
+@numba.njit(cache=True, nogil=True)
+def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, buf, lst):
     """The first pair, in rank order (most compact first), of distinct candidates 1-tight with
-    family star t (``state[:, 3] == t``) whose rows are disjoint; (-1, -1) if none.  ``seen``
-    (all False, left so), ``buf`` and ``lst`` are scratch space."""
+    family star t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint; (-1, -1) if
+    none.  ``seen`` (all False, left so), ``buf`` and ``lst`` are scratch space."""
+    if ntight[t] < 2:
+        return -1, -1
     k = _gather(t, ptr, rows, rptr, cands, buf)
     m = 0
     for i in range(k):
         c = buf[i]
-        if state[c, 3] == t and not seen[c]:
+        if tight[c] == t and not seen[c]:
             seen[c] = True
             lst[m] = c
             m += 1
@@ -426,18 +486,42 @@ def _sort_by_rank(lst, m, rank):
 def _set(s, sign, P):
     """Star s enters (sign +1) or leaves (-1) the family: its rows' owner, membership, and the
     tallies of the candidates sharing its rows (:func:`_update_kernel`)."""
-    ptr, rows, rptr, cands, rank, order, state, in_fam, owner, buf, lst, seen, heap, queued = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
     v = s if sign > 0 else -1
     for j in range(ptr[s], ptr[s + 1]):
         owner[rows[j]] = v
     in_fam[s] = sign > 0
-    _update_kernel(s, sign, ptr, rows, rptr, cands, state, in_fam, buf)
+    _update_kernel(s, sign, ptr, rows, rptr, cands, tally, tight, ntight, in_fam, buf, hits)
 
 
 @numba.njit(cache=True, nogil=True)
 def _insert_all(chosen, P):
+    """The packing ``chosen`` (disjoint stars) from an empty state: owners and membership, then
+    every candidate's tallies, ``tight`` and ``ntight`` in one pass over the incidence (the
+    same numbers as inserting the stars one by one)."""
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
     for s in chosen:
-        _set(s, 1, P)
+        in_fam[s] = True
+        for j in range(ptr[s], ptr[s + 1]):
+            owner[rows[j]] = s
+    for c in range(len(in_fam)):
+        n = s1 = s2 = 0
+        for j in range(ptr[c], ptr[c + 1]):
+            o = owner[rows[j]]
+            if o >= 0:
+                n += 1
+                s1 += o
+                s2 += o * o
+        tally[c, 0], tally[c, 1], tally[c, 2] = n, s1, s2
+        if n > 0 and n * s2 == s1 * s1 and not in_fam[c]:
+            t = s1 // n
+        elif n == 0 and not in_fam[c]:
+            t = -2
+        else:
+            t = -1
+        tight[c] = t
+        if t >= 0:
+            ntight[t] += 1
 
 
 @numba.njit(cache=True, nogil=True)
@@ -468,13 +552,13 @@ def _fill(t, P, ops, k):
     holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
     insertions happen here, so a candidate free now was free when the fill began.)
     Returns (ops, k)."""
-    ptr, rows, rptr, cands, rank, order, state, in_fam, owner, buf, lst, seen, heap, queued = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
     m = 0
     for j in range(ptr[t], ptr[t + 1]):
         r = rows[j]
         for q in range(rptr[r], rptr[r + 1]):
             c = cands[q]
-            if state[c, 0] == 0 and not in_fam[c] and not seen[c]:
+            if tight[c] == -2 and not seen[c]:
                 seen[c] = True
                 lst[m] = c
                 m += 1
@@ -483,7 +567,7 @@ def _fill(t, P, ops, k):
     _sort_by_rank(lst, m, rank)
     for i in range(m):
         c = lst[i]
-        if state[c, 0] == 0 and not in_fam[c]:
+        if tight[c] == -2:
             _set(c, 1, P)
             ops = _log(ops, k, c + 1)
             k += 1
@@ -525,14 +609,24 @@ def _pop(heap, hn):
 @numba.njit(cache=True, nogil=True)
 def _enqueue(P, ops, k0, k1, hn):
     """Queue (once) every family star that a candidate sharing rows with the stars of
-    ``ops[k0:k1]`` now conflicts with alone (1-tight); returns the heap's size."""
-    ptr, rows, rptr, cands, rank, order, state, in_fam, owner, buf, lst, seen, heap, queued = P
+    ``ops[k0:k1]`` now conflicts with alone (1-tight); returns the heap's size.  Those
+    candidates are the ones found 1-tight since ``hits`` was reset before ``ops[k0]`` (their
+    ``tight`` was last set by these changes), looked at again now; when ``hits`` overflowed,
+    every candidate sharing rows with the stars of ``ops[k0:k1]``."""
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
+    if hits[0] >= 0:
+        for i in range(1, hits[0] + 1):
+            x = tight[hits[i]]
+            if x >= 0 and not queued[x]:
+                queued[x] = True
+                hn = _push(heap, hn, rank[x])
+        return hn
     for i in range(k0, k1):
         s = abs(ops[i]) - 1
         for j in range(ptr[s], ptr[s + 1]):
             r = rows[j]
             for q in range(rptr[r], rptr[r + 1]):
-                x = state[cands[q], 3]
+                x = tight[cands[q]]
                 if x >= 0 and not queued[x]:
                     queued[x] = True
                     hn = _push(heap, hn, rank[x])
@@ -545,17 +639,18 @@ def _descend(P, hn, ops, k):
     compact queued star first (a heap of ranks: ranks are distinct, so the order is the one of
     repeatedly taking the queue's minimum).  Logs the changes in ``ops`` from ``k`` on;
     returns (ops, k)."""
-    ptr, rows, rptr, cands, rank, order, state, in_fam, owner, buf, lst, seen, heap, queued = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
     while hn > 0:
         r, hn = _pop(heap, hn)
         t = order[r]
         queued[t] = False
         if not in_fam[t]:
             continue
-        a, b = _two_swap(t, ptr, rows, rptr, cands, state, rank, seen, buf, lst)
+        a, b = _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, buf, lst)
         if a < 0:
             continue
         k0 = k
+        hits[0] = 0
         _set(t, -1, P)
         ops = _log(ops, k, -(t + 1))
         _set(a, 1, P)
@@ -572,11 +667,11 @@ def _descend(P, hn, ops, k):
 def _ils_start(P):
     """The ILS's start: insert every free candidate (most compact first), then (1,2)-swaps
     around every family star; returns the family's size."""
-    ptr, rows, rptr, cands, rank, order, state, in_fam, owner, buf, lst, seen, heap, queued = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
     ops = np.empty(64, dtype=np.int64)
     for r in range(len(order)):
         c = order[r]
-        if state[c, 0] == 0 and not in_fam[c]:
+        if tight[c] == -2:
             _set(c, 1, P)
     hn = 0
     for t in range(len(in_fam)):
@@ -598,7 +693,7 @@ def _ils_loop(P, batches, ctr, iterations, bound):
     takes the first draw, batch after batch (at most 64), of a candidate outside the family
     whose held rows belong to one or two family stars.  Returns when done (``ctr[4] = 1``) or
     when it needs a batch past ``batches`` (``ctr[4] = 0``: call again with the next ones)."""
-    ptr, rows, rptr, cands, rank, order, state, in_fam, owner, buf, lst, seen, heap, queued = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
     n = len(in_fam)
     it, tries, searching, size = ctr[0], ctr[1], ctr[2], ctr[3]
     ops = np.empty(256, dtype=np.int64)
@@ -646,6 +741,7 @@ def _ils_loop(P, batches, ctr, iterations, bound):
             break
         # force s in (removing the one or two stars holding its rows, lowest id first), refill
         # around them, then (1,2)-swaps around every change
+        hits[0] = 0
         _set(h1, -1, P)
         ops = _log(ops, 0, -(h1 + 1))
         k = 1
