@@ -147,120 +147,18 @@ def local_search(
     that were free then and still are, most compact first; then, per family star t (by id), it
     takes the outside stars whose held rows all belonged to t, most compact first, keeps those
     that still conflict with nothing but t, and the first two of them that are disjoint replace
-    t.  Compiled (:func:`_local_search`)."""
-    fam, swaps = _local_search(
-        np.asarray(chosen, dtype=np.int64), np.asarray(order, dtype=np.int64), np.asarray(ptr, dtype=np.int64),
-        np.asarray(rows, dtype=np.int64), int(n_rows), int(rounds),
-    )
-    return fam.astype(np.intp), int(swaps)
+    t.  Compiled (:func:`_ls_rounds`, on :class:`_Packing`'s incremental state)."""
+    P = _Packing(chosen, ptr, rows, n_rows, _rank(order))
+    swaps = _ls_rounds(P.arrays, int(rounds))
+    return np.flatnonzero(P.in_fam), int(swaps)
 
 
-@numba.njit(cache=True, nogil=True)
-def _local_search(chosen, order, ptr, rows, n_rows, rounds):
-    n = len(ptr) - 1
-    owner = np.full(n_rows, -1, dtype=np.int64)
-    in_fam = np.zeros(n, dtype=np.bool_)
-    for s in chosen:
-        in_fam[s] = True
-        for j in range(ptr[s], ptr[s + 1]):
-            owner[rows[j]] = s
-    hi = np.empty(n, dtype=np.int64)
-    free = np.zeros(n, dtype=np.bool_)
-    one = np.zeros(n, dtype=np.bool_)
-    lst = np.empty(n, dtype=np.int64)
-    ok = np.empty(n, dtype=np.int64)
-    mark = np.zeros(n_rows, dtype=np.bool_)
-    big = np.int64(2**62)
-    swaps = 0
-    for _ in range(rounds):
-        # per candidate, the family stars holding its rows: none (free) or exactly one (hi)
-        for c in range(n):
-            lo = big
-            h = -1
-            for j in range(ptr[c], ptr[c + 1]):
-                o = owner[rows[j]]
-                if 0 <= o < lo:
-                    lo = o
-                if o > h:
-                    h = o
-            hi[c] = h
-            free[c] = h < 0 and not in_fam[c]
-            one[c] = lo == h and not in_fam[c]
-        progress = False
-        # insert free stars first (most compact first)
-        for r in range(n):
-            c = order[r]
-            if free[c]:
-                clear = True
-                for j in range(ptr[c], ptr[c + 1]):
-                    if owner[rows[j]] >= 0:
-                        clear = False
-                        break
-                if clear:
-                    for j in range(ptr[c], ptr[c + 1]):
-                        owner[rows[j]] = c
-                    in_fam[c] = True
-                    progress = True
-        # the stars held by one family star t, grouped by t (ascending), most compact first
-        k = 0
-        for r in range(n):
-            c = order[r]
-            if one[c]:
-                lst[k] = c
-                k += 1
-        keys = hi[lst[:k]]
-        srt = np.argsort(keys, kind="mergesort")
-        i = 0
-        while i < k:
-            t = keys[srt[i]]
-            e = i
-            while e < k and keys[srt[e]] == t:
-                e += 1
-            if in_fam[t]:
-                q = 0
-                for g in range(i, e):
-                    s = lst[srt[g]]
-                    good = True
-                    for j in range(ptr[s], ptr[s + 1]):
-                        o = owner[rows[j]]
-                        if o != -1 and o != t:
-                            good = False
-                            break
-                    if good:
-                        ok[q] = s
-                        q += 1
-                done = False
-                for a in range(q):
-                    sa = ok[a]
-                    for j in range(ptr[sa], ptr[sa + 1]):
-                        mark[rows[j]] = True
-                    for b in range(a + 1, q):
-                        sb = ok[b]
-                        apart = True
-                        for j in range(ptr[sb], ptr[sb + 1]):
-                            if mark[rows[j]]:
-                                apart = False
-                                break
-                        if apart:
-                            for j in range(ptr[t], ptr[t + 1]):
-                                owner[rows[j]] = -1
-                            in_fam[t] = False
-                            for j in range(ptr[sa], ptr[sa + 1]):
-                                owner[rows[j]] = sa
-                            for j in range(ptr[sb], ptr[sb + 1]):
-                                owner[rows[j]] = sb
-                            in_fam[sa] = in_fam[sb] = True
-                            swaps += 1
-                            progress = done = True
-                            break
-                    for j in range(ptr[sa], ptr[sa + 1]):
-                        mark[rows[j]] = False
-                    if done:
-                        break
-            i = e
-        if not progress:
-            break
-    return np.flatnonzero(in_fam), swaps
+def _rank(order: np.ndarray) -> np.ndarray:
+    """Each candidate's position in ``order`` (int64)."""
+    order = np.asarray(order)
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(len(order))
+    return rank
 
 
 #: default iteration budget of the iterated local search (``ils``); the stopping rule is this
@@ -682,6 +580,85 @@ def _ils_start(P):
     return np.count_nonzero(in_fam)
 
 
+@numba.njit(cache=True, nogil=True)
+def _ls_rounds(P, rounds):
+    """:func:`local_search`'s rounds on the packing ``P``; returns the swaps made.  The round's
+    view of the family is ``tight`` when it begins: free (-2) and 1-tight (t) candidates; a
+    candidate's rows are held by nothing but t now iff its ``tight`` is t or -2 now."""
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
+    n = len(in_fam)
+    mark = np.zeros(len(owner), dtype=np.bool_)
+    swaps = 0
+    for _ in range(rounds):
+        nf = no = 0
+        for c in range(n):
+            if tight[c] == -2:
+                nf += 1
+            elif tight[c] >= 0:
+                no += 1
+        free = np.empty(nf, dtype=np.int64)
+        one = np.empty(no, dtype=np.int64)
+        nf = no = 0
+        for c in range(n):
+            if tight[c] == -2:
+                free[nf] = c
+                nf += 1
+            elif tight[c] >= 0:
+                one[no] = c
+                no += 1
+        free = free[np.argsort(rank[free])]
+        # grouped by their star (ascending), most compact first (the key is unique)
+        one = one[np.argsort(tight[one].astype(np.int64) * n + rank[one])]
+        grp = tight[one].astype(np.int64)
+        ok = np.empty(no, dtype=np.int64)
+        progress = False
+        # insert the free stars first (most compact first)
+        for c in free:
+            if tight[c] == -2:
+                _set(c, 1, P)
+                progress = True
+        i = 0
+        while i < no:
+            t = grp[i]
+            e = i
+            while e < no and grp[e] == t:
+                e += 1
+            if in_fam[t]:
+                q = 0
+                for g in range(i, e):
+                    s = one[g]
+                    if tight[s] == t or tight[s] == -2:
+                        ok[q] = s
+                        q += 1
+                sa = sb = -1
+                for a in range(q):
+                    for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
+                        mark[rows[j]] = True
+                    for b in range(a + 1, q):
+                        apart = True
+                        for j in range(ptr[ok[b]], ptr[ok[b] + 1]):
+                            if mark[rows[j]]:
+                                apart = False
+                                break
+                        if apart:
+                            sa, sb = ok[a], ok[b]
+                            break
+                    for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
+                        mark[rows[j]] = False
+                    if sa >= 0:
+                        break
+                if sa >= 0:
+                    _set(t, -1, P)
+                    _set(sa, 1, P)
+                    _set(sb, 1, P)
+                    swaps += 1
+                    progress = True
+            i = e
+        if not progress:
+            break
+    return swaps
+
+
 #: draws per batch of the ILS perturbation
 ILS_BATCH = 1024
 
@@ -787,10 +764,12 @@ def ils(
     at ``bound``.  Returns (family, iterations used).  The loop is compiled
     (:func:`_ils_loop`); the batches are drawn here ahead of it, in the same stream.
     """
-    n = len(ptr) - 1
-    rank = np.empty(n, dtype=np.int64)
-    rank[np.asarray(order)] = np.arange(n)
-    P = _Packing(chosen, ptr, rows, n_rows, rank)
+    return _ils_on(_Packing(chosen, ptr, rows, n_rows, _rank(order)), iterations, bound, seed)
+
+
+def _ils_on(P: _Packing, iterations: int, bound: int | None, seed: int) -> tuple[np.ndarray, int]:
+    """:func:`ils` from the family in the packing ``P`` (which it changes)."""
+    n = P.n
     # start from a local optimum w.r.t. free insertions and (1,2)-swaps
     size = _ils_start(P.arrays)
     rng = np.random.default_rng(seed)
@@ -944,14 +923,17 @@ def select_family(
     if spec.select == "greedy":
         return Selection(chosen, bound, info)
     t1 = time.perf_counter()
-    chosen, swaps = local_search(chosen, order, ptr, rows, n_rows)
+    # local search and ILS on one packing state (local_search and ils, without building it twice)
+    packing = _Packing(chosen, ptr, rows, n_rows, _rank(order))
+    swaps = int(_ls_rounds(packing.arrays, 200))
+    chosen = np.flatnonzero(packing.in_fam)
     info.update(local_search=int(len(chosen)), swaps=swaps, local_search_s=round(time.perf_counter() - t1, 3))
     budget = ILS_ITERATIONS if ils_iterations is None else int(ils_iterations)
     nnz = int(len(rows))
     if budget > 0 and len(chosen) < bound:
         t3 = time.perf_counter()
         start = chosen
-        chosen, used = ils(start, order, ptr, rows, n_rows, iterations=budget, bound=bound)
+        chosen, used = _ils_on(packing, budget, bound, ILS_SEED)
         restarts = 0
         if nnz <= MILP_MAX_NONZEROS:
             # small instances: a few short restarts with other fixed seeds before the exact solver
