@@ -157,16 +157,19 @@ def _window_codes(index, edges, m, base):
                     for z in range(m):
                         tmp[q] = ((t0 - x) * base + mid + m - y) * base + hi + m - z
                         q += 1
-        if width <= 32:
-            for p in range(1, width):
+        # Shell's sort (gaps ~width/2.2^k, then 1; no numpy sort: it costs seconds to compile)
+        gap = width // 2
+        while True:
+            for p in range(gap, width):
                 v = tmp[p]
                 r = p
-                while r > 0 and tmp[r - 1] > v:
-                    tmp[r] = tmp[r - 1]
-                    r -= 1
+                while r >= gap and tmp[r - gap] > v:
+                    tmp[r] = tmp[r - gap]
+                    r -= gap
                 tmp[r] = v
-        else:
-            tmp.sort()
+            if gap <= 1:
+                break
+            gap = max(1, int(gap / 2.2))
         d = 0
         for p in range(width):
             if d == 0 or tmp[p] != code[i, d - 1]:

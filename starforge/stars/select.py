@@ -149,7 +149,7 @@ def local_search(
     that still conflict with nothing but t, and the first two of them that are disjoint replace
     t.  Compiled (:func:`_ls_rounds`, on :class:`_Packing`'s incremental state)."""
     P = _Packing(chosen, ptr, rows, n_rows, _rank(order))
-    swaps = _ls_rounds(P.arrays, int(rounds))
+    swaps = _search(P.arrays, 0, _NO_BATCHES, _NO_CTR, int(rounds), -1)
     return np.flatnonzero(P.in_fam), int(swaps)
 
 
@@ -367,17 +367,37 @@ def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, buf, lst):
 
 @numba.njit(cache=True, nogil=True)
 def _sort_by_rank(lst, m, rank):
-    """Sort ``lst[:m]`` by rank (a permutation: no ties).  Insertion sort: these lists are short."""
-    if m > 64:
-        lst[:m] = lst[:m][np.argsort(rank[lst[:m]])]
+    """Sort ``lst[:m]`` by rank (a permutation: no ties)."""
+    if m < 2:
         return
-    for i in range(1, m):
-        c = lst[i]
-        j = i
-        while j > 0 and rank[lst[j - 1]] > rank[c]:
-            lst[j] = lst[j - 1]
-            j -= 1
-        lst[j] = c
+    key = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        key[i] = rank[lst[i]]
+    _shellsort(key, lst, m)
+
+
+@numba.njit(cache=True, nogil=True)
+def _shellsort(key, val, m):
+    """Sort ``key[:m]`` ascending, ``val[:m]`` along (Shell's sort with gaps ~m/2.2^k ending in
+    1, insertion sort for short lists; not stable: the callers' keys are distinct).  No numpy
+    sort in the kernels: each costs seconds of compilation on a first run."""
+    gap = m // 2
+    while True:
+        for i in range(gap, m):
+            k, v = key[i], val[i]
+            j = i
+            while j >= gap and key[j - gap] > k:
+                key[j], val[j] = key[j - gap], val[j - gap]
+                j -= gap
+            key[j], val[j] = k, v
+        if gap == 1:
+            break
+        gap = max(1, int(gap / 2.2))
+
+
+#: the signs :func:`_set` takes, as int64 (a literal argument would compile a kernel again)
+_ONE = np.int64(1)
+_MINUS = np.int64(-1)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -385,7 +405,7 @@ def _set(s, sign, P):
     """Star s enters (sign +1) or leaves (-1) the family: its rows' owner, membership, and the
     tallies of the candidates sharing its rows (:func:`_update_kernel`)."""
     ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
-    v = s if sign > 0 else -1
+    v = s if sign > 0 else np.int64(-1)
     for j in range(ptr[s], ptr[s + 1]):
         owner[rows[j]] = v
     in_fam[s] = sign > 0
@@ -427,7 +447,8 @@ def _log(ops, k, v):
     """``ops[k] = v``, growing ``ops`` when full; returns the (possibly new) array."""
     if k == len(ops):
         grown = np.empty(2 * len(ops), dtype=np.int64)
-        grown[:k] = ops
+        for i in range(k):
+            grown[i] = ops[i]
         ops = grown
     ops[k] = v
     return ops
@@ -439,9 +460,9 @@ def _undo(ops, k0, k1, P):
     for i in range(k1 - 1, k0 - 1, -1):
         v = ops[i]
         if v > 0:
-            _set(v - 1, -1, P)
+            _set(np.int64(v - 1), _MINUS, P)
         else:
-            _set(-v - 1, 1, P)
+            _set(np.int64(-v - 1), _ONE, P)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -466,7 +487,7 @@ def _fill(t, P, ops, k):
     for i in range(m):
         c = lst[i]
         if tight[c] == -2:
-            _set(c, 1, P)
+            _set(np.int64(c), _ONE, P)
             ops = _log(ops, k, c + 1)
             k += 1
     return ops, k
@@ -549,11 +570,11 @@ def _descend(P, hn, ops, k):
             continue
         k0 = k
         hits[0] = 0
-        _set(t, -1, P)
+        _set(np.int64(t), _MINUS, P)
         ops = _log(ops, k, -(t + 1))
-        _set(a, 1, P)
+        _set(np.int64(a), _ONE, P)
         ops = _log(ops, k + 1, a + 1)
-        _set(b, 1, P)
+        _set(np.int64(b), _ONE, P)
         ops = _log(ops, k + 2, b + 1)
         k += 3
         ops, k = _fill(t, P, ops, k)
@@ -570,13 +591,13 @@ def _ils_start(P):
     for r in range(len(order)):
         c = order[r]
         if tight[c] == -2:
-            _set(c, 1, P)
-    hn = 0
+            _set(np.int64(c), _ONE, P)
+    hn = np.int64(0)
     for t in range(len(in_fam)):
         if in_fam[t]:
             queued[t] = True
             hn = _push(heap, hn, rank[t])
-    _descend(P, hn, ops, 0)
+    _descend(P, hn, ops, np.int64(0))
     return np.count_nonzero(in_fam)
 
 
@@ -606,16 +627,21 @@ def _ls_rounds(P, rounds):
             elif tight[c] >= 0:
                 one[no] = c
                 no += 1
-        free = free[np.argsort(rank[free])]
+        _sort_by_rank(free, nf, rank)
         # grouped by their star (ascending), most compact first (the key is unique)
-        one = one[np.argsort(tight[one].astype(np.int64) * n + rank[one])]
-        grp = tight[one].astype(np.int64)
+        key = np.empty(no, dtype=np.int64)
+        for i in range(no):
+            key[i] = tight[one[i]] * n + rank[one[i]]
+        _shellsort(key, one, no)
+        grp = np.empty(no, dtype=np.int64)
+        for i in range(no):
+            grp[i] = tight[one[i]]
         ok = np.empty(no, dtype=np.int64)
         progress = False
         # insert the free stars first (most compact first)
         for c in free:
             if tight[c] == -2:
-                _set(c, 1, P)
+                _set(np.int64(c), _ONE, P)
                 progress = True
         i = 0
         while i < no:
@@ -648,9 +674,9 @@ def _ls_rounds(P, rounds):
                     if sa >= 0:
                         break
                 if sa >= 0:
-                    _set(t, -1, P)
-                    _set(sa, 1, P)
-                    _set(sb, 1, P)
+                    _set(np.int64(t), _MINUS, P)
+                    _set(np.int64(sa), _ONE, P)
+                    _set(np.int64(sb), _ONE, P)
                     swaps += 1
                     progress = True
             i = e
@@ -719,29 +745,48 @@ def _ils_loop(P, batches, ctr, iterations, bound):
         # force s in (removing the one or two stars holding its rows, lowest id first), refill
         # around them, then (1,2)-swaps around every change
         hits[0] = 0
-        _set(h1, -1, P)
-        ops = _log(ops, 0, -(h1 + 1))
+        _set(np.int64(h1), _MINUS, P)
+        ops = _log(ops, np.int64(0), -(h1 + 1))
         k = 1
         if h2 >= 0:
-            _set(h2, -1, P)
-            ops = _log(ops, 1, -(h2 + 1))
+            _set(np.int64(h2), _MINUS, P)
+            ops = _log(ops, np.int64(1), -(h2 + 1))
             k = 2
-        _set(s, 1, P)
+        _set(np.int64(s), _ONE, P)
         ops = _log(ops, k, s + 1)
         k += 1
-        ops, k = _fill(h1, P, ops, k)
+        ops, k = _fill(np.int64(h1), P, ops, k)
         if h2 >= 0:
-            ops, k = _fill(h2, P, ops, k)
-        hn = _enqueue(P, ops, 0, k, 0)
+            ops, k = _fill(np.int64(h2), P, ops, k)
+        hn = _enqueue(P, ops, np.int64(0), k, np.int64(0))
         ops, k = _descend(P, hn, ops, k)
         new = size
         for i in range(k):
             new += 1 if ops[i] > 0 else -1
         if new < size:  # smaller: revert (plateau moves are kept: they walk)
-            _undo(ops, 0, k, P)
+            _undo(ops, np.int64(0), k, P)
         else:
             size = new
     ctr[0], ctr[1], ctr[2], ctr[3] = it, tries, searching, size
+
+
+@numba.njit(cache=True, nogil=True)
+def _search(P, task, batches, ctr, limit, bound):
+    """The one compiled entry of the searches on the packing ``P`` (one entry, so that their
+    shared kernels are compiled and optimised once on a first run): ``task`` 0, the local
+    search's rounds (``limit`` of them; returns the swaps); 1, the ILS start (returns the
+    family's size); 2, the ILS iterations (:func:`_ils_loop`; ``limit`` of them)."""
+    if task == 0:
+        return _ls_rounds(P, limit)
+    if task == 1:
+        return _ils_start(P)
+    _ils_loop(P, batches, ctr, limit, bound)
+    return 0
+
+
+#: ``batches``/``ctr`` of :func:`_search` for the tasks that take none
+_NO_BATCHES = np.zeros((0, ILS_BATCH), dtype=np.int64)
+_NO_CTR = np.zeros(5, dtype=np.int64)
 
 
 def ils(
@@ -771,7 +816,7 @@ def _ils_on(P: _Packing, iterations: int, bound: int | None, seed: int) -> tuple
     """:func:`ils` from the family in the packing ``P`` (which it changes)."""
     n = P.n
     # start from a local optimum w.r.t. free insertions and (1,2)-swaps
-    size = _ils_start(P.arrays)
+    size = _search(P.arrays, 1, _NO_BATCHES, _NO_CTR, 0, -1)
     rng = np.random.default_rng(seed)
     ctr = np.array([0, 0, 0, size, 0], dtype=np.int64)
     limit = -1 if bound is None else int(bound)
@@ -779,7 +824,7 @@ def _ils_on(P: _Packing, iterations: int, bound: int | None, seed: int) -> tuple
         # at least one batch per iteration: draw for the iterations left (some may go unused;
         # integers(size=(k, B)) is the same stream as k calls of size B)
         k = max(1, min(256, int(iterations) - int(ctr[0]) + int(ctr[2])))
-        _ils_loop(P.arrays, rng.integers(0, n, size=(k, ILS_BATCH)), ctr, int(iterations), limit)
+        _search(P.arrays, 2, rng.integers(0, n, size=(k, ILS_BATCH)), ctr, int(iterations), limit)
         if ctr[4]:
             break
     return np.flatnonzero(P.in_fam), int(ctr[0])
@@ -925,7 +970,7 @@ def select_family(
     t1 = time.perf_counter()
     # local search and ILS on one packing state (local_search and ils, without building it twice)
     packing = _Packing(chosen, ptr, rows, n_rows, _rank(order))
-    swaps = int(_ls_rounds(packing.arrays, 200))
+    swaps = int(_search(packing.arrays, 0, _NO_BATCHES, _NO_CTR, 200, -1))
     chosen = np.flatnonzero(packing.in_fam)
     info.update(local_search=int(len(chosen)), swaps=swaps, local_search_s=round(time.perf_counter() - t1, 3))
     budget = ILS_ITERATIONS if ils_iterations is None else int(ils_iterations)
