@@ -147,7 +147,7 @@ def local_search(
     that were free then and still are, most compact first; then, per family star t (by id), it
     takes the outside stars whose held rows all belonged to t, most compact first, keeps those
     that still conflict with nothing but t, and the first two of them that are disjoint replace
-    t.  Compiled (:func:`_ls_rounds`, on :class:`_Packing`'s incremental state)."""
+    t.  Compiled (:func:`_search`, on :class:`_Packing`'s incremental state)."""
     P = _Packing(chosen, ptr, rows, n_rows, _rank(order))
     swaps = _search(P.arrays, 0, _NO_BATCHES, _NO_CTR, int(rounds), -1)
     return np.flatnonzero(P.in_fam), int(swaps)
@@ -183,7 +183,7 @@ class _Packing:
     own, int32: the searches read only it, and it stays in the CPU cache).  Inserting or removing
     a star only updates the candidates sharing a row with it (row -> candidates index, CSC).
     ``arrays`` is the tuple every kernel takes (:func:`_set`, :func:`_fill`, :func:`_descend`,
-    :func:`_ils_loop`).
+    :func:`_search`).
     """
 
     def __init__(self, chosen, ptr, rows, n_rows, rank):
@@ -248,86 +248,8 @@ def _csc(ptr, rows, n_rows):
     return rptr, cands
 
 
-@numba.njit(cache=True, nogil=True)
-def _gather(s, ptr, rows, rptr, cands, out):
-    """Write the candidates sharing a row with star s (once per shared row, rows in order) into
-    ``out``; returns how many."""
-    k = 0
-    for j in range(ptr[s], ptr[s + 1]):
-        r = rows[j]
-        for q in range(rptr[r], rptr[r + 1]):
-            out[k] = cands[q]
-            k += 1
-    return k
-
-
-@numba.njit(cache=True, nogil=True)
-def _update_kernel(s, sign, ptr, rows, rptr, cands, tally, tight, ntight, in_fam, out, hits):
-    """:class:`_Packing`'s bookkeeping when star s enters (sign +1) or leaves (-1) the family
-    (``in_fam`` already says which): per candidate sharing rows with s, the count, sum and sum
-    of squares of the family stars holding its rows (``tally``), then ``tight`` (as
-    :func:`_tight_of`; s's own too) and ``ntight`` (per family star, the candidates 1-tight with
-    it).  The candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow;
-    -1: it overflowed).  Writes the touched entries into ``out`` (as :func:`_gather`) and
-    returns how many."""
-    k = _gather(s, ptr, rows, rptr, cands, out)
-    ss = s * s
-    for i in range(k):
-        c = out[i]
-        tally[c, 0] += sign
-        tally[c, 1] += sign * s
-        tally[c, 2] += sign * ss
-    h = hits[0]
-    for i in range(k):
-        c = out[i]
-        # _tight_of, written out: a call per candidate costs more than the arithmetic
-        n, s1 = tally[c, 0], tally[c, 1]
-        if n > 0 and n * tally[c, 2] == s1 * s1 and not in_fam[c]:
-            new = s1 // n
-        elif n == 0 and not in_fam[c]:
-            new = -2
-        else:
-            new = -1
-        old = tight[c]
-        if new != old:
-            if old >= 0:
-                ntight[old] -= 1
-            if new >= 0:
-                ntight[new] += 1
-            tight[c] = new
-        if new >= 0 and h >= 0:
-            if h + 1 < len(hits):
-                h += 1
-                hits[h] = c
-            else:
-                h = -1
-    hits[0] = h
-    # s's own (the same unless s holds no row, then it is not among its own neighbours)
-    new = _tight_of(s, tally, in_fam)
-    old = tight[s]
-    if new != old:
-        if old >= 0:
-            ntight[old] -= 1
-        if new >= 0:
-            ntight[new] += 1
-        tight[s] = new
-    return k
-
-
 #: ``_Packing.tight`` of a free candidate (no row held by the family)
 FREE = -2
-
-
-@numba.njit(cache=True, nogil=True)
-def _tight_of(c, tally, in_fam):
-    """-2 (FREE) when no family star holds a row of c (then c is not in the family), t when
-    c is outside the family and all its held rows belong to family star t, else -1."""
-    n, s1 = tally[c, 0], tally[c, 1]
-    if n == 0 and not in_fam[c]:
-        return -2
-    if n > 0 and n * tally[c, 2] == s1 * s1 and not in_fam[c]:
-        return s1 // n
-    return -1
 
 
 @numba.njit(cache=True, nogil=True)
@@ -337,7 +259,12 @@ def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, buf, lst):
     none.  ``seen`` (all False, left so), ``buf`` and ``lst`` are scratch space."""
     if ntight[t] < 2:
         return -1, -1
-    k = _gather(t, ptr, rows, rptr, cands, buf)
+    k = 0
+    for j in range(ptr[t], ptr[t + 1]):
+        r = rows[j]
+        for q in range(rptr[r], rptr[r + 1]):
+            buf[k] = cands[q]
+            k += 1
     m = 0
     for i in range(k):
         c = buf[i]
@@ -402,14 +329,59 @@ _MINUS = np.int64(-1)
 
 @numba.njit(cache=True, nogil=True)
 def _set(s, sign, P):
-    """Star s enters (sign +1) or leaves (-1) the family: its rows' owner, membership, and the
-    tallies of the candidates sharing its rows (:func:`_update_kernel`)."""
+    """Star s enters (sign +1) or leaves (-1) the family: its rows' owner and membership, then
+    per candidate sharing rows with s (``buf``: once per shared row) the count, sum and sum of
+    squares of the family stars holding its rows (``tally``), ``tight`` (-2 when no family star
+    holds a row of c, t when c is outside the family and all its held rows belong to t, else
+    -1; s's own too) and ``ntight`` (per family star, the candidates 1-tight with it).  The
+    candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow; -1: it
+    overflowed).  (No kernel calls in here: a call per candidate costs more than the
+    arithmetic, and each callee is compiled again into every caller on a first run.)"""
     ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
     v = s if sign > 0 else np.int64(-1)
+    k = 0
     for j in range(ptr[s], ptr[s + 1]):
-        owner[rows[j]] = v
+        r = rows[j]
+        owner[r] = v
+        for q in range(rptr[r], rptr[r + 1]):
+            buf[k] = cands[q]
+            k += 1
     in_fam[s] = sign > 0
-    _update_kernel(s, sign, ptr, rows, rptr, cands, tally, tight, ntight, in_fam, buf, hits)
+    ss = s * s
+    for i in range(k):
+        c = buf[i]
+        tally[c, 0] += sign
+        tally[c, 1] += sign * s
+        tally[c, 2] += sign * ss
+    h = hits[0]
+    for i in range(k + 1):
+        # s last too: a star without rows is not among its own neighbours
+        c = s if i == k else buf[i]
+        n, s1 = tally[c, 0], tally[c, 1]
+        if n > 0 and n * tally[c, 2] == s1 * s1 and not in_fam[c]:
+            new = s1 // n
+        elif n == 0 and not in_fam[c]:
+            new = -2
+        else:
+            new = -1
+        old = tight[c]
+        if new != old:
+            if old >= 0:
+                ntight[old] -= 1
+            if new >= 0:
+                ntight[new] += 1
+            tight[c] = new
+        if new >= 0 and h >= 0 and i < k:
+            if h + 1 < len(hits):
+                h += 1
+                hits[h] = c
+            else:
+                h = -1
+    hits[0] = h
+
+
+#: ``_Packing.tight`` of a free candidate (no row held by the family)
+FREE = -2
 
 
 @numba.njit(cache=True, nogil=True)
@@ -582,128 +554,129 @@ def _descend(P, hn, ops, k):
     return ops, k
 
 
-@numba.njit(cache=True, nogil=True)
-def _ils_start(P):
-    """The ILS's start: insert every free candidate (most compact first), then (1,2)-swaps
-    around every family star; returns the family's size."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
-    ops = np.empty(64, dtype=np.int64)
-    for r in range(len(order)):
-        c = order[r]
-        if tight[c] == -2:
-            _set(np.int64(c), _ONE, P)
-    hn = np.int64(0)
-    for t in range(len(in_fam)):
-        if in_fam[t]:
-            queued[t] = True
-            hn = _push(heap, hn, rank[t])
-    _descend(P, hn, ops, np.int64(0))
-    return np.count_nonzero(in_fam)
-
-
-@numba.njit(cache=True, nogil=True)
-def _ls_rounds(P, rounds):
-    """:func:`local_search`'s rounds on the packing ``P``; returns the swaps made.  The round's
-    view of the family is ``tight`` when it begins: free (-2) and 1-tight (t) candidates; a
-    candidate's rows are held by nothing but t now iff its ``tight`` is t or -2 now."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
-    n = len(in_fam)
-    mark = np.zeros(len(owner), dtype=np.bool_)
-    swaps = 0
-    for _ in range(rounds):
-        nf = no = 0
-        for c in range(n):
-            if tight[c] == -2:
-                nf += 1
-            elif tight[c] >= 0:
-                no += 1
-        free = np.empty(nf, dtype=np.int64)
-        one = np.empty(no, dtype=np.int64)
-        nf = no = 0
-        for c in range(n):
-            if tight[c] == -2:
-                free[nf] = c
-                nf += 1
-            elif tight[c] >= 0:
-                one[no] = c
-                no += 1
-        _sort_by_rank(free, nf, rank)
-        # grouped by their star (ascending), most compact first (the key is unique)
-        key = np.empty(no, dtype=np.int64)
-        for i in range(no):
-            key[i] = tight[one[i]] * n + rank[one[i]]
-        _shellsort(key, one, no)
-        grp = np.empty(no, dtype=np.int64)
-        for i in range(no):
-            grp[i] = tight[one[i]]
-        ok = np.empty(no, dtype=np.int64)
-        progress = False
-        # insert the free stars first (most compact first)
-        for c in free:
-            if tight[c] == -2:
-                _set(np.int64(c), _ONE, P)
-                progress = True
-        i = 0
-        while i < no:
-            t = grp[i]
-            e = i
-            while e < no and grp[e] == t:
-                e += 1
-            if in_fam[t]:
-                q = 0
-                for g in range(i, e):
-                    s = one[g]
-                    if tight[s] == t or tight[s] == -2:
-                        ok[q] = s
-                        q += 1
-                sa = sb = -1
-                for a in range(q):
-                    for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
-                        mark[rows[j]] = True
-                    for b in range(a + 1, q):
-                        apart = True
-                        for j in range(ptr[ok[b]], ptr[ok[b] + 1]):
-                            if mark[rows[j]]:
-                                apart = False
-                                break
-                        if apart:
-                            sa, sb = ok[a], ok[b]
-                            break
-                    for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
-                        mark[rows[j]] = False
-                    if sa >= 0:
-                        break
-                if sa >= 0:
-                    _set(np.int64(t), _MINUS, P)
-                    _set(np.int64(sa), _ONE, P)
-                    _set(np.int64(sb), _ONE, P)
-                    swaps += 1
-                    progress = True
-            i = e
-        if not progress:
-            break
-    return swaps
-
-
 #: draws per batch of the ILS perturbation
 ILS_BATCH = 1024
 
 
 @numba.njit(cache=True, nogil=True)
-def _ils_loop(P, batches, ctr, iterations, bound):
-    """:func:`ils`'s iterations, resumable: ``ctr`` = (iterations begun, batches drawn in the
-    current iteration's search, searching?, family size, done?).  Each iteration's perturbation
-    takes the first draw, batch after batch (at most 64), of a candidate outside the family
-    whose held rows belong to one or two family stars.  Returns when done (``ctr[4] = 1``) or
-    when it needs a batch past ``batches`` (``ctr[4] = 0``: call again with the next ones)."""
+def _search(P, task, batches, ctr, limit, bound):
+    """The searches on the packing ``P``, in one compiled entry (so that the kernels they share
+    are compiled and optimised once on a first run).
+
+    ``task`` 0: the local search's rounds (at most ``limit``; :func:`local_search`); returns
+    the swaps made.  A round's view of the family is ``tight`` when it begins: free (-2) and
+    1-tight (t) candidates; a candidate's rows are held by nothing but t now iff its ``tight``
+    is t or -2 now.
+
+    ``task`` 1: the ILS start: insert every free candidate (most compact first), then
+    (1,2)-swaps around every family star; returns the family's size.
+
+    ``task`` 2: :func:`ils`'s iterations (``limit`` in all, stopping at ``bound`` when >= 0),
+    resumable: ``ctr`` = (iterations begun, batches drawn in the current iteration's search,
+    searching?, family size, done?).  Each iteration's perturbation takes the first draw, batch
+    after batch of ``batches`` (at most 64), of a candidate outside the family whose held rows
+    belong to one or two family stars.  Returns when done (``ctr[4] = 1``) or when it needs a
+    batch past ``batches`` (``ctr[4] = 0``: call again with the next ones).
+    """
     ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
+    if task == 0:
+        n = len(in_fam)
+        mark = np.zeros(len(owner), dtype=np.bool_)
+        swaps = 0
+        for _ in range(limit):
+            nf = no = 0
+            for c in range(n):
+                if tight[c] == -2:
+                    nf += 1
+                elif tight[c] >= 0:
+                    no += 1
+            free = np.empty(nf, dtype=np.int64)
+            one = np.empty(no, dtype=np.int64)
+            nf = no = 0
+            for c in range(n):
+                if tight[c] == -2:
+                    free[nf] = c
+                    nf += 1
+                elif tight[c] >= 0:
+                    one[no] = c
+                    no += 1
+            _sort_by_rank(free, nf, rank)
+            # grouped by their star (ascending), most compact first (the key is unique)
+            key = np.empty(no, dtype=np.int64)
+            for i in range(no):
+                key[i] = tight[one[i]] * n + rank[one[i]]
+            _shellsort(key, one, no)
+            grp = np.empty(no, dtype=np.int64)
+            for i in range(no):
+                grp[i] = tight[one[i]]
+            ok = np.empty(no, dtype=np.int64)
+            progress = False
+            # insert the free stars first (most compact first)
+            for c in free:
+                if tight[c] == -2:
+                    _set(np.int64(c), _ONE, P)
+                    progress = True
+            i = 0
+            while i < no:
+                t = grp[i]
+                e = i
+                while e < no and grp[e] == t:
+                    e += 1
+                if in_fam[t]:
+                    q = 0
+                    for g in range(i, e):
+                        s = one[g]
+                        if tight[s] == t or tight[s] == -2:
+                            ok[q] = s
+                            q += 1
+                    sa = sb = -1
+                    for a in range(q):
+                        for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
+                            mark[rows[j]] = True
+                        for b in range(a + 1, q):
+                            apart = True
+                            for j in range(ptr[ok[b]], ptr[ok[b] + 1]):
+                                if mark[rows[j]]:
+                                    apart = False
+                                    break
+                            if apart:
+                                sa, sb = ok[a], ok[b]
+                                break
+                        for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
+                            mark[rows[j]] = False
+                        if sa >= 0:
+                            break
+                    if sa >= 0:
+                        _set(np.int64(t), _MINUS, P)
+                        _set(np.int64(sa), _ONE, P)
+                        _set(np.int64(sb), _ONE, P)
+                        swaps += 1
+                        progress = True
+                i = e
+            if not progress:
+                break
+        return swaps
+    if task == 1:
+        ops = np.empty(64, dtype=np.int64)
+        for r in range(len(order)):
+            c = order[r]
+            if tight[c] == -2:
+                _set(np.int64(c), _ONE, P)
+        hn = np.int64(0)
+        for t in range(len(in_fam)):
+            if in_fam[t]:
+                queued[t] = True
+                hn = _push(heap, hn, rank[t])
+        _descend(P, hn, ops, np.int64(0))
+        return np.count_nonzero(in_fam)
+    # task 2: the ILS iterations
     n = len(in_fam)
     it, tries, searching, size = ctr[0], ctr[1], ctr[2], ctr[3]
     ops = np.empty(256, dtype=np.int64)
     pos = 0
     while True:
         if not searching:
-            if n == 0 or it >= iterations or (bound >= 0 and size >= bound):
+            if n == 0 or it >= limit or (bound >= 0 and size >= bound):
                 ctr[4] = 1
                 break
             it += 1
@@ -713,7 +686,7 @@ def _ils_loop(P, batches, ctr, iterations, bound):
         while tries < 64 and s < 0:
             if pos == len(batches):
                 ctr[0], ctr[1], ctr[2], ctr[3], ctr[4] = it, tries, searching, size, 0
-                return
+                return 0
             batch = batches[pos]
             pos += 1
             tries += 1
@@ -764,23 +737,15 @@ def _ils_loop(P, batches, ctr, iterations, bound):
         for i in range(k):
             new += 1 if ops[i] > 0 else -1
         if new < size:  # smaller: revert (plateau moves are kept: they walk)
-            _undo(ops, np.int64(0), k, P)
+            for i in range(k - 1, -1, -1):
+                v = ops[i]
+                if v > 0:
+                    _set(np.int64(v - 1), _MINUS, P)
+                else:
+                    _set(np.int64(-v - 1), _ONE, P)
         else:
             size = new
     ctr[0], ctr[1], ctr[2], ctr[3] = it, tries, searching, size
-
-
-@numba.njit(cache=True, nogil=True)
-def _search(P, task, batches, ctr, limit, bound):
-    """The one compiled entry of the searches on the packing ``P`` (one entry, so that their
-    shared kernels are compiled and optimised once on a first run): ``task`` 0, the local
-    search's rounds (``limit`` of them; returns the swaps); 1, the ILS start (returns the
-    family's size); 2, the ILS iterations (:func:`_ils_loop`; ``limit`` of them)."""
-    if task == 0:
-        return _ls_rounds(P, limit)
-    if task == 1:
-        return _ils_start(P)
-    _ils_loop(P, batches, ctr, limit, bound)
     return 0
 
 
@@ -807,7 +772,7 @@ def ils(
     Deterministic: the only randomness is ``np.random.default_rng(seed)``, drawn in batches of
     :data:`ILS_BATCH` (``integers(0, n)``), and the budget is an iteration count.  Stops early
     at ``bound``.  Returns (family, iterations used).  The loop is compiled
-    (:func:`_ils_loop`); the batches are drawn here ahead of it, in the same stream.
+    (:func:`_search`); the batches are drawn here ahead of it, in the same stream.
     """
     return _ils_on(_Packing(chosen, ptr, rows, n_rows, _rank(order)), iterations, bound, seed)
 
