@@ -147,10 +147,29 @@ def local_search(
     that were free then and still are, most compact first; then, per family star t (by id), it
     takes the outside stars whose held rows all belonged to t, most compact first, keeps those
     that still conflict with nothing but t, and the first two of them that are disjoint replace
-    t.  Compiled (:func:`_search`, on :class:`_Packing`'s incremental state)."""
+    t.  Compiled (:func:`_ls_round`, on :class:`_Packing`'s incremental state)."""
     P = _Packing(chosen, ptr, rows, n_rows, _rank(order))
-    swaps = _search(P.arrays, 0, _NO_BATCHES, _NO_CTR, int(rounds), -1)
+    swaps = _local_search_on(P, int(rounds))
     return np.flatnonzero(P.in_fam), int(swaps)
+
+
+def _local_search_on(P: _Packing, rounds: int) -> int:
+    """:func:`local_search`'s rounds on the packing ``P`` (which they change); returns the swaps
+    made.  Each round's view (the free and the 1-tight candidates, sorted) is taken here, the
+    round itself is compiled (:func:`_ls_round`)."""
+    swaps = 0
+    mark = np.zeros(P.n_rows, dtype=np.bool_)
+    for _ in range(rounds):
+        t = P.tight
+        free = np.flatnonzero(t == FREE)
+        free = free[np.argsort(P.rank[free])]
+        one = np.flatnonzero(t >= 0)
+        one = one[np.lexsort((P.rank[one], t[one]))]
+        got = _ls_round(P.arrays, free, one, t[one].astype(np.int64), mark, np.empty(len(one), dtype=np.int64))
+        if got < 0:
+            break
+        swaps += got
+    return swaps
 
 
 def _rank(order: np.ndarray) -> np.ndarray:
@@ -190,6 +209,7 @@ class _Packing:
         ptr = np.asarray(ptr, dtype=np.int64)
         rows = np.asarray(rows, dtype=np.int64)
         rank = np.asarray(rank, dtype=np.int64)
+        self.rank = rank
         n = len(ptr) - 1
         self.n, self.n_rows = n, int(n_rows)
         rptr, cands = _csc(ptr, rows, self.n_rows)  # row -> candidates, ascending within a row
@@ -212,6 +232,10 @@ class _Packing:
             np.empty(n + 1, dtype=np.int64),  # heap of queued ranks
             np.zeros(n, dtype=np.bool_),  # queued
             np.zeros(4 * max(most, 1) + 1, dtype=np.int64),  # hits: the 1-tight found since a reset
+            # ops: the changes of one ILS step (s + 1: s inserted, -(s + 1): removed).  Each swap
+            # and each fill grows the family by one, so a step makes at most 3 x (the largest
+            # family) + 3 changes; a family holds at most one star per row, plus stars without rows
+            np.empty(3 * min(n, self.n_rows + int((np.diff(ptr) == 0).sum())) + 8, dtype=np.int64),
         )
         _insert_all(np.asarray(chosen, dtype=np.int64), self.arrays)
 
@@ -294,32 +318,20 @@ def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, buf, lst):
 
 @numba.njit(cache=True, nogil=True)
 def _sort_by_rank(lst, m, rank):
-    """Sort ``lst[:m]`` by rank (a permutation: no ties)."""
-    if m < 2:
-        return
-    key = np.empty(m, dtype=np.int64)
-    for i in range(m):
-        key[i] = rank[lst[i]]
-    _shellsort(key, lst, m)
-
-
-@numba.njit(cache=True, nogil=True)
-def _shellsort(key, val, m):
-    """Sort ``key[:m]`` ascending, ``val[:m]`` along (Shell's sort with gaps ~m/2.2^k ending in
-    1, insertion sort for short lists; not stable: the callers' keys are distinct).  No numpy
-    sort in the kernels: each costs seconds of compilation on a first run."""
+    """Sort ``lst[:m]`` by rank (a permutation: no ties; so an unstable sort does): Shell's sort,
+    gaps ~m/2.2^k ending in 1 (insertion sort for short lists).  No numpy sort in the kernels:
+    each costs seconds of compilation on a first run."""
     gap = m // 2
-    while True:
+    while gap > 0:
         for i in range(gap, m):
-            k, v = key[i], val[i]
+            v = lst[i]
+            rv = rank[v]
             j = i
-            while j >= gap and key[j - gap] > k:
-                key[j], val[j] = key[j - gap], val[j - gap]
+            while j >= gap and rank[lst[j - gap]] > rv:
+                lst[j] = lst[j - gap]
                 j -= gap
-            key[j], val[j] = k, v
-        if gap == 1:
-            break
-        gap = max(1, int(gap / 2.2))
+            lst[j] = v
+        gap = 0 if gap == 1 else max(1, int(gap / 2.2))
 
 
 #: the signs :func:`_set` takes, as int64 (a literal argument would compile a kernel again)
@@ -337,7 +349,7 @@ def _set(s, sign, P):
     candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow; -1: it
     overflowed).  (No kernel calls in here: a call per candidate costs more than the
     arithmetic, and each callee is compiled again into every caller on a first run.)"""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
     v = s if sign > 0 else np.int64(-1)
     k = 0
     for j in range(ptr[s], ptr[s + 1]):
@@ -389,7 +401,7 @@ def _insert_all(chosen, P):
     """The packing ``chosen`` (disjoint stars) from an empty state: owners and membership, then
     every candidate's tallies, ``tight`` and ``ntight`` in one pass over the incidence (the
     same numbers as inserting the stars one by one)."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
     for s in chosen:
         in_fam[s] = True
         for j in range(ptr[s], ptr[s + 1]):
@@ -415,18 +427,6 @@ def _insert_all(chosen, P):
 
 
 @numba.njit(cache=True, nogil=True)
-def _log(ops, k, v):
-    """``ops[k] = v``, growing ``ops`` when full; returns the (possibly new) array."""
-    if k == len(ops):
-        grown = np.empty(2 * len(ops), dtype=np.int64)
-        for i in range(k):
-            grown[i] = ops[i]
-        ops = grown
-    ops[k] = v
-    return ops
-
-
-@numba.njit(cache=True, nogil=True)
 def _undo(ops, k0, k1, P):
     """Revert ``ops[k0:k1]`` (s + 1: s was inserted; -(s + 1): removed), last first."""
     for i in range(k1 - 1, k0 - 1, -1):
@@ -438,12 +438,12 @@ def _undo(ops, k0, k1, P):
 
 
 @numba.njit(cache=True, nogil=True)
-def _fill(t, P, ops, k):
+def _fill(t, P, k):
     """Insert the candidates sharing a row with star t that are free (nothing of the family
     holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
     insertions happen here, so a candidate free now was free when the fill began.)
-    Returns (ops, k)."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
+    Returns the next free place in ``ops``."""
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
     m = 0
     for j in range(ptr[t], ptr[t + 1]):
         r = rows[j]
@@ -460,9 +460,9 @@ def _fill(t, P, ops, k):
         c = lst[i]
         if tight[c] == -2:
             _set(np.int64(c), _ONE, P)
-            ops = _log(ops, k, c + 1)
+            ops[k] = c + 1
             k += 1
-    return ops, k
+    return k
 
 
 @numba.njit(cache=True, nogil=True)
@@ -498,13 +498,13 @@ def _pop(heap, hn):
 
 
 @numba.njit(cache=True, nogil=True)
-def _enqueue(P, ops, k0, k1, hn):
+def _enqueue(P, k0, k1, hn):
     """Queue (once) every family star that a candidate sharing rows with the stars of
     ``ops[k0:k1]`` now conflicts with alone (1-tight); returns the heap's size.  Those
     candidates are the ones found 1-tight since ``hits`` was reset before ``ops[k0]`` (their
     ``tight`` was last set by these changes), looked at again now; when ``hits`` overflowed,
     every candidate sharing rows with the stars of ``ops[k0:k1]``."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
     if hits[0] >= 0:
         for i in range(1, hits[0] + 1):
             x = tight[hits[i]]
@@ -525,12 +525,12 @@ def _enqueue(P, ops, k0, k1, hn):
 
 
 @numba.njit(cache=True, nogil=True)
-def _descend(P, hn, ops, k):
+def _descend(P, hn, k):
     """(1,2)-swaps (and free insertions) until none is left for the queued stars, the most
     compact queued star first (a heap of ranks: ranks are distinct, so the order is the one of
     repeatedly taking the queue's minimum).  Logs the changes in ``ops`` from ``k`` on;
-    returns (ops, k)."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
+    returns the next free place in ``ops``."""
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
     while hn > 0:
         r, hn = _pop(heap, hn)
         t = order[r]
@@ -543,15 +543,72 @@ def _descend(P, hn, ops, k):
         k0 = k
         hits[0] = 0
         _set(np.int64(t), _MINUS, P)
-        ops = _log(ops, k, -(t + 1))
+        ops[k] = -(t + 1)
         _set(np.int64(a), _ONE, P)
-        ops = _log(ops, k + 1, a + 1)
+        ops[k + 1] = a + 1
         _set(np.int64(b), _ONE, P)
-        ops = _log(ops, k + 2, b + 1)
+        ops[k + 2] = b + 1
         k += 3
-        ops, k = _fill(t, P, ops, k)
-        hn = _enqueue(P, ops, k0, k, hn)
-    return ops, k
+        k = _fill(t, P, k)
+        hn = _enqueue(P, k0, k, hn)
+    return k
+
+
+@numba.njit(cache=True, nogil=True)
+def _ls_round(P, free, one, grp, mark, ok):
+    """One round of :func:`local_search` on the packing ``P``, whose view of the family is the
+    one when it began: ``free``, the candidates free then, most compact first; ``one``, those
+    then 1-tight with family star ``grp``, grouped by it (ascending), most compact first.  A
+    candidate's rows are held by nothing but t now iff its ``tight`` is t or -2 now.  ``mark``
+    (a False per row, left so) and ``ok`` are scratch.  Returns the swaps made, -1 when the
+    round changed nothing."""
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
+    no = len(one)
+    swaps = 0
+    progress = False
+    # insert the free stars first (most compact first)
+    for c in free:
+        if tight[c] == -2:
+            _set(np.int64(c), _ONE, P)
+            progress = True
+    i = 0
+    while i < no:
+        t = grp[i]
+        e = i
+        while e < no and grp[e] == t:
+            e += 1
+        if in_fam[t]:
+            q = 0
+            for g in range(i, e):
+                s = one[g]
+                if tight[s] == t or tight[s] == -2:
+                    ok[q] = s
+                    q += 1
+            sa = sb = -1
+            for a in range(q):
+                for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
+                    mark[rows[j]] = True
+                for b in range(a + 1, q):
+                    apart = True
+                    for j in range(ptr[ok[b]], ptr[ok[b] + 1]):
+                        if mark[rows[j]]:
+                            apart = False
+                            break
+                    if apart:
+                        sa, sb = ok[a], ok[b]
+                        break
+                for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
+                    mark[rows[j]] = False
+                if sa >= 0:
+                    break
+            if sa >= 0:
+                _set(np.int64(t), _MINUS, P)
+                _set(np.int64(sa), _ONE, P)
+                _set(np.int64(sb), _ONE, P)
+                swaps += 1
+                progress = True
+        i = e
+    return swaps if progress else -1
 
 
 #: draws per batch of the ILS perturbation
@@ -560,16 +617,11 @@ ILS_BATCH = 1024
 
 @numba.njit(cache=True, nogil=True)
 def _search(P, task, batches, ctr, limit, bound):
-    """The searches on the packing ``P``, in one compiled entry (so that the kernels they share
-    are compiled and optimised once on a first run).
-
-    ``task`` 0: the local search's rounds (at most ``limit``; :func:`local_search`); returns
-    the swaps made.  A round's view of the family is ``tight`` when it begins: free (-2) and
-    1-tight (t) candidates; a candidate's rows are held by nothing but t now iff its ``tight``
-    is t or -2 now.
+    """The ILS on the packing ``P``, in one compiled entry (so that the kernels its two tasks
+    share are compiled and optimised once on a first run).
 
     ``task`` 1: the ILS start: insert every free candidate (most compact first), then
-    (1,2)-swaps around every family star; returns the family's size.
+    (1,2)-swaps around every family star.
 
     ``task`` 2: :func:`ils`'s iterations (``limit`` in all, stopping at ``bound`` when >= 0),
     resumable: ``ctr`` = (iterations begun, batches drawn in the current iteration's search,
@@ -578,86 +630,8 @@ def _search(P, task, batches, ctr, limit, bound):
     belong to one or two family stars.  Returns when done (``ctr[4] = 1``) or when it needs a
     batch past ``batches`` (``ctr[4] = 0``: call again with the next ones).
     """
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits = P
-    if task == 0:
-        n = len(in_fam)
-        mark = np.zeros(len(owner), dtype=np.bool_)
-        swaps = 0
-        for _ in range(limit):
-            nf = no = 0
-            for c in range(n):
-                if tight[c] == -2:
-                    nf += 1
-                elif tight[c] >= 0:
-                    no += 1
-            free = np.empty(nf, dtype=np.int64)
-            one = np.empty(no, dtype=np.int64)
-            nf = no = 0
-            for c in range(n):
-                if tight[c] == -2:
-                    free[nf] = c
-                    nf += 1
-                elif tight[c] >= 0:
-                    one[no] = c
-                    no += 1
-            _sort_by_rank(free, nf, rank)
-            # grouped by their star (ascending), most compact first (the key is unique)
-            key = np.empty(no, dtype=np.int64)
-            for i in range(no):
-                key[i] = tight[one[i]] * n + rank[one[i]]
-            _shellsort(key, one, no)
-            grp = np.empty(no, dtype=np.int64)
-            for i in range(no):
-                grp[i] = tight[one[i]]
-            ok = np.empty(no, dtype=np.int64)
-            progress = False
-            # insert the free stars first (most compact first)
-            for c in free:
-                if tight[c] == -2:
-                    _set(np.int64(c), _ONE, P)
-                    progress = True
-            i = 0
-            while i < no:
-                t = grp[i]
-                e = i
-                while e < no and grp[e] == t:
-                    e += 1
-                if in_fam[t]:
-                    q = 0
-                    for g in range(i, e):
-                        s = one[g]
-                        if tight[s] == t or tight[s] == -2:
-                            ok[q] = s
-                            q += 1
-                    sa = sb = -1
-                    for a in range(q):
-                        for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
-                            mark[rows[j]] = True
-                        for b in range(a + 1, q):
-                            apart = True
-                            for j in range(ptr[ok[b]], ptr[ok[b] + 1]):
-                                if mark[rows[j]]:
-                                    apart = False
-                                    break
-                            if apart:
-                                sa, sb = ok[a], ok[b]
-                                break
-                        for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
-                            mark[rows[j]] = False
-                        if sa >= 0:
-                            break
-                    if sa >= 0:
-                        _set(np.int64(t), _MINUS, P)
-                        _set(np.int64(sa), _ONE, P)
-                        _set(np.int64(sb), _ONE, P)
-                        swaps += 1
-                        progress = True
-                i = e
-            if not progress:
-                break
-        return swaps
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
     if task == 1:
-        ops = np.empty(64, dtype=np.int64)
         for r in range(len(order)):
             c = order[r]
             if tight[c] == -2:
@@ -667,12 +641,11 @@ def _search(P, task, batches, ctr, limit, bound):
             if in_fam[t]:
                 queued[t] = True
                 hn = _push(heap, hn, rank[t])
-        _descend(P, hn, ops, np.int64(0))
-        return np.count_nonzero(in_fam)
+        _descend(P, hn, np.int64(0))
+        return 0
     # task 2: the ILS iterations
     n = len(in_fam)
     it, tries, searching, size = ctr[0], ctr[1], ctr[2], ctr[3]
-    ops = np.empty(256, dtype=np.int64)
     pos = 0
     while True:
         if not searching:
@@ -719,20 +692,20 @@ def _search(P, task, batches, ctr, limit, bound):
         # around them, then (1,2)-swaps around every change
         hits[0] = 0
         _set(np.int64(h1), _MINUS, P)
-        ops = _log(ops, np.int64(0), -(h1 + 1))
+        ops[0] = -(h1 + 1)
         k = 1
         if h2 >= 0:
             _set(np.int64(h2), _MINUS, P)
-            ops = _log(ops, np.int64(1), -(h2 + 1))
+            ops[1] = -(h2 + 1)
             k = 2
         _set(np.int64(s), _ONE, P)
-        ops = _log(ops, k, s + 1)
+        ops[k] = s + 1
         k += 1
-        ops, k = _fill(np.int64(h1), P, ops, k)
+        k = _fill(np.int64(h1), P, k)
         if h2 >= 0:
-            ops, k = _fill(np.int64(h2), P, ops, k)
-        hn = _enqueue(P, ops, np.int64(0), k, np.int64(0))
-        ops, k = _descend(P, hn, ops, k)
+            k = _fill(np.int64(h2), P, k)
+        hn = _enqueue(P, np.int64(0), k, np.int64(0))
+        k = _descend(P, hn, k)
         new = size
         for i in range(k):
             new += 1 if ops[i] > 0 else -1
@@ -781,7 +754,8 @@ def _ils_on(P: _Packing, iterations: int, bound: int | None, seed: int) -> tuple
     """:func:`ils` from the family in the packing ``P`` (which it changes)."""
     n = P.n
     # start from a local optimum w.r.t. free insertions and (1,2)-swaps
-    size = _search(P.arrays, 1, _NO_BATCHES, _NO_CTR, 0, -1)
+    _search(P.arrays, 1, _NO_BATCHES, _NO_CTR, 0, -1)
+    size = P.size
     rng = np.random.default_rng(seed)
     ctr = np.array([0, 0, 0, size, 0], dtype=np.int64)
     limit = -1 if bound is None else int(bound)
@@ -935,7 +909,7 @@ def select_family(
     t1 = time.perf_counter()
     # local search and ILS on one packing state (local_search and ils, without building it twice)
     packing = _Packing(chosen, ptr, rows, n_rows, _rank(order))
-    swaps = int(_search(packing.arrays, 0, _NO_BATCHES, _NO_CTR, 200, -1))
+    swaps = _local_search_on(packing, 200)
     chosen = np.flatnonzero(packing.in_fam)
     info.update(local_search=int(len(chosen)), swaps=swaps, local_search_s=round(time.perf_counter() - t1, 3))
     budget = ILS_ITERATIONS if ils_iterations is None else int(ils_iterations)
