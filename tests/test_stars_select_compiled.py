@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from starforge.stars.enumerate import enumerate_candidates
-from starforge.stars.rules import internal_ok, key_triples, window_rows
+from starforge.stars.rules import internal_ok, window_rows
 from starforge.stars.select import _csr, compactness_order, greedy, ils, local_search
 from starforge.stars.spec import StarSpec
 
@@ -430,59 +430,7 @@ def test_no_draw_qualifies():
     assert got[1] == want[1] == 1 and np.array_equal(got[0], want[0])
 
 
-# the window rows and the compactness order as they were (numpy), the references of the compiled
-# window codes and of the order's single volume sort
-
-
-def ref_window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
-    keys = key_triples(index, rule)  # (n, k, 3)
-    n, k, _ = keys.shape
-    tag = (np.arange(k) >= 4).astype(np.int64)  # 0 face, 1 vertex
-    base = pool_size + m  # room for negative anchors shifted by m
-    offs = [(a, b, c) for a in range(m) for b in range(m) for c in range(m)]
-    # code of the window anchored at key - offset (shifted by m), column key * m^3 + offset
-    code = np.empty((n, k * len(offs)), dtype=np.int64)
-    for j in range(k):
-        k0, k1, k2 = (keys[:, j, i].astype(np.int64) for i in range(3))
-        for o, (a, b, c) in enumerate(offs):
-            col = code[:, j * len(offs) + o]
-            np.add(k0, tag[j] * base + m - a, out=col)
-            col *= base
-            col += k1
-            col += m - b
-            col *= base
-            col += k2
-            col += m - c
-    # one entry per (star, row), each star's rows in ascending code order: sort within the star
-    # and drop repeats (two keys of one star in one window; none after internal_ok)
-    if code.shape[1] == 4:  # the face rule at m = 1: a sorting network (many 4-element sorts are slow)
-        a, b, c, d = (code[:, i] for i in range(4))
-        a, b = np.minimum(a, b), np.maximum(a, b)
-        c, d = np.minimum(c, d), np.maximum(c, d)
-        a, c = np.minimum(a, c), np.maximum(a, c)
-        b, d = np.minimum(b, d), np.maximum(b, d)
-        b, c = np.minimum(b, c), np.maximum(b, c)
-        code = np.stack([a, b, c, d], axis=1)
-    else:
-        code = np.sort(code, axis=1)
-    keep = np.ones(code.shape, dtype=bool)
-    keep[:, 1:] = code[:, 1:] != code[:, :-1]
-    if keep.all():  # the usual case: no boolean indexing needed
-        star = np.repeat(np.arange(n, dtype=np.intp), code.shape[1])
-        code = code.ravel()
-    else:
-        star = np.broadcast_to(np.arange(n, dtype=np.intp)[:, None], code.shape)[keep]
-        code = code[keep]
-    # rows numbered by ascending code: a dense table when the code space is small (no sort;
-    # at most 16 M entries, about 150 MB with the ranks)
-    span = 2 * base**3
-    if span <= 1 << 24:
-        used = np.zeros(span, dtype=bool)
-        used[code] = True
-        rank = np.cumsum(used, dtype=np.intp) - 1
-        return star, rank[code], int(rank[-1] + 1) if len(code) else 0
-    uniq, row = np.unique(code, return_inverse=True)
-    return star, row.astype(np.intp), len(uniq)
+# the compactness order as it was (a lexsort of every key), the reference of the single volume sort
 
 
 def ref_compactness_order(index: np.ndarray, pool: np.ndarray, volume: np.ndarray) -> np.ndarray:
@@ -497,18 +445,6 @@ def ref_compactness_order(index: np.ndarray, pool: np.ndarray, volume: np.ndarra
     keys = [index[:, k] for k in range(5, -1, -1)]
     return np.lexsort((*keys, pool[index].sum(axis=1), np.round(volume, 9)))
 
-
-
-@pytest.mark.parametrize("rule,m,which", [("face", 1, 1), ("pair", 1, 1), ("face", 2, 0), ("pair", 2, 0), ("face", 3, 0),
-                                          ("pair", 3, 1)])
-def test_window_rows_is_the_reference(small, rule, m, which):
-    c = small[which]
-    index = c.index if m < 3 else c.index[:3000]  # m = 3: stars with repeated windows too
-    got = window_rows(index, rule, m, len(c.pool_mm))
-    want = ref_window_rows(index, rule, m, len(c.pool_mm))
-    assert got[2] == want[2]
-    for a, b in zip(got[:2], want[:2], strict=True):
-        assert a.dtype == b.dtype and np.array_equal(a, b)
 
 
 def test_compactness_order_is_the_reference(small):

@@ -20,7 +20,7 @@ HELPER = (
 AFTER = """
 import json
 import numpy as np
-from starforge.stars import enumerate as E, rules as R, select as S
+from starforge.stars import enumerate as E, select as S
 from starforge.stars.rules import window_rows
 from starforge.stars.spec import StarSpec
 
@@ -34,7 +34,7 @@ g = S.greedy(order, ptr, rows, n_rows)
 g, _ = S.local_search(g, order, ptr, rows, n_rows)
 S.ils(g, order, ptr, rows, n_rows, iterations=20)
 out = {}
-for f in (E._classify, E._subsets_from, R._window_codes, R._dense_rows, S._greedy, S._csc,
+for f in (E._classify, E._subsets_from, S._greedy, S._csc,
           S._insert_all, S._ls_round, S._search):
     out[f.py_func.__name__] = [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]
 print(json.dumps(out))

@@ -85,7 +85,7 @@ def _helper() -> None:
     codes = np.empty((1, len(assign)), dtype=np.int8)
     _classify(sub, assign, 10.0, 1.0, np.array([5.0, 10.0, 40.0]), 1.0, 0.01, 0, codes, 0, 1)
     _subsets_from(8, 1, np.array([0, 1, 2, 3, 4, 5], dtype=np.int64), 2)
-    # the selection, on two stars sharing rows: key windows, greedy, local search and the ILS
+    # the selection, on two stars sharing rows: greedy, the packing, local search and the ILS
     from starforge.stars.rules import window_rows
 
     idx = np.array([[0, 1, 2, 3, 4, 5], [0, 1, 2, 3, 4, 6]], dtype=np.int16)
