@@ -452,3 +452,19 @@ def test_compactness_order_is_the_reference(small):
     for digits in (9, 2, 1, 0):  # coarser volumes: many ties, decided by the full key
         vol = np.round(c.box_volume, digits)
         assert np.array_equal(compactness_order(c.index, c.pool_mm, vol), ref_compactness_order(c.index, c.pool_mm, vol))
+
+
+@pytest.mark.parametrize("rule,m,which", [("face", 1, 1), ("pair", 1, 1), ("face", 2, 0), ("pair", 2, 0), ("face", 3, 0),
+                                          ("pair", 3, 1)])
+def test_compiled_window_rows_are_numpys(small, rule, m, which):
+    """Large inputs take the compiled window rows: the same entries and rows as numpy's path."""
+    from starforge.stars import rules
+
+    c = small[which]
+    index = c.index if m < 3 else c.index[:3000]  # m = 3: stars with repeated windows too
+    assert len(index) * rules.KEYS[rule] * m**3 < rules.WINDOW_KERNEL_ENTRIES  # numpy's path below
+    got = rules._window_rows_compiled(index, rule, m, len(c.pool_mm))
+    want = window_rows(index, rule, m, len(c.pool_mm))
+    assert got[2] == want[2]
+    for a, b in zip(got[:2], want[:2], strict=True):
+        assert a.dtype == b.dtype and np.array_equal(a, b)
