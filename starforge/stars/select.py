@@ -276,7 +276,7 @@ def _csc(ptr, rows, n_rows):
 FREE = -2
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, buf, lst):
     """The first pair, in rank order (most compact first), of distinct candidates 1-tight with
     family star t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint; (-1, -1) if
@@ -316,7 +316,7 @@ def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, buf, lst):
     return -1, -1
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _sort_by_rank(lst, m, rank):
     """Sort ``lst[:m]`` by rank (a permutation: no ties; so an unstable sort does): Shell's sort,
     gaps ~m/2.2^k ending in 1 (insertion sort for short lists).  No numpy sort in the kernels:
@@ -437,7 +437,7 @@ def _undo(ops, k0, k1, P):
             _set(np.int64(-v - 1), _ONE, P)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _fill(t, P, k):
     """Insert the candidates sharing a row with star t that are free (nothing of the family
     holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
@@ -465,7 +465,7 @@ def _fill(t, P, k):
     return k
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _push(heap, hn, v):
     heap[hn] = v
     i = hn
@@ -478,7 +478,7 @@ def _push(heap, hn, v):
     return hn + 1
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _pop(heap, hn):
     top = heap[0]
     hn -= 1
@@ -497,7 +497,7 @@ def _pop(heap, hn):
     return top, hn
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _enqueue(P, k0, k1, hn):
     """Queue (once) every family star that a candidate sharing rows with the stars of
     ``ops[k0:k1]`` now conflicts with alone (1-tight); returns the heap's size.  Those
@@ -524,7 +524,7 @@ def _enqueue(P, k0, k1, hn):
     return hn
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _descend(P, hn, k):
     """(1,2)-swaps (and free insertions) until none is left for the queued stars, the most
     compact queued star first (a heap of ranks: ranks are distinct, so the order is the one of
