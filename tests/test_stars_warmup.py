@@ -35,7 +35,7 @@ g, _ = S.local_search(g, order, ptr, rows, n_rows)
 S.ils(g, order, ptr, rows, n_rows, iterations=20)
 out = {}
 for f in (E._classify, E._subsets_from, S._greedy, S._csc,
-          S._insert_all, S._ls_round, S._search):
+          S._search):
     out[f.py_func.__name__] = [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]
 print(json.dumps(out))
 """

@@ -147,7 +147,7 @@ def local_search(
     that were free then and still are, most compact first; then, per family star t (by id), it
     takes the outside stars whose held rows all belonged to t, most compact first, keeps those
     that still conflict with nothing but t, and the first two of them that are disjoint replace
-    t.  Compiled (:func:`_ls_round`, on :class:`_Packing`'s incremental state)."""
+    t.  Compiled (:func:`_search`, on :class:`_Packing`'s incremental state)."""
     P = _Packing(chosen, ptr, rows, n_rows, _rank(order))
     swaps = _local_search_on(P, int(rounds))
     return np.flatnonzero(P.in_fam), int(swaps)
@@ -156,16 +156,17 @@ def local_search(
 def _local_search_on(P: _Packing, rounds: int) -> int:
     """:func:`local_search`'s rounds on the packing ``P`` (which they change); returns the swaps
     made.  Each round's view (the free and the 1-tight candidates, sorted) is taken here, the
-    round itself is compiled (:func:`_ls_round`)."""
+    round itself is compiled (:func:`_search`, task 3)."""
     swaps = 0
-    mark = np.zeros(P.n_rows, dtype=np.bool_)
     for _ in range(rounds):
         t = P.tight
         free = np.flatnonzero(t == FREE)
-        free = free[np.argsort(P.rank[free])]
         one = np.flatnonzero(t >= 0)
+        lists = np.zeros((3, max(len(free), len(one))), dtype=np.int64)
+        lists[0, : len(free)] = free[np.argsort(P.rank[free])]
         one = one[np.lexsort((P.rank[one], t[one]))]
-        got = _ls_round(P.arrays, free, one, t[one].astype(np.int64), mark, np.empty(len(one), dtype=np.int64))
+        lists[1, : len(one)], lists[2, : len(one)] = one, t[one]
+        got = _search(P.arrays, 3, lists, np.array([len(free), len(one)], dtype=np.int64), 0, -1)
         if got < 0:
             break
         swaps += got
@@ -236,8 +237,10 @@ class _Packing:
             # and each fill grows the family by one, so a step makes at most 3 x (the largest
             # family) + 3 changes; a family holds at most one star per row, plus stars without rows
             np.empty(3 * min(n, self.n_rows + int((np.diff(ptr) == 0).sum())) + 8, dtype=np.int64),
+            np.zeros(self.n_rows, dtype=np.bool_),  # mark: a False per row between calls
         )
-        _insert_all(np.asarray(chosen, dtype=np.int64), self.arrays)
+        chosen = np.asarray(chosen, dtype=np.int64)
+        _search(self.arrays, 0, chosen.reshape(1, -1), _NO_CTR, len(chosen), -1)
 
     @property
     def size(self) -> int:
@@ -349,7 +352,7 @@ def _set(s, sign, P):
     candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow; -1: it
     overflowed).  (No kernel calls in here: a call per candidate costs more than the
     arithmetic, and each callee is compiled again into every caller on a first run.)"""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
     v = s if sign > 0 else np.int64(-1)
     k = 0
     for j in range(ptr[s], ptr[s + 1]):
@@ -397,36 +400,6 @@ FREE = -2
 
 
 @numba.njit(cache=True, nogil=True)
-def _insert_all(chosen, P):
-    """The packing ``chosen`` (disjoint stars) from an empty state: owners and membership, then
-    every candidate's tallies, ``tight`` and ``ntight`` in one pass over the incidence (the
-    same numbers as inserting the stars one by one)."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
-    for s in chosen:
-        in_fam[s] = True
-        for j in range(ptr[s], ptr[s + 1]):
-            owner[rows[j]] = s
-    for c in range(len(in_fam)):
-        n = s1 = s2 = 0
-        for j in range(ptr[c], ptr[c + 1]):
-            o = owner[rows[j]]
-            if o >= 0:
-                n += 1
-                s1 += o
-                s2 += o * o
-        tally[c, 0], tally[c, 1], tally[c, 2] = n, s1, s2
-        if n > 0 and n * s2 == s1 * s1 and not in_fam[c]:
-            t = s1 // n
-        elif n == 0 and not in_fam[c]:
-            t = -2
-        else:
-            t = -1
-        tight[c] = t
-        if t >= 0:
-            ntight[t] += 1
-
-
-@numba.njit(cache=True, nogil=True)
 def _undo(ops, k0, k1, P):
     """Revert ``ops[k0:k1]`` (s + 1: s was inserted; -(s + 1): removed), last first."""
     for i in range(k1 - 1, k0 - 1, -1):
@@ -443,7 +416,7 @@ def _fill(t, P, k):
     holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
     insertions happen here, so a candidate free now was free when the fill began.)
     Returns the next free place in ``ops``."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
     m = 0
     for j in range(ptr[t], ptr[t + 1]):
         r = rows[j]
@@ -504,7 +477,7 @@ def _enqueue(P, k0, k1, hn):
     candidates are the ones found 1-tight since ``hits`` was reset before ``ops[k0]`` (their
     ``tight`` was last set by these changes), looked at again now; when ``hits`` overflowed,
     every candidate sharing rows with the stars of ``ops[k0:k1]``."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
     if hits[0] >= 0:
         for i in range(1, hits[0] + 1):
             x = tight[hits[i]]
@@ -530,7 +503,7 @@ def _descend(P, hn, k):
     compact queued star first (a heap of ranks: ranks are distinct, so the order is the one of
     repeatedly taking the queue's minimum).  Logs the changes in ``ops`` from ``k`` on;
     returns the next free place in ``ops``."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
     while hn > 0:
         r, hn = _pop(heap, hn)
         t = order[r]
@@ -554,71 +527,24 @@ def _descend(P, hn, k):
     return k
 
 
-@numba.njit(cache=True, nogil=True)
-def _ls_round(P, free, one, grp, mark, ok):
-    """One round of :func:`local_search` on the packing ``P``, whose view of the family is the
-    one when it began: ``free``, the candidates free then, most compact first; ``one``, those
-    then 1-tight with family star ``grp``, grouped by it (ascending), most compact first.  A
-    candidate's rows are held by nothing but t now iff its ``tight`` is t or -2 now.  ``mark``
-    (a False per row, left so) and ``ok`` are scratch.  Returns the swaps made, -1 when the
-    round changed nothing."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
-    no = len(one)
-    swaps = 0
-    progress = False
-    # insert the free stars first (most compact first)
-    for c in free:
-        if tight[c] == -2:
-            _set(np.int64(c), _ONE, P)
-            progress = True
-    i = 0
-    while i < no:
-        t = grp[i]
-        e = i
-        while e < no and grp[e] == t:
-            e += 1
-        if in_fam[t]:
-            q = 0
-            for g in range(i, e):
-                s = one[g]
-                if tight[s] == t or tight[s] == -2:
-                    ok[q] = s
-                    q += 1
-            sa = sb = -1
-            for a in range(q):
-                for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
-                    mark[rows[j]] = True
-                for b in range(a + 1, q):
-                    apart = True
-                    for j in range(ptr[ok[b]], ptr[ok[b] + 1]):
-                        if mark[rows[j]]:
-                            apart = False
-                            break
-                    if apart:
-                        sa, sb = ok[a], ok[b]
-                        break
-                for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
-                    mark[rows[j]] = False
-                if sa >= 0:
-                    break
-            if sa >= 0:
-                _set(np.int64(t), _MINUS, P)
-                _set(np.int64(sa), _ONE, P)
-                _set(np.int64(sb), _ONE, P)
-                swaps += 1
-                progress = True
-        i = e
-    return swaps if progress else -1
-
-
 #: draws per batch of the ILS perturbation
 ILS_BATCH = 1024
 
 
 @numba.njit(cache=True, nogil=True)
 def _search(P, task, batches, ctr, limit, bound):
-    """The ILS on the packing ``P``, in one compiled entry (so that the kernels its two tasks
-    share are compiled and optimised once on a first run).
+    """The searches on the packing ``P``, in one compiled entry (so that the kernels its tasks
+    share are compiled and optimised once on a first run: each entry compiles its callees
+    again).
+
+    ``task`` 0: insert the stars ``batches[0, :limit]`` (a packing) into an empty state.
+
+    ``task`` 3: one round of :func:`local_search`, whose view of the family is the one when it
+    began: ``batches[0, :ctr[0]]``, the candidates free then, most compact first;
+    ``batches[1, :ctr[1]]``, those then 1-tight with family star ``batches[2, :ctr[1]]``,
+    grouped by it (ascending), most compact first.  A candidate's rows are held by nothing but
+    t now iff its ``tight`` is t or -2 now.  Returns the swaps made, -1 when the round changed
+    nothing.
 
     ``task`` 1: the ILS start: insert every free candidate (most compact first), then
     (1,2)-swaps around every family star.
@@ -630,7 +556,60 @@ def _search(P, task, batches, ctr, limit, bound):
     belong to one or two family stars.  Returns when done (``ctr[4] = 1``) or when it needs a
     batch past ``batches`` (``ctr[4] = 0``: call again with the next ones).
     """
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    if task == 0:
+        for i in range(limit):
+            _set(batches[0, i], _ONE, P)
+        return 0
+    if task == 3:
+        # one round of the local search (see _local_search_on); lst is the scratch "ok" list
+        free, one, grp, ok = batches[0, : ctr[0]], batches[1, : ctr[1]], batches[2, : ctr[1]], lst
+        no = len(one)
+        swaps = 0
+        progress = False
+        # insert the free stars first (most compact first)
+        for c in free:
+            if tight[c] == -2:
+                _set(np.int64(c), _ONE, P)
+                progress = True
+        i = 0
+        while i < no:
+            t = grp[i]
+            e = i
+            while e < no and grp[e] == t:
+                e += 1
+            if in_fam[t]:
+                q = 0
+                for g in range(i, e):
+                    s = one[g]
+                    if tight[s] == t or tight[s] == -2:
+                        ok[q] = s
+                        q += 1
+                sa = sb = -1
+                for a in range(q):
+                    for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
+                        mark[rows[j]] = True
+                    for b in range(a + 1, q):
+                        apart = True
+                        for j in range(ptr[ok[b]], ptr[ok[b] + 1]):
+                            if mark[rows[j]]:
+                                apart = False
+                                break
+                        if apart:
+                            sa, sb = ok[a], ok[b]
+                            break
+                    for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
+                        mark[rows[j]] = False
+                    if sa >= 0:
+                        break
+                if sa >= 0:
+                    _set(np.int64(t), _MINUS, P)
+                    _set(np.int64(sa), _ONE, P)
+                    _set(np.int64(sb), _ONE, P)
+                    swaps += 1
+                    progress = True
+            i = e
+        return swaps if progress else -1
     if task == 1:
         for r in range(len(order)):
             c = order[r]
