@@ -280,28 +280,13 @@ FREE = -2
 
 
 @numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, buf, lst):
+def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, lst):
     """The first pair, in rank order (most compact first), of distinct candidates 1-tight with
     family star t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint; (-1, -1) if
-    none.  ``seen`` (all False, left so), ``buf`` and ``lst`` are scratch space."""
+    none.  ``seen`` (all False, left so) and ``lst`` are scratch space."""
     if ntight[t] < 2:
         return -1, -1
-    k = 0
-    for j in range(ptr[t], ptr[t + 1]):
-        r = rows[j]
-        for q in range(rptr[r], rptr[r + 1]):
-            buf[k] = cands[q]
-            k += 1
-    m = 0
-    for i in range(k):
-        c = buf[i]
-        if tight[c] == t and not seen[c]:
-            seen[c] = True
-            lst[m] = c
-            m += 1
-    for i in range(m):
-        seen[lst[i]] = False
-    _sort_by_rank(lst, m, rank)
+    m = _neighbours(t, t, ptr, rows, rptr, cands, tight, rank, seen, lst)
     for i in range(m - 1):
         a = lst[i]
         for j in range(i + 1, m):
@@ -317,6 +302,26 @@ def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, buf, lst):
             if apart:
                 return a, b
     return -1, -1
+
+
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def _neighbours(t, want, ptr, rows, rptr, cands, tight, rank, seen, lst):
+    """The candidates sharing a row with star t whose ``tight`` is ``want`` (-2: free; t:
+    1-tight with t), each once, most compact first, in ``lst[:m]``; returns m.  ``seen`` (all
+    False) is left so."""
+    m = 0
+    for j in range(ptr[t], ptr[t + 1]):
+        r = rows[j]
+        for q in range(rptr[r], rptr[r + 1]):
+            c = cands[q]
+            if tight[c] == want and not seen[c]:
+                seen[c] = True
+                lst[m] = c
+                m += 1
+    for i in range(m):
+        seen[lst[i]] = False
+    _sort_by_rank(lst, m, rank)
+    return m
 
 
 @numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
@@ -417,18 +422,7 @@ def _fill(t, P, k):
     insertions happen here, so a candidate free now was free when the fill began.)
     Returns the next free place in ``ops``."""
     ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
-    m = 0
-    for j in range(ptr[t], ptr[t + 1]):
-        r = rows[j]
-        for q in range(rptr[r], rptr[r + 1]):
-            c = cands[q]
-            if tight[c] == -2 and not seen[c]:
-                seen[c] = True
-                lst[m] = c
-                m += 1
-    for i in range(m):
-        seen[lst[i]] = False
-    _sort_by_rank(lst, m, rank)
+    m = _neighbours(t, np.int64(-2), ptr, rows, rptr, cands, tight, rank, seen, lst)
     for i in range(m):
         c = lst[i]
         if tight[c] == -2:
@@ -510,7 +504,7 @@ def _descend(P, hn, k):
         queued[t] = False
         if not in_fam[t]:
             continue
-        a, b = _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, buf, lst)
+        a, b = _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, lst)
         if a < 0:
             continue
         k0 = k
