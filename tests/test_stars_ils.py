@@ -125,15 +125,19 @@ def test_packing_bookkeeping_matches_recount(cands):
         for s in fam.tolist():
             assert (owner[rows[ptr[s] : ptr[s + 1]]] == s).all()
         assert (owner >= 0).sum() == sum(ptr[s + 1] - ptr[s] for s in fam.tolist())
+        tight = np.full(n, -1)
         for c in range(n):
             own = owner[rows[ptr[c] : ptr[c + 1]]]
             own = own[own >= 0]
             assert P.cnt[c] == len(own)
             assert P.s1[c] == own.sum() and P.s2[c] == (own * own).sum()
             one = len(own) > 0 and len(np.unique(own)) == 1 and not P.in_fam[c]
-            assert P.tight[c] == (own[0] if one else -1)
+            tight[c] = own[0] if one else (-2 if not len(own) and not P.in_fam[c] else -1)
+        assert np.array_equal(P.tight, tight)
+        assert np.array_equal(P.ntight, np.bincount(tight[tight >= 0], minlength=n))
 
-    P.log = []
+    check()
+    ops = []
     for _ in range(60):
         c = int(rng.integers(n))
         if P.in_fam[c]:
@@ -145,15 +149,17 @@ def test_packing_bookkeeping_matches_recount(cands):
             P.insert(c)
     check()
     before = P.in_fam.copy()
-    P.log = []
     for _ in range(10):
         fam = np.flatnonzero(P.in_fam)
         if len(fam):
-            P.remove(int(fam[rng.integers(len(fam))]))
+            s = int(fam[rng.integers(len(fam))])
+            P.remove(s)
+            ops.append(-(s + 1))
         free = np.flatnonzero(~P.in_fam & (P.cnt == 0))
         if len(free):
             P.insert(int(free[0]))
-    P.undo()
+            ops.append(int(free[0]) + 1)
+    P.undo(np.array(ops))
     assert np.array_equal(P.in_fam, before)
     check()
 

@@ -31,9 +31,11 @@ star_of, row, n_rows = window_rows(idx, "face", 1, spec.pool_size)
 ptr, rows = S._csr(star_of, row, len(idx))
 order = np.arange(len(idx))
 g = S.greedy(order, ptr, rows, n_rows)
+g, _ = S.local_search(g, order, ptr, rows, n_rows)
 S.ils(g, order, ptr, rows, n_rows, iterations=20)
 out = {}
-for f in (E._classify, E._subsets_from, S._greedy, S._update_kernel, S._two_swap):
+for f in (E._classify, E._subsets_from, S._greedy, S._csc,
+          S._search):
     out[f.py_func.__name__] = [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]
 print(json.dumps(out))
 """

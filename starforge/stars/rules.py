@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from starforge.geometry.tetra import FACE_EDGES
@@ -86,6 +87,13 @@ def window_bytes(n_stars: float, rule: str, m: int) -> float:
     return n_stars * KEYS[rule] * m**3 * 64.0 + 100e6
 
 
+#: (star, window) entries from which :func:`window_rows` runs compiled (:func:`_window_codes`):
+#: on 20 M entries (``--delta 1.0``) about 0.5-1 s instead of 1.5-3.4 s; below it numpy's
+#: passes take a few hundredths of a second (the finger default: 1.4 M entries, 0.04 s) and a
+#: first run does not compile the kernels (0.5 CPU s)
+WINDOW_KERNEL_ENTRIES = 4_000_000
+
+
 def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
     """The set-packing incidence: (star, row) pairs, one row per key window.
 
@@ -103,6 +111,8 @@ def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
         f"the selection's key windows ({n_stars:,} stars x {KEYS[rule]} keys x {m**3:,} tolerance offsets)",
         f"lower tolerance_mm or raise delta_mm (the tolerance spans {m} pool steps; each step cubes the windows)",
     )
+    if n_stars * KEYS[rule] * m**3 >= WINDOW_KERNEL_ENTRIES:
+        return _window_rows_compiled(np.asarray(index), rule, m, pool_size)
     keys = key_triples(index, rule)  # (n, k, 3)
     n, k, _ = keys.shape
     tag = (np.arange(k) >= 4).astype(np.int64)  # 0 face, 1 vertex
@@ -151,3 +161,94 @@ def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
         return star, rank[code], int(rank[-1] + 1) if len(code) else 0
     uniq, row = np.unique(code, return_inverse=True)
     return star, row.astype(np.intp), len(uniq)
+
+
+def _window_rows_compiled(index: np.ndarray, rule: str, m: int, pool_size: int):
+    """:func:`window_rows` through :func:`_window_codes` and :func:`_dense_rows`: the same
+    (star, row) pairs and row numbers."""
+    n = len(index)
+    base = pool_size + m  # room for negative anchors shifted by m
+    edges = np.concatenate([FACE_EDGES] if rule == "face" else [FACE_EDGES, VERTEX_EDGES]).astype(np.int64)
+    code, count = _window_codes(index.astype(np.int32), edges, int(m), int(base))
+    width = code.shape[1]
+    if (count == width).all():  # the usual case: no boolean indexing needed
+        star = np.repeat(np.arange(n, dtype=np.intp), width)
+        code = code.ravel()
+    else:
+        keep = np.arange(width)[None, :] < count[:, None]
+        star = np.broadcast_to(np.arange(n, dtype=np.intp)[:, None], code.shape)[keep]
+        code = code[keep]
+    span = 2 * base**3
+    if span <= 1 << 24:
+        row, n_rows = _dense_rows(code, span)
+        return star, row, int(n_rows)
+    uniq, row = np.unique(code, return_inverse=True)
+    return star, row.astype(np.intp), len(uniq)
+
+
+@numba.njit(cache=True, nogil=True)
+def _window_codes(index, edges, m, base):
+    """The key windows of each star (``index`` (n, 6) pool indices; ``edges`` (k, 3): the
+    edges of its k keys, faces first): window code of key (a <= b <= c) of type tag (0 face,
+    1 vertex) at offset (x, y, z) in [0, m)^3 is ``((tag * base + a + m - x) * base + b + m -
+    y) * base + c + m - z`` (anchors shifted by m, so never negative).  Returns ``code`` (n,
+    k m^3): each star's codes ascending without repeats in ``code[i, :count[i]]``, and
+    ``count``."""
+    n, k = index.shape[0], edges.shape[0]
+    width = k * m * m * m
+    code = np.empty((n, width), dtype=np.int64)
+    count = np.empty(n, dtype=np.int64)
+    tmp = np.empty(width, dtype=np.int64)
+    for i in range(n):
+        q = 0
+        for j in range(k):
+            a = np.int64(index[i, edges[j, 0]])
+            b = np.int64(index[i, edges[j, 1]])
+            c = np.int64(index[i, edges[j, 2]])
+            lo = min(a, b, c)
+            hi = max(a, b, c)
+            mid = a + b + c - lo - hi
+            t0 = lo + m + (base if j >= 4 else 0)
+            for x in range(m):
+                for y in range(m):
+                    for z in range(m):
+                        tmp[q] = ((t0 - x) * base + mid + m - y) * base + hi + m - z
+                        q += 1
+        # Shell's sort (gaps ~width/2.2^k, then 1; no numpy sort: it costs seconds to compile)
+        gap = width // 2
+        while True:
+            for p in range(gap, width):
+                v = tmp[p]
+                r = p
+                while r >= gap and tmp[r - gap] > v:
+                    tmp[r] = tmp[r - gap]
+                    r -= gap
+                tmp[r] = v
+            if gap <= 1:
+                break
+            gap = max(1, int(gap / 2.2))
+        d = 0
+        for p in range(width):
+            if d == 0 or tmp[p] != code[i, d - 1]:
+                code[i, d] = tmp[p]
+                d += 1
+        count[i] = d
+    return code, count
+
+
+@numba.njit(cache=True, nogil=True)
+def _dense_rows(code, span):
+    """Rows numbered by ascending code through a table of the ``span`` possible codes: (row of
+    each entry, number of rows)."""
+    rank = np.zeros(span, dtype=np.int64)
+    for c in code:
+        rank[c] = 1
+    k = 0
+    for c in range(span):
+        if rank[c]:
+            rank[c] = k
+            k += 1
+    row = np.empty(len(code), dtype=np.intp)
+    for i in range(len(code)):
+        row[i] = rank[code[i]]
+    return row, k

@@ -18,7 +18,6 @@ Everything is deterministic: the same spec gives the same family.
 
 from __future__ import annotations
 
-import heapq
 import itertools
 import time
 from dataclasses import dataclass, field
@@ -38,22 +37,33 @@ class Selection:
 
 
 def _csr(star_of: np.ndarray, row: np.ndarray, n: int):
-    order = np.argsort(star_of, kind="stable")
+    """(ptr, rows): each star's rows, stars in order, in their given order within a star."""
+    star_of = np.asarray(star_of)
     ptr = np.concatenate([[0], np.cumsum(np.bincount(star_of, minlength=n))])
-    return ptr, row[order]
+    if len(star_of) < 2 or (star_of[1:] >= star_of[:-1]).all():  # already by star (window_rows)
+        return ptr, np.asarray(row)
+    return ptr, row[np.argsort(star_of, kind="stable")]
 
 
 def compactness_order(index: np.ndarray, pool: np.ndarray, volume: np.ndarray) -> np.ndarray:
-    """Most compact first: box volume, then total edge length, then pool indices."""
+    """Most compact first: box volume (rounded to 1e-9 mm^3), then total edge length, then pool
+    indices.  One sort by rounded volume, then the full key only among stars of equal rounded
+    volume: the stars are distinct, so the order is total, and the sort by volume need not be
+    stable (ties are ordered by the full key anyway)."""
     index = np.asarray(index)
-    base = int(index.max()) + 1 if index.size else 1
-    if base**6 < 2**62:  # the six indices as one key: the same order as six keys, sorted once
-        code = index[:, 0].astype(np.int64)
-        for k in range(1, 6):
-            code = code * base + index[:, k]
-        return np.lexsort((code, pool[index].sum(axis=1), np.round(volume, 9)))
-    keys = [index[:, k] for k in range(5, -1, -1)]
-    return np.lexsort((*keys, pool[index].sum(axis=1), np.round(volume, 9)))
+    v = np.round(volume, 9)
+    o = np.argsort(v)
+    vs = v[o]
+    same = vs[1:] == vs[:-1]
+    if not same.any():
+        return o
+    grp = np.concatenate([[0], np.cumsum(~same)])
+    pos = np.flatnonzero(np.bincount(grp)[grp] > 1)
+    sub = o[pos]
+    ix = index[sub]
+    keys = [ix[:, k] for k in range(5, -1, -1)]
+    o[pos] = sub[np.lexsort((*keys, pool[ix].sum(axis=1), grp[pos]))]
+    return o
 
 
 def greedy(order: np.ndarray, ptr: np.ndarray, rows: np.ndarray, n_rows: int) -> np.ndarray:
@@ -131,64 +141,44 @@ def pool_face_bound(pool_mm: np.ndarray, m: int, diagonal_mm: float) -> int:
 def local_search(
     chosen: np.ndarray, order: np.ndarray, ptr: np.ndarray, rows: np.ndarray, n_rows: int, rounds: int = 200
 ) -> tuple[np.ndarray, int]:
-    """(1,2)-swaps until none is left (or ``rounds``); returns the family and the swaps made."""
-    n = len(ptr) - 1
-    owner = np.full(n_rows, -1, dtype=np.intp)
-    for s in chosen.tolist():
-        owner[rows[ptr[s] : ptr[s + 1]]] = s
-    in_fam = np.zeros(n, dtype=bool)
-    in_fam[chosen] = True
-    rank = np.empty(n, dtype=np.intp)
-    rank[order] = np.arange(n)
-    star_of_entry = np.repeat(np.arange(n), np.diff(ptr))
+    """(1,2)-swaps until none is left (or ``rounds``); returns the family and the swaps made.
+
+    Each round looks at the family as it stood when the round began: it first inserts the stars
+    that were free then and still are, most compact first; then, per family star t (by id), it
+    takes the outside stars whose held rows all belonged to t, most compact first, keeps those
+    that still conflict with nothing but t, and the first two of them that are disjoint replace
+    t.  Compiled (:func:`_search`, on :class:`_Packing`'s incremental state)."""
+    P = _Packing(chosen, ptr, rows, n_rows, _rank(order))
+    swaps = _local_search_on(P, int(rounds))
+    return np.flatnonzero(P.in_fam), int(swaps)
+
+
+def _local_search_on(P: _Packing, rounds: int) -> int:
+    """:func:`local_search`'s rounds on the packing ``P`` (which they change); returns the swaps
+    made.  Each round's view (the free and the 1-tight candidates, sorted) is taken here, the
+    round itself is compiled (:func:`_search`, task 3)."""
     swaps = 0
     for _ in range(rounds):
-        own = owner[rows]
-        # distinct owners per candidate: min and max over its entries (-1 = free)
-        big = np.where(own < 0, np.iinfo(np.intp).max, own)
-        lo = np.full(n, np.iinfo(np.intp).max, dtype=np.intp)
-        hi = np.full(n, -1, dtype=np.intp)
-        np.minimum.at(lo, star_of_entry, big)
-        np.maximum.at(hi, star_of_entry, own)
-        free = (hi < 0) & ~in_fam
-        one = (lo == hi) & (hi >= 0) & ~in_fam  # conflicts with exactly one family star
-        progress = False
-        # insert free stars first (most compact first)
-        for s in sorted(np.flatnonzero(free).tolist(), key=lambda i: rank[i]):
-            r = rows[ptr[s] : ptr[s + 1]]
-            if (owner[r] < 0).all():
-                owner[r] = s
-                in_fam[s] = True
-                progress = True
-        cand = np.flatnonzero(one)
-        groups: dict[int, list[int]] = {}
-        for s, t in zip(cand.tolist(), hi[cand].tolist(), strict=True):
-            groups.setdefault(t, []).append(s)
-        for t in sorted(groups):
-            if not in_fam[t]:
-                continue
-            members = sorted(groups[t], key=lambda i: rank[i])
-            tr = rows[ptr[t] : ptr[t + 1]]
-            ok = [s for s in members if np.isin(owner[rows[ptr[s] : ptr[s + 1]]], (-1, t)).all()]
-            done = False
-            for a in range(len(ok)):
-                ra = rows[ptr[ok[a]] : ptr[ok[a] + 1]]
-                for b in range(a + 1, len(ok)):
-                    rb = rows[ptr[ok[b]] : ptr[ok[b] + 1]]
-                    if not np.intersect1d(ra, rb).size:
-                        owner[tr] = -1
-                        in_fam[t] = False
-                        owner[ra] = ok[a]
-                        owner[rb] = ok[b]
-                        in_fam[ok[a]] = in_fam[ok[b]] = True
-                        swaps += 1
-                        progress = done = True
-                        break
-                if done:
-                    break
-        if not progress:
+        t = P.tight
+        free = np.flatnonzero(t == FREE)
+        one = np.flatnonzero(t >= 0)
+        lists = np.zeros((3, max(len(free), len(one))), dtype=np.int64)
+        lists[0, : len(free)] = free[np.argsort(P.rank[free])]
+        one = one[np.lexsort((P.rank[one], t[one]))]
+        lists[1, : len(one)], lists[2, : len(one)] = one, t[one]
+        got = _search(P.arrays, 3, lists, np.array([len(free), len(one)], dtype=np.int64), 0, -1)
+        if got < 0:
             break
-    return np.flatnonzero(in_fam), swaps
+        swaps += got
+    return swaps
+
+
+def _rank(order: np.ndarray) -> np.ndarray:
+    """Each candidate's position in ``order`` (int64)."""
+    order = np.asarray(order)
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(len(order))
+    return rank
 
 
 #: default iteration budget of the iterated local search (``ils``); the stopping rule is this
@@ -203,201 +193,100 @@ ILS_RESTART_ITERATIONS = 1000
 
 
 class _Packing:
-    """Incremental set-packing state for :func:`ils`.
+    """Incremental set-packing state for :func:`ils`, as arrays its compiled kernels share.
 
     ``owner[r]`` is the family star holding row r (-1 free).  Per candidate c, over its rows held
     by family stars: ``cnt`` (how many), ``s1`` (sum of owner ids) and ``s2`` (sum of squares).
     c is free iff ``cnt == 0``; its held rows all belong to ONE star t iff
-    ``cnt * s2 == s1**2`` (zero variance), and then ``t = s1 // cnt``.  Inserting or removing a
-    star only updates the candidates sharing a row with it (row -> candidates index, CSC).
+    ``cnt * s2 == s1**2`` (zero variance), and then ``t = s1 // cnt``.  ``tight[c]`` says which:
+    -2 free, t when c is outside the family and 1-tight with t, else -1 (a small array of its
+    own, int32: the searches read only it, and it stays in the CPU cache).  Inserting or removing
+    a star only updates the candidates sharing a row with it (row -> candidates index, CSC).
+    ``arrays`` is the tuple every kernel takes (:func:`_set`, :func:`_fill`, :func:`_descend`,
+    :func:`_search`).
     """
 
     def __init__(self, chosen, ptr, rows, n_rows, rank):
-        import scipy.sparse as sp
-
+        ptr = np.asarray(ptr, dtype=np.int64)
+        rows = np.asarray(rows, dtype=np.int64)
+        rank = np.asarray(rank, dtype=np.int64)
+        self.rank = rank
         n = len(ptr) - 1
-        self.n, self.ptr, self.rows, self.rank = n, ptr, rows, rank
-        # row -> candidates (CSC of the incidence), candidates ascending within a row
-        inc = sp.csr_matrix((np.ones(len(rows), dtype=np.int8), rows, ptr), shape=(n, n_rows)).tocsc()
-        self.cands, self.rptr = inc.indices.astype(np.int64), inc.indptr.astype(np.int64)
-        self.ptr64, self.rows64 = np.asarray(ptr, dtype=np.int64), np.asarray(rows, dtype=np.int64)
-        # touched() of one star is at most (its rows) x (the most candidates on a row) entries
-        per_row = np.diff(self.rptr)
-        most = int(np.diff(ptr).max()) * int(per_row.max()) if n and n_rows else 0
-        self._buf = np.empty(max(most, 1), dtype=np.int64)
-        self._lst = np.empty(max(most, 1), dtype=np.int64)
-        self._seen = np.zeros(n, dtype=np.bool_)
-        self.rank64 = np.asarray(rank, dtype=np.int64)
-        # rows per candidate padded with the sentinel row n_rows (never owned), for batch checks
-        counts = np.diff(ptr)
-        width = int(counts.max()) if n else 0
-        dtype = np.int32 if n_rows < 2**31 - 1 else np.int64
-        if n and (counts == width).all():
-            self.padded = rows.reshape(n, width).astype(dtype)
-        else:
-            star_of_entry = np.repeat(np.arange(n, dtype=np.int64), counts)
-            self.padded = np.full((n, width), n_rows, dtype=dtype)
-            self.padded[star_of_entry, np.arange(len(rows)) - np.repeat(ptr[:-1], counts)] = rows
-        self.owner = np.full(n_rows + 1, -1, dtype=np.int64)
-        self.in_fam = np.zeros(n, dtype=bool)
-        # cnt, s1, s2, tight side by side: an update touches all four of a candidate (one cache line)
-        self.state = np.zeros((n, 4), dtype=np.int64)
-        self.state[:, 3] = -1
-        self.cnt, self.s1, self.s2 = self.state[:, 0], self.state[:, 1], self.state[:, 2]
-        self.tight = self.state[:, 3]  # t if 1-tight with family star t, else -1
-        self.size = 0
-        self.log: list[tuple[int, int]] | None = None  # (+1 insert / -1 remove, star)
-        for s in np.asarray(chosen).tolist():
-            self.insert(s)
-
-    def rows_of(self, s: int) -> np.ndarray:
-        return self.rows[self.ptr[s] : self.ptr[s + 1]]
-
-    def touched(self, s: int) -> np.ndarray:
-        """Candidates sharing a row with s, once per shared row."""
-        k = _gather(s, self.ptr64, self.rows64, self.rptr, self.cands, self._buf)
-        return self._buf[:k].copy()
-
-    def _update(self, s: int, sign: int) -> np.ndarray:
-        k = _update_kernel(
-            s, sign, self.ptr64, self.rows64, self.rptr, self.cands,
-            self.state, self.in_fam, self._buf,
+        self.n, self.n_rows = n, int(n_rows)
+        rptr, cands = _csc(ptr, rows, self.n_rows)  # row -> candidates, ascending within a row
+        # the candidates sharing rows with one star: at most (its rows) x (the most on a row)
+        most = int(np.diff(ptr).max()) * int(np.diff(rptr).max()) if n and n_rows else 0
+        order = np.empty(n, dtype=np.int64)
+        order[rank] = np.arange(n)
+        # cnt, s1, s2 side by side: an update touches all three of a candidate
+        self.tally = np.zeros((n, 3), dtype=np.int64)
+        self.cnt, self.s1, self.s2 = self.tally[:, 0], self.tally[:, 1], self.tally[:, 2]
+        self.tight = np.full(n, FREE, dtype=np.int32)
+        self.ntight = np.zeros(n, dtype=np.int32)
+        self.in_fam = np.zeros(n, dtype=np.bool_)
+        self.owner = np.full(self.n_rows, -1, dtype=np.int64)
+        self.arrays = (
+            ptr, rows, rptr, cands, rank, order, self.tally, self.tight, self.ntight, self.in_fam, self.owner,
+            np.empty(max(most, 1), dtype=np.int64),  # buf: touched candidates
+            np.empty(max(most, 1), dtype=np.int64),  # lst: a star's free or 1-tight neighbours
+            np.zeros(n, dtype=np.bool_),  # seen (all False between calls)
+            np.empty(n + 1, dtype=np.int64),  # heap of queued ranks
+            np.zeros(n, dtype=np.bool_),  # queued
+            np.zeros(4 * max(most, 1) + 1, dtype=np.int64),  # hits: the 1-tight found since a reset
+            # ops: the changes of one ILS step (s + 1: s inserted, -(s + 1): removed).  Each swap
+            # and each fill grows the family by one, so a step makes at most 3 x (the largest
+            # family) + 3 changes; a family holds at most one star per row, plus stars without rows
+            np.empty(3 * min(n, self.n_rows + int((np.diff(ptr) == 0).sum())) + 8, dtype=np.int64),
+            np.zeros(self.n_rows, dtype=np.bool_),  # mark: a False per row between calls
         )
-        return self._buf[:k].copy()
+        chosen = np.asarray(chosen, dtype=np.int64)
+        _search(self.arrays, 0, chosen.reshape(1, -1), _NO_CTR, len(chosen), -1)
 
-    def insert(self, s: int) -> np.ndarray:
-        self.owner[self.rows_of(s)] = s
-        self.in_fam[s] = True
-        self.size += 1
-        if self.log is not None:
-            self.log.append((1, s))
-        return self._update(s, 1)
+    @property
+    def size(self) -> int:
+        return int(self.in_fam.sum())
 
-    def remove(self, s: int) -> np.ndarray:
-        self.owner[self.rows_of(s)] = -1
-        self.in_fam[s] = False
-        self.size -= 1
-        if self.log is not None:
-            self.log.append((-1, s))
-        return self._update(s, -1)
+    def insert(self, s: int) -> None:
+        _set(int(s), 1, self.arrays)
 
-    def undo(self) -> None:
-        log, self.log = self.log, None
-        for op, s in reversed(log):
-            if op > 0:
-                self.remove(s)
-            else:
-                self.insert(s)
-        self.log = []
+    def remove(self, s: int) -> None:
+        _set(int(s), -1, self.arrays)
 
-    def fill(self, aff: np.ndarray) -> list[np.ndarray]:
-        """Insert the free candidates among ``aff``, most compact first; returns touched sets."""
-        free = np.unique(aff[(self.cnt[aff] == 0) & ~self.in_fam[aff]])
-        out = []
-        if len(free):
-            for c in free[np.argsort(self.rank[free], kind="stable")].tolist():
-                if self.cnt[c] == 0 and not self.in_fam[c]:
-                    out.append(self.insert(c))
-        return out
-
-    def tight_owners(self, aff: np.ndarray) -> np.ndarray:
-        """Family stars t that some candidate in ``aff`` conflicts with alone (1-tight)."""
-        t = self.tight[aff]
-        return np.unique(t[t >= 0])
-
-    def two_swap(self, t: int):
-        """Best (1,2)-swap for family star t: two disjoint candidates whose only conflict is t,
-        most compact first; None if none."""
-        a, b = _two_swap(
-            t, self.ptr64, self.rows64, self.rptr, self.cands, self.state, self.rank64, self._seen, self._buf,
-            self._lst,
-        )
-        return None if a < 0 else (int(a), int(b))
-
-    def descend(self, queue: set[int]) -> None:
-        """(1,2)-swaps (and free insertions) until none is left for the queued stars, the most
-        compact queued star first (a heap of ranks: ranks are distinct, so the order is the one
-        of repeatedly taking the queue's minimum)."""
-        rank = self.rank
-        heap = [(int(rank[t]), t) for t in queue]
-        heapq.heapify(heap)
-        while heap:
-            _, t = heapq.heappop(heap)
-            queue.discard(t)
-            if not self.in_fam[t]:
-                continue
-            pair = self.two_swap(t)
-            if pair is None:
-                continue
-            touched = [self.remove(t), self.insert(pair[0]), self.insert(pair[1])]
-            touched += self.fill(touched[0])
-            for aff in touched:
-                for x in self.tight_owners(aff).tolist():
-                    if x not in queue:
-                        queue.add(x)
-                        heapq.heappush(heap, (int(rank[x]), x))
+    def undo(self, ops: np.ndarray) -> None:
+        """Revert ``ops`` (s + 1 for an insertion of s, -(s + 1) for a removal), last first."""
+        _undo(np.asarray(ops, dtype=np.int64), 0, len(ops), self.arrays)
 
 
 @numba.njit(cache=True, nogil=True)
-def _gather(s, ptr, rows, rptr, cands, out):
-    """Write the candidates sharing a row with star s (once per shared row, rows in order) into
-    ``out``; returns how many."""
-    k = 0
-    for j in range(ptr[s], ptr[s + 1]):
-        r = rows[j]
-        for q in range(rptr[r], rptr[r + 1]):
-            out[k] = cands[q]
-            k += 1
-    return k
+def _csc(ptr, rows, n_rows):
+    """The row -> candidates index of the incidence (candidates ascending within a row)."""
+    rptr = np.zeros(n_rows + 1, dtype=np.int64)
+    for j in range(len(rows)):
+        rptr[rows[j] + 1] += 1
+    for r in range(n_rows):
+        rptr[r + 1] += rptr[r]
+    at = rptr[:-1].copy()
+    cands = np.empty(len(rows), dtype=np.int64)
+    for c in range(len(ptr) - 1):
+        for j in range(ptr[c], ptr[c + 1]):
+            r = rows[j]
+            cands[at[r]] = c
+            at[r] += 1
+    return rptr, cands
 
 
-@numba.njit(cache=True, nogil=True)
-def _update_kernel(s, sign, ptr, rows, rptr, cands, state, in_fam, out):
-    """:class:`_Packing`'s bookkeeping when star s enters (sign +1) or leaves (-1) the family:
-    per candidate sharing rows with s, the count, sum and sum of squares of the family stars
-    holding its rows (``state`` columns 0-2), then whether they all belong to one star
-    (column 3, ``tight``).  Writes the touched
-    entries into ``out`` (as :func:`_gather`) and returns how many."""
-    k = _gather(s, ptr, rows, rptr, cands, out)
-    ss = s * s
-    for i in range(k):
-        c = out[i]
-        state[c, 0] += sign
-        state[c, 1] += sign * s
-        state[c, 2] += sign * ss
-    for i in range(k):
-        c = out[i]
-        n, s1 = state[c, 0], state[c, 1]
-        if n > 0 and n * state[c, 2] == s1 * s1 and not in_fam[c]:
-            state[c, 3] = s1 // n
-        else:
-            state[c, 3] = -1
-    return k
+#: ``_Packing.tight`` of a free candidate (no row held by the family)
+FREE = -2
 
 
-@numba.njit(cache=True, nogil=True)
-def _two_swap(t, ptr, rows, rptr, cands, state, rank, seen, buf, lst):
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, lst):
     """The first pair, in rank order (most compact first), of distinct candidates 1-tight with
-    family star t (``state[:, 3] == t``) whose rows are disjoint; (-1, -1) if none.  ``seen``
-    (all False, left so), ``buf`` and ``lst`` are scratch space."""
-    k = _gather(t, ptr, rows, rptr, cands, buf)
-    m = 0
-    for i in range(k):
-        c = buf[i]
-        if state[c, 3] == t and not seen[c]:
-            seen[c] = True
-            lst[m] = c
-            m += 1
-    for i in range(m):
-        seen[lst[i]] = False
-    # by rank (a permutation: no ties), insertion sort: these lists are short
-    for i in range(1, m):
-        c = lst[i]
-        j = i
-        while j > 0 and rank[lst[j - 1]] > rank[c]:
-            lst[j] = lst[j - 1]
-            j -= 1
-        lst[j] = c
+    family star t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint; (-1, -1) if
+    none.  ``seen`` (all False, left so) and ``lst`` are scratch space."""
+    if ntight[t] < 2:
+        return -1, -1
+    m = _neighbours(t, t, ptr, rows, rptr, cands, tight, rank, seen, lst)
     for i in range(m - 1):
         a = lst[i]
         for j in range(i + 1, m):
@@ -415,6 +304,402 @@ def _two_swap(t, ptr, rows, rptr, cands, state, rank, seen, buf, lst):
     return -1, -1
 
 
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def _neighbours(t, want, ptr, rows, rptr, cands, tight, rank, seen, lst):
+    """The candidates sharing a row with star t whose ``tight`` is ``want`` (-2: free; t:
+    1-tight with t), each once, most compact first, in ``lst[:m]``; returns m.  ``seen`` (all
+    False) is left so."""
+    m = 0
+    for j in range(ptr[t], ptr[t + 1]):
+        r = rows[j]
+        for q in range(rptr[r], rptr[r + 1]):
+            c = cands[q]
+            if tight[c] == want and not seen[c]:
+                seen[c] = True
+                lst[m] = c
+                m += 1
+    for i in range(m):
+        seen[lst[i]] = False
+    _sort_by_rank(lst, m, rank)
+    return m
+
+
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def _sort_by_rank(lst, m, rank):
+    """Sort ``lst[:m]`` by rank (a permutation: no ties; so an unstable sort does): Shell's sort,
+    gaps ~m/2.2^k ending in 1 (insertion sort for short lists).  No numpy sort in the kernels:
+    each costs seconds of compilation on a first run."""
+    gap = m // 2
+    while gap > 0:
+        for i in range(gap, m):
+            v = lst[i]
+            rv = rank[v]
+            j = i
+            while j >= gap and rank[lst[j - gap]] > rv:
+                lst[j] = lst[j - gap]
+                j -= gap
+            lst[j] = v
+        gap = 0 if gap == 1 else max(1, int(gap / 2.2))
+
+
+#: the signs :func:`_set` takes, as int64 (a literal argument would compile a kernel again)
+_ONE = np.int64(1)
+_MINUS = np.int64(-1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _set(s, sign, P):
+    """Star s enters (sign +1) or leaves (-1) the family: its rows' owner and membership, then
+    per candidate sharing rows with s (``buf``: once per shared row) the count, sum and sum of
+    squares of the family stars holding its rows (``tally``), ``tight`` (-2 when no family star
+    holds a row of c, t when c is outside the family and all its held rows belong to t, else
+    -1; s's own too) and ``ntight`` (per family star, the candidates 1-tight with it).  The
+    candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow; -1: it
+    overflowed).  (No kernel calls in here: a call per candidate costs more than the
+    arithmetic, and each callee is compiled again into every caller on a first run.)"""
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    v = s if sign > 0 else np.int64(-1)
+    k = 0
+    for j in range(ptr[s], ptr[s + 1]):
+        r = rows[j]
+        owner[r] = v
+        for q in range(rptr[r], rptr[r + 1]):
+            buf[k] = cands[q]
+            k += 1
+    in_fam[s] = sign > 0
+    ss = s * s
+    for i in range(k):
+        c = buf[i]
+        tally[c, 0] += sign
+        tally[c, 1] += sign * s
+        tally[c, 2] += sign * ss
+    h = hits[0]
+    for i in range(k + 1):
+        # s last too: a star without rows is not among its own neighbours
+        c = s if i == k else buf[i]
+        n, s1 = tally[c, 0], tally[c, 1]
+        if n > 0 and n * tally[c, 2] == s1 * s1 and not in_fam[c]:
+            new = s1 // n
+        elif n == 0 and not in_fam[c]:
+            new = -2
+        else:
+            new = -1
+        old = tight[c]
+        if new != old:
+            if old >= 0:
+                ntight[old] -= 1
+            if new >= 0:
+                ntight[new] += 1
+            tight[c] = new
+        if new >= 0 and h >= 0 and i < k:
+            if h + 1 < len(hits):
+                h += 1
+                hits[h] = c
+            else:
+                h = -1
+    hits[0] = h
+
+
+#: ``_Packing.tight`` of a free candidate (no row held by the family)
+FREE = -2
+
+
+@numba.njit(cache=True, nogil=True)
+def _undo(ops, k0, k1, P):
+    """Revert ``ops[k0:k1]`` (s + 1: s was inserted; -(s + 1): removed), last first."""
+    for i in range(k1 - 1, k0 - 1, -1):
+        v = ops[i]
+        if v > 0:
+            _set(np.int64(v - 1), _MINUS, P)
+        else:
+            _set(np.int64(-v - 1), _ONE, P)
+
+
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def _fill(t, P, k):
+    """Insert the candidates sharing a row with star t that are free (nothing of the family
+    holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
+    insertions happen here, so a candidate free now was free when the fill began.)
+    Returns the next free place in ``ops``."""
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    m = _neighbours(t, np.int64(-2), ptr, rows, rptr, cands, tight, rank, seen, lst)
+    for i in range(m):
+        c = lst[i]
+        if tight[c] == -2:
+            _set(np.int64(c), _ONE, P)
+            ops[k] = c + 1
+            k += 1
+    return k
+
+
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def _push(heap, hn, v):
+    heap[hn] = v
+    i = hn
+    while i > 0:
+        p = (i - 1) >> 1
+        if heap[p] <= heap[i]:
+            break
+        heap[p], heap[i] = heap[i], heap[p]
+        i = p
+    return hn + 1
+
+
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def _pop(heap, hn):
+    top = heap[0]
+    hn -= 1
+    heap[0] = heap[hn]
+    i = 0
+    while True:
+        a = 2 * i + 1
+        if a >= hn:
+            break
+        if a + 1 < hn and heap[a + 1] < heap[a]:
+            a += 1
+        if heap[i] <= heap[a]:
+            break
+        heap[a], heap[i] = heap[i], heap[a]
+        i = a
+    return top, hn
+
+
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def _enqueue(P, k0, k1, hn):
+    """Queue (once) every family star that a candidate sharing rows with the stars of
+    ``ops[k0:k1]`` now conflicts with alone (1-tight); returns the heap's size.  Those
+    candidates are the ones found 1-tight since ``hits`` was reset before ``ops[k0]`` (their
+    ``tight`` was last set by these changes), looked at again now; when ``hits`` overflowed,
+    every candidate sharing rows with the stars of ``ops[k0:k1]``."""
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    if hits[0] >= 0:
+        for i in range(1, hits[0] + 1):
+            x = tight[hits[i]]
+            if x >= 0 and not queued[x]:
+                queued[x] = True
+                hn = _push(heap, hn, rank[x])
+        return hn
+    for i in range(k0, k1):
+        s = abs(ops[i]) - 1
+        for j in range(ptr[s], ptr[s + 1]):
+            r = rows[j]
+            for q in range(rptr[r], rptr[r + 1]):
+                x = tight[cands[q]]
+                if x >= 0 and not queued[x]:
+                    queued[x] = True
+                    hn = _push(heap, hn, rank[x])
+    return hn
+
+
+@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def _descend(P, hn, k):
+    """(1,2)-swaps (and free insertions) until none is left for the queued stars, the most
+    compact queued star first (a heap of ranks: ranks are distinct, so the order is the one of
+    repeatedly taking the queue's minimum).  Logs the changes in ``ops`` from ``k`` on;
+    returns the next free place in ``ops``."""
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    while hn > 0:
+        r, hn = _pop(heap, hn)
+        t = order[r]
+        queued[t] = False
+        if not in_fam[t]:
+            continue
+        a, b = _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, lst)
+        if a < 0:
+            continue
+        k0 = k
+        hits[0] = 0
+        _set(np.int64(t), _MINUS, P)
+        ops[k] = -(t + 1)
+        _set(np.int64(a), _ONE, P)
+        ops[k + 1] = a + 1
+        _set(np.int64(b), _ONE, P)
+        ops[k + 2] = b + 1
+        k += 3
+        k = _fill(t, P, k)
+        hn = _enqueue(P, k0, k, hn)
+    return k
+
+
+#: draws per batch of the ILS perturbation
+ILS_BATCH = 1024
+
+
+@numba.njit(cache=True, nogil=True)
+def _search(P, task, batches, ctr, limit, bound):
+    """The searches on the packing ``P``, in one compiled entry (so that the kernels its tasks
+    share are compiled and optimised once on a first run: each entry compiles its callees
+    again).
+
+    ``task`` 0: insert the stars ``batches[0, :limit]`` (a packing) into an empty state.
+
+    ``task`` 3: one round of :func:`local_search`, whose view of the family is the one when it
+    began: ``batches[0, :ctr[0]]``, the candidates free then, most compact first;
+    ``batches[1, :ctr[1]]``, those then 1-tight with family star ``batches[2, :ctr[1]]``,
+    grouped by it (ascending), most compact first.  A candidate's rows are held by nothing but
+    t now iff its ``tight`` is t or -2 now.  Returns the swaps made, -1 when the round changed
+    nothing.
+
+    ``task`` 1: the ILS start: insert every free candidate (most compact first), then
+    (1,2)-swaps around every family star.
+
+    ``task`` 2: :func:`ils`'s iterations (``limit`` in all, stopping at ``bound`` when >= 0),
+    resumable: ``ctr`` = (iterations begun, batches drawn in the current iteration's search,
+    searching?, family size, done?).  Each iteration's perturbation takes the first draw, batch
+    after batch of ``batches`` (at most 64), of a candidate outside the family whose held rows
+    belong to one or two family stars.  Returns when done (``ctr[4] = 1``) or when it needs a
+    batch past ``batches`` (``ctr[4] = 0``: call again with the next ones).
+    """
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    if task == 0:
+        for i in range(limit):
+            _set(batches[0, i], _ONE, P)
+        return 0
+    if task == 3:
+        # one round of the local search (see _local_search_on); lst is the scratch "ok" list
+        free, one, grp, ok = batches[0, : ctr[0]], batches[1, : ctr[1]], batches[2, : ctr[1]], lst
+        no = len(one)
+        swaps = 0
+        progress = False
+        # insert the free stars first (most compact first)
+        for c in free:
+            if tight[c] == -2:
+                _set(np.int64(c), _ONE, P)
+                progress = True
+        i = 0
+        while i < no:
+            t = grp[i]
+            e = i
+            while e < no and grp[e] == t:
+                e += 1
+            if in_fam[t]:
+                q = 0
+                for g in range(i, e):
+                    s = one[g]
+                    if tight[s] == t or tight[s] == -2:
+                        ok[q] = s
+                        q += 1
+                sa = sb = -1
+                for a in range(q):
+                    for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
+                        mark[rows[j]] = True
+                    for b in range(a + 1, q):
+                        apart = True
+                        for j in range(ptr[ok[b]], ptr[ok[b] + 1]):
+                            if mark[rows[j]]:
+                                apart = False
+                                break
+                        if apart:
+                            sa, sb = ok[a], ok[b]
+                            break
+                    for j in range(ptr[ok[a]], ptr[ok[a] + 1]):
+                        mark[rows[j]] = False
+                    if sa >= 0:
+                        break
+                if sa >= 0:
+                    _set(np.int64(t), _MINUS, P)
+                    _set(np.int64(sa), _ONE, P)
+                    _set(np.int64(sb), _ONE, P)
+                    swaps += 1
+                    progress = True
+            i = e
+        return swaps if progress else -1
+    if task == 1:
+        for r in range(len(order)):
+            c = order[r]
+            if tight[c] == -2:
+                _set(np.int64(c), _ONE, P)
+        hn = np.int64(0)
+        for t in range(len(in_fam)):
+            if in_fam[t]:
+                queued[t] = True
+                hn = _push(heap, hn, rank[t])
+        _descend(P, hn, np.int64(0))
+        return 0
+    # task 2: the ILS iterations
+    n = len(in_fam)
+    it, tries, searching, size = ctr[0], ctr[1], ctr[2], ctr[3]
+    pos = 0
+    while True:
+        if not searching:
+            if n == 0 or it >= limit or (bound >= 0 and size >= bound):
+                ctr[4] = 1
+                break
+            it += 1
+            searching = 1
+            tries = 0
+        s = h1 = h2 = -1
+        while tries < 64 and s < 0:
+            if pos == len(batches):
+                ctr[0], ctr[1], ctr[2], ctr[3], ctr[4] = it, tries, searching, size, 0
+                return 0
+            batch = batches[pos]
+            pos += 1
+            tries += 1
+            for i in range(len(batch)):
+                c = batch[i]
+                if in_fam[c]:
+                    continue
+                o1 = o2 = -1
+                many = False
+                for j in range(ptr[c], ptr[c + 1]):
+                    o = owner[rows[j]]
+                    if o < 0 or o == o1 or o == o2:
+                        continue
+                    if o1 < 0:
+                        o1 = o
+                    elif o2 < 0:
+                        o2 = o
+                    else:
+                        many = True
+                        break
+                if o1 >= 0 and not many:
+                    s = c
+                    h1, h2 = (o1, o2) if o2 < 0 or o1 < o2 else (o2, o1)
+                    break
+        searching = 0
+        if s < 0:
+            ctr[4] = 1
+            break
+        # force s in (removing the one or two stars holding its rows, lowest id first), refill
+        # around them, then (1,2)-swaps around every change
+        hits[0] = 0
+        _set(np.int64(h1), _MINUS, P)
+        ops[0] = -(h1 + 1)
+        k = 1
+        if h2 >= 0:
+            _set(np.int64(h2), _MINUS, P)
+            ops[1] = -(h2 + 1)
+            k = 2
+        _set(np.int64(s), _ONE, P)
+        ops[k] = s + 1
+        k += 1
+        k = _fill(np.int64(h1), P, k)
+        if h2 >= 0:
+            k = _fill(np.int64(h2), P, k)
+        hn = _enqueue(P, np.int64(0), k, np.int64(0))
+        k = _descend(P, hn, k)
+        new = size
+        for i in range(k):
+            new += 1 if ops[i] > 0 else -1
+        if new < size:  # smaller: revert (plateau moves are kept: they walk)
+            for i in range(k - 1, -1, -1):
+                v = ops[i]
+                if v > 0:
+                    _set(np.int64(v - 1), _MINUS, P)
+                else:
+                    _set(np.int64(-v - 1), _ONE, P)
+        else:
+            size = new
+    ctr[0], ctr[1], ctr[2], ctr[3] = it, tries, searching, size
+    return 0
+
+
+#: ``batches``/``ctr`` of :func:`_search` for the tasks that take none
+_NO_BATCHES = np.zeros((0, ILS_BATCH), dtype=np.int64)
+_NO_CTR = np.zeros(5, dtype=np.int64)
+
+
 def ils(
     chosen: np.ndarray,
     order: np.ndarray,
@@ -430,55 +715,31 @@ def ils(
     Each iteration force-inserts a random candidate whose held rows belong to one or two family
     stars (removing those), refills free candidates, runs (1,2)-swaps around the change, and
     keeps the result if the family is no smaller (plateau moves walk), else reverts it.
-    Deterministic: the only randomness is ``np.random.default_rng(seed)`` and the budget is an
-    iteration count.  Stops early at ``bound``.  Returns (family, iterations used).
+    Deterministic: the only randomness is ``np.random.default_rng(seed)``, drawn in batches of
+    :data:`ILS_BATCH` (``integers(0, n)``), and the budget is an iteration count.  Stops early
+    at ``bound``.  Returns (family, iterations used).  The loop is compiled
+    (:func:`_search`); the batches are drawn here ahead of it, in the same stream.
     """
-    n = len(ptr) - 1
-    rank = np.empty(n, dtype=np.int64)
-    rank[order] = np.arange(n)
-    P = _Packing(chosen, ptr, rows, n_rows, rank)
+    return _ils_on(_Packing(chosen, ptr, rows, n_rows, _rank(order)), iterations, bound, seed)
+
+
+def _ils_on(P: _Packing, iterations: int, bound: int | None, seed: int) -> tuple[np.ndarray, int]:
+    """:func:`ils` from the family in the packing ``P`` (which it changes)."""
+    n = P.n
     # start from a local optimum w.r.t. free insertions and (1,2)-swaps
-    P.fill(np.arange(n))
-    P.descend(set(np.flatnonzero(P.in_fam).tolist()))
+    _search(P.arrays, 1, _NO_BATCHES, _NO_CTR, 0, -1)
+    size = P.size
     rng = np.random.default_rng(seed)
-    owner = P.owner
-    it = 0
-    while n and it < iterations and (bound is None or P.size < bound):
-        it += 1
-        # perturbation: a random outside candidate held by one or two family stars
-        s = -1
-        for _ in range(64):
-            batch = rng.integers(0, n, size=1024)
-            # the first such draw of the batch; its first 64 draws nearly always hold one, so
-            # they are looked at first (the same draw either way)
-            for part in (batch[:64], batch[64:]):
-                own = np.sort(owner[P.padded[part]], axis=1)  # -1 = free row or pad
-                new = np.concatenate([own[:, :1] >= 0, (own[:, 1:] != own[:, :-1]) & (own[:, 1:] >= 0)], axis=1)
-                distinct = new.sum(axis=1)  # family stars holding the candidate's rows
-                ok = np.flatnonzero((distinct >= 1) & (distinct <= 2) & ~P.in_fam[part])
-                if len(ok):
-                    s = int(part[ok[0]])
-                    held = np.unique(own[ok[0]])
-                    held = held[held >= 0]
-                    break
-            if s >= 0:
-                break
-        if s < 0:
+    ctr = np.array([0, 0, 0, size, 0], dtype=np.int64)
+    limit = -1 if bound is None else int(bound)
+    while n:
+        # at least one batch per iteration: draw for the iterations left (some may go unused;
+        # integers(size=(k, B)) is the same stream as k calls of size B)
+        k = max(1, min(256, int(iterations) - int(ctr[0]) + int(ctr[2])))
+        _search(P.arrays, 2, rng.integers(0, n, size=(k, ILS_BATCH)), ctr, int(iterations), limit)
+        if ctr[4]:
             break
-        before = P.size
-        P.log = []
-        touched = [P.remove(t) for t in held.tolist()]
-        touched.append(P.insert(s))
-        for aff in touched[: len(held)]:
-            touched += P.fill(aff)
-        queue: set[int] = set()
-        for aff in touched:
-            queue.update(P.tight_owners(aff).tolist())
-        P.descend(queue)
-        if P.size < before:
-            P.undo()
-        P.log = None
-    return np.flatnonzero(P.in_fam), it
+    return np.flatnonzero(P.in_fam), int(ctr[0])
 
 
 def _restart_task(args: tuple) -> tuple[np.ndarray, int]:
@@ -619,14 +880,17 @@ def select_family(
     if spec.select == "greedy":
         return Selection(chosen, bound, info)
     t1 = time.perf_counter()
-    chosen, swaps = local_search(chosen, order, ptr, rows, n_rows)
+    # local search and ILS on one packing state (local_search and ils, without building it twice)
+    packing = _Packing(chosen, ptr, rows, n_rows, _rank(order))
+    swaps = _local_search_on(packing, 200)
+    chosen = np.flatnonzero(packing.in_fam)
     info.update(local_search=int(len(chosen)), swaps=swaps, local_search_s=round(time.perf_counter() - t1, 3))
     budget = ILS_ITERATIONS if ils_iterations is None else int(ils_iterations)
     nnz = int(len(rows))
     if budget > 0 and len(chosen) < bound:
         t3 = time.perf_counter()
         start = chosen
-        chosen, used = ils(start, order, ptr, rows, n_rows, iterations=budget, bound=bound)
+        chosen, used = _ils_on(packing, budget, bound, ILS_SEED)
         restarts = 0
         if nnz <= MILP_MAX_NONZEROS:
             # small instances: a few short restarts with other fixed seeds before the exact solver

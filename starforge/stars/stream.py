@@ -217,22 +217,11 @@ def range_cap(held: float = 0.0) -> int:
 
 
 def ordered(idx: np.ndarray, pool: np.ndarray, vol: np.ndarray) -> np.ndarray:
-    """:func:`starforge.stars.select.compactness_order`, the same permutation, cheaper on many
-    stars: one sort by rounded volume, then the full key only among stars of equal rounded
-    volume (the stars are distinct, so the order is total and the two agree)."""
-    v = np.round(vol, 9)
-    o = np.argsort(v, kind="stable")
-    vs = v[o]
-    same = vs[1:] == vs[:-1]
-    if not same.any():
-        return o
-    grp = np.concatenate([[0], np.cumsum(~same)])
-    pos = np.flatnonzero(np.bincount(grp)[grp] > 1)
-    sub = o[pos]
-    ix = idx[sub]
-    keys = [ix[:, k] for k in range(5, -1, -1)]
-    o[pos] = sub[np.lexsort((*keys, pool[ix].sum(axis=1), grp[pos]))]
-    return o
+    """:func:`starforge.stars.select.compactness_order` (one sort by rounded volume, then the
+    full key only among stars of equal rounded volume)."""
+    from starforge.stars.select import compactness_order
+
+    return compactness_order(idx, pool, vol)
 
 
 def _ordered_pieces(idx, vol, pool, lo: float, hi: float, cap: int):

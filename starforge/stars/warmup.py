@@ -86,10 +86,13 @@ def _helper() -> None:
     faces = np.zeros((6, 6, 6), dtype=np.int8)  # no claims (the pool indices of sub are < 6)
     _classify(sub, assign, 10.0, 1.0, np.array([5.0, 10.0, 40.0]), 1.0, 0, faces, codes, 0, 1)
     _subsets_from(8, 1, np.array([0, 1, 2, 3, 4, 5], dtype=np.int64), 2)
-    # two stars sharing a row: greedy, the packing's bookkeeping and the (1,2)-swap
-    ptr = np.array([0, 2, 4, 6], dtype=np.int64)
-    rows = np.array([0, 1, 1, 2, 2, 3], dtype=np.int64)
-    order = np.arange(3, dtype=np.int64)
-    chosen = sel.greedy(order, ptr, rows, 4)
-    P = sel._Packing(chosen, ptr, rows, 4, order)
-    P.two_swap(int(chosen[0]))
+    # the selection, on two stars sharing rows: greedy, the packing, local search and the ILS
+    from starforge.stars.rules import window_rows
+
+    idx = np.array([[0, 1, 2, 3, 4, 5], [0, 1, 2, 3, 4, 6]], dtype=np.int16)
+    star_of, row, n_rows = window_rows(idx, "face", 1, 8)
+    ptr, rows = sel._csr(star_of, row, len(idx))
+    order = np.arange(len(idx))
+    chosen = sel.greedy(order, ptr, rows, n_rows)
+    chosen, _ = sel.local_search(chosen, order, ptr, rows, n_rows)
+    sel.ils(chosen, order, ptr, rows, n_rows, iterations=1)
