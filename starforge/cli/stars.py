@@ -174,6 +174,7 @@ def stars_cmd(
     try:
         if helper is not None:
             warmup.compile_fit_decision()
+            warmup.ready("enumerate")  # the helper's kernels: loaded, not compiled a second time
         check_size(s, allow_stream=True)  # memory and time estimated before the long work
         family = _make(s, ctx, avoid, star_filter, make_family)
     except BaseException:

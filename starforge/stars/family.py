@@ -316,6 +316,9 @@ def make_family(
             f"(certified upper bound)"
         )
     t1 = time.perf_counter()
+    from starforge.stars import warmup
+
+    warmup.ready("select")  # a first run's helper may still be compiling the selection's kernels
     excluded = np.zeros(len(index), dtype=bool)
     rounds = 0
     while True:
