@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 
+from starforge.engine import beside
 from starforge.errors import NoStarError, StarforgeError
 from starforge.geometry.rigid import (
     default_tip_mm,
@@ -326,6 +327,8 @@ def make_family(
         sel, ub = _choose(index[keep], volume[keep], und, bound, spec, pool, work, deterministic)
         chosen = keep[np.sort(sel.chosen)]
         L = pool[index[chosen]]
+        # the family's margins depend on its lengths alone: computed beside the placement
+        marg_of_L = beside(margins, L) if star_filter is None else None
         placed = place_stars(vertices_from_lengths(L), spec.centre_limit_mm, spec.box_method)
         if star_filter is None:
             break
@@ -345,7 +348,7 @@ def make_family(
     info["proven_optimal"] = bool(spec.count is None and len(chosen) >= ub)
     return _assemble(
         spec, pool, index[chosen], L, placed, info, ub, cands.stats, len(index), len(und), avoid_sources,
-        {"enumerate": t_enum, "select": t_sel}, t0,
+        {"enumerate": t_enum, "select": t_sel}, t0, marg_of_L,
     )
 
 
@@ -386,10 +389,14 @@ def _no_star(spec: StarSpec) -> NoStarError:
 
 
 def _assemble(
-    spec, pool, chosen_index, L, placed, info, ub, enum_stats, n_candidates, n_undecided, avoid_sources, secs, t0
+    spec, pool, chosen_index, L, placed, info, ub, enum_stats, n_candidates, n_undecided, avoid_sources, secs, t0,
+    margins_of_L=None,
 ) -> Family:
     """The family from its chosen stars (pool indices (k, 6), lengths, placements): accuracy,
-    margins, ids (most accurate first) and the summary."""
+    margins, ids (most accurate first) and the summary.  ``margins_of_L``: a function giving
+    :func:`margins` of ``L`` in its own order (started earlier, :func:`starforge.engine.beside`);
+    by default they are computed here.  (A margin is a minimum of exact differences over the
+    other stars: the same floats in any order of the stars.)"""
     for i, item in enumerate(placed):
         if not item[4]:  # cannot happen for enumerated candidates; guard the invariant loudly
             raise RuntimeError(f"internal error: selected star {L[i].tolist()} does not fit")
@@ -399,7 +406,11 @@ def _assemble(
     # most accurate first (worst-case tip error with one marker hidden), then pool indices
     keys = [chosen_index[:, k] for k in range(5, -1, -1)]
     order = np.lexsort((*keys, np.round([a["tip_tre_hidden_mm"] for a in acc], 9)))
-    marg = margins(L[order])
+    if margins_of_L is not None:
+        of_L = margins_of_L()
+        marg = [of_L[i] for i in order.tolist()]
+    else:
+        marg = margins(L[order])
     depth = tetra_width(L[order])
     stars = []
     for new_id, i in enumerate(order.tolist(), start=1):
