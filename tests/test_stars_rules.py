@@ -165,3 +165,21 @@ def test_block_count_equals_a_set_of_block_tuples(m):
         )
         for dt in (np.uint8, np.int16, np.int64):
             assert _count_blocks(F.astype(dt), m) == want
+
+
+def test_fitting_box_volumes_are_the_plain_float_products():
+    """The enumeration's box volumes (numpy on contiguous copies) are, bit for bit, the product
+    of the extents along each row, each projection summed x0 r0 + x1 r1 + x2 r2 in Python floats:
+    the selection orders stars by them, so the family depends on every bit."""
+    from starforge.stars.enumerate import _box_volume
+
+    rng = np.random.default_rng(5)
+    P, R = rng.normal(size=(30, 4, 3)) * 7, rng.normal(size=(30, 3, 3))
+    want = []
+    for p, r in zip(P.tolist(), R.tolist(), strict=True):
+        vol = 1.0
+        for row in r:
+            proj = [row[0] * x[0] + row[1] * x[1] + row[2] * x[2] for x in p]
+            vol = vol * (max(proj) - min(proj))
+        want.append(vol)
+    assert _box_volume(P, R).tobytes() == np.array(want).tobytes()

@@ -338,7 +338,7 @@ def _centres(L: np.ndarray) -> np.ndarray:
     """Sphere centres (n, 4, 3) of realisable stars from lengths (n, 6) (u, U, v, V, w, W), mm:
     the trilateration of :func:`_classify`, operation for operation, so the floats are the
     ones its tests saw (A at the origin, B on +x, C in the xy-plane, D above it)."""
-    u, U, v, V, w, W = L.T
+    u, U, v, V, w, W = np.ascontiguousarray(L.T)  # contiguous columns: the same floats, faster
     cx = (u * u + w * w - v * v) / (2 * u)
     cy = np.sqrt(w * w - cx * cx)
     dx = (u * u + V * V - W * W) / (2 * u)
@@ -354,13 +354,15 @@ def _centres(L: np.ndarray) -> np.ndarray:
 def _box_volume(P: np.ndarray, R: np.ndarray) -> np.ndarray:
     """Volume of the box of each point set (n, 4, 3) along the rows of R (n, 3, 3), mm^3 (sums
     and products in a fixed order: the same floats whatever the batch)."""
+    # point by point (a reduction over an axis of 4 is slow in numpy), on contiguous copies of
+    # the coordinates and rows (strided operands slow every product): the same floats
+    X = [[np.ascontiguousarray(P[:, i, j]) for j in range(3)] for i in range(P.shape[1])]
     vol = np.ones(len(P))
     for k in range(3):
-        r0, r1, r2 = R[:, k, 0], R[:, k, 1], R[:, k, 2]
-        # point by point (a reduction over an axis of 4 is slow in numpy): the same floats
+        r0, r1, r2 = (np.ascontiguousarray(R[:, k, j]) for j in range(3))
         hi = lo = None
-        for i in range(P.shape[1]):
-            p = r0 * P[:, i, 0] + r1 * P[:, i, 1] + r2 * P[:, i, 2]
+        for x0, x1, x2 in X:
+            p = r0 * x0 + r1 * x1 + r2 * x2
             hi = p if hi is None else np.maximum(hi, p)
             lo = p if lo is None else np.minimum(lo, p)
         vol = vol * (hi - lo)
