@@ -91,6 +91,11 @@ def stars_cmd(
     import json
     import time
 
+    from starforge.cli._app import allow_quick_exit, pause_gc
+
+    # every file goes through staged_output, and the helper and threads are done on return
+    allow_quick_exit()
+    pause_gc()  # its objects are nearly all acyclic: no collector passes over numba's and scipy's heap
     from starforge import __version__
     from starforge.catalog import load_template
     from starforge.io import check_name, check_writable, staged_output
