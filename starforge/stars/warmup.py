@@ -174,6 +174,13 @@ def _report(group: str) -> None:
 
 
 def _run() -> None:
-    """The helper process: :func:`_helper`, reporting each group as it lands in the cache."""
+    """The helper process: :func:`_helper`, reporting each group as it lands in the cache.
+    Without the cyclic garbage collector: numba's compiler builds many short-lived object
+    graphs, and the collector's passes over them took a tenth of the compile (6.5 against 7.2
+    CPU s for every stars kernel in one process, for 53 MB more memory in this short-lived
+    process)."""
+    import gc
+
+    gc.disable()
     _helper()
     _report("select")
