@@ -166,11 +166,16 @@ def _helper() -> None:
     P.two_swap(int(chosen[0]))
 
 
+#: whether this process is the run's helper (:func:`_run`): only then is stdout the run's pipe
+_reporting = [False]
+
+
 def _report(group: str) -> None:
     """The helper tells the run that ``group``'s kernels are in the cache (its stdout is the
-    run's pipe, not a user's terminal)."""
-    sys.stdout.write(group + "\n")
-    sys.stdout.flush()
+    run's pipe, not a user's terminal; :func:`_helper` called otherwise says nothing)."""
+    if _reporting[0]:
+        sys.stdout.write(group + "\n")
+        sys.stdout.flush()
 
 
 def _run() -> None:
@@ -182,5 +187,6 @@ def _run() -> None:
     import gc
 
     gc.disable()
+    _reporting[0] = True
     _helper()
     _report("select")
