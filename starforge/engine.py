@@ -427,3 +427,35 @@ def over_ranges(kernel: Callable[[int, int], Any], n: int, chunk: int, threads: 
         ex.shutdown(wait=False, cancel_futures=True)
         raise
     ex.shutdown()
+
+
+def beside(fn: Callable[..., Any], *args) -> Callable[[], Any]:
+    """Start ``fn(*args)`` on a thread beside the caller's own work and return a function that
+    waits for its result (or raises its exception).  For independent numpy work on large
+    arrays (its array loops release the GIL) while the caller runs other code: the same result
+    as calling ``fn`` in place, on the second core where one is idle.  With one core it is
+    simply called in place."""
+    if (os.cpu_count() or 1) < 2:
+        value = fn(*args)
+        return lambda: value
+    import threading
+
+    out: dict = {}
+
+    def run():
+        try:
+            out["value"] = fn(*args)
+        except BaseException as exc:  # noqa: BLE001  (handed to the caller, re-raised there)
+            out["error"] = exc
+
+    th = threading.Thread(target=run, name=f"starforge-{getattr(fn, '__name__', 'beside')}", daemon=True)
+    th.fork_safe = True  # joined before the caller goes on; it forks nothing and holds no lock
+    th.start()
+
+    def result():
+        th.join()
+        if "error" in out:
+            raise out["error"]
+        return out["value"]
+
+    return result

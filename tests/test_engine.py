@@ -317,3 +317,19 @@ def test_a_task_planned_above_the_usable_share_is_refused():
     engine.require_task_memory([0.9e9], p, "a job", "split it")
     with pytest.raises(StarforgeError, match="task 0 needs about"):
         engine.require_task_memory([0.95e9], p, "a job", "split it")
+
+
+def test_beside_returns_the_result_or_the_error_of_the_call():
+    """engine.beside: the result of fn(*args) (the same as in place), its exception raised
+    where the result is asked for, and no thread left behind."""
+    import threading
+
+    from starforge.engine import beside
+    from starforge.stars.family import margins
+
+    L = np.random.default_rng(0).uniform(8, 40, (50, 6))
+    assert beside(margins, L)() == margins(L)
+    get = beside(int, "not a number")
+    with pytest.raises(ValueError):
+        get()
+    assert not [t for t in threading.enumerate() if t.name.startswith("starforge-") and t.name != "starforge-signals"]

@@ -155,6 +155,34 @@ def test_min_volume_box_contains_points_is_proper_and_minimal():
         assert np.prod(e[i]) <= _brute_force_min_volume(P[i], starts=12) * (1 + 1e-6)
 
 
+def test_min_volume_box_frames_and_volumes_are_the_numpy_floats_bit_for_bit():
+    """The edge-pair family's frames and box volumes, built component by component for speed,
+    are the floats np.cross, np.linalg.norm, einsum and np.prod give (the boxes, and so every
+    family file, do not change with the speed-up)."""
+    from starforge.geometry.obb import _box_volumes, _family_frames, _perp_basis, _points_first, _stack_frames
+
+    rng = np.random.default_rng(3)
+    P = rng.normal(size=(40, 4, 3)) * np.array([1, 3, 8])
+    e1 = rng.normal(size=(40, 5, 3))
+    e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
+    e2 = rng.normal(size=(40, 5, 3))
+    e2 /= np.linalg.norm(e2, axis=-1, keepdims=True)
+    theta = rng.uniform(0, np.pi, size=(40, 5, 7))
+    p, q = _perp_basis(e1)
+    axes, ok = _family_frames(p, q, e2, theta)
+    A = _stack_frames(axes)
+    # the same frames with numpy's vector functions
+    n1 = np.cos(theta)[..., None] * p[:, :, None] + np.sin(theta)[..., None] * q[:, :, None]
+    m = np.cross(e2[:, :, None], n1)
+    norm = np.linalg.norm(m, axis=-1, keepdims=True)
+    n2 = m / np.where(norm > 1e-12, norm, 1.0)
+    ref = np.stack([n1, n2, np.cross(n1, n2)], axis=-2)
+    assert A.tobytes() == ref.tobytes() and (ok == (norm[..., 0] > 1e-12)).all()
+    proj = np.einsum("nkj,nfsaj->nfska", P, A)
+    vol = np.prod(proj.max(axis=3) - proj.min(axis=3), axis=-1)
+    assert _box_volumes(_points_first(P), axes).tobytes() == vol.tobytes()
+
+
 def test_placement_transform_is_the_papers_frame():
     rng = np.random.default_rng(2)
     for _ in range(20):

@@ -302,3 +302,23 @@ def test_nearest_face_distances_match_a_kd_tree():
         F = np.sort(np.round(rng.uniform(5, 40, (m, 3)) * 2) / 2, axis=1)
         want = cKDTree(F).query(F, k=2, p=np.inf)[0][:, 1]
         assert np.array_equal(_nearest_other_chebyshev(F), want)
+
+
+def test_pair_margins_match_the_24_relabelled_forms_one_by_one():
+    """margins' pair margin (shared "both differ" amounts per opposite-pair image) is, bit for
+    bit, the plain definition: over other stars j and the 24 relabellings of j, the smallest
+    of the largest min(|a_k - b_k|, |A_k - B_k|) over the three opposite pairs k."""
+    from starforge.geometry.tetra import RELABELLINGS
+    from starforge.stars.family import _pair_margins
+
+    rng = np.random.default_rng(4)
+    for n in (2, 5, 60):
+        L = np.round(rng.uniform(8, 40, (n, 6)) * 4) / 4  # repeated lengths: ties included
+        want = np.full(n, np.inf)
+        for i in range(n):
+            for j in range(n):
+                if i != j:
+                    for r in RELABELLINGS:
+                        d = np.abs(L[i] - L[j, r])
+                        want[i] = min(want[i], max(min(d[2 * k], d[2 * k + 1]) for k in range(3)))
+        assert np.array_equal(_pair_margins(L), want)

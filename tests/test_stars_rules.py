@@ -148,3 +148,38 @@ def test_enumeration_is_sound_and_covers_every_covariance_fit(cands):
     fits = (np.sort(e, axis=1) <= limit + 1e-9).all(axis=1)
     expected = {tuple(np.round(c, 9)) for c in canonical_lengths(L[fits])}
     assert expected <= got
+
+
+@pytest.mark.parametrize("m", [1, 2, 3])
+def test_block_count_equals_a_set_of_block_tuples(m):
+    """The block count (coded in narrow integers) is the number of distinct blocks, counted as
+    Python tuples, minimised over the m^3 grid placements; any integer type of the keys."""
+    from starforge.stars.select import _count_blocks
+
+    rng = np.random.default_rng(m)
+    for hi in (6, 60, 250):
+        F = np.sort(rng.integers(0, hi, size=(3000, 3)), axis=1)
+        want = min(
+            len({tuple((x + o) // m for x, o in zip(row, off, strict=True)) for row in F.tolist()})
+            for off in itertools.product(range(m), repeat=3)
+        )
+        for dt in (np.uint8, np.int16, np.int64):
+            assert _count_blocks(F.astype(dt), m) == want
+
+
+def test_fitting_box_volumes_are_the_plain_float_products():
+    """The enumeration's box volumes (numpy on contiguous copies) are, bit for bit, the product
+    of the extents along each row, each projection summed x0 r0 + x1 r1 + x2 r2 in Python floats:
+    the selection orders stars by them, so the family depends on every bit."""
+    from starforge.stars.enumerate import _box_volume
+
+    rng = np.random.default_rng(5)
+    P, R = rng.normal(size=(30, 4, 3)) * 7, rng.normal(size=(30, 3, 3))
+    want = []
+    for p, r in zip(P.tolist(), R.tolist(), strict=True):
+        vol = 1.0
+        for row in r:
+            proj = [row[0] * x[0] + row[1] * x[1] + row[2] * x[2] for x in p]
+            vol = vol * (max(proj) - min(proj))
+        want.append(vol)
+    assert _box_volume(P, R).tobytes() == np.array(want).tobytes()

@@ -1,6 +1,7 @@
 """The first-run helper compiles exactly the kernels ``stars`` then loads: on a fresh cache,
 after the helper, the enumeration's first pass and the selection's kernels come from the cache
-(no compile) when called the way ``stars`` calls them; and nothing is left running."""
+(no compile) when called the way ``stars`` calls them; it reports each group as it lands; and
+nothing is left running."""
 
 from __future__ import annotations
 
@@ -13,8 +14,9 @@ HELPER = (
     "from starforge.stars import warmup\n"
     "cold = warmup.cache_is_cold()\n"
     "p = warmup.start()\n"
+    "said = [p.wait_for(g, 300) for g in ('enumerate', 'select')] if p else []\n"
     "warmup.finish(p, 300)\n"
-    "print(cold, p is not None, p.returncode if p else None, warmup.cache_is_cold())\n"
+    "print(cold, p is not None, p.returncode if p else None, warmup.cache_is_cold(), all(said))\n"
 )
 
 AFTER = """
@@ -45,12 +47,21 @@ def test_helper_fills_the_cache_stars_then_loads(tmp_path):
     env = dict(os.environ, STARFORGE_CACHE_DIR=str(tmp_path / "cache"))
     env.pop("NUMBA_CACHE_DIR", None)
     first = subprocess.run([sys.executable, "-c", HELPER], env=env, capture_output=True, text=True, check=True)
-    cold, started, rc, cold_after = first.stdout.split()
+    cold, started, rc, cold_after, reported = first.stdout.split()
     if (os.cpu_count() or 1) < 2:
         assert started == "False"
         return
-    assert (cold, started, rc, cold_after) == ("True", "True", "0", "False")
+    # the helper reported both groups of kernels (what the run waits for instead of compiling)
+    assert (cold, started, rc, cold_after, reported) == ("True", "True", "0", "False", "True")
     after = subprocess.run([sys.executable, "-c", AFTER], env=env, capture_output=True, text=True, check=True)
     stats = json.loads(after.stdout.strip().splitlines()[-1])
     for name, (hits, misses) in stats.items():
         assert hits >= 1 and misses == 0, (name, hits, misses)
+
+
+def test_ready_without_a_helper_returns_at_once():
+    from starforge.stars import warmup
+
+    assert warmup._active[0] is None
+    warmup.ready("enumerate", timeout_s=1e6)  # no helper: nothing to wait for
+    warmup.ready("select", timeout_s=1e6)

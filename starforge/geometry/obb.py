@@ -87,39 +87,63 @@ def _hull_edges_faces(k: int):
     return edges, faces
 
 
-def _family_frames(e1: np.ndarray, e2: np.ndarray, theta: np.ndarray):
-    """Frames with n1 perpendicular to e1 (angle theta about e1) and n2 perpendicular to e2 and n1.
-
-    e1, e2 : (n, f, 3) unit; theta : (n, f, s).  Returns rows-as-axes frames (n, f, s, 3, 3), ok mask.
-    """
-    # orthonormal basis (p, q) of the plane perpendicular to e1
+def _perp_basis(e1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An orthonormal basis (p, q) of the plane perpendicular to each unit e1 (n, f, 3)."""
     helper = np.where(np.abs(e1[..., :1]) < 0.9, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
     p, _ = _normalize(np.cross(e1, helper))
-    q = np.cross(e1, p)
-    c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
-    n1 = c * p[:, :, None] + s * q[:, :, None]
-    n2, ok = _normalize(np.cross(e2[:, :, None], n1))
-    n3 = np.cross(n1, n2)
-    return np.stack([n1, n2, n3], axis=-2), ok
+    return p, np.cross(e1, p)
 
 
-def _box_volumes(P: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """Volumes of the boxes of point sets P (n, k, 3) along frames A (n, f, s, 3, 3) (rows are
-    the axes): (n, f, s).  Axis by axis and point by point on (n, f, s) arrays, which is several
-    times faster than one einsum over (n, f, s, k, 3) and its strided reductions; the sums are
-    taken in the order ``einsum`` takes them here ((x0 a0 + x2 a2) + x1 a1) and the product as
-    ``np.prod`` does, so the volumes are the same floats (checked bit for bit)."""
+def _cross3(a, b) -> list:
+    """Cross product of vectors given as three component arrays each (any broadcastable
+    shapes), as ``np.cross`` takes it operation for operation (the same floats)."""
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def _family_frames(p: np.ndarray, q: np.ndarray, e2: np.ndarray, theta: np.ndarray):
+    """Frames with n1 perpendicular to e1 (angle theta about e1, from its basis p, q of
+    :func:`_perp_basis`) and n2 perpendicular to e2 and n1.
+
+    p, q, e2 : (n, f, 3) unit; theta : (n, f, s).  Returns the three axes, each a list of its
+    three components (n, f, s), and the ok mask (n, f, s).  Component arrays instead of
+    (..., 3) vectors: the sums and products of ``np.cross`` and ``np.linalg.norm`` in the same
+    order (the same floats), without their per-call overhead and strided temporaries; this
+    loop runs once per refinement step.
+    """
+    c, s = np.cos(theta), np.sin(theta)
+    n1 = [c * p[:, :, None, j] + s * q[:, :, None, j] for j in range(3)]
+    m = _cross3([e2[:, :, None, j] for j in range(3)], n1)
+    norm = np.sqrt((m[0] * m[0] + m[1] * m[1]) + m[2] * m[2])
+    ok = norm > tol.zero
+    d = np.where(ok, norm, 1.0)
+    n2 = [x / d for x in m]
+    return [n1, n2, _cross3(n1, n2)], ok
+
+
+def _stack_frames(axes: list) -> np.ndarray:
+    """Rows-as-axes frames (..., 3, 3) from :func:`_family_frames`' component lists."""
+    return np.stack([np.stack(a, axis=-1) for a in axes], axis=-2)
+
+
+def _box_volumes(X: list, axes: list) -> np.ndarray:
+    """Volumes of the boxes of point sets along frames: (n, f, s).
+
+    ``X``: the points' coordinates as three arrays (k, n, 1, 1), point first (:func:`_points_first`);
+    ``axes``: three axes, each a list of three component arrays (n, f, s) (:func:`_family_frames`).
+    Axis by axis on (k, n, f, s) arrays, reduced over the leading point axis (a reduction over
+    a trailing axis of 4, or one einsum over (n, f, s, k, 3), is several times slower); the sums
+    are taken in the order ``einsum`` takes them here ((x0 a0 + x2 a2) + x1 a1) and the product
+    as ``np.prod`` does, so the volumes are the same floats (checked bit for bit)."""
     ext = []
-    for a in range(3):
-        Aa = A[..., a, :]
-        hi = lo = None
-        for k in range(P.shape[1]):
-            x = P[:, k, :, None, None]
-            p = (x[:, 0] * Aa[..., 0] + x[:, 2] * Aa[..., 2]) + x[:, 1] * Aa[..., 1]
-            hi = p if hi is None else np.maximum(hi, p)
-            lo = p if lo is None else np.minimum(lo, p)
-        ext.append(hi - lo)
+    for a0, a1, a2 in axes:
+        p = (X[0] * a0 + X[2] * a2) + X[1] * a1
+        ext.append(p.max(axis=0) - p.min(axis=0))
     return ext[0] * ext[1] * ext[2]
+
+
+def _points_first(P: np.ndarray) -> list:
+    """Coordinates of point sets P (n, k, 3) as three arrays (k, n, 1, 1) for :func:`_box_volumes`."""
+    return [np.ascontiguousarray(P[:, :, j].T)[:, :, None, None] for j in range(3)]
 
 
 def min_volume_box(points: np.ndarray, samples: int = 24, refine: int = 40):
@@ -167,12 +191,14 @@ def min_volume_box(points: np.ndarray, samples: int = 24, refine: int = 40):
     # (b) two adjacent faces flush with edges e_i and e_j: sample theta, then golden-section refine
     pairs = np.array([(i, j) for i in range(ne) for j in range(i, ne)], dtype=np.intp)
     e1, e2 = E[:, pairs[:, 0]], E[:, pairs[:, 1]]
+    bp, bq = _perp_basis(e1)  # the same for every angle: computed once
+    X = _points_first(P)
     nfam = len(pairs)
     theta = np.broadcast_to(np.arange(samples) * (np.pi / samples), (n, nfam, samples))
 
     def volumes(th):
-        A, ok = _family_frames(e1, e2, th)
-        return np.where(ok, _box_volumes(P, A), np.inf), A
+        axes, ok = _family_frames(bp, bq, e2, th)
+        return np.where(ok, _box_volumes(X, axes), np.inf), axes
 
     v, _ = volumes(theta)
     j = v.argmin(axis=2)
@@ -193,11 +219,11 @@ def min_volume_box(points: np.ndarray, samples: int = 24, refine: int = 40):
         f1, f2 = np.where(left, fe, f2), np.where(left, f1, fe)
         x1, x2 = nx1, nx2
     cand_t = np.concatenate([t0[..., None], x1[..., None], x2[..., None]], axis=2)
-    vc, Ac = volumes(cand_t)
+    vc, axes = volumes(cand_t)
     flat = vc.reshape(n, -1)
     fi = flat.argmin(axis=1)
     fam_vol = flat[np.arange(n), fi]
-    fam_A = Ac.reshape(n, -1, 3, 3)[np.arange(n), fi]
+    fam_A = _stack_frames(axes).reshape(n, -1, 3, 3)[np.arange(n), fi]
 
     use_fam = fam_vol < best_vol
     best_A = np.where(use_fam[:, None, None], fam_A, best_A)
@@ -235,7 +261,7 @@ def placement_transform(points: np.ndarray, R: np.ndarray, center: np.ndarray, e
         nz = -nz
     if np.dot(c - center, ny) < -tol.length_mm:
         ny = -ny
-    nx = np.cross(ny, nz)  # right-handed: x = y cross z
+    nx = np.array(_cross3(ny, nz))  # right-handed: x = y cross z (np.cross's floats, less overhead)
     R_obb = np.stack([nx, ny, nz], axis=1)  # columns
     half_long = 0.5 * extents[order[2]]
     T = np.eye(4)

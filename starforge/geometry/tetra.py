@@ -10,6 +10,7 @@ Every function is vectorised over a leading axis: ``lengths : (n, 6)``,
 
 from __future__ import annotations
 
+import functools
 import itertools
 
 import numpy as np
@@ -180,8 +181,14 @@ def canonical_assignments() -> np.ndarray:
 
     Row r maps sorted ranks to positions: ``lengths = sorted6[assign[r]]`` gives the r-th
     labelling in ``(u, U, v, V, w, W)`` order.  720 assignments / 24 relabellings = 30 classes;
-    a mirror image has the same lengths, so it is already the same class.
+    a mirror image has the same lengths, so it is already the same class.  (Worked out once per
+    process, 20 ms, then copied: every enumeration chunk asks for it.)
     """
+    return _canonical_assignments().copy()
+
+
+@functools.lru_cache(maxsize=1)
+def _canonical_assignments() -> np.ndarray:
     seen = set()
     reps = []
     for perm in itertools.permutations(range(6)):

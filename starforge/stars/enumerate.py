@@ -430,7 +430,7 @@ def _centres(L: np.ndarray) -> np.ndarray:
     """Sphere centres (n, 4, 3) of realisable stars from lengths (n, 6) (u, U, v, V, w, W), mm:
     the trilateration of :func:`_classify`, operation for operation, so the floats are the
     ones its tests saw (A at the origin, B on +x, C in the xy-plane, D above it)."""
-    u, U, v, V, w, W = L.T
+    u, U, v, V, w, W = np.ascontiguousarray(L.T)  # contiguous columns: the same floats, faster
     cx = (u * u + w * w - v * v) / (2 * u)
     cy = np.sqrt(w * w - cx * cx)
     dx = (u * u + V * V - W * W) / (2 * u)
@@ -589,6 +589,13 @@ def index_dtype(pool_size: int) -> type:
     return np.uint8 if pool_size <= 256 else np.int16
 
 
+def _where_code(codes: np.ndarray, code: int) -> tuple[np.ndarray, np.ndarray]:
+    """(subset rows, assignment columns) of the entries of ``codes`` (s, 30) equal to ``code``,
+    in row-major order: ``np.nonzero``'s result, from the flat positions (3x faster on a
+    batch's 3.9 M codes)."""
+    return np.divmod(np.flatnonzero(codes == code), codes.shape[1])
+
+
 def enumerate_chunk(args: tuple) -> dict:
     """One task of the enumeration: the admissible subsets of ranks ``[rank, rank + count)``.
 
@@ -622,7 +629,7 @@ def enumerate_chunk(args: tuple) -> dict:
         counts[: NO_FIT + 1] += [np.count_nonzero(codes == c) for c in range(NO_FIT + 1)]
         if mode == 1:
             counts[NECESSARY_OK] += np.count_nonzero(codes == NECESSARY_OK)
-            s, a = np.nonzero(codes == NECESSARY_OK)
+            s, a = _where_code(codes, NECESSARY_OK)
             idx = np.take_along_axis(sub[s], assign[a], axis=1)
             from starforge.geometry.tetra import vertices_from_lengths
 

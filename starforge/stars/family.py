@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 
+from starforge.engine import beside
 from starforge.errors import NoStarError, StarforgeError
 from starforge.geometry.rigid import (
     default_tip_mm,
@@ -33,10 +34,8 @@ def margins(lengths: np.ndarray, pair: bool = True) -> list[dict]:
     sorted sides (the face rule needs this >= tolerance).
     family_pair_mm: for the paper's rule, the smallest over other stars and relabellings of the
     largest "both lengths of one opposite pair differ" amount; with ``pair=False`` it is left
-    out (it costs n^2 x 144 differences, which a face-rule check does not need).
+    out (it costs n^2 x 36 differences, which a face-rule check does not need).
     """
-    from starforge.geometry.tetra import RELABELLINGS
-
     L = np.asarray(lengths, dtype=float)
     n = len(L)
     srt = np.sort(L, axis=1)
@@ -47,23 +46,48 @@ def margins(lengths: np.ndarray, pair: bool = True) -> list[dict]:
     if len(F) > 1:
         # the nearest other face in the Chebyshev metric (largest sorted-side difference)
         np.minimum.at(face_m, owner, _nearest_other_chebyshev(F))
-    pair_m = np.full(n, np.inf)
-    if pair and n > 1:
-        forms = L[:, RELABELLINGS]  # (n, 24, 6)
-        rows = max(1, int(2e6 // (n * 24 * 6 * 8)))  # stars per block (about 2 MB of differences: in cache)
-        for i0 in range(0, n, rows):
-            i1 = min(n, i0 + rows)
-            # both lengths of pair k differ by min(|a_k - b_k|, |A_k - B_k|); a pair of stars is
-            # told apart by the best pair; the worst relabelling decides.
-            d = np.abs(forms[i0:i1, None, None, 0, :] - forms[None])  # (b, n, 24, 6)
-            both = np.minimum(d[..., 0::2], d[..., 1::2]).max(axis=3)  # (b, n, 24)
-            worst = both.min(axis=2)  # (b, n)
-            worst[np.arange(i1 - i0), np.arange(i0, i1)] = np.inf
-            pair_m[i0:i1] = worst.min(axis=1)
+    pair_m = _pair_margins(L) if pair and n > 1 else np.full(n, np.inf)
     out = [{"internal_mm": float(internal[i]), "family_face_mm": float(face_m[i])} for i in range(n)]
     if pair:
         for i in range(n):
             out[i]["family_pair_mm"] = float(pair_m[i])
+    return out
+
+
+def _pair_margins(L: np.ndarray) -> np.ndarray:
+    """For each star of ``L`` (n, 6), n > 1, the paper's pair margin against the others: the
+    smallest, over other stars and relabellings, of the largest "both lengths of one opposite
+    pair differ" amount, mm (n,).
+
+    A relabelling of the other star sends each opposite pair p = (2p, 2p + 1) of this star to
+    one of its pairs, in one of two orientations; the 24 relabellings use only a few of these
+    (pair, image, orientation) combinations, so each combination's "both differ" amount
+    min(|a - b|, |A - B|) is computed once per pair of stars and the relabellings take the
+    max / min of those.  Only differences, minima and maxima: the same floats as comparing
+    the 24 relabelled forms one by one."""
+    from starforge.geometry.tetra import RELABELLINGS
+
+    n = len(L)
+    A = L[:, RELABELLINGS[0]]  # this star as written
+    combos: dict = {}  # (p, edge of the other star facing 2p, edge facing 2p + 1) -> index
+    use = [
+        tuple(combos.setdefault((q, int(r[2 * q]), int(r[2 * q + 1])), len(combos)) for q in range(3))
+        for r in RELABELLINGS
+    ]
+    rows = max(1, int(2e6 // (n * 8 * (len(combos) + 2))))  # stars per block (about 2 MB: in cache)
+    out = np.empty(n)
+    for i0 in range(0, n, rows):
+        i1 = min(n, i0 + rows)
+        both = [
+            np.minimum(np.abs(A[i0:i1, None, 2 * q] - L[None, :, e0]), np.abs(A[i0:i1, None, 2 * q + 1] - L[None, :, e1]))
+            for q, e0, e1 in combos
+        ]
+        worst = None
+        for c0, c1, c2 in use:
+            told = np.maximum(np.maximum(both[c0], both[c1]), both[c2])  # told apart by the best pair
+            worst = told if worst is None else np.minimum(worst, told)  # the worst relabelling decides
+        worst[np.arange(i1 - i0), np.arange(i0, i1)] = np.inf
+        out[i0:i1] = worst.min(axis=1)
     return out
 
 
@@ -293,6 +317,9 @@ def make_family(
             f"(certified upper bound)"
         )
     t1 = time.perf_counter()
+    from starforge.stars import warmup
+
+    warmup.ready("select")  # a first run's helper may still be compiling the selection's kernels
     excluded = np.zeros(len(index), dtype=bool)
     rounds = 0
     while True:
@@ -300,6 +327,8 @@ def make_family(
         sel, ub = _choose(index[keep], volume[keep], und, bound, spec, pool, work, deterministic)
         chosen = keep[np.sort(sel.chosen)]
         L = pool[index[chosen]]
+        # the family's margins depend on its lengths alone: computed beside the placement
+        marg_of_L = beside(margins, L) if star_filter is None else None
         placed = place_stars(vertices_from_lengths(L), spec.centre_limit_mm, spec.box_method)
         if star_filter is None:
             break
@@ -319,7 +348,7 @@ def make_family(
     info["proven_optimal"] = bool(spec.count is None and len(chosen) >= ub)
     return _assemble(
         spec, pool, index[chosen], L, placed, info, ub, cands.stats, len(index), len(und), avoid_sources,
-        {"enumerate": t_enum, "select": t_sel}, t0,
+        {"enumerate": t_enum, "select": t_sel}, t0, marg_of_L,
     )
 
 
@@ -360,10 +389,14 @@ def _no_star(spec: StarSpec) -> NoStarError:
 
 
 def _assemble(
-    spec, pool, chosen_index, L, placed, info, ub, enum_stats, n_candidates, n_undecided, avoid_sources, secs, t0
+    spec, pool, chosen_index, L, placed, info, ub, enum_stats, n_candidates, n_undecided, avoid_sources, secs, t0,
+    margins_of_L=None,
 ) -> Family:
     """The family from its chosen stars (pool indices (k, 6), lengths, placements): accuracy,
-    margins, ids (most accurate first) and the summary."""
+    margins, ids (most accurate first) and the summary.  ``margins_of_L``: a function giving
+    :func:`margins` of ``L`` in its own order (started earlier, :func:`starforge.engine.beside`);
+    by default they are computed here.  (A margin is a minimum of exact differences over the
+    other stars: the same floats in any order of the stars.)"""
     for i, item in enumerate(placed):
         if not item[4]:  # cannot happen for enumerated candidates; guard the invariant loudly
             raise RuntimeError(f"internal error: selected star {L[i].tolist()} does not fit")
@@ -373,7 +406,11 @@ def _assemble(
     # most accurate first (worst-case tip error with one marker hidden), then pool indices
     keys = [chosen_index[:, k] for k in range(5, -1, -1)]
     order = np.lexsort((*keys, np.round([a["tip_tre_hidden_mm"] for a in acc], 9)))
-    marg = margins(L[order])
+    if margins_of_L is not None:
+        of_L = margins_of_L()
+        marg = [of_L[i] for i in order.tolist()]
+    else:
+        marg = margins(L[order])
     depth = tetra_width(L[order])
     stars = []
     for new_id, i in enumerate(order.tolist(), start=1):
