@@ -168,13 +168,17 @@ def test_block_count_equals_a_set_of_block_tuples(m):
 
 
 def test_fitting_box_volumes_are_the_plain_float_products():
-    """The enumeration's box volumes (numpy on contiguous copies) are, bit for bit, the product
-    of the extents along each row, each projection summed x0 r0 + x1 r1 + x2 r2 in Python floats:
-    the selection orders stars by them, so the family depends on every bit."""
+    """The enumeration's box volumes are, bit for bit, the product of the extents along each
+    row, each projection summed x0 r0 + x1 r1 + x2 r2 in Python floats, for centres placed as
+    the enumeration places them (A at the origin, B on +x, C in the xy-plane): the selection
+    orders stars by them, so the family depends on every bit."""
     from starforge.stars.enumerate import _box_volume
 
     rng = np.random.default_rng(5)
     P, R = rng.normal(size=(30, 4, 3)) * 7, rng.normal(size=(30, 3, 3))
+    P[:, 0, :] = 0.0
+    P[:, 1, 1:] = 0.0
+    P[:, 2, 2] = 0.0
     want = []
     for p, r in zip(P.tolist(), R.tolist(), strict=True):
         vol = 1.0
