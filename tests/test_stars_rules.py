@@ -167,6 +167,29 @@ def test_block_count_equals_a_set_of_block_tuples(m):
             assert _count_blocks(F.astype(dt), m) == want
 
 
+def test_compiled_face_block_count_is_the_numpy_count():
+    """block_bound's compiled count (large inputs) gives numpy's count of the face keys' blocks,
+    for every block size and index type, and block_bound takes it from the threshold up."""
+    import starforge.stars.select as sel
+
+    rng = np.random.default_rng(11)
+    for hi in (8, 40, 200):
+        idx = np.array([rng.choice(hi, 6, replace=False) for _ in range(4000)])
+        faces = sel.key_triples(idx, "face")[:, :4].reshape(-1, 3)
+        for m in (1, 2, 3):
+            want = sel._count_blocks(faces, m)
+            for dt in (np.uint8, np.int16, np.int64):
+                assert sel._count_face_blocks_compiled(idx.astype(dt), m) == want
+    idx = np.array([rng.choice(30, 6, replace=False) for _ in range(500)]).astype(np.int16)
+    old = sel.BLOCK_KERNEL_STARS
+    try:
+        sel.BLOCK_KERNEL_STARS = 1
+        compiled = sel.block_bound(idx, 2)
+    finally:
+        sel.BLOCK_KERNEL_STARS = old
+    assert compiled == sel.block_bound(idx, 2) == sel._count_blocks(sel.key_triples(idx, "face").reshape(-1, 3), 2) // 4
+
+
 def test_fitting_box_volumes_are_the_plain_float_products():
     """The enumeration's box volumes are, bit for bit, the product of the extents along each
     row, each projection summed x0 r0 + x1 r1 + x2 r2 in Python floats, for centres placed as
