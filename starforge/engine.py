@@ -32,6 +32,7 @@ roughly 10 % on the ``starforge.engine`` logger.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import logging
 import math
 import os
@@ -246,6 +247,7 @@ def map_tasks(
     advice: str = "use smaller pieces of work",
     on_plan: Callable[[Plan], None] | None = None,
     consume: Callable[[int, Any], None] | None = None,
+    overlap: int = 1,
 ) -> list:
     """``[fn(x) for x in items]``, run where :func:`plan` decides; results in item order.
 
@@ -276,6 +278,13 @@ def map_tasks(
         Called with the :class:`Plan` before the first task (to tell the user where it runs).
     consume : callable or None
         ``consume(i, result)`` per finished task instead of collecting the results.
+    overlap : int
+        In process, up to this many tasks at once, on threads (default 1: one after another).
+        For tasks that spend most of their time in compiled kernels releasing the GIL on every
+        core: the single-threaded numpy work between one task's kernels then runs beside
+        another task's kernels instead of leaving the other cores idle.  The memory check
+        counts each task ``overlap`` times.  Results do not depend on it (each task is a pure
+        function; with ``consume`` they arrive in completion order, as on a cluster).
     """
     items = list(items)
     n = len(items)
@@ -292,10 +301,13 @@ def map_tasks(
             if p.mode == "remote":
                 client = _connect(p.address)
                 p = plan(n, seconds, workers, scheduler, client=client)
-            require_task_memory(tb, p, what, advice)
+            k = max(1, min(int(overlap), n)) if p.mode == "serial" else 1
+            require_task_memory([b * k for b in tb], p, what, advice)
             if on_plan is not None:
                 on_plan(p)
             ticker = _Progress(n, what, progress)
+            if k > 1:
+                return _overlapped(fn, items, ticker, consume, k)
             if p.mode == "serial":
                 out = []
                 for i, x in enumerate(items):
@@ -315,6 +327,37 @@ def map_tasks(
                 client.close()
             if cluster is not None:
                 cluster.close()
+
+
+def _overlapped(fn, items, ticker: _Progress, consume, k: int) -> list:
+    """:func:`map_tasks` in process with ``k`` tasks at once on threads, the next item started
+    as one finishes (so at most ``k`` are held in memory).  An exception (Ctrl-C included)
+    cancels the tasks not started and is raised."""
+    from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+
+    out: list = [None] * len(items) if consume is None else []
+    todo = iter(enumerate(items))
+    ex = ThreadPoolExecutor(k)
+    try:
+        running = {ex.submit(fn, x): i for i, x in itertools.islice(todo, k)}
+        while running:
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for f in sorted(done, key=running.get):
+                i = running.pop(f)
+                res = f.result()
+                if consume is None:
+                    out[i] = res
+                else:
+                    consume(i, res)
+                del res
+                ticker.tick()
+                for j, x in itertools.islice(todo, 1):
+                    running[ex.submit(fn, x)] = j
+    except BaseException:
+        ex.shutdown(wait=False, cancel_futures=True)
+        raise
+    ex.shutdown()
+    return out
 
 
 def _run_on(client, fn, items, ticker: _Progress, p: Plan, consume=None) -> list:

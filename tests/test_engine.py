@@ -68,6 +68,7 @@ def test_chunked_enumeration_equals_one_chunk(serial, monkeypatch):
     monkeypatch.setattr(E, "CHUNK_SUBSETS", 997)  # many uneven chunks, in process
     assert len(E.chunks(SPEC)) > 20
     _same(E.enumerate_candidates(SPEC, workers=1), serial)
+    _same(E.enumerate_candidates(SPEC, workers=2), serial)  # two chunks at once, on 2 threads each
 
 
 def test_enumeration_on_the_cluster_equals_serial(cluster, serial, monkeypatch):
@@ -333,3 +334,33 @@ def test_beside_returns_the_result_or_the_error_of_the_call():
     with pytest.raises(ValueError):
         get()
     assert not [t for t in threading.enumerate() if t.name.startswith("starforge-") and t.name != "starforge-signals"]
+
+
+def _slow_square(x):
+    import time
+
+    time.sleep(0.002 * (x % 3))  # finish out of order
+    if x == 7:
+        raise ValueError("task 7 fails")
+    return x * x
+
+
+def test_overlapped_tasks_in_process_give_the_serial_results():
+    """map_tasks(overlap=k) runs k tasks at once on threads: the same results in item order,
+    every item consumed once whatever the completion order, progress ticked once per task,
+    the memory check counting each task k times, and a task's error raised."""
+    items = [0, 1, 2, 3, 4, 5, 6, 8, 9, 10]
+    want = [x * x for x in items]
+    ticks = []
+    got = engine.map_tasks(_slow_square, items, workers=1, overlap=3, progress=lambda d, n: ticks.append((d, n)))
+    assert got == want
+    assert ticks == [(d, len(items)) for d in range(1, len(items) + 1)]
+    seen = {}
+    assert engine.map_tasks(_slow_square, items, workers=1, overlap=2, consume=lambda i, r: seen.setdefault(i, r)) == []
+    assert seen == dict(enumerate(want))
+    with pytest.raises(ValueError, match="task 7 fails"):
+        engine.map_tasks(_slow_square, [1, 7, 2, 3], workers=1, overlap=2)
+    usable = engine.plan(1, 0.0, workers=1).usable_bytes
+    engine.map_tasks(_slow_square, [1, 2], workers=1, overlap=2, task_bytes=usable * 0.4)
+    with pytest.raises(StarforgeError, match="memory"):
+        engine.map_tasks(_slow_square, [1, 2], workers=1, overlap=2, task_bytes=usable * 0.6)
