@@ -691,10 +691,16 @@ def run_chunks(spec: StarSpec, consume, progress=None, workers: int | None = Non
         def tick(done, _n):
             progress(int(sizes[done - 1]), total)
 
+    task_bytes = [chunk_bytes(c) for _, c in parts]
+    # in process, two chunks at once where two fit in memory: one chunk's numpy work between
+    # its kernels (a single thread) runs beside the other's kernels instead of leaving a core idle
+    overlap = 1
+    if p.mode == "serial" and (threads is None or threads > 1) and task_bytes:
+        overlap = 2 if 2 * max(task_bytes) <= p.usable_bytes else 1
     engine.map_tasks(
         enumerate_chunk,
         [(spec, r, c, threads) for r, c in parts],
-        task_bytes=[chunk_bytes(c) for _, c in parts],
+        task_bytes=task_bytes,
         seconds=seconds,
         workers=workers,
         scheduler=scheduler,
@@ -702,9 +708,7 @@ def run_chunks(spec: StarSpec, consume, progress=None, workers: int | None = Non
         what=f"enumerating {total:,} labelled candidates",
         advice="raise delta_mm or tolerance_mm, or use workers with more memory",
         consume=consume,
-        # in process, two chunks at once: one chunk's numpy work between its kernels (a single
-        # thread) runs beside the other's kernels instead of leaving a core idle
-        overlap=2 if p.mode == "serial" and (threads is None or threads > 1) else 1,
+        overlap=overlap,
     )
     return int(sum(c for _, c in parts) * 30)
 
