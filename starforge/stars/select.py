@@ -28,6 +28,12 @@ import numpy as np
 from starforge.stars.rules import key_triples
 from starforge.stars.spec import StarSpec
 
+#: the kernels only ever called from other kernels: no Python or C-callback wrapper, and no
+#: cache entry of their own (each is compiled into its one caller, whose cache entry holds it;
+#: a warm run loads the caller and compiles nothing).  Each wrapper and cache write costs a
+#: first run tens of milliseconds per kernel.
+_inner = numba.njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
+
 
 @dataclass(frozen=True)
 class Selection:
@@ -72,7 +78,7 @@ def greedy(order: np.ndarray, ptr: np.ndarray, rows: np.ndarray, n_rows: int) ->
                    np.asarray(rows, dtype=np.int64), int(n_rows)).astype(np.intp)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, no_cfunc_wrapper=True)
 def _greedy(order, ptr, rows, n_rows):
     used = np.zeros(n_rows, dtype=np.bool_)
     out = np.empty(len(order), dtype=np.int64)
@@ -155,7 +161,7 @@ def _count_face_blocks_compiled(index: np.ndarray, m: int) -> int:
     )
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _face_blocks(index, edges, m, o0, o1, o2, base, used):
     """Distinct blocks ``((lo + o0) // m, (mid + o1) // m, (hi + o2) // m)`` of the stars' four
     face keys (each face's three pool indices sorted); ``used`` (base^3 bools) is scratch."""
@@ -314,7 +320,7 @@ class _Packing:
         _undo(np.asarray(ops, dtype=np.int64), 0, len(ops), self.arrays)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _csc(ptr, rows, n_rows):
     """The row -> candidates index of the incidence (candidates ascending within a row)."""
     rptr = np.zeros(n_rows + 1, dtype=np.int64)
@@ -336,7 +342,7 @@ def _csc(ptr, rows, n_rows):
 FREE = -2
 
 
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@_inner
 def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, lst):
     """The first pair, in rank order (most compact first), of distinct candidates 1-tight with
     family star t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint; (-1, -1) if
@@ -361,11 +367,14 @@ def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, lst):
     return -1, -1
 
 
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@_inner
 def _neighbours(t, want, ptr, rows, rptr, cands, tight, rank, seen, lst):
     """The candidates sharing a row with star t whose ``tight`` is ``want`` (-2: free; t:
     1-tight with t), each once, most compact first, in ``lst[:m]``; returns m.  ``seen`` (all
-    False) is left so."""
+    False) is left so.  The sort by rank (a permutation: no ties, so an unstable sort does) is
+    Shell's sort, gaps ~m/2.2^k ending in 1 (insertion sort for short lists), written here, its
+    one caller: no numpy sort in the kernels (each costs seconds of compilation on a first run),
+    and as a kernel of its own it was compiled twice (``m`` typed once as the literal 0)."""
     m = 0
     for j in range(ptr[t], ptr[t + 1]):
         r = rows[j]
@@ -377,15 +386,6 @@ def _neighbours(t, want, ptr, rows, rptr, cands, tight, rank, seen, lst):
                 m += 1
     for i in range(m):
         seen[lst[i]] = False
-    _sort_by_rank(lst, m, rank)
-    return m
-
-
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _sort_by_rank(lst, m, rank):
-    """Sort ``lst[:m]`` by rank (a permutation: no ties; so an unstable sort does): Shell's sort,
-    gaps ~m/2.2^k ending in 1 (insertion sort for short lists).  No numpy sort in the kernels:
-    each costs seconds of compilation on a first run."""
     gap = m // 2
     while gap > 0:
         for i in range(gap, m):
@@ -397,6 +397,7 @@ def _sort_by_rank(lst, m, rank):
                 j -= gap
             lst[j] = v
         gap = 0 if gap == 1 else max(1, int(gap / 2.2))
+    return m
 
 
 #: the signs :func:`_set` takes, as int64 (a literal argument would compile a kernel again)
@@ -404,7 +405,7 @@ _ONE = np.int64(1)
 _MINUS = np.int64(-1)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _set(s, sign, P):
     """Star s enters (sign +1) or leaves (-1) the family: its rows' owner and membership, then
     per candidate sharing rows with s (``buf``: once per shared row) the count, sum and sum of
@@ -461,7 +462,7 @@ def _set(s, sign, P):
 FREE = -2
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _undo(ops, k0, k1, P):
     """Revert ``ops[k0:k1]`` (s + 1: s was inserted; -(s + 1): removed), last first."""
     for i in range(k1 - 1, k0 - 1, -1):
@@ -472,7 +473,7 @@ def _undo(ops, k0, k1, P):
             _set(np.int64(-v - 1), _ONE, P)
 
 
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@_inner
 def _fill(t, P, k):
     """Insert the candidates sharing a row with star t that are free (nothing of the family
     holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
@@ -489,7 +490,7 @@ def _fill(t, P, k):
     return k
 
 
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@_inner
 def _push(heap, hn, v):
     heap[hn] = v
     i = hn
@@ -502,7 +503,7 @@ def _push(heap, hn, v):
     return hn + 1
 
 
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@_inner
 def _pop(heap, hn):
     top = heap[0]
     hn -= 1
@@ -521,7 +522,7 @@ def _pop(heap, hn):
     return top, hn
 
 
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@_inner
 def _enqueue(P, k0, k1, hn):
     """Queue (once) every family star that a candidate sharing rows with the stars of
     ``ops[k0:k1]`` now conflicts with alone (1-tight); returns the heap's size.  Those
@@ -548,7 +549,7 @@ def _enqueue(P, k0, k1, hn):
     return hn
 
 
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@_inner
 def _descend(P, hn, k):
     """(1,2)-swaps (and free insertions) until none is left for the queued stars, the most
     compact queued star first (a heap of ranks: ranks are distinct, so the order is the one of
@@ -582,7 +583,7 @@ def _descend(P, hn, k):
 ILS_BATCH = 1024
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _search(P, task, batches, ctr, limit, bound):
     """The searches on the packing ``P``, in one compiled entry (so that the kernels its tasks
     share are compiled and optimised once on a first run: each entry compiles its callees
