@@ -98,6 +98,10 @@ _jit = numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 #: loads those and compiles nothing).  A wrapper or a cache write costs a first run tens of
 #: milliseconds per kernel.
 _inner = numba.njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
+#: the fit decision's per-set search and its corner test: called from Python only by tests (and
+#: in the package only from kernels), so no cache entry of their own: a first run compiles them
+#: into decide_range, whose entry holds them, and writing theirs cost it ~0.15 CPU s
+_uncached = numba.njit(nogil=True, no_cfunc_wrapper=True)
 
 
 # The kernels below pass floats, not array views, between functions in their inner loops:
@@ -364,7 +368,7 @@ def caps_exclude(P, lim, slack, buf):
     return True
 
 
-@_jit
+@_uncached
 def corners_exclude(D, npair, Cn, l1w):
     """True when no direction of a cube-map cell is thin enough: ``|d . a| > l1w`` for some
     pair d at every direction a of the cell (proof in the module docstring).  ``Cn`` (4, 3): the
@@ -412,7 +416,7 @@ def decide_one(P, lim, slack, start, max_cells, R, prune):
     return decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune)
 
 
-@_jit
+@_uncached
 def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
     """:func:`decide_one` with the working memory passed in (``ws``: ``workspace_size(k)``
     floats, ``iws``: ``STACK`` ints), so a caller deciding many sets allocates once."""

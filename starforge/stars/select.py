@@ -80,7 +80,11 @@ def greedy(order: np.ndarray, ptr: np.ndarray, rows: np.ndarray, n_rows: int) ->
 
 @numba.njit(cache=True, no_cfunc_wrapper=True)
 def _greedy(order, ptr, rows, n_rows):
-    used = np.zeros(n_rows, dtype=np.bool_)
+    # np.empty of int64 only, filled by loops: each other allocation (np.zeros, a bool array,
+    # .copy()) compiles numba's implementation of it once more in every process on a first run
+    used = np.empty(n_rows, dtype=np.int64)
+    for r in range(n_rows):
+        used[r] = 0
     out = np.empty(len(order), dtype=np.int64)
     k = 0
     for i in order:
@@ -91,7 +95,7 @@ def _greedy(order, ptr, rows, n_rows):
                 break
         if free:
             for j in range(ptr[i], ptr[i + 1]):
-                used[rows[j]] = True
+                used[rows[j]] = 1
             out[k] = i
             k += 1
     return out[:k]
@@ -323,12 +327,16 @@ class _Packing:
 @numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _csc(ptr, rows, n_rows):
     """The row -> candidates index of the incidence (candidates ascending within a row)."""
-    rptr = np.zeros(n_rows + 1, dtype=np.int64)
+    rptr = np.empty(n_rows + 1, dtype=np.int64)  # int64 np.empty only: see _greedy
+    for r in range(n_rows + 1):
+        rptr[r] = 0
     for j in range(len(rows)):
         rptr[rows[j] + 1] += 1
     for r in range(n_rows):
         rptr[r + 1] += rptr[r]
-    at = rptr[:-1].copy()
+    at = np.empty(n_rows, dtype=np.int64)
+    for r in range(n_rows):
+        at[r] = rptr[r]
     cands = np.empty(len(rows), dtype=np.int64)
     for c in range(len(ptr) - 1):
         for j in range(ptr[c], ptr[c + 1]):
