@@ -351,31 +351,6 @@ FREE = -2
 
 
 @_inner
-def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, lst):
-    """The first pair, in rank order (most compact first), of distinct candidates 1-tight with
-    family star t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint; (-1, -1) if
-    none.  ``seen`` (all False, left so) and ``lst`` are scratch space."""
-    if ntight[t] < 2:
-        return -1, -1
-    m = _neighbours(t, t, ptr, rows, rptr, cands, tight, rank, seen, lst)
-    for i in range(m - 1):
-        a = lst[i]
-        for j in range(i + 1, m):
-            b = lst[j]
-            apart = True
-            for x in range(ptr[a], ptr[a + 1]):
-                for y in range(ptr[b], ptr[b + 1]):
-                    if rows[x] == rows[y]:
-                        apart = False
-                        break
-                if not apart:
-                    break
-            if apart:
-                return a, b
-    return -1, -1
-
-
-@_inner
 def _neighbours(t, want, ptr, rows, rptr, cands, tight, rank, seen, lst):
     """The candidates sharing a row with star t whose ``tight`` is ``want`` (-2: free; t:
     1-tight with t), each once, most compact first, in ``lst[:m]``; returns m.  ``seen`` (all
@@ -512,25 +487,6 @@ def _push(heap, hn, v):
 
 
 @_inner
-def _pop(heap, hn):
-    top = heap[0]
-    hn -= 1
-    heap[0] = heap[hn]
-    i = 0
-    while True:
-        a = 2 * i + 1
-        if a >= hn:
-            break
-        if a + 1 < hn and heap[a + 1] < heap[a]:
-            a += 1
-        if heap[i] <= heap[a]:
-            break
-        heap[a], heap[i] = heap[i], heap[a]
-        i = a
-    return top, hn
-
-
-@_inner
 def _enqueue(P, k0, k1, hn):
     """Queue (once) every family star that a candidate sharing rows with the stars of
     ``ops[k0:k1]`` now conflicts with alone (1-tight); returns the heap's size.  Those
@@ -562,15 +518,50 @@ def _descend(P, hn, k):
     """(1,2)-swaps (and free insertions) until none is left for the queued stars, the most
     compact queued star first (a heap of ranks: ranks are distinct, so the order is the one of
     repeatedly taking the queue's minimum).  Logs the changes in ``ops`` from ``k`` on;
-    returns the next free place in ``ops``."""
+    returns the next free place in ``ops``.  (The heap's pop and the search for a pair are
+    written in here, their one caller: as kernels of their own each was compiled, optimised and
+    turned into machine code once more on a first run.)"""
     ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
     while hn > 0:
-        r, hn = _pop(heap, hn)
+        # pop the heap's minimum rank
+        r = heap[0]
+        hn -= 1
+        heap[0] = heap[hn]
+        i = 0
+        while True:
+            ch = 2 * i + 1
+            if ch >= hn:
+                break
+            if ch + 1 < hn and heap[ch + 1] < heap[ch]:
+                ch += 1
+            if heap[i] <= heap[ch]:
+                break
+            heap[ch], heap[i] = heap[i], heap[ch]
+            i = ch
         t = order[r]
         queued[t] = False
-        if not in_fam[t]:
+        if not in_fam[t] or ntight[t] < 2:
             continue
-        a, b = _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, lst)
+        # the first pair, in rank order (most compact first), of distinct candidates 1-tight
+        # with t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint
+        m = _neighbours(t, t, ptr, rows, rptr, cands, tight, rank, seen, lst)
+        a = np.int64(-1)
+        b = np.int64(-1)
+        for i in range(m - 1):
+            for j in range(i + 1, m):
+                apart = True
+                for x in range(ptr[lst[i]], ptr[lst[i] + 1]):
+                    for y in range(ptr[lst[j]], ptr[lst[j] + 1]):
+                        if rows[x] == rows[y]:
+                            apart = False
+                            break
+                    if not apart:
+                        break
+                if apart:
+                    a, b = lst[i], lst[j]
+                    break
+            if a >= 0:
+                break
         if a < 0:
             continue
         k0 = k
