@@ -110,9 +110,16 @@ _uncached = numba.njit(nogil=True, no_cfunc_wrapper=True)
 # half of the fit decision's time.  The arithmetic is the same, operation for operation.
 
 
+#: rows of the per-pair table ``W`` (6, npair) of :func:`decide_ws`: |d|, the in-plane
+#: coordinates (x, y) of d, the limits of the two other axes for d, and |d . a1|
+_DN, _X, _Y, _L2, _L3, _PA = 0, 1, 2, 3, 4, 5
+
+
 @_inner
-def basis3(a0, a1, a2):
-    """A basis (u, v) of the plane orthogonal to the unit vector a, as six floats."""
+def project(D, W, npair, a0, a1, a2):
+    """The plane basis (u, v) orthogonal to a = (a0, a1, a2), returned as six floats, and the
+    pair vectors' coordinates in it, written to ``W[_X]`` and ``W[_Y]``.  (The basis is worked
+    out here, its one caller: a kernel of its own was one more to compile on a first run.)"""
     # u orthogonal to a (crossed with the least aligned axis), v = a x u
     ax, ay, az = abs(a0), abs(a1), abs(a2)
     if ax <= ay and ax <= az:
@@ -125,21 +132,7 @@ def basis3(a0, a1, a2):
     u0 = u0 / nu
     u1 = u1 / nu
     u2 = u2 / nu
-    return u0, u1, u2, a1 * u2 - a2 * u1, a2 * u0 - a0 * u2, a0 * u1 - a1 * u0
-
-
-
-
-#: rows of the per-pair table ``W`` (6, npair) of :func:`decide_ws`: |d|, the in-plane
-#: coordinates (x, y) of d, the limits of the two other axes for d, and |d . a1|
-_DN, _X, _Y, _L2, _L3, _PA = 0, 1, 2, 3, 4, 5
-
-
-@_inner
-def project(D, W, npair, a0, a1, a2):
-    """The plane basis (u, v) orthogonal to a = (a0, a1, a2), returned as six floats, and the
-    pair vectors' coordinates in it, written to ``W[_X]`` and ``W[_Y]``."""
-    u0, u1, u2, v0, v1, v2 = basis3(a0, a1, a2)
+    v0, v1, v2 = a1 * u2 - a2 * u1, a2 * u0 - a0 * u2, a0 * u1 - a1 * u0
     for j in range(npair):
         W[_X, j] = D[j, 0] * u0 + D[j, 1] * u1 + D[j, 2] * u2
         W[_Y, j] = D[j, 0] * v0 + D[j, 1] * v1 + D[j, 2] * v2
