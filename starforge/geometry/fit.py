@@ -92,7 +92,16 @@ _EPS = 1e-9
 
 import numba  # noqa: E402  (compiled kernels; this module is imported only where fits are decided)
 
-_jit = numba.njit(cache=True, nogil=True)
+_jit = numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
+#: the small kernels only ever called from other kernels: no Python wrapper and no cache entry
+#: of their own (each is compiled into its callers, whose cache entries hold it; a warm run
+#: loads those and compiles nothing).  A wrapper or a cache write costs a first run tens of
+#: milliseconds per kernel.
+_inner = numba.njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
+#: the fit decision's per-set search and its corner test: called from Python only by tests (and
+#: in the package only from kernels), so no cache entry of their own: a first run compiles them
+#: into decide_range, whose entry holds them, and writing theirs cost it ~0.15 CPU s
+_uncached = numba.njit(nogil=True, no_cfunc_wrapper=True)
 
 
 # The kernels below pass floats, not array views, between functions in their inner loops:
@@ -101,9 +110,16 @@ _jit = numba.njit(cache=True, nogil=True)
 # half of the fit decision's time.  The arithmetic is the same, operation for operation.
 
 
-@_jit
-def basis3(a0, a1, a2):
-    """A basis (u, v) of the plane orthogonal to the unit vector a, as six floats."""
+#: rows of the per-pair table ``W`` (6, npair) of :func:`decide_ws`: |d|, the in-plane
+#: coordinates (x, y) of d, the limits of the two other axes for d, and |d . a1|
+_DN, _X, _Y, _L2, _L3, _PA = 0, 1, 2, 3, 4, 5
+
+
+@_inner
+def project(D, W, npair, a0, a1, a2):
+    """The plane basis (u, v) orthogonal to a = (a0, a1, a2), returned as six floats, and the
+    pair vectors' coordinates in it, written to ``W[_X]`` and ``W[_Y]``.  (The basis is worked
+    out here, its one caller: a kernel of its own was one more to compile on a first run.)"""
     # u orthogonal to a (crossed with the least aligned axis), v = a x u
     ax, ay, az = abs(a0), abs(a1), abs(a2)
     if ax <= ay and ax <= az:
@@ -116,28 +132,14 @@ def basis3(a0, a1, a2):
     u0 = u0 / nu
     u1 = u1 / nu
     u2 = u2 / nu
-    return u0, u1, u2, a1 * u2 - a2 * u1, a2 * u0 - a0 * u2, a0 * u1 - a1 * u0
-
-
-
-
-#: rows of the per-pair table ``W`` (6, npair) of :func:`decide_ws`: |d|, the in-plane
-#: coordinates (x, y) of d, the limits of the two other axes for d, and |d . a1|
-_DN, _X, _Y, _L2, _L3, _PA = 0, 1, 2, 3, 4, 5
-
-
-@_jit
-def project(D, W, npair, a0, a1, a2):
-    """The plane basis (u, v) orthogonal to a = (a0, a1, a2), returned as six floats, and the
-    pair vectors' coordinates in it, written to ``W[_X]`` and ``W[_Y]``."""
-    u0, u1, u2, v0, v1, v2 = basis3(a0, a1, a2)
+    v0, v1, v2 = a1 * u2 - a2 * u1, a2 * u0 - a0 * u2, a0 * u1 - a1 * u0
     for j in range(npair):
         W[_X, j] = D[j, 0] * u0 + D[j, 1] * u1 + D[j, 2] * u2
         W[_Y, j] = D[j, 0] * v0 + D[j, 1] * v1 + D[j, 2] * v2
     return u0, u1, u2, v0, v1, v2
 
 
-@_jit
+@_inner
 def _keeps(W, npair, c, s):
     """psi with (cos, sin) = (c, s) keeps every pair within its limits (1e-9 mm of noise)."""
     for i in range(npair):
@@ -147,7 +149,7 @@ def _keeps(W, npair, c, s):
     return True
 
 
-@_jit
+@_inner
 def _pair_candidates(W, npair, cf, sf, co, si, sign):
     """:func:`inner_xy`'s two candidates of one pair: psi = phi + t, then psi = phi - t
     (``sign`` 1) or its opposite phi + pi - t (``sign`` -1), with (cos t, sin t) = (co, si)."""
@@ -162,7 +164,7 @@ def _pair_candidates(W, npair, cf, sf, co, si, sign):
     return False, 0.0, 0.0
 
 
-@_jit
+@_inner
 def inner_xy(W, npair):
     """The exact inner problem on coordinates already projected (:func:`project`), with the
     limits ``W[_L2]``, ``W[_L3]``: (True, cos psi, sin psi) for the first candidate that
@@ -194,7 +196,7 @@ def inner_xy(W, npair):
     return False, 0.0, 0.0
 
 
-@_jit
+@_inner
 def unit3(f, s, t):
     """The unit direction of point (s, t) of cube face f (0: +x, 1: +y, 2: +z), as floats."""
     if f == 0:
@@ -212,7 +214,7 @@ def cube_dir(f, s, t, a):
     a[0], a[1], a[2] = unit3(f, s, t)
 
 
-@_jit
+@_inner
 def frame_rows(R, a0, a1, a2, u0, u1, u2, v0, v1, v2, c, s):
     """R's rows: a, b = cos psi u + sin psi v, a x b (``c, s`` = cos psi, sin psi)."""
     R[0, 0], R[0, 1], R[0, 2] = a0, a1, a2
@@ -359,7 +361,7 @@ def caps_exclude(P, lim, slack, buf):
     return True
 
 
-@_jit
+@_uncached
 def corners_exclude(D, npair, Cn, l1w):
     """True when no direction of a cube-map cell is thin enough: ``|d . a| > l1w`` for some
     pair d at every direction a of the cell (proof in the module docstring).  ``Cn`` (4, 3): the
@@ -407,7 +409,7 @@ def decide_one(P, lim, slack, start, max_cells, R, prune):
     return decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune)
 
 
-@_jit
+@_uncached
 def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
     """:func:`decide_one` with the working memory passed in (``ws``: ``workspace_size(k)``
     floats, ``iws``: ``STACK`` ints), so a caller deciding many sets allocates once."""

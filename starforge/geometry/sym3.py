@@ -23,7 +23,7 @@ def _mean_and_spread(a, b, c, d, e, f):
     return q, math.sqrt(p2 / 6)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def sym3_eigvals(a, b, c, d, e, f):
     """Ascending eigenvalues of [[a, d, f], [d, b, e], [f, e, c]]."""
     q, p = _mean_and_spread(a, b, c, d, e, f)

@@ -265,7 +265,7 @@ def _what_advice(spec: StarSpec, est: dict) -> tuple[str, str]:
     return what, advice
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, no_cfunc_wrapper=True)
 def _subsets_from(n: int, m: int, start: np.ndarray, count: int) -> np.ndarray:
     """``count`` admissible 6-subsets of range(n) (elements >= m apart) in lexicographic order,
     starting from ``start`` (6,); the last row returned is followed by ``start`` updated in place."""
@@ -293,7 +293,7 @@ def _subsets_from(n: int, m: int, start: np.ndarray, count: int) -> np.ndarray:
     return out[:got]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)  # only _classify calls it (its cache entry holds it)
 def _width(L0, L1, L2, L3, L4, L5, vol6):
     """Tetrahedron width from lengths (u, U, v, V, w, W) and 6 x volume: the smallest of the four
     vertex-face heights and the three opposite-edge distances."""
@@ -466,7 +466,7 @@ def _box_volume(P: np.ndarray, R: np.ndarray) -> np.ndarray:
     return vol
 
 
-@numba.njit(cache=True, nogil=True)  # nogil: threads run it side by side; Ctrl-C is answered
+@numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)  # nogil: threads run it side by side; Ctrl-C is answered
 def _classify(subsets, assign, lo, step, lim, min_depth, mode, faces, codes, s0, s1):
     """The first pass of :func:`classify` for subsets ``s0 .. s1 - 1``: realisable, deep
     enough, narrow enough, Ky Fan, and in mode 0 the quick no-fit proof (a face in ``faces``,

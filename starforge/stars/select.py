@@ -28,6 +28,12 @@ import numpy as np
 from starforge.stars.rules import key_triples
 from starforge.stars.spec import StarSpec
 
+#: the kernels only ever called from other kernels: no Python or C-callback wrapper, and no
+#: cache entry of their own (each is compiled into its one caller, whose cache entry holds it;
+#: a warm run loads the caller and compiles nothing).  Each wrapper and cache write costs a
+#: first run tens of milliseconds per kernel.
+_inner = numba.njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
+
 
 @dataclass(frozen=True)
 class Selection:
@@ -72,9 +78,13 @@ def greedy(order: np.ndarray, ptr: np.ndarray, rows: np.ndarray, n_rows: int) ->
                    np.asarray(rows, dtype=np.int64), int(n_rows)).astype(np.intp)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, no_cfunc_wrapper=True)
 def _greedy(order, ptr, rows, n_rows):
-    used = np.zeros(n_rows, dtype=np.bool_)
+    # np.empty of int64 only, filled by loops: each other allocation (np.zeros, a bool array,
+    # .copy()) compiles numba's implementation of it once more in every process on a first run
+    used = np.empty(n_rows, dtype=np.int64)
+    for r in range(n_rows):
+        used[r] = 0
     out = np.empty(len(order), dtype=np.int64)
     k = 0
     for i in order:
@@ -85,7 +95,7 @@ def _greedy(order, ptr, rows, n_rows):
                 break
         if free:
             for j in range(ptr[i], ptr[i + 1]):
-                used[rows[j]] = True
+                used[rows[j]] = 1
             out[k] = i
             k += 1
     return out[:k]
@@ -155,7 +165,7 @@ def _count_face_blocks_compiled(index: np.ndarray, m: int) -> int:
     )
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _face_blocks(index, edges, m, o0, o1, o2, base, used):
     """Distinct blocks ``((lo + o0) // m, (mid + o1) // m, (hi + o2) // m)`` of the stars' four
     face keys (each face's three pool indices sorted); ``used`` (base^3 bools) is scratch."""
@@ -314,15 +324,19 @@ class _Packing:
         _undo(np.asarray(ops, dtype=np.int64), 0, len(ops), self.arrays)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _csc(ptr, rows, n_rows):
     """The row -> candidates index of the incidence (candidates ascending within a row)."""
-    rptr = np.zeros(n_rows + 1, dtype=np.int64)
+    rptr = np.empty(n_rows + 1, dtype=np.int64)  # int64 np.empty only: see _greedy
+    for r in range(n_rows + 1):
+        rptr[r] = 0
     for j in range(len(rows)):
         rptr[rows[j] + 1] += 1
     for r in range(n_rows):
         rptr[r + 1] += rptr[r]
-    at = rptr[:-1].copy()
+    at = np.empty(n_rows, dtype=np.int64)
+    for r in range(n_rows):
+        at[r] = rptr[r]
     cands = np.empty(len(rows), dtype=np.int64)
     for c in range(len(ptr) - 1):
         for j in range(ptr[c], ptr[c + 1]):
@@ -336,36 +350,14 @@ def _csc(ptr, rows, n_rows):
 FREE = -2
 
 
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, lst):
-    """The first pair, in rank order (most compact first), of distinct candidates 1-tight with
-    family star t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint; (-1, -1) if
-    none.  ``seen`` (all False, left so) and ``lst`` are scratch space."""
-    if ntight[t] < 2:
-        return -1, -1
-    m = _neighbours(t, t, ptr, rows, rptr, cands, tight, rank, seen, lst)
-    for i in range(m - 1):
-        a = lst[i]
-        for j in range(i + 1, m):
-            b = lst[j]
-            apart = True
-            for x in range(ptr[a], ptr[a + 1]):
-                for y in range(ptr[b], ptr[b + 1]):
-                    if rows[x] == rows[y]:
-                        apart = False
-                        break
-                if not apart:
-                    break
-            if apart:
-                return a, b
-    return -1, -1
-
-
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@_inner
 def _neighbours(t, want, ptr, rows, rptr, cands, tight, rank, seen, lst):
     """The candidates sharing a row with star t whose ``tight`` is ``want`` (-2: free; t:
     1-tight with t), each once, most compact first, in ``lst[:m]``; returns m.  ``seen`` (all
-    False) is left so."""
+    False) is left so.  The sort by rank (a permutation: no ties, so an unstable sort does) is
+    Shell's sort, gaps ~m/2.2^k ending in 1 (insertion sort for short lists), written here, its
+    one caller: no numpy sort in the kernels (each costs seconds of compilation on a first run),
+    and as a kernel of its own it was compiled twice (``m`` typed once as the literal 0)."""
     m = 0
     for j in range(ptr[t], ptr[t + 1]):
         r = rows[j]
@@ -377,15 +369,6 @@ def _neighbours(t, want, ptr, rows, rptr, cands, tight, rank, seen, lst):
                 m += 1
     for i in range(m):
         seen[lst[i]] = False
-    _sort_by_rank(lst, m, rank)
-    return m
-
-
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _sort_by_rank(lst, m, rank):
-    """Sort ``lst[:m]`` by rank (a permutation: no ties; so an unstable sort does): Shell's sort,
-    gaps ~m/2.2^k ending in 1 (insertion sort for short lists).  No numpy sort in the kernels:
-    each costs seconds of compilation on a first run."""
     gap = m // 2
     while gap > 0:
         for i in range(gap, m):
@@ -397,6 +380,7 @@ def _sort_by_rank(lst, m, rank):
                 j -= gap
             lst[j] = v
         gap = 0 if gap == 1 else max(1, int(gap / 2.2))
+    return m
 
 
 #: the signs :func:`_set` takes, as int64 (a literal argument would compile a kernel again)
@@ -404,7 +388,7 @@ _ONE = np.int64(1)
 _MINUS = np.int64(-1)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _set(s, sign, P):
     """Star s enters (sign +1) or leaves (-1) the family: its rows' owner and membership, then
     per candidate sharing rows with s (``buf``: once per shared row) the count, sum and sum of
@@ -461,7 +445,7 @@ def _set(s, sign, P):
 FREE = -2
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _undo(ops, k0, k1, P):
     """Revert ``ops[k0:k1]`` (s + 1: s was inserted; -(s + 1): removed), last first."""
     for i in range(k1 - 1, k0 - 1, -1):
@@ -472,7 +456,7 @@ def _undo(ops, k0, k1, P):
             _set(np.int64(-v - 1), _ONE, P)
 
 
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@_inner
 def _fill(t, P, k):
     """Insert the candidates sharing a row with star t that are free (nothing of the family
     holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
@@ -489,7 +473,7 @@ def _fill(t, P, k):
     return k
 
 
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@_inner
 def _push(heap, hn, v):
     heap[hn] = v
     i = hn
@@ -502,26 +486,7 @@ def _push(heap, hn, v):
     return hn + 1
 
 
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _pop(heap, hn):
-    top = heap[0]
-    hn -= 1
-    heap[0] = heap[hn]
-    i = 0
-    while True:
-        a = 2 * i + 1
-        if a >= hn:
-            break
-        if a + 1 < hn and heap[a + 1] < heap[a]:
-            a += 1
-        if heap[i] <= heap[a]:
-            break
-        heap[a], heap[i] = heap[i], heap[a]
-        i = a
-    return top, hn
-
-
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@_inner
 def _enqueue(P, k0, k1, hn):
     """Queue (once) every family star that a candidate sharing rows with the stars of
     ``ops[k0:k1]`` now conflicts with alone (1-tight); returns the heap's size.  Those
@@ -548,20 +513,55 @@ def _enqueue(P, k0, k1, hn):
     return hn
 
 
-@numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@_inner
 def _descend(P, hn, k):
     """(1,2)-swaps (and free insertions) until none is left for the queued stars, the most
     compact queued star first (a heap of ranks: ranks are distinct, so the order is the one of
     repeatedly taking the queue's minimum).  Logs the changes in ``ops`` from ``k`` on;
-    returns the next free place in ``ops``."""
+    returns the next free place in ``ops``.  (The heap's pop and the search for a pair are
+    written in here, their one caller: as kernels of their own each was compiled, optimised and
+    turned into machine code once more on a first run.)"""
     ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
     while hn > 0:
-        r, hn = _pop(heap, hn)
+        # pop the heap's minimum rank
+        r = heap[0]
+        hn -= 1
+        heap[0] = heap[hn]
+        i = 0
+        while True:
+            ch = 2 * i + 1
+            if ch >= hn:
+                break
+            if ch + 1 < hn and heap[ch + 1] < heap[ch]:
+                ch += 1
+            if heap[i] <= heap[ch]:
+                break
+            heap[ch], heap[i] = heap[i], heap[ch]
+            i = ch
         t = order[r]
         queued[t] = False
-        if not in_fam[t]:
+        if not in_fam[t] or ntight[t] < 2:
             continue
-        a, b = _two_swap(t, ptr, rows, rptr, cands, tight, ntight, rank, seen, lst)
+        # the first pair, in rank order (most compact first), of distinct candidates 1-tight
+        # with t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint
+        m = _neighbours(t, t, ptr, rows, rptr, cands, tight, rank, seen, lst)
+        a = np.int64(-1)
+        b = np.int64(-1)
+        for i in range(m - 1):
+            for j in range(i + 1, m):
+                apart = True
+                for x in range(ptr[lst[i]], ptr[lst[i] + 1]):
+                    for y in range(ptr[lst[j]], ptr[lst[j] + 1]):
+                        if rows[x] == rows[y]:
+                            apart = False
+                            break
+                    if not apart:
+                        break
+                if apart:
+                    a, b = lst[i], lst[j]
+                    break
+            if a >= 0:
+                break
         if a < 0:
             continue
         k0 = k
@@ -582,7 +582,7 @@ def _descend(P, hn, k):
 ILS_BATCH = 1024
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _search(P, task, batches, ctr, limit, bound):
     """The searches on the packing ``P``, in one compiled entry (so that the kernels its tasks
     share are compiled and optimised once on a first run: each entry compiles its callees
