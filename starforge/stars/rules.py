@@ -55,6 +55,18 @@ def key_triples(index: np.ndarray, rule: str) -> np.ndarray:
     return np.concatenate([sort3(idx[:, g]) for g in groups], axis=1)
 
 
+@numba.njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
+def key3(index, i, edges, j):
+    """Star ``i``'s key ``j`` in compiled code: the pool indices on its edges ``edges[j]``
+    sorted, as (lo, mid, hi) int64 (what :func:`key_triples` gives for every star at once)."""
+    a = np.int64(index[i, edges[j, 0]])
+    b = np.int64(index[i, edges[j, 1]])
+    c = np.int64(index[i, edges[j, 2]])
+    lo = min(a, b, c)
+    hi = max(a, b, c)
+    return lo, a + b + c - lo - hi, hi
+
+
 def internal_ok(index: np.ndarray, rule: str, m: int) -> np.ndarray:
     """Stars whose own keys do not conflict with each other (n,) bool.
 
@@ -206,12 +218,7 @@ def _window_codes(index, edges, m, base):
     for i in range(n):
         q = 0
         for j in range(k):
-            a = np.int64(index[i, edges[j, 0]])
-            b = np.int64(index[i, edges[j, 1]])
-            c = np.int64(index[i, edges[j, 2]])
-            lo = min(a, b, c)
-            hi = max(a, b, c)
-            mid = a + b + c - lo - hi
+            lo, mid, hi = key3(index, i, edges, j)
             t0 = lo + m + (base if j >= 4 else 0)
             for x in range(m):
                 for y in range(m):

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from starforge.stars.rules import key_triples
+from starforge.stars.rules import key3, key_triples
 from starforge.stars.spec import StarSpec
 
 #: the kernels only ever called from other kernels: no Python or C-callback wrapper, and no
@@ -173,12 +173,7 @@ def _face_blocks(index, edges, m, o0, o1, o2, base, used):
     count = 0
     for i in range(index.shape[0]):
         for f in range(4):
-            a = np.int64(index[i, edges[f, 0]])
-            b = np.int64(index[i, edges[f, 1]])
-            c = np.int64(index[i, edges[f, 2]])
-            lo = min(a, b, c)
-            hi = max(a, b, c)
-            mid = a + b + c - lo - hi
+            lo, mid, hi = key3(index, i, edges, f)
             code = (((lo + o0) // m) * base + (mid + o1) // m) * base + (hi + o2) // m
             if not used[code]:
                 used[code] = True

@@ -39,7 +39,7 @@ import numpy as np
 
 from starforge.errors import StarforgeError
 from starforge.geometry.tetra import FACE_EDGES
-from starforge.stars.rules import VERTEX_EDGES, internal_ok, key_triples
+from starforge.stars.rules import VERTEX_EDGES, internal_ok, key3, key_triples
 from starforge.stars.spec import StarSpec
 
 #: equal ranges of box volume the fitting stars are spilled into
@@ -165,12 +165,7 @@ def greedy_windows(index, order, used, edges, n_keys, m, base):
     for q in range(len(order)):
         i = order[q]
         for k in range(n_keys):
-            a = np.int64(index[i, edges[k, 0]])
-            b = np.int64(index[i, edges[k, 1]])
-            c = np.int64(index[i, edges[k, 2]])
-            lo = min(a, b, c)
-            hi = max(a, b, c)
-            keys[k, 0], keys[k, 1], keys[k, 2] = lo, a + b + c - lo - hi, hi
+            keys[k, 0], keys[k, 1], keys[k, 2] = key3(index, i, edges, k)
         if _windows(keys, n_keys, m, base, used, False):
             out[q] = True
             _windows(keys, n_keys, m, base, used, True)
