@@ -35,7 +35,6 @@ certified upper bounds (a bound over fitting + undecided covers every star that 
 
 from __future__ import annotations
 
-import functools
 import math
 import os
 import time
@@ -91,11 +90,9 @@ class Candidates:
         return self.pool_mm[self.index]
 
 
-@functools.lru_cache(maxsize=1)
 def _assignments() -> np.ndarray:
-    """The 30 labellings (:func:`~starforge.geometry.tetra.canonical_assignments`) as int64, the
-    kernels' type, worked out once per process (15 ms each time: 720 permutations in Python).
-    Shared: not to be written to (a read-only flag would change the kernels' compiled type)."""
+    """The 30 labellings (:func:`~starforge.geometry.tetra.canonical_assignments`, worked out
+    once per process there) as int64, the kernels' type: a fresh array of 180 numbers."""
     return canonical_assignments().astype(np.int64)
 
 

@@ -147,11 +147,10 @@ def _helper() -> None:
     tiny inputs of the types ``stars`` uses, so that they land in the cache."""
     import numpy as np
 
-    from starforge.geometry.tetra import canonical_assignments
     from starforge.stars import select as sel
-    from starforge.stars.enumerate import _classify, _subsets_from
+    from starforge.stars.enumerate import _assignments, _classify, _subsets_from
 
-    assign = canonical_assignments().astype(np.int64)
+    assign = _assignments()
     sub = np.array([[0, 1, 2, 3, 4, 5]], dtype=np.int16)
     codes = np.empty((1, len(assign)), dtype=np.int8)
     faces = np.zeros((6, 6, 6), dtype=np.int8)  # no claims (the pool indices of sub are < 6)
