@@ -161,12 +161,7 @@ def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
         code = np.sort(code, axis=1)
     keep = np.ones(code.shape, dtype=bool)
     keep[:, 1:] = code[:, 1:] != code[:, :-1]
-    if keep.all():  # the usual case: no boolean indexing needed
-        star = np.repeat(np.arange(n, dtype=np.intp), code.shape[1])
-        code = code.ravel()
-    else:
-        star = np.broadcast_to(np.arange(n, dtype=np.intp)[:, None], code.shape)[keep]
-        code = code[keep]
+    star, code = _entries(code, keep)
     # rows numbered by ascending code: a dense table when the code space is small (no sort;
     # at most 16 M entries, about 150 MB with the ranks)
     span = 2 * base**3
@@ -179,21 +174,21 @@ def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
     return star, row.astype(np.intp), len(uniq)
 
 
+def _entries(code: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The (star, code) entries of ``code`` (n, w), one star's per row, where ``keep`` (n, w)
+    is True, in row-major order."""
+    if keep.all():  # the usual case: no boolean indexing needed
+        return np.repeat(np.arange(len(code), dtype=np.intp), code.shape[1]), code.ravel()
+    return np.broadcast_to(np.arange(len(code), dtype=np.intp)[:, None], code.shape)[keep], code[keep]
+
+
 def _window_rows_compiled(index: np.ndarray, rule: str, m: int, pool_size: int):
     """:func:`window_rows` through :func:`_window_codes` and :func:`_dense_rows`: the same
     (star, row) pairs and row numbers."""
-    n = len(index)
     base = pool_size + m  # room for negative anchors shifted by m
     edges = np.concatenate([FACE_EDGES] if rule == "face" else [FACE_EDGES, VERTEX_EDGES]).astype(np.int64)
     code, count = _window_codes(index.astype(np.int32), edges, int(m), int(base))
-    width = code.shape[1]
-    if (count == width).all():  # the usual case: no boolean indexing needed
-        star = np.repeat(np.arange(n, dtype=np.intp), width)
-        code = code.ravel()
-    else:
-        keep = np.arange(width)[None, :] < count[:, None]
-        star = np.broadcast_to(np.arange(n, dtype=np.intp)[:, None], code.shape)[keep]
-        code = code[keep]
+    star, code = _entries(code, np.arange(code.shape[1])[None, :] < count[:, None])
     span = 2 * base**3
     if span <= 1 << 24:
         row, n_rows = _dense_rows(code, span)
