@@ -65,3 +65,20 @@ def test_ready_without_a_helper_returns_at_once():
     assert warmup._active[0] is None
     warmup.ready("enumerate", timeout_s=1e6)  # no helper: nothing to wait for
     warmup.ready("select", timeout_s=1e6)
+
+
+def test_finish_closes_the_helpers_pipe():
+    """A helper's report pipe is closed when it is finished (a first run in process left it to
+    the garbage collector, a ResourceWarning that failed the test run it happened in)."""
+    import subprocess
+    import sys
+
+    from starforge.stars import warmup
+
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "print('enumerate'); print('select')"], stdout=subprocess.PIPE, text=True
+    )
+    helper = warmup.Helper(proc)
+    assert helper.wait_for("select", 30)
+    warmup.finish(helper)
+    assert proc.returncode == 0 and proc.stdout.closed

@@ -44,6 +44,7 @@ class Helper:
         # it only reads a pipe and takes this object's own lock, which no forked child uses
         listener.fork_safe = True
         listener.start()
+        self._listener = listener
 
     @property
     def returncode(self) -> int | None:
@@ -128,6 +129,9 @@ def finish(helper: Helper | None, timeout_s: float = 30.0) -> None:
     if proc.poll() is None:
         proc.kill()
     proc.wait()
+    helper._listener.join(1.0)  # the pipe is at its end once the helper has exited
+    if proc.stdout is not None:
+        proc.stdout.close()  # not left to the garbage collector (a ResourceWarning)
 
 
 def compile_fit_decision() -> None:
