@@ -90,7 +90,7 @@ MAX_CELLS = 100_000
 _EPS = 1e-9
 
 
-import numba  # noqa: E402  (compiled kernels; this module is imported only where fits are decided)
+from starforge.kernels import numba  # noqa: E402  (compiled kernels; this module is imported only where fits are decided)
 
 _jit = numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 #: the small kernels only ever called from other kernels: no Python wrapper and no cache entry

@@ -13,10 +13,10 @@ these scenarios.  The count is bounded before any scoring; past the bound nothin
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from starforge.geometry.sym3 import line_spread2_at_least, moments
+from starforge.kernels import numba
 
 #: the most spaced layouts enumerated (beyond it no ceiling is claimed)
 MAX_LAYOUTS = 200_000

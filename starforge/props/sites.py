@@ -12,10 +12,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from starforge.errors import StarforgeError
+from starforge.kernels import numba
 from starforge.spec import in_range, positive
 
 

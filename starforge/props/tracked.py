@@ -50,7 +50,6 @@ import math
 import time
 from dataclasses import dataclass, field
 
-import numba
 import numpy as np
 
 from starforge.geometry.sym3 import (
@@ -60,6 +59,7 @@ from starforge.geometry.sym3 import (
     line_spread2_many,
     moments,
 )
+from starforge.kernels import numba
 from starforge.spec import in_range, non_negative, positive
 
 TRIANGLE_SPREAD = math.sqrt(2.0) / 3.0  # RMS distance from the base line of a triangle of height 1

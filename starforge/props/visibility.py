@@ -16,12 +16,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import numba
 import numpy as np
 from numba import types
 from numba.extending import intrinsic
 
 from starforge.errors import StarforgeError
+from starforge.kernels import numba
 from starforge.spec import in_range
 
 # rays start this far (fraction of the prop's bounding-box diagonal, clipped) above the surface

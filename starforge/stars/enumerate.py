@@ -40,13 +40,13 @@ import os
 import time
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from starforge.errors import StarforgeError
 from starforge.geometry.fit import SLACK_MM, face_table
 from starforge.geometry.sym3 import sym3_eigvals
 from starforge.geometry.tetra import canonical_assignments
+from starforge.kernels import numba
 from starforge.stars.spec import StarSpec
 
 #: outcome codes per labelled candidate (int8)

@@ -23,10 +23,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from starforge.geometry.tetra import FACE_EDGES
+from starforge.kernels import numba
 
 #: edges (indices into (u, U, v, V, w, W)) meeting at A, B, C, D
 VERTEX_EDGES = np.array([(0, 4, 3), (0, 2, 5), (4, 2, 1), (3, 5, 1)], dtype=np.intp)

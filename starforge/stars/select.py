@@ -22,9 +22,9 @@ import itertools
 import time
 from dataclasses import dataclass, field
 
-import numba
 import numpy as np
 
+from starforge.kernels import numba
 from starforge.stars.rules import key3, key_triples
 from starforge.stars.spec import StarSpec
 

@@ -34,11 +34,11 @@ import tempfile
 import time
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from starforge.errors import StarforgeError
 from starforge.geometry.tetra import FACE_EDGES
+from starforge.kernels import numba
 from starforge.stars.rules import VERTEX_EDGES, internal_ok, key3, key_triples
 from starforge.stars.spec import StarSpec
 

@@ -1,0 +1,219 @@
+"""Where starforge's compiled kernels are cached, and the kernels a wheel ships already built.
+
+Every module with numba kernels imports numba from here (``from starforge.kernels import
+numba``), so that this module's cache locator is in place before any kernel is defined.
+
+**The cache.**  Numba keys its cache of a function to the absolute folder of its source file
+and stamps it with that one file.  starforge's locator (:class:`_Locator`) keys it instead to
+the *contents* of the package: every kernel of a starforge module is cached under
+``<numba cache dir>/starforge-<digest>/<subpackage>/``, where the digest is the SHA-256 of every
+``.py`` file of the package (their paths relative to it, and their bytes), and that digest is
+also each entry's stamp.  So
+
+* the same sources compile to the same entries wherever they are installed (a wheel's build
+  folder, a virtual environment, an editable checkout), which is what lets a wheel ship its
+  kernels built (below);
+* a kernel is never loaded after a change to another module it calls into (numba's own stamp
+  only follows the function's own file, so an edit to a kernel that other kernels compile in
+  left them stale);
+* two installed versions do not overwrite each other's entries.
+
+The numba cache folder is ``NUMBA_CACHE_DIR`` (:func:`starforge.cache_dir`'s ``numba`` folder
+unless the user set one), in the user's cache folder, never in the installed package.
+
+**Built ahead of time.**  Building a wheel (``pip install .`` builds one on the user's machine)
+compiles the kernels a ``starforge stars`` run loads (:func:`prebuild`, called by ``setup.py``)
+and packs their cache entries into ``starforge/kernels.zip`` with a manifest: the digest and the
+numba, numpy and Python versions they were built with.  The first time a process needs the
+cache folder of this digest and it does not exist yet, the entries are unpacked into it
+(:func:`_seed`, into a temporary folder renamed into place) when the manifest matches this
+installation; numba then checks each entry against this machine's CPU and loads it instead of
+compiling.  When anything differs (a wheel built elsewhere, another numba, edited sources, no
+zip) nothing is unpacked and the kernels are compiled on first use, as without it.  The zip is
+a build product shipped like a compiled extension; nothing is ever written into the package.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import os
+import shutil
+import sys
+import tempfile
+import zipfile
+
+import numba
+from numba.core import caching
+
+__all__ = ["numba", "digest", "kernel_dir", "prebuild"]
+
+#: the package folder, whose ``.py`` files the digest covers
+PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
+#: the kernels a wheel ships (a build product; absent from a source checkout)
+SEED = os.path.join(PACKAGE_DIR, "kernels.zip")
+_MANIFEST = "manifest.json"
+#: folders of the package that hold data, not code (the templates' ``__init__.py`` only makes
+#: them a package, and an editable checkout keeps them outside this folder)
+_NOT_CODE = ("templates",)
+
+
+@functools.cache
+def digest(root: str = PACKAGE_DIR) -> str:
+    """SHA-256 (hex, 16 characters) of the package's code: each ``.py`` file's path relative
+    to ``root`` and its bytes, in sorted order.  About 2 ms for the 100 files."""
+    h = hashlib.sha256()
+    for folder, subs, files in os.walk(root):
+        subs[:] = sorted(s for s in subs if s != "__pycache__" and not (folder == root and s in _NOT_CODE))
+        for name in sorted(files):
+            if name.endswith(".py"):
+                path = os.path.join(folder, name)
+                h.update(os.path.relpath(path, root).replace(os.sep, "/").encode() + b"\0")
+                with open(path, "rb") as f:
+                    h.update(hashlib.sha256(f.read()).digest())
+    return h.hexdigest()[:16]
+
+
+def _versions() -> dict:
+    import numpy
+
+    return {
+        "numba": numba.__version__,
+        "numpy": ".".join(numpy.__version__.split(".")[:2]),
+        "python": f"{sys.version_info[0]}.{sys.version_info[1]}",
+    }
+
+
+@functools.cache
+def kernel_dir() -> str:
+    """This package's folder in the numba cache, ``starforge-<digest>``; on its first use in a
+    process, unpacked from the shipped kernels when it does not exist yet (:func:`_seed`)."""
+    base = numba.config.CACHE_DIR or os.path.join(_user_cache(), "numba")
+    path = os.path.join(base, f"starforge-{digest()}")
+    if not os.path.isdir(path):
+        _seed(SEED, path)
+    return path
+
+
+def _user_cache() -> str:
+    from starforge import cache_dir
+
+    return cache_dir()
+
+
+def _seed(zip_path: str, target: str) -> bool:
+    """Unpack the kernels in ``zip_path`` into ``target`` (which does not exist yet) when its
+    manifest matches this installation; True when they were.  Unpacked into a temporary
+    folder beside ``target`` and renamed into place, so no process ever sees half of them; a
+    missing, foreign or corrupt zip unpacks nothing (the kernels are compiled on first use)."""
+    if not os.path.isfile(zip_path):
+        return False
+    parent = os.path.dirname(target)
+    tmp = None
+    try:
+        with zipfile.ZipFile(zip_path) as z:
+            manifest = json.loads(z.read(_MANIFEST))
+            if manifest != {"digest": digest(), **_versions()}:
+                return False
+            names = [n for n in z.namelist() if n != _MANIFEST]
+            if any(n.startswith("/") or ".." in n.split("/") for n in names):
+                return False
+            os.makedirs(parent, exist_ok=True)
+            tmp = tempfile.mkdtemp(prefix=".seed-", dir=parent)
+            for name in names:
+                z.extract(name, tmp)
+        os.rename(tmp, target)  # atomic; fails when another process got there first
+        return True
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile):
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+        return False
+
+
+class _Locator(caching._CacheLocator):
+    """Numba cache locator for the functions of starforge's modules: the folder
+    ``kernel_dir()/<subpackage>``, stamped with the package digest (see the module's text)."""
+
+    def __init__(self, py_func, py_file):
+        self._lineno = py_func.__code__.co_firstlineno
+        sub = os.path.relpath(os.path.dirname(os.path.abspath(py_file)), PACKAGE_DIR)
+        self._cache_path = os.path.join(kernel_dir(), "" if sub == "." else sub)
+
+    def get_cache_path(self):
+        return self._cache_path
+
+    def get_source_stamp(self):
+        return digest()
+
+    def get_disambiguator(self):
+        return str(self._lineno)
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        path = os.path.abspath(py_file)
+        if not path.startswith(PACKAGE_DIR + os.sep):
+            return None  # not starforge's: numba's own locators decide
+        self = cls(py_func, py_file)
+        try:
+            self.ensure_cache_path()
+        except OSError:
+            return None  # not writable: numba's other locators (or no cache)
+        return self
+
+
+def _install() -> None:
+    impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
+    if _Locator not in impl._locator_classes:
+        impl._locator_classes.insert(0, _Locator)
+
+
+_install()
+
+
+# -- building ahead of time -------------------------------------------------------------------
+
+#: the groups of kernels a ``starforge stars`` run loads, compiled by two processes at once
+_GROUPS = ("starforge.stars.warmup:compile_fit_decision", "starforge.stars.warmup:_helper")
+
+
+def prebuild(zip_path: str, groups: tuple[str, ...] = _GROUPS, timeout_s: float = 600.0) -> None:
+    """Compile the kernels of ``groups`` (``"module:function"``, each function called without
+    arguments) into a fresh cache and pack it, with its manifest, into ``zip_path`` (written
+    to a temporary name, then renamed).  Each group runs in its own process (two cores
+    compile at once); the caller's environment must import this package and numba."""
+    import subprocess
+
+    with tempfile.TemporaryDirectory(prefix="starforge-prebuild-") as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache, STARFORGE_CACHE_DIR=cache)
+        procs = []
+        for group in groups:
+            mod, fn = group.split(":")
+            code = f"import gc; gc.disable(); from {mod} import {fn}; {fn}()"
+            procs.append(subprocess.Popen([sys.executable, "-c", code], env=env, stdin=subprocess.DEVNULL))
+        try:
+            for p in procs:
+                if p.wait(timeout=timeout_s) != 0:
+                    raise RuntimeError(f"compiling the kernels failed (exit {p.returncode})")
+        finally:
+            for p in procs:
+                if p.poll() is None:
+                    p.kill()
+                    p.wait()
+        src = os.path.join(cache, f"starforge-{digest()}")
+        zip_path = os.path.abspath(zip_path)
+        tmp = zip_path + ".tmp"
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+            z.writestr(_MANIFEST, json.dumps({"digest": digest(), **_versions()}, sort_keys=True))
+            for folder, subs, files in os.walk(src):
+                subs.sort()
+                for name in sorted(files):
+                    if name.endswith((".nbi", ".nbc")):
+                        path = os.path.join(folder, name)
+                        z.write(path, os.path.relpath(path, src).replace(os.sep, "/"))
+        os.replace(tmp, zip_path)
+
+
+def _prebuild_main() -> None:
+    """``python -c "from starforge.kernels import _prebuild_main; _prebuild_main()" OUT.zip``"""
+    prebuild(sys.argv[1])
