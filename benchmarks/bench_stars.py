@@ -2,8 +2,10 @@
 
     python benchmarks/bench_stars.py [--repeat 2] [--skip-large] [--start-only]
 
-``stars_first_run_vs_warm`` (issue 20): the finger default warm and on an empty numba cache
-(median of 3 fresh processes each, wall and CPU seconds, with the load average);
+``stars_first_run_vs_warm`` (issue 20): the finger default warm, on the first run after ``pip
+install .`` (the wheel is built as pip builds it, kernels compiled ahead of time, and unpacked
+into a temporary folder) and on a first run that compiles its kernels (median of 3 fresh
+processes each, wall and CPU seconds, with the load average; and the wheel's build seconds);
 ``--start-only`` runs just that; ``--enumeration-only`` (with ``--skip-large``: no ``--delta
 1.0``) the enumeration alone, on every core and on one thread, CPU seconds and stage counts.
 
@@ -25,6 +27,7 @@ import tempfile
 import time
 from pathlib import Path
 
+ROOT = Path(__file__).resolve().parents[1]
 FINGER = ["--box", "20.8", "12.6", "48.3", "--marker", "4", "--delta", "1.5"]
 
 
@@ -102,13 +105,14 @@ def _fit_decision_speed() -> dict:
     return out
 
 
-def _stars_seconds(out: Path, cache: str) -> dict:
-    """One plain ``starforge stars`` (the finger default) in a fresh process with the numba
-    cache folder ``cache``: wall seconds, the load average before it, the run's stage timings."""
+def _stars_seconds(out: Path, cache: str, site: Path) -> dict:
+    """One plain ``starforge stars`` (the finger default) in a fresh process, run from the
+    installed copy ``site`` with the user cache folder ``cache``: wall and CPU seconds, the load
+    average before it, the run's stage timings."""
     import resource
 
     load = os.getloadavg()[0]
-    env = dict(os.environ, STARFORGE_CACHE_DIR=cache)
+    env = dict(os.environ, STARFORGE_CACHE_DIR=cache, PYTHONPATH=str(site))
     env.pop("NUMBA_CACHE_DIR", None)
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
@@ -117,6 +121,7 @@ def _stars_seconds(out: Path, cache: str) -> dict:
         check=True,
         stdout=subprocess.DEVNULL,
         env=env,
+        cwd=site,  # not the checkout: its starforge/ would come first on sys.path
     )
     wall = time.perf_counter() - t
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -126,30 +131,66 @@ def _stars_seconds(out: Path, cache: str) -> dict:
     return {"seconds": round(wall, 2), "cpu_s": round(cpu, 2), "load_1min_before": round(load, 2), "stages_s": run["seconds"]}
 
 
+def _install(tmp: Path, prebuild: bool = True) -> tuple[Path, float]:
+    """What ``pip install .`` puts on a user's machine, without touching this environment: pip
+    builds the wheel of this checkout as it does for an install (in its isolated build
+    environment, where the kernels are compiled ahead of time), and the wheel is unpacked and
+    byte-compiled as pip installs it.  Returns the folder and the wheel's build seconds."""
+    import compileall
+    import zipfile
+
+    whl_dir = tmp / ("wheel" if prebuild else "wheel-plain")
+    env = dict(os.environ, STARFORGE_PREBUILD="1" if prebuild else "0")
+    t = time.perf_counter()
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "-q", "-w", str(whl_dir)],
+        check=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env=env,
+    )
+    build_s = time.perf_counter() - t
+    (whl,) = whl_dir.glob("starforge-*.whl")
+    site = tmp / ("site" if prebuild else "site-plain")
+    zipfile.ZipFile(whl).extractall(site)
+    compileall.compile_dir(str(site), quiet=1)
+    return site, round(build_s, 2)
+
+
 def first_run_vs_warm(repeat: int = 3) -> dict:
-    """Issue-20 targets for ``starforge stars`` (finger default): warm (compiled kernels in the
-    cache) and first run (an empty cache folder, as after ``pip install .``), each the median of
-    ``repeat`` fresh processes; the family must be the same byte for byte."""
+    """Issue-20 targets for ``starforge stars`` (finger default), each the median of ``repeat``
+    fresh processes of the installed copy: warm (kernels in the user cache); the first run
+    after ``pip install .`` (an empty user cache; the wheel ships its kernels built); and, for
+    comparison, a first run that compiles them (a wheel built without them, as one built on
+    another machine behaves).  The family must be the same byte for byte in all of them."""
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
+        site, build_s = _install(tmp)
+        plain, plain_build_s = _install(tmp, prebuild=False)
         warm_cache = str(tmp / "warm-cache")
-        _stars_seconds(tmp / "prime", warm_cache)
-        cold = [_stars_seconds(tmp / f"cold{i}", str(tmp / f"cold-cache{i}")) for i in range(repeat)]
-        warm = [_stars_seconds(tmp / f"warm{i}", warm_cache) for i in range(repeat)]
-        same = len({(tmp / d / "family.json").read_bytes() for d in [f"cold{i}" for i in range(repeat)] + [f"warm{i}" for i in range(repeat)]}) == 1
+        _stars_seconds(tmp / "prime", warm_cache, site)
+        first = [_stars_seconds(tmp / f"first{i}", str(tmp / f"first-cache{i}"), site) for i in range(repeat)]
+        warm = [_stars_seconds(tmp / f"warm{i}", warm_cache, site) for i in range(repeat)]
+        cold = [_stars_seconds(tmp / f"cold{i}", str(tmp / f"cold-cache{i}"), plain) for i in range(repeat)]
+        dirs = [f"{k}{i}" for k in ("first", "warm", "cold") for i in range(repeat)]
+        same = len({(tmp / d / "family.json").read_bytes() for d in dirs}) == 1
     med = lambda rows, k="seconds": sorted(r[k] for r in rows)[len(rows) // 2]  # noqa: E731
-    w, c = med(warm), med(cold)
-    wc, cc = med(warm, "cpu_s"), med(cold, "cpu_s")
+    w, f, c = med(warm), med(first), med(cold)
     return {
         "warm_s_median": w,
-        "first_run_s_median": c,
-        "first_run_over_warm": round(c / w, 2),
-        "warm_cpu_s_median": wc,
-        "first_run_cpu_s_median": cc,
-        "first_run_over_warm_cpu": round(cc / wc, 2),
+        "first_run_s_median": f,
+        "first_run_over_warm": round(f / w, 2),
+        "warm_cpu_s_median": med(warm, "cpu_s"),
+        "first_run_cpu_s_median": med(first, "cpu_s"),
+        "compiling_first_run_s_median": c,
+        "compiling_first_run_over_warm": round(c / w, 2),
+        "compiling_first_run_cpu_s_median": med(cold, "cpu_s"),
+        "wheel_build_s": build_s,
+        "wheel_build_without_kernels_s": plain_build_s,
         "same_family_json": same,
         "warm_runs": warm,
-        "first_runs": cold,
+        "first_runs": first,
+        "compiling_first_runs": cold,
         "targets": {"warm": "<= 2 s", "first run": "<= 2 x warm"},
     }
 
