@@ -2,8 +2,9 @@
 
 The project is configured in ``pyproject.toml``; this file only adds one step to ``build_py``:
 after the package is copied into the build folder, :func:`starforge.kernels.prebuild` compiles
-the kernels a ``starforge stars`` run loads and packs them beside the code, so that the first
-run after ``pip install .`` loads them instead of compiling (see ``starforge/kernels.py``).
+the kernels a ``starforge stars`` and a ``starforge place`` run load and packs them beside the
+code, so that the first run after ``pip install .`` loads them instead of compiling (see
+``starforge/kernels.py``).
 Editable installs skip it (their kernels are compiled on first use and cached), as does
 ``STARFORGE_PREBUILD=0``; a build where it fails (no numba, say) still succeeds, without the zip.
 """

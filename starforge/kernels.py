@@ -22,7 +22,8 @@ The numba cache folder is ``NUMBA_CACHE_DIR`` (:func:`starforge.cache_dir`'s ``n
 unless the user set one), in the user's cache folder, never in the installed package.
 
 **Built ahead of time.**  Building a wheel (``pip install .`` builds one on the user's machine)
-compiles the kernels a ``starforge stars`` run loads (:func:`prebuild`, called by ``setup.py``)
+compiles the kernels a ``starforge stars`` and a ``starforge place`` run load (:func:`prebuild`,
+called by ``setup.py``)
 and packs their cache entries into ``starforge/kernels.zip`` with a manifest: the digest and the
 numba, numpy and Python versions they were built with.  The first time a process needs the
 cache folder of this digest and it does not exist yet, the entries are unpacked into it
@@ -173,8 +174,50 @@ _install()
 
 # -- building ahead of time -------------------------------------------------------------------
 
-#: the groups of kernels a ``starforge stars`` run loads, compiled by two processes at once
-_GROUPS = ("starforge.stars.warmup:compile_fit_decision", "starforge.stars.warmup:_helper")
+#: kernels compiled from their signatures alone: those ``starforge place`` calls, each with the
+#: types the pipeline passes (arrays C-contiguous).  A kernel called with other types is
+#: compiled on its first use as before (the wheel test fails on any such compile).
+PLACE_SIGNATURES = (
+    ("starforge.props.sites:_greedy_keep", "int64[::1], int64[::1], int64"),
+    (
+        "starforge.props.visibility:_view_masks",
+        "float64[:, ::1], float64[:, ::1], float64[:, :, ::1], float64[:, :, :, ::1], float64[:, ::1], float64, "
+        "float64[:, ::1], int64",
+    ),
+    ("starforge.props.visibility:_seg_seg_dist2", ", ".join(["float64"] * 12)),
+    (
+        "starforge.props.tracked:_screen_tracked",
+        "float64[::1], float64[:, ::1], float64[:, ::1], boolean[:, ::1], float64[:, ::1], float64[:, ::1], float64",
+    ),
+    ("starforge.geometry.sym3:line_spread2", ", ".join(["float64"] * 10)),
+    ("starforge.geometry.sym3:line_spread2", ", ".join(["int64"] + ["float64"] * 9)),
+    ("starforge.geometry.sym3:line_spread2_at_least", ", ".join(["float64"] * 11)),
+    ("starforge.geometry.sym3:line_spread2_many", "float64[::1], float64[:, ::1], float64[:, ::1]"),
+    ("starforge.geometry.sym3:line_spread2_at_least_many", "float64[::1], float64[:, ::1], float64[:, ::1], float64"),
+)
+
+
+def compile_place() -> None:
+    """Compile (or load) the kernels of :data:`PLACE_SIGNATURES`."""
+    import importlib
+
+    from numba.core.sigutils import normalize_signature
+
+    for target, sig in PLACE_SIGNATURES:
+        mod, name = target.split(":")
+        args, _ = normalize_signature(f"({sig})")
+        # the argument types as a tuple: the key a call looks the cache up by (a string would
+        # be stored under the string)
+        getattr(importlib.import_module(mod), name).compile(tuple(args))
+
+
+#: the groups of kernels a ``starforge stars`` run and a ``starforge place`` run load, each
+#: compiled by a process of its own
+_GROUPS = (
+    "starforge.stars.warmup:compile_fit_decision",
+    "starforge.stars.warmup:_helper",
+    "starforge.kernels:compile_place",
+)
 
 
 def prebuild(zip_path: str, groups: tuple[str, ...] = _GROUPS, timeout_s: float = 600.0) -> None:

@@ -79,6 +79,14 @@ def test_wheel_carries_code_templates_and_built_kernels(tmp_path):
     assert res.returncode == 0, res.stderr
     assert "COMPILED" not in res.stderr, res.stderr
     assert json.loads((tmp_path / "out" / "family.json").read_text())["summary"]["size"] > 0
+    # and so does the built-in hammer's placement
+    res = subprocess.run(
+        [sys.executable, "-c", FIRST_RUN, "place", "--out", str(tmp_path / "hammer"), "-q"],
+        env=env, capture_output=True, text=True, cwd=tmp_path,
+    )
+    assert res.returncode == 0, res.stderr
+    assert "COMPILED" not in res.stderr, res.stderr
+    assert (tmp_path / "hammer" / "placement.json").exists()
     from starforge.kernels import digest
 
     assert [p.name for p in (tmp_path / "cache" / "numba").iterdir()] == [f"starforge-{digest(str(site / 'starforge'))}"]
