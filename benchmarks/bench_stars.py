@@ -105,10 +105,11 @@ def _fit_decision_speed() -> dict:
     return out
 
 
-def _stars_seconds(out: Path, cache: str, site: Path) -> dict:
-    """One plain ``starforge stars`` (the finger default) in a fresh process, run from the
-    installed copy ``site`` with the user cache folder ``cache``: wall and CPU seconds, the load
-    average before it, the run's stage timings."""
+def _stars_seconds(out: Path, cache: str, site: Path, command: str = "stars") -> dict:
+    """One plain ``starforge stars`` (the finger default; or ``command``'s default, e.g.
+    ``place``: the built-in hammer) in a fresh process, run from the installed copy ``site``
+    with the user cache folder ``cache``: wall and CPU seconds, the load average before it, the
+    run's stage timings (stars)."""
     import resource
 
     load = os.getloadavg()[0]
@@ -117,7 +118,7 @@ def _stars_seconds(out: Path, cache: str, site: Path) -> dict:
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     subprocess.run(
-        [sys.executable, "-m", "starforge", "stars", "--out", str(out), "-q", "--force"],
+        [sys.executable, "-m", "starforge", command, "--out", str(out), "-q", "--force"],
         check=True,
         stdout=subprocess.DEVNULL,
         env=env,
@@ -126,9 +127,11 @@ def _stars_seconds(out: Path, cache: str, site: Path) -> dict:
     wall = time.perf_counter() - t
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
-    run = json.loads((out / "run.json").read_text())
+    row = {"seconds": round(wall, 2), "cpu_s": round(cpu, 2), "load_1min_before": round(load, 2)}
+    if command == "stars":
+        row["stages_s"] = json.loads((out / "run.json").read_text())["seconds"]
     # CPU seconds (all threads) are less disturbed than wall time on a shared machine
-    return {"seconds": round(wall, 2), "cpu_s": round(cpu, 2), "load_1min_before": round(load, 2), "stages_s": run["seconds"]}
+    return row
 
 
 def _install(tmp: Path, prebuild: bool = True) -> tuple[Path, float]:
@@ -162,7 +165,8 @@ def first_run_vs_warm(repeat: int = 3) -> dict:
     fresh processes of the installed copy: warm (kernels in the user cache); the first run
     after ``pip install .`` (an empty user cache; the wheel ships its kernels built); and, for
     comparison, a first run that compiles them (a wheel built without them, as one built on
-    another machine behaves).  The family must be the same byte for byte in all of them."""
+    another machine behaves).  The family must be the same byte for byte in all of them.
+    ``place_hammer``: ``starforge place`` (the built-in hammer) the same three ways."""
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         site, build_s = _install(tmp)
@@ -174,6 +178,14 @@ def first_run_vs_warm(repeat: int = 3) -> dict:
         cold = [_stars_seconds(tmp / f"cold{i}", str(tmp / f"cold-cache{i}"), plain) for i in range(repeat)]
         dirs = [f"{k}{i}" for k in ("first", "warm", "cold") for i in range(repeat)]
         same = len({(tmp / d / "family.json").read_bytes() for d in dirs}) == 1
+        # place (the built-in hammer): the same three ways
+        place_cache = str(tmp / "place-warm-cache")
+        _stars_seconds(tmp / "place-prime", place_cache, site, "place")
+        place = {
+            "first": [_stars_seconds(tmp / f"pf{i}", str(tmp / f"pf-cache{i}"), site, "place") for i in range(repeat)],
+            "warm": [_stars_seconds(tmp / f"pw{i}", place_cache, site, "place") for i in range(repeat)],
+            "cold": [_stars_seconds(tmp / f"pc{i}", str(tmp / f"pc-cache{i}"), plain, "place") for i in range(repeat)],
+        }
     med = lambda rows, k="seconds": sorted(r[k] for r in rows)[len(rows) // 2]  # noqa: E731
     w, f, c = med(warm), med(first), med(cold)
     return {
@@ -188,6 +200,12 @@ def first_run_vs_warm(repeat: int = 3) -> dict:
         "wheel_build_s": build_s,
         "wheel_build_without_kernels_s": plain_build_s,
         "same_family_json": same,
+        "place_hammer": {
+            "warm_s_median": med(place["warm"]),
+            "first_run_s_median": med(place["first"]),
+            "compiling_first_run_s_median": med(place["cold"]),
+            "runs": place,
+        },
         "warm_runs": warm,
         "first_runs": first,
         "compiling_first_runs": cold,
