@@ -132,7 +132,7 @@ def _seed(zip_path: str, target: str) -> bool:
         return False
 
 
-class _Locator(caching._CacheLocator):
+class _Locator(getattr(caching, "_CacheLocator", object)):
     """Numba cache locator for the functions of starforge's modules: the folder
     ``kernel_dir()/<subpackage>``, stamped with the package digest (see the module's text)."""
 
@@ -163,10 +163,17 @@ class _Locator(caching._CacheLocator):
         return self
 
 
-def _install() -> None:
-    impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
-    if _Locator not in impl._locator_classes:
-        impl._locator_classes.insert(0, _Locator)
+def _install() -> bool:
+    """Put :class:`_Locator` first in numba's list of cache locators (a class attribute that is
+    not numba's public API: where a numba release lacks it, nothing is installed and numba's
+    own locators cache the kernels by folder, as before).  True when it is in place."""
+    impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)
+    locators = getattr(impl, "_locator_classes", None)
+    if not isinstance(locators, list) or not hasattr(caching, "_CacheLocator"):
+        return False
+    if _Locator not in locators:
+        locators.insert(0, _Locator)
+    return True
 
 
 _install()

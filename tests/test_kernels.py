@@ -167,3 +167,18 @@ def test_kernels_built_in_one_copy_load_in_another_without_compiling(tmp_path):
     assert (int(hits), int(misses)) == (0, 1)  # other code: compiled
     # and cached for the next run of that code
     assert _py(tmp_path / "c", tmp_path / "user-c", STATS).split()[1:] == ["1", "0"]
+
+
+def test_starforge_kernels_are_cached_under_the_digest_folder_only():
+    from numba.core import caching
+
+    from starforge.geometry.sym3 import sym3_eigvals
+
+    assert kernels._install() and kernels._install()  # idempotent
+    impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
+    assert impl._locator_classes.count(kernels._Locator) == 1
+    path = Path(sym3_eigvals._cache.cache_path)
+    assert path == Path(kernels.kernel_dir()) / "geometry"
+    assert path.parent.name == f"starforge-{kernels.digest()}"
+    # a function outside the package is left to numba's own locators
+    assert kernels._Locator.from_function(test_digest_follows_the_code_not_its_place, __file__) is None
