@@ -181,10 +181,12 @@ _install()
 
 # -- building ahead of time -------------------------------------------------------------------
 
-#: kernels compiled from their signatures alone: those ``starforge place`` calls, each with the
-#: types the pipeline passes (arrays C-contiguous).  A kernel called with other types is
-#: compiled on its first use as before (the wheel test fails on any such compile).
-PLACE_SIGNATURES = (
+#: kernels compiled from their signatures alone, each with the types its callers pass (arrays
+#: C-contiguous): those ``starforge place`` calls, and those ``starforge stars`` calls only for
+#: large specs (from 1 M stars or 4 M window entries up, e.g. ``--delta 1.0``).  A kernel called
+#: with other types is compiled on its first use as before (the wheel test fails on any such
+#: compile in a default ``stars`` or ``place``).
+SIGNATURES = (
     ("starforge.props.sites:_greedy_keep", "int64[::1], int64[::1], int64"),
     (
         "starforge.props.visibility:_view_masks",
@@ -201,16 +203,22 @@ PLACE_SIGNATURES = (
     ("starforge.geometry.sym3:line_spread2_at_least", ", ".join(["float64"] * 11)),
     ("starforge.geometry.sym3:line_spread2_many", "float64[::1], float64[:, ::1], float64[:, ::1]"),
     ("starforge.geometry.sym3:line_spread2_at_least_many", "float64[::1], float64[:, ::1], float64[:, ::1], float64"),
+    (
+        "starforge.stars.select:_face_blocks",
+        "int16[:, ::1], int64[:, ::1], int64, int64, int64, int64, int64, boolean[::1]",
+    ),
+    ("starforge.stars.rules:_window_codes", "int32[:, ::1], int64[:, ::1], int64, int64"),
+    ("starforge.stars.rules:_dense_rows", "int64[::1], int64"),
 )
 
 
-def compile_place() -> None:
-    """Compile (or load) the kernels of :data:`PLACE_SIGNATURES`."""
+def compile_signatures() -> None:
+    """Compile (or load) the kernels of :data:`SIGNATURES`."""
     import importlib
 
     from numba.core.sigutils import normalize_signature
 
-    for target, sig in PLACE_SIGNATURES:
+    for target, sig in SIGNATURES:
         mod, name = target.split(":")
         args, _ = normalize_signature(f"({sig})")
         # the argument types as a tuple: the key a call looks the cache up by (a string would
@@ -223,7 +231,7 @@ def compile_place() -> None:
 _GROUPS = (
     "starforge.stars.warmup:compile_fit_decision",
     "starforge.stars.warmup:_helper",
-    "starforge.kernels:compile_place",
+    "starforge.kernels:compile_signatures",
 )
 
 
