@@ -298,8 +298,7 @@ def make_family(
     m = spec.grid_steps
     pool = cands.pool_mm
     ok = internal_ok(cands.index, spec.rule, m) & avoid_mask(cands.index, pool, avoid_faces_mm, spec.tol_mm)
-    index = cands.index[ok]
-    volume = cands.box_volume[ok]
+    index, volume = (cands.index, cands.box_volume) if ok.all() else (cands.index[ok], cands.box_volume[ok])
     und = cands.undecided
     und = (
         und[internal_ok(und, spec.rule, m) & avoid_mask(und, pool, avoid_faces_mm, spec.tol_mm)]
@@ -324,7 +323,8 @@ def make_family(
     rounds = 0
     while True:
         keep = np.flatnonzero(~excluded)
-        sel, ub = _choose(index[keep], volume[keep], und, bound, spec, pool, work, deterministic)
+        kept = (index, volume) if len(keep) == len(index) else (np.take(index, keep, axis=0), volume[keep])
+        sel, ub = _choose(*kept, und, bound, spec, pool, work, deterministic)
         chosen = keep[np.sort(sel.chosen)]
         L = pool[index[chosen]]
         # the family's margins depend on its lengths alone: computed beside the placement
