@@ -21,7 +21,7 @@ from starforge.stars.boxes import place_stars
 from starforge.stars.enumerate import Candidates, edge_pool, enumerate_candidates
 from starforge.stars.model import Family, Star
 from starforge.stars.rules import internal_ok, window_rows
-from starforge.stars.select import block_bound, greedy, select_family
+from starforge.stars.select import block_bound, compactness_order, greedy, select_family
 from starforge.stars.spec import StarSpec
 
 
@@ -200,6 +200,8 @@ def _spread_count(index: np.ndarray, order: np.ndarray, spec: StarSpec, pool_siz
 def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, deterministic: bool = False):
     """Select the family among ``index`` (see :func:`make_family`); returns (Selection, bound)."""
     m = spec.grid_steps
+    # the selection's order (numpy sorts) on a thread beside the key windows (compiled)
+    order_of = beside(compactness_order, index, pool, volume) if spec.count is None else None
     star_of, row, n_rows = window_rows(index, spec.rule, m, len(pool))
     if spec.count is not None:
         from starforge.stars.select import Selection, _csr
@@ -236,7 +238,7 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, determin
     else:
         sel = select_family(
             index, pool, volume, star_of, row, n_rows, spec, bound=bound, n_undecided=len(und), milp_work=work,
-            deterministic=deterministic,
+            deterministic=deterministic, order=order_of(),
         )
     ub = sel.upper_bound
     if len(und) and sel.info.get("milp_status") == "optimal" and ub > len(sel.chosen):

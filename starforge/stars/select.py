@@ -906,6 +906,7 @@ def select_family(
     n_undecided: int = 0,
     milp_work: int = MILP_WORK,
     deterministic: bool = False,
+    order: np.ndarray | None = None,
 ) -> Selection:
     """Choose the family among the candidates (see module docstring).
 
@@ -917,11 +918,12 @@ def select_family(
     loses at most those stars when they are removed).
     ``deterministic``: the exact solver runs without its wall-clock safety limit
     (``spec.time_limit_s``), stopped by the node budget alone, so the family and bound are the
-    same on any machine (the sweep's exhaustive cells).
+    same on any machine (the sweep's exhaustive cells).  ``order``: :func:`compactness_order` of
+    the candidates when the caller has it already.
     """
     n = len(index)
     ptr, rows = _csr(star_of, row, n)
-    order = compactness_order(index, pool, volume)
+    order = compactness_order(index, pool, volume) if order is None else order
     t0 = time.perf_counter()
     chosen = greedy(order, ptr, rows, n_rows)
     info: dict = {"greedy": int(len(chosen)), "greedy_s": round(time.perf_counter() - t0, 3)}
