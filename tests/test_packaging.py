@@ -91,6 +91,16 @@ def test_wheel_carries_code_templates_and_built_kernels(tmp_path):
 
     assert [p.name for p in (tmp_path / "cache" / "numba").iterdir()] == [f"starforge-{digest(str(site / 'starforge'))}"]
 
+    # a wheel built without them carries none, though the build folder still holds the last zip
+    plain = tmp_path / "plain"
+    res = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation", "-q", "-w", str(plain)],
+        capture_output=True, text=True, env=dict(os.environ, STARFORGE_PREBUILD="0"),
+    )
+    assert res.returncode == 0, res.stderr
+    (whl,) = plain.glob("starforge-*.whl")
+    assert "starforge/kernels.zip" not in zipfile.ZipFile(whl).namelist()
+
 
 def test_templates_resolve_through_the_package():
     from starforge.catalog import KINDS, list_templates, load_template
