@@ -82,3 +82,24 @@ def test_finish_closes_the_helpers_pipe():
     assert helper.wait_for("select", 30)
     warmup.finish(helper)
     assert proc.returncode == 0 and proc.stdout.closed
+
+
+COLD = """
+from starforge.stars import warmup
+from starforge.stars.enumerate import _classify
+f = _classify._cache._cache_file
+here = _classify.targetctx.codegen().magic_tuple()
+out = [warmup.cache_is_cold()]
+f._save_index({("sig", ("x86_64-unknown-linux-gnu", "another-cpu", "+avx"), ("h", "h")): "x.1.nbc"})
+out.append(warmup.cache_is_cold())  # only another machine's entry: numba would compile
+f._save_index({("sig", here, ("h", "h")): "x.1.nbc"})
+out.append(warmup.cache_is_cold())
+print(out)
+"""
+
+
+def test_cache_is_cold_until_it_holds_an_entry_for_this_machine(tmp_path):
+    env = dict(os.environ, STARFORGE_CACHE_DIR=str(tmp_path / "cache"))
+    env.pop("NUMBA_CACHE_DIR", None)
+    res = subprocess.run([sys.executable, "-c", COLD], env=env, capture_output=True, text=True, check=True)
+    assert res.stdout.split("\n")[0] == "[True, True, False]"

@@ -85,12 +85,15 @@ def ready(group: str, timeout_s: float = WAIT_S) -> None:
 
 
 def cache_is_cold() -> bool:
-    """True when the enumeration's compiled kernel is not in the numba cache (a first run).
-    (Reads numba's cache index; any doubt counts as warm, so nothing is started.)"""
+    """True when the numba cache holds no entry of the enumeration's compiled kernel for this
+    machine (a first run; also one whose cache came from a wheel built on another CPU, whose
+    entries numba will not load).  (Reads numba's cache index, keyed by signature and the
+    target's triple, CPU and features; any doubt counts as warm, so nothing is started.)"""
     try:
         from starforge.stars.enumerate import _classify
 
-        return len(_classify._cache._cache_file._load_index()) == 0
+        here = _classify.targetctx.codegen().magic_tuple()
+        return not any(key[1] == here for key in _classify._cache._cache_file._load_index())
     except Exception:  # noqa: BLE001  (a private numba API: never fail a command over it)
         return False
 
