@@ -105,7 +105,7 @@ def _fit_decision_speed() -> dict:
     return out
 
 
-def _stars_seconds(out: Path, cache: str, site: Path, command: str = "stars") -> dict:
+def _cli_seconds(out: Path, cache: str, site: Path, command: str = "stars") -> dict:
     """One plain ``starforge stars`` (the finger default; or ``command``'s default, e.g.
     ``place``: the built-in hammer) in a fresh process, run from the installed copy ``site``
     with the user cache folder ``cache``: wall and CPU seconds, the load average before it, the
@@ -172,19 +172,19 @@ def first_run_vs_warm(repeat: int = 3) -> dict:
         site, build_s = _install(tmp)
         plain, plain_build_s = _install(tmp, prebuild=False)
         warm_cache = str(tmp / "warm-cache")
-        _stars_seconds(tmp / "prime", warm_cache, site)
-        first = [_stars_seconds(tmp / f"first{i}", str(tmp / f"first-cache{i}"), site) for i in range(repeat)]
-        warm = [_stars_seconds(tmp / f"warm{i}", warm_cache, site) for i in range(repeat)]
-        cold = [_stars_seconds(tmp / f"cold{i}", str(tmp / f"cold-cache{i}"), plain) for i in range(repeat)]
+        _cli_seconds(tmp / "prime", warm_cache, site)
+        first = [_cli_seconds(tmp / f"first{i}", str(tmp / f"first-cache{i}"), site) for i in range(repeat)]
+        warm = [_cli_seconds(tmp / f"warm{i}", warm_cache, site) for i in range(repeat)]
+        cold = [_cli_seconds(tmp / f"cold{i}", str(tmp / f"cold-cache{i}"), plain) for i in range(repeat)]
         dirs = [f"{k}{i}" for k in ("first", "warm", "cold") for i in range(repeat)]
         same = len({(tmp / d / "family.json").read_bytes() for d in dirs}) == 1
         # place (the built-in hammer): the same three ways
         place_cache = str(tmp / "place-warm-cache")
-        _stars_seconds(tmp / "place-prime", place_cache, site, "place")
+        _cli_seconds(tmp / "place-prime", place_cache, site, "place")
         place = {
-            "first": [_stars_seconds(tmp / f"pf{i}", str(tmp / f"pf-cache{i}"), site, "place") for i in range(repeat)],
-            "warm": [_stars_seconds(tmp / f"pw{i}", place_cache, site, "place") for i in range(repeat)],
-            "cold": [_stars_seconds(tmp / f"pc{i}", str(tmp / f"pc-cache{i}"), plain, "place") for i in range(repeat)],
+            "first": [_cli_seconds(tmp / f"pf{i}", str(tmp / f"pf-cache{i}"), site, "place") for i in range(repeat)],
+            "warm": [_cli_seconds(tmp / f"pw{i}", place_cache, site, "place") for i in range(repeat)],
+            "cold": [_cli_seconds(tmp / f"pc{i}", str(tmp / f"pc-cache{i}"), plain, "place") for i in range(repeat)],
         }
     med = lambda rows, k="seconds": sorted(r[k] for r in rows)[len(rows) // 2]  # noqa: E731
     w, f, c = med(warm), med(first), med(cold)

@@ -48,7 +48,7 @@ import zipfile
 import numba
 from numba.core import caching
 
-__all__ = ["numba", "digest", "kernel_dir", "prebuild"]
+__all__ = ["numba", "digest", "kernel_dir", "manifest", "prebuild"]
 
 #: the package folder, whose ``.py`` files the digest covers
 PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
@@ -76,10 +76,14 @@ def digest(root: str = PACKAGE_DIR) -> str:
     return h.hexdigest()[:16]
 
 
-def _versions() -> dict:
+def manifest() -> dict:
+    """What kernels built here are valid for: this package's digest and the numba, numpy
+    (major.minor) and Python versions.  A shipped zip carries it and is unpacked only where it
+    is equal."""
     import numpy
 
     return {
+        "digest": digest(),
         "numba": numba.__version__,
         "numpy": ".".join(numpy.__version__.split(".")[:2]),
         "python": f"{sys.version_info[0]}.{sys.version_info[1]}",
@@ -114,8 +118,7 @@ def _seed(zip_path: str, target: str) -> bool:
     tmp = None
     try:
         with zipfile.ZipFile(zip_path) as z:
-            manifest = json.loads(z.read(_MANIFEST))
-            if manifest != {"digest": digest(), **_versions()}:
+            if json.loads(z.read(_MANIFEST)) != manifest():
                 return False
             names = [n for n in z.namelist() if n != _MANIFEST]
             if any(n.startswith("/") or ".." in n.split("/") for n in names):
@@ -262,7 +265,7 @@ def prebuild(zip_path: str, groups: tuple[str, ...] = _GROUPS, timeout_s: float 
         zip_path = os.path.abspath(zip_path)
         tmp = zip_path + ".tmp"
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
-            z.writestr(_MANIFEST, json.dumps({"digest": digest(), **_versions()}, sort_keys=True))
+            z.writestr(_MANIFEST, json.dumps(manifest(), sort_keys=True))
             for folder, subs, files in os.walk(src):
                 subs.sort()
                 for name in sorted(files):
