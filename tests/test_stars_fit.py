@@ -352,7 +352,13 @@ def test_corner_test_is_sound_against_sampled_directions():
     """corners_exclude says no direction of a cube-map cell is thin enough only when none is:
     checked on directions drawn inside random cells (and at their corners) against random pair
     vectors; and it does exclude a good share of the cells it is shown."""
-    from starforge.geometry.fit import corners_exclude, cube_dir
+    import numba
+
+    from starforge.geometry.fit import corners_exclude, unit3
+
+    @numba.njit
+    def cube_dir(f, s, t, a):  # the kernels' cube-map direction, written into a
+        a[0], a[1], a[2] = unit3(f, s, t)
 
     rng = np.random.default_rng(3)
     a, corner = np.empty(3), np.empty(3)

@@ -209,11 +209,6 @@ def unit3(f, s, t):
     return a0 / n, a1 / n, a2 / n
 
 
-@_jit
-def cube_dir(f, s, t, a):
-    a[0], a[1], a[2] = unit3(f, s, t)
-
-
 @_inner
 def frame_rows(R, a0, a1, a2, u0, u1, u2, v0, v1, v2, c, s):
     """R's rows: a, b = cos psi u + sin psi v, a x b (``c, s`` = cos psi, sin psi)."""
