@@ -1,10 +1,10 @@
 """Builds a wheel whose kernels are compiled ahead of time (``starforge/kernels.zip``).
 
 The project is configured in ``pyproject.toml``; this file only adds one step to ``build_py``:
-after the package is copied into the build folder, :func:`starforge.kernels.prebuild` compiles
+after the package is copied into the build folder, :func:`starforge.runtime.kernels.prebuild` compiles
 the kernels a ``starforge stars`` and a ``starforge place`` run load and packs them beside the
 code, so that the first run after ``pip install .`` loads them instead of compiling (see
-``starforge/kernels.py``).
+``starforge/runtime/kernels.py``).
 Editable installs skip it (their kernels are compiled on first use and cached), as does
 ``STARFORGE_PREBUILD=0``; a build where it fails (no numba, say) still succeeds, without the zip.
 """
@@ -31,7 +31,7 @@ class BuildPyWithKernels(build_py):
         scratch = tempfile.mkdtemp(prefix="starforge-build-")
         env = dict(os.environ, NUMBA_CACHE_DIR=scratch, STARFORGE_CACHE_DIR=scratch)  # prebuild's own
         env["PYTHONPATH"] = os.pathsep.join(filter(None, [os.path.abspath(self.build_lib), env.get("PYTHONPATH")]))
-        code = "from starforge.kernels import _prebuild_main; _prebuild_main()"
+        code = "from starforge.runtime.kernels import _prebuild_main; _prebuild_main()"
         try:
             res = subprocess.run([sys.executable, "-c", code, out], env=env, cwd=self.build_lib)
         finally:

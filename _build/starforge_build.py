@@ -1,5 +1,5 @@
 """setuptools' build backend, asking for numba and numpy when it builds a wheel: ``setup.py``
-compiles the kernels ahead of time then (``starforge/kernels.py``).  Editable installs and
+compiles the kernels ahead of time then (``starforge/runtime/kernels.py``).  Editable installs and
 source distributions need neither."""
 
 from setuptools import build_meta as _meta

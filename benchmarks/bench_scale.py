@@ -169,7 +169,7 @@ def delta05(args) -> dict:
 
 
 def sweep_exact(args) -> dict:
-    from starforge import engine
+    from starforge.runtime import engine
     from starforge.stars.enumerate import estimate
     from starforge.stars.spec import StarSpec
     from starforge.tracking.sweep import (

@@ -285,7 +285,7 @@ def main() -> None:
             stdout=subprocess.DEVNULL,
         )
         # and the kernels only large specs call (an installed wheel ships them built)
-        subprocess.run([sys.executable, "-c", "from starforge.kernels import compile_signatures; compile_signatures()"], check=True)
+        subprocess.run([sys.executable, "-c", "from starforge.runtime.kernels import compile_signatures; compile_signatures()"], check=True)
         res["first_run_compile_s"] = round(time.perf_counter() - t, 2)  # compile or load the kernels
         cases = {
             "finger_default": [],

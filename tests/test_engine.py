@@ -13,7 +13,7 @@ import signal
 import numpy as np
 import pytest
 
-from starforge import engine
+from starforge.runtime import engine
 from starforge.cli import main
 from starforge.errors import StarforgeError
 from starforge.stars import enumerate as E
@@ -325,7 +325,7 @@ def test_beside_returns_the_result_or_the_error_of_the_call():
     where the result is asked for, and no thread left behind."""
     import threading
 
-    from starforge.engine import beside
+    from starforge.runtime.engine import beside
     from starforge.stars.family import margins
 
     L = np.random.default_rng(0).uniform(8, 40, (50, 6))

@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from starforge import budget
+from starforge.runtime import budget
 from starforge.errors import StarforgeError
 from starforge.io import check_input_file, check_name, check_writable, publish, staged_output
 

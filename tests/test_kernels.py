@@ -1,4 +1,4 @@
-"""Kernels cached by the package's contents, and the kernels a wheel ships built (starforge.kernels):
+"""Kernels cached by the package's contents, and the kernels a wheel ships built (starforge.runtime.kernels):
 the digest follows the code and nothing else, a shipped zip is unpacked only when it matches this
 installation (never half, never a foreign or broken one), and kernels built in one folder load in
 another copy of the same sources without compiling, while an edit makes them compile."""
@@ -15,12 +15,12 @@ from pathlib import Path
 
 import pytest
 
-from starforge import kernels
+from starforge.runtime import kernels
 
 ROOT = Path(__file__).resolve().parents[1]
 
 PROBE = """
-from starforge.kernels import numba
+from starforge.runtime.kernels import numba
 
 
 @numba.njit(cache=True)
@@ -148,7 +148,7 @@ def test_kernels_built_in_one_copy_load_in_another_without_compiling(tmp_path):
     _py(
         tmp_path / "a",
         tmp_path / "build-cache",
-        f"from starforge.kernels import prebuild; prebuild({str(zip_path)!r}, ('starforge._probe:build',))",
+        f"from starforge.runtime.kernels import prebuild; prebuild({str(zip_path)!r}, ('starforge._probe:build',))",
     )
     with zipfile.ZipFile(zip_path) as z:
         names = z.namelist()

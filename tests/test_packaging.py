@@ -87,7 +87,7 @@ def test_wheel_carries_code_templates_and_built_kernels(tmp_path):
     assert res.returncode == 0, res.stderr
     assert "COMPILED" not in res.stderr, res.stderr
     assert (tmp_path / "hammer" / "placement.json").exists()
-    from starforge.kernels import digest
+    from starforge.runtime.kernels import digest
 
     assert [p.name for p in (tmp_path / "cache" / "numba").iterdir()] == [f"starforge-{digest(str(site / 'starforge'))}"]
 

@@ -191,7 +191,7 @@ def test_interval_lower_ends_never_fall_below_a_smaller_cube():
 
 
 def test_exhaustive_auto_follows_a_workers_memory(monkeypatch):
-    from starforge.budget import ENV_MEMORY
+    from starforge.runtime.budget import ENV_MEMORY
 
     kw = dict(rules=("face",), exhaustive_labelled=None, samples=1_000, workers=1)
     monkeypatch.setenv(ENV_MEMORY, "1G")  # every cell's enumeration fits

@@ -2,7 +2,7 @@
 
 OpenCascade's booleans hold Python's global interpreter lock, so a second *thread* building
 the STEP solids stalls the mesh work it was meant to overlap; a second *process* runs on the
-second core.  :class:`StepProcess` forks that process where it can (:func:`starforge.procs.can_fork`,
+second core.  :class:`StepProcess` forks that process where it can (:func:`starforge.runtime.procs.can_fork`,
 and only while this process has not loaded OCP itself): the child starts with numpy and the body
 code already imported and loads only the kernel.  Elsewhere it launches ``python -c`` with this
 module's :func:`main`.  Either way the worker gets the job (body descriptions, printing
@@ -112,7 +112,7 @@ def _forked_child(job_fd: int, out_fd: int, err_fd: int) -> None:
 
     code = 1
     try:
-        from starforge.procs import leave_parent_signals
+        from starforge.runtime.procs import leave_parent_signals
 
         leave_parent_signals(default_handlers=True)
         os.dup2(err_fd, 2)
@@ -185,7 +185,7 @@ class StepProcess:
     ``with`` block ends a worker that has not finished (harmless after :meth:`result`).
 
     ``fork``: True forks this process, False launches a fresh interpreter, None (default) forks
-    where :func:`starforge.procs.can_fork` allows and OCP is not loaded here (``forked`` says
+    where :func:`starforge.runtime.procs.can_fork` allows and OCP is not loaded here (``forked`` says
     which).  The files are the same bytes either way."""
 
     def __init__(self, fork: bool | None = None) -> None:
@@ -200,7 +200,7 @@ class StepProcess:
         self.tick = None
         self.stderr = tempfile.TemporaryFile()
         if fork is None:
-            from starforge.procs import can_fork
+            from starforge.runtime.procs import can_fork
 
             # a kernel loaded here already would be the child's too, its STEP counters advanced
             fork = can_fork() and "OCP" not in sys.modules

@@ -114,7 +114,7 @@ def _install_signals():
     )
     # safe to fork beside (starforge.render.props forks render processes, starforge.cad.step_worker
     # its STEP worker): it imports nothing and holds no lock while it waits in os.read, and a
-    # forked child drops the wakeup fd (starforge.procs), so it never writes into the watcher's pipe
+    # forked child drops the wakeup fd (starforge.runtime.procs), so it never writes into the watcher's pipe
     watcher.fork_safe = True
     watcher.start()
 
@@ -231,7 +231,7 @@ def _run(argv: list[str] | None) -> int:
         note_interrupt()  # reported by main()
         code = 130
     except MemoryError:
-        # every large allocation is estimated first (starforge.budget); this is the last resort
+        # every large allocation is estimated first (starforge.runtime.budget); this is the last resort
         print("error: out of memory; lower the problem size or the memory others use (--max-memory)",
               file=sys.stderr)
         code = 2

@@ -197,14 +197,14 @@ def _root(
     prop marker placement and the files trackers load."""
     import os
 
-    from starforge import budget
+    from starforge.runtime import budget
 
     if max_memory is not None:
         os.environ[budget.ENV_MEMORY] = str(budget.parse_bytes(max_memory, "--max-memory"))
     if max_seconds is not None:
         os.environ[budget.ENV_SECONDS] = repr(budget.parse_seconds(max_seconds, "--max-seconds"))
     if scheduler:
-        from starforge.engine import ENV_SCHEDULER
+        from starforge.runtime.engine import ENV_SCHEDULER
 
         os.environ[ENV_SCHEDULER] = scheduler
     if version:

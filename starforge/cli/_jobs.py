@@ -1,4 +1,4 @@
-"""Progress of an engine job (:mod:`starforge.engine`) on the terminal, or as plain lines."""
+"""Progress of an engine job (:mod:`starforge.runtime.engine`) on the terminal, or as plain lines."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from starforge.cli._app import console, progress
 
 @contextmanager
 def job_progress(label: str, noun: str, total: int, quiet: bool):
-    """Yield ``(tick, where)`` for :func:`starforge.engine.map_tasks`'s ``progress`` and
+    """Yield ``(tick, where)`` for :func:`starforge.runtime.engine.map_tasks`'s ``progress`` and
     ``on_plan``: a progress bar on a terminal, else the heartbeat's plain line every few seconds
     (:func:`starforge.cli._app.progress`, for logs); ``where`` says once where the tasks run.
     ``quiet``: neither."""

@@ -32,7 +32,7 @@ def place_batch_cmd(
 ) -> None:
     import json
 
-    from starforge import engine
+    from starforge.runtime import engine
     from starforge.errors import StarforgeError
     from starforge.io import atomic_write_bytes, atomic_write_text, check_writable, staged_output
     from starforge.props.batch import job_bytes, jobs, place_job

@@ -90,7 +90,7 @@ MAX_CELLS = 100_000
 _EPS = 1e-9
 
 
-from starforge.kernels import numba  # noqa: E402  (compiled kernels; this module is imported only where fits are decided)
+from starforge.runtime.kernels import numba  # noqa: E402  (compiled kernels; this module is imported only where fits are decided)
 
 _jit = numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 #: the small kernels only ever called from other kernels: no Python wrapper and no cache entry
@@ -618,7 +618,7 @@ def _decide_all(P, lim, slack, start, max_cells, status, R, work, threads=None, 
     """Every set, over up to ``threads`` threads (default: every core; each set is independent,
     so the result does not depend on the thread count or the chunking).  ``prune``: with the
     corner test (:func:`corners_exclude`; the outcome and frames are the same either way)."""
-    from starforge.engine import over_ranges
+    from starforge.runtime.engine import over_ranges
 
     flag = 1 if prune else 0
 

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from starforge.kernels import numba
+from starforge.runtime.kernels import numba
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

@@ -1,4 +1,4 @@
-"""Batch placement: one prop under many rigs, or many props, as tasks of :mod:`starforge.engine`.
+"""Batch placement: one prop under many rigs, or many props, as tasks of :mod:`starforge.runtime.engine`.
 
 Each job is ``(prop, units, spec, rig, seed)``; :func:`place_job` runs the ordinary placement
 (:func:`starforge.props.placement.run_placement`, then :func:`starforge.props.files.write_outputs`

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from starforge.geometry.sym3 import line_spread2_at_least, moments
-from starforge.kernels import numba
+from starforge.runtime.kernels import numba
 
 #: the most spaced layouts enumerated (beyond it no ceiling is claimed)
 MAX_LAYOUTS = 200_000

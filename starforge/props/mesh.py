@@ -75,7 +75,7 @@ def load_mesh_file(path: str | Path, units: str = "m", what: str = "prop mesh"):
 
     scale = units_scale(units)
     path = check_input_file(Path(path), what)
-    from starforge.budget import require_memory
+    from starforge.runtime.budget import require_memory
 
     # a mesh in memory takes about 10-20 x its file size (vertices, faces, adjacency, repair)
     require_memory(

@@ -195,7 +195,7 @@ def check_trackable(centres: np.ndarray, spec: PlaceSpec, rig, seat, removed: di
 
 def check_cost(prop, spec: PlaceSpec, rig, sites: int, poses: int) -> None:
     """Refuse, before the visibility table, work past the memory or time limit (one line)."""
-    from starforge.budget import require_memory, require_time
+    from starforge.runtime.budget import require_memory, require_time
 
     cams = len(rig.cameras)
     patterns = spec.track.loss_patterns if spec.objective == "tracked" else 1

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.kernels import numba
+from starforge.runtime.kernels import numba
 from starforge.spec import in_range, positive
 
 

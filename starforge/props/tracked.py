@@ -59,7 +59,7 @@ from starforge.geometry.sym3 import (
     line_spread2_many,
     moments,
 )
-from starforge.kernels import numba
+from starforge.runtime.kernels import numba
 from starforge.spec import in_range, non_negative, positive
 
 TRIANGLE_SPREAD = math.sqrt(2.0) / 3.0  # RMS distance from the base line of a triangle of height 1

@@ -21,7 +21,7 @@ from numba import types
 from numba.extending import intrinsic
 
 from starforge.errors import StarforgeError
-from starforge.kernels import numba
+from starforge.runtime.kernels import numba
 from starforge.spec import in_range
 
 # rays start this far (fraction of the prop's bounding-box diagonal, clipped) above the surface

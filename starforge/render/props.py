@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from starforge.procs import leave_parent_signals
+from starforge.runtime.procs import leave_parent_signals
 from starforge.render._mpl import pyplot, save_png
 
 _DPI = 100
@@ -425,7 +425,7 @@ class BackgroundRenderer:
     """
 
     def __init__(self, enabled: bool = True):
-        from starforge.procs import can_fork
+        from starforge.runtime.procs import can_fork
 
         self._fork = enabled and can_fork()
         self._pid: int | None = None  # the first render process

@@ -46,7 +46,7 @@ from starforge.errors import StarforgeError
 from starforge.geometry.fit import SLACK_MM, face_table
 from starforge.geometry.sym3 import sym3_eigvals
 from starforge.geometry.tetra import canonical_assignments
-from starforge.kernels import numba
+from starforge.runtime.kernels import numba
 from starforge.stars.spec import StarSpec
 
 #: outcome codes per labelled candidate (int8)
@@ -203,7 +203,7 @@ def check_memory(spec: StarSpec, allow_stream: bool = False) -> dict:
     ``allow_stream`` a spec the streamed greedy may take (tolerance up to
     :data:`STREAM_MAX_STEPS` pool steps) is left to :func:`check_size`, which decides after its
     pilot."""
-    from starforge.budget import require_memory
+    from starforge.runtime.budget import require_memory
 
     est = estimate(spec)
     if not (allow_stream and spec.grid_steps <= STREAM_MAX_STEPS):
@@ -219,7 +219,7 @@ def check_size(spec: StarSpec, allow_stream: bool = False) -> str:
     ``allow_stream``, ``"stream"`` when they would not fit in memory but the streamed greedy
     (:func:`starforge.stars.stream.stream_family`) holds them within the memory and disk limits.
     """
-    from starforge.budget import memory_limit_bytes, require_memory, require_time
+    from starforge.runtime.budget import memory_limit_bytes, require_memory, require_time
     from starforge.stars.rules import window_bytes
 
     est = estimate(spec)
@@ -359,7 +359,7 @@ def classify(
 ):
     """Outcome code and fitting-box volume of every labelled candidate of ``subsets`` (s, 6),
     written into ``codes`` (s, 30) int8 and ``volumes`` (s, 30), on up to ``threads`` threads
-    (:func:`starforge.engine.over_ranges`; each candidate independent, so the result does not
+    (:func:`starforge.runtime.engine.over_ranges`; each candidate independent, so the result does not
     depend on the thread count).
 
     Two passes: the serial kernel :func:`_classify` runs the necessary tests (and in mode 0 the
@@ -388,7 +388,7 @@ def first_pass(
     """The first pass of :func:`classify` (:func:`_classify` over ranges of ``chunk`` subsets on
     up to ``threads`` threads): ``codes`` (s, 30) gets every code but the fit decision's, and
     ``NECESSARY_OK`` for the candidates left to it."""
-    from starforge.engine import over_ranges
+    from starforge.runtime.engine import over_ranges
 
     if faces is None:
         faces = NO_FACES
@@ -668,7 +668,7 @@ def run_chunks(spec: StarSpec, consume, progress=None, workers: int | None = Non
     """Run every enumeration chunk of ``spec`` on the engine and hand each result (a dict of
     :func:`enumerate_chunk`) to ``consume(i, result)`` as it arrives, in any order.  Returns
     the labelled candidates looked at.  See :func:`enumerate_candidates` for the options."""
-    from starforge import engine
+    from starforge.runtime import engine
 
     total = labelled_count(spec)
     parts = chunks(spec)
@@ -742,7 +742,7 @@ def enumerate_candidates(
     """Every star (up to relabelling and mirroring) whose centres provably fit ``spec``'s limit.
 
     The admissible 6-subsets are cut into chunks of consecutive ranks (:func:`chunks`), each one
-    task of :func:`starforge.engine.map_tasks` (:func:`enumerate_chunk`): in this process (the
+    task of :func:`starforge.runtime.engine.map_tasks` (:func:`enumerate_chunk`): in this process (the
     compiled kernel runs on every core), or on the cluster at ``scheduler`` (or
     ``STARFORGE_SCHEDULER``).  The result is sorted, so it does not depend on where or in which
     order the chunks ran.  (Specs whose candidates do not fit in memory go through

@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from starforge.engine import beside
+from starforge.runtime.engine import beside
 from starforge.errors import NoStarError, StarforgeError
 from starforge.geometry.rigid import (
     default_tip_mm,
@@ -396,7 +396,7 @@ def _assemble(
 ) -> Family:
     """The family from its chosen stars (pool indices (k, 6), lengths, placements): accuracy,
     margins, ids (most accurate first) and the summary.  ``margins_of_L``: a function giving
-    :func:`margins` of ``L`` in its own order (started earlier, :func:`starforge.engine.beside`);
+    :func:`margins` of ``L`` in its own order (started earlier, :func:`starforge.runtime.engine.beside`);
     by default they are computed here.  (A margin is a minimum of exact differences over the
     other stars: the same floats in any order of the stars.)"""
     for i, item in enumerate(placed):

@@ -231,7 +231,7 @@ def family_from_json(data: dict, where: str = "family.json", verify: bool = True
     if len(set(ids)) != len(ids):
         raise StarforgeError(f"{where} has duplicate star ids")
     if verify:
-        from starforge.budget import require_time
+        from starforge.runtime.budget import require_time
         from starforge.stars.verify import check_family, verify_seconds
 
         require_time(

@@ -26,7 +26,7 @@ import math
 import numpy as np
 
 from starforge.geometry.tetra import FACE_EDGES
-from starforge.kernels import numba
+from starforge.runtime.kernels import numba
 
 #: edges (indices into (u, U, v, V, w, W)) meeting at A, B, C, D
 VERTEX_EDGES = np.array([(0, 4, 3), (0, 2, 5), (4, 2, 1), (3, 5, 1)], dtype=np.intp)
@@ -117,7 +117,7 @@ def window_rows(index: np.ndarray, rule: str, m: int, pool_size: int):
     row : (z,) int    ... in row ``row[z]`` (rows renumbered 0..R-1)
     n_rows : int
     """
-    from starforge.budget import require_memory
+    from starforge.runtime.budget import require_memory
 
     n_stars = len(index)
     require_memory(

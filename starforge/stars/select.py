@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from starforge.kernels import numba
+from starforge.runtime.kernels import numba
 from starforge.stars.rules import key3, key_triples
 from starforge.stars.spec import StarSpec
 
@@ -810,12 +810,12 @@ def ils_restarts(
     the restarts stop once the best reaches ``bound``.  Returns (best, iterations, restarts run).
 
     The restarts are independent, so with a dask scheduler (``--scheduler`` /
-    ``STARFORGE_SCHEDULER``) they run at once on the cluster (:func:`starforge.engine.map_tasks`)
+    ``STARFORGE_SCHEDULER``) they run at once on the cluster (:func:`starforge.runtime.engine.map_tasks`)
     and their results are then taken in seed order exactly as above (the ones past the stop are
     dropped): the same family and counts byte for byte, whatever the number of workers and the
     order they finish in.  Otherwise they run here one after another, stopping at the bound.
     """
-    from starforge import engine
+    from starforge.runtime import engine
 
     seeds = list(range(1, restarts + 1))
     if len(chosen) >= bound or not seeds:

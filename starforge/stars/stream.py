@@ -38,7 +38,7 @@ import numpy as np
 
 from starforge.errors import StarforgeError
 from starforge.geometry.tetra import FACE_EDGES
-from starforge.kernels import numba
+from starforge.runtime.kernels import numba
 from starforge.stars.rules import VERTEX_EDGES, internal_ok, key3, key_triples
 from starforge.stars.spec import StarSpec
 
@@ -76,7 +76,7 @@ def require_stream(spec: StarSpec, labelled: float, fits: float) -> None:
     """Refuse in one line when the streamed path would not fit the memory limit or the spill
     folder's free disk (``fits``: fitting stars estimated from the pilot sample; twice that is
     asked of the disk, the pilot's share being a sample)."""
-    from starforge.budget import format_bytes, require_memory
+    from starforge.runtime.budget import format_bytes, require_memory
 
     require_memory(
         stream_bytes(spec, fits),
@@ -206,7 +206,7 @@ def _windows(keys, n_keys, m, base, used, mark):
 def range_cap(held: float = 0.0) -> int:
     """Stars one volume range may hold when it is sorted: a third of what the memory limit
     leaves beside ``held`` bytes and the base (a larger range is split by volume again)."""
-    from starforge.budget import memory_limit_bytes
+    from starforge.runtime.budget import memory_limit_bytes
 
     return max(1, int((memory_limit_bytes() - STREAM_BASE_BYTES - held) // (3 * SORT_BYTES_PER_STAR)))
 

@@ -514,7 +514,7 @@ def check_settings(
     require(frames <= MAX_FRAMES, f"frames must be at most {MAX_FRAMES:,}, got {frames:,}")
     positive("match_mm", match_mm)
     positive("residual_mm", residual_mm)
-    from starforge.budget import format_seconds, require_memory, require_time
+    from starforge.runtime.budget import format_seconds, require_memory, require_time
 
     per_scene, seconds = cost(lib, ghosts, match_mm)
     require_memory(

@@ -366,7 +366,7 @@ def sweep(
     scheduler: str | None = None,
     on_plan=None,
 ) -> list[dict]:
-    """Every (delta, cube) cell, each one task of :func:`starforge.engine.map_tasks` (in
+    """Every (delta, cube) cell, each one task of :func:`starforge.runtime.engine.map_tasks` (in
     process for small sweeps, else a local dask cluster of ``workers`` processes, default every
     core, or the cluster at ``scheduler`` / ``STARFORGE_SCHEDULER``); rows sorted, so they do
     not depend on where or in which order the cells ran.
@@ -376,8 +376,8 @@ def sweep(
     intervals.  ``progress(done, total)`` after each finished cell; ``on_plan(plan)`` once,
     before the first.
     """
-    from starforge import engine
-    from starforge.budget import require_time
+    from starforge.runtime import engine
+    from starforge.runtime.budget import require_time
 
     positive("marker_mm", marker_mm)
     if exhaustive_labelled is not None:

@@ -68,7 +68,7 @@ def xml_bytes(root: ET.Element, comment: str | None = None) -> bytes:
 def check_size(path) -> None:
     size = Path(path).stat().st_size
     if size > MAX_FILE_BYTES:
-        from starforge.budget import format_bytes
+        from starforge.runtime.budget import format_bytes
 
         raise StarforgeError(
             f"{path} is {format_bytes(size)}; a tracker body file is at most {format_bytes(MAX_FILE_BYTES)}"

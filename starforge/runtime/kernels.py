@@ -1,6 +1,6 @@
 """Where starforge's compiled kernels are cached, and the kernels a wheel ships already built.
 
-Every module with numba kernels imports numba from here (``from starforge.kernels import
+Every module with numba kernels imports numba from here (``from starforge.runtime.kernels import
 numba``), so that this module's cache locator is in place before any kernel is defined.
 
 **The cache.**  Numba keys its cache of a function to the absolute folder of its source file
@@ -51,7 +51,7 @@ from numba.core import caching
 __all__ = ["numba", "digest", "kernel_dir", "manifest", "prebuild"]
 
 #: the package folder, whose ``.py`` files the digest covers
-PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
+PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 #: the kernels a wheel ships (a build product; absent from a source checkout)
 SEED = os.path.join(PACKAGE_DIR, "kernels.zip")
 _MANIFEST = "manifest.json"
@@ -234,7 +234,7 @@ def compile_signatures() -> None:
 _GROUPS = (
     "starforge.stars.warmup:compile_fit_decision",
     "starforge.stars.warmup:_helper",
-    "starforge.kernels:compile_signatures",
+    "starforge.runtime.kernels:compile_signatures",
 )
 
 
@@ -276,5 +276,5 @@ def prebuild(zip_path: str, groups: tuple[str, ...] = _GROUPS, timeout_s: float 
 
 
 def _prebuild_main() -> None:
-    """``python -c "from starforge.kernels import _prebuild_main; _prebuild_main()" OUT.zip``"""
+    """``python -c "from starforge.runtime.kernels import _prebuild_main; _prebuild_main()" OUT.zip``"""
     prebuild(sys.argv[1])

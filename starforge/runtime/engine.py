@@ -18,7 +18,7 @@ Where the tasks run (:func:`plan`):
 
 Memory: each task's peak is estimated before submission and must fit one worker thread's
 share of its worker's memory limit (local cluster: the command's memory budget,
-:mod:`starforge.budget`, divided among the workers); otherwise the run is refused in one line.
+:mod:`starforge.runtime.budget`, divided among the workers); otherwise the run is refused in one line.
 Local workers run one task at a time, so the estimates bound what each worker holds.
 
 Faults: a worker that dies mid-run has its tasks rerun elsewhere by the scheduler (the results
@@ -26,7 +26,7 @@ are pure, so nothing changes).  A scheduler that cannot be reached, or that goes
 :class:`~starforge.errors.StarforgeError` with one line; callers publish nothing then.
 
 Progress: ``progress(done, total)`` after each finished task; and one plain log line per
-roughly 10 % on the ``starforge.engine`` logger.
+roughly 10 % on the ``starforge.runtime.engine`` logger.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ LOCAL_CLUSTER_SECONDS = 20.0
 #: seconds to wait when connecting to a scheduler, and for its first worker
 CONNECT_TIMEOUT_S = 10.0
 
-log = logging.getLogger("starforge.engine")
+log = logging.getLogger("starforge.runtime.engine")
 
 
 #: the share of a worker's memory a task may plan on (dask's nanny terminates at 0.95)
@@ -108,7 +108,7 @@ def plan(
 ) -> Plan:
     """Decide where ``n_tasks`` tasks of about ``seconds`` single-core seconds in all run (see
     the module docstring).  ``client``: a connected client, for a remote plan's capacity."""
-    from starforge.budget import memory_limit_bytes
+    from starforge.runtime.budget import memory_limit_bytes
 
     if threads_for_task() == 1:  # a task's own parallel work stays in its worker (never nested)
         return Plan("serial", 1, float(memory_limit_bytes()))
@@ -154,7 +154,7 @@ def plan_with_capacity(n_tasks: int, seconds: float = math.inf, workers: int | N
 
 def cluster_capacity(client) -> tuple[int, float]:
     """(worker threads, the smallest memory one thread may use) of a connected cluster."""
-    from starforge.budget import memory_limit_bytes
+    from starforge.runtime.budget import memory_limit_bytes
 
     info = client.scheduler_info()
     workers = info.get("workers", {})
@@ -168,7 +168,7 @@ def cluster_capacity(client) -> tuple[int, float]:
 
 def require_task_memory(task_bytes: Sequence[float], p: Plan, what: str, advice: str) -> None:
     """Refuse in one line when the largest task does not fit one worker thread's memory."""
-    from starforge.budget import format_bytes
+    from starforge.runtime.budget import format_bytes
 
     if not len(task_bytes):
         return
