@@ -12,6 +12,7 @@ import pytest
 from starforge.catalog import load_template
 from starforge.errors import StarforgeError
 from starforge.stars import enumerate as E
+from starforge.stars import sizing as Z
 from starforge.stars import stream as S
 from starforge.stars.family import make_family
 from starforge.stars.rules import internal_ok, key_triples, window_rows
@@ -139,11 +140,11 @@ def test_finger_at_half_a_millimetre_is_streamed_and_bounded(half, monkeypatch):
     # and so is a spill folder without room for it
     monkeypatch.delenv("STARFORGE_MAX_MEMORY")
     Usage = namedtuple("Usage", "total used free")
-    monkeypatch.setattr(S.shutil, "disk_usage", lambda p: Usage(10**9, 10**9 - 10**6, 10**6))
+    monkeypatch.setattr(Z.shutil, "disk_usage", lambda p: Usage(10**9, 10**9 - 10**6, 10**6))
     with pytest.raises(StarforgeError, match=r"spills about .* set STARFORGE_SPILL_DIR") as err:
         E.check_size(half, allow_stream=True)
     assert "\n" not in str(err.value)
-    assert S.stream_bytes(half, 280e6) < 4 * 2**30  # the estimate behind the run in the README
+    assert Z.stream_bytes(half, 280e6) < 4 * 2**30  # the estimate behind the run in the README
 
 
 def test_ordered_is_the_compactness_order(cands):

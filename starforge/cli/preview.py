@@ -48,7 +48,8 @@ def preview_cmd(
     force: bool = typer.Option(False, "--force", help="Overwrite existing pictures."),
 ) -> None:
     """Draw each body (preview/star_<id>.png) and a sheet of all of them with their ids (preview/sheet.png)."""
-    from starforge.cli.export import default_out, describe_bodies
+    from starforge.cad.describe import describe_bodies
+    from starforge.cli.export import default_out
     from starforge.io import staged_output
     from starforge.render.bodies import render_body_png, render_sheet_png
     from starforge.stars.model import load_family

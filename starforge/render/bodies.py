@@ -88,3 +88,11 @@ def render_sheet_png(bodies, path: str | Path, cell_px: int = 240) -> Path:
     finally:
         plt.close(fig)
     return Path(path)
+
+
+def draw_previews(bodies, folder: str | Path) -> None:
+    """Every body's picture, ``<name>.png``, and the sheet of them all, ``sheet.png``, in ``folder``."""
+    folder = Path(folder)
+    for b in bodies:
+        render_body_png(b, folder / f"{b.name}.png")
+    render_sheet_png(bodies, folder / "sheet.png")

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from starforge.runtime.procs import leave_parent_signals
 from starforge.render._mpl import pyplot, save_png
+from starforge.runtime.procs import leave_parent_signals
 
 _DPI = 100
 

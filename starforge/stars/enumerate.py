@@ -47,6 +47,7 @@ from starforge.geometry.fit import SLACK_MM, face_table
 from starforge.geometry.sym3 import sym3_eigvals
 from starforge.geometry.tetra import canonical_assignments
 from starforge.runtime.kernels import numba
+from starforge.stars.sizing import require_stream
 from starforge.stars.spec import StarSpec
 
 #: outcome codes per labelled candidate (int8)
@@ -235,8 +236,6 @@ def check_size(spec: StarSpec, allow_stream: bool = False) -> str:
     )
     path = "memory"
     if not in_memory and allow_stream and piloted and spec.grid_steps <= STREAM_MAX_STEPS:
-        from starforge.stars.stream import require_stream
-
         require_stream(spec, est["labelled"], fits)
         path = "stream"
     else:

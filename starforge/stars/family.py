@@ -6,7 +6,6 @@ import time
 
 import numpy as np
 
-from starforge.runtime.engine import beside
 from starforge.errors import NoStarError, StarforgeError
 from starforge.geometry.rigid import (
     default_tip_mm,
@@ -17,6 +16,8 @@ from starforge.geometry.rigid import (
     tre_rms,
 )
 from starforge.geometry.tetra import face_sides, tetra_width, vertices_from_lengths
+from starforge.runtime.engine import beside
+from starforge.stars.avoid import avoid_mask
 from starforge.stars.boxes import place_stars
 from starforge.stars.enumerate import Candidates, edge_pool, enumerate_candidates
 from starforge.stars.model import Family, Star
@@ -116,23 +117,6 @@ def _nearest_other_chebyshev(F: np.ndarray) -> np.ndarray:
         d[np.arange(i1 - i0), np.arange(i0, i1)] = np.inf
         out[i0:i1] = d.min(axis=1)
     return out
-
-
-def avoid_mask(
-    index: np.ndarray, pool: np.ndarray, avoid_faces_mm: np.ndarray | None, tol_mm: float
-) -> np.ndarray:
-    """Candidates none of whose faces is within ``tol_mm`` (every sorted side) of an avoided
-    triangle (k, 3): the face rule against bodies a lab already owns.  (n,) bool."""
-    if avoid_faces_mm is None or not len(avoid_faces_mm) or not len(index):
-        return np.ones(len(index), dtype=bool)
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(np.sort(np.asarray(avoid_faces_mm, dtype=float), axis=1))
-    F = np.sort(face_sides(pool[index]), axis=2).reshape(-1, 3)
-    # Chebyshev distance < tol  <=>  every sorted side within the tolerance: indistinguishable
-    d, _ = tree.query(F, k=1, p=np.inf, distance_upper_bound=tol_mm)
-    clash = (d < tol_mm - 1e-9).reshape(len(index), 4).any(axis=1)
-    return ~clash
 
 
 def accuracy(vertices: np.ndarray, tip_mm: np.ndarray, sigma_mm: float) -> list[dict]:
@@ -271,6 +255,7 @@ def make_family(
     milp_work: int | None = None,
     star_filter=None,
     deterministic: bool = False,
+    on_stage=None,
 ) -> Family:
     """Enumerate, select and place a family for ``spec``.
 
@@ -281,7 +266,8 @@ def make_family(
     keeps only stars it accepts (e.g. whose printed body with its mount fits the limit): the
     ones it rejects are replaced by selecting again without them.  ``deterministic``: the exact
     solver is stopped by its node budget alone, never by ``spec.time_limit_s`` (the same family
-    on any machine; see :func:`starforge.stars.select.select_family`).
+    on any machine; see :func:`starforge.stars.select.select_family`).  ``on_stage(name)`` is
+    called as the selection (``"select"``) starts (the CLI waits there for its compile helper).
 
     Raises StarforgeError when no star fits, or when ``spec.count`` exceeds what is achievable
     (naming the largest family found and the certified bound).
@@ -318,9 +304,8 @@ def make_family(
             f"(certified upper bound)"
         )
     t1 = time.perf_counter()
-    from starforge.stars import warmup
-
-    warmup.ready("select")  # a first run's helper may still be compiling the selection's kernels
+    if on_stage is not None:
+        on_stage("select")
     excluded = np.zeros(len(index), dtype=bool)
     rounds = 0
     while True:
