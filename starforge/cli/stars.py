@@ -88,141 +88,50 @@ def stars_cmd(
 
     With no options it runs the paper's finger case (template `finger`).
     """
-    import json
     import time
 
+    from starforge import api
     from starforge.cli._app import allow_quick_exit, pause_gc
+    from starforge.io import check_writable
+    from starforge.stars import warmup
+    from starforge.stars.enumerate import check_memory
 
     # every file goes through staged_output, and the helper and threads are done on return
     allow_quick_exit()
     pause_gc()  # its objects are nearly all acyclic: no collector passes over numba's and scipy's heap
-    from starforge import __version__
-    from starforge.catalog import load_template
-    from starforge.io import check_name, check_writable, staged_output
-    from starforge.stars.enumerate import check_memory, check_size
-    from starforge.stars.family import make_family
-    from starforge.stars.model import family_csv
-    from starforge.stars.spec import spec_from_mapping
-    from starforge.stars.verify import check_family
-
     t0 = time.perf_counter()
-    data: dict = {}
-    spec_name = None
-    if spec is not None:
-        spec_name, data = load_template("stars", spec)
-    elif box is None:
-        spec_name, data = load_template("stars", "finger")
-    else:
-        spec_name = "custom"
-    if preset is not None:
-        from starforge.tracking.presets import star_spec_overrides
-
-        data.update(star_spec_overrides(preset))
-    marker_name = None
-    if marker is not None:
-        from starforge.catalog import marker_diameter_mm
-
-        try:
-            float(str(marker).strip().removesuffix("mm"))
-        except ValueError:
-            marker_name = str(marker).strip()
-        marker = marker_diameter_mm(marker)
-    overrides = {
-        "box_mm": list(box) if box is not None else None,
-        "marker_mm": marker,
-        "marker": marker_name,
-        "seat": seat,
-        "delta_mm": delta,
-        "gap_mm": gap,
-        "rule": rule,
-        "select": select,
-        "count": count,
-        "tolerance_mm": tolerance,
-        "box_method": box_method,
-        "min_depth_mm": min_depth,
-        "tip_mm": list(tip) if tip is not None else None,
-        "noise_mm": noise,
-        "time_limit_s": time_limit,
-        "reserve_mm": list(reserve) if reserve is not None else None,
-        "mount": mount,
-        "name": name,
-    }
-    data.update({k: v for k, v in overrides.items() if v is not None})
-    data.setdefault("name", spec_name)
-    star_filter = None
-    if data.get("mount") is not None:
-        from starforge.cad.body import body_spec_for
-        from starforge.cad.mounts import load_mount
-        from starforge.cad.reserve import bodies_fit, mount_reserve_mm
-
-        m = load_mount(data["mount"])
-        body = body_spec_for(data.get("marker"), data.get("seat"), float(data.get("marker_mm", 4.0)))
-        if reserve is None:
-            data["reserve_mm"] = list(mount_reserve_mm(m, float(data.get("marker_mm", 4.0)), body))
-
-        def star_filter(V, _m=m, _d=data, _b=body):
-            return bodies_fit(V, float(_d.get("marker_mm", 4.0)), _d["box_mm"], _m, _b)
-    elif seat is not None:
-        from starforge.errors import StarforgeError
-
-        raise StarforgeError("--seat shapes the printed body: give --mount too (see `starforge mounts`)")
-
-    s = spec_from_mapping(data)
-    check_name(s.name, "--name")
-    out_dir = out if out is not None else Path("out") / s.name
-    names = ["family.json", "family.csv", "run.json"] + (["family.png"] if preview else [])
-    check_writable(out_dir, names, force)  # fail before the long work
-    from starforge.stars import warmup
-
-    check_memory(s, allow_stream=True)  # a spec too large is refused before anything compiles
+    plan = api.plan_family(
+        spec, box_mm=box, marker=marker, mount=mount, seat=seat, preset=preset, reserve_mm=reserve,
+        delta_mm=delta, gap_mm=gap, rule=rule, select=select, count=count, tolerance_mm=tolerance,
+        box_method=box_method, min_depth_mm=min_depth, tip_mm=list(tip) if tip is not None else None,
+        noise_mm=noise, time_limit_s=time_limit, name=name,
+    )
+    out_dir = out if out is not None else Path("out") / plan.spec.name
+    check_writable(out_dir, [*api.FAMILY_FILES, *(["family.png"] if preview else [])], force)  # before the work
+    avoid = more_values("--avoid", avoid, ctx.args)
+    check_memory(plan.spec, allow_stream=True)  # a spec too large is refused before anything compiles
     helper = warmup.start()  # a first run compiles on two cores (nothing on a warm cache)
     try:
         if helper is not None:
             warmup.compile_fit_decision()
             warmup.ready("enumerate")  # the helper's kernels: loaded, not compiled a second time
-        check_size(s, allow_stream=True)  # memory and time estimated before the long work
-        family = _make(s, ctx, avoid, star_filter, make_family)
+        with progress() as bar:
+            task = bar.add_task("enumerating", total=None)
+            family = api.make_family(
+                plan,
+                avoid=avoid or (),
+                progress=lambda done, total: bar.update(task, completed=done, total=total),
+                on_stage=warmup.ready,  # a first run's helper may still be compiling the selection
+            )
     except BaseException:
         warmup.finish(helper, 0.0)  # an error or Ctrl-C does not wait for the helper
         raise
     warmup.finish(helper)
-    text = json.dumps(family.to_json(), indent=2) + "\n"  # what is written is what is checked
-    problems = check_family(json.loads(text))
-    if problems:  # the generator and the independent checker disagree: a bug, never a user error
-        raise RuntimeError(f"internal error: the family failed its independent check: {problems[0]}")
-    with staged_output(out_dir, force) as stage:
-        (stage / "family.json").write_text(text, encoding="utf-8")
-        (stage / "family.csv").write_text(family_csv(family), encoding="utf-8")
-        run = {"seconds": family.timings, "verified": True, "starforge": __version__}
-        (stage / "run.json").write_text(json.dumps(run, indent=2) + "\n", encoding="utf-8")
-        if preview:
-            from starforge.render.stars import family_sheet
-
-            family_sheet(family, stage / "family.png")
+    for src in family.summary.get("avoid", ()):
+        for w in src.get("warnings", ()):
+            console(stderr=True).print(f"warning: {w}", soft_wrap=True, markup=False)
+    api.write_family(family, out_dir, preview=preview, force=True)
     _report(family, out_dir, time.perf_counter() - t0, quiet)
-
-
-def _make(s, ctx, avoid, star_filter, make_family):
-    """The bodies to avoid, then the family, with a progress bar."""
-    avoid = more_values("--avoid", avoid, ctx.args)
-    avoid_faces, avoid_sources = None, None
-    if avoid:
-        from starforge.stars.avoid import faces_to_avoid
-
-        avoid_faces, avoid_sources = faces_to_avoid(avoid)
-        for src in avoid_sources:
-            for w in src.get("warnings", ()):
-                console(stderr=True).print(f"warning: {w}", soft_wrap=True, markup=False)
-
-    with progress() as bar:
-        task = bar.add_task("enumerating", total=None)
-
-        def tick(done, total):
-            bar.update(task, completed=done, total=total)
-
-        return make_family(
-            s, progress=tick, avoid_faces_mm=avoid_faces, avoid_sources=avoid_sources, star_filter=star_filter
-        )
 
 
 def _report(family, out_dir: Path, seconds: float, quiet: bool) -> None:
