@@ -472,7 +472,7 @@ def test_face_proof_rejects_only_what_the_plain_search_rejects(box):
     first = {}
     for name, table in (("off", E.NO_FACES), ("on", faces)):
         codes = np.empty((len(sub), 30), dtype=np.int8)
-        E._classify(*args, 0, table, codes, 0, len(sub))
+        E.classify_range(*args, 0, table, codes, 0, len(sub))
         first[name] = codes
     by_face = (first["on"] == E.NO_FIT) & (first["off"] != E.NO_FIT)
     assert ((first["on"] == first["off"]) | by_face).all() and by_face.sum() > 200

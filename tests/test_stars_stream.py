@@ -16,7 +16,7 @@ from starforge.stars import sizing as Z
 from starforge.stars import stream as S
 from starforge.stars.family import make_family
 from starforge.stars.rules import internal_ok, key_triples, window_rows
-from starforge.stars.select import _csr, block_bound, compactness_order, greedy
+from starforge.stars.select import block_bound, compactness_order, csr_rows, greedy
 from starforge.stars.spec import StarSpec, spec_from_mapping
 
 SPEC = StarSpec(box_mm=(16, 12, 24), delta_mm=1.0, select="greedy")  # 133k candidates, ~1 s
@@ -56,7 +56,7 @@ def _in_memory_greedy(cands, rule, m):
     ok = internal_ok(cands.index, rule, m)
     index, volume = cands.index[ok], cands.box_volume[ok]
     star_of, row, n_rows = window_rows(index, rule, m, len(cands.pool_mm))
-    ptr, rows = _csr(star_of, row, len(index))
+    ptr, rows = csr_rows(star_of, row, len(index))
     chosen = index[greedy(compactness_order(index, cands.pool_mm, volume), ptr, rows, n_rows)]
     und = cands.undecided[internal_ok(cands.undecided, rule, m)]
     bound = block_bound(np.concatenate([index, und]), m)

@@ -100,7 +100,7 @@ _jit = numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 _inner = numba.njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
 #: the fit decision's per-set search and its corner test: called from Python only by tests (and
 #: in the package only from kernels), so no cache entry of their own: a first run compiles them
-#: into decide_range, whose entry holds them, and writing theirs cost it ~0.15 CPU s
+#: into decide_range, whose entry holds them (entries of their own would cost a first run their writing)
 _uncached = numba.njit(nogil=True, no_cfunc_wrapper=True)
 
 
@@ -614,7 +614,7 @@ def decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1, prune
 CHUNK = 256
 
 
-def _decide_all(P, lim, slack, start, max_cells, status, R, work, threads=None, prune=True) -> None:
+def decide_all(P, lim, slack, start, max_cells, status, R, work, threads=None, prune=True) -> None:
     """Every set, over up to ``threads`` threads (default: every core; each set is independent,
     so the result does not depend on the thread count or the chunking).  ``prune``: with the
     corner test (:func:`corners_exclude`; the outcome and frames are the same either way)."""
@@ -683,7 +683,7 @@ def decide_fit(
     R = np.full((n, 3, 3), np.nan)
     work = np.zeros(n, dtype=np.int64)
     if n:
-        _decide_all(P, lim, float(slack), int(start), int(max_cells), status, R, work, prune=prune)
+        decide_all(P, lim, float(slack), int(start), int(max_cells), status, R, work, prune=prune)
         R[status != FIT] = np.nan
     return status, R, work
 
@@ -742,7 +742,7 @@ def face_table(pool, min_steps: int, limit, slack: float = SLACK_MM, threads=Non
     status = np.zeros(len(P), dtype=np.int8)
     R = np.empty((len(P), 3, 3))
     work = np.zeros(len(P), dtype=np.int64)
-    _decide_all(P, lim, float(slack), 1, MAX_CELLS, status, R, work, threads)
+    decide_all(P, lim, float(slack), 1, MAX_CELLS, status, R, work, threads)
     no = status == NO_FIT
     i, j, k = i[no], j[no], k[no]
     for x, y, z in ((i, j, k), (i, k, j), (j, i, k), (j, k, i), (k, i, j), (k, j, i)):

@@ -19,12 +19,10 @@ Pipeline, per labelled candidate (no Python loop per star; numba, subsets spread
    slack (:func:`~starforge.geometry.fit.face_table`, decided once per spec and process for
    every triangle of the pool) rules the star out, and the search could only have said NO_FIT
    too: a star it calls FIT fits the limit, one it leaves UNDECIDED fits the limit plus the
-   slack, and so would each face (the proof is in ``face_table``).  On the finger default it
-   settles 185,858 of the 584,731 stars that pass the necessary tests.  (The two earlier quick
-   proofs, :func:`~starforge.geometry.fit.cone_excludes` and
-   :func:`~starforge.geometry.fit.caps_exclude`, are no longer run: behind the table they
-   caught 12 and 627 more finger stars, which the search settles in 0.003 CPU s, for 0.07 CPU s
-   each.)  Then the search: proven to fit (a rotation is found), proven not to fit, or
+   slack, and so would each face (the proof is in ``face_table``).  (The quick proofs
+   :func:`~starforge.geometry.fit.cone_excludes` and :func:`~starforge.geometry.fit.caps_exclude`
+   are not run here: behind the table they catch few stars, which the search settles for less
+   than they cost.)  Then the search: proven to fit (a rotation is found), proven not to fit, or
    undecided (fits, if at all, with less than :data:`~starforge.geometry.fit.SLACK_MM` to
    spare).  ``box_method="covariance"`` replaces it with the paper's test (the covariance box
    must fit).
@@ -91,7 +89,7 @@ class Candidates:
         return self.pool_mm[self.index]
 
 
-def _assignments() -> np.ndarray:
+def assignment_table() -> np.ndarray:
     """The 30 labellings (:func:`~starforge.geometry.tetra.canonical_assignments`, worked out
     once per process there) as int64, the kernels' type: a fresh array of 180 numbers."""
     return canonical_assignments().astype(np.int64)
@@ -169,7 +167,7 @@ def _pilot(spec: StarSpec, samples: int, cpu: bool) -> tuple[float, float]:
     rng = np.random.default_rng(0)
     draws = np.sort(np.array([rng.choice(free, 6, replace=False) for _ in range(samples)]), axis=1)
     sub = (draws + np.arange(6) * (m - 1)).astype(np.int16)
-    assign = _assignments()
+    assign = assignment_table()
     limit = np.sort(np.array(spec.centre_limit_mm, dtype=float))
     mode = 0 if spec.box_method == "exact" else 1
     lo = float(edge_pool(spec)[0])
@@ -262,7 +260,7 @@ def _what_advice(spec: StarSpec, est: dict) -> tuple[str, str]:
 
 
 @numba.njit(cache=True, no_cfunc_wrapper=True)
-def _subsets_from(n: int, m: int, start: np.ndarray, count: int) -> np.ndarray:
+def subsets_from(n: int, m: int, start: np.ndarray, count: int) -> np.ndarray:
     """``count`` admissible 6-subsets of range(n) (elements >= m apart) in lexicographic order,
     starting from ``start`` (6,); the last row returned is followed by ``start`` updated in place."""
     out = np.empty((count, 6), dtype=np.int16)
@@ -289,7 +287,7 @@ def _subsets_from(n: int, m: int, start: np.ndarray, count: int) -> np.ndarray:
     return out[:got]
 
 
-@numba.njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)  # only _classify calls it (its cache entry holds it)
+@numba.njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)  # only classify_range calls it (its cache entry holds it)
 def _width(L0, L1, L2, L3, L4, L5, vol6):
     """Tetrahedron width from lengths (u, U, v, V, w, W) and 6 x volume: the smallest of the four
     vertex-face heights and the three opposite-edge distances."""
@@ -361,7 +359,7 @@ def classify(
     (:func:`starforge.runtime.engine.over_ranges`; each candidate independent, so the result does not
     depend on the thread count).
 
-    Two passes: the serial kernel :func:`_classify` runs the necessary tests (and in mode 0 the
+    Two passes: the serial kernel :func:`classify_range` runs the necessary tests (and in mode 0 the
     quick no-fit proofs: the face table ``faces``, :func:`spec_faces` of the same spec, or None
     for none) over ranges of ``chunk`` subsets; the candidates left
     (``NECESSARY_OK``) then go, :data:`DECIDE_SETS` at a time, to the fit decision's one compiled
@@ -384,7 +382,7 @@ def classify(
 def first_pass(
     subsets, assign, lo, step, lim, min_depth, mode, codes, threads=None, chunk=THREAD_SUBSETS, faces=None
 ):
-    """The first pass of :func:`classify` (:func:`_classify` over ranges of ``chunk`` subsets on
+    """The first pass of :func:`classify` (:func:`classify_range` over ranges of ``chunk`` subsets on
     up to ``threads`` threads): ``codes`` (s, 30) gets every code but the fit decision's, and
     ``NECESSARY_OK`` for the candidates left to it."""
     from starforge.runtime.engine import over_ranges
@@ -394,7 +392,7 @@ def first_pass(
     args = (subsets, assign, float(lo), float(step), lim, float(min_depth), int(mode), faces)
 
     def run(i0, i1):
-        _classify(*args, codes, i0, i1)
+        classify_range(*args, codes, i0, i1)
 
     over_ranges(run, len(subsets), chunk, threads)
 
@@ -405,7 +403,7 @@ def decide_left(subsets, assign, lo, step, lim, slack, max_cells, codes, threads
     their status (:data:`~starforge.geometry.fit.FIT`, ``NO_FIT``, ``UNDECIDED``) and the box
     volumes of those that fit, in that order; ``codes`` is left as it is (the enumeration counts
     and gathers from these compact arrays instead of scanning ``codes`` again)."""
-    from starforge.geometry.fit import _decide_all
+    from starforge.geometry.fit import decide_all
 
     left = np.flatnonzero(codes == NECESSARY_OK)
     status = np.zeros(len(left), dtype=np.int8)
@@ -417,14 +415,14 @@ def decide_left(subsets, assign, lo, step, lim, slack, max_cells, codes, threads
         st = status[b : b + DECIDE_SETS]
         R = np.zeros((len(P), 3, 3))  # rows of sets that do not fit stay 0 (finite)
         work = np.zeros(len(P), dtype=np.int64)
-        _decide_all(P, lim, float(slack), 1, int(max_cells), st, R, work, threads)
+        decide_all(P, lim, float(slack), 1, int(max_cells), st, R, work, threads)
         vols.append(_box_volume(P, R)[st == 1])  # (cheaper than copying the fits out first)
     return left, status, np.concatenate(vols) if vols else np.zeros(0)
 
 
 def _centres(L: np.ndarray) -> np.ndarray:
     """Sphere centres (n, 4, 3) of realisable stars from lengths (n, 6) (u, U, v, V, w, W), mm:
-    the trilateration of :func:`_classify`, operation for operation, so the floats are the
+    the trilateration of :func:`classify_range`, operation for operation, so the floats are the
     ones its tests saw (A at the origin, B on +x, C in the xy-plane, D above it)."""
     u, U, v, V, w, W = np.ascontiguousarray(L.T)  # contiguous columns: the same floats, faster
     cx = (u * u + w * w - v * v) / (2 * u)
@@ -463,7 +461,7 @@ def _box_volume(P: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)  # nogil: threads run it side by side; Ctrl-C is answered
-def _classify(subsets, assign, lo, step, lim, min_depth, mode, faces, codes, s0, s1):
+def classify_range(subsets, assign, lo, step, lim, min_depth, mode, faces, codes, s0, s1):
     """The first pass of :func:`classify` for subsets ``s0 .. s1 - 1``: realisable, deep
     enough, narrow enough, Ky Fan, and in mode 0 the quick no-fit proof (a face in ``faces``,
     :func:`face_table`, when it is not empty); what is left is
@@ -606,7 +604,7 @@ def enumerate_chunk(args: tuple) -> dict:
     step = float(spec.delta_mm)
     limit = np.sort(np.array(spec.centre_limit_mm, dtype=float))
     m = spec.grid_steps
-    assign = _assignments()
+    assign = assignment_table()
     mode = 0 if spec.box_method == "exact" else 1
     dt = index_dtype(len(pool))
     counts = np.zeros(8, dtype=np.int64)
@@ -615,7 +613,7 @@ def enumerate_chunk(args: tuple) -> dict:
     start = unrank_subset(rank, len(pool), m)
     left = int(count)
     while left > 0:
-        sub = _subsets_from(len(pool), m, start, min(BATCH_SUBSETS, left))
+        sub = subsets_from(len(pool), m, start, min(BATCH_SUBSETS, left))
         if not len(sub):
             break
         left -= len(sub)

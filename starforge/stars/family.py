@@ -162,21 +162,21 @@ def _spread_count(index: np.ndarray, order: np.ndarray, spec: StarSpec, pool_siz
     a time (up to twice the tolerance) while a greedy pick in accuracy order still reaches the
     count; the largest separation that does is used.  Returns (chosen, steps used).
     """
-    from starforge.stars.select import _csr
+    from starforge.stars.select import csr_rows
 
     top = order[:COUNT_POOL]
     m = spec.grid_steps
     best = None
     for m2 in range(2 * m, m - 1, -1):
         s2, r2, n2 = window_rows(index[top], spec.rule, m2, pool_size)
-        ptr, rows = _csr(s2, r2, len(top))
+        ptr, rows = csr_rows(s2, r2, len(top))
         got = top[greedy(np.arange(len(top)), ptr, rows, n2)]
         if len(got) >= spec.count or m2 == m:
             best = (got, m2)
             break
     if len(best[0]) < spec.count:  # even the tolerance itself is too tight among the top: use all
         s2, r2, n2 = window_rows(index, spec.rule, m, pool_size)
-        ptr, rows = _csr(s2, r2, len(index))
+        ptr, rows = csr_rows(s2, r2, len(index))
         best = (greedy(order, ptr, rows, n2), m)
     return best
 
@@ -188,7 +188,7 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, determin
     order_of = beside(compactness_order, index, pool, volume) if spec.count is None else None
     star_of, row, n_rows = window_rows(index, spec.rule, m, len(pool))
     if spec.count is not None:
-        from starforge.stars.select import Selection, _csr
+        from starforge.stars.select import Selection, csr_rows
 
         order = _count_order(index, pool, spec.noise_mm)
         chosen, m_used = _spread_count(index, order, spec, len(pool))
@@ -228,11 +228,11 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, determin
     if len(und) and sel.info.get("milp_status") == "optimal" and ub > len(sel.chosen):
         # the solver proved its optimum over the stars that fit; the undecided ones may fit too,
         # so solve once more with them for a bound that covers every star that really fits
-        from starforge.stars.select import _csr, milp, node_budget
+        from starforge.stars.select import csr_rows, milp, node_budget
 
         both = np.concatenate([index, und])
         s2, r2, n2 = window_rows(both, spec.rule, m, len(pool))
-        p2, rows2 = _csr(s2, r2, len(both))
+        p2, rows2 = csr_rows(s2, r2, len(both))
         opt, dual, status, reproducible = milp(
             p2, rows2, n2, np.arange(len(both)), None if deterministic else spec.time_limit_s,
             node_budget(len(rows2), work),

@@ -212,7 +212,7 @@ def stream_family(
     from starforge.io import scratch_folder
     from starforge.stars.avoid import avoid_mask
     from starforge.stars.enumerate import edge_pool, enumeration_stats, index_dtype, no_pool_error, run_chunks
-    from starforge.stars.select import _count_blocks
+    from starforge.stars.select import count_blocks
 
     t0 = time.perf_counter()
     pool = edge_pool(spec)
@@ -267,7 +267,7 @@ def stream_family(
     # or is undecided (the same set block_bound sees in memory)
     codes = np.flatnonzero(faces_seen)
     faces = np.stack([codes // (p * p), (codes // p) % p, codes % p], axis=1)
-    bound = _count_blocks(faces, m) // 4 if len(faces) else 0
+    bound = count_blocks(faces, m) // 4 if len(faces) else 0
     info = {
         "greedy": int(len(index)),
         "greedy_s": round(t_sel, 3),
