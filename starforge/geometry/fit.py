@@ -81,13 +81,17 @@ import math
 
 import numpy as np
 
+from starforge.tol import tol
+
 FIT, NO_FIT, UNDECIDED = 1, 0, -1
 
 #: default completeness slack, mm
 SLACK_MM = 0.01
 #: cells a single set may use before it is reported undecided (a work cap, never a silent drop)
 MAX_CELLS = 100_000
-_EPS = 1e-9
+#: float noise of a length (mm) and a generic zero, frozen into the kernels as constants
+_EPS = tol.length_mm
+_ZERO = tol.zero
 
 
 from starforge.runtime.kernels import numba  # noqa: E402  (compiled kernels; this module is imported only where fits are decided)
@@ -144,7 +148,7 @@ def _keeps(W, npair, c, s):
     """psi with (cos, sin) = (c, s) keeps every pair within its limits (1e-9 mm of noise)."""
     for i in range(npair):
         x, y = W[_X, i], W[_Y, i]
-        if abs(x * c + y * s) > W[_L2, i] + 1e-9 or abs(y * c - x * s) > W[_L3, i] + 1e-9:
+        if abs(x * c + y * s) > W[_L2, i] + _EPS or abs(y * c - x * s) > W[_L3, i] + _EPS:
             return False
     return True
 
@@ -255,7 +259,7 @@ def cone_excludes(P, lim, slack):
                         continue
                     c = abs(a0 * b0 + a1_ * b1 + a2 * b2) / (na * nb)
                     # the lines' angle exceeds ca + cb (with float noise kept on the safe side)
-                    if c < math.cos(ca + cb) - 1e-9:
+                    if c < math.cos(ca + cb) - _EPS:
                         return True
     return False
 
@@ -308,7 +312,7 @@ def caps_exclude(P, lim, slack, buf):
             b = j
     n = 0
     for j in range(m):
-        if j != b and A[b] + A[j] >= 0.5 * math.pi - 1e-9:
+        if j != b and A[b] + A[j] >= 0.5 * math.pi - _EPS:
             continue
         sg = -1.0 if E[b, 0] * E[j, 0] + E[b, 1] * E[j, 1] + E[b, 2] * E[j, 2] < 0 else 1.0
         F[n, 0], F[n, 1], F[n, 2] = sg * E[j, 0], sg * E[j, 1], sg * E[j, 2]
@@ -316,11 +320,10 @@ def caps_exclude(P, lim, slack, buf):
         n += 1
     if n < 3:
         return False
-    tol = 1e-9
     for a in range(n):  # a whole cap inside the others: its centre is in K
         inside = True
         for c in range(n):
-            if F[a, 0] * F[c, 0] + F[a, 1] * F[c, 1] + F[a, 2] * F[c, 2] < C[c] - tol:
+            if F[a, 0] * F[c, 0] + F[a, 1] * F[c, 1] + F[a, 2] * F[c, 2] < C[c] - _EPS:
                 inside = False
                 break
         if inside:
@@ -329,12 +332,12 @@ def caps_exclude(P, lim, slack, buf):
         for b2 in range(a + 1, n):
             g = F[a, 0] * F[b2, 0] + F[a, 1] * F[b2, 1] + F[a, 2] * F[b2, 2]
             den = 1.0 - g * g
-            if den <= 1e-12:
+            if den <= _ZERO:
                 continue
             al = (C[a] - g * C[b2]) / den
             be = (C[b2] - g * C[a]) / den
             g2 = 1.0 - (al * al + be * be + 2 * al * be * g)
-            if g2 < -1e-12:
+            if g2 < -_ZERO:
                 continue  # the two circles do not cross
             gm = math.sqrt(max(0.0, g2))
             n0 = F[a, 1] * F[b2, 2] - F[a, 2] * F[b2, 1]
@@ -348,7 +351,7 @@ def caps_exclude(P, lim, slack, buf):
                 x2 = al * F[a, 2] + be * F[b2, 2] + sgn * gm * n2
                 inside = True
                 for c in range(n):
-                    if x0 * F[c, 0] + x1 * F[c, 1] + x2 * F[c, 2] < C[c] - tol:
+                    if x0 * F[c, 0] + x1 * F[c, 1] + x2 * F[c, 2] < C[c] - _EPS:
                         inside = False
                         break
                 if inside:
@@ -451,14 +454,14 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
             a1 = e12 * e20 - e10 * e22
             a2 = e10 * e21 - e11 * e20
             nn = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-            if nn <= 1e-12:
+            if nn <= _ZERO:
                 continue
             a0, a1, a2 = a0 / nn, a1 / nn, a2 / nn
             # accept a as the shortest axis: thin enough, and the exact inner problem solved
             w1 = 0.0
             for j in range(npair):
                 w1 = max(w1, abs(D[j, 0] * a0 + D[j, 1] * a1 + D[j, 2] * a2))
-            if w1 > lim[0] + 1e-9:
+            if w1 > lim[0] + _EPS:
                 continue
             for j in range(npair):
                 W[_L2, j] = lim[1]
@@ -468,8 +471,8 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
             if ok:
                 frame_rows(R, a0, a1, a2, u0, u1, u2, v0, v1, v2, cc, sc)
                 return 1, 7
-    theta_min = slack / max(diam, 1e-12)
-    l1w = (lim[0] + slack) * (1.0 + 1e-9) + 1e-9
+    theta_min = slack / max(diam, _ZERO)
+    l1w = (lim[0] + slack) * (1.0 + _EPS) + _EPS
     # 2. branch and bound over cube-map cells, depth first, best child first
     cap = STACK
     top = 0
@@ -536,7 +539,7 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
         if not inner_xy(W, npair)[0]:
             continue
         # accept (as at the critical directions), with the widths and the projection reused
-        if w1 <= lim[0] + 1e-9:
+        if w1 <= lim[0] + _EPS:
             for j in range(npair):
                 W[_L2, j] = lim[1]
                 W[_L3, j] = lim[2]
@@ -636,7 +639,7 @@ def fits_limit(ext, limit) -> np.ndarray:
     lo = np.minimum(np.minimum(a, b), c)
     hi = np.maximum(np.maximum(a, b), c)
     mid = a + b + c - lo - hi
-    lim = np.sort(np.asarray(limit, dtype=float)) * (1 + 1e-9) + 1e-9
+    lim = np.sort(np.asarray(limit, dtype=float)) * (1 + _EPS) + _EPS
     return (lo <= lim[0]) & (mid <= lim[1]) & (hi <= lim[2])
 
 
@@ -726,7 +729,7 @@ def face_table(pool, min_steps: int, limit, slack: float = SLACK_MM, threads=Non
     pi, pj = np.nonzero(np.subtract.outer(np.arange(n), np.arange(n)) <= -m)  # i < j, m apart
     parts = []
     for kk in range(2 * m, n):  # the longest side: strictly shorter than the other two together
-        sel = (pj <= kk - m) & (pool[pi] + pool[pj] > pool[kk] * (1 + 1e-9))
+        sel = (pj <= kk - m) & (pool[pi] + pool[pj] > pool[kk] * (1 + _EPS))
         parts.append((pi[sel], pj[sel], np.full(int(sel.sum()), kk)))
     if not parts or not sum(len(x[0]) for x in parts):
         return table

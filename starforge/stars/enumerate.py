@@ -47,6 +47,7 @@ from starforge.geometry.tetra import canonical_assignments
 from starforge.runtime.kernels import numba
 from starforge.stars.sizing import require_stream
 from starforge.stars.spec import StarSpec
+from starforge.tol import tol
 
 #: outcome codes per labelled candidate (int8)
 UNREALISABLE, TOO_THIN, TOO_WIDE, KY_FAN, NO_FIT, UNDECIDED, FIT, NECESSARY_OK = 0, 1, 2, 3, 4, 5, 6, 7
@@ -59,6 +60,9 @@ BATCH_SUBSETS = 1 << 17
 SECONDS_PER_LABELLED = 2e-7
 #: bytes kept per fitting candidate (index, status, volume) and a generous share of fits
 BYTES_PER_CANDIDATE = 32
+#: float noise of a length (mm) and a generic zero, frozen into the kernels as constants
+_EPS = tol.length_mm
+_ZERO = tol.zero
 
 
 @dataclass(frozen=True)
@@ -295,14 +299,14 @@ def _width(L0, L1, L2, L3, L4, L5, vol6):
     w = 1e300
     for a, b, c in ((d01, d12, d02), (d01, d13, d03), (d02, d23, d03), (d12, d23, d13)):
         area4sq = 4 * a * b - (a + b - c) ** 2  # (4 * area)^2 (Heron on squared sides)
-        w = min(w, 2 * vol6 / math.sqrt(max(area4sq, 1e-12)))
+        w = min(w, 2 * vol6 / math.sqrt(max(area4sq, _ZERO)))
     for dd, p1, p2 in (
         (0.5 * (d03 + d12 - d02 - d13), d01, d23),
         (0.5 * (d01 + d23 - d02 - d13), d12, d03),
         (0.5 * (d01 + d23 - d03 - d12), d02, d13),
     ):
         cross2 = p1 * p2 - dd * dd
-        w = min(w, vol6 / math.sqrt(max(cross2, 1e-12)))
+        w = min(w, vol6 / math.sqrt(max(cross2, _ZERO)))
     return w
 
 
@@ -466,7 +470,7 @@ def classify_range(subsets, assign, lo, step, lim, min_depth, mode, faces, codes
     enough, narrow enough, Ky Fan, and in mode 0 the quick no-fit proof (a face in ``faces``,
     :func:`face_table`, when it is not empty); what is left is
     ``NECESSARY_OK`` (serial: numba's ``parallel=True`` costs seconds of compile on a first run)."""
-    eps = 1e-9
+    eps = _EPS
     # allocated once per range (rows of P that no star writes stay 0): an allocation costs
     # atomic updates of numba's runtime counters that the threads contend for
     P = np.zeros((4, 3))
@@ -480,14 +484,14 @@ def classify_range(subsets, assign, lo, step, lim, min_depth, mode, faces, codes
             V, w, W = Ls[assign[a, 3]], Ls[assign[a, 4]], Ls[assign[a, 5]]
             cx = (u * u + w * w - v * v) / (2 * u)
             cy2 = w * w - cx * cx
-            if cy2 <= 1e-9:
+            if cy2 <= _EPS:
                 codes[s, a] = 0
                 continue
             cy = math.sqrt(cy2)
             dx = (u * u + V * V - W * W) / (2 * u)
             dy = (V * V - U * U + w * w - 2 * dx * cx) / (2 * cy)
             dz2 = V * V - dx * dx - dy * dy
-            if dz2 <= 1e-9:
+            if dz2 <= _EPS:
                 codes[s, a] = 0
                 continue
             dz = math.sqrt(dz2)
@@ -540,7 +544,7 @@ def _covariance_fits(P: np.ndarray, limit: np.ndarray) -> tuple[np.ndarray, np.n
         return np.zeros(0, dtype=bool), np.zeros(0)
     _, _, ext = covariance_box(P)
     e = np.sort(ext, axis=1)
-    lim = np.sort(limit) * (1 + 1e-9) + 1e-9
+    lim = np.sort(limit) * (1 + _EPS) + _EPS
     return (e <= lim).all(axis=1), np.prod(ext, axis=1)
 
 
