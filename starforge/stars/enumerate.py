@@ -19,10 +19,7 @@ Pipeline, per labelled candidate (no Python loop per star; numba, subsets spread
    slack (:func:`~starforge.geometry.fit.face_table`, decided once per spec and process for
    every triangle of the pool) rules the star out, and the search could only have said NO_FIT
    too: a star it calls FIT fits the limit, one it leaves UNDECIDED fits the limit plus the
-   slack, and so would each face (the proof is in ``face_table``).  (The quick proofs
-   :func:`~starforge.geometry.fit.cone_excludes` and :func:`~starforge.geometry.fit.caps_exclude`
-   are not run here: behind the table they catch few stars, which the search settles for less
-   than they cost.)  Then the search: proven to fit (a rotation is found), proven not to fit, or
+   slack, and so would each face (the proof is in ``face_table``).  Then the search: proven to fit (a rotation is found), proven not to fit, or
    undecided (fits, if at all, with less than :data:`~starforge.geometry.fit.SLACK_MM` to
    spare).  ``box_method="covariance"`` replaces it with the paper's test (the covariance box
    must fit).
