@@ -153,7 +153,7 @@ def on_config(config):
         out = []
         for item in items:
             if isinstance(item, dict):
-                (title, value), = item.items()
+                ((title, value),) = item.items()
                 if value == f"{REFERENCE}/index.md":
                     out.append({title: entries})
                     continue
