@@ -54,7 +54,8 @@ def table(header: list[str], rows: list[list]) -> str:
 def write_section(key: str, title: str, body: str, command: str | None = None, path: Path = RESULTS) -> Path:
     """Put ``body`` under ``## title`` in the section ``key`` of the results page, stamped with
     ``command`` (default: this process's command line), today's date (UTC) and the machine."""
-    command = command or " ".join(["python", f"benchmarks/{Path(sys.argv[0]).name}", *sys.argv[1:]])
+    args = [a for a in sys.argv[1:] if a != "--write-docs"]
+    command = command or " ".join(["python", f"benchmarks/{Path(sys.argv[0]).name}", *args])
     stamp = f"*Written by `{command}` on {time.strftime('%Y-%m-%d', time.gmtime())}, {machine()}.*"
     block = f"<!-- begin {key} -->\n## {title}\n\n{stamp}\n\n{body.strip()}\n<!-- end {key} -->"
     text = path.read_text(encoding="utf-8") if path.exists() else HEADER
