@@ -201,8 +201,9 @@ def write_docs(out: dict) -> None:
             r = fam["runs"].get(name)
             if r is None:
                 continue
-            rows.append([f"{fam['stars']} stars: {title}", r["settings"]["frames"], pct(r, "identified_percent"),
-                         pct(r, "wrong_body_percent"), pct(r, "flip_percent"), pct(r, "missed_percent"), r["seconds"]])
+            rows.append([f"{fam['stars']} stars: {title}", f"{r['settings']['frames']:,}", pct(r, "identified_percent"),
+                         pct(r, "wrong_body_percent"), pct(r, "flip_percent"), pct(r, "missed_percent"),
+                         f"{r['seconds']:.1f}"])
     prows = []
     for name, r in out["family_25"]["runs"].items():
         if name.startswith("preset_"):
