@@ -83,11 +83,27 @@ def _documented(path: str, names: set[str]) -> bool:
     return any(".".join(parts[:k]) in names for k in range(len(parts), 0, -1))
 
 
+def _section_names(start: str, end: str) -> set[str]:
+    """The key names written in backticks in the formats page between two headings."""
+    text = (ROOT / "docs" / "formats.md").read_text(encoding="utf-8")
+    section = text[text.index(start) : text.index(end)]
+    return {m.strip() for cell in re.findall(r"`([^`]+)`", section) for m in cell.split(",")}
+
+
 def test_formats_page_names_every_family_json_key(small_family):
     _, data = small_family
-    text = (ROOT / "docs" / "formats.md").read_text(encoding="utf-8")
-    section = text[text.index("## family.json") : text.index("## bodies.json")]
-    names = {m.strip() for cell in re.findall(r"`([^`]+)`", section) for m in cell.split(",")}
+    names = _section_names("## family.json", "## bodies.json")
+    missing = [p for p in _key_paths(data) if not _documented(p, names)]
+    assert not missing, missing
+
+
+@pytest.mark.slow
+def test_formats_page_names_every_placement_json_key():
+    from starforge.props.files import placement_json
+    from starforge.props.placement import run_placement
+
+    data = placement_json(run_placement("box", sites=150, orientations=8))
+    names = _section_names("## placement.json", "## check.json")
     missing = [p for p in _key_paths(data) if not _documented(p, names)]
     assert not missing, missing
 
