@@ -26,6 +26,40 @@ REFERENCE = "reference"
 NAV_TITLE = "Command reference"
 PROG = "starforge"
 
+#: the hand-written pages a command's generated page points to (a command not named here gets none)
+SEE_ALSO = {
+    "stars": [
+        ("star families", "methods/stars.md"),
+        ("the fit decision", "methods/fit.md"),
+        ("selection and its bound", "methods/selection.md"),
+        ("finger stars for my box and screws", "recipes/finger-stars.md"),
+        ("family.json", "formats.md#familyjson"),
+    ],
+    "export": [
+        ("printable bodies", "methods/bodies.md"),
+        ("bodies.json", "formats.md#bodiesjson"),
+        ("tracker files", "formats.md#tracker-files"),
+    ],
+    "mounts": [("mounts", "methods/bodies.md#mounts")],
+    "preview": [("printable bodies", "methods/bodies.md")],
+    "check": [
+        ("what a tracker sees", "methods/identification.md"),
+        ("30 drones on my tracker", "recipes/drones.md"),
+        ("check.json", "formats.md#checkjson"),
+    ],
+    "sweep": [
+        ("capacity curves", "methods/identification.md#capacity-curves-the-family-papers-fig-8"),
+        ("scale-out", "scale-out.md"),
+    ],
+    "place": [
+        ("prop placement", "methods/placement.md"),
+        ("markers on my prop", "recipes/prop.md"),
+        ("placement.json", "formats.md#placementjson"),
+    ],
+    "place-batch": [("prop placement", "methods/placement.md"), ("scale-out", "scale-out.md")],
+    "templates": [("getting started", "getting-started.md#templates-start-from-one-that-is-close")],
+}
+
 
 def _cli():
     """The root click command of ``starforge`` and its Context class."""
@@ -129,6 +163,9 @@ def pages() -> dict[str, str]:
         index.append(f"| [`{PROG} {name}`]({name}.md) | {_first_paragraph(cmd)} |")
         ctx = context(cmd, info_name=name, parent=root_ctx)
         body = [f"# `{ctx.command_path}`", *_command_section(cmd, ctx, 1)]
+        links = ", ".join(f"[{title}](../{target})" for title, target in SEE_ALSO.get(name, []))
+        if links:
+            body += ["", f"See also: {links}."]
         body += ["", f"Global options (before the command) are on the [`{PROG}`](index.md) page."]
         out[f"{REFERENCE}/{name}.md"] = "\n".join(body) + "\n"
     out[f"{REFERENCE}/index.md"] = "\n".join(index) + "\n"
