@@ -35,6 +35,7 @@ import argparse
 import json
 import os
 import platform
+import re
 import resource
 import subprocess
 import sys
@@ -122,14 +123,15 @@ def write_docs(out: dict, meshes: bool) -> None:
     for prop, r in out["props"].items():
         name = f"`{Path(prop).name}`"
         if "refused" in r:
-            rows.append([name, "refused: " + r["refused"].split(";")[0], "", "", "", "", "", "", r["seconds"]])
+            rows.append([name, "refused: " + r["refused"].split(";")[0], "", "", "", "", "", "", "", "", "", r["seconds"]])
             continue
         ev = r["evaluation"]
         tracked = " / ".join(_percent(ev[k]["tracked"]) for k in ("default", "greedy_local_search", "best_of_random"))
         recon = " / ".join(f"{ev[k]['markers_reconstructed']:.3f}" for k in ("default", "greedy_local_search", "best_of_random"))
         rows.append([
             name, r["sites_usable"], r["markers"], f"**{r['cost']}**", r["cost_greedy_local_search"],
-            r["cost_best_of_1000_random"], tracked, recon, f"{r['seconds']} / {r['cpu_seconds']}",
+            r["cost_best_of_1000_random"], tracked, recon, r["min_base_contact"], r["min_edge_in_base_radii"],
+            r["selection"]["winner"].replace("_", " "), f"{r['seconds']} / {r['cpu_seconds']}",
         ])
     body = (
         "Default settings, in process.  Tracked: the fraction of 1000 fresh poses (half the cameras lost at "
@@ -137,14 +139,15 @@ def write_docs(out: dict, meshes: bool) -> None:
         "triangle, for the chosen layout / greedy + swap search / the best of 1000 random layouts.\n\n"
         + table(["prop", "usable sites", "markers", "cost", "greedy + local search", "best of 1000 random",
                  "tracked (default / greedy / random)", "markers reconstructed (default / greedy / random)",
-                 "seconds wall / CPU"], rows)
+                 "least base contact", "least edge distance (base radii)", "winner", "seconds wall / CPU"], rows)
         + f"\n\n`starforge place {out['cli_prop']}` as a fresh process: median {out['hammer_cli_s']} s "
         f"({out['hammer_cli_cpu_s']} CPU s in all its processes)."
     )
     targets = out.get("targets", {})
     if targets:
-        trows = [[k.replace("_", " "), v["target"], v["measured"], "yes" if v["met"] else "**no**"]
-                 for k, v in targets.items()]
+        # the page states what is wanted, not which issue asked for it
+        trows = [[k.replace("_", " "), re.sub(r"\s*\(issues? [^)]*\)", "", v["target"]), v["measured"],
+                  "yes" if v["met"] else "**no**"] for k, v in targets.items()]
         body += "\n\n" + table(["target", "wanted", "measured", "met"], trows)
     key, title = ("place-meshes", "Prop placement: your meshes") if meshes else ("place", "Prop placement")
     write_section(key, title, body)
