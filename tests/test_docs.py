@@ -110,14 +110,15 @@ def test_formats_page_names_every_placement_json_key():
 
 def test_readme_is_short_and_its_links_resolve():
     """At most 200 lines (its commands are checked against the CLI in test_newcomer.py), and every
-    relative link (docs pages, pictures, the changelog) names a file of the repository."""
+    relative link (docs pages, pictures, the changelog, examples/) names a file or folder of the
+    repository."""
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
     assert len(readme.splitlines()) <= 200
     targets = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", readme)
     local = [t for t in targets if "://" not in t]
     assert local
     for target in local:
-        assert (ROOT / target).is_file(), target
+        assert (ROOT / target).exists(), target
 
 
 def test_results_page_sections_are_balanced():
