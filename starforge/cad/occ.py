@@ -1,8 +1,11 @@
 """OpenCascade backend: a :class:`~starforge.cad.body.Body` -> one exact B-rep solid, STEP files.
 
-Straight on OCP (the OpenCascade bindings build123d is built on), not through build123d:
-``import build123d`` takes 2-4 s (it pulls in scipy, scikit-learn and more), the OCP modules
-used here well under one.  Every primitive is an OCCT solid; the body is the fuse of the added
+Straight on OCP (the OpenCascade bindings build123d is built on), not through build123d: the
+STEP worker (:mod:`starforge.cad.step_worker`) would wait for ``import build123d``, whose package
+also imports all its importers and exporters, scikit-learn and IPython, several times what
+these OCP modules take (``benchmarks/bench_cad.py --speed-only`` prints both as
+``kernel_import_cpu_s``); build123d keeps those imports eager by choice (gumyr/build123d pull
+request 942, declined).  Every primitive is an OCCT solid; the body is the fuse of the added
 primitives, cut by the subtracted ones, checked with OCCT's validity check and required to be a
 single solid.  STEP files are written through an XCAF document, so each solid carries its name
 (the STEP product) and colour; a plate is an assembly of such solids.  build123d (or any STEP
@@ -23,8 +26,7 @@ from starforge.errors import StarforgeError
 STEP_TIMESTAMP = "2000-01-01T00:00:00"
 #: write each face's parameter-space curves too (OCCT's write.surfacecurve.mode)?  They repeat
 #: what the 3D edges and surfaces already define, and readers rebuild them (OCCT does on import);
-#: without them a body's file is 2.4 x smaller and the STEP side of an export about 0.45 s
-#: faster (25 bodies and their plate)
+#: without them a body's file is less than half the size and quicker to write
 STEP_PCURVES = False
 
 
