@@ -338,6 +338,20 @@ def _median(xs):
     return sorted(xs)[len(xs) // 2]
 
 
+def import_cpu_s(module: str, repeat: int = 3) -> float:
+    """CPU seconds of a fresh interpreter that imports ``module`` (the least of ``repeat`` runs:
+    the machine may be shared).  What a STEP worker pays before its first solid."""
+    code = (
+        f"import resource\nimport {module}\n"
+        "r = resource.getrusage(resource.RUSAGE_SELF)\nprint(r.ru_utime + r.ru_stime)\n"
+    )
+    runs = [
+        float(subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout)
+        for _ in range(max(repeat, 1))
+    ]
+    return round(min(runs), 3)
+
+
 def export_speed(repeat: int = 3) -> dict:
     """Issue-20 targets: ``starforge export`` of the finger family's 25 flat-mount stars with the
     plate, STEP + STL + 3MF, as a command (wall clock of a fresh process) and in process
@@ -417,6 +431,9 @@ def export_speed(repeat: int = 3) -> dict:
     out["export_in_process_s_median"] = round(_median(proc_s), 2)
     out["runs"] = rows
     out["files_identical_across_runs_except_plate_step"] = same
+    # the STEP worker's kernel: OCP directly, against build123d (its package imports every
+    # importer and exporter, scikit-learn and IPython too), each in a fresh interpreter
+    out["kernel_import_cpu_s"] = {m: import_cpu_s(m, repeat) for m in ("OCP.TopoDS", "build123d")}
     out["output_changes"] = OUTPUT_CHANGES
     out["targets"] = {"as a command": "<= 4 s", "in process": "<= 2.5 s"}
     return out

@@ -1,8 +1,11 @@
 """OpenCascade backend: a :class:`~starforge.cad.body.Body` -> one exact B-rep solid, STEP files.
 
-Straight on OCP (the OpenCascade bindings build123d is built on), not through build123d:
-``import build123d`` takes 2-4 s (it pulls in scipy, scikit-learn and more), the OCP modules
-used here well under one.  Every primitive is an OCCT solid; the body is the fuse of the added
+Straight on OCP (the OpenCascade bindings build123d is built on), not through build123d: the
+STEP worker (:mod:`starforge.cad.step_worker`) would wait for ``import build123d``, whose package
+also imports all its importers and exporters, scikit-learn and IPython, several times what
+these OCP modules take (``benchmarks/bench_cad.py --speed-only`` prints both as
+``kernel_import_cpu_s``); build123d keeps those imports eager by choice (gumyr/build123d pull
+request 942, declined).  Every primitive is an OCCT solid; the body is the fuse of the added
 primitives, cut by the subtracted ones, checked with OCCT's validity check and required to be a
 single solid.  STEP files are written through an XCAF document, so each solid carries its name
 (the STEP product) and colour; a plate is an assembly of such solids.  build123d (or any STEP
@@ -23,8 +26,7 @@ from starforge.errors import StarforgeError
 STEP_TIMESTAMP = "2000-01-01T00:00:00"
 #: write each face's parameter-space curves too (OCCT's write.surfacecurve.mode)?  They repeat
 #: what the 3D edges and surfaces already define, and readers rebuild them (OCCT does on import);
-#: without them a body's file is 2.4 x smaller and the STEP side of an export about 0.45 s
-#: faster (25 bodies and their plate)
+#: without them a body's file is less than half the size and quicker to write
 STEP_PCURVES = False
 
 
@@ -133,7 +135,7 @@ def _sphere_axes(body: Body, parts) -> dict:
     return out
 
 
-def _cuts(subtract) -> list:
+def cut_tools(subtract) -> list:
     """(solid, (2, 3) bounds) per cut: boxes that span the same height (y) range, such as an
     engraved id's pixel runs, as one prism of their outline (the same solid: a union of boxes
     over one y range is the union of their rectangles, extruded), the rest one by one."""
@@ -229,7 +231,7 @@ def body_solid(body: Body) -> Solid:
     for OCCT and gives the same solid: a cut whose bounds meet only a plate's is made on that
     plate before the union ((A u B) - C = (A - C) u B when C misses B), and a vertical stem with
     its root fillet is one solid of revolution (:func:`~starforge.cad.primitives.merge_coaxial`),
-    boxes cut over one height range (the id's pixel runs) one prism of their outline (:func:`_cuts`).
+    boxes cut over one height range (the id's pixel runs) one prism of their outline (:func:`cut_tools`).
     Coplanar faces left by the booleans are merged (ShapeUpgrade_UnifySameDomain).
     """
     from OCP.ShapeUpgrade import ShapeUpgrade_UnifySameDomain
@@ -237,7 +239,7 @@ def body_solid(body: Body) -> Solid:
     parts = merge_coaxial(body.add)
     axes = _sphere_axes(body, parts)
     adds = [primitive_solid(p, axes.get(i)) for i, p in enumerate(parts)]
-    cuts = _cuts(body.subtract)
+    cuts = cut_tools(body.subtract)
     early: dict[int, list] = {}
     late = []
     for (solid, _), plate in zip(cuts, plate_cuts(parts, [cb for _, cb in cuts]), strict=True):
@@ -272,21 +274,18 @@ def _trsf(T):
     return t
 
 
-def moved(shape, T):
-    """A copy of ``shape`` with its geometry moved by the rigid transform ``T`` (4, 4)."""
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_Transform
-
-    return BRepBuilderAPI_Transform(shape, _trsf(T), True).Shape()
-
-
 def placed(solid: Solid, T, name: str, colour) -> Solid:
     """``solid`` moved by the rigid transform ``T`` (4, 4) (the printing rotation, +90 deg about
     x, plus a translation, as :func:`starforge.cad.plate.print_transform` makes), named and
-    coloured ((r, g, b) 0..255)."""
+    coloured ((r, g, b) 0..255).  The geometry itself moves (a copy), not a location: a STEP
+    writer turns a located solid into an assembly of one part."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_Transform
+
     R = np.asarray(T, float)[:3, :3]
     if not np.allclose(R, [[1, 0, 0], [0, 0, -1], [0, 1, 0]]):
         raise ValueError("placed() takes the printing rotation (+90 deg about x) only")
-    return Solid(moved(solid.shape, T), name, tuple(int(c) for c in colour))
+    shape = BRepBuilderAPI_Transform(solid.shape, _trsf(T), True).Shape()
+    return Solid(shape, name, tuple(int(c) for c in colour))
 
 
 @dataclass(frozen=True)
