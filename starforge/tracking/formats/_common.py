@@ -118,9 +118,14 @@ def check_size(path) -> None:
 
 
 def parse_xml(path) -> ET.Element:
+    """The root of an XML tracker file; refuses files over :data:`MAX_FILE_BYTES` and any entity
+    declaration (no tracker file has one; an entity bomb is made of them)."""
     check_size(path)
+    data = Path(path).read_bytes()
+    if b"<!ENTITY" in data:
+        raise StarforgeError(f"{path} declares XML entities, which no tracker file does; refused")
     try:
-        return ET.parse(path).getroot()
+        return ET.fromstring(data)
     except ET.ParseError as exc:
         raise StarforgeError(f"{path} is not valid XML ({exc})") from None
 

@@ -1,0 +1,212 @@
+"""``starforge convert``: real vendor files to every format and back, what is kept and what is
+named as lost, the family target, and hostile files (one line, exit 2)."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from starforge.cli import main
+from starforge.tracking.bodies import load_bodies
+from starforge.tracking.convert import convert_to, read_records
+from starforge.tracking.formats import FORMATS, sniff_format
+
+VENDOR = Path(__file__).parent / "data" / "vendor"
+REAL = sorted(p for p in VENDOR.iterdir() if p.suffix != ".md")
+
+
+def _write(conv, folder: Path) -> list[Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    for rel, data in conv.files.items():
+        (folder / rel).write_bytes(data)
+    return [folder / rel for rel in conv.files]
+
+
+def _round_trip(src: Path, via: str, tmp_path: Path):
+    first = read_records([src])
+    there = _write(convert_to(first, via), tmp_path / via)
+    back_fmt = sniff_format(src)
+    back = _write(convert_to(read_records(there), back_fmt), tmp_path / "back")
+    return first, read_records(there), read_records(back)
+
+
+def _dists(P):
+    P = np.asarray(P, float)
+    return np.linalg.norm(P[:, None] - P[None], axis=2)
+
+
+def test_every_real_file_is_read_as_a_rigid_body():
+    assert {sniff_format(p) for p in REAL} == {"rom", "atracsys", "qtm"}
+    for p in REAL:
+        for r in read_records([p]).records:
+            assert len(r.points_mm) >= 3 and np.isfinite(r.points_mm).all()
+
+
+@pytest.mark.parametrize("via", list(FORMATS))
+@pytest.mark.parametrize("src", REAL, ids=[p.name for p in REAL])
+def test_real_files_go_to_every_format_and_back(src, via, tmp_path):
+    """Coordinates within 0.001 mm (exactly, through text formats; float32 through rom), marker
+    order and body names kept, and every field both formats carry kept."""
+    first, there, back = _round_trip(src, via, tmp_path)
+    assert len(back.records) == len(first.records)
+    src_fmt = sniff_format(src)
+    for a, m, b in zip(first.records, there.records, back.records, strict=True):
+        P = np.asarray(a.points_mm)
+        expect = P.astype(np.float32).astype(float) if via == "rom" else P
+        assert np.array_equal(np.asarray(b.points_mm), expect)  # exact to the formats' precision
+        assert np.abs(np.asarray(b.points_mm) - P).max() <= 1e-3
+        assert np.array_equal(np.asarray(m.points_mm), expect)
+        if src_fmt not in ("rom", "atracsys") and via not in ("rom", "atracsys"):
+            assert b.name == a.name  # both name the body inside the file
+        both = FORMATS[src_fmt].carries & FORMATS[via].carries
+        for f in both & {"marker_names", "body_id", "min_markers", "marker_mm"}:
+            assert getattr(b, f) == getattr(a, f), f
+        for f in both & set(a.tolerances):
+            assert b.tolerances[f] == pytest.approx(a.tolerances[f], rel=1e-7), f
+        if "normals" in both:
+            assert np.allclose(b.normals, a.normals, atol=1e-7)
+
+
+@pytest.mark.parametrize("via", list(FORMATS))
+def test_the_lost_line_names_exactly_what_the_target_cannot_hold(via):
+    src = read_records([VENDOR / "qtm_6d_settings.xml", VENDOR / "8700339.rom", VENDOR / "geometry001.ini"])
+    conv = convert_to(src, via)
+    stated = set().union(*(r.carried() for r in src.records))
+    assert set(conv.lost) == stated - FORMATS[via].carries
+    line = conv.lost_line()
+    assert (line is None) == (not conv.lost)
+    if line:
+        assert line.startswith(f"{via} cannot carry:") and "\n" not in line
+
+
+def test_four_marker_tools_become_a_family_that_keeps_their_geometry_and_names(tmp_path):
+    roms = [VENDOR / f"{n}.rom" for n in ("8700338", "8700339", "8700340", "8700449")]
+    rc = main(["convert", *map(str, roms), "--format", "family", "--out", str(tmp_path / "fam"), "-q"])
+    assert rc == 0
+    bs = load_bodies(tmp_path / "fam" / "family.json")  # verified as every family file
+    assert bs.kind == "family" and bs.names == [p.stem for p in roms]
+    for body, p in zip(bs.bodies, roms, strict=True):
+        (P,) = read_records([p]).records
+        assert np.abs(_dists(body.points_mm) - _dists(P.points_mm)).max() < 1e-6
+
+
+def test_a_family_converts_to_vendor_files_with_its_star_names(small_family, tmp_path):
+    fam, _ = small_family
+    rc = main(["convert", str(fam), "--format", "vsk", "--out", str(tmp_path / "v"), "-q"])
+    assert rc == 0
+    bs = load_bodies(fam / "family.json")
+    got = load_bodies(sorted((tmp_path / "v").glob("*.vsk")))
+    assert sorted(got.names) == sorted(bs.names)
+    table = {b.name: b.points_mm for b in bs.bodies}
+    for b in got.bodies:
+        assert np.array_equal(b.points_mm, table[b.name])
+
+
+def _fail(args, capsys) -> str:
+    rc = main(args)
+    err = capsys.readouterr().err.strip()
+    assert rc == 2, err
+    assert err.startswith("error:") and "\n" not in err and "Traceback" not in err
+    return err
+
+
+def test_existing_outputs_need_force_and_stay_untouched(tmp_path, capsys):
+    out = tmp_path / "o"
+    args = ["convert", str(VENDOR / "8700339.rom"), "--format", "qtm", "--out", str(out), "-q"]
+    assert main(args) == 0
+    before = (out / "8700339.xml").read_bytes()
+    (out / "8700339.xml").write_bytes(b"mine")
+    assert "--force" in _fail(args, capsys)
+    assert (out / "8700339.xml").read_bytes() == b"mine"
+    assert main([*args, "--force"]) == 0
+    assert (out / "8700339.xml").read_bytes() == before
+
+
+def test_a_body_too_large_for_the_target_is_refused_before_writing(tmp_path, capsys):
+    rows = ["body,marker,x_mm,y_mm,z_mm"] + [
+        f"big,{i + 1},{10.0 * i},{(i * i) % 7},{i % 3}" for i in range(7)
+    ]
+    (tmp_path / "big.csv").write_text("\n".join(rows) + "\n")
+    err = _fail(
+        ["convert", str(tmp_path / "big.csv"), "--format", "atracsys", "--out", str(tmp_path / "o")], capsys
+    )
+    assert "at most 6" in err and "--format" in err
+    assert not (tmp_path / "o").exists()
+
+
+def _rom(n: int, checksum_ok: bool = True, nan: bool = False) -> bytes:
+    d = bytearray((VENDOR / "8700339.rom").read_bytes())
+    d[28] = n
+    if nan:
+        struct.pack_into("<f", d, 72, float("nan"))
+    total = sum(d[6:]) & 0xFFFF
+    struct.pack_into("<H", d, 4, total if checksum_ok else (total + 1) & 0xFFFF)
+    return bytes(d)
+
+
+BOMB = (
+    '<?xml version="1.0"?><!DOCTYPE l [<!ENTITY a "aaaaaaaaaa"><!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;">'
+    '<!ENTITY c "&b;&b;&b;&b;&b;&b;&b;&b;">]><QTM_Settings><The_6D><Body><Name>&c;</Name></Body>'
+    "</The_6D></QTM_Settings>"
+)
+HOSTILE = {
+    "truncated.rom": (lambda: (VENDOR / "8700339.rom").read_bytes()[:400], "752 bytes"),
+    "checksum.rom": (lambda: _rom(4, checksum_ok=False), "checksum"),
+    "zero.rom": (lambda: _rom(0), "marker count 0"),
+    "many.rom": (lambda: _rom(255), "marker count 255"),
+    "nan.rom": (lambda: _rom(4, nan=True), "not finite"),
+    "nan.xml": (
+        lambda: (VENDOR / "qtm_6d_settings.xml").read_text().replace('X="-67.927157"', 'X="nan"', 1).encode(),
+        "not finite",
+    ),
+    "bomb.xml": (lambda: BOMB.encode(), "entities"),
+    "cut.xml": (lambda: (VENDOR / "qtm_6d_settings.xml").read_bytes()[:700], "not valid XML"),
+    "empty_body.xml": (
+        lambda: b"<QTM_Settings><The_6D><Body><Name>x</Name><Points/></Body></The_6D></QTM_Settings>",
+        "3 or more markers",
+    ),
+    "count.ini": (lambda: b"[geometry]\ncount=255\nid=1\n", "count 255"),
+    "unicode.ini": (
+        lambda: "[geometry]\ncount=3\nid=1\n[fiducial0]\nx=\u00e9\ny=0\nz=0\n".encode(),
+        "Atracsys",
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(HOSTILE))
+def test_hostile_files_give_one_line_and_exit_2(name, tmp_path, capsys):
+    make, words = HOSTILE[name]
+    (tmp_path / name).write_bytes(make())
+    err = _fail(["convert", str(tmp_path / name), "--format", "csv", "--out", str(tmp_path / "o")], capsys)
+    assert words in err and name in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_huge_file_is_refused_before_it_is_read(tmp_path, capsys):
+    p = tmp_path / "huge.xml"
+    with open(p, "wb") as fh:
+        fh.write(b"<QTM_Settings>")
+        fh.truncate(65 * 1024**2)  # sparse: no 65 MB written
+    err = _fail(["convert", str(p), "--format", "csv", "--out", str(tmp_path / "o")], capsys)
+    assert "at most" in err
+
+
+def test_unicode_body_and_marker_names_round_trip_through_xml_formats(tmp_path):
+    name = "K\u00f6rper \u4e2d"
+    marks = ["\u00e9 1", "\u00e9 2", "\u00e9 3", "\u00e9 4"]
+    pts = "".join(
+        f'<Point X="{x}" Y="{y}" Z="{z}" Name="{m}"/>'
+        for m, (x, y, z) in zip(marks, [(0, 0, 0), (50, 0, 0), (0, 37, 0), (0, 0, 71)], strict=True)
+    )
+    src = tmp_path / "u.xml"
+    src.write_text(
+        f"<QTM_Settings><The_6D><Body><Name>{name}</Name><Points>{pts}</Points></Body></The_6D></QTM_Settings>"
+    )
+    for via in ("vsk", "qtm", "motive"):
+        _, there, back = _round_trip(src, via, tmp_path / via)
+        assert back.records[0].name == name
+        if via != "motive":
+            assert list(back.records[0].marker_names) == marks
