@@ -52,3 +52,18 @@ def small_family(tmp_path_factory):
     out = tmp_path_factory.mktemp("small")
     assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--out", out, "-q"]) == 0
     return out, json.loads((out / "family.json").read_text())
+
+
+@pytest.fixture
+def cli_error(capsys):
+    """Run the CLI on args that must fail: exit code 2 and one ``error:`` line on stderr, no
+    traceback; returns that line."""
+
+    def run(args) -> str:
+        rc = main([str(a) for a in args])
+        err = capsys.readouterr().err.strip()
+        assert rc == 2, err
+        assert err.startswith("error:") and "\n" not in err and "Traceback" not in err
+        return err
+
+    return run

@@ -105,33 +105,25 @@ def test_a_family_converts_to_vendor_files_with_its_star_names(small_family, tmp
         assert np.array_equal(b.points_mm, table[b.name])
 
 
-def _fail(args, capsys) -> str:
-    rc = main(args)
-    err = capsys.readouterr().err.strip()
-    assert rc == 2, err
-    assert err.startswith("error:") and "\n" not in err and "Traceback" not in err
-    return err
-
-
-def test_existing_outputs_need_force_and_stay_untouched(tmp_path, capsys):
+def test_existing_outputs_need_force_and_stay_untouched(tmp_path, cli_error):
     out = tmp_path / "o"
     args = ["convert", str(VENDOR / "8700339.rom"), "--format", "qtm", "--out", str(out), "-q"]
     assert main(args) == 0
     before = (out / "8700339.xml").read_bytes()
     (out / "8700339.xml").write_bytes(b"mine")
-    assert "--force" in _fail(args, capsys)
+    assert "--force" in cli_error(args)
     assert (out / "8700339.xml").read_bytes() == b"mine"
     assert main([*args, "--force"]) == 0
     assert (out / "8700339.xml").read_bytes() == before
 
 
-def test_a_body_too_large_for_the_target_is_refused_before_writing(tmp_path, capsys):
+def test_a_body_too_large_for_the_target_is_refused_before_writing(tmp_path, cli_error):
     rows = ["body,marker,x_mm,y_mm,z_mm"] + [
         f"big,{i + 1},{10.0 * i},{(i * i) % 7},{i % 3}" for i in range(7)
     ]
     (tmp_path / "big.csv").write_text("\n".join(rows) + "\n")
-    err = _fail(
-        ["convert", str(tmp_path / "big.csv"), "--format", "atracsys", "--out", str(tmp_path / "o")], capsys
+    err = cli_error(
+        ["convert", str(tmp_path / "big.csv"), "--format", "atracsys", "--out", str(tmp_path / "o")]
     )
     assert "at most 6" in err and "--format" in err
     assert not (tmp_path / "o").exists()
@@ -177,20 +169,20 @@ HOSTILE = {
 
 
 @pytest.mark.parametrize("name", list(HOSTILE))
-def test_hostile_files_give_one_line_and_exit_2(name, tmp_path, capsys):
+def test_hostile_files_give_one_line_and_exit_2(name, tmp_path, cli_error):
     make, words = HOSTILE[name]
     (tmp_path / name).write_bytes(make())
-    err = _fail(["convert", str(tmp_path / name), "--format", "csv", "--out", str(tmp_path / "o")], capsys)
+    err = cli_error(["convert", str(tmp_path / name), "--format", "csv", "--out", str(tmp_path / "o")])
     assert words in err and name in err
     assert not (tmp_path / "o").exists()
 
 
-def test_a_huge_file_is_refused_before_it_is_read(tmp_path, capsys):
+def test_a_huge_file_is_refused_before_it_is_read(tmp_path, cli_error):
     p = tmp_path / "huge.xml"
     with open(p, "wb") as fh:
         fh.write(b"<QTM_Settings>")
         fh.truncate(65 * 1024**2)  # sparse: no 65 MB written
-    err = _fail(["convert", str(p), "--format", "csv", "--out", str(tmp_path / "o")], capsys)
+    err = cli_error(["convert", str(p), "--format", "csv", "--out", str(tmp_path / "o")])
     assert "at most" in err
 
 
