@@ -202,3 +202,22 @@ def test_unicode_body_and_marker_names_round_trip_through_xml_formats(tmp_path):
         assert back.records[0].name == name
         if via != "motive":
             assert list(back.records[0].marker_names) == marks
+
+
+def test_an_existing_tool_is_rebuilt_as_a_printable_body(tmp_path):
+    """A tool's .rom -> family.json -> export: bodies within the family's limit whose sphere
+    centres have the tool's distances."""
+    import json
+
+    import trimesh
+
+    roms = [VENDOR / "8700339.rom", VENDOR / "8700338.rom"]
+    assert main(["convert", *map(str, roms), "--format", "family", "--out", str(tmp_path / "f"), "-q"]) == 0
+    assert main(["export", str(tmp_path / "f"), "--format", "stl", "--out", str(tmp_path / "e"), "-q"]) == 0
+    report = json.loads((tmp_path / "e" / "bodies.json").read_text())
+    assert [b["fits"] for b in report["bodies"]] == [True, True]
+    for b, p in zip(report["bodies"], roms, strict=True):
+        (tool,) = read_records([p]).records
+        assert np.abs(_dists(b["centres_mm"]) - _dists(tool.points_mm)).max() < 1e-4
+        mesh = trimesh.load(tmp_path / "e" / f"{b['name']}.stl")
+        assert mesh.is_watertight and mesh.volume > 0

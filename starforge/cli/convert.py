@@ -29,14 +29,22 @@ def convert_cmd(
         0.2, "--noise", help="Marker noise, mm per axis, for tolerances the sources do not state (> 0)."
     ),
     id_start: int = typer.Option(1, "--id-start", help="First numeric id for bodies the sources give none."),
+    mount: str = typer.Option(
+        "flat",
+        "--mount",
+        help="Mount the family.json's bodies are printed with (`starforge mounts`); its room is added to the "
+        "family's size limit so `starforge export` builds them.",
+    ),
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
+    from starforge.cad.reserve import mount_reserve_mm
     from starforge.io import check_writable, staged_output
     from starforge.tracking.convert import convert_to, read_records
 
     source = read_records(files)
-    result = convert_to(source, fmt, noise_mm=noise, id_start=id_start)
+    reserve = (lambda marker: mount_reserve_mm(mount, marker)) if mount else None
+    result = convert_to(source, fmt, noise_mm=noise, id_start=id_start, mount=mount, reserve_for=reserve)
     check_writable(out, result.files, force)
     with staged_output(out, force) as stage:
         for rel, data in result.files.items():

@@ -28,9 +28,16 @@ def measure_cmd(
     noise: float = typer.Option(
         0.2, "--noise", help="Marker noise the family's accuracy is predicted for, mm."
     ),
+    mount: str = typer.Option(
+        "flat",
+        "--mount",
+        help="Mount the family.json's bodies are printed with (`starforge mounts`); its room is added to the "
+        "family's size limit so `starforge export` builds them.",
+    ),
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
+    from starforge.cad.reserve import mount_reserve_mm
     from starforge.io import check_writable, staged_output
     from starforge.tracking.measure import measure_bodies, measure_outputs, parse_body_option
     from starforge.tracking.recording import read_recording
@@ -39,7 +46,8 @@ def measure_cmd(
     check_writable(out, ["bodies.csv", "family.json", "measure.json"], force)
     traj = read_recording(recording)
     bodies = measure_bodies(traj, named, rigid)
-    result = measure_outputs(traj, bodies, noise)
+    reserve = (lambda marker: mount_reserve_mm(mount, marker)) if mount else None
+    result = measure_outputs(traj, bodies, noise, mount, reserve)
     with staged_output(out, force) as stage:
         for rel, data in result.files.items():
             (stage / rel).write_bytes(data)

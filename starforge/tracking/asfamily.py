@@ -52,11 +52,16 @@ def family_from_bodies(
     noise_mm: float = 0.2,
     description: str = "",
     extra: list[dict] | None = None,
+    mount: str | None = None,
+    reserve_for=None,
 ) -> dict:
     """family.json data of ``bodies``: (name, (4, 3) mm, marker names or None) each.
 
     ``marker_mm``: the marker diameter (None: 4 mm, or less when two markers are closer);
-    ``extra``: one dict per body merged into its star (e.g. ``scatter_mm``).  Raises
+    ``extra``: one dict per body merged into its star (e.g. ``scatter_mm``); ``mount``: the
+    mount the bodies are to be printed with, and ``reserve_for(marker_mm) -> (3,) mm`` the room
+    it takes of the box's sorted sides (:func:`starforge.cad.reserve.mount_reserve_mm`), added
+    to the box so that ``starforge export`` builds every body within it.  Raises
     StarforgeError (one line) for a body that is no 4-marker star or bodies a family cannot
     hold apart (two equal edges or faces)."""
     bodies = list(bodies)
@@ -80,7 +85,8 @@ def family_from_bodies(
     marker = min(4.0 if marker_mm is None else float(marker_mm), shortest)
     placed = place_stars(V, [1e9] * 3)
     ext = np.array([sorted(item[2]) for item in placed])
-    box = tuple(float(x) for x in (ext.max(axis=0) + marker + BOX_SLACK_MM))
+    reserve = tuple(float(r) for r in (reserve_for(marker) if reserve_for else (0.0, 0.0, 0.0)))
+    box = tuple(float(x) for x in (ext.max(axis=0) + marker + np.array(reserve) + BOX_SLACK_MM))
     spec = StarSpec(
         box_mm=box,
         marker_mm=marker,
@@ -89,6 +95,8 @@ def family_from_bodies(
         l_min_mm=marker,
         min_depth_mm=0.0,
         noise_mm=noise_mm,
+        reserve_mm=reserve,
+        mount=mount,
         name=name,
         description=description or "rigid bodies read or measured by starforge (not enumerated)",
     )

@@ -203,9 +203,12 @@ def convert_records(source: Source, fmt: str, noise_mm: float = 0.2, id_start: i
     return Conversion(files, f.name, lost, tuple(sorted(derived)))
 
 
-def convert_to(source: Source, fmt: str, noise_mm: float = 0.2, id_start: int = 1) -> Conversion:
+def convert_to(
+    source: Source, fmt: str, noise_mm: float = 0.2, id_start: int = 1, mount=None, reserve_for=None
+) -> Conversion:
     """:func:`convert_records`, or with ``fmt`` ``family`` a ``family.json`` of the bodies
-    (4 markers each; :func:`starforge.tracking.asfamily.family_from_bodies`)."""
+    (4 markers each; :func:`starforge.tracking.asfamily.family_from_bodies`, with ``mount`` and
+    ``reserve_for``)."""
     if not (np.isfinite(noise_mm) and noise_mm > 0):
         raise StarforgeError(f"noise must be > 0 mm, got {noise_mm}")
     if str(fmt).strip().lower() != "family":
@@ -220,6 +223,8 @@ def convert_to(source: Source, fmt: str, noise_mm: float = 0.2, id_start: int = 
         name=safe_name(Path(source.sources[0]).stem) if len(source.sources) == 1 else "bodies",
         marker_mm=min(sizes) if sizes else None,
         noise_mm=noise_mm,
+        mount=mount,
+        reserve_for=reserve_for,
     )
     lost = tuple(c for c in source.carried if c not in ("marker_names", "marker_mm"))
     text = json.dumps(data, indent=1) + "\n"

@@ -255,8 +255,11 @@ class MeasureResult:
     identified: dict[str, float]
 
 
-def measure_outputs(traj: Trajectories, bodies: list[MeasuredBody], noise_mm: float = 0.2) -> MeasureResult:
-    """The files of :class:`MeasureResult` for ``bodies`` measured from ``traj``."""
+def measure_outputs(
+    traj: Trajectories, bodies: list[MeasuredBody], noise_mm: float = 0.2, mount=None, reserve_for=None
+) -> MeasureResult:
+    """The files of :class:`MeasureResult` for ``bodies`` measured from ``traj`` (``mount``,
+    ``reserve_for``: see :func:`starforge.tracking.asfamily.family_from_bodies`)."""
     import json
 
     from starforge.tracking.asfamily import family_from_bodies
@@ -276,6 +279,8 @@ def measure_outputs(traj: Trajectories, bodies: list[MeasuredBody], noise_mm: fl
                 noise_mm=noise_mm,
                 description=f"measured from {traj.source}",
                 extra=[{"scatter_mm": np.round(b.scatter_mm, 6).tolist(), "frames": b.frames} for b in four],
+                mount=mount,
+                reserve_for=reserve_for,
             )
             files["family.json"] = (json.dumps(fam, indent=1) + "\n").encode("utf-8")
         except StarforgeError as exc:

@@ -54,7 +54,15 @@ class Format:
 
 def _format(name: str, module, vendor: str, max_markers: int | None = None) -> Format:
     return Format(
-        name, module.SUFFIX, vendor, module.read, module.write, module.sniff, max_markers, module.load, module.CARRIES
+        name,
+        module.SUFFIX,
+        vendor,
+        module.read,
+        module.write,
+        module.sniff,
+        max_markers,
+        module.load,
+        module.CARRIES,
     )
 
 

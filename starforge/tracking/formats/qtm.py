@@ -129,7 +129,10 @@ def load(path) -> list[Record]:
                 pts.append([num(path, f"{name} bone {c}", bone.findtext(c)) for c in "XYZ"])
         if name in out:
             raise StarforgeError(f"{path}: two bodies are named {name!r}")
-        tags = (("bone_length_tolerance_mm", "BoneLengthTolerance"), ("maximum_residual_mm", "MaximumResidual"))
+        tags = (
+            ("bone_length_tolerance_mm", "BoneLengthTolerance"),
+            ("maximum_residual_mm", "MaximumResidual"),
+        )
         tol = {key: v for key, tag in tags if (v := _tolerance(path, b, tag, name)) is not None}
         least = _tolerance(path, b, "MinimumMarkersInBody", name)
         out[name] = Record(
