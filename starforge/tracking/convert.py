@@ -49,12 +49,14 @@ class Source:
     sources : tuple of str           the files read
     carried : tuple of str           fields any source stated (:data:`FIELD_WORDS` keys)
     warnings : tuple of str          what reading left out
+    origins : tuple of str           the file each record was read from
     """
 
     records: tuple[Record, ...]
     sources: tuple[str, ...]
     carried: tuple[str, ...]
     warnings: tuple[str, ...] = ()
+    origins: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -122,6 +124,7 @@ def read_records(paths) -> Source:
 
     files = expand_inputs(paths)
     records: list[Record] = []
+    origins: list[str] = []
     warnings: list[str] = []
     seen: dict[Path, Path] = {}
     for p in files:
@@ -146,6 +149,7 @@ def read_records(paths) -> Source:
             if not got:
                 raise StarforgeError(f"{p}: no body with 3 or more markers (a rigid body needs at least 3)")
         records.extend(got)
+        origins.extend([str(p)] * len(got))
     names: dict[str, int] = {}
     unique = []
     for r in records:
@@ -153,13 +157,25 @@ def read_records(paths) -> Source:
         names[r.name] = n + 1
         unique.append(r if not n else _renamed(r, f"{r.name}_{n + 1}"))
     carried = sorted(set().union(*(r.carried() for r in unique)), key=list(FIELD_WORDS).index)
-    return Source(tuple(unique), tuple(map(str, files)), tuple(carried), tuple(warnings))
+    return Source(tuple(unique), tuple(map(str, files)), tuple(carried), tuple(warnings), tuple(origins))
 
 
 def _renamed(r: Record, name: str) -> Record:
     return Record(
         name, r.points_mm, r.marker_names, r.body_id, r.normals, r.marker_mm, r.tolerances, r.min_markers
     )
+
+
+def file_stems(names) -> list[str]:
+    """File names (without suffix) for body ``names``: safe characters, unique regardless of case."""
+    taken: dict[str, int] = {}
+    out = []
+    for name in names:
+        stem = safe_name(name)
+        n = taken.get(stem.lower(), 0)
+        taken[stem.lower()] = n + 1
+        out.append(f"{stem}_{n + 1}" if n else stem)
+    return out
 
 
 def convert_records(source: Source, fmt: str, noise_mm: float = 0.2, id_start: int = 1) -> Conversion:
@@ -178,7 +194,7 @@ def convert_records(source: Source, fmt: str, noise_mm: float = 0.2, id_start: i
             )
     derived_tol = export_tolerances([r.points_mm for r in recs], noise_mm)
     files: dict[str, bytes] = {}
-    taken: dict[str, int] = {}
+    stems = file_stems([r.name for r in recs])
     derived: set[str] = set()
     for k, r in enumerate(recs):
         tol = dict(derived_tol)
@@ -194,11 +210,7 @@ def convert_records(source: Source, fmt: str, noise_mm: float = 0.2, id_start: i
             min_markers=min(r.min_markers or 3, len(r.points_mm)),
             marker_names=r.marker_names,
         )
-        stem = safe_name(r.name)
-        n = taken.get(stem.lower(), 0)
-        taken[stem.lower()] = n + 1
-        stem = f"{stem}_{n + 1}" if n else stem
-        files[f"{stem}{f.suffix}"] = f.write(r.name, np.asarray(r.points_mm), ctx)
+        files[f"{stems[k]}{f.suffix}"] = f.write(r.name, np.asarray(r.points_mm), ctx)
     lost = tuple(c for c in source.carried if c not in f.carries)
     return Conversion(files, f.name, lost, tuple(sorted(derived)))
 
