@@ -38,12 +38,15 @@ def convert_cmd(
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
-    from starforge.cad.reserve import mount_reserve_mm
     from starforge.io import check_writable, staged_output
     from starforge.tracking.convert import convert_to, read_records
 
     source = read_records(files)
-    reserve = (lambda marker: mount_reserve_mm(mount, marker)) if mount else None
+    reserve = None
+    if mount and fmt.strip().lower() == "family":  # the CAD kernel's modules load only for a family
+        from starforge.cad.reserve import mount_reserve_mm
+
+        reserve = lambda marker: mount_reserve_mm(mount, marker)  # noqa: E731
     result = convert_to(source, fmt, noise_mm=noise, id_start=id_start, mount=mount, reserve_for=reserve)
     check_writable(out, result.files, force)
     with staged_output(out, force) as stage:

@@ -10,7 +10,8 @@ markers are bodies.  A user may instead name the bodies (``NAME=M1,M2,M3``).
 Geometry: iterated median alignment.  Start from a frame that shows every marker of the body;
 align every frame that shows at least 3 of them onto the current shape (weighted Kabsch,
 :func:`starforge.geometry.rigid.kabsch`, unseen markers weigh 0) and take, per marker and axis,
-the median of the aligned positions over frames; repeat.  The median ignores the frames where
+the median of the aligned positions over frames; repeat.  Each round aligns at most
+:data:`ALIGN_SAMPLE` frames, spread evenly over the recording.  The median ignores the frames where
 a marker was mislabelled or swapped as long as they are fewer than half of them.  The shape is
 returned centred on its centroid.  A marker's scatter is the RMS distance of its aligned
 positions from the shape.
@@ -31,8 +32,9 @@ from starforge.tracking.recording import Trajectories
 #: a pair of markers is rigid when its distance varies by at most this (standard deviation), mm
 RIGID_MM = 0.5
 #: frames sampled to find clusters (distances of every pair in each)
-CLUSTER_FRAMES = 2000
-#: frames the iterations before the last align (the last one aligns every frame)
+CLUSTER_FRAMES = 1000
+#: frames each alignment round aligns at most (evenly spread over the recording): the median of
+#: 5000 frames of 0.2 mm noise is within about 0.005 mm of the median of all
 ALIGN_SAMPLE = 5000
 #: alignment rounds
 ROUNDS = 3
@@ -73,7 +75,7 @@ def parse_body_option(text: str) -> tuple[str, list[str]]:
 
 def pair_deviation(P: np.ndarray, max_frames: int = CLUSTER_FRAMES):
     """For markers ``P`` (F, M, 3) mm (NaN unseen): each pair's distance standard deviation
-    (M, M) mm and median distance (M, M) mm over the sampled frames in which both are seen
+    (M, M) mm and mean distance (M, M) mm over the sampled frames in which both are seen
     (NaN when they are seen together in fewer than :data:`MIN_TOGETHER` of them)."""
     F, M, _ = P.shape
     budget = max(50, int(4e7 // max(1, M * M)))  # about 320 MB of distances at most
@@ -84,7 +86,7 @@ def pair_deviation(P: np.ndarray, max_frames: int = CLUSTER_FRAMES):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN pairs: judged below
         sd = np.nanstd(D, axis=0)
-        med = np.nanmedian(D, axis=0)
+        med = np.nanmean(D, axis=0)
     low = together < max(2, MIN_TOGETHER * len(X))
     sd[low] = np.nan
     med[low] = np.nan
@@ -135,14 +137,9 @@ def measure_shape(P: np.ndarray, rounds: int = ROUNDS):
         raise StarforgeError("no frame shows all its markers")
     T = P[full[len(full) // 2]]
     T = T - T.mean(axis=0)
-    for r in range(rounds):
-        last = r == rounds - 1
-        idx = (
-            use
-            if last or len(use) <= ALIGN_SAMPLE
-            else use[np.linspace(0, len(use) - 1, ALIGN_SAMPLE).astype(int)]
-        )
-        X, w = P[idx], seen[idx].astype(float)
+    idx = use if len(use) <= ALIGN_SAMPLE else use[np.linspace(0, len(use) - 1, ALIGN_SAMPLE).astype(int)]
+    X, w = P[idx], seen[idx].astype(float)
+    for _ in range(rounds):
         R, t = kabsch(np.broadcast_to(T, X.shape), X, w)  # template -> frame
         A = np.einsum("fki,fij->fkj", np.where(w[..., None] > 0, X, 0.0) - t[:, None], R)  # frame -> template
         A[w == 0] = np.nan
@@ -202,7 +199,7 @@ def measure_bodies(traj: Trajectories, named=None, rigid_mm: float = RIGID_MM) -
 #: (a tracker's usual window; ``starforge check --match`` defaults to 2 mm as well)
 MATCH_MM, RESIDUAL_MM = 2.0, 1.0
 #: frames :func:`identify_recording` identifies at most (evenly spread)
-IDENTIFY_FRAMES = 2000
+IDENTIFY_FRAMES = 600
 
 
 def identify_recording(

@@ -1,0 +1,165 @@
+"""A lab's bodies through ``starforge convert`` and ``starforge measure``; prints one JSON object.
+
+* convert: 100 tracker files (the real vendor files of tests/data/vendor and copies of them
+  written in every format, 100 in all) converted to each format by the command line, wall clock
+  of the whole command (interpreter start included), and by the library alone;
+* measure: a synthetic C3D recording (ezc3d) of 12 four-marker bodies and 2 loose markers (50
+  markers), 10 minutes at 200 Hz, 0.2 mm noise, 5 % gaps, measured by the command line: wall
+  clock, the child's peak resident memory, and the worst body's distance error against the truth.
+
+``targets`` says per target of the issue what was measured and whether it is met.  Timings are
+wall clock on whatever machine runs this (the JSON names it and its load); run it on an idle one.
+
+Usage: python benchmarks/bench_convert.py [--minutes 10] [--rate 200]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from starforge.tracking.convert import convert_to, read_records
+from starforge.tracking.formats import FORMATS
+from starforge.tracking.recording import simulate_recording, write_c3d
+
+ROOT = Path(__file__).resolve().parent.parent
+VENDOR = ROOT / "tests" / "data" / "vendor"
+
+
+def _cli(args: list[str]) -> dict:
+    """Wall and CPU seconds (user + system) and the peak RSS (MB, the largest child so far) of
+    ``python -m starforge args`` in a child process."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "starforge", *args], check=True, env=env, stdout=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    return {"wall_s": round(wall, 3), "cpu_s": round(cpu, 3), "peak_rss_mb": round(r1.ru_maxrss / 1024.0, 1)}
+
+
+def _hundred_files(folder: Path) -> list[Path]:
+    """100 tracker files: the vendor files, then each of their bodies in every format."""
+    real = sorted(p for p in VENDOR.iterdir() if p.suffix != ".md")
+    files = list(real)
+    source = read_records(real)
+    for fmt in itertools.cycle(FORMATS):
+        conv = convert_to(source, fmt)
+        for rel, data in conv.files.items():
+            if len(files) >= 100:
+                return files
+            path = folder / f"{fmt}_{rel}"
+            path.write_bytes(data)
+            files.append(path)
+    return files
+
+
+def bench_convert(tmp: Path) -> dict:
+    src = tmp / "lab"
+    src.mkdir()
+    files = _hundred_files(src)
+    out: dict = {"files": len(files), "cli": {}, "library_s": {}}
+    for fmt in FORMATS:
+        if fmt == "atracsys":  # bodies of more than 6 markers: the command refuses, by design
+            continue
+        args = ["convert", *map(str, files), "--format", fmt, "--out", str(tmp / f"out_{fmt}"), "-q"]
+        out["cli"][fmt] = _cli(args)
+        t0 = time.perf_counter()
+        convert_to(read_records(files), fmt)
+        out["library_s"][fmt] = round(time.perf_counter() - t0, 3)
+    return out
+
+
+def bench_measure(tmp: Path, minutes: float, rate: float) -> dict:
+    rng = np.random.default_rng(0)
+    truth = []
+    while len(truth) < 12:
+        P = rng.uniform(-50, 50, (4, 3))
+        if np.linalg.norm(P[:, None] - P[None], axis=2)[np.triu_indices(4, 1)].min() > 20:
+            truth.append(P)
+    frames = int(round(minutes * 60 * rate))
+    rec = simulate_recording(truth, frames, 0.2, 0.05, rng, rate)
+    loose = rng.uniform(-2000, 2000, (frames, 2, 3))  # two markers that belong to no body
+    P = np.concatenate([rec.points_mm, loose], axis=1)
+    path = tmp / "long.c3d"
+    t0 = time.perf_counter()
+    write_c3d(path, [*rec.labels, "loose1", "loose2"], P, rate)
+    written_s = time.perf_counter() - t0
+    run = _cli(["measure", str(path), "--out", str(tmp / "m"), "-q"])
+    report = json.loads((tmp / "m" / "measure.json").read_text())
+    worst = 0.0
+    for b in report["bodies"]:
+        i = int(b["labels"][0].split("_")[0][1:]) - 1
+        M, T = np.array(b["points_mm"]), truth[i]
+        pairs = list(itertools.combinations(range(4), 2))
+        d = [abs(np.linalg.norm(M[a] - M[c]) - np.linalg.norm(T[a] - T[c])) for a, c in pairs]
+        worst = max(worst, float(max(d)))
+    return {
+        "frames": frames,
+        "markers": P.shape[1],
+        "c3d_mb": round(path.stat().st_size / 1e6, 1),
+        "write_c3d_s": round(written_s, 2),
+        "cli": run,
+        "bodies_found": len(report["bodies"]),
+        "worst_distance_error_mm": round(worst, 4),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--rate", type=float, default=200.0)
+    a = ap.parse_args()
+    with tempfile.TemporaryDirectory(prefix="bench_convert.") as tmp:
+        tmp = Path(tmp)
+        (tmp / "c").mkdir()
+        (tmp / "m").mkdir()
+        conv = bench_convert(tmp / "c")
+        meas = bench_measure(tmp / "m", a.minutes, a.rate)
+    worst_cli = max(v["wall_s"] for v in conv["cli"].values())
+    m = meas["cli"]
+    print(
+        json.dumps(
+            {
+                "machine": {
+                    "python": platform.python_version(),
+                    "cpus": os.cpu_count(),
+                    "load": os.getloadavg(),
+                },
+                "convert": conv,
+                "measure": meas,
+                "targets": {
+                    "convert 100 files <= 2 s (slowest format, whole command, wall)": [
+                        worst_cli,
+                        bool(worst_cli <= 2.0),
+                    ],
+                    "measure 10-minute 200 Hz C3D of 50 markers <= 10 s (wall)": [
+                        m["wall_s"],
+                        bool(m["wall_s"] <= 10.0),
+                    ],
+                    "... and <= 1 GB": [m["peak_rss_mb"], bool(m["peak_rss_mb"] <= 1024.0)],
+                    "measured bodies within 0.05 mm": [
+                        meas["worst_distance_error_mm"],
+                        bool(meas["worst_distance_error_mm"] <= 0.05),
+                    ],
+                },
+            },
+            indent=1,
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()
