@@ -228,3 +228,14 @@ def test_an_unknown_label_names_the_option(synthetic, tmp_path, cli_error):
     assert "--body" in err and "NOPE" in err
     err = cli_error(["measure", str(path), "--body", "x=B1_M1", "--out", str(tmp_path / "o")])
     assert "3 or more" in err
+
+
+def test_the_c3d_reader_agrees_with_ezc3d(synthetic):
+    """The bounded-memory reader against ezc3d's own reading of the same files."""
+    from starforge.tracking.recording import read_c3d_ezc3d
+
+    for path in (C3D, synthetic[2]):
+        ours, theirs = read_recording(path), read_c3d_ezc3d(path)
+        assert ours.labels == theirs.labels and ours.rate_hz == theirs.rate_hz
+        assert np.array_equal(np.isnan(ours.points_mm), np.isnan(theirs.points_mm))
+        assert np.array_equal(np.nan_to_num(ours.points_mm), np.nan_to_num(theirs.points_mm))

@@ -66,11 +66,29 @@ def _finish(path, labels, P: np.ndarray, factor: float, rate) -> Trajectories:
 
 
 def read_c3d(path) -> Trajectories:
-    """The labelled points of a C3D file (POINT:LABELS, LABELS2 ...; POINT:UNITS)."""
-    try:
-        import ezc3d
-    except ImportError:  # pragma: no cover - declared as a dependency
-        raise StarforgeError("reading C3D needs ezc3d: pip install ezc3d") from None
+    """The labelled points of a C3D file (POINT:LABELS, LABELS2 ...; POINT:UNITS): Intel and
+    MIPS files with bounded memory (:func:`starforge.tracking.c3d.read_points`), DEC files
+    through ezc3d."""
+    from starforge.tracking.c3d import read_points
+
+    got = read_points(path)
+    if got is None:
+        return read_c3d_ezc3d(path)
+    return _finish(path, got.labels, got.points, _unit(path, got.unit), got.rate_hz)
+
+
+def _unit(path, unit: str) -> float:
+    if unit not in UNITS:
+        raise StarforgeError(
+            f"{path}: POINT:UNITS {unit!r} is not a length unit starforge knows ({', '.join(UNITS)})"
+        )
+    return UNITS[unit]
+
+
+def read_c3d_ezc3d(path) -> Trajectories:
+    """:func:`read_c3d` through ezc3d (every processor type; the whole file in memory)."""
+    import ezc3d
+
     try:
         c = ezc3d.c3d(str(path))
         point = c["parameters"]["POINT"]
@@ -86,13 +104,9 @@ def read_c3d(path) -> Trajectories:
     n = data.shape[1]
     labels = (labels + [f"marker{i + 1}" for i in range(len(labels), n)])[:n]
     unit = str((point.get("UNITS", {}).get("value") or ["mm"])[0]).strip().lower()
-    if unit not in UNITS:
-        raise StarforgeError(
-            f"{path}: POINT:UNITS {unit!r} is not a length unit starforge knows ({', '.join(UNITS)})"
-        )
     rate = (point.get("RATE", {}).get("value") or [None])[0]
     P = np.ascontiguousarray(np.transpose(data[:3], (2, 1, 0)))  # (F, M, 3)
-    return _finish(path, labels, P, UNITS[unit], rate)
+    return _finish(path, labels, P, _unit(path, unit), rate)
 
 
 def _numbers(rows, first: int, n_cols: int, path) -> np.ndarray:
