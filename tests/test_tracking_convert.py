@@ -161,6 +161,24 @@ HOSTILE = {
         "3 or more markers",
     ),
     "count.ini": (lambda: b"[geometry]\ncount=255\nid=1\n", "count 255"),
+    "many.xml": (
+        lambda: (
+            "<QTM_Settings><The_6D><Body><Name>b</Name><Points>"
+            + "".join(f'<Point X="{i}" Y="{i % 7}" Z="{i % 5}"/>' for i in range(255))
+            + "</Points></Body></The_6D></QTM_Settings>"
+        ).encode(),
+        "255 markers",
+    ),
+    "none.vsk": (
+        lambda: b"<KinematicModel><MarkerSet NAME='x'><Markers/></MarkerSet></KinematicModel>",
+        "no VSK marker",
+    ),
+    "none.motive": (lambda: b"<Profile><NodeAssets></NodeAssets></Profile>", "no Motive rigid body"),
+    "nan.csv": (lambda: b"body,marker,x_mm,y_mm,z_mm\nb,1,0,0,0\nb,2,nan,0,0\nb,3,0,9,0\n", "not finite"),
+    "latin1.csv": (
+        lambda: "body,marker,x_mm,y_mm,z_mm\nK\u00f6rper,1,0,0,0\n".encode("latin-1"),
+        "UnicodeDecodeError",
+    ),
     "unicode.ini": (
         lambda: "[geometry]\ncount=3\nid=1\n[fiducial0]\nx=\u00e9\ny=0\nz=0\n".encode(),
         "Atracsys",
