@@ -239,3 +239,9 @@ def test_the_c3d_reader_agrees_with_ezc3d(synthetic):
         assert ours.labels == theirs.labels and ours.rate_hz == theirs.rate_hz
         assert np.array_equal(np.isnan(ours.points_mm), np.isnan(theirs.points_mm))
         assert np.array_equal(np.nan_to_num(ours.points_mm), np.nan_to_num(theirs.points_mm))
+
+
+def test_a_recording_larger_than_the_memory_limit_is_refused_before_it_is_read(synthetic, cli_error):
+    _, _, path = synthetic
+    err = cli_error(["--max-memory", "1M", "measure", path, "--out", path.parent / "o"])
+    assert "--max-memory" in err and "1,500 frames of 40 markers" in err

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
+from starforge.runtime.budget import require_memory
 
 BLOCK = 512
 INTEL, DEC, MIPS = 84, 85, 86
@@ -136,6 +137,11 @@ def read_points(path) -> C3DPoints | None:
     frames = _frame_count(params, endian, first, last, avail, frame_words * word)
     if frames <= 0:
         raise StarforgeError(f"{path}: C3D data section is cut short (no whole frame)")
+    require_memory(
+        frames * n_points * 3 * 8 * 3.0,  # the points as float64, the columns copied, one working copy
+        f"reading {frames:,} frames of {n_points} markers from {path}",
+        "give a shorter recording or raise --max-memory",
+    )
     kind = endian + ("f4" if word == 4 else "i2")
     mm = np.memmap(path, dtype=kind, mode="r", offset=offset, shape=(frames, frame_words))
     try:

@@ -22,6 +22,8 @@ from starforge.errors import StarforgeError
 #: recordings larger than this are refused before reading (a 10-minute, 200 Hz, 255-marker C3D
 #: of floats is about 0.5 GB)
 MAX_RECORDING_BYTES = 2 * 1024**3
+#: text exports larger than this are refused (they are read whole; C3D is read in place)
+MAX_TEXT_BYTES = 256 * 1024**2
 #: factor to mm of the length units recordings state
 UNITS = {"mm": 1.0, "millimeters": 1.0, "cm": 10.0, "centimeters": 10.0, "m": 1000.0, "meters": 1000.0}
 
@@ -215,6 +217,11 @@ def read_recording(path) -> Trajectories:
         head = fh.read(512)
     if path.suffix.lower() == ".c3d" or (len(head) > 1 and head[1] == 0x50):
         return read_c3d(path)
+    if size > MAX_TEXT_BYTES:
+        raise StarforgeError(
+            f"{path} is {size / 1024**2:,.0f} MB of text; text exports are read up to "
+            f"{MAX_TEXT_BYTES // 1024**2} MB: export the recording as C3D"
+        )
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
