@@ -239,3 +239,9 @@ def test_an_existing_tool_is_rebuilt_as_a_printable_body(tmp_path):
         assert np.abs(_dists(b["centres_mm"]) - _dists(tool.points_mm)).max() < 1e-4
         mesh = trimesh.load(tmp_path / "e" / f"{b['name']}.stl")
         assert mesh.is_watertight and mesh.volume > 0
+
+
+def test_an_unknown_format_lists_the_known_ones(tmp_path, cli_error):
+    err = cli_error(["convert", VENDOR / "8700339.rom", "--format", "fbx", "--out", tmp_path / "o"])
+    assert "fbx" in err and all(f in err for f in [*FORMATS, "family"])
+    assert not (tmp_path / "o").exists()

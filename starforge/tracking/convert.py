@@ -224,6 +224,8 @@ def convert_to(
     if not (np.isfinite(noise_mm) and noise_mm > 0):
         raise StarforgeError(f"noise must be > 0 mm, got {noise_mm}")
     if str(fmt).strip().lower() != "family":
+        if str(fmt).strip().lower() not in FORMATS:
+            raise StarforgeError(f"unknown --format {fmt!r}; known: {', '.join(FORMATS)}, family")
         return convert_records(source, fmt, noise_mm, id_start)
     import json
 
