@@ -1,7 +1,7 @@
 """A lab's bodies through ``starforge convert`` and ``starforge measure``; prints one JSON object.
 
-* convert: 100 tracker files (the real vendor files of tests/data/vendor and copies of them
-  written in every format, 100 in all) converted to each format by the command line, wall clock
+* convert: 100 tracker files (the real vendor file of tests/data/vendor and its bodies written
+  in every format, 100 in all) converted to each format by the command line, wall clock
   of the whole command (interpreter start included), and by the library alone;
 * measure: a synthetic C3D recording (ezc3d) of 12 four-marker bodies and 2 loose markers (50
   markers), 10 minutes at 200 Hz, 0.2 mm noise, 5 % gaps, measured by the command line: wall
@@ -59,18 +59,19 @@ def _child(cmd: list[str]) -> dict:
 
 
 def _hundred_files(folder: Path) -> list[Path]:
-    """100 tracker files: the vendor files, then each of their bodies in every format."""
+    """100 tracker files: the vendor files of tests/data/vendor, then their bodies written in
+    every format, round after round."""
     real = sorted(p for p in VENDOR.iterdir() if p.suffix != ".md")
     files = list(real)
     source = read_records(real)
-    for fmt in itertools.cycle(FORMATS):
-        conv = convert_to(source, fmt)
-        for rel, data in conv.files.items():
-            if len(files) >= 100:
-                return files
-            path = folder / f"{fmt}_{rel}"
-            path.write_bytes(data)
-            files.append(path)
+    for k in itertools.count():
+        for fmt in FORMATS:
+            for rel, data in convert_to(source, fmt).files.items():
+                if len(files) >= 100:
+                    return files
+                path = folder / f"{k}_{fmt}_{rel}"
+                path.write_bytes(data)
+                files.append(path)
     return files
 
 

@@ -18,7 +18,9 @@ VENDOR = Path(__file__).parent / "data" / "vendor"
 def test_drawings_of_a_lab_file_and_a_tool(tmp_path, cli_error):
     one = convert_to(read_records([VENDOR / "qtm_6d_settings.xml"]), "qtm").files["Table.xml"]
     (tmp_path / "Table.xml").write_bytes(one)  # a QTM file of one body, with its point names
-    files = [tmp_path / "Table.xml", VENDOR / "medtronic-PN960556.rom"]
+    rom = convert_to(read_records([VENDOR / "qtm_6d_settings.xml"]), "rom").files["Cup.rom"]
+    (tmp_path / "Cup.rom").write_bytes(rom)  # a 5-marker tool as an NDI file
+    files = [tmp_path / "Table.xml", tmp_path / "Cup.rom"]
     out = tmp_path / "d"
     assert main(["drawing", *map(str, files), "--out", str(out), "-q"]) == 0
     truth = read_file(files[0]) | read_file(files[1])

@@ -246,20 +246,3 @@ def test_a_recording_larger_than_the_memory_limit_is_refused_before_it_is_read(s
     _, _, path = synthetic
     err = cli_error(["--max-memory", "1M", "measure", path, "--out", path.parent / "o"])
     assert "--max-memory" in err and "1,500 frames of 40 markers" in err
-
-
-def test_a_real_qtm_tsv_export_is_read_as_written():
-    """A QTM export from a public repository, against a plain split of its lines."""
-    path = DATA / "qtm_Measurement1_excerpt.tsv"
-    rec = read_recording(path)
-    lines = path.read_text().splitlines()
-    names = lines[9].split("\t")[1:]
-    rows = [ln.split("\t") for ln in lines[12:]]
-    assert rec.labels == tuple(names) and len(names) == 15 and rec.rate_hz == 100.0
-    want = np.array([[float(c) if c.strip() else np.nan for c in r[2:]] for r in rows]).reshape(
-        len(rows), 15, 3
-    )
-    want[(want == 0).all(axis=2)] = np.nan
-    assert rec.points_mm.shape == (200, 15, 3)
-    assert np.array_equal(np.isnan(rec.points_mm), np.isnan(want))
-    assert np.nanmax(np.abs(rec.points_mm - want)) == 0.0
