@@ -242,7 +242,12 @@ def test_the_c3d_reader_agrees_with_ezc3d(synthetic):
         assert np.array_equal(np.nan_to_num(ours.points_mm), np.nan_to_num(theirs.points_mm))
 
 
-def test_a_recording_larger_than_the_memory_limit_is_refused_before_it_is_read(synthetic, cli_error):
+def test_a_recording_larger_than_the_memory_limit_is_refused_before_it_is_read(
+    synthetic, cli_error, monkeypatch
+):
+    from starforge.runtime.budget import ENV_MEMORY
+
+    monkeypatch.setenv(ENV_MEMORY, "1M")  # --max-memory sets it for the process: restored afterwards
     _, _, path = synthetic
     err = cli_error(["--max-memory", "1M", "measure", path, "--out", path.parent / "o"])
     assert "--max-memory" in err and "1,500 frames of 40 markers" in err
