@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -52,3 +53,20 @@ def small_family(tmp_path_factory):
     out = tmp_path_factory.mktemp("small")
     assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--out", out, "-q"]) == 0
     return out, json.loads((out / "family.json").read_text())
+
+
+@pytest.fixture
+def cli_error(capsys):
+    """Run the CLI on args that must fail: exit code 2 and one ``error:`` line on stderr, no
+    traceback; returns that line."""
+
+    def run(args) -> str:
+        capsys.readouterr()
+        rc = main([str(a) for a in args])
+        lines = capsys.readouterr().err.strip().splitlines()
+        err = "\n".join(x for x in lines if not re.match(r"starforge \S+: \d+ s", x))  # heartbeat
+        assert rc == 2, err
+        assert err.startswith("error:") and "\n" not in err and "Traceback" not in err
+        return err
+
+    return run

@@ -176,7 +176,12 @@ def _family_bodies(path: Path, data: dict) -> tuple[list[Body], float, float]:
     width = max(3, len(str(max(s.id for s in fam.stars))))
     tip = fam.spec.tip_mm if fam.spec.tip_mm is not None else default_tip_mm(fam.spec.box_mm)
     tip = tuple(float(x) for x in tip)
-    bodies = [Body(f"{base}_{s.id:0{width}d}", int(s.id), s.vertices, tip, str(path)) for s in fam.stars]
+    # a family written from named bodies (starforge convert / measure) keeps each star's name
+    named = {s.get("id"): s.get("name") for s in data.get("stars", []) if isinstance(s, dict)}
+    bodies = [
+        Body(safe_name(named.get(s.id) or f"{base}_{s.id:0{width}d}"), int(s.id), s.vertices, tip, str(path))
+        for s in fam.stars
+    ]
     for b in bodies:
         check_body(path, b.name, b.points_mm)
     return bodies, float(fam.spec.tol_mm), float(fam.spec.marker_mm)

@@ -88,8 +88,10 @@ class CheckSettings:
         require(0 < self.presence <= 1, f"presence must be in (0, 1], got {self.presence}")
         require(self.curve_points <= 50, f"curve must be at most 50 noise levels, got {self.curve_points}")
         non_negative("noise", self.noise_mm)
-        require(self.noise_mm <= MAX_NOISE_MM, f"noise must be at most {MAX_NOISE_MM:g} mm (sigma per axis), "
-                f"got {self.noise_mm:g}")
+        require(
+            self.noise_mm <= MAX_NOISE_MM,
+            f"noise must be at most {MAX_NOISE_MM:g} mm (sigma per axis), got {self.noise_mm:g}",
+        )
         require(self.drop >= 0, f"drop must be >= 0, got {self.drop}")
         require(self.ghosts >= 0, f"ghosts must be >= 0, got {self.ghosts}")
         require(self.frames >= 1, f"frames must be >= 1, got {self.frames}")
@@ -151,10 +153,11 @@ def resolve_windows(bodyset, s: CheckSettings, preset=None) -> dict:
             "qtm_export": "the BoneLengthTolerance and MaximumResidual starforge writes into QTM files",
             "rom_export": "the maximum marker error starforge writes into NDI .rom files (residual) and the same "
             "distance tolerance (NDI's window is not published)",
-        }.get(preset.tracker.window, "the tolerances starforge derives (the vendor's window is a per-body setting)")
-        source = (
-            f"preset {preset.name}: {what} for these bodies at {s.noise_mm:g} mm noise (margin {q['margin_mm']:g} mm)"
+        }.get(
+            preset.tracker.window,
+            "the tolerances starforge derives (the vendor's window is a per-body setting)",
         )
+        source = f"preset {preset.name}: {what} for these bodies at {s.noise_mm:g} mm noise (margin {q['margin_mm']:g} mm)"
     elif preset is not None:
         match, res, source = preset.tracker.match_mm, preset.tracker.residual_mm, f"preset {preset.name}"
     elif bodyset.tolerance_mm is not None:

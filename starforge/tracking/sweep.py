@@ -292,7 +292,9 @@ def _cell_pilot(marker_mm: float, delta: float, cube: float) -> tuple[float, flo
     return pilot(StarSpec(box_mm=(cube, cube, cube), marker_mm=marker_mm, delta_mm=delta), cpu=True)
 
 
-def cell_estimate(marker_mm: float, delta: float, cube: float, rules, exhaustive_labelled: int, samples: int) -> tuple[float, float]:
+def cell_estimate(
+    marker_mm: float, delta: float, cube: float, rules, exhaustive_labelled: int, samples: int
+) -> tuple[float, float]:
     """(single-core seconds, peak bytes) of one cell, rough (for the bounded-cost checks).  An
     exhaustive cell is its enumeration plus one selection per rule; past :data:`PILOT_ABOVE_S`
     at the fixed rate, both come from a pilot sample of the cell's own stars
@@ -317,7 +319,9 @@ def cell_estimate(marker_mm: float, delta: float, cube: float, rules, exhaustive
             fits = n * share * FIT_SHARE_MARGIN
         # the selection holds the fitting stars and builds their key windows (the pair rule's
         # are twice the face rule's): in a cube that, not the enumeration, sets the peak
-        select = max(window_bytes(fits, r, spec.grid_steps) for r in rules) + fits * BYTES_PER_CANDIDATE + 200e6
+        select = (
+            max(window_bytes(fits, r, spec.grid_steps) for r in rules) + fits * BYTES_PER_CANDIDATE + 200e6
+        )
         return guess, max(est["bytes"], select)
     triples = math.comb(spec.pool_size, 3)
     return (
@@ -345,7 +349,9 @@ def _auto_limit(marker_mm: float, delta: float, cube: float, rules, samples: int
     return n if (n <= MAX_EXHAUSTIVE and nbytes <= share) else -1
 
 
-def estimate_cells(marker_mm: float, deltas, cubes, rules, exhaustive_labelled: int, samples: int) -> tuple[float, float]:
+def estimate_cells(
+    marker_mm: float, deltas, cubes, rules, exhaustive_labelled: int, samples: int
+) -> tuple[float, float]:
     """Rough single-core seconds for a whole sweep and the peak bytes of its largest cell
     (for the bounded-cost check)."""
     est = [cell_estimate(marker_mm, d, c, rules, exhaustive_labelled, samples) for d in deltas for c in cubes]

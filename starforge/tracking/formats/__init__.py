@@ -30,12 +30,16 @@ import numpy as np
 
 from starforge.errors import StarforgeError
 from starforge.tracking.formats import atracsys, bodycsv, motive, qtm, rom, vsk
-from starforge.tracking.formats._common import MAX_FILE_BYTES, WriteContext  # noqa: F401
+from starforge.tracking.formats._common import FIELDS, MAX_FILE_BYTES, Record, WriteContext  # noqa: F401
 
 
 @dataclass(frozen=True)
 class Format:
-    """One tracker format: what it is, where it comes from, and its functions."""
+    """One tracker format: what it is, where it comes from, and its functions.
+
+    ``load`` returns :class:`~starforge.tracking.formats._common.Record` s (points and what else
+    the file states); ``read`` only the points.  ``carries``: the record fields and tolerance
+    keys a file of this format keeps (names and marker order every format keeps)."""
 
     name: str
     suffix: str
@@ -44,23 +48,31 @@ class Format:
     write: Callable[[str, np.ndarray, WriteContext], bytes]
     sniff: Callable[[Path, bytes], bool]
     max_markers: int | None = None
+    load: Callable[[Path], list] | None = None
+    carries: frozenset = frozenset()
+
+
+def _format(name: str, module, vendor: str, max_markers: int | None = None) -> Format:
+    return Format(
+        name,
+        module.SUFFIX,
+        vendor,
+        module.read,
+        module.write,
+        module.sniff,
+        max_markers,
+        module.load,
+        module.CARRIES,
+    )
 
 
 FORMATS: dict[str, Format] = {
-    "qtm": Format("qtm", qtm.SUFFIX, "Qualisys QTM", qtm.read, qtm.write, qtm.sniff),
-    "vsk": Format("vsk", vsk.SUFFIX, "Vicon", vsk.read, vsk.write, vsk.sniff),
-    "atracsys": Format(
-        "atracsys",
-        atracsys.SUFFIX,
-        "Atracsys",
-        atracsys.read,
-        atracsys.write,
-        atracsys.sniff,
-        atracsys.MAX_MARKERS,
-    ),
-    "rom": Format("rom", rom.SUFFIX, "NDI", rom.read, rom.write, rom.sniff, rom.MAX_MARKERS),
-    "motive": Format("motive", motive.SUFFIX, "OptiTrack Motive", motive.read, motive.write, motive.sniff),
-    "csv": Format("csv", bodycsv.SUFFIX, "starforge", bodycsv.read, bodycsv.write, bodycsv.sniff),
+    "qtm": _format("qtm", qtm, "Qualisys QTM"),
+    "vsk": _format("vsk", vsk, "Vicon"),
+    "atracsys": _format("atracsys", atracsys, "Atracsys", atracsys.MAX_MARKERS),
+    "rom": _format("rom", rom, "NDI", rom.MAX_MARKERS),
+    "motive": _format("motive", motive, "OptiTrack Motive"),
+    "csv": _format("csv", bodycsv, "starforge"),
 }
 TRACKER_FORMATS = tuple(FORMATS)
 READERS = {k: f.read for k, f in FORMATS.items()}
@@ -111,7 +123,12 @@ def sniff_format(path) -> str | None:
 
 def read_file(path, fmt: str | None = None) -> dict[str, np.ndarray]:
     """{body name: (n, 3) mm} of a tracker file (format sniffed unless given)."""
+    return {r.name: r.points_mm for r in load_file(path, fmt)}
+
+
+def load_file(path, fmt: str | None = None) -> list[Record]:
+    """The body records of a tracker file (format sniffed unless given)."""
     fmt = fmt or sniff_format(path)
     if fmt is None:
         raise StarforgeError(f"{path}: not a tracker file starforge reads ({', '.join(FORMATS)})")
-    return FORMATS[fmt].read(Path(path))
+    return FORMATS[fmt].load(Path(path))

@@ -30,6 +30,8 @@ class WriteContext:
         (:func:`starforge.tracking.tolerances.export_tolerances`): ``noise_mm``,
         ``bone_length_tolerance_mm``, ``maximum_residual_mm``, ``max_marker_error_mm``
     min_markers : int             markers a tracker needs to report the body
+    marker_names : tuple of str or None   each marker's name, in order (None: the format's own
+        numbering)
     """
 
     index: int = 0
@@ -38,6 +40,46 @@ class WriteContext:
     normals: np.ndarray | None = None
     tolerances: dict = field(default_factory=dict)
     min_markers: int = 3
+    marker_names: tuple[str, ...] | None = None
+
+
+#: what a body record may carry besides its points (the names :data:`Record` fields use)
+FIELDS = ("marker_names", "body_id", "normals", "marker_mm", "tolerances", "min_markers")
+
+
+@dataclass(frozen=True)
+class Record:
+    """One rigid body as a tracker file holds it: its points and what else the file says.
+
+    name : str                                 the body's name in the file (or the file's stem)
+    points_mm : (n, 3) float, mm               marker centres, in the file's order
+    marker_names : tuple of str or None        each marker's name, where the file names them
+    body_id : int or None                      the file's numeric id of the body
+    normals : (n, 3) float or None             unit direction each marker faces
+    marker_mm : float or None                  marker sphere diameter, mm
+    tolerances : dict                          identification tolerances the file states, mm:
+        ``bone_length_tolerance_mm``, ``maximum_residual_mm``, ``max_marker_error_mm``
+    min_markers : int or None                  markers the tracker needs to report the body
+    """
+
+    name: str
+    points_mm: np.ndarray
+    marker_names: tuple[str, ...] | None = None
+    body_id: int | None = None
+    normals: np.ndarray | None = None
+    marker_mm: float | None = None
+    tolerances: dict = field(default_factory=dict)
+    min_markers: int | None = None
+
+    def carried(self) -> set[str]:
+        """The fields of :data:`FIELDS` this record has a value for (a tolerance by its key)."""
+        have = {f for f in FIELDS if f != "tolerances" and getattr(self, f) is not None}
+        return have | set(self.tolerances)
+
+
+def points_of(records: list[Record]) -> dict[str, np.ndarray]:
+    """{name: (n, 3) mm} of records (the plain readers' result)."""
+    return {r.name: r.points_mm for r in records}
 
 
 def f2s(x: float) -> str:
@@ -76,9 +118,14 @@ def check_size(path) -> None:
 
 
 def parse_xml(path) -> ET.Element:
+    """The root of an XML tracker file; refuses files over :data:`MAX_FILE_BYTES` and any entity
+    declaration (no tracker file has one; an entity bomb is made of them)."""
     check_size(path)
+    data = Path(path).read_bytes()
+    if b"<!ENTITY" in data:
+        raise StarforgeError(f"{path} declares XML entities, which no tracker file does; refused")
     try:
-        return ET.parse(path).getroot()
+        return ET.fromstring(data)
     except ET.ParseError as exc:
         raise StarforgeError(f"{path} is not valid XML ({exc})") from None
 

@@ -14,9 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.tracking.formats._common import WriteContext, check_size, f2s
+from starforge.tracking.formats._common import Record, WriteContext, check_size, f2s, points_of
 
 SUFFIX = ".ini"
+#: what a geometry file carries besides its points (:data:`~starforge.tracking.formats._common.FIELDS`)
+CARRIES = frozenset({"body_id"})
 #: fiducials one Atracsys geometry may hold (``FTK_MAX_FIDUCIALS`` in Atracsys' SDK headers; the
 #: INI loader Atracsys ships, as kept in PlusLib, writes ``count`` points into an array this long)
 MAX_FIDUCIALS = 6
@@ -37,14 +39,19 @@ def write(name: str, P, ctx: WriteContext) -> bytes:
 
 
 def read(path) -> dict[str, np.ndarray]:
-    """An Atracsys geometry ``.ini``: {file stem: (count, 3) mm}.  Optional sections such as
-    ``[pivot]`` are ignored."""
+    """An Atracsys geometry ``.ini``: {file stem: (count, 3) mm} (see :func:`load`)."""
+    return points_of(load(path))
+
+
+def load(path) -> list[Record]:
+    """An Atracsys geometry ``.ini``: one body named after the file, with its geometry id.
+    Optional sections such as ``[pivot]`` are ignored."""
     check_size(path)
     cp = configparser.ConfigParser()
     try:
         cp.read_string(Path(path).read_text(encoding="utf-8"))
         n = cp.getint("geometry", "count")
-        cp.getint("geometry", "id")
+        gid = cp.getint("geometry", "id")
         if not 1 <= n <= 64:
             raise ValueError(f"count {n} is outside 1..64")
         pts = [[cp.getfloat(f"fiducial{i}", c) for c in "xyz"] for i in range(n)]
@@ -56,7 +63,7 @@ def read(path) -> dict[str, np.ndarray]:
     P = np.array(pts, dtype=float).reshape(-1, 3)
     if not np.isfinite(P).all():
         raise StarforgeError(f"{path}: fiducial coordinates must be finite numbers")
-    return {Path(path).stem: P}
+    return [Record(Path(path).stem, P, body_id=gid)]
 
 
 def sniff(path, head: bytes) -> bool:

@@ -8,9 +8,11 @@ import io
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.tracking.formats._common import WriteContext, check_size, f2s, num
+from starforge.tracking.formats._common import Record, WriteContext, check_size, f2s, num, points_of
 
 SUFFIX = ".csv"
+#: what a body table carries besides names and points (:data:`~starforge.tracking.formats._common.FIELDS`)
+CARRIES = frozenset()
 
 #: body CSV coordinate columns and the factor to mm
 _UNITS = {("x_mm", "y_mm", "z_mm"): 1.0, ("x_m", "y_m", "z_m"): 1000.0}
@@ -33,6 +35,11 @@ def write(name: str, P, ctx: WriteContext) -> bytes:
 
 def read(path) -> dict[str, np.ndarray]:
     """{body: (n, 3) mm}, each body's markers in marker order."""
+    return points_of(load(path))
+
+
+def load(path) -> list[Record]:
+    """The table's bodies, each body's markers in marker order."""
     check_size(path)
     rows: dict[str, list] = {}
     try:
@@ -52,12 +59,12 @@ def read(path) -> dict[str, np.ndarray]:
         ) from None
     if not rows:
         raise StarforgeError(f"{path} holds no body rows")
-    out = {}
+    out = []
     for k, v in rows.items():
         ids = [i for i, _ in v]
         if len(set(ids)) != len(ids):
             raise StarforgeError(f"{path}: body {k} numbers a marker twice")
-        out[k] = np.array([p for _, p in sorted(v)], dtype=float).reshape(-1, 3)
+        out.append(Record(k, np.array([p for _, p in sorted(v)], dtype=float).reshape(-1, 3)))
     return out
 
 

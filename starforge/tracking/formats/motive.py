@@ -30,10 +30,21 @@ import numpy as np
 
 from starforge.colours import body_colour
 from starforge.errors import StarforgeError
-from starforge.tracking.formats._common import WriteContext, f2s, noise_note, num, parse_xml, xml_bytes
+from starforge.tracking.formats._common import (
+    Record,
+    WriteContext,
+    f2s,
+    noise_note,
+    num,
+    parse_xml,
+    points_of,
+    xml_bytes,
+)
 
 SUFFIX = ".motive"
 MAX_MARKERS = None
+#: what a Motive rigid body carries besides its points (:data:`~starforge.tracking.formats._common.FIELDS`)
+CARRIES = frozenset({"body_id", "marker_mm", "bone_length_tolerance_mm"})
 
 
 def _m_text(x_mm: float) -> str:
@@ -116,8 +127,22 @@ def _xyz(path, what: str, text) -> list[float]:
 
 def read(path) -> dict[str, np.ndarray]:
     """Rigid bodies of a Motive profile: {NodeName: (n, 3) mm} (metres in the file)."""
+    return points_of(load(path))
+
+
+def _mm(path, what: str, text) -> float | None:
+    """Metres text -> mm (shifted exactly), or None when absent."""
+    if text is None or not str(text).strip():
+        return None
+    num(path, what, text)
+    return float(Decimal(str(text).strip()).scaleb(3))
+
+
+def load(path) -> list[Record]:
+    """Rigid bodies of a Motive profile with their asset id, marker size and
+    ``MaxMarkerDeflection`` (metres in the file, mm here)."""
     root = parse_xml(path)
-    out: dict[str, np.ndarray] = {}
+    out: dict[str, Record] = {}
     for rb in root.iter("rigid_body"):
         props = {
             (p.findtext("name") or "").strip(): (p.findtext("value") or "").strip()
@@ -136,12 +161,22 @@ def read(path) -> dict[str, np.ndarray]:
             raise StarforgeError(f"{path}: {name}'s marker positions and MarkerLocation properties disagree")
         if name in out:
             raise StarforgeError(f"{path}: two rigid bodies are named {name!r}")
-        out[name] = np.array(pts, dtype=float).reshape(-1, 3)
+        sizes = {m.findtext("size") for m in rb.iter("marker")}
+        size = _mm(path, f"{name} marker size", sizes.pop()) if len(sizes) == 1 else None
+        deflection = _mm(path, f"{name} MaxMarkerDeflection", props.get("MaxMarkerDeflection"))
+        ident = rb.get("id", "")
+        out[name] = Record(
+            name,
+            np.array(pts, dtype=float).reshape(-1, 3),
+            body_id=int(ident) if ident.strip().isdigit() and int(ident) < 2**31 else None,
+            marker_mm=size if size and size > 0 else None,
+            tolerances={} if deflection is None else {"bone_length_tolerance_mm": deflection},
+        )
     if not out:
         raise StarforgeError(
             f"{path} holds no Motive rigid body (expected Profile > NodeAssets > rigid_body)"
         )
-    return out
+    return list(out.values())
 
 
 def sniff(path, head: bytes) -> bool:

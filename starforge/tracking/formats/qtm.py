@@ -18,9 +18,20 @@ import numpy as np
 
 from starforge.colours import body_colour
 from starforge.errors import StarforgeError
-from starforge.tracking.formats._common import WriteContext, f2s, noise_note, num, parse_xml, xml_bytes
+from starforge.tracking.formats._common import (
+    Record,
+    WriteContext,
+    f2s,
+    noise_note,
+    num,
+    parse_xml,
+    points_of,
+    xml_bytes,
+)
 
 SUFFIX = ".xml"
+#: what a QTM body carries besides its points (:data:`~starforge.tracking.formats._common.FIELDS`)
+CARRIES = frozenset({"marker_names", "bone_length_tolerance_mm", "maximum_residual_mm", "min_markers"})
 
 
 def qtm_xml(
@@ -30,9 +41,11 @@ def qtm_xml(
     min_markers: int = 3,
     first_colour: int = 0,
     comment: str | None = None,
+    marker_names=None,
 ) -> bytes:
     """QTM 6DOF settings for ``bodies``: list of (name, (n, 3) mm); body k gets colour
-    ``first_colour + k``."""
+    ``first_colour + k``.  ``marker_names``: one tuple of point names per body (None: QTM's own
+    ``<body> - <k>``)."""
     root = ET.Element("QTM_Settings")
     the6d = ET.SubElement(root, "The_6D")
     for k, (name, P) in enumerate(bodies):
@@ -46,6 +59,7 @@ def qtm_xml(
         ET.SubElement(b, "BoneLengthTolerance").text = f2s(bone_tolerance_mm)
         ET.SubElement(b, "Filter", Preset="No filter")
         pts = ET.SubElement(b, "Points")
+        names = (marker_names or [None] * len(bodies))[k] or [f"{name} - {i + 1}" for i in range(len(P))]
         for i, p in enumerate(np.asarray(P, dtype=float)):
             ET.SubElement(
                 pts,
@@ -55,7 +69,7 @@ def qtm_xml(
                 Z=f2s(p[2]),
                 Virtual="0",
                 PhysicalId="0",
-                Name=f"{name} - {i + 1}",
+                Name=names[i],
             )
         # origin type 0: the global coordinate system, identity orientation
         ET.SubElement(b, "Data_origin", X="0", Y="0", Z="0", Relative_body="0").text = "0"
@@ -74,11 +88,22 @@ def write(name: str, P, ctx: WriteContext) -> bytes:
         ctx.min_markers,
         first_colour=ctx.index,
         comment=comment,
+        marker_names=[ctx.marker_names],
     )
 
 
 def read(path) -> dict[str, np.ndarray]:
-    """Bodies of a QTM file: {name: (n, 3) mm}.
+    """Bodies of a QTM file: {name: (n, 3) mm} (see :func:`load`)."""
+    return points_of(load(path))
+
+
+def _tolerance(path, b, tag: str, name: str) -> float | None:
+    text = b.findtext(tag)
+    return None if text is None or not text.strip() else num(path, f"{name} {tag}", text)
+
+
+def load(path) -> list[Record]:
+    """Bodies of a QTM file with their point names, tolerances and minimum markers.
 
     Reads the 6DOF settings structure (``The_6D`` > ``Body`` > ``Points`` > ``Point X= Y= Z=``,
     QTM RT protocol 1.21 and later), older body files (``Bodies`` > ``Body`` with the same
@@ -86,14 +111,15 @@ def read(path) -> dict[str, np.ndarray]:
     Virtual points (``Virtual`` not 0) carry no marker and are skipped.
     """
     root = parse_xml(path)
-    out: dict[str, np.ndarray] = {}
+    out: dict[str, Record] = {}
     for b in root.iter("Body"):
         name = (b.findtext("Name") or "").strip() or f"body{len(out) + 1}"
-        pts = []
+        pts, names = [], []
         points = list(b.iter("Point"))
         for p in points:
             if p.attrib.get("Virtual", "0").strip().lower() not in ("0", "false", ""):
                 continue
+            names.append(p.attrib.get("Name", ""))
             if "X" in p.attrib:
                 pts.append([num(path, f"{name} point {c}", p.attrib.get(c)) for c in "XYZ"])
             else:
@@ -103,10 +129,22 @@ def read(path) -> dict[str, np.ndarray]:
                 pts.append([num(path, f"{name} bone {c}", bone.findtext(c)) for c in "XYZ"])
         if name in out:
             raise StarforgeError(f"{path}: two bodies are named {name!r}")
-        out[name] = np.array(pts, dtype=float).reshape(-1, 3)
+        tags = (
+            ("bone_length_tolerance_mm", "BoneLengthTolerance"),
+            ("maximum_residual_mm", "MaximumResidual"),
+        )
+        tol = {key: v for key, tag in tags if (v := _tolerance(path, b, tag, name)) is not None}
+        least = _tolerance(path, b, "MinimumMarkersInBody", name)
+        out[name] = Record(
+            name,
+            np.array(pts, dtype=float).reshape(-1, 3),
+            marker_names=tuple(names) if names and all(names) else None,
+            tolerances=tol,
+            min_markers=None if least is None else int(least),
+        )
     if not out:
         raise StarforgeError(f"{path} holds no QTM Body (expected The_6D > Body > Points > Point)")
-    return out
+    return list(out.values())
 
 
 def sniff(path, head: bytes) -> bool:

@@ -50,9 +50,11 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.tracking.formats._common import WriteContext, check_size
+from starforge.tracking.formats._common import Record, WriteContext, check_size, points_of
 
 SUFFIX = ".rom"
+#: what a tool definition carries besides its points (:data:`~starforge.tracking.formats._common.FIELDS`)
+CARRIES = frozenset({"normals", "min_markers", "max_marker_error_mm"})
 SIZE = 752
 #: markers one tool definition holds
 MAX_MARKERS = 20
@@ -168,7 +170,7 @@ def write(name: str, P, ctx: WriteContext) -> bytes:
         ctx.normals,
         part_number=name,
         max_marker_error_mm=float(ctx.tolerances.get("max_marker_error_mm", 2.0)),
-        min_markers=min(ctx.min_markers, len(P)),
+        min_markers=max(1, min(ctx.min_markers, len(P))),
     )
 
 
@@ -222,7 +224,22 @@ def read_tool(path) -> RomTool:
 
 def read(path) -> dict[str, np.ndarray]:
     """{file stem: (n, 3) mm} of an NDI ``.rom`` (coordinates are float32 in the file)."""
-    return {Path(path).stem: read_tool(path).points_mm}
+    return points_of(load(path))
+
+
+def load(path) -> list[Record]:
+    """An NDI ``.rom`` as one body named after the file, with its normals, minimum markers and
+    maximum marker error."""
+    t = read_tool(path)
+    return [
+        Record(
+            Path(path).stem,
+            t.points_mm,
+            normals=t.normals,
+            min_markers=t.min_markers or None,
+            tolerances={"max_marker_error_mm": t.max_marker_error_mm},
+        )
+    ]
 
 
 def sniff(path, head: bytes) -> bool:
