@@ -298,7 +298,8 @@ def test_guide_pdf_in_standard_fonts_unless_a_text_needs_more(tmp_path):
     from dataclasses import replace
 
     from starforge.props.placement import run_placement
-    from starforge.render.props import guide_files, plot_data
+    from starforge.render.guide import guide_files
+    from starforge.render.prop_views import plot_data
 
     data = plot_data(run_placement("box", sites=150, resolution=1, orientations=6))
     guide_files(data, tmp_path)
@@ -518,3 +519,36 @@ def test_quick_exit_runs_the_atexit_handlers_and_only_when_allowed_and_safe(monk
         assert calls == []
     finally:
         _quick_exit[0] = before
+
+
+def test_the_guide_has_landmarks_calipers_and_no_overlapping_text(tmp_path, capsys):
+    """Every marker in placement.json has a face, landmarks and caliper distances (re-measured
+    from the ball centres); the guide's pages, drawn, have no two text boxes overlapping and
+    every text inside the page; the template page's scale bar is 50 mm of the prop at its scale."""
+    from starforge.props.placement import run_placement
+    from starforge.render.guide import guide_pages, overlapping_texts, text_boxes
+
+    out = tmp_path / "o"
+    assert _run(["place", "hammer", *FAST, "--out", str(out)], capsys)[0] == 0
+    doc = json.loads((out / "placement.json").read_text())
+    names = {f["name"] for f in doc["guide"]["landmarks"]}
+    for m in doc["markers"]:
+        assert m["landmark"]["face"]["kind"] in ("flat", "curved")
+        assert len(m["landmark"]["nearest"]) == 3 and {x["name"] for x in m["landmark"]["nearest"]} <= names
+        assert m["seat_margin_mm"] >= doc["settings"]["seat"]["placement_error_mm"] - 1e-9
+    centres = np.array(doc["tracked"]["marker_centres_m"])
+    pairs = doc["guide"]["caliper"]
+    assert len(pairs) == len(centres) * (len(centres) - 1) // 2
+    for q in pairs:
+        assert q["centre_mm"] == pytest.approx(1000 * np.linalg.norm(centres[q["a"] - 1] - centres[q["b"] - 1]), abs=0.06)
+    res = run_placement("hammer", sites=250, resolution=2, orientations=6)
+    pages = guide_pages(res)
+    assert len(pages) == 2
+    for fig in pages:
+        assert overlapping_texts(fig) == []
+        W, H = fig.bbox.width, fig.bbox.height
+        for t, b in text_boxes(fig):
+            assert b.x0 >= -0.5 and b.y0 >= -0.5 and b.x1 <= W + 0.5 and b.y1 <= H + 0.5, t.get_text()
+    text = " ".join(t.get_text() for t, _ in text_boxes(pages[0]))
+    for i in range(1, len(res.marker_sites) + 1):
+        assert f"{i:>2}. on " in text
