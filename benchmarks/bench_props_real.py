@@ -6,16 +6,17 @@ racket, a gable-top milk carton, a screwdriver).  Each is placed by ``run_placem
 default spec, seed 0) and then checked by an evaluation that shares nothing with the optimizer
 but the prop's mesh and the layout:
 
-* its own room: 8 cameras on a ring 3 m across the centre, 2.2 m up, looking at the middle of a
-  2 x 2 x 1.6 m volume, 56 degree field of view (a cone), no pairs: a marker is reconstructed
+* its own room: 8 cameras on a ring 6 m across, 2.5 m up, looking at the middle of a 2 x 2 x
+  1.6 m volume (0.2-1.8 m up), a 60 degree cone of view, no pairs: a marker is reconstructed
   when 2 of the surviving cameras see its ball centre;
 * uniformly random rotations (normalised Gaussian quaternions) at uniform random positions,
   4 of the 8 cameras lost at random in each pose;
-* a hand at a random grip, its own model: along the prop's longest bounding-box axis, at a
-  uniformly random place where the section is at most 70 mm across (anywhere when none is), a
-  fist (a capsule 25 mm thicker than the section, 90 mm long) and a forearm (a capsule of 35 mm
-  radius, 220 mm long, leaving at a random angle around the axis); markers inside the fist are
-  lost, sight lines through either capsule are blocked;
+* a hand at a random grip, its own model: along the prop's longest bounding-box axis, the palm
+  (90 mm) centred at a uniformly random place where every section under it is at most 70 mm
+  across (where any one is, when no palm fits; anywhere when none is), a fist (a capsule 25 mm
+  thicker than the section, ending at the palm's ends where it meets the surface) and a forearm
+  (a capsule of 35 mm radius, 220 mm long, leaving at a random angle around the axis); markers
+  inside the fist are lost, sight lines through either capsule are blocked;
 * sight lines to the prop: trimesh's ray queries from the ball centre to the camera.
 
 A pose is tracked when >= 3 markers are reconstructed and they span a triangle 15 mm high (RMS
@@ -103,12 +104,12 @@ def props() -> dict:
 def ring_cameras():
     """(8, 3) positions and (8, 3) unit view directions."""
     a = np.arange(8) * 2 * math.pi / 8
-    pos = np.column_stack([1.5 * np.cos(a), 1.5 * np.sin(a), np.full(8, 2.2)])
-    look = np.array([0.0, 0.0, 0.8]) - pos
+    pos = np.column_stack([3.0 * np.cos(a), 3.0 * np.sin(a), np.full(8, 2.5)])
+    look = np.array([0.0, 0.0, 1.0]) - pos
     return pos, look / np.linalg.norm(look, axis=1, keepdims=True)
 
 
-HALF_FOV = math.radians(28.0)
+HALF_FOV = math.radians(30.0)
 
 
 def random_world(n, rng):
@@ -117,7 +118,7 @@ def random_world(n, rng):
     R = T.quaternion_matrix(q[0])[:3, :3][None].repeat(n, 0)
     for k in range(n):
         R[k] = T.quaternion_matrix(q[k])[:3, :3]
-    t = np.array([-1.0, -1.0, 0.0]) + rng.random((n, 3)) * np.array([2.0, 2.0, 1.6])
+    t = np.array([-1.0, -1.0, 0.2]) + rng.random((n, 3)) * np.array([2.0, 2.0, 1.6])
     return R, t
 
 
@@ -147,7 +148,11 @@ def random_hands(mesh, n, rng):
         r = float(np.linalg.norm(sl - c, axis=1).max())
         ok.append(2 * r <= 0.07), rad.append(r), cen.append(c)
     ok = np.array(ok)
-    choices = np.flatnonzero(ok) if ok.any() else np.arange(len(hs))
+    # the palm (90 mm) lies on graspable sections: its centre 45 mm inside a graspable run
+    step = hs[1] - hs[0]
+    w = int(round(0.045 / step))
+    inside = np.array([ok[max(0, k - w) : k + w + 1].all() and w <= k < len(hs) - w for k in range(len(hs))])
+    choices = np.flatnonzero(inside) if inside.any() else np.flatnonzero(ok) if ok.any() else np.arange(len(hs))
     out = []
     for _ in range(n):
         k = int(rng.choice(choices))
@@ -156,12 +161,14 @@ def random_hands(mesh, n, rng):
         c[ax] = hs[k]
         u = np.zeros(3)
         u[ax] = 1.0
-        a, b = c - 0.045 * u, c + 0.045 * u
+        R = rad[k] + 0.025
+        half = max(0.0, 0.045 - math.sqrt(max(R * R - rad[k] ** 2, 0.0)))  # the fist ends at the palm's ends
+        a, b = c - half * u, c + half * u
         phi = rng.random() * 2 * math.pi
         radial = np.zeros(3)
         radial[others[0]], radial[others[1]] = math.cos(phi), math.sin(phi)
         w0 = c + (rad[k] + 0.035) * radial
-        out.append([(a, b, rad[k] + 0.025), (w0, w0 + 0.22 * radial, 0.035)])
+        out.append([(a, b, R), (w0, w0 + 0.22 * radial, 0.035)])
     return out
 
 
@@ -180,7 +187,7 @@ def seen_table(mesh, centres, normals, R, t, hands, rng):
         under = np.zeros(S, bool)
         a, b, r = caps[0]
         ab = b - a
-        s = np.clip(((centres - a) @ ab) / (ab @ ab), 0, 1)
+        s = np.clip(((centres - a) @ ab) / max(ab @ ab, 1e-18), 0, 1)
         under = np.linalg.norm(centres - (a + s[:, None] * ab), axis=1) <= r
         for c in np.flatnonzero(alive[k]):
             d = w - cam[c]

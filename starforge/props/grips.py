@@ -3,7 +3,7 @@
 The graspable part is found from the prop's shape: along each of its principal axes (the
 eigenvectors of the covariance of its vertices, longest spread first) the mesh is cut every
 :data:`SLICE_M`; a section is *graspable* when a hand closes around it, its wider principal
-width within :data:`GRASP_WIDTH_M` (20-60 mm, a fist's span) and its narrower at least
+width within :data:`GRASP_WIDTH_M` (20-55 mm, what a fist closes round) and its narrower at least
 :data:`GRASP_THICK_M` (a blade or a plate is none).  The longest run of consecutive graspable
 sections, at least :data:`GRASP_RUN_M` long, is the handle, the neck or the body that is held.
 A prop without one is held where :func:`starforge.props.hand.grip_segment` says (its thinnest
@@ -46,8 +46,8 @@ from starforge.props.hand import (
     section_widths_of,
 )
 
-#: a graspable section's wider principal width, m (a fist closes around 20-60 mm)
-GRASP_WIDTH_M = (0.02, 0.06)
+#: a graspable section's wider principal width, m (a fist closes all round 20-55 mm)
+GRASP_WIDTH_M = (0.02, 0.055)
 #: a graspable section's narrower width is at least this, m (thinner: a blade or a plate)
 GRASP_THICK_M = 0.012
 #: the held run is at least this long, m
@@ -283,7 +283,7 @@ def grips_summary(part: HeldPart, grips) -> str:
         return "no hand"
     what = (
         f"the {part.length_m * 1000:.0f} mm graspable part ({2000 * part.radius_m:.0f} mm across)"
-        if part.found else f"its thinnest end ({2000 * part.radius_m:.0f} mm across; no part 20-60 mm across found)"
+        if part.found else f"its thinnest end ({2000 * part.radius_m:.0f} mm across; no part 20-55 mm across found)"
     )
     hands = sorted({g.hand for g in grips if g.hand})
     return f"{len(grips)} grip(s) on {what}" + (f", {' and '.join(hands)} hand" if hands else "")
