@@ -552,3 +552,49 @@ def test_the_guide_has_landmarks_calipers_and_no_overlapping_text(tmp_path, caps
     text = " ".join(t.get_text() for t, _ in text_boxes(pages[0]))
     for i in range(1, len(res.marker_sites) + 1):
         assert f"{i:>2}. on " in text
+
+
+def test_the_run_prints_its_grips_and_pins_one_by_number(tmp_path, capsys):
+    """Every run lists the grips it assumed (numbered as --grip takes them) and placement.json
+    holds them; --grip N scores the layout under that grip alone, and out of range is refused."""
+    out = tmp_path / "o"
+    code, stdout, err = _run(["place", "hammer", *FAST, "--out", str(out)], capsys)
+    assert code == 0, err
+    doc = json.loads((out / "placement.json").read_text())
+    grips = doc["grips"]["grips"]
+    assert len(grips) > 1 and {g["hand"] for g in grips} == {"left", "right"}
+    flat = " ".join(stdout.split())
+    assert f"hand: {len(grips)} grip(s)" in flat and "grip 1-3:" in flat
+    assert len(doc["hand"]) == sum(len(g["capsules"]) for g in grips)
+    code, stdout, err = _run(["place", "hammer", *FAST, "--grip", "2", "--out", str(tmp_path / "p")], capsys)
+    assert code == 0, err
+    pinned = json.loads((tmp_path / "p" / "placement.json").read_text())["grips"]["grips"]
+    assert pinned == [grips[1]]
+    code, _, err = _run(["place", "hammer", *FAST, "--grip", "99", "--out", str(tmp_path / "q")], capsys)
+    assert code == 2 and "numbered 1 to" in err and not (tmp_path / "q").exists()
+
+
+def test_smaller_points_marker_names_sites_help_symmetry_line(capsys, monkeypatch):
+    from starforge.catalog import load_template
+    from starforge.errors import StarforgeError
+    from starforge.props.files import ranking_note, symmetry_line
+    from starforge.props.spec import load_spec, with_overrides
+
+    # an unknown catalogue-looking name is refused listing the catalogue; a plain number is a diameter
+    with pytest.raises(StarforgeError, match="no catalogue marker is 9 mm.*--marker 9"):
+        with_overrides(load_spec("default"), marker_mm="9mm")
+    assert with_overrides(load_spec("default"), marker_mm="9").marker_seat().name == "9 mm ball"
+    assert with_overrides(load_spec("default"), marker_mm="9.5mm").track.marker_mm == 9.5  # a catalogue size
+    # the --sites help quotes the default template's value
+    monkeypatch.setenv("COLUMNS", "200")
+    code, out, _ = _run(["place", "run", "--help"], capsys)
+    assert code == 0
+    assert f"{load_template('place', 'default')[1]['sites']} in the default spec" in " ".join(out.split())
+    # a margin at the search's cap is a floor, not a measurement
+    assert symmetry_line(0.005, 5.0).startswith("near-symmetry margin: >= 5 mm")
+    assert "below the 5 mm target" in symmetry_line(0.0031, 5.0)
+    # a winner costing more than greedy says why; one costing less says nothing
+    cand = {"winner": {"cost": 0.3, "validation_tracked": 0.999}, "greedy_local_search": {"cost": 0.2, "validation_tracked": 0.99}}
+    assert "99.90 %" in ranking_note({"selection": {"winner": "winner", "candidates": cand}})
+    cand["winner"]["cost"] = 0.1
+    assert ranking_note({"selection": {"winner": "winner", "candidates": cand}}) == ""

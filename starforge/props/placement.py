@@ -117,7 +117,14 @@ def hand_grips(prop, spec: PlaceSpec, grip=None) -> tuple:
 
 def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timings=None, grip=None, seed: int = 0) -> Prepared:
     """Sites that seat the marker (constrained areas and the hand removed), rig, poses, table."""
-    from starforge.props.grips import FEW_SITES, GRIP_SEED_OFFSET, assign_grips, grip_arrays, grips_summary, under_hand
+    from starforge.props.grips import (
+        FEW_SITES,
+        GRIP_SEED_OFFSET,
+        assign_grips,
+        grip_arrays,
+        grips_summary,
+        under_hand,
+    )
     from starforge.props.rig import load_rig, make_poses
     from starforge.props.seat import seat_report
     from starforge.props.sites import forbidden_sites, sample_sites
