@@ -121,3 +121,42 @@ def test_a_pinned_grip_by_number_or_by_segment():
         pinned_grip("19", grips)
     with pytest.raises(StarforgeError, match="--grip"):
         pinned_grip("0,1", grips)
+
+
+def test_the_seat_margin_is_rewarded_by_the_tracked_cost():
+    """The margin term: the mean shortfall of the markers' margins below the target, weighted into
+    the total (recomputed by hand), and in the screened additions too."""
+    from starforge.props.tracked import Problem, TrackSettings
+
+    rng = np.random.default_rng(8)
+    pts = rng.random((30, 3)) * 0.2
+    seen = rng.random((30, 50)) < 0.7
+    margin = rng.random(30) * 0.006
+    ts = TrackSettings(w_margin=0.7, w_near_symmetry=0.0)
+    with_m = Problem(pts, seen, seen.mean(axis=1), ts, 0.02, 0.02, margin=margin, margin_target=0.005)
+    without = Problem(pts, seen, seen.mean(axis=1), ts, 0.02, 0.02)
+    lay = [0, 3, 7, 11, 19, 25]
+    short = np.maximum(0.0, 1.0 - margin[lay] / 0.005).mean()
+    t = with_m.terms(lay)
+    assert t["margin_shortfall"] == pytest.approx(short)
+    assert t["total"] == pytest.approx(without.terms(lay)["total"] + 0.7 * short)
+    free = np.array([1, 2, 4])
+    diff = with_m.screen_additions(lay, free) - without.screen_additions(lay, free)
+    want = [0.7 * np.maximum(0.0, 1.0 - margin[[*lay, c]] / 0.005).mean() for c in free]
+    assert diff == pytest.approx(want)
+
+
+@pytest.mark.slow
+def test_a_prop_held_anywhere_keeps_markers_off_where_most_grips_hold_it(tmp_path):
+    """A plain 40 mm rod: every fist position together covers it all, so only the sites more than
+    half of the grips cover are left out, and the run says so; none of its markers lies there."""
+    from starforge.props.placement import run_placement
+
+    rod = trimesh.creation.cylinder(radius=0.02, height=0.25, sections=48)
+    path = tmp_path / "rod.stl"
+    rod.export(path)
+    res = run_placement(str(path), sites=200, resolution=1, orientations=6)
+    assert any("held almost anywhere" in w for w in res.warnings)
+    pts, centres = res.marker_points, res.centres()
+    assert not under_hand(pts, centres, res.grips, share=0.5).any()
+    assert under_hand(pts, centres, res.grips).any()  # some under a fist of some grip
