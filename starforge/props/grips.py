@@ -1,11 +1,14 @@
 """Where people hold a prop, as a distribution of grips that a layout is scored under.
 
 The graspable part is found from the prop's shape: along each of its principal axes (the
-eigenvectors of the covariance of its vertices, longest spread first) the mesh is cut every
+eigenvectors of the covariance of its vertices, longest spread first) and each axis of its own
+frame (a handle set square to a tilted body, as on a drill) the mesh is cut every
 :data:`SLICE_M`; a section is *graspable* when a hand closes around it, its wider principal
 width within :data:`GRASP_WIDTH_M` (20-55 mm, what a fist closes round) and its narrower at least
 :data:`GRASP_THICK_M` (a blade or a plate is none).  The longest run of consecutive graspable
-sections, at least :data:`GRASP_RUN_M` long, is the handle, the neck or the body that is held.
+sections, at least :data:`GRASP_RUN_M` long, is the handle or the neck that is held; a prop
+with none is held by its body, the longest run of sections up to :data:`BODY_WIDTH_M` wide
+(the wider width of a square section lies between its side and its diagonal).
 A prop without one is held where :func:`starforge.props.hand.grip_segment` says (its thinnest
 end), and a prop shorter than :data:`starforge.props.hand.PINCH_BELOW_M` is pinched there
 (:func:`starforge.props.hand.pinch`).
@@ -48,6 +51,9 @@ from starforge.props.hand import (
 
 #: a graspable section's wider principal width, m (a fist closes all round 20-55 mm)
 GRASP_WIDTH_M = (0.02, 0.055)
+#: a prop without such a handle is held by its body where it is at most this wide (m; a hand
+#: spans a 70 mm carton or a 75 mm bottle, not a 100 mm box)
+BODY_WIDTH_M = 0.1
 #: a graspable section's narrower width is at least this, m (thinner: a blade or a plate)
 GRASP_THICK_M = 0.012
 #: the held run is at least this long, m
@@ -140,46 +146,53 @@ def principal_axes(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return c, axes
 
 
+def _runs(ok: np.ndarray):
+    """(start, stop) of every run of consecutive true values."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[False], ok, [False]]).astype(np.int8)))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
 def held_part(mesh, fallback=None) -> HeldPart:
     """The longest graspable run of the mesh (see the module docstring); else ``fallback``
     (``(a, b, part_radius)``, a built-in prop's own grip) or the mesh's thinnest end."""
     v = np.asarray(mesh.vertices, float)
     e = np.asarray(mesh.edges_unique, int)
-    c, axes = principal_axes(v)
-    local = (v - c) @ axes.T  # principal frame
-    lo, hi = local.min(axis=0), local.max(axis=0)
-    best = None
-    for ax in range(3):
-        ext = hi[ax] - lo[ax]
-        if ext < GRASP_RUN_M:
+    c, principal = principal_axes(v)
+    dirs = []
+    for d in [*principal, *np.eye(3)]:  # the principal axes, then the file's own axes
+        if all(abs(float(d @ q)) < math.cos(math.radians(10.0)) for q in dirs):
+            dirs.append(d)
+    slices = []
+    for d in dirs:
+        helper = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        e1 = np.cross(d, helper)
+        e1 /= np.linalg.norm(e1)
+        axes = np.array([d, e1, np.cross(d, e1)])
+        local = (v - c) @ axes.T  # along d first
+        lo, hi = local[:, 0].min(), local[:, 0].max()
+        if hi - lo < GRASP_RUN_M:
             continue
-        n = int(min(MAX_SLICES, max(10, ext // SLICE_M)))
-        step = ext / n
-        h = lo[ax] + (np.arange(n) + 0.5) * step
-        w = section_widths_of(local, e, ax, h)
-        ok = (w[:, 0] >= GRASP_WIDTH_M[0]) & (w[:, 0] <= GRASP_WIDTH_M[1]) & (w[:, 1] >= GRASP_THICK_M)
-        i = 0
-        while i < n:
-            if not ok[i]:
-                i += 1
-                continue
-            j = i
-            while j < n and ok[j]:
-                j += 1
-            length = (j - i) * step
-            if length >= GRASP_RUN_M - 1e-12 and (best is None or length > best[0] + 1e-9):
-                best = (length, ax, i, j, h, w, step)
-            i = j
+        n = int(min(MAX_SLICES, max(10, (hi - lo) // SLICE_M)))
+        step = (hi - lo) / n
+        h = lo + (np.arange(n) + 0.5) * step
+        slices.append((axes, h, section_widths_of(local, e, 0, h), step))
+    best = None
+    for widest in (GRASP_WIDTH_M[1], BODY_WIDTH_M):  # a handle first, else a body
+        for axes, h, w, step in slices:
+            ok = (w[:, 0] >= GRASP_WIDTH_M[0]) & (w[:, 0] <= widest) & (w[:, 1] >= GRASP_THICK_M)
+            for i, j in _runs(ok):
+                length = (j - i) * step
+                if length >= GRASP_RUN_M - 1e-12 and (best is None or length > best[0] + 1e-9):
+                    best = (length, axes, i, j, h, w, step)
+        if best is not None:
+            break
     if best is None:
         a, b, r = grip_segment(mesh) if fallback is None else fallback
         return HeldPart(tuple(map(float, a)), tuple(map(float, b)), float(r), False)
-    length, ax, i, j, h, w, step = best
-    others = [k for k in range(3) if k != ax]
+    length, axes, i, j, h, w, step = best
     ends = []
     for t in (h[i] - step / 2, h[j - 1] + step / 2):
-        p = np.zeros(3)
-        p[others] = np.nanmean(w[i:j, 2:], axis=0)
-        p[ax] = t
+        p = np.array([t, *np.nanmean(w[i:j, 2:], axis=0)])
         ends.append(c + p @ axes)
     return HeldPart(tuple(ends[0]), tuple(ends[1]), float(np.nanmax(w[i:j, 0]) / 2), True)
 
