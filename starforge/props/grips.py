@@ -14,7 +14,8 @@ end), and a prop shorter than :data:`starforge.props.hand.PINCH_BELOW_M` is pinc
 (:func:`starforge.props.hand.pinch`).
 
 The distribution (:func:`grip_distribution`): the palm (:data:`starforge.props.hand.PALM_M`
-long, or the run's length) at :data:`POSITIONS` places spread evenly along the run, by either
+long, or the run's length) at places spread evenly along the run, as many as leave no gap
+between neighbouring palms (at least two, at most :data:`POSITIONS`), by either
 hand, with the back of the hand and the wrist at :data:`WRAPS` angles around the part.  Each grip
 is a set of capsules that move with the prop (:func:`hand_model`): the fist around the part
 (:func:`starforge.props.hand.hand_capsule`) and the wrist, a capsule of :data:`WRIST_M` radius
@@ -61,8 +62,8 @@ GRASP_RUN_M = 0.04
 #: sections along an axis are this far apart, m (at most :data:`MAX_SLICES` of them)
 SLICE_M = 0.004
 MAX_SLICES = 400
-#: palm positions along the held run (one when the run is hardly longer than the palm)
-POSITIONS = 3
+#: at most this many palm positions along the held run (one when the run is hardly longer than the palm)
+POSITIONS = 5
 #: angles around the part where the back of the hand and the wrist sit, degrees
 WRAPS = (0.0, 120.0, 240.0)
 #: the wrist and forearm's start: radius and length, m (a wrist is 50-65 mm across)
@@ -229,7 +230,7 @@ def grip_distribution(mesh, positions: int = POSITIONS, wraps=WRAPS, fallback=No
     L = part.length_m
     u = (b - a) / max(L, 1e-12)
     palm = min(PALM_M, L)
-    k = 1 if L - palm < 0.02 or positions <= 1 else int(positions)
+    k = 1 if L - palm < 0.02 or positions <= 1 else int(min(positions, max(2, math.ceil((L - palm) / palm - 1e-9) + 1)))
     starts = [0.0] if k == 1 else list(np.linspace(0.0, L - palm, k))
     where = {0: "at one end", k - 1: "at the other end"} if k > 1 else {0: "over the part"}
     grips = []
