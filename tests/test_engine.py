@@ -13,9 +13,9 @@ import signal
 import numpy as np
 import pytest
 
+from starforge.runtime import engine
 from starforge.cli import main
 from starforge.errors import StarforgeError
-from starforge.runtime import engine
 from starforge.stars import enumerate as E
 from starforge.stars.spec import StarSpec
 

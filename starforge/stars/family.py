@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 
+from starforge.runtime.engine import beside
 from starforge.errors import NoStarError, StarforgeError
 from starforge.geometry.rigid import (
     default_tip_mm,
@@ -16,7 +17,6 @@ from starforge.geometry.rigid import (
     tre_rms,
 )
 from starforge.geometry.tetra import face_sides, tetra_width, vertices_from_lengths
-from starforge.runtime.engine import beside
 from starforge.stars.boxes import place_stars
 from starforge.stars.enumerate import Candidates, edge_pool, enumerate_candidates
 from starforge.stars.model import Family, Star
