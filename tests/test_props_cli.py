@@ -300,7 +300,8 @@ def test_guide_pdf_in_standard_fonts_unless_a_text_needs_more(tmp_path):
     from dataclasses import replace
 
     from starforge.props.placement import run_placement
-    from starforge.render.props import guide_files, plot_data
+    from starforge.render.guide import guide_files
+    from starforge.render.prop_views import plot_data
 
     data = plot_data(run_placement("box", sites=150, resolution=1, orientations=6))
     guide_files(data, tmp_path)
@@ -520,3 +521,82 @@ def test_quick_exit_runs_the_atexit_handlers_and_only_when_allowed_and_safe(monk
         assert calls == []
     finally:
         _quick_exit[0] = before
+
+
+def test_the_guide_has_landmarks_calipers_and_no_overlapping_text(tmp_path, capsys):
+    """Every marker in placement.json has a face, landmarks and caliper distances (re-measured
+    from the ball centres); the guide's pages, drawn, have no two text boxes overlapping and
+    every text inside the page; the template page's scale bar is 50 mm of the prop at its scale."""
+    from starforge.props.placement import run_placement
+    from starforge.render.guide import guide_pages, overlapping_texts, text_boxes
+
+    out = tmp_path / "o"
+    assert _run(["place", "hammer", *FAST, "--out", str(out)], capsys)[0] == 0
+    doc = json.loads((out / "placement.json").read_text())
+    names = {f["name"] for f in doc["guide"]["landmarks"]}
+    for m in doc["markers"]:
+        assert m["landmark"]["face"]["kind"] in ("flat", "curved")
+        assert len(m["landmark"]["nearest"]) == 3 and {x["name"] for x in m["landmark"]["nearest"]} <= names
+        assert m["seat_margin_mm"] >= doc["settings"]["seat"]["placement_error_mm"] - 1e-9
+    centres = np.array(doc["tracked"]["marker_centres_m"])
+    pairs = doc["guide"]["caliper"]
+    assert len(pairs) == len(centres) * (len(centres) - 1) // 2
+    for q in pairs:
+        assert q["centre_mm"] == pytest.approx(1000 * np.linalg.norm(centres[q["a"] - 1] - centres[q["b"] - 1]), abs=0.06)
+    res = run_placement("hammer", sites=250, resolution=2, orientations=6)
+    pages = guide_pages(res)
+    assert len(pages) == 2
+    for fig in pages:
+        assert overlapping_texts(fig) == []
+        W, H = fig.bbox.width, fig.bbox.height
+        for t, b in text_boxes(fig):
+            assert b.x0 >= -0.5 and b.y0 >= -0.5 and b.x1 <= W + 0.5 and b.y1 <= H + 0.5, t.get_text()
+    text = " ".join(t.get_text() for t, _ in text_boxes(pages[0]))
+    for i in range(1, len(res.marker_sites) + 1):
+        assert f"{i:>2}. on " in text
+
+
+def test_the_run_prints_its_grips_and_pins_one_by_number(tmp_path, capsys):
+    """Every run lists the grips it assumed (numbered as --grip takes them) and placement.json
+    holds them; --grip N scores the layout under that grip alone, and out of range is refused."""
+    out = tmp_path / "o"
+    code, stdout, err = _run(["place", "hammer", *FAST, "--out", str(out)], capsys)
+    assert code == 0, err
+    doc = json.loads((out / "placement.json").read_text())
+    grips = doc["grips"]["grips"]
+    assert len(grips) > 1 and {g["hand"] for g in grips} == {"left", "right"}
+    flat = " ".join(stdout.split())
+    assert f"hand: {len(grips)} grip(s)" in flat and "grip 1-3:" in flat
+    assert len(doc["hand"]) == sum(len(g["capsules"]) for g in grips)
+    code, stdout, err = _run(["place", "hammer", *FAST, "--grip", "2", "--out", str(tmp_path / "p")], capsys)
+    assert code == 0, err
+    pinned = json.loads((tmp_path / "p" / "placement.json").read_text())["grips"]["grips"]
+    assert pinned == [grips[1]]
+    code, _, err = _run(["place", "hammer", *FAST, "--grip", "99", "--out", str(tmp_path / "q")], capsys)
+    assert code == 2 and "numbered 1 to" in err and not (tmp_path / "q").exists()
+
+
+def test_smaller_points_marker_names_sites_help_symmetry_line(capsys, monkeypatch):
+    from starforge.catalog import load_template
+    from starforge.errors import StarforgeError
+    from starforge.props.files import ranking_note, symmetry_line
+    from starforge.props.spec import load_spec, with_overrides
+
+    # an unknown catalogue-looking name is refused listing the catalogue; a plain number is a diameter
+    with pytest.raises(StarforgeError, match="no catalogue marker is 9 mm.*--marker 9"):
+        with_overrides(load_spec("default"), marker_mm="9mm")
+    assert with_overrides(load_spec("default"), marker_mm="9").marker_seat().name == "9 mm ball"
+    assert with_overrides(load_spec("default"), marker_mm="9.5mm").track.marker_mm == 9.5  # a catalogue size
+    # the --sites help quotes the default template's value
+    monkeypatch.setenv("COLUMNS", "200")
+    code, out, _ = _run(["place", "run", "--help"], capsys)
+    assert code == 0
+    assert f"{load_template('place', 'default')[1]['sites']} in the default spec" in " ".join(out.split())
+    # a margin at the search's cap is a floor, not a measurement
+    assert symmetry_line(0.005, 5.0).startswith("near-symmetry margin: >= 5 mm")
+    assert "below the 5 mm target" in symmetry_line(0.0031, 5.0)
+    # a winner costing more than greedy says why; one costing less says nothing
+    cand = {"winner": {"cost": 0.3, "validation_tracked": 0.999}, "greedy_local_search": {"cost": 0.2, "validation_tracked": 0.99}}
+    assert "99.90 %" in ranking_note({"selection": {"winner": "winner", "candidates": cand}})
+    cand["winner"]["cost"] = 0.1
+    assert ranking_note({"selection": {"winner": "winner", "candidates": cand}}) == ""

@@ -64,7 +64,14 @@ def test_seat_report_on_a_box_against_brute_force():
     nrm = np.tile([0.0, 0, 1], (5, 1))
     rep = seat_report(box, pts, nrm, seat, rules)
     assert np.allclose(rep.edge_m, d, atol=1.3e-4)  # sampled edges: within half a step
-    assert rep.ok.tolist() == [False, False, True, True, True]
+    # a base radius plus the 2 mm placement error from the edge; without the error, a base radius
+    assert rep.ok.tolist() == [False, False, False, True, True]
+    assert seat_report(box, pts, nrm, seat, SeatRules(placement_error_mm=0.0)).ok.tolist() == [False, False, True, True, True]
+    # the margin: the room beyond the base radius to the edge (or the tilted side face), capped,
+    # never more than the true room (the edge samples err upward by at most half a step)
+    true = np.minimum(d, 0.0035 + rules.margin_cap_mm / 1000) - 0.0035
+    assert (rep.margin_m <= true + 1.3e-4).all()
+    assert np.allclose(rep.margin_m, true, atol=1e-3)
     # contact: the part of the disc over the face, brute force on a fine grid
     g = np.linspace(-1, 1, 801)
     X, Y = np.meshgrid(g, g)
@@ -122,14 +129,16 @@ def test_paper_spec_puts_one_marker_per_site_and_no_ball_cuts_in():
 
 def test_hand_grip_parsing_and_default():
     from starforge.props.builtin import builtin_mesh
-    from starforge.props.hand import FINGERS_M, default_grip, inside_capsules, parse_grip
+    from starforge.props.grips import grip_distribution, held_part, under_hand
+    from starforge.props.hand import FINGERS_M, parse_grip
 
     cap = parse_grip("0,0,0.02,0,0,0.11,0.015")
     assert cap.radius == pytest.approx(0.015 + FINGERS_M)
     with pytest.raises(StarforgeError, match="--grip"):
         parse_grip("1,2,3")
-    hammer = default_grip(builtin_mesh("hammer"), "hammer", builtin=True)
-    assert inside_capsules(np.array([[0, 0, 0.05], [0.05, 0, 0.31]]), (hammer,)).tolist() == [True, False]
+    _, grips = grip_distribution(builtin_mesh("hammer"))
+    pts = np.array([[0, 0, 0.05], [0.05, 0, 0.31]])  # on the handle, on the head
+    assert under_hand(pts, pts, grips).tolist() == [True, False]
     # a mesh without a grip of its own: the thinner end of its longest axis
     import trimesh
 
@@ -137,17 +146,19 @@ def test_hand_grip_parsing_and_default():
         trimesh.creation.cylinder(radius=0.015, height=0.2, transform=trimesh.transformations.translation_matrix([0, 0, 0.1])),
         trimesh.creation.cylinder(radius=0.04, height=0.3, transform=trimesh.transformations.translation_matrix([0, 0, 0.35])),
     ])  # fmt: skip
-    g = default_grip(bat, "bat")
-    assert max(g.a[2], g.b[2]) < 0.2 and g.radius == pytest.approx(0.015 + FINGERS_M, abs=2e-3)
+    g = held_part(bat)  # the 30 mm handle, not the 80 mm barrel
+    assert g.found and max(g.a[2], g.b[2]) < 0.21 and g.radius_m == pytest.approx(0.015, abs=2e-3)
 
 
 def test_a_small_prop_is_pinched_by_the_fingertips_and_a_large_one_held_in_a_fist():
     import trimesh
 
-    from starforge.props.hand import FINGERTIP_M, PINCH_BELOW_M, PINCH_M, default_hand, inside_capsules
+    from starforge.props.grips import grip_distribution
+    from starforge.props.hand import FINGERTIP_M, PINCH_BELOW_M, PINCH_M, inside_capsules
 
     small = trimesh.creation.box(extents=(0.09, 0.02, 0.01))  # a bottle opener's size
-    tips, rest = default_hand(small, "opener.stl")
+    (pinched,) = grip_distribution(small)[1]
+    tips, rest = pinched.capsules
     fine = small
     for _ in range(6):
         fine = fine.subdivide()
@@ -162,9 +173,9 @@ def test_a_small_prop_is_pinched_by_the_fingertips_and_a_large_one_held_in_a_fis
     assert tips.radius <= 0.012 + FINGERTIP_M  # the section's half-diagonal plus a fingertip
     # the hand sits at the same end as the fingertips
     assert np.sign(rest.a[0]) == np.sign(np.mean(covered[:, 0])) != 0
-    # a prop a fist closes round keeps one capsule
+    # a prop a fist closes round: fists, each with a wrist beside it
     big = trimesh.creation.box(extents=(PINCH_BELOW_M + 0.1, 0.03, 0.03))
-    assert len(default_hand(big, "bat.stl")) == 1
+    assert all(len(g.capsules) == 2 and g.hand in ("left", "right") for g in grip_distribution(big)[1])
 
 
 def test_the_hand_hides_what_lies_behind_it():
@@ -258,14 +269,33 @@ def test_paired_comparison_counts_discordant_poses_and_its_exact_p_value():
 
 
 def test_landmarks_from_the_bounding_box():
-    from starforge.props.guide import landmarks
+    from starforge.props.guide import caliper_pairs, landmarks, mesh_landmarks, tilt
 
-    box = _box()
-    marks = landmarks(box, np.array([[0.04, -0.02, 0.02]]), np.array([[0.0, 0, 1]]))
-    m = marks[0]
+    box = _box()  # 100 x 60 x 40 mm about the origin
+    p = np.array([[0.04, -0.02, 0.02]])
+    face = box.nearest.on_surface(p)[2]
+    feats = mesh_landmarks(box)
+    # the eight corners of the box, every one a tip or a corner, none twice
+    pts = np.array([f["point"] for f in feats])
+    corners = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.03, 0.03) for z in (-0.02, 0.02)])
+    assert len(pts) == 8 and np.allclose(np.sort(np.linalg.norm(pts[:, None] - corners[None], axis=2).min(1)), 0)
+    m = landmarks(box, p, np.array([[0.0, 0, 1]]), face, feats)[0]
     assert m["from"] == {"x": "max", "y": "min", "z": "max"}
-    assert m["distance_mm"] == [10.0, 10.0, 0.0] and m["face"] == "+z"
-    assert "10.0 mm from the x-max side" in m["text"]
+    assert m["distance_mm"] == [10.0, 10.0, 0.0]
+    assert m["face"]["kind"] == "flat" and m["face"]["facing"] == "+z" and m["face"]["area_mm2"] == 6000
+    # the nearest landmark: the corner (50, -30, 20) mm, sqrt(10^2 + 10^2) away
+    assert m["nearest"][0]["distance_mm"] == pytest.approx(14.1, abs=0.05)
+    near = [f for f in feats if f["name"] == m["nearest"][0]["name"]][0]
+    assert np.allclose(near["point"], [0.05, -0.03, 0.02])
+    assert m["tilt_deg"] == 0 and tilt([1.0, 0, 1.0]) == (pytest.approx(45.0), "+x")
+    # caliper pairs: every pair once, the centre distance by brute force, outside = + a diameter
+    c = np.random.default_rng(2).random((5, 3)) * 0.1
+    pairs = caliper_pairs(c, 9.5, 2.0)
+    assert len(pairs) == 10
+    for q in pairs:
+        d = np.linalg.norm(c[q["a"] - 1] - c[q["b"] - 1]) * 1000
+        assert q["centre_mm"] == pytest.approx(d, abs=0.05) and q["outside_mm"] == pytest.approx(d + 9.5, abs=0.1)
+        assert q["tolerance_mm"] == 4.0
 
 
 def test_bases_mesh_adds_a_pad_per_marker():
@@ -313,7 +343,7 @@ def test_the_evaluation_agrees_with_the_compiled_table():
     compiled table) agree on random poses of the hammer held in its hand."""
     from starforge.props.builtin import builtin_mesh
     from starforge.props.evaluate import camera_hits, random_poses
-    from starforge.props.hand import capsule_arrays, default_grip
+    from starforge.props.hand import GRIPS, capsule_arrays, hand_capsule
     from starforge.props.rig import load_rig
     from starforge.props.sites import sample_sites
     from starforge.props.visibility import compute_table
@@ -322,7 +352,7 @@ def test_the_evaluation_agrees_with_the_compiled_table():
     rig = load_rig("default")
     rng = np.random.default_rng(11)
     sites = sample_sites(mesh, 40, rng)
-    caps = (default_grip(mesh, "hammer", builtin=True),)
+    caps = (hand_capsule(*GRIPS["hammer"]),)
     poses = random_poses(rig.volume, 60, mesh.bounds.mean(axis=0), rng)
     table = compute_table(mesh, sites.points, sites.normals, rig, poses, 180.0, radius_m=0.00475, centre_m=0.0052,
                           occluders=capsule_arrays(caps))  # fmt: skip
@@ -343,12 +373,13 @@ def test_a_mesh_is_held_by_its_handle_not_by_a_blade():
     import trimesh
 
     from starforge.props.builtin import builtin_mesh
-    from starforge.props.hand import default_grip, graspable_grip, section_widths
+    from starforge.props.grips import held_part
+    from starforge.props.hand import section_widths
 
     sword = builtin_mesh("sword")
-    g = default_grip(sword, "sword.stl")  # a file: no built-in grip
-    assert max(g.a[2], g.b[2]) < 0.2 < 0.9 * float(sword.bounds[1][2])
-    assert graspable_grip(trimesh.creation.box(extents=(0.04, 0.004, 0.3))) is None
+    g = held_part(sword)
+    assert g.found and max(g.a[2], g.b[2]) < 0.2 < 0.9 * float(sword.bounds[1][2])
+    assert not held_part(trimesh.creation.box(extents=(0.04, 0.004, 0.3))).found
     box = trimesh.creation.box(extents=(0.05, 0.02, 0.3))
     box.apply_transform(trimesh.transformations.rotation_matrix(np.radians(30), [0, 0, 1]))
     w = section_widths(box, 2, np.linspace(-0.14, 0.14, 8))

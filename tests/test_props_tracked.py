@@ -140,6 +140,7 @@ def test_the_held_out_ranking_recounted_with_the_evaluations_own_geometry():
     baselines by :mod:`starforge.props.evaluate` (numpy geometry, not the compiled table) on the
     same poses and camera losses."""
     from starforge.props.evaluate import camera_hits, random_poses, tracked_poses
+    from starforge.props.grips import GRIP_SEED_OFFSET, assign_grips
     from starforge.props.placement import VALIDATION_SEED_OFFSET, run_placement
     from starforge.props.tracked import alive_masks
 
@@ -149,9 +150,12 @@ def test_the_held_out_ranking_recounted_with_the_evaluations_own_geometry():
     poses = random_poses(res.rig.volume, ts.validation_poses, res.poses.pivot, vrng)
     C = len(res.rig.cameras)
     alive = alive_masks(C, ts.cameras_lost, len(poses) * ts.loss_patterns, vrng)
+    held = assign_grips(len(poses), len(res.grips), np.random.default_rng(3 + VALIDATION_SEED_OFFSET + GRIP_SEED_OFFSET))
+    assert len(res.grips) > 1  # the bottle is held in several grips, each pose in one
     for name, c in res.tracked.baselines["selection"]["candidates"].items():
         centres, normals = res.centres(c["sites"]), res.sites.normals[c["sites"]]
-        hits = camera_hits(res.prop.mesh, centres, normals, res.rig, poses, res.capsules, res.spec.grazing_limit_deg)
+        hits = camera_hits(res.prop.mesh, centres, normals, res.rig, poses, [g.capsules for g in res.grips],
+                           res.spec.grazing_limit_deg, held)  # fmt: skip
         hits = np.repeat(hits, ts.loss_patterns, axis=0)  # scenario k is pose k // patterns
         mine = tracked_poses(hits, alive, centres, ts.min_height_mm).mean()
         assert mine == pytest.approx(c["validation_tracked"], abs=0.003), name
@@ -197,7 +201,8 @@ def test_visibility_is_tested_at_the_ball_centre(tmp_path):
     from trimesh.ray.ray_triangle import RayMeshIntersector
 
     out = tmp_path / "o"
-    assert run_cli(["place", "hammer", *FAST, "--out", out, "-q"]) == 0
+    grip = ["--grip", "0,0,0.02,0,0,0.11,0.015"]  # one capsule at every pose
+    assert run_cli(["place", "hammer", *FAST, *grip, "--out", out, "-q"]) == 0
     doc = json.loads((out / "placement.json").read_text())
     from starforge.props.builtin import builtin_mesh
     from starforge.props.rig import load_rig
@@ -330,7 +335,7 @@ def test_below_target_names_the_exact_ceiling_when_layouts_are_few(tmp_path):
     below = doc["tracked"]["below_target"]
     c = below["ceiling"]
     assert c is not None and c["scenarios"] == below["scenarios"] and 3 <= c["max_markers_spaced"] <= 4
-    assert below["validation_tracked"] <= c["ceiling"] + 1e-12 < 0.99
+    assert below["validation_tracked"] <= c["ceiling"] + 1e-9 < 0.99  # both rounded to 9 digits in the file
     line = [w for w in doc["warnings"] if "below the 99 % target" in w][0]
     assert f"does better than {100 * c['ceiling']:.2f} %" in line and f"all {c['layouts']:,} such layouts" in line
 
@@ -419,7 +424,7 @@ def test_a_prop_no_layout_can_track_is_refused_up_front(tmp_path, capsys):
     path = tmp_path / "strip.stl"
     strip.export(path)
     out = tmp_path / "out"
-    assert run_cli(["place", path, "--no-hand", "--out", out, "-q"]) == 2
+    assert run_cli(["place", path, "--no-hand", "--placement-error", "0", "--out", out, "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: no layout on this prop can be tracked")
     assert "15 mm triangle" in err[0] and "--marker" in err[0]

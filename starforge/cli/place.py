@@ -13,6 +13,7 @@ from pathlib import Path
 import typer
 from typer.core import TyperGroup
 
+from starforge.catalog import load_template
 from starforge.cli._app import app, console, progress
 
 _DEFAULT = "run"
@@ -45,7 +46,7 @@ app.add_typer(place_app, name="place")
 
 def _prop_and_spec(
     prop, units, spec, rig, markers, resolution, orientations, sites, restarts, forbid_mesh, mask, mesh_format,
-    marker_mm=None, base_mm=None, hand=None, cameras_lost=None,
+    marker_mm=None, base_mm=None, hand=None, cameras_lost=None, placement_error=None,
 ):
     from dataclasses import replace
 
@@ -77,9 +78,13 @@ def _prop_and_spec(
         base_mm=base_mm,
         hand=hand,
         cameras_lost=cameras_lost,
+        placement_error_mm=placement_error,
     )
     return load_prop(prop, units), s
 
+
+#: the default spec's candidate sites, for the help text (read from the template, not restated)
+_DEFAULT_SITES = load_template("place", "default")[1].get("sites")
 
 _PROP = typer.Argument(
     ..., help="Mesh file (STL, OBJ, PLY, GLB, OFF) or built-in prop name (builtin:NAME when a path has that name)."
@@ -100,7 +105,9 @@ def run_cmd(
     markers: int = typer.Option(None, "--markers", help="Target number of markers (Table 1: 7), in [4, 20]."),
     resolution: int = typer.Option(None, "--resolution", help="n for n x n x n prop positions (4, 8, 12)."),
     orientations: int = typer.Option(None, "--orientations", help="Prop orientations per position (K)."),
-    sites: int = typer.Option(None, "--sites", help="Candidate sites (Poisson-disk samples, default 1000)."),
+    sites: int = typer.Option(
+        None, "--sites", help=f"Candidate sites (Poisson-disk samples; default: the spec's, {_DEFAULT_SITES} in the default spec)."
+    ),
     restarts: int = typer.Option(None, "--restarts", help="Independent annealing runs; the best is kept."),
     marker_mm: str = typer.Option(
         None,
@@ -113,9 +120,19 @@ def run_cmd(
         None, "--base-mm", help="Diameter of the flat base under each marker, mm (a stick-on pad; default: the marker's own)."
     ),
     grip: str = typer.Option(
-        None, "--grip", help="The hand's grip: x0,y0,z0,x1,y1,z1[,r] in metres, prop frame (default: the prop's grip)."
+        None,
+        "--grip",
+        help="Pin the hand to one grip: N (grip N of the list the run prints) or x0,y0,z0,x1,y1,z1[,r] (a fist around "
+        "that segment, metres, prop frame; r the part's radius). Default: every grip of the distribution found from the "
+        "prop's shape (either hand, several places along the graspable part, several wraps).",
     ),
     no_hand: bool = typer.Option(False, "--no-hand", help="No hand holds the prop."),
+    placement_error: float = typer.Option(
+        None,
+        "--placement-error",
+        help="How far off its mark (mm) a technician may stick a marker: every marker seats with this much room before "
+        "its base overhangs an edge or a surface tilted more than 30 degrees (default 2).",
+    ),
     cameras_lost: float = typer.Option(
         None, "--cameras-lost", help="Fraction of the cameras lost at random in each scenario, [0, 1] (default 0.5)."
     ),
@@ -169,12 +186,9 @@ def run_cmd(
             base_mm,
             False if no_hand else None,
             cameras_lost,
+            placement_error,
         )
-        cap = None
-        if grip is not None and not no_hand:
-            from starforge.props.hand import parse_grip
-
-            cap = parse_grip(grip)
+        cap = None if no_hand else grip
         avoid_faces = None
         if avoid:
             from starforge.tracking.avoid import faces_to_avoid

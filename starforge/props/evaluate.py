@@ -21,6 +21,7 @@ import math
 
 import numpy as np
 
+from starforge.props.grips import GRIP_SEED_OFFSET, assign_grips
 from starforge.props.tracked import TRIANGLE_SPREAD, alive_masks
 
 
@@ -36,8 +37,11 @@ def random_poses(volume, count: int, pivot, rng: np.random.Generator):
     return Poses(R, T, np.asarray(pivot, float))
 
 
-def camera_hits(mesh, centres, normals, rig, poses, capsules=(), grazing_limit_deg: float = 180.0):
-    """(P, m, C) bool: camera c sees marker i (ball centre ``centres[i]``, prop frame) at pose k."""
+def camera_hits(mesh, centres, normals, rig, poses, capsules=(), grazing_limit_deg: float = 180.0, pose_grip=None):
+    """(P, m, C) bool: camera c sees marker i (ball centre ``centres[i]``, prop frame) at pose k.
+
+    ``capsules``: the hand's capsules at every pose; with ``pose_grip`` (P,) int, a sequence of
+    grips instead (each a sequence of capsules), pose k held in grip ``pose_grip[k]``."""
     from starforge.props.visibility import camera_arrays, ray_offset, segment_occluded
 
     cam, basis, tans = camera_arrays(rig)
@@ -57,10 +61,16 @@ def camera_hits(mesh, centres, normals, rig, poses, capsules=(), grazing_limit_d
         # (the hand is within the prop's reach, the cameras metres away: a ray is the segment)
         qk = np.einsum("kji,kcj->kci", R, cam[None] - T[:, None]) + piv  # (P, C, 3)
         rays = qk[:, None, :, :] - centres[None, :, None, :]  # (P, m, C, 3)
-        org = np.broadcast_to(centres[None, :, None, :], rays.shape).reshape(-1, 3)
-        dirs = (rays / np.linalg.norm(rays, axis=-1, keepdims=True)).reshape(-1, 3)
-        for cap in capsules:
-            ok &= (ray_segment_distance(org, dirs, np.asarray(cap.a), np.asarray(cap.b)) > cap.radius).reshape(ok.shape)
+        grip = np.zeros(len(R), np.int64) if pose_grip is None else np.asarray(pose_grip, np.int64)
+        for g, caps in enumerate([capsules] if pose_grip is None else capsules):
+            rows = np.flatnonzero(grip == g)
+            if not len(rows) or not len(caps):
+                continue
+            r = rays[rows]
+            org = np.broadcast_to(centres[None, :, None, :], r.shape).reshape(-1, 3)
+            dirs = (r / np.linalg.norm(r, axis=-1, keepdims=True)).reshape(-1, 3)
+            for cap in caps:
+                ok[rows] &= (ray_segment_distance(org, dirs, np.asarray(cap.a), np.asarray(cap.b)) > cap.radius).reshape(r.shape[:3])
     kk, mm, cc = np.nonzero(ok)
     if len(kk):
         # the sight line in the prop frame: camera -> prop frame is R^T (x - t) + pivot
@@ -91,15 +101,18 @@ def tracked_poses(hits: np.ndarray, alive: np.ndarray, centres: np.ndarray, min_
 
 
 def evaluate_layouts(mesh, layouts: dict, rig, pivot, settings, seed: int, min_height_mm: float,
-                     capsules=(), grazing_limit_deg: float = 180.0) -> dict:
+                     grips=(), grazing_limit_deg: float = 180.0) -> dict:
     """Each layout (name -> (centres (m, 3), normals (m, 3)), prop frame, m) on the same fresh
-    poses and camera losses: ``{name: {"tracked": fraction under loss and the hand,
+    poses and camera losses, each pose held in a grip of ``grips`` (:class:`starforge.props.grips.Grip`,
+    the same number of poses each, in an order of their own seed): ``{name: {"tracked": fraction under loss and the hand,
     "tracked_all_cameras": fraction with every camera, "markers_reconstructed": mean fraction of
     the markers seen by two surviving cameras}}``, plus ``"_poses"``, the count."""
     rng = np.random.default_rng(seed + settings.seed_offset)
     poses = random_poses(rig.volume, settings.poses, pivot, rng)
     C = len(rig.cameras)
     alive = alive_masks(C, settings.cameras_lost, len(poses), rng)
+    pose_grip = assign_grips(len(poses), len(grips), np.random.default_rng(seed + settings.seed_offset + GRIP_SEED_OFFSET))
+    held = [g.capsules for g in grips]
     every = np.full(len(poses), np.uint64((1 << C) - 1) if C < 64 else np.uint64(2**64 - 1))
     out = {"_poses": len(poses), "_cameras_lost": int(round(settings.cameras_lost * C))}
     per_pose = {}
@@ -109,7 +122,7 @@ def evaluate_layouts(mesh, layouts: dict, rig, pivot, settings, seed: int, min_h
             out[name] = {"tracked": 0.0, "tracked_all_cameras": 0.0, "markers_reconstructed": 0.0}
             per_pose[name] = np.zeros(len(poses), bool)
             continue
-        hits = camera_hits(mesh, c, n, rig, poses, capsules, grazing_limit_deg)
+        hits = camera_hits(mesh, c, n, rig, poses, held, grazing_limit_deg, pose_grip)
         per_pose[name] = tracked_poses(hits, alive, c, min_height_mm)
         out[name] = {
             "tracked": float(per_pose[name].mean()),

@@ -78,10 +78,11 @@ def placement_json(res: PlacementResult) -> dict:
             }
         )
     seen3 = (res.marker_pose_seen.sum(axis=0) >= 3) if len(res.marker_sites) else np.zeros(0, bool)
-    from starforge.props.guide import landmarks
+    from starforge.props.guide import caliper_pairs, landmarks, mesh_landmarks
 
     centres = res.centres()
-    marks = landmarks(prop.mesh, res.marker_points, res.marker_normals)
+    features = mesh_landmarks(prop.mesh)
+    marks = landmarks(prop.mesh, res.marker_points, res.marker_normals, res.sites.faces[list(res.marker_sites)], features)
     rep = res.seat_report
     markers = []
     for i, s in enumerate(res.marker_sites):
@@ -99,6 +100,7 @@ def placement_json(res: PlacementResult) -> dict:
                 "seen_all_cameras": _r((np.bitwise_count(res.marker_masks[i]) >= 2).mean()),
                 "base_contact": _r(rep.contact[s], 4),
                 "edge_distance_mm": None if not math.isfinite(edge) else _r(edge * 1000.0, 3),
+                "seat_margin_mm": _r(float(rep.margin_m[s]) * 1000.0, 3),
                 "landmark": marks[i],
             }
         )
@@ -139,7 +141,17 @@ def placement_json(res: PlacementResult) -> dict:
             **{k: v for k, v in to_mapping(spec.seat).items()},
             "sites_removed": dict(res.removed),
         },
+        "guide": {
+            "landmarks": features,
+            "caliper": caliper_pairs(centres, res.seat.ball_mm, spec.seat.placement_error_mm),
+            "placement_error_mm": spec.seat.placement_error_mm,
+        },
         "hand": [c.to_json() for c in res.capsules],
+        "grips": {
+            "held_part": None if res.part is None else res.part.to_json(),
+            "grips": [g.to_json() for g in res.grips],
+            "assignment": "every pose held in one grip, the same number of poses each, in a random order from the seed",
+        },
         "cost": {
             **{k: (_r(v) if isinstance(v, float) else v) for k, v in res.cost.to_json().items()},
             "weights": {
@@ -449,6 +461,7 @@ def summary_lines(res: PlacementResult) -> list[str]:
         f"{rm.get('under_hand', 0)} under the hand, {rm.get('unseated', 0)} where a {res.seat.name} base does not seat)"
     )
     lines.append(f"poses: {len(res.poses)}, cameras: {len(res.rig.cameras)}, rays cast: {res.rays}")
+    lines += grip_lines(res.part, res.grips)
     if res.tracked is not None:
         t, b = res.tracked.terms, res.tracked.baselines
         lines.append(
@@ -461,6 +474,9 @@ def summary_lines(res: PlacementResult) -> list[str]:
             f"cost {t['total']:.4f}; greedy + local search {b['greedy_local_search']['cost']:.4f}"
             + (f", best of {b['best_of_random']['layouts']} random {rnd:.4f}" if rnd is not None else "")
         )
+        why = ranking_note(b)
+        if why:
+            lines.append(why)
         ev = res.evaluation
         if ev:
             parts = [f"{k.replace('_', ' ')} {100 * v['tracked']:.1f} %" for k, v in ev.items() if not k.startswith("_")]
@@ -470,13 +486,16 @@ def summary_lines(res: PlacementResult) -> list[str]:
         idx = list(res.marker_sites)
         contact = np.asarray(res.seat_report.contact)[idx]
         edge = np.asarray(res.seat_report.edge_m)[idx]
+        margin = np.asarray(res.seat_report.margin_m)[idx] * 1000.0
+        rules = res.spec.seat
         lines.append(
             f"seats: base contact >= {100 * contact.min():.0f} %, sharp edges >= "
             + (f"{1000 * edge.min():.1f} mm" if np.isfinite(edge.min()) else "none")
-            + f" away (base radius {res.seat.base_mm / 2:g} mm)"
+            + f" away (base radius {res.seat.base_mm / 2:g} mm); margin for a {rules.placement_error_mm:g} mm placement "
+            f"error: {', '.join(f'{m:.1f}' for m in margin)} mm (measured up to {rules.margin_cap_mm:g})"
         )
         if not math.isinf(t["near_symmetry_margin_m"]):
-            lines.append(f"near-symmetry margin: {t['near_symmetry_margin_m'] * 1000:.1f} mm")
+            lines.append(symmetry_line(t["near_symmetry_margin_m"], res.spec.track.near_symmetry_target_mm))
         return lines
     lines.append(
         f"markers: {c.markers}, cost {c.total:.4f} (visibility {c.visibility:.4f}, count {c.count:.4f}, "
@@ -491,3 +510,46 @@ def summary_lines(res: PlacementResult) -> list[str]:
     if not math.isinf(c.margin_m):
         lines.append(f"near-symmetry margin: {c.margin_m * 1000:.1f} mm")
     return lines
+
+
+def symmetry_line(margin_m: float, target_mm: float) -> str:
+    """The near-symmetry margin; the search stops at its target, so a margin there is a floor."""
+    if margin_m * 1000.0 >= target_mm - 1e-9:
+        return f"near-symmetry margin: >= {target_mm:g} mm (the target; the search stops there)"
+    return f"near-symmetry margin: {margin_m * 1000:.1f} mm (below the {target_mm:g} mm target)"
+
+
+def ranking_note(baselines: dict) -> str:
+    """Why the chosen layout costs more than a baseline printed beside it, or "" when it does not:
+    the candidates are ranked by their tracked fraction on held-out poses first."""
+    sel = baselines.get("selection", {})
+    cands = sel.get("candidates", {})
+    won = cands.get(sel.get("winner"))
+    greedy = cands.get("greedy_local_search")
+    if not won or not greedy or won["cost"] <= greedy["cost"] + 1e-12 or won["validation_tracked"] is None:
+        return ""
+    return (
+        f"  the chosen layout costs more than greedy + local search on the searched scenarios but tracks "
+        f"{100 * won['validation_tracked']:.2f} % of the held-out ones against {100 * greedy['validation_tracked']:.2f} % "
+        "(layouts are ranked by held-out tracking first, then by cost)"
+    )
+
+
+def grip_lines(part, grips) -> list[str]:
+    """The grips the layout is scored under, grouped by hand and place (numbers as ``--grip N`` takes them)."""
+    from starforge.props.grips import grips_summary
+
+    if not grips:
+        return ["hand: none (--no-hand)"]
+    out = [f"hand: {grips_summary(part, grips)}; each pose is held in one of them (--grip N pins grip N):"]
+    k = 0
+    while k < len(grips):
+        j = k
+        base = grips[k].label.split(", wrist at")[0]
+        while j < len(grips) and grips[j].label.split(", wrist at")[0] == base:
+            j += 1
+        wraps = ", ".join(f"{g.wrap_deg:g}" for g in grips[k:j])
+        nums = f"{k + 1}" if j == k + 1 else f"{k + 1}-{j}"
+        out.append(f"  grip {nums}: {base}" + (f", wrist at {wraps} deg around the part" if "wrist at" in grips[k].label else ""))
+        k = j
+    return out

@@ -1,11 +1,17 @@
-"""What a prop team needs to stick the markers on: numbered markers measured from landmarks.
+"""What a prop team needs to stick the markers on and check them: landmarks, calipers, tilt.
 
-Every marker is located from the prop's axis-aligned bounding box, which a person can measure
-with a ruler or a square: on each axis the distance (mm) from the nearer side of the box, and
-the box face the marker lies on when its base is on that face (normal within
-:data:`FACE_DEG` of the axis, within :data:`FACE_MM` of the side).  The prop is in its own
-frame as given (z up for the built-ins).  The drawings are made by
-:func:`starforge.render.props.draw_guide`; the prop with the bases merged by :func:`bases_mesh`.
+Every marker is located from features of the mesh a person finds by hand
+(:func:`mesh_landmarks`): the prop's *tips* (its farthest points both ways along each principal
+axis: the end of a handle, the top of a head) and its *corners* (vertices where three or more
+edges sharper than :data:`CORNER_DEG` meet).  Per marker (:func:`landmarks`): the straight
+distances (mm, a ruler or caliper from the point) to its :data:`NEAREST` nearest landmarks,
+the face it sits on (a flat face of the mesh at least :data:`FLAT_MIN_MM2`, named by the
+direction it faces, or the curved surface), its tilt (the angle of its normal from the prop's
++z, and the direction it leans), and, as before, its distances from the sides of the
+axis-aligned bounding box.  The caliper check (:func:`caliper_pairs`): every pair of ball
+centres, with the tolerance two markers each stuck up to the placement error off their marks
+can show.  The drawings are made by :mod:`starforge.render.guide`; the prop with the bases
+merged by :func:`bases_mesh`.
 """
 
 from __future__ import annotations
@@ -19,30 +25,162 @@ import numpy as np
 FACE_DEG = 5.0
 FACE_MM = 1.0
 AXES = "xyz"
+#: edges sharper than this (degrees) make a corner where three or more meet
+CORNER_DEG = 60.0
+#: at most this many corners are named (farthest apart first)
+MAX_CORNERS = 12
+#: landmarks closer than this (m) to one already named are the same landmark
+SAME_M = 0.005
+#: landmarks given per marker
+NEAREST = 3
+#: a flat face named as such covers at least this area (mm^2)
+FLAT_MIN_MM2 = 150.0
 
 
-def landmarks(mesh, points: np.ndarray, normals: np.ndarray) -> list[dict]:
-    """Per marker: ``{"from": {"x": "min"|"max", ...}, "distance_mm": [dx, dy, dz], "face": "+z"
-    or None, "text": "..."}`` (distances from the nearer side of the bounding box on each axis)."""
+def _direction(v: np.ndarray, within_deg: float = 20.0) -> str:
+    """``+z`` when ``v`` is within ``within_deg`` of an axis, else its rounded components."""
+    v = np.asarray(v, float) / max(float(np.linalg.norm(v)), 1e-300)
+    k = int(np.argmax(np.abs(v)))
+    if abs(v[k]) >= math.cos(math.radians(within_deg)):
+        return f"{'+' if v[k] > 0 else '-'}{AXES[k]}"
+    return "(" + ", ".join(f"{x:+.2f}" for x in v) + ")"
+
+
+def mesh_landmarks(mesh) -> list[dict]:
+    """The tips and corners of the mesh: ``[{"name": "T1", "kind": "tip" | "corner", "what":
+    text, "point": [x, y, z] m}]``, tips first."""
+    from starforge.props.grips import principal_axes
+
+    v = np.asarray(mesh.vertices, float)
+    c, axes = principal_axes(v)
+    found: list[tuple[str, str, np.ndarray]] = []
+
+    def add(kind, what, p):
+        if all(np.linalg.norm(p - q) >= SAME_M for _, _, q in found):
+            found.append((kind, what, p))
+
+    for ax in axes:
+        for sign in (1.0, -1.0):
+            d = sign * ax
+            add("tip", f"the end towards {_direction(d)}", v[int(np.argmax((v - c) @ d))])
+    angles = np.asarray(mesh.face_adjacency_angles)
+    sharp = np.asarray(mesh.face_adjacency_edges)[angles > math.radians(CORNER_DEG)]
+    if len(sharp):
+        count = np.bincount(sharp.ravel(), minlength=len(v))
+        cand = v[count >= 3]
+        if len(cand):  # farthest-point order from the first tip: spread, deterministic
+            d = np.linalg.norm(cand - found[0][2], axis=1)
+            for _ in range(min(len(cand), 4 * MAX_CORNERS)):
+                k = int(np.argmax(d))
+                if d[k] < SAME_M or sum(1 for f in found if f[0] == "corner") >= MAX_CORNERS:
+                    break
+                add("corner", "a corner", cand[k])
+                d = np.minimum(d, np.linalg.norm(cand - cand[k], axis=1))
+    out, n = [], {"tip": 0, "corner": 0}
+    for kind, what, p in found:
+        n[kind] += 1
+        name = f"{'T' if kind == 'tip' else 'C'}{n[kind]}"
+        where = ", ".join(f"{1000 * x:.0f}" for x in p)
+        out.append({"name": name, "kind": kind, "what": f"{what} ({where} mm)", "point": [round(float(x), 6) + 0.0 for x in p]})
+    return out
+
+
+def _flat_faces(mesh) -> dict[int, dict]:
+    """Face index -> its flat face (a facet of coplanar faces, or one triangle, of at least
+    :data:`FLAT_MIN_MM2`; numbered F1, F2, ... largest first): ``{"id", "facing", "area_mm2"}``."""
+    tri_area = np.asarray(mesh.area_faces) * 1e6
+    fn = np.asarray(mesh.face_normals)
+    groups = [np.asarray(f, int) for f in mesh.facets]
+    in_facet = np.zeros(len(tri_area), bool)
+    for g in groups:
+        in_facet[g] = True
+    groups += [np.array([f]) for f in np.flatnonzero(~in_facet & (tri_area >= FLAT_MIN_MM2))]
+    areas = np.array([tri_area[g].sum() for g in groups])
+    out = {}
+    rank = 0
+    for k in np.argsort(-areas, kind="stable"):
+        if areas[k] < FLAT_MIN_MM2:
+            break
+        rank += 1
+        g = groups[k]
+        info = {"id": f"F{rank}", "facing": _direction(fn[g[0]], 1.0), "area_mm2": round(float(areas[k]), 0)}
+        for f in g:
+            out[int(f)] = info
+    return out
+
+
+def tilt(normal: np.ndarray) -> tuple[float, str]:
+    """The marker's tilt: degrees of its normal from the prop's +z, and the way it leans
+    (``+x``, ``-y``, ... the larger horizontal component; ``""`` when upright or upside down)."""
+    n = np.asarray(normal, float) / max(float(np.linalg.norm(normal)), 1e-300)
+    deg = math.degrees(math.acos(float(np.clip(n[2], -1.0, 1.0))))
+    h = n[:2]
+    if float(np.linalg.norm(h)) < math.sin(math.radians(1.0)):
+        return deg, ""
+    k = int(np.argmax(np.abs(h)))
+    return deg, f"{'+' if h[k] > 0 else '-'}{AXES[k]}"
+
+
+def landmarks(mesh, points: np.ndarray, normals: np.ndarray, faces=None, marks=None) -> list[dict]:
+    """Per marker (surface ``points`` (m, 3) m, outward ``normals``, the mesh ``faces`` they lie
+    on): ``{"from": {"x": "min"|"max", ...}, "distance_mm": [dx, dy, dz] (from the nearer side of
+    the bounding box on each axis), "face": {"kind": "flat" | "curved", ...}, "nearest":
+    [{"name", "distance_mm"}], "tilt_deg", "leans", "text"}``.  ``marks``: the mesh's landmarks
+    (:func:`mesh_landmarks`, computed when not given)."""
     lo, hi = np.asarray(mesh.bounds, float)
+    marks = mesh_landmarks(mesh) if marks is None else marks
+    lp = np.array([m["point"] for m in marks], float).reshape(-1, 3)
+    flat = _flat_faces(mesh) if faces is not None else {}
     out = []
-    for p, n in zip(np.asarray(points, float), np.asarray(normals, float), strict=True):
+    for i, (p, n) in enumerate(zip(np.asarray(points, float), np.asarray(normals, float), strict=True)):
         side, dist = {}, []
         for k, ax in enumerate(AXES):
             a, b = p[k] - lo[k], hi[k] - p[k]
             side[ax] = "min" if a <= b else "max"
             dist.append(round(float(min(a, b)) * 1000.0, 1) + 0.0)
-        face = None
-        k = int(np.argmax(np.abs(n)))
-        if abs(n[k]) >= math.cos(math.radians(FACE_DEG)):
-            sign = "+" if n[k] > 0 else "-"
-            edge = hi[k] if n[k] > 0 else lo[k]
-            if abs(p[k] - edge) * 1000.0 <= FACE_MM:
-                face = f"{sign}{AXES[k]}"
-        parts = [f"{d:.1f} mm from the {ax}-{side[ax]} side" for ax, d in zip(AXES, dist, strict=True)]
-        text = ", ".join(parts) + (f"; on the {face} face of the box" if face else "")
-        out.append({"from": side, "distance_mm": dist, "face": face, "text": text})
+        f = flat.get(int(faces[i])) if faces is not None else None
+        if f is not None:
+            face = {"kind": "flat", **f}
+            on = f"on flat face {f['id']} (facing {f['facing']}, {f['area_mm2']:.0f} mm2)"
+        else:
+            face = {"kind": "curved", "facing": _direction(n)}
+            on = f"on the curved surface (facing {_direction(n)})"
+        d = np.linalg.norm(lp - p, axis=1) * 1000.0
+        order = np.argsort(d, kind="stable")[:NEAREST]
+        near = [{"name": marks[j]["name"], "distance_mm": round(float(d[j]), 1) + 0.0} for j in order]
+        deg, leans = tilt(n)
+        lean = f", leaning {leans}" if leans and 1.0 <= deg <= 179.0 else ""
+        text = (
+            f"{on}; "
+            + ", ".join(f"{m['distance_mm']:.1f} mm from {m['name']}" for m in near)
+            + f"; tilt {deg:.0f} deg from +z{lean}"
+        )
+        out.append({"from": side, "distance_mm": dist, "face": face, "nearest": near, "tilt_deg": round(deg, 1),
+                    "leans": leans, "text": text})  # fmt: skip
     return out
+
+
+def caliper_pairs(centres: np.ndarray, ball_mm: float, placement_error_mm: float) -> list[dict]:
+    """Every pair of ball centres (m): ``{"a", "b" (1-based), "centre_mm", "outside_mm" (a
+    caliper across both balls' outsides: the centre distance plus a diameter), "tolerance_mm"}``;
+    the tolerance is twice the placement error (each marker up to that far off its mark)."""
+    c = np.asarray(centres, float)
+    out = []
+    for i in range(len(c)):
+        for j in range(i + 1, len(c)):
+            d = float(np.linalg.norm(c[i] - c[j])) * 1000.0
+            out.append({"a": i + 1, "b": j + 1, "centre_mm": round(d, 1) + 0.0, "outside_mm": round(d + ball_mm, 1) + 0.0,
+                        "tolerance_mm": round(2.0 * placement_error_mm, 2)})  # fmt: skip
+    return out
+
+
+def template_scale(extent_mm: tuple[float, float], page_mm: tuple[float, float] = (257.0, 160.0)) -> int:
+    """The largest of 1:1, 1:2, 1:5, 1:10 (returned as the divisor) at which a view ``extent_mm``
+    (width, height) fits the printable area ``page_mm`` (A4 landscape less margins)."""
+    for k in (1, 2, 5, 10, 20):
+        if extent_mm[0] / k <= page_mm[0] and extent_mm[1] / k <= page_mm[1]:
+            return k
+    return 50
 
 
 def bases_mesh(prop_mesh, points: np.ndarray, normals: np.ndarray, base_mm: float, height_mm: float = 1.0):

@@ -1,21 +1,19 @@
 """The hand that holds the prop, as occluders that move with it: capsules in the prop frame.
 
-A grip is a segment (the stretch of the gripped part the palm covers, along the axis the
-fingers close around) and the part's radius; the hand is one capsule around it, reaching
+A fist is a segment (the stretch of the gripped part the palm covers, along the axis the
+fingers close around) and the part's radius; the hand is a capsule around it, reaching
 :data:`FINGERS_M` beyond the part and covering that stretch of its surface
-(:func:`hand_capsule`: palm and fingers wrapped round the grip), which hides whatever lies inside it from every camera and covers the surface it
-encloses (no marker can be stuck under the hand).  ``--grip`` gives the segment in the prop
-frame (metres); without it, a built-in prop has its own grip (:data:`GRIPS`) and a mesh gets
-its handle (:func:`graspable_grip`): the longest run, at least 40 mm, of cross-sections a hand
-closes around (12-60 mm across along their principal axes: a blade, a plate or a body is
-none), the palm (at most a quarter of the prop's length) at the run's end nearer the prop's end.  A mesh without one gets its thinnest
-end: of the ends of its bounding box along the axes at least half as long as the
-longest (the quarter of the box next to each face), the one whose cross-section (the vertices' farthest distance from the section's centre)
-is smallest, the grip running a palm's width (:data:`PALM_M`, at most a quarter of the length)
-along that axis.  The forearm is not modelled (its direction depends on how the prop
-is held); that is a simplification the README states.
+(:func:`hand_capsule`: palm and fingers wrapped round the grip), which hides whatever lies
+inside it from every camera and covers the surface it encloses (no marker can be stuck under
+the hand).  Where on a prop people hold it, by which hand and how, is
+:mod:`starforge.props.grips`; this module holds the pieces: the fist, the cross-sections a
+hand closes around (:func:`section_widths`), the fingertips of a pinch (:func:`pinch`) and the
+thinnest end of a prop without a graspable part (:func:`grip_segment`): of the ends of its
+bounding box along the axes at least half as long as the longest (the quarter of the box next
+to each face), the one whose cross-section (the vertices' farthest distance from the section's
+centre) is smallest, the grip running a palm's width (:data:`PALM_M`, at most a quarter of the
+length) along that axis.
 """
-
 from __future__ import annotations
 
 import math
@@ -30,7 +28,8 @@ PALM_M = 0.09
 #: what the hand adds around the gripped surface, m (fingers, about 20-25 mm thick)
 FINGERS_M = 0.025
 
-#: built-in props: grip segment (prop frame, m) and the radius of the gripped part, m
+#: built-in props whose shape shows no graspable part (:func:`starforge.props.grips.held_part`): where
+#: they are held, a segment (prop frame, m) and the radius of the gripped part, m
 GRIPS = {
     "hammer": ((0.0, 0.0, 0.02), (0.0, 0.0, 0.11), 0.015),
     "racket": ((0.0, 0.0, 0.01), (0.0, 0.0, 0.08), 0.018),
@@ -91,24 +90,16 @@ def parse_grip(text: str) -> Capsule:
     return hand_capsule(v[:3], v[3:6], r)
 
 
-#: a cross-section a hand closes around: its narrower principal width at least this (m; a blade
-#: or a plate is thinner) and its wider one at most :data:`GRASP_MAX_M`
-GRASP_MIN_M = 0.012
-GRASP_MAX_M = 0.06
-#: a handle is at least this long (m) of consecutive such sections
-GRASP_RUN_M = 0.04
-#: the sections are this far apart along the axis (m), at most :data:`_MAX_SLICES` of them
-SLICE_M = 0.004
-_MAX_SLICES = 400
-
-
 def section_widths(mesh, axis: int, heights: np.ndarray) -> np.ndarray:
     """(k, 4) float: per plane ``x[axis] = heights[k]`` the cross-section's two principal widths
     (wider first, m) and its centre in the other two axes (nan where the plane misses the
     mesh).  The section is the points where the mesh's edges cross the plane; its widths are
     its extents along the principal axes of those points (so a turned blade stays thin)."""
-    v = np.asarray(mesh.vertices, float)
-    e = np.asarray(mesh.edges_unique, int)
+    return section_widths_of(np.asarray(mesh.vertices, float), np.asarray(mesh.edges_unique, int), axis, heights)
+
+
+def section_widths_of(v: np.ndarray, e: np.ndarray, axis: int, heights: np.ndarray) -> np.ndarray:
+    """:func:`section_widths` of the mesh with vertices ``v`` (n, 3) and unique edges ``e`` (k, 2)."""
     others = [i for i in range(3) if i != axis]
     t0, t1 = v[e[:, 0], axis], v[e[:, 1], axis]
     lo_t, hi_t = np.minimum(t0, t1), np.maximum(t0, t1)
@@ -139,61 +130,6 @@ def section_widths(mesh, axis: int, heights: np.ndarray) -> np.ndarray:
     return out
 
 
-def graspable_grip(mesh):
-    """The longest handle of the mesh, or None: a run of at least :data:`GRASP_RUN_M` of
-    consecutive cross-sections (every :data:`SLICE_M` along each axis at least half as long as
-    the longest) that a hand closes around (:data:`GRASP_MIN_M` to :data:`GRASP_MAX_M` across;
-    a blade, a plate or a wide body is none).  The grip covers a palm's width of it at the
-    run's end nearer the prop's end, or its middle.  Returns ``(a, b, part_radius)``."""
-    lo, hi = np.asarray(mesh.bounds, float)
-    ext = hi - lo
-    best = None
-    for ax in np.argsort(-ext, kind="stable").tolist():
-        if ext[ax] < 0.5 * ext.max():
-            continue
-        n = int(min(_MAX_SLICES, max(10, ext[ax] // SLICE_M)))
-        step = ext[ax] / n
-        h = lo[ax] + (np.arange(n) + 0.5) * step
-        w = section_widths(mesh, ax, h)
-        ok = (w[:, 1] >= GRASP_MIN_M) & (w[:, 0] <= GRASP_MAX_M)  # nan compares False
-        i = 0
-        while i < n:
-            if not ok[i]:
-                i += 1
-                continue
-            j = i
-            while j < n and ok[j]:
-                j += 1
-            length = (j - i) * step
-            if length >= GRASP_RUN_M - 1e-12 and (best is None or length > best[0] + 1e-9):
-                best = (length, ax, i, j, h, w, step)
-            i = j
-    if best is None:
-        return None
-    length, ax, i, j, h, w, step = best
-    others = [k for k in range(3) if k != ax]
-    palm = min(PALM_M, length, 0.25 * ext[ax])  # at most a quarter of the prop, as for an end
-    run_lo, run_hi = h[i] - step / 2, h[j - 1] + step / 2
-    if run_lo - lo[ax] <= hi[ax] - run_hi:  # the run's end nearer the prop's end
-        start = run_lo
-    else:
-        start = run_hi - palm
-    under = np.arange(i, j)[(h[i:j] >= start - step) & (h[i:j] <= start + palm + step)]  # the palm's sections
-    a = np.zeros(3)
-    a[others] = np.nanmean(w[under, 2:], axis=0)
-    b = a.copy()
-    a[ax], b[ax] = start, start + palm
-    return a, b, float(np.nanmax(w[under, 0]) / 2)
-
-
-def default_grip(mesh, name: str = "", builtin: bool = False) -> Capsule:
-    """The hand at a sensible graspable part (see the module docstring)."""
-    if builtin and name in GRIPS:
-        a, b, r = GRIPS[name]
-        return hand_capsule(a, b, r)
-    return hand_capsule(*grip_segment(mesh))
-
-
 #: a prop whose longest side is shorter than this (m) is held by the fingertips, not in a fist
 PINCH_BELOW_M = 0.12
 #: what fingertips add around the pinched part (m; a fingertip pad is 15-20 mm thick, so the
@@ -205,16 +141,6 @@ PINCH_M = 0.02
 #: starting just past the prop's end on the grip's axis
 HAND_RADIUS_M = 0.025
 HAND_LENGTH_M = 0.08
-
-
-def default_hand(mesh, name: str = "", builtin: bool = False) -> tuple[Capsule, ...]:
-    """The hand as capsules: :func:`default_grip` (a fist round the grip) for a prop at least
-    :data:`PINCH_BELOW_M` long or a built-in; a smaller prop is pinched at the same place
-    (:func:`pinch`), since a hand cannot close a fist round a part shorter than its palm."""
-    lo, hi = np.asarray(mesh.bounds, float)
-    if (builtin and name in GRIPS) or float(np.max(hi - lo)) >= PINCH_BELOW_M:
-        return (default_grip(mesh, name, builtin),)
-    return pinch(mesh, *grip_segment(mesh))
 
 
 def pinch(mesh, a, b, part_radius: float) -> tuple[Capsule, Capsule]:
@@ -244,11 +170,8 @@ def pinch(mesh, a, b, part_radius: float) -> tuple[Capsule, Capsule]:
 
 
 def grip_segment(mesh) -> tuple[np.ndarray, np.ndarray, float]:
-    """Where a mesh without a grip of its own is held: its handle (:func:`graspable_grip`) or
-    else its thinnest end (see the module docstring).  Returns ``(a, b, part_radius)``, m."""
-    handle = graspable_grip(mesh)
-    if handle is not None:
-        return handle
+    """Where a mesh without a graspable part is held: its thinnest end (see the module
+    docstring).  Returns ``(a, b, part_radius)``, m."""
     lo, hi = np.asarray(mesh.bounds, float)
     ext = hi - lo
     v = np.asarray(mesh.vertices, float)

@@ -50,6 +50,8 @@ class PlacementResult:
     evaluation: dict = field(default_factory=dict)  # starforge.props.evaluate on fresh poses
     marker_masks: np.ndarray = field(default=None, repr=False)  # (m, poses) uint64 camera bits
     shortfall: dict = field(default_factory=dict)  # below track.target_tracked on the held-out sample: why
+    grips: tuple = ()  # starforge.props.grips.Grip: the hand's distribution the layout was scored under
+    part: object = None  # starforge.props.grips.HeldPart: where they hold it
 
     @property
     def marker_points(self) -> np.ndarray:
@@ -86,24 +88,43 @@ class Prepared:
     table: object
     seat: object
     seat_report: object
-    capsules: tuple
+    capsules: tuple  # every grip's capsules together (what the pictures outline)
+    grips: tuple = ()  # starforge.props.grips.Grip: the distribution the layout is scored under
+    pose_grip: np.ndarray = field(default=None, repr=False)  # (poses,) the grip of each pose
+    part: object = None  # starforge.props.grips.HeldPart
+    notes: tuple = ()  # warnings about the preparation
 
 
-def hand_capsules(prop, spec: PlaceSpec, grip=None) -> tuple:
-    """The hand holding ``prop``: ``grip`` (a Capsule, or None for the default grip), nothing
-    when the spec has no hand."""
-    from starforge.props.hand import default_hand
+def hand_grips(prop, spec: PlaceSpec, grip=None) -> tuple:
+    """``(held part, grips)``: the grips of :func:`starforge.props.grips.grip_distribution`, or
+    only ``grip`` when given (a :class:`~starforge.props.grips.Grip`, a Capsule, or ``--grip``
+    text: ``N`` or ``x0,y0,z0,x1,y1,z1[,r]``); ``(None, ())`` when the spec has no hand."""
+    from starforge.props.grips import Grip, grip_distribution, pinned_grip
+    from starforge.props.hand import GRIPS, Capsule
 
     if not spec.hand:
-        return ()
+        return None, ()
+    own = GRIPS.get(prop.name) if prop.source == "builtin" else None
+    part, grips = grip_distribution(prop.mesh, fallback=own)
     if grip is None:
-        return default_hand(prop.mesh, prop.name, builtin=prop.source == "builtin")
-    return (grip,)
+        return part, grips
+    if isinstance(grip, Grip):
+        return part, (grip,)
+    if isinstance(grip, Capsule):
+        return part, (Grip("pinned: a fist", "", 0.5, 0.0, (grip,)),)
+    return part, (pinned_grip(str(grip), grips),)
 
 
-def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timings=None, grip=None) -> Prepared:
+def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timings=None, grip=None, seed: int = 0) -> Prepared:
     """Sites that seat the marker (constrained areas and the hand removed), rig, poses, table."""
-    from starforge.props.hand import capsule_arrays, inside_capsules
+    from starforge.props.grips import (
+        FEW_SITES,
+        GRIP_SEED_OFFSET,
+        assign_grips,
+        grip_arrays,
+        grips_summary,
+        under_hand,
+    )
     from starforge.props.rig import load_rig, make_poses
     from starforge.props.seat import seat_report
     from starforge.props.sites import forbidden_sites, sample_sites
@@ -111,6 +132,7 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
 
     timings = {} if timings is None else timings
     t = time.perf_counter()
+    notes: list[str] = []
     rig = load_rig(spec.rig)
     sites = sample_sites(prop.mesh, spec.sites, rng)
     if spec.constraints.empty:
@@ -118,9 +140,17 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
     else:
         bad = forbidden_sites(sites, spec.constraints, prop.face_origin, prop.source_faces)
     seat = spec.marker_seat()
-    caps = hand_capsules(prop, spec, grip)
+    part, grips = hand_grips(prop, spec, grip)
+    caps = tuple(c for g in grips for c in g.capsules)
     centres = sites.points + seat.centre_height_m * sites.normals
-    hand = (inside_capsules(sites.points, caps) | inside_capsules(centres, caps)) & ~bad
+    hand = under_hand(sites.points, centres, grips) & ~bad
+    wanted = spec.track.target_markers if spec.objective == "tracked" else spec.costs.target_markers
+    if grips and int((~bad & ~hand).sum()) < FEW_SITES * wanted:  # held almost everywhere
+        hand = under_hand(sites.points, centres, grips, share=0.5) & ~bad
+        notes.append(
+            f"the prop can be held almost anywhere ({grips_summary(part, grips)}): markers keep off only where more "
+            "than half of the grips hold it (--grip N pins one grip)"
+        )
     rest = ~bad & ~hand
     report = seat_report(prop.mesh, sites.points[rest], sites.normals[rest], seat, spec.seat)
     ok = np.zeros(len(sites), bool)
@@ -143,6 +173,8 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
     pivot = np.asarray(prop.mesh.bounds, dtype=float).mean(axis=0)
     check_cost(prop, spec, rig, len(kept), spec.resolution**3 * spec.orientations)  # before building them
     poses = make_poses(rig.volume, spec.resolution, spec.orientations, pivot, rng)
+    pose_grip = assign_grips(len(poses), len(grips), np.random.default_rng(seed + GRIP_SEED_OFFSET))
+    occ, starts = grip_arrays(grips)
     table = compute_table(
         prop.mesh,
         kept.points,
@@ -154,10 +186,12 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
         radius_m=seat.ball_radius_m,
         centre_m=seat.centre_height_m,
         occlusion=spec.occlusion,
-        occluders=capsule_arrays(caps),
+        occluders=occ,
+        occluder_starts=starts,
+        pose_grip=pose_grip,
     )
     _tick(timings, "visibility_s", t)
-    return Prepared(kept, removed, rig, poses, table, seat, report, caps)
+    return Prepared(kept, removed, rig, poses, table, seat, report, caps, grips, pose_grip, part, tuple(notes))
 
 
 def check_trackable(centres: np.ndarray, spec: PlaceSpec, rig, seat, removed: dict) -> None:
@@ -281,14 +315,14 @@ def run_placement(
     units : str
         Units of a mesh file (m, cm, mm).
     grip : str, optional
-        ``x0,y0,z0,x1,y1,z1[,r]`` (prop frame, m), ``none`` for no hand; default: the prop's grip.
+        ``N`` (grip N of the printed distribution), ``x0,y0,z0,x1,y1,z1[,r]`` (a fist around that
+        segment, prop frame, m), ``none`` for no hand; default: the distribution of grips.
     avoid : (k, 3) float, m, optional
         Sorted side lengths of the marker triangles of bodies already in the room
         (:func:`starforge.tracking.avoid.faces_to_avoid` reads them from files, in mm).
     **overrides
         :func:`starforge.props.spec.with_overrides` keywords (``markers``, ``marker_mm``, ...).
     """
-    from starforge.props.hand import parse_grip
     from starforge.props.mesh import load_prop
     from starforge.props.spec import load_spec, with_overrides
 
@@ -297,7 +331,7 @@ def run_placement(
     if grip is not None and str(grip).strip().lower() == "none":
         overrides["hand"] = False
     elif grip is not None:
-        cap = parse_grip(grip)
+        cap = str(grip)
     s = with_overrides(s, **overrides)
     return place(load_prop(prop, units), s, seed=seed, progress=progress, avoid=avoid, grip=cap)
 
@@ -332,7 +366,14 @@ def place(
     from starforge.props.rig import load_rig
 
     warnings = prop_name_warnings(prop) + check_scale(prop, load_rig(spec.rig), spec.marker_diameter_m)
-    prep = prepare(prop, spec, rng, vis_cb, timings, grip)
+    seat = spec.marker_seat()
+    if seat.name.endswith(" mm ball"):
+        warnings.append(
+            f"a {seat.ball_mm:g} mm marker is not in the catalogue: a generic ball on a {seat.base_mm:g} mm base with its "
+            f"centre {seat.centre_height_mm:g} mm above it is assumed (--marker NAME for a catalogue marker, --base-mm for the base)"
+        )
+    prep = prepare(prop, spec, rng, vis_cb, timings, grip, seed)
+    warnings = warnings + list(prep.notes)
     if spec.objective == "tracked":
         return _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress, on_layout)
     res = _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress)
@@ -357,7 +398,8 @@ def _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress) -> Pl
     return PlacementResult(
         prop, spec, seed, prep.rig, prep.poses, sites, prep.removed["constrained"], v, chosen, cost, result,
         seen_any, timings, table.rays, warnings=tuple(warnings), seat=prep.seat, seat_report=prep.seat_report,
-        capsules=prep.capsules, removed=prep.removed, marker_masks=table.masks[list(chosen)],
+        capsules=prep.capsules, removed=prep.removed, marker_masks=table.masks[list(chosen)], grips=prep.grips,
+        part=prep.part,
     )  # fmt: skip
 
 
@@ -383,6 +425,7 @@ class _HeldOut:
 
     def __init__(self, prop, spec, seed: int, prep, offset: int):
         from starforge.props.evaluate import random_poses
+        from starforge.props.grips import GRIP_SEED_OFFSET, assign_grips
         from starforge.props.tracked import alive_masks
 
         ts, rig = spec.track, prep.rig
@@ -390,20 +433,23 @@ class _HeldOut:
         self.poses = random_poses(rig.volume, ts.validation_poses, prep.poses.pivot, rng)
         self.patterns = ts.loss_patterns if int(round(ts.cameras_lost * len(rig.cameras))) > 0 else 1
         self.alive = alive_masks(len(rig.cameras), ts.cameras_lost, len(self.poses) * self.patterns, rng)
+        self.grip = assign_grips(len(self.poses), len(prep.grips), np.random.default_rng(seed + offset + GRIP_SEED_OFFSET))
         self.prop, self.spec, self.prep = prop, spec, prep
         self._rows: dict = {}  # (site, hand) -> (poses,) uint64 masks over every pose
 
     def _table(self, sites, k, hand: bool) -> np.ndarray:
-        from starforge.props.hand import capsule_arrays
+        from starforge.props.grips import grip_arrays
         from starforge.props.rig import Poses
         from starforge.props.visibility import compute_table
 
         prep, spec = self.prep, self.spec
         sub = Poses(self.poses.rotations[k], self.poses.translations[k], self.poses.pivot)
+        occ, starts = grip_arrays(prep.grips if hand else ())
         return compute_table(
             self.prop.mesh, prep.sites.points[sites], prep.sites.normals[sites], prep.rig, sub,
             spec.grazing_limit_deg, radius_m=prep.seat.ball_radius_m, centre_m=prep.seat.centre_height_m,
-            occlusion=spec.occlusion, occluders=capsule_arrays(prep.capsules if hand else ()),
+            occlusion=spec.occlusion, occluders=occ, occluder_starts=starts,
+            pose_grip=self.grip[k] if hand and prep.grips else None,
         ).masks  # fmt: skip
 
     def seen(self, sites, poses=None, hand: bool = True):
@@ -440,7 +486,10 @@ def _validator(sample: _HeldOut, spec, centres, prob):
     def validate(layouts):
         union = sorted({int(x) for lay in layouts for x in lay})
         seen, _ = sample.seen(union)
-        held = Problem(centres[union], seen, seen.mean(axis=1), spec.track, prob.spacing, prob.spread_target, prob.avoid_faces)
+        held = Problem(
+            centres[union], seen, seen.mean(axis=1), spec.track, prob.spacing, prob.spread_target, prob.avoid_faces,
+            None if prob.margin is None else prob.margin[union], prob.margin_target,
+        )  # fmt: skip
         at = {s: i for i, s in enumerate(union)}
         out = []
         for lay in layouts:
@@ -591,6 +640,8 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         spacing,
         max(ts.spread_fraction * float(ext[1]), 1e-4),
         None if avoid is None or not len(avoid) else np.asarray(avoid, float),
+        margin=prep.seat_report.margin_m,
+        margin_target=spec.seat.margin_cap_mm / 1000.0,
     )
     run_cb = (lambda d, n: progress("optimizing", d, n)) if progress else None
     validate = polish = ranking = None
@@ -632,7 +683,7 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         prop, spec, seed, rig, prep.poses, sites, prep.removed["constrained"], prob.visibility, chosen, cost, ann,
         seen[list(chosen)], timings, table.rays, opt, (), prob.spacing, seat=prep.seat,
         seat_report=prep.seat_report, capsules=prep.capsules, removed=prep.removed,
-        marker_masks=table.masks[list(chosen)], shortfall=shortfall,
+        marker_masks=table.masks[list(chosen)], shortfall=shortfall, grips=prep.grips, part=prep.part,
     )  # fmt: skip
     if on_layout is not None:
         on_layout(res)
@@ -647,7 +698,7 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         spec.evaluation,
         seed,
         ts.min_height_mm,
-        prep.capsules,
+        prep.grips,
         spec.grazing_limit_deg,
     )
     t = _tick(timings, "evaluate_s", t)
@@ -717,11 +768,13 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
     pivot = np.asarray(prop.mesh.bounds, dtype=float).mean(axis=0)
     poses = make_poses(rig.volume, spec.resolution, spec.orientations, pivot, rng)
     check_cost(prop, spec, rig, len(pts), len(poses))
-    from starforge.props.hand import capsule_arrays
+    from starforge.props.grips import GRIP_SEED_OFFSET, assign_grips, grip_arrays
     from starforge.props.seat import seat_report
 
     seat = spec.marker_seat()
-    caps = hand_capsules(prop, spec, grip)
+    _, grips = hand_grips(prop, spec, grip)
+    occ, starts = grip_arrays(grips)
+    pose_grip = assign_grips(len(poses), len(grips), np.random.default_rng(seed + GRIP_SEED_OFFSET))
     table = compute_table(
         prop.mesh,
         pts,
@@ -732,13 +785,16 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
         radius_m=seat.ball_radius_m,
         centre_m=seat.centre_height_m,
         occlusion=spec.occlusion,
-        occluders=capsule_arrays(caps),
+        occluders=occ,
+        occluder_starts=starts,
+        pose_grip=pose_grip if grips else None,
     )
     v = table.site_visibility
     rep = seat_report(prop.mesh, pts, nrm, seat, spec.seat)
     seated = {
         "contact": [round(float(x), 4) for x in rep.contact],
         "edge_mm": [None if not math.isfinite(x) else round(float(x) * 1000, 2) for x in rep.edge_m],
+        "seat_margin_mm": [round(float(x) * 1000, 3) for x in rep.margin_m],
         "seated": [bool(x) for x in rep.ok],
     }
     if spec.objective == "tracked":
@@ -756,6 +812,8 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
             ts,
             spacing_m(ts.marker_mm, rig, ts.gap_px),
             max(ts.spread_fraction * float(np.sort(prop.mesh.extents)[1]), 1e-4),
+            margin=rep.margin_m,
+            margin_target=spec.seat.margin_cap_mm / 1000.0,
         )
         t = prob.terms(list(range(len(pts))))
         cost = CostBreakdown(
@@ -773,7 +831,7 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
             t["untracked"],
         )
         ev = evaluate_layouts(
-            prop.mesh, {"layout": (centres, nrm)}, rig, pivot, spec.evaluation, seed, ts.min_height_mm, caps,
+            prop.mesh, {"layout": (centres, nrm)}, rig, pivot, spec.evaluation, seed, ts.min_height_mm, grips,
             spec.grazing_limit_deg,
         )  # fmt: skip
         extra = {

@@ -10,8 +10,12 @@ marker when
   ``flat_mm`` of the base plane, with the surface normal within ``normal_deg`` of the site's
   (so a curved surface counts while its sag under the disc stays within ``flat_mm``: a 7 mm
   base accepts a cylinder of radius 20 mm or more at 0.3 mm, not a 30 mm handle);
-* the nearest sharp edge (dihedral angle above ``sharp_deg``, or an open boundary) is at least
-  one base radius away;
+* the nearest sharp edge (dihedral angle above ``sharp_deg``, or an open boundary) and the
+  nearest surface tilted more than ``sharp_deg`` from the site's plane (a rounded shoulder, a
+  fillet: :func:`tilt_distance`) are at least one base radius plus ``placement_error_mm`` away,
+  so that a marker stuck that far off its mark still rests on the face it was meant for (its
+  *margin*, the room left beyond the base radius, is reported per site and rewarded by the
+  tracked objective);
 * the ball, centred ``centre_height_mm`` above the site, does not cut into the prop (its
   centre is at least a radius from the surface, less ``clearance_tol_mm``).
 
@@ -92,6 +96,7 @@ class SeatRules:
     min_contact: float = 0.9
     sharp_deg: float = 30.0
     clearance_tol_mm: float = 0.05
+    placement_error_mm: float = 2.0
 
     def __post_init__(self):
         in_range("seat.flat_mm", self.flat_mm, 0.0, 10.0)
@@ -99,6 +104,12 @@ class SeatRules:
         in_range("seat.min_contact", self.min_contact, 0.0, 1.0)
         in_range("seat.sharp_deg", self.sharp_deg, 1.0, 180.0)
         in_range("seat.clearance_tol_mm", self.clearance_tol_mm, 0.0, 10.0)
+        in_range("seat.placement_error_mm (--placement-error)", self.placement_error_mm, 0.0, 20.0)
+
+    @property
+    def margin_cap_mm(self) -> float:
+        """Margins are measured up to this (mm): twice the placement error, at least 3 mm more."""
+        return max(2.0 * self.placement_error_mm, self.placement_error_mm + 3.0)
 
 
 def seat_for(marker: str | float, base_mm: float | None = None) -> Seat:
@@ -187,16 +198,20 @@ class SeatReport:
     edge_m : distance to the nearest sharp edge, m (inf when the mesh has none)
     clearance_m : ball centre to the prop's surface, m
     ok : the site seats the marker (every rule of the module docstring)
+    margin_m : room beyond the base radius to the nearest sharp edge or surface tilted more than
+        ``sharp_deg``, m, measured up to :attr:`SeatRules.margin_cap_mm` (a site with more gets the cap)
     """
 
     contact: np.ndarray
     edge_m: np.ndarray
     clearance_m: np.ndarray
     ok: np.ndarray
+    margin_m: np.ndarray = None
 
     def subset(self, keep: np.ndarray) -> SeatReport:
         """The report of the sites where the boolean mask ``keep`` is true."""
-        return SeatReport(self.contact[keep], self.edge_m[keep], self.clearance_m[keep], self.ok[keep])
+        m = None if self.margin_m is None else self.margin_m[keep]
+        return SeatReport(self.contact[keep], self.edge_m[keep], self.clearance_m[keep], self.ok[keep], m)
 
 
 def seat_report(mesh, points: np.ndarray, normals: np.ndarray, seat: Seat, rules: SeatRules) -> SeatReport:
@@ -214,7 +229,7 @@ def seat_report(mesh, points: np.ndarray, normals: np.ndarray, seat: Seat, rules
     s = len(pts)
     if s == 0:
         z = np.zeros(0)
-        return SeatReport(z, z, z, np.zeros(0, bool))
+        return SeatReport(z, z, z, np.zeros(0, bool), z)
     R = seat.base_radius_m
     flat = rules.flat_mm / 1000.0
     u, v = tangent_frames(nrm)
@@ -230,10 +245,61 @@ def seat_report(mesh, points: np.ndarray, normals: np.ndarray, seat: Seat, rules
     contact = ((face >= 0) & (dev <= flat) & agree).reshape(s, -1).mean(axis=1)
     edges = sharp_edge_points(mesh, rules.sharp_deg)
     edge_m = cKDTree(edges).query(pts)[0] if len(edges) else np.full(s, np.inf)
+    cap = R + rules.margin_cap_mm / 1000.0
+    tilt = tilt_distance(mesh, pts, nrm, rules.sharp_deg, cap)
+    margin = np.minimum(np.minimum(edge_m, tilt), cap) - R
     centres = pts + seat.centre_height_m * nrm
     clearance = np.asarray(mesh.nearest.on_surface(centres)[1], float)
     need = min(seat.ball_radius_m, seat.centre_height_m) - rules.clearance_tol_mm / 1000.0
     ok = clearance >= need
     if rules.base:
-        ok &= (contact >= rules.min_contact) & (edge_m >= R)
-    return SeatReport(contact, edge_m, clearance, ok)
+        ok &= (contact >= rules.min_contact) & (margin >= rules.placement_error_mm / 1000.0 - 1e-12)
+    return SeatReport(contact, edge_m, clearance, ok, margin)
+
+
+#: surface samples for :func:`tilt_distance`: this far apart (m), at most :data:`TILT_SAMPLES`
+TILT_STEP_M = 1e-3
+TILT_SAMPLES = 200_000
+
+
+def tilt_distance(mesh, points: np.ndarray, normals: np.ndarray, tilt_deg: float, reach_m: float) -> np.ndarray:
+    """(s,) m: from each site to the nearest surface point whose normal is more than ``tilt_deg``
+    from the site's (``normals``), up to ``reach_m`` (a site with none nearer gets ``reach_m``).
+
+    The tilted faces are found by an even sample of the surface (one point per
+    :data:`TILT_STEP_M` squared of area, at most :data:`TILT_SAMPLES`, from a fixed seed) within
+    ``reach_m`` plus the sample's spacing; the distance is then the exact closest point on them
+    (a tilted face no sample lands on is found through its sampled neighbours, so the distance
+    errs upward by at most the spacing, and only at such slivers).  The far side of a thin wall
+    (faces turned away from the site's normal, below its plane) is not a surface the base could
+    slide onto and is left out."""
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points, float)
+    nrm = np.asarray(normals, float)
+    out = np.full(len(pts), float(reach_m))
+    if not len(pts):
+        return out
+    area = float(mesh.area)
+    n = int(min(TILT_SAMPLES, max(1000, area / TILT_STEP_M**2)))
+    step = math.sqrt(area / n)
+    sample, face = trimesh.sample.sample_surface(mesh, n, seed=np.random.default_rng(0))
+    sample = np.asarray(sample, float)
+    fn = np.asarray(mesh.face_normals)[face]
+    near = cKDTree(pts).query_ball_point(sample, reach_m + step, return_sorted=False)  # sites per sample
+    cnt = np.fromiter((len(x) for x in near), np.int64, len(near))
+    if not cnt.sum():
+        return out
+    site = np.concatenate([np.asarray(x, np.int64) for x in near if x])
+    smp = np.repeat(np.arange(len(sample)), cnt)
+    c = np.einsum("ij,ij->i", fn[smp], nrm[site])
+    below = np.einsum("ij,ij->i", sample[smp] - pts[site], nrm[site]) < 0
+    keep = (c < math.cos(math.radians(tilt_deg))) & ~((c < 0) & below)
+    pairs = np.unique(np.column_stack([site[keep], face[smp[keep]]]), axis=0)
+    if not len(pairs):
+        return out
+    tri = np.asarray(mesh.triangles)[pairs[:, 1]]
+    d = np.linalg.norm(trimesh.triangles.closest_point(tri, pts[pairs[:, 0]]) - pts[pairs[:, 0]], axis=1)
+    np.minimum.at(out, pairs[:, 0], d)
+    return out

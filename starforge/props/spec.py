@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
+from starforge.errors import StarforgeError
 from starforge.props.costs import CostSettings
 from starforge.props.optimizer import ChainSettings
 from starforge.props.seat import SeatRules
@@ -107,10 +108,12 @@ def with_overrides(
     base_mm: float | None = None,
     hand: bool | None = None,
     cameras_lost: float | None = None,
+    placement_error_mm: float | None = None,
 ) -> PlaceSpec:
     """The spec with CLI options applied (each validated by the dataclasses).  ``marker_mm``: a
     diameter in mm or a marker catalogue name (:mod:`starforge.markers`); ``base_mm``: the base
-    under it (0: its own); ``cameras_lost``: the fraction of the cameras lost in each scenario."""
+    under it (0: its own); ``cameras_lost``: the fraction of the cameras lost in each scenario;
+    ``placement_error_mm``: how far off its mark a marker may be stuck and still seat."""
     if markers is not None:
         cs = spec.track if spec.objective == "tracked" else spec.costs
         require(
@@ -122,9 +125,16 @@ def with_overrides(
         else:
             spec = replace(spec, costs=replace(spec.costs, target_markers=int(markers)))
     if marker_mm is not None:
-        from starforge.markers import marker_diameter_mm
+        from starforge.markers import load_marker, marker_diameter_mm, marker_names
 
         d = marker_diameter_mm(marker_mm)
+        text = str(marker_mm).strip()
+        known = {n: load_marker(n).diameter_mm for n in marker_names()}
+        if text.lower().endswith("mm") and text not in known and all(abs(v - d) > 1e-9 for v in known.values()):
+            raise StarforgeError(
+                f"--marker {text}: no catalogue marker is {d:g} mm (known: {', '.join(known)}); for a generic "
+                f"ball give its diameter as a plain number (--marker {d:g}: a base of 0.75 diameters is assumed)"
+            )
         try:
             float(str(marker_mm).strip().removesuffix("mm"))
             name = ""
@@ -143,6 +153,8 @@ def with_overrides(
         )
     if cameras_lost is not None:
         spec = replace(spec, track=replace(spec.track, cameras_lost=float(cameras_lost)))
+    if placement_error_mm is not None:
+        spec = replace(spec, seat=replace(spec.seat, placement_error_mm=float(placement_error_mm)))
     kw = {
         k: v
         for k, v in dict(

@@ -10,13 +10,16 @@ height).  The cost of a layout, lowest best, is led by the fraction of poses not
       + w_spread * max(0, 1 - spread / spread_target) + w_near_symmetry * max(0, 1 - margin / target)
       + w_spacing * pairs closer than the spacing + w_count * (1 - exp(-(n - n0)^2 / 2))
       + w_avoid * triangles within the tolerance of another prop's
+      + w_margin * mean seat-margin shortfall
 
 with *spare_shortfall* the mean shortfall of the markers seen
 below ``spare_markers`` (5), as a fraction of it (markers to spare when more are lost: the
 term keeps separating layouts once every scenario is tracked), *visibility* the fraction of scenarios
 in which a marker is seen (the paper's eq. 2 quantity, under camera loss), *spread* the markers' RMS distance from their best-fit line (a layout on one
 line cannot give an orientation), *margin* the near-symmetry margin
-(:func:`starforge.props.symmetry.near_symmetry_margin`).
+(:func:`starforge.props.symmetry.near_symmetry_margin`), and the *seat-margin shortfall* each
+marker's room to spare beyond its base (:attr:`starforge.props.seat.SeatReport.margin_m`) short
+of ``margin_target``, as a fraction of it (a marker stuck a little off its mark still seats).
 
 Per pose the optimizer keeps the count, sum and second moments of the seen markers, so a move
 updates every pose in O(poses) and the collinearity test is a closed-form 3 x 3 eigenvalue.
@@ -87,6 +90,7 @@ class TrackSettings:
     w_spacing: float = 2.0
     w_count: float = 0.2
     w_avoid: float = 5.0
+    w_margin: float = 0.5
     near_symmetry_target_mm: float = 5.0
     spread_fraction: float = 0.2
     avoid_tolerance_mm: float = 2.0
@@ -108,7 +112,7 @@ class TrackSettings:
         in_range("min_markers", self.min_markers, 3, 100)
         in_range("max_markers", self.max_markers, self.min_markers, 100)
         in_range("markers (target_markers)", self.target_markers, self.min_markers, self.max_markers)
-        for n in ("w_untracked", "w_spare", "w_visibility", "w_spread", "w_near_symmetry", "w_spacing", "w_count", "w_avoid"):
+        for n in ("w_untracked", "w_spare", "w_visibility", "w_spread", "w_near_symmetry", "w_spacing", "w_count", "w_avoid", "w_margin"):
             non_negative(n, getattr(self, n))
         positive("near_symmetry_target_mm", self.near_symmetry_target_mm)
         in_range("spread_fraction", self.spread_fraction, 0.0, 1.0)
@@ -275,6 +279,8 @@ class Problem:
     spacing: float  # m
     spread_target: float  # m
     avoid_faces: np.ndarray | None = None  # (k, 3) sorted triangle sides of other props, m
+    margin: np.ndarray | None = None  # (s,) each site's seat margin, m (starforge.props.seat.SeatReport.margin_m)
+    margin_target: float = 0.0  # m: a margin this large costs nothing
     moments: np.ndarray = field(init=False, repr=False)
     neighbours: list = field(init=False, repr=False)
     knn: np.ndarray = field(init=False, repr=False)
@@ -328,6 +334,7 @@ class Problem:
             "close_pairs": close,
             "markers": n,
             "avoid_conflicts": self._avoid_count(P),
+            "margin_shortfall": float(self._margin_short(idx).mean()) if n else 0.0,
         }
         if symmetry:
             out["near_symmetry_margin_m"] = self._margin(idx)
@@ -341,6 +348,12 @@ class Problem:
         s1 = seen.T @ self.points[idx]
         s2 = seen.T @ self.moments[idx]
         return cnt, (cnt >= 3) & line_spread2_at_least_many(cnt, s1, s2, self.min_spread2)
+
+    def _margin_short(self, idx: np.ndarray) -> np.ndarray:
+        """Per site of ``idx``: how far its seat margin falls short of the target, as a fraction of it."""
+        if self.margin is None or self.margin_target <= 0:
+            return np.zeros(len(idx))
+        return np.maximum(0.0, 1.0 - self.margin[idx] / self.margin_target)
 
     def _close_pairs(self, P: np.ndarray) -> int:
         n = len(P)
@@ -385,6 +398,7 @@ class Problem:
             + s.w_spacing * t["close_pairs"]
             + s.w_count * (1.0 - math.exp(-((n - s.target_markers) ** 2) / 2.0))
             + s.w_avoid * t["avoid_conflicts"]
+            + s.w_margin * t.get("margin_shortfall", 0.0)
         )
 
     def cost(self, sites, bound: float = math.inf) -> float:
@@ -421,6 +435,7 @@ class Problem:
         s = self.settings
         idx = np.asarray(sites, dtype=np.int64)
         tracked = self.tracked_additions(idx, candidates)
+        cand = np.asarray(candidates, dtype=np.int64)
         n = len(idx) + 1
         vis = (self.visibility[idx].sum() + self.visibility[candidates]) / n
         P = self.points[idx]
@@ -437,6 +452,7 @@ class Problem:
             + s.w_visibility * (1.0 - vis)
             + s.w_spread * np.maximum(0.0, 1.0 - spread / self.spread_target)
             + s.w_spacing * close
+            + s.w_margin * (self._margin_short(idx).sum() + self._margin_short(cand)) / n
         )
 
 

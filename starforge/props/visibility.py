@@ -194,10 +194,11 @@ def _seg_seg_dist2(p0x, p0y, p0z, p1x, p1y, p1z, q0x, q0y, q0z, q1x, q1y, q1z):
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _view_masks(centres, normals, q, axes, tans, cos_lim, caps, min_cams):
+def _view_masks(centres, normals, q, axes, tans, cos_lim, caps, cap_start, pose_grip, min_cams):
     """(s, P) uint64 camera bits: camera c (position ``q[k, c]`` and axes ``axes[k, c]`` in the
     prop frame at pose k) has site i's ball centre in its field of view, faces it within the
-    grazing limit, and the segment between them misses every capsule of ``caps`` (k, 7).  Masks
+    grazing limit, and the segment between them misses every capsule of the pose's grip: rows
+    ``cap_start[g]:cap_start[g + 1]`` of ``caps`` (h, 7) for ``g = pose_grip[k]``.  Masks
     with fewer than ``min_cams`` bits are cleared.  The prop itself is tested afterwards.
 
     Scalar arithmetic throughout (no temporary arrays), with the dot products summed as BLAS
@@ -220,6 +221,7 @@ def _view_masks(centres, normals, q, axes, tans, cos_lim, caps, min_cams):
         r = 0.5 * math.sqrt(ax * ax + ay * ay + az * az) + caps[h, 6] + 1e-6
         reach2[h] = r * r
     for k in numba.prange(P):
+        h0, h1 = cap_start[pose_grip[k]], cap_start[pose_grip[k] + 1]
         for i in range(S):
             cx, cy, cz = centres[i, 0], centres[i, 1], centres[i, 2]
             m = np.uint64(0)
@@ -238,7 +240,7 @@ def _view_masks(centres, normals, q, axes, tans, cos_lim, caps, min_cams):
                 if -_dot3(dx, dy, dz, normals[i, 0], normals[i, 1], normals[i, 2]) < cos_lim * dist:
                     continue
                 hidden = False
-                for h in range(H):
+                for h in range(h0, h1):
                     # the point of the segment centre -> camera nearest the sphere's centre
                     mx, my, mz = mid[h, 0] - cx, mid[h, 1] - cy, mid[h, 2] - cz
                     t = -(mx * dx + my * dy + mz * dz) / (dist * dist)  # (m - c) . (q - c) / |q - c|^2
@@ -274,6 +276,8 @@ def compute_table(
     occlusion: bool = True,
     centre_m: float | None = None,
     occluders: np.ndarray | None = None,
+    occluder_starts: np.ndarray | None = None,
+    pose_grip: np.ndarray | None = None,
 ) -> VisibilityTable:
     """Build the (sites x poses) camera-mask table.
 
@@ -301,7 +305,13 @@ def compute_table(
         Height of the ball's centre above the site along the normal, m (default ``radius_m``: a
         ball resting on the surface; a marker on a base sits higher).
     occluders : (k, 7) float, optional
-        Capsules that move with the prop (the hand, :func:`starforge.props.hand.capsule_arrays`).
+        Capsules that move with the prop (the hand, :func:`starforge.props.hand.capsule_arrays`),
+        all of them at every pose unless grouped by grip.
+    occluder_starts : (g + 1,) int, optional
+        The capsules of grip g are rows ``occluder_starts[g]:occluder_starts[g + 1]``
+        (:func:`starforge.props.grips.grip_arrays`).
+    pose_grip : (p,) int, optional
+        The grip each pose is held in (:func:`starforge.props.grips.assign_grips`; default 0).
 
     Notes
     -----
@@ -325,7 +335,14 @@ def compute_table(
     q = np.einsum("kji,kcj->kci", R, cam_pos[None] - T[:, None]) + pivot
     axes = np.einsum("cij,kjl->kcil", basis, R)
     caps = np.zeros((0, 7)) if occluders is None else np.asarray(occluders, float).reshape(-1, 7)
-    masks = _view_masks(centres, nrm, np.ascontiguousarray(q), np.ascontiguousarray(axes), tans, cos_lim, caps, 2)
+    starts = np.array([0, len(caps)], np.int64) if occluder_starts is None else np.asarray(occluder_starts, np.int64)
+    grip = np.zeros(len(R), np.int64) if pose_grip is None else np.ascontiguousarray(pose_grip, dtype=np.int64)
+    if len(grip) != len(R) or (len(grip) and (grip.min() < 0 or grip.max() >= len(starts) - 1)):
+        raise StarforgeError(f"pose_grip must give each of the {len(R)} poses a grip in [0, {len(starts) - 2}]")
+    masks = _view_masks(
+        centres, nrm, np.ascontiguousarray(q), np.ascontiguousarray(axes), tans, cos_lim, np.ascontiguousarray(caps, dtype=float),
+        starts, grip, 2,
+    )  # fmt: skip
     rays = 0
     if occlusion and masks.any():
         si, ki = np.nonzero(masks)

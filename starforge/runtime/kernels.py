@@ -190,7 +190,7 @@ SIGNATURES = (
     (
         "starforge.props.visibility:_view_masks",
         "float64[:, ::1], float64[:, ::1], float64[:, :, ::1], float64[:, :, :, ::1], float64[:, ::1], float64, "
-        "float64[:, ::1], int64",
+        "float64[:, ::1], int64[::1], int64[::1], int64",
     ),
     ("starforge.props.visibility:_seg_seg_dist2", ", ".join(["float64"] * 12)),
     (

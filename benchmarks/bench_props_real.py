@@ -1,0 +1,336 @@
+"""Placement on eight props that are not the built-ins, checked independently; JSON on stdout.
+
+The props are made here with trimesh primitives united by manifold3d (their shapes, in metres:
+a bottle, a box-and-cylinder torch, an open umbrella, a mug with a handle, a cordless drill, a
+racket, a gable-top milk carton, a screwdriver).  Each is placed by ``run_placement`` (the
+default spec, seed 0) and then checked by an evaluation that shares nothing with the optimizer
+but the prop's mesh and the layout:
+
+* its own room: 8 cameras on a ring 6 m across, 2.5 m up, looking at the middle of a 2 x 2 x
+  1.6 m volume (0.2-1.8 m up), a 60 degree cone of view, no pairs: a marker is reconstructed
+  when 2 of the surviving cameras see its ball centre;
+* uniformly random rotations (normalised Gaussian quaternions) at uniform random positions,
+  4 of the 8 cameras lost at random in each pose;
+* a hand at a random grip, its own model: along the prop's longest bounding-box axis, the palm
+  (90 mm) centred at a uniformly random place where every section under it is at most 70 mm
+  across (where any one is, when no palm fits; anywhere when none is), a fist (a capsule 25 mm
+  thicker than the section, ending at the palm's ends where it meets the surface) and a forearm
+  (a capsule of 35 mm radius, 220 mm long, leaving at a random angle around the axis); markers
+  inside the fist are lost, sight lines through either capsule are blocked;
+* sight lines to the prop: trimesh's ray queries from the ball centre to the camera.
+
+A pose is tracked when >= 3 markers are reconstructed and they span a triangle 15 mm high (RMS
+distance from their best-fit line >= sqrt(2)/3 x 15 mm).  Reported per prop: the chosen
+layout's tracked fraction on ``POSES`` poses; the best of 200 random layouts of the same number
+of markers on the same usable sites (markers at least the run's spacing apart) picked on those
+poses (``best_random_same_poses``, an upward-biased maximum) and re-measured on fresh poses
+(``best_random_fresh_poses``, beside ``chosen_fresh_poses``); the markers with less than the
+placement error of room, recomputed by brute force over every face and sharp edge of the mesh
+(``markers_below_margin``); the overlapping text boxes of the guide's pages as matplotlib lays
+them out (``guide_text_overlaps``).
+
+Run: ``python benchmarks/bench_props_real.py [--poses 600] [--props bottle,torch]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+POSES = 600
+RANDOM_LAYOUTS = 200
+T = trimesh.transformations
+
+
+def _union(parts):
+    return trimesh.boolean.union(parts, engine="manifold")
+
+
+def _cyl(r, h, z0, axis="z", xy=(0.0, 0.0), sections=48):
+    m = trimesh.creation.cylinder(radius=r, height=h, sections=sections)
+    m.apply_translation([0, 0, z0 + h / 2])
+    if axis == "x":
+        m.apply_transform(T.rotation_matrix(math.pi / 2, [0, 1, 0]))
+    m.apply_translation([xy[0], xy[1], 0])
+    return m
+
+
+def _box(ext, centre):
+    m = trimesh.creation.box(extents=ext)
+    m.apply_translation(centre)
+    return m
+
+
+def props() -> dict:
+    """name -> trimesh.Trimesh (m)."""
+    out = {}
+    shoulder = trimesh.creation.cone(radius=0.033, height=0.05, sections=48)
+    shoulder.apply_translation([0, 0, 0.17])
+    out["bottle"] = _union([_cyl(0.033, 0.18, 0.0), shoulder, _cyl(0.0135, 0.06, 0.19), _cyl(0.015, 0.015, 0.245)])
+    out["torch"] = _union([_cyl(0.0175, 0.2, 0.0), _box((0.06, 0.06, 0.05), (0, 0, 0.225))])
+    canopy = trimesh.creation.cone(radius=0.45, height=0.15, sections=8)
+    canopy.apply_translation([0, 0, 0.62])
+    out["umbrella"] = _union([_cyl(0.014, 0.12, 0.0), _cyl(0.006, 0.72, 0.11), canopy])
+    cup = trimesh.boolean.difference([_cyl(0.04, 0.095, 0.0), _cyl(0.036, 0.095, 0.006)], engine="manifold")
+    handle = trimesh.creation.torus(major_radius=0.03, minor_radius=0.007)
+    handle.apply_transform(T.rotation_matrix(math.pi / 2, [1, 0, 0]))
+    handle.apply_translation([0.045, 0, 0.05])
+    out["mug"] = _union([cup, handle])
+    out["drill"] = _union([
+        _box((0.18, 0.05, 0.06), (0.03, 0, 0.17)), _cyl(0.02, 0.12, 0.04), _box((0.08, 0.07, 0.04), (0.0, 0, 0.02)),
+        _cyl(0.015, 0.05, 0.12, axis="x").apply_translation([0, 0, 0.17]),
+    ])  # fmt: skip
+    ring = trimesh.creation.torus(major_radius=0.11, minor_radius=0.009)
+    ring.apply_transform(T.scale_matrix(1.3, direction=[0, 1, 0]))
+    ring.apply_transform(T.rotation_matrix(math.pi / 2, [1, 0, 0]))
+    ring.apply_translation([0, 0, 0.38])
+    out["racket"] = _union([_cyl(0.014, 0.2, 0.0), _cyl(0.008, 0.08, 0.195), ring])
+    gable = trimesh.convex.convex_hull(np.array(
+        [[x, y, 0.19] for x in (-0.035, 0.035) for y in (-0.035, 0.035)] + [[x, 0.0, 0.225] for x in (-0.035, 0.035)]
+    ))  # fmt: skip
+    out["milk_carton"] = _union([_box((0.07, 0.07, 0.19), (0, 0, 0.095)), gable, _box((0.07, 0.004, 0.015), (0, 0, 0.23))])
+    out["screwdriver"] = _union([_cyl(0.016, 0.1, 0.0), _cyl(0.0035, 0.13, 0.095), _box((0.006, 0.001, 0.012), (0, 0, 0.23))])
+    return out
+
+
+def ring_cameras():
+    """(8, 3) positions and (8, 3) unit view directions."""
+    a = np.arange(8) * 2 * math.pi / 8
+    pos = np.column_stack([3.0 * np.cos(a), 3.0 * np.sin(a), np.full(8, 2.5)])
+    look = np.array([0.0, 0.0, 1.0]) - pos
+    return pos, look / np.linalg.norm(look, axis=1, keepdims=True)
+
+
+HALF_FOV = math.radians(30.0)
+
+
+def random_world(n, rng):
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    R = T.quaternion_matrix(q[0])[:3, :3][None].repeat(n, 0)
+    for k in range(n):
+        R[k] = T.quaternion_matrix(q[k])[:3, :3]
+    t = np.array([-1.0, -1.0, 0.2]) + rng.random((n, 3)) * np.array([2.0, 2.0, 1.6])
+    return R, t
+
+
+def seg_dist(p, q, a, b):
+    """Distance between segments p-q (n, 3) and the fixed segment a-b, sampled finely."""
+    s = np.linspace(0.0, 1.0, 64)
+    pts = p[:, None] + s[None, :, None] * (q - p)[:, None]
+    ab = b - a
+    t = np.clip(((pts - a) @ ab) / max(ab @ ab, 1e-18), 0, 1)
+    return np.linalg.norm(pts - (a + t[..., None] * ab), axis=2).min(axis=1)
+
+
+def random_hands(mesh, n, rng):
+    """Per pose: [(a, b, radius), ...] capsules in the prop frame."""
+    lo, hi = mesh.bounds
+    ax = int(np.argmax(hi - lo))
+    others = [k for k in range(3) if k != ax]
+    v = mesh.vertices
+    hs = np.linspace(lo[ax] + 0.01, hi[ax] - 0.01, 40)
+    ok, rad, cen = [], [], []
+    for h in hs:
+        sl = v[np.abs(v[:, ax] - h) < 0.006][:, others]
+        if len(sl) < 3:
+            ok.append(False), rad.append(0.0), cen.append(np.zeros(2))
+            continue
+        c = (sl.max(0) + sl.min(0)) / 2
+        r = float(np.linalg.norm(sl - c, axis=1).max())
+        ok.append(2 * r <= 0.07), rad.append(r), cen.append(c)
+    ok = np.array(ok)
+    # the palm (90 mm) lies on graspable sections: its centre 45 mm inside a graspable run
+    step = hs[1] - hs[0]
+    w = int(round(0.045 / step))
+    inside = np.array([ok[max(0, k - w) : k + w + 1].all() and w <= k < len(hs) - w for k in range(len(hs))])
+    choices = np.flatnonzero(inside) if inside.any() else np.flatnonzero(ok) if ok.any() else np.arange(len(hs))
+    out = []
+    for _ in range(n):
+        k = int(rng.choice(choices))
+        c = np.zeros(3)
+        c[others] = cen[k]
+        c[ax] = hs[k]
+        u = np.zeros(3)
+        u[ax] = 1.0
+        R = rad[k] + 0.025
+        half = max(0.0, 0.045 - math.sqrt(max(R * R - rad[k] ** 2, 0.0)))  # the fist ends at the palm's ends
+        a, b = c - half * u, c + half * u
+        phi = rng.random() * 2 * math.pi
+        radial = np.zeros(3)
+        radial[others[0]], radial[others[1]] = math.cos(phi), math.sin(phi)
+        w0 = c + (rad[k] + 0.035) * radial
+        out.append([(a, b, R), (w0, w0 + 0.22 * radial, 0.035)])
+    return out
+
+
+def seen_table(mesh, centres, normals, R, t, hands, rng):
+    """(P, s) int: cameras (of the surviving ones) that see each ball centre at each pose."""
+    cam, look = ring_cameras()
+    P, S = len(R), len(centres)
+    alive = np.zeros((P, 8), bool)
+    for k in range(P):
+        alive[k, rng.permutation(8)[:4]] = True
+    counts = np.zeros((P, S), int)
+    for k in range(P):
+        w = centres @ R[k].T + t[k]
+        qk = (cam - t[k]) @ R[k]  # cameras in the prop frame
+        caps = hands[k]
+        under = np.zeros(S, bool)
+        a, b, r = caps[0]
+        ab = b - a
+        s = np.clip(((centres - a) @ ab) / max(ab @ ab, 1e-18), 0, 1)
+        under = np.linalg.norm(centres - (a + s[:, None] * ab), axis=1) <= r
+        for c in np.flatnonzero(alive[k]):
+            d = w - cam[c]
+            dist = np.linalg.norm(d, axis=1)
+            inview = (d @ look[c]) / dist >= math.cos(HALF_FOV)
+            idx = np.flatnonzero(inview & ~under)
+            if not len(idx):
+                continue
+            dirs = qk[c] - centres[idx]
+            dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+            hit = mesh.ray.intersects_any(centres[idx] + 1e-5 * dirs, dirs)
+            free = ~hit
+            for a, b, r in caps:
+                free &= seg_dist(centres[idx], np.repeat(qk[c][None], len(idx), 0), a, b) > r
+            counts[k, idx[free]] += 1
+    return counts
+
+
+def tracked(counts, centres, sites):
+    rec = counts[:, sites] >= 2
+    n = rec.sum(1)
+    c = centres[sites]
+    out = np.zeros(len(rec), bool)
+    need = (math.sqrt(2) / 3 * 0.015) ** 2
+    for k in np.flatnonzero(n >= 3):
+        p = c[rec[k]]
+        ev = np.linalg.eigvalsh(np.cov((p - p.mean(0)).T, bias=True))
+        out[k] = ev[0] + ev[1] >= need
+    return out
+
+
+def margin_shortfall(mesh, points, normals, base_r, error, sharp_deg=30.0):
+    """Markers with less than ``error`` of room beyond the base radius to a face tilted more than
+    ``sharp_deg`` from the marker's normal (not the far side of a thin wall) or a sharp edge:
+    brute force over every face and edge."""
+    tri = mesh.triangles
+    fn = mesh.face_normals
+    ang = mesh.face_adjacency_angles
+    edges = mesh.vertices[mesh.face_adjacency_edges[ang > math.radians(sharp_deg)]]
+    bad = 0
+    rooms = []
+    for p, n in zip(points, normals, strict=True):
+        c = fn @ n
+        cen = tri.mean(axis=1)
+        tilted = (c < math.cos(math.radians(sharp_deg))) & ~((c < 0) & ((cen - p) @ n < 0))
+        near = np.linalg.norm(cen - p, axis=1) < 0.05 + np.linalg.norm(tri - cen[:, None], axis=2).max(1)
+        sel = np.flatnonzero(tilted & near)
+        d = np.inf
+        if len(sel):
+            cp = trimesh.triangles.closest_point(tri[sel], np.repeat(p[None], len(sel), 0))
+            d = float(np.linalg.norm(cp - p, axis=1).min())
+        if len(edges):
+            d = min(d, float(seg_dist(edges[:, 0], edges[:, 1], p, p).min()))
+        rooms.append(d - base_r)
+        bad += int(d - base_r < error - 1e-6)
+    return bad, rooms
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--poses", type=int, default=POSES)
+    ap.add_argument("--props", default="")
+    args = ap.parse_args(argv)
+    from starforge.props.placement import run_placement
+    from starforge.render.guide import guide_pages, overlapping_texts
+
+    meshes = props()
+    wanted = [p for p in args.props.split(",") if p] or list(meshes)
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in wanted:
+            path = Path(tmp) / f"{name}.stl"
+            meshes[name].export(path)
+            t0 = time.perf_counter()
+            res = run_placement(str(path), seed=0)
+            sec = time.perf_counter() - t0
+            mesh = res.prop.mesh
+            every = np.arange(len(res.sites))
+            centres, normals = res.centres(every), res.sites.normals
+            chosen = list(res.marker_sites)
+            rng = np.random.default_rng(123)
+            R, t = random_world(args.poses, rng)
+            counts = seen_table(mesh, centres, normals, R, t, random_hands(mesh, args.poses, rng), rng)
+            R2, t2 = random_world(args.poses, rng)
+            counts2 = seen_table(mesh, centres, normals, R2, t2, random_hands(mesh, args.poses, rng), rng)
+            lay_rng = np.random.default_rng(7)
+            best, best_f = None, -1.0
+            for _ in range(RANDOM_LAYOUTS):
+                order = lay_rng.permutation(len(every))
+                lay = []
+                for s in order:
+                    if all(np.linalg.norm(centres[s] - centres[q]) >= res.spacing_m for q in lay):
+                        lay.append(int(s))
+                        if len(lay) == len(chosen):
+                            break
+                f = float(tracked(counts, centres, lay).mean())
+                if f > best_f:
+                    best, best_f = lay, f
+            err = res.spec.seat.placement_error_mm / 1000.0
+            below, rooms = margin_shortfall(mesh, res.marker_points, res.marker_normals, res.seat.base_radius_m, err)
+            pages = guide_pages(res)
+            overlaps = sum(len(overlapping_texts(p)) for p in pages)
+            import matplotlib.pyplot as plt
+
+            for p in pages:
+                plt.close(p)
+            rows[name] = {
+                "faces": len(mesh.faces),
+                "extents_mm": [round(1000 * e, 1) for e in mesh.extents],
+                "grips": len(res.grips),
+                "held_part": None if res.part is None else res.part.to_json(),
+                "markers": len(chosen),
+                "usable_sites": len(res.sites),
+                "chosen_tracked": round(float(tracked(counts, centres, chosen).mean()), 4),
+                "best_random_same_poses": round(best_f, 4),
+                "chosen_fresh_poses": round(float(tracked(counts2, centres, chosen).mean()), 4),
+                "best_random_fresh_poses": round(float(tracked(counts2, centres, best).mean()), 4),
+                "optimizer_own_evaluation": round(res.evaluation.get("default", {}).get("tracked", float("nan")), 4),
+                "markers_below_margin": below,
+                "min_margin_mm": round(1000 * min(rooms), 2),
+                "guide_text_overlaps": overlaps,
+                "guide_pages": len(pages),
+                "seconds": round(sec, 1),
+            }
+            print(name, rows[name], file=sys.stderr)
+    vals = list(rows.values())
+    out = {
+        "evaluation": "own 8-camera ring, uniform random rotations, 4 of 8 cameras lost, a random-grip hand (see the docstring)",
+        "poses": args.poses,
+        "props": rows,
+        "targets": {
+            "tracked_at_least_0.99": all(v["chosen_tracked"] >= 0.99 for v in vals),
+            "at_least_best_of_200_random_same_poses": all(v["chosen_tracked"] >= v["best_random_same_poses"] for v in vals),
+            "at_least_best_of_200_random_fresh_poses": all(
+                v["chosen_fresh_poses"] >= v["best_random_fresh_poses"] for v in vals
+            ),
+            "markers_below_margin": sum(v["markers_below_margin"] for v in vals),
+            "guide_text_overlaps": sum(v["guide_text_overlaps"] for v in vals),
+        },
+    }
+    sys.stdout.write(json.dumps(out, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,310 @@
+"""Where people hold a prop, as a distribution of grips that a layout is scored under.
+
+The graspable part is found from the prop's shape: along each of its principal axes (the
+eigenvectors of the covariance of its vertices, longest spread first) and each axis of its own
+frame (a handle set square to a tilted body, as on a drill) the mesh is cut every
+:data:`SLICE_M`; a section is *graspable* when a hand closes around it, its wider principal
+width within :data:`GRASP_WIDTH_M` (20-55 mm, what a fist closes round) and its narrower at least
+:data:`GRASP_THICK_M` (a blade or a plate is none).  The longest run of consecutive graspable
+sections, at least :data:`GRASP_RUN_M` long, is the handle or the neck that is held; a prop
+with none is held by its body, the longest run of sections up to :data:`BODY_WIDTH_M` wide
+(the wider width of a square section lies between its side and its diagonal).
+A prop without one is held where :func:`starforge.props.hand.grip_segment` says (its thinnest
+end), and a prop shorter than :data:`starforge.props.hand.PINCH_BELOW_M` is pinched there
+(:func:`starforge.props.hand.pinch`).
+
+The distribution (:func:`grip_distribution`): the palm (:data:`starforge.props.hand.PALM_M`
+long, or the run's length) at places spread evenly along the run, as many as leave no gap
+between neighbouring palms (at least two, at most :data:`POSITIONS`), by either
+hand, with the back of the hand and the wrist at :data:`WRAPS` angles around the part.  Each grip
+is a set of capsules that move with the prop (:func:`hand_model`): the fist around the part
+(:func:`starforge.props.hand.hand_capsule`) and the wrist, a capsule of :data:`WRIST_M` radius
+and :data:`FOREARM_M` length leaving the part's surface at the wrap angle, turned
+:data:`THUMB_DEG` towards the thumb's side (a left hand is the mirror image of a right one, so
+the turn changes sign).  Every pose of the optimizer's sample is held in one grip of the
+distribution, the same number of poses per grip in a random order drawn from the run's seed
+(:func:`assign_grips`): the tracked fraction then is the expectation over the grips.  A site is
+*under the hand*, and no marker goes there, when the fist (or the fingertips) of any grip covers
+it: a person may hold the prop there, and a marker under the palm is knocked off or hidden.  On
+a prop held almost everywhere (a plain rod) that leaves too few sites (fewer than
+:data:`FEW_SITES` per marker wanted); then only the sites more than half of the grips cover are
+left out, and the run says so.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from starforge.errors import StarforgeError
+from starforge.props.hand import (
+    PALM_M,
+    PINCH_BELOW_M,
+    Capsule,
+    grip_segment,
+    hand_capsule,
+    inside_capsules,
+    pinch,
+    section_widths_of,
+)
+
+#: a graspable section's wider principal width, m (a fist closes all round 20-55 mm)
+GRASP_WIDTH_M = (0.02, 0.055)
+#: a prop without such a handle is held by its body where it is at most this wide (m; a hand
+#: spans a 70 mm carton or a 75 mm bottle, not a 100 mm box)
+BODY_WIDTH_M = 0.1
+#: a graspable section's narrower width is at least this, m (thinner: a blade or a plate)
+GRASP_THICK_M = 0.012
+#: the held run is at least this long, m
+GRASP_RUN_M = 0.04
+#: sections along an axis are this far apart, m (at most :data:`MAX_SLICES` of them)
+SLICE_M = 0.004
+MAX_SLICES = 400
+#: at most this many palm positions along the held run (one when the run is hardly longer than the palm)
+POSITIONS = 5
+#: angles around the part where the back of the hand and the wrist sit, degrees
+WRAPS = (0.0, 120.0, 240.0)
+#: the wrist and forearm's start: radius and length, m (a wrist is 50-65 mm across)
+WRIST_M = 0.03
+FOREARM_M = 0.15
+#: the wrist leaves the part turned this far (degrees) from the radial direction, towards the thumb
+THUMB_DEG = 20.0
+
+
+@dataclass(frozen=True)
+class Grip:
+    """One way of holding the prop.
+
+    Attributes
+    ----------
+    label : str
+        What a person reads: the hand, where along the part, the wrap.
+    hand : str
+        ``"right"``, ``"left"``, or ``""`` for a pinch or a pinned grip.
+    along : float
+        The palm's centre along the held run, 0 (one end) to 1 (the other).
+    wrap_deg : float
+        Angle around the part of the back of the hand, degrees.
+    capsules : tuple of Capsule
+        The hand in the prop frame, m; the first is the fist (or fingertips) on the surface, the
+        others only hide what lies behind them.
+    """
+
+    label: str
+    hand: str
+    along: float
+    wrap_deg: float
+    capsules: tuple[Capsule, ...]
+
+    def to_json(self) -> dict:
+        return {
+            "label": self.label,
+            "hand": self.hand,
+            "along": round(float(self.along), 4),
+            "wrap_deg": round(float(self.wrap_deg), 3),
+            "capsules": [c.to_json() for c in self.capsules],
+        }
+
+
+@dataclass(frozen=True)
+class HeldPart:
+    """The part people hold: a run along one of the prop's axes (prop frame, m).
+
+    ``a``, ``b``: the run's ends on the axis through the sections' centres; ``radius_m``: half
+    its widest section; ``found``: from the sections (False: the thinnest-end fallback).
+    """
+
+    a: tuple[float, float, float]
+    b: tuple[float, float, float]
+    radius_m: float
+    found: bool
+
+    @property
+    def length_m(self) -> float:
+        return float(np.linalg.norm(np.subtract(self.b, self.a)))
+
+    def to_json(self) -> dict:
+        return {
+            "a": [round(float(x), 6) + 0.0 for x in self.a],
+            "b": [round(float(x), 6) + 0.0 for x in self.b],
+            "width_mm": round(2000 * self.radius_m, 1),
+            "length_mm": round(1000 * self.length_m, 1),
+            "from_sections": self.found,
+        }
+
+
+def principal_axes(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The centroid (3,) and the principal axes (3, 3), one per row, largest spread first."""
+    v = np.asarray(vertices, float)
+    c = v.mean(axis=0)
+    w, vecs = np.linalg.eigh(np.cov((v - c).T) + 1e-18 * np.eye(3))
+    axes = vecs[:, np.argsort(-w, kind="stable")].T
+    for k in range(3):  # a sign convention: the largest component positive (deterministic)
+        if axes[k][np.argmax(np.abs(axes[k]))] < 0:
+            axes[k] = -axes[k]
+    return c, axes
+
+
+def _runs(ok: np.ndarray):
+    """(start, stop) of every run of consecutive true values."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[False], ok, [False]]).astype(np.int8)))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def held_part(mesh, fallback=None) -> HeldPart:
+    """The longest graspable run of the mesh (see the module docstring); else ``fallback``
+    (``(a, b, part_radius)``, a built-in prop's own grip) or the mesh's thinnest end."""
+    v = np.asarray(mesh.vertices, float)
+    e = np.asarray(mesh.edges_unique, int)
+    c, principal = principal_axes(v)
+    dirs = []
+    for d in [*principal, *np.eye(3)]:  # the principal axes, then the file's own axes
+        if all(abs(float(d @ q)) < math.cos(math.radians(10.0)) for q in dirs):
+            dirs.append(d)
+    slices = []
+    for d in dirs:
+        helper = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        e1 = np.cross(d, helper)
+        e1 /= np.linalg.norm(e1)
+        axes = np.array([d, e1, np.cross(d, e1)])
+        local = (v - c) @ axes.T  # along d first
+        lo, hi = local[:, 0].min(), local[:, 0].max()
+        if hi - lo < GRASP_RUN_M:
+            continue
+        n = int(min(MAX_SLICES, max(10, (hi - lo) // SLICE_M)))
+        step = (hi - lo) / n
+        h = lo + (np.arange(n) + 0.5) * step
+        slices.append((axes, h, section_widths_of(local, e, 0, h), step))
+    best = None
+    for widest in (GRASP_WIDTH_M[1], BODY_WIDTH_M):  # a handle first, else a body
+        for axes, h, w, step in slices:
+            ok = (w[:, 0] >= GRASP_WIDTH_M[0]) & (w[:, 0] <= widest) & (w[:, 1] >= GRASP_THICK_M)
+            for i, j in _runs(ok):
+                length = (j - i) * step
+                if length >= GRASP_RUN_M - 1e-12 and (best is None or length > best[0] + 1e-9):
+                    best = (length, axes, i, j, h, w, step)
+        if best is not None:
+            break
+    if best is None:
+        a, b, r = grip_segment(mesh) if fallback is None else fallback
+        return HeldPart(tuple(map(float, a)), tuple(map(float, b)), float(r), False)
+    length, axes, i, j, h, w, step = best
+    ends = []
+    for t in (h[i] - step / 2, h[j - 1] + step / 2):
+        p = np.array([t, *np.nanmean(w[i:j, 2:], axis=0)])
+        ends.append(c + p @ axes)
+    return HeldPart(tuple(ends[0]), tuple(ends[1]), float(np.nanmax(w[i:j, 0]) / 2), True)
+
+
+def hand_model(a, b, part_radius: float, wrap_deg: float, hand: str) -> tuple[Capsule, Capsule]:
+    """A hand holding the part ``a``-``b`` (the stretch the palm covers, m) of ``part_radius``:
+    the fist (:func:`starforge.props.hand.hand_capsule`) and the wrist leaving the part at
+    ``wrap_deg`` around it, turned :data:`THUMB_DEG` towards the thumb (``hand``: right or left)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    u = (b - a) / max(float(np.linalg.norm(b - a)), 1e-12)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(u, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    phi = math.radians(wrap_deg)
+    radial = math.cos(phi) * e1 + math.sin(phi) * e2
+    tangent = np.cross(u, radial)
+    s = 1.0 if hand == "right" else -1.0
+    beta = math.radians(THUMB_DEG)
+    d = math.cos(beta) * radial + s * math.sin(beta) * tangent
+    start = (a + b) / 2 + (part_radius + WRIST_M) * radial
+    wrist = Capsule(tuple(start), tuple(start + FOREARM_M * d), WRIST_M)
+    return hand_capsule(a, b, part_radius), wrist
+
+
+def grip_distribution(mesh, positions: int = POSITIONS, wraps=WRAPS, fallback=None) -> tuple[HeldPart, tuple[Grip, ...]]:
+    """The held part (:func:`held_part`) and the grips (see the module docstring), in a fixed
+    order: position, then hand, then wrap."""
+    part = held_part(mesh, fallback)
+    a, b = np.asarray(part.a), np.asarray(part.b)
+    if float(np.max(mesh.extents)) < PINCH_BELOW_M:
+        caps = pinch(mesh, a, b, part.radius_m)
+        return part, (Grip("pinched by the fingertips at its thinnest end", "", 0.0, 0.0, tuple(caps)),)
+    L = part.length_m
+    u = (b - a) / max(L, 1e-12)
+    palm = min(PALM_M, L)
+    k = 1 if L - palm < 0.02 or positions <= 1 else int(min(positions, max(2, math.ceil((L - palm) / palm - 1e-9) + 1)))
+    starts = [0.0] if k == 1 else list(np.linspace(0.0, L - palm, k))
+    where = {0: "at one end", k - 1: "at the other end"} if k > 1 else {0: "over the part"}
+    grips = []
+    for i, t in enumerate(starts):
+        g0, g1 = a + t * u, a + (t + palm) * u
+        along = (t + palm / 2) / max(L, 1e-12)
+        pos = where.get(i, "in the middle" if k == 3 else f"at {100 * along:.0f} % of the part")
+        for hand in ("right", "left"):
+            for wrap in wraps:
+                caps = hand_model(g0, g1, part.radius_m, float(wrap), hand)
+                grips.append(Grip(f"{hand} hand {pos}, wrist at {wrap:g} deg", hand, along, float(wrap), caps))
+    return part, tuple(grips)
+
+
+def pinned_grip(text: str, grips: tuple[Grip, ...]) -> Grip:
+    """``--grip``: ``N`` pins grip N (1-based) of the distribution; ``x0,y0,z0,x1,y1,z1[,r]``
+    (prop frame, m) a fist around that segment (:func:`starforge.props.hand.parse_grip`)."""
+    from starforge.props.hand import parse_grip
+
+    t = str(text).strip()
+    if t.isdigit():
+        n = int(t)
+        if not 1 <= n <= len(grips):
+            raise StarforgeError(f"--grip {n}: this prop's grips are numbered 1 to {len(grips)} (the run prints them)")
+        return grips[n - 1]
+    cap = parse_grip(t)
+    ends = ", ".join(f"{1000 * float(x):.0f}" for x in t.replace(" ", "").split(",")[:6])
+    return Grip(f"pinned: a fist around the segment {ends} mm", "", 0.5, 0.0, (cap,))
+
+
+def assign_grips(poses: int, grips: int, rng: np.random.Generator) -> np.ndarray:
+    """(poses,) int: the grip each pose is held in, every grip the same number of poses (to one),
+    in a random order from ``rng``."""
+    if grips <= 1:
+        return np.zeros(poses, np.int64)
+    return rng.permutation(np.arange(poses, dtype=np.int64) % grips)
+
+
+def grip_arrays(grips) -> tuple[np.ndarray, np.ndarray]:
+    """The compiled kernel's input: capsules (h, 7) grouped by grip, and ``starts`` (g + 1,):
+    grip g's capsules are rows ``starts[g]:starts[g + 1]``."""
+    from starforge.props.hand import capsule_arrays
+
+    if not grips:  # one empty grip: nothing hides anything
+        return np.zeros((0, 7)), np.zeros(2, np.int64)
+    rows = [capsule_arrays(g.capsules) for g in grips]
+    counts = [len(r) for r in rows]
+    caps = np.concatenate(rows) if rows else np.zeros((0, 7))
+    return np.ascontiguousarray(caps, dtype=float), np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+
+
+def under_hand(points: np.ndarray, centres: np.ndarray, grips, share: float = 0.0) -> np.ndarray:
+    """(n,) bool: the site (surface ``points`` or ball ``centres``) lies inside the fist (the
+    first capsule) of more than ``share`` of the grips (0: of any)."""
+    covered = np.zeros(len(points))
+    for g in grips:
+        covered += inside_capsules(points, g.capsules[:1]) | inside_capsules(centres, g.capsules[:1])
+    return covered > share * len(grips) if grips else np.zeros(len(points), bool)
+
+
+def grips_summary(part: HeldPart, grips) -> str:
+    """One line: how many grips, on what part."""
+    if not grips:
+        return "no hand"
+    what = (
+        f"the {part.length_m * 1000:.0f} mm graspable part ({2000 * part.radius_m:.0f} mm across)"
+        if part.found else f"its thinnest end ({2000 * part.radius_m:.0f} mm across; no part 20-55 mm across found)"
+    )
+    hands = sorted({g.hand for g in grips if g.hand})
+    return f"{len(grips)} grip(s) on {what}" + (f", {' and '.join(hands)} hand" if hands else "")
+
+
+#: usable sites per marker wanted below which only the sites most grips cover are left out
+FEW_SITES = 3
+
+#: the grips' random order over the poses comes from the run's seed + this
+GRIP_SEED_OFFSET = 5_000_011

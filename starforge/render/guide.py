@@ -1,0 +1,284 @@
+"""The rigging guide a technician sticks the markers on from: ``guide.pdf`` (and its first page
+as ``guide.png``).
+
+Page 1: four orthographic views with the numbered markers (filled where the prop does not hide
+them from that side, hollow and grey where it does), the landmarks (tips T, corners C: blue
+triangles), the hand's grips; under them, per marker, the face it sits on, its distances from
+the nearest landmarks, its tilt and its seat margin; then the caliper table (every pair of ball
+centres, the reading across both balls' outsides, the tolerance).  Page 2: a template at a
+printed scale of 1:1 where the prop fits an A4 sheet (else 1:2, 1:5, ...) with a scale bar to
+check the print against, crosshairs at the markers' base centres.
+
+No two texts overlap: text blocks are stacked by their measured extents (:class:`_Cursor`),
+and the labels inside a view are pushed apart by :func:`declutter` until their boxes are
+disjoint (a landmark label that still collides is left out: the table names it).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from starforge.props.guide import template_scale
+from starforge.render._mpl import pyplot, save_png
+from starforge.render.prop_views import VIEWS, frame, hand_outlines, markers_in_view, plot_data, shaded
+
+#: the guide's four views (names in :data:`starforge.render.prop_views.VIEWS`)
+GUIDE_VIEWS = ("front (from -y)", "side (from +x)", "top (from +z)", "back (from +y)")
+_PAGE = (11.69, 8.27)  # A4 landscape, inches
+_MM = 25.4  # mm per inch
+
+
+def _overlap(a, b, pad: float = 0.5) -> bool:
+    """Two display boxes (Bbox) overlap by more than ``pad`` pixels both ways."""
+    return min(a.x1, b.x1) - max(a.x0, b.x0) > pad and min(a.y1, b.y1) - max(a.y0, b.y0) > pad
+
+
+def text_boxes(fig) -> list:
+    """(text artist, display box) of every visible, non-empty text of ``fig`` (drawn first)."""
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    out = []
+    for t in fig.findobj(lambda a: hasattr(a, "get_text") and hasattr(a, "get_window_extent")):
+        if t.get_visible() and t.get_text().strip() and t.figure is fig:
+            out.append((t, t.get_window_extent(r)))
+    return out
+
+
+def overlapping_texts(fig) -> list[tuple[str, str]]:
+    """Every pair of visible texts of ``fig`` whose boxes overlap (the guide's check)."""
+    boxes = text_boxes(fig)
+    return [
+        (boxes[i][0].get_text(), boxes[j][0].get_text())
+        for i in range(len(boxes))
+        for j in range(i + 1, len(boxes))
+        if _overlap(boxes[i][1], boxes[j][1])
+    ]
+
+
+def declutter(ax, fixed: list, movable: list, droppable: list, rounds: int = 60) -> None:
+    """Push the texts of ``movable`` and ``droppable`` (in ``ax``) apart from each other and from
+    ``fixed`` until no boxes overlap, keeping them inside the axes; a droppable text that still
+    overlaps after ``rounds`` is hidden."""
+    fig = ax.figure
+    r = fig.canvas.get_renderer()  # text extents need the renderer, not a drawing of the page
+    ax.apply_aspect()
+    inv = ax.transData.inverted()
+    frame_box = ax.get_window_extent(r)
+    texts = fixed + movable + droppable
+    n_fixed = len(fixed)
+
+    def box(t):
+        return t.get_window_extent(r)
+
+    for _ in range(rounds):
+        moved = False
+        boxes = [box(t) for t in texts]
+        for i in range(n_fixed, len(texts)):
+            if not texts[i].get_visible():
+                continue
+            for j in range(len(texts)):
+                if i == j or not texts[j].get_visible() or not _overlap(boxes[i], boxes[j]):
+                    continue
+                a, b = boxes[i], boxes[j]
+                dx = (a.x0 + a.x1 - b.x0 - b.x1) / 2
+                dy = (a.y0 + a.y1 - b.y0 - b.y1) / 2
+                if abs(dx) < 1e-6 and abs(dy) < 1e-6:
+                    dy = 1.0
+                # move along the axis of least overlap, just past the other box
+                need_x = (min(a.x1, b.x1) - max(a.x0, b.x0)) + 1.0
+                need_y = (min(a.y1, b.y1) - max(a.y0, b.y0)) + 1.0
+                step = np.array([np.sign(dx) * need_x, 0.0]) if need_x < need_y else np.array([0.0, np.sign(dy) * need_y])
+                x, y = ax.transData.transform(texts[i].get_position())
+                x, y = x + step[0], y + step[1]
+                w, h = a.width, a.height
+                x = float(np.clip(x, frame_box.x0 + w / 2 + 1, frame_box.x1 - w / 2 - 1))
+                y = float(np.clip(y, frame_box.y0 + h / 2 + 1, frame_box.y1 - h / 2 - 1))
+                texts[i].set_position(inv.transform((x, y)))
+                boxes[i] = box(texts[i])
+                moved = True
+        if not moved:
+            return
+    boxes = [box(t) for t in texts]
+    for i in range(len(texts) - len(droppable), len(texts)):
+        if any(j != i and texts[j].get_visible() and _overlap(boxes[i], boxes[j]) for j in range(len(texts))):
+            texts[i].set_visible(False)
+
+
+class _Cursor:
+    """Stacks text blocks down the page from the top, each placed by its measured height."""
+
+    def __init__(self, fig, top: float, left: float = 0.02, gap: float = 0.008):
+        self.fig, self.y, self.left, self.gap = fig, top, left, gap
+
+    def block(self, text: str, x: float | None = None, **kw):
+        """A text whose top is at the cursor (figure fractions)."""
+        return self.fig.text(self.left if x is None else x, self.y, text, va="top", ha="left", **kw)
+
+    def advance(self, *texts) -> None:
+        """Move the cursor below the lowest of ``texts``."""
+        r = self.fig.canvas.get_renderer()
+        fig_h = self.fig.bbox.height
+        low = min(t.get_window_extent(r).y0 for t in texts) / fig_h
+        self.y = low - self.gap
+
+    def columns(self, lines: list[str], width: float, **kw) -> None:
+        """``lines`` in as many columns of figure width ``width`` as fit the page's width."""
+        if not lines:
+            return
+        ncol = max(1, int((1.0 - 2 * self.left) // width))
+        per = -(-len(lines) // ncol)
+        ts = [self.block("\n".join(lines[c * per : (c + 1) * per]), x=self.left + c * width, **kw)
+              for c in range(ncol) if lines[c * per : (c + 1) * per]]  # fmt: skip
+        self.advance(*ts)
+
+
+def guide_pages(res) -> list:
+    """The guide's pages as matplotlib figures (see the module docstring)."""
+    d = plot_data(res)
+    plt = pyplot()
+    fig = plt.figure(figsize=_PAGE)
+    fig.text(0.02, 0.975, f"Rigging guide: {d.name}, {len(d.marker_centres)} markers", fontsize=13,
+                     weight="bold", va="top")  # fmt: skip
+    lo, hi = d.bounds
+    for k, name in enumerate(GUIDE_VIEWS):
+        B = VIEWS[name]
+        ax = fig.add_axes([0.01 + 0.245 * k, 0.47, 0.235, 0.46])
+        proj = shaded(ax, d.triangles, d.face_normals, B)
+        span = frame(ax, proj, pad=1.3)
+        hand_outlines(ax, d, B, wrists=False)
+        _, labels = markers_in_view(ax, d, B, span, size=40, view=name)
+        marks = []
+        for fname, p in d.features:
+            q = p @ B.T
+            ax.plot([q[0]], [q[1]], marker="^", color="C0", ms=4, zorder=5.5)
+            marks.append(ax.text(q[0], q[1] - 0.035 * span, fname, fontsize=6, color="C0", ha="center", va="center", zorder=6))
+        ax.set_title(name, fontsize=9)
+        for sp in ax.spines.values():
+            sp.set_visible(False)
+        declutter(ax, [], labels, marks)
+    cur = _Cursor(fig, top=0.46)
+    size = " x ".join(f"{(hi - lo)[k] * 1000:.1f}" for k in range(3))
+    err = d.placement_error_mm
+    head = cur.block(
+        f"Marker: {d.seat_text}.  Prop {size} mm (x, y, z).\n"
+        "Find each marker's base centre from the landmarks named (T: a tip, C: a corner; blue triangles) with a ruler "
+        "or caliper, on the face given;\nthe tilt is the angle of the marker's axis from the prop's +z.  Margin: how far "
+        f"(mm) a base may land off its mark before it overhangs an edge or a tilted\nsurface (each is at least the "
+        f"{err:g} mm placement error).  Filled markers: in front in that view; hollow, grey: the prop hides them.  "
+        "Orange: where the hand holds it.",
+        fontsize=7.5,
+    )
+    cur.advance(head)
+    margin = d.margin_mm if d.margin_mm is not None else np.full(len(d.landmarks), np.nan)
+    lines = [f"{i + 1:>2}. {t}; margin {m:.1f} mm" for i, (t, m) in enumerate(zip(d.landmarks, margin, strict=True))]
+    cur.advance(cur.block("\n".join(lines), fontsize=6.8, family="monospace"))
+    if d.caliper:
+        tol = d.caliper[0][4]
+        cap = cur.block(
+            f"Caliper check (ball centre to centre; across both balls' outsides, add one ball diameter), each within "
+            f"+-{tol:g} mm:", fontsize=7.5,
+        )  # fmt: skip
+        cur.advance(cap)
+        rows = [f"{a}-{b}: {c:6.1f} ({o:.1f} outside)" for a, b, c, o, _ in d.caliper]
+        cur.columns(rows, 0.16, fontsize=6.5, family="monospace")
+    return [fig, _template_page(d, plt)]
+
+
+def _template_page(d, plt):
+    """A view at a printed scale (1:1 where it fits) with a scale bar and the markers' base
+    centres as crosshairs (see the module docstring)."""
+    # the view whose silhouette is largest among front, side and top
+    best = max(GUIDE_VIEWS[:3], key=lambda n: float(np.prod(np.ptp(d.triangles.reshape(-1, 3) @ VIEWS[n][:2].T, axis=0))))
+    B = VIEWS[best]
+    if np.ptp(d.triangles.reshape(-1, 3) @ B[1]) > np.ptp(d.triangles.reshape(-1, 3) @ B[0]):
+        B = np.array([B[1], -B[0], B[2]])  # turned a quarter: the long side along the sheet
+    proj = d.triangles.reshape(-1, 3) @ B.T
+    lo2, hi2 = proj[:, :2].min(axis=0), proj[:, :2].max(axis=0)
+    ext_mm = (hi2 - lo2) * 1000.0
+    k = template_scale((float(ext_mm[0]), float(ext_mm[1])))
+    fig = plt.figure(figsize=_PAGE)
+    w_in, h_in = (ext_mm + 20.0) / k / _MM  # 10 mm (printed) round it
+    left = (_PAGE[0] - w_in) / 2
+    ax = fig.add_axes([left / _PAGE[0], (0.62 * _PAGE[1] - h_in / 2) / _PAGE[1] if h_in < 0.9 * _PAGE[1] else 0.05,
+                       w_in / _PAGE[0], h_in / _PAGE[1]])  # fmt: skip
+    shaded(ax, d.triangles, d.face_normals, B)
+    pad = 0.010 * k
+    ax.set_xlim(lo2[0] - pad, hi2[0] + pad)
+    ax.set_ylim(lo2[1] - pad, hi2[1] + pad)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    for sp in ax.spines.values():
+        sp.set_visible(False)
+    near = ~np.asarray(d.hidden.get(best, np.zeros(len(d.marker_points), bool)), bool)
+    pts = d.marker_points @ B.T
+    labels = []
+    for i, p in enumerate(pts):
+        col = "k" if near[i] else "0.55"
+        r = 0.0015 * k  # 3 mm printed
+        ax.plot([p[0] - r, p[0] + r], [p[1], p[1]], color=col, lw=0.6)
+        ax.plot([p[0], p[0]], [p[1] - r, p[1] + r], color=col, lw=0.6)
+        labels.append(ax.text(p[0] + 1.2 * r, p[1] + 1.2 * r, str(i + 1), fontsize=7, color=col, ha="left", va="bottom"))
+    declutter(ax, [], labels, [])
+    # the scale bar: 50 mm on the prop (printed 50 / k mm), ticks every 10 mm
+    bar = fig.add_axes([0.06, 0.08, (50.0 / k) / _MM / _PAGE[0], 0.02])
+    bar.set_xlim(0, 50)
+    bar.set_ylim(-0.2, 1)
+    bar.axis("off")
+    for x in range(0, 51, 10):
+        bar.plot([x, x], [0, 1], color="k", lw=0.8)
+    bar.plot([0, 50], [0, 0], color="k", lw=1.2)
+    fig.text(0.06, 0.05, f"scale bar: 50 mm on the prop, ticks every 10 mm, printed at 1:{k}", fontsize=8, va="top")
+    fig.text(0.02, 0.975, f"Template, {best}, scale 1:{k}: print at 100 % (no 'fit to page') and check the scale bar "
+             "with a ruler", fontsize=11, weight="bold", va="top")  # fmt: skip
+    fig.text(0.02, 0.94, "+ the base centre of each marker (grey: on the far side of the prop in this view)" + (
+        "; cut the outline out to lay on the prop" if k == 1 else "; the prop is larger than the sheet at 1:1"),
+        fontsize=8, va="top")  # fmt: skip
+    return fig
+
+
+def guide_files(res, folder: str | Path) -> list[str]:
+    """Write ``guide.pdf`` (every page) and ``guide.png`` (page 1) into ``folder``."""
+    import io
+
+    from matplotlib.backends.backend_pdf import PdfPages
+
+    from starforge.io import atomic_write_bytes
+
+    plt = pyplot()
+    pages = guide_pages(res)
+    save_png(pages[0], Path(folder) / "guide.png", dpi=110)
+    buf = io.BytesIO()
+    with _pdf_fonts(pages), PdfPages(buf, metadata={"Creator": None, "Producer": None, "CreationDate": None}) as pdf:
+        for fig in pages:
+            pdf.savefig(fig)
+    atomic_write_bytes(Path(folder) / "guide.pdf", buf.getvalue())
+    for fig in pages:
+        plt.close(fig)
+    return ["guide.png", "guide.pdf"]
+
+
+def _pdf_fonts(figs):
+    """The PDF's text in PDF's standard fonts (Helvetica, Courier: every reader has them) rather
+    than embedded subsets of DejaVu: no fontTools import and no subsetting (about 0.3-0.5 s of
+    a CLI run's critical path) and a file a third the size.  Only where every string on the
+    page is Latin-1 (what the standard fonts cover); otherwise the embedded fonts."""
+    import contextlib
+    import logging
+
+    import matplotlib
+
+    texts = [t.get_text() for f in figs for t in f.findobj(lambda a: hasattr(a, "get_text") and hasattr(a, "get_fontname"))]
+    try:
+        "".join(texts).encode("latin-1")
+    except UnicodeEncodeError:
+        return contextlib.nullcontext()
+    stack = contextlib.ExitStack()
+    stack.enter_context(matplotlib.rc_context({"pdf.use14corefonts": True}))
+    log = logging.getLogger("matplotlib.font_manager")  # 'no normal weight of Helvetica, using medium'
+    level = log.level
+    log.setLevel(logging.ERROR)
+    stack.callback(log.setLevel, level)
+    return stack

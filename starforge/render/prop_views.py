@@ -1,0 +1,276 @@
+"""What every picture of a placement draws from: :class:`PlotData` (plain, picklable arrays) and
+the view helpers (orthographic bases, the prop shaded by the painter's algorithm, the hand's
+outline, numbered markers with labels kept apart, near or far from the viewer).
+
+A marker is *near* in a view when the sight line from its ball centre towards the viewer misses
+the prop (a ball is seen from every side, so this, not the way its base faces, decides whether
+it is in front); that is computed once with the prop's mesh (:func:`hidden_in_views`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PlotData:
+    """What the two pictures need, as plain arrays (metres, prop frame)."""
+
+    name: str
+    final_cost: float
+    mean_visibility: float
+    best: int
+    run_costs: tuple = field(repr=False)  # per run: (history_cost, history_best, history_n)
+    temperatures: np.ndarray = field(repr=False)  # schedule over the best run's iterations
+    triangles: np.ndarray = field(repr=False)
+    face_normals: np.ndarray = field(repr=False)
+    marker_points: np.ndarray = field(repr=False)
+    marker_normals: np.ndarray = field(repr=False)
+    marker_visibility: np.ndarray = field(repr=False)
+    marker_centres: np.ndarray = field(default=None, repr=False)
+    landmarks: tuple = ()  # per marker: the text of starforge.props.guide.landmarks
+    contact: np.ndarray = field(default=None, repr=False)
+    edge_mm: np.ndarray = field(default=None, repr=False)
+    bounds: np.ndarray = field(default=None, repr=False)  # (2, 3) m
+    seat_text: str = ""
+    hand: np.ndarray = field(default=None, repr=False)  # (k, 7) the grips' fists
+    visibility_label: str = "visibility"
+    wrists: np.ndarray = field(default=None, repr=False)  # (k, 7) the grips' wrists
+    hidden: dict = field(default_factory=dict)  # view name -> (m,) bool: the prop hides the marker there
+    features: tuple = ()  # (name, (3,) point m) landmarks the guide names
+    caliper: tuple = ()  # (a, b, centre_mm, outside_mm, tolerance_mm) per marker pair
+    margin_mm: np.ndarray = field(default=None, repr=False)  # (m,) seat margin
+    placement_error_mm: float = 0.0
+    grip_lines: tuple = ()  # the grips, as the run prints them
+
+
+MAX_FACES = 20000
+
+
+def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
+    """:class:`PlotData` from a :class:`starforge.props.placement.PlacementResult`.
+
+    Meshes with more than ``max_faces`` faces are drawn from an evenly spaced subset of faces.
+    """
+    if isinstance(res, PlotData):
+        return res
+    runs = res.anneal.runs
+    best = int(np.argmin(res.anneal.costs))
+    n_hist = len(runs[best].history_cost)
+    if res.tracked is not None:  # the tracked chains cool geometrically from t0 to 1e-4
+        ts = res.spec.track
+        decay = (1e-4 / ts.t0) ** (1.0 / max(1, ts.iterations)) if ts.t0 > 0 else 0.0
+        temps = ts.t0 * decay ** np.arange(n_hist) if ts.t0 > 0 else np.zeros(n_hist)
+    else:
+        temps = np.array([res.spec.chain.temperature(i) for i in range(n_hist)])
+    nf = len(res.prop.mesh.faces)
+    keep = np.linspace(0, nf - 1, max_faces).astype(int) if nf > max_faces else np.arange(nf)
+    from starforge.props.files import grip_lines
+    from starforge.props.guide import caliper_pairs, landmarks, mesh_landmarks
+    from starforge.props.hand import capsule_arrays
+
+    idx = list(res.marker_sites)
+    seat = res.seat
+    tracked = res.tracked is not None
+    features = mesh_landmarks(res.prop.mesh)
+    marks = landmarks(res.prop.mesh, res.marker_points, res.marker_normals, res.sites.faces[idx], features)
+    used = {m["name"] for mk in marks for m in mk["nearest"]}
+    err = res.spec.seat.placement_error_mm
+    grips = getattr(res, "grips", ()) or ()
+    return PlotData(
+        name=res.prop.name,
+        final_cost=float(res.cost.total),
+        mean_visibility=float(res.cost.mean_visibility),
+        best=best,
+        run_costs=tuple((r.history_cost, r.history_best, r.history_n) for r in runs),
+        temperatures=temps,
+        triangles=np.asarray(res.prop.mesh.triangles)[keep],
+        face_normals=np.asarray(res.prop.mesh.face_normals)[keep],
+        marker_points=res.marker_points,
+        marker_normals=res.marker_normals,
+        marker_visibility=res.marker_visibility,
+        marker_centres=res.centres(),
+        landmarks=tuple(m["text"] for m in marks),
+        contact=np.asarray(res.seat_report.contact)[idx],
+        edge_mm=np.asarray(res.seat_report.edge_m)[idx] * 1000.0,
+        bounds=np.asarray(res.prop.mesh.bounds, float),
+        seat_text=(
+            f"{seat.name}: {seat.ball_mm:g} mm ball, centre {seat.centre_height_mm:g} mm above a {seat.base_mm:g} mm base"
+            if seat.base_mm > 0
+            else f"{seat.ball_mm:g} mm ball on the surface"
+        ),
+        hand=capsule_arrays([g.capsules[0] for g in grips]) if grips else capsule_arrays(res.capsules),
+        visibility_label=(
+            "fraction of scenarios seen by 2 surviving cameras" if tracked else "visibility (fraction of poses x pairs)"
+        ),
+        wrists=capsule_arrays([c for g in grips for c in g.capsules[1:]]),
+        hidden=hidden_in_views(res.prop.mesh, res.centres(), VIEWS),
+        features=tuple((f["name"], np.asarray(f["point"], float)) for f in features if f["name"] in used),
+        caliper=tuple(
+            (c["a"], c["b"], c["centre_mm"], c["outside_mm"], c["tolerance_mm"])
+            for c in caliper_pairs(res.centres(), seat.ball_mm, err)
+        ),
+        margin_mm=None if res.seat_report.margin_m is None else np.asarray(res.seat_report.margin_m)[idx] * 1000.0,
+        placement_error_mm=err,
+        grip_lines=tuple(grip_lines(getattr(res, "part", None), grips)) if grips else (),
+    )
+
+
+def view_basis(elev_deg: float, azim_deg: float) -> np.ndarray:
+    """(3, 3) rows: screen right, screen up, towards the viewer, for a z-up orthographic view."""
+    e, a = np.radians(elev_deg), np.radians(azim_deg)
+    toward = np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+    right = np.array([-np.sin(a), np.cos(a), 0.0])
+    up = np.cross(toward, right)
+    return np.array([right, up, toward])
+
+
+def shaded(ax, tris, fn, B, light=None):
+    """Draw the prop's faces seen along ``B[2]`` (painter's algorithm); return the projection."""
+    from matplotlib.collections import PolyCollection
+
+    if light is None:
+        light = np.array([0.3, -0.4, 0.85]) / np.linalg.norm([0.3, -0.4, 0.85])
+    proj = tris @ B.T
+    front = fn @ B[2] > 0
+    order = np.argsort(proj[front][:, :, 2].mean(axis=1))
+    shade = np.clip(np.abs(fn[front] @ B[2]), 0, 1) * 0.35 + np.clip(fn[front] @ light, 0, 1) * 0.2 + 0.4
+    polys = proj[front][order][:, :, :2]
+    cols = np.repeat(shade[order][:, None], 3, axis=1)
+    ax.add_collection(PolyCollection(polys, facecolors=cols, edgecolors=cols, linewidths=0.2))
+    return proj
+
+
+def hand_outline(ax, hand, B, ls="--", lw=0.9, alpha=1.0):
+    """The hand's capsules as outlines (their silhouette: a stadium per capsule)."""
+    for c in np.asarray(hand).reshape(-1, 7):
+        a, b, r = c[:3] @ B.T, c[3:6] @ B.T, c[6]
+        d = b[:2] - a[:2]
+        L = float(np.hypot(*d))
+        ang = np.arctan2(d[1], d[0]) if L > 1e-12 else 0.0
+        t = np.linspace(-np.pi / 2, np.pi / 2, 24)
+        u = np.array([np.cos(ang), np.sin(ang)])
+        v = np.array([-u[1], u[0]])
+        cap1 = b[:2] + r * (np.cos(t)[:, None] * u + np.sin(t)[:, None] * v)
+        cap0 = a[:2] + r * (-np.cos(t)[:, None] * u - np.sin(t)[:, None] * v)
+        ring = np.vstack([cap1, cap0, cap1[:1]])
+        ax.plot(ring[:, 0], ring[:, 1], color="C1", ls=ls, lw=lw, alpha=alpha, zorder=2)
+
+
+def spread_labels(points: np.ndarray, span: float, rounds: int = 200) -> np.ndarray:
+    """(n, 2) label positions near ``points`` (n, 2) that keep apart from each other and from
+    every point: each starts one step out from the points' centre and is pushed by the
+    others until no two are closer than ``0.07 * span`` (or ``rounds`` pass)."""
+    pts = np.asarray(points, float)
+    n = len(pts)
+    if n == 0:
+        return pts
+    gap = 0.07 * span
+    c = pts.mean(axis=0)
+    d = pts - c
+    norm = np.linalg.norm(d, axis=1)
+    ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    fallback = np.column_stack([np.cos(ang), np.sin(ang)])
+    u = np.where(norm[:, None] > 1e-9 * span, d / np.maximum(norm, 1e-300)[:, None], fallback)
+    lab = pts + 1.2 * gap * u
+    for _ in range(rounds):
+        moved = False
+        others = np.vstack([lab, pts])
+        for i in range(n):
+            diff = lab[i] - others
+            dist = np.linalg.norm(diff, axis=1)
+            dist[i] = np.inf
+            close = dist < gap
+            if close.any():
+                push = (diff[close] / np.maximum(dist[close], 1e-9 * span)[:, None] * (gap - dist[close])[:, None]).sum(0)
+                if np.linalg.norm(push) < 1e-12 * span:
+                    push = u[i] * gap * 0.1
+                lab[i] += 0.5 * push
+                moved = True
+            pull = lab[i] - pts[i]
+            far = np.linalg.norm(pull)
+            if far > 3 * gap:
+                lab[i] = pts[i] + pull / far * 3 * gap
+        if not moved:
+            break
+    return lab
+
+
+def markers_in_view(ax, d: PlotData, B, span, colour=None, norm=None, cmap=None, size=60, view=None):
+    """Numbered markers (1-based) with leader lines to labels that do not overlap; those the prop
+    hides in this view (``d.hidden[view]``; without it, those whose base faces away) hollow and
+    grey.  Returns the scatter of the near markers (for a colour bar) and the label texts."""
+    mp = d.marker_centres @ B.T
+    if view is not None and view in d.hidden:
+        facing = ~np.asarray(d.hidden[view], bool)
+    else:
+        facing = d.marker_normals @ B[2] > -1e-9
+    lab = spread_labels(mp[:, :2], span)
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    m = 0.03 * span  # keep every label inside its own view
+    lab[:, 0] = np.clip(lab[:, 0], x0 + m, x1 - m)
+    lab[:, 1] = np.clip(lab[:, 1], y0 + m, y1 - m)
+    sc = None
+    texts = []
+    for i in range(len(mp)):
+        col = "k" if facing[i] else "0.55"
+        ax.plot([mp[i, 0], lab[i, 0]], [mp[i, 1], lab[i, 1]], color=col, lw=0.5, zorder=4)
+        texts.append(ax.text(lab[i, 0], lab[i, 1], str(i + 1), fontsize=8, ha="center", va="center", color=col, zorder=6,
+                             bbox=dict(boxstyle="circle,pad=0.15", fc="white", ec=col, lw=0.6)))  # fmt: skip
+    if colour is not None:
+        sc = ax.scatter(mp[facing, 0], mp[facing, 1], c=colour[facing], cmap=cmap, norm=norm, s=size,
+                        edgecolors="k", linewidths=0.7, zorder=5)  # fmt: skip
+    else:
+        ax.scatter(mp[facing, 0], mp[facing, 1], c="C3", s=size, edgecolors="k", linewidths=0.7, zorder=5)
+    ax.scatter(mp[~facing, 0], mp[~facing, 1], facecolors="none", edgecolors="0.45", s=size, lw=0.7,
+               linestyle=":", zorder=5)  # fmt: skip
+    return sc, texts
+
+
+def frame(ax, proj, pad=1.25):
+    allp = proj.reshape(-1, 3)
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
+    c, h = (lo + hi) / 2, float(np.max(hi - lo)) / 2 * pad
+    ax.set_xlim(c[0] - h, c[0] + h)
+    ax.set_ylim(c[1] - h, c[1] + h)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    return 2 * h
+
+
+
+
+#: the views the pictures draw, by name: rows of (screen right, screen up, towards the viewer)
+VIEWS = {
+    "layout front": view_basis(20, -60),
+    "layout back": view_basis(20, 120),
+    "front (from -y)": np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]),
+    "side (from +x)": np.array([[0, 1.0, 0], [0, 0, 1], [1, 0, 0]]),
+    "top (from +z)": np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1]]),
+    "back (from +y)": np.array([[-1.0, 0, 0], [0, 0, 1], [0, 1, 0]]),
+}
+
+
+def hidden_in_views(mesh, centres: np.ndarray, views: dict) -> dict:
+    """View name -> (m,) bool: the prop lies between the ball centre and the viewer (the sight
+    line along the view's third row, from just off the centre, hits the mesh)."""
+    c = np.asarray(centres, float).reshape(-1, 3)
+    out = {}
+    for name, B in views.items():
+        if not len(c):
+            out[name] = np.zeros(0, bool)
+            continue
+        d = np.repeat(np.asarray(B[2], float)[None], len(c), axis=0)
+        out[name] = np.asarray(mesh.ray.intersects_any(c + 1e-6 * d, d), bool)
+    return out
+
+
+def hand_outlines(ax, d: PlotData, B, wrists: bool = True) -> None:
+    """The grips: fists dashed, wrists dotted and fainter (unless ``wrists`` is false)."""
+    if d.hand is not None and len(d.hand):
+        hand_outline(ax, d.hand, B)
+    if wrists and d.wrists is not None and len(d.wrists):
+        hand_outline(ax, d.wrists, B, ls=":", lw=0.6, alpha=0.6)
