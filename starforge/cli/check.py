@@ -6,7 +6,8 @@ from pathlib import Path
 
 import typer
 
-from starforge.cli._app import app, console, progress
+from starforge.cli._app import app, console
+from starforge.runtime import progress
 
 
 def _tip(text: str | None):
@@ -117,19 +118,15 @@ def check_cmd(
     out = Path(out)
     names = ["check.json"] + (["check.png"] if curve > 0 else [])
     check_writable(out, names, force)
-    with progress() as bar:
-        task = bar.add_task("frames", total=frames)
-
-        def cb(stage, done, total):
-            bar.update(task, description=stage, completed=done, total=total)
-
-        doc = run_check(bodyset, settings, progress=cb)
+    doc = run_check(bodyset, settings, progress=progress.report("frames"))
     with staged_output(out, force) as stage:
         atomic_write_json(stage / "check.json", doc)
         if curve > 0:
             from starforge.render.tracking import rates_plot
 
-            rates_plot(doc, stage / "check.png")
+            with progress.stage("render", total=1, unit="pictures") as st:
+                rates_plot(doc, stage / "check.png")
+                st.update(1)
     if quiet:
         return
     err = console(stderr=True)

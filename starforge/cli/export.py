@@ -12,7 +12,7 @@ from pathlib import Path
 
 import typer
 
-from starforge.cli._app import app, console, progress
+from starforge.cli._app import app, console
 
 CAD_FORMATS = ("step", "stl", "3mf")
 TRACKER_FORMATS_DOC = ("qtm", "vsk", "atracsys", "rom", "motive", "csv")
@@ -244,7 +244,7 @@ def export_cmd(
     ),
     out: Path = _OUT,
     force: bool = typer.Option(False, "--force", help="Overwrite existing outputs."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors and warnings."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors (warnings are in bodies.json and trackers.json)."),
 ) -> None:
     """Write printable star bodies (one file per star per format, plus a print plate) and/or
     tracker rigid-body files, all or nothing."""
@@ -315,24 +315,21 @@ def export_cmd(
         written: list = []
         with staged_output(out, force) as stage:
             if cad:
-                with progress() as bar:
-                    task = bar.add_task("bodies", total=len(bodies))
-                    rep = export_family(
-                        family,
-                        stage,
-                        m,
-                        spec,
-                        formats=cad,
-                        ids=id_list,
-                        bed_mm=bed_mm,
-                        gap_mm=gap,
-                        plate=not no_plate,
-                        preview=preview,
-                        allow_oversize=allow_oversize,
-                        progress=lambda done, total: bar.update(task, completed=done, total=total),
-                        bodies=bodies,
-                        step_worker=worker,
-                    )
+                rep = export_family(
+                    family,
+                    stage,
+                    m,
+                    spec,
+                    formats=cad,
+                    ids=id_list,
+                    bed_mm=bed_mm,
+                    gap_mm=gap,
+                    plate=not no_plate,
+                    preview=preview,
+                    allow_oversize=allow_oversize,
+                    bodies=bodies,
+                    step_worker=worker,
+                )
                 written.extend(rep.files)
             if trk:
                 import json
@@ -352,6 +349,8 @@ def export_cmd(
     finally:
         if worker is not None:
             worker.kill()  # ended already, or never given a job (a refusal above)
+    if quiet:  # the warnings are in bodies.json / trackers.json
+        return
     err = console(stderr=True)
     for w in bodyset.warnings if trk else ():
         err.print(f"warning: {w}", soft_wrap=True, markup=False)
@@ -362,19 +361,20 @@ def export_cmd(
     if rep is not None:
         for w in rep.warnings:
             err.print(f"warning: {w}")
-    if not quiet:
-        con = console()
-        if rep is not None:
-            fits = sum(b["fits"] for b in rep.bodies)
-            con.print(
-                f"{len(rep.bodies)} bodies with mount {m.name} ({m.kind}): {fits} within the family's size limit, "
-                f"{rep.timings['total_s']:.1f} s"
-            )
-            worst = min(
-                ((v, b["name"], "ABCD"[i]) for b in rep.bodies for i, v in enumerate(b["visibility"]))
-            )
-            con.print(
-                f"least visible sphere: {worst[1]} {worst[2]}, {worst[0]:.2f} of its upper hemisphere free "
-                "(per sphere in bodies.json)"
-            )
-        con.print(f"wrote {len(written)} files to {out}/")
+    con = console()
+    if rep is not None:
+        fits = sum(b["fits"] for b in rep.bodies)
+        con.print(
+            f"{len(rep.bodies)} bodies with mount {m.name}{'' if m.kind == m.name else f' ({m.kind})'}: "
+            f"{fits} within the family's size limit, "
+            f"{rep.timings['total_s']:.1f} s"
+        )
+        worst = min(
+            ((v, b["name"], "ABCD"[i]) for b in rep.bodies for i, v in enumerate(b["visibility"]))
+        )
+        con.print(
+            f"least visible sphere: {worst[1]} {worst[2]}, {worst[0]:.2f} of its upper hemisphere free "
+            "(per sphere in bodies.json)"
+        )
+    con.print(f"wrote {len(written)} files to {out}/")
+

@@ -13,13 +13,16 @@ from pathlib import Path
 import typer
 from typer.core import TyperGroup
 
-from starforge.cli._app import app, console, progress
+from starforge.cli._app import app, console
+from starforge.runtime import progress
 
 _DEFAULT = "run"
 
 
 class _DefaultGroup(TyperGroup):
     """Dispatch to a subcommand when the first argument names one, else to the default command."""
+
+    default_command = _DEFAULT
 
     def parse_args(self, ctx, args):
         from starforge.cli._multi import spread_flag
@@ -190,36 +193,30 @@ def run_cmd(
             "guide.pdf",
         ] + (["prop_bases.stl"] if bases_stl else [])
         check_writable(out, names, force)  # fail before the work, not after
-        with progress() as bar:
-            task = bar.add_task("visibility", total=None)
-
-            def cb(stage, done, total):
-                bar.update(task, description=stage, completed=done, total=total)
-
-            with staged_output(out, force) as stage:
-                # the pictures are drawn while the layouts are evaluated on fresh poses
-                res = place(
-                    p, s, seed=seed, progress=cb, avoid=avoid_faces, grip=cap,
-                    on_layout=lambda r: renderer.submit(r, stage),
-                )  # fmt: skip
-                bar.update(task, description="writing")
-                # rich imported while the pictures are drawn, not after them
-                err, con = console(stderr=True), None if quiet else console()
+        with staged_output(out, force) as stage:
+            # the pictures are drawn while the layouts are evaluated on fresh poses
+            res = place(
+                p, s, seed=seed, avoid=avoid_faces, grip=cap, on_layout=lambda r: renderer.submit(r, stage),
+            )  # fmt: skip
+            # rich imported while the pictures are drawn, not after them
+            err, con = console(stderr=True), None if quiet else console()
+            with progress.stage("render", unit="pictures"):
                 write_outputs(res, stage, renderer=renderer, bases_stl=bases_stl)
     from starforge.props.files import summary_lines
 
+    if quiet:  # the warnings are in placement.json
+        return
     for w in res.warnings:
         err.print(f"warning: {w}")
-    if not quiet:
-        for line in summary_lines(res):
-            con.print(line)
-        t = res.timings
-        load = t.get("load_s", 0.0) + t.get("repair_s", 0.0)
-        con.print(
-            f"time: load {load:.2f} s, sites {t.get('sample_s', 0):.2f} s, visibility {t['visibility_s']:.2f} s, "
-            f"optimization {t['optimize_s']:.2f} s, evaluation {t.get('evaluate_s', 0):.2f} s"
-        )
-        con.print(f"wrote {out}/: {', '.join(names)}")
+    for line in summary_lines(res):
+        con.print(line)
+    t = res.timings
+    load = t.get("load_s", 0.0) + t.get("repair_s", 0.0)
+    con.print(
+        f"time: load {load:.2f} s, sites {t.get('sample_s', 0):.2f} s, visibility {t['visibility_s']:.2f} s, "
+        f"optimization {t['optimize_s']:.2f} s, evaluation {t.get('evaluate_s', 0):.2f} s"
+    )
+    con.print(f"wrote {out}/: {', '.join(names)}")
 
 
 @place_app.command("score", help="Score a given marker layout (CSV id,x_m,y_m,z_m,nx,ny,nz) on PROP.")

@@ -32,10 +32,10 @@ def place_batch_cmd(
 ) -> None:
     import json
 
-    from starforge.runtime import engine
     from starforge.errors import StarforgeError
     from starforge.io import atomic_write_bytes, atomic_write_text, check_writable, staged_output
     from starforge.props.batch import job_bytes, jobs, place_job
+    from starforge.runtime import engine
 
     if seed < 0:
         raise StarforgeError(f"seed must be >= 0, got {seed}")

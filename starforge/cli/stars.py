@@ -6,8 +6,9 @@ from pathlib import Path
 
 import typer
 
-from starforge.cli._app import app, console, progress
+from starforge.cli._app import app, console
 from starforge.cli._multi import MULTI, more_values
+from starforge.runtime import progress
 
 
 @app.command("stars", context_settings=MULTI)
@@ -81,7 +82,7 @@ def stars_cmd(
     name: str = typer.Option(None, "--name", help="Family name (default: the spec's name)."),
     out: Path = typer.Option(None, "--out", help="Output folder (default: out/<name>)."),
     force: bool = typer.Option(False, "--force", help="Overwrite existing outputs."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No table, just the summary line."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
     preview: bool = typer.Option(False, "--preview", help="Also draw family.png (the first 40 stars)."),
 ) -> None:
     """Generate a family of unique marker stars; writes family.json (source of truth) and family.csv.
@@ -178,16 +179,18 @@ def stars_cmd(
     helper = warmup.start()  # a first run compiles on two cores (nothing on a warm cache)
     try:
         if helper is not None:
-            warmup.compile_fit_decision()
-            warmup.ready("enumerate")  # the helper's kernels: loaded, not compiled a second time
+            with progress.stage("compile"):
+                warmup.compile_fit_decision()
+                warmup.ready("enumerate")  # the helper's kernels: loaded, not compiled a second time
         check_size(s, allow_stream=True)  # memory and time estimated before the long work
         family = _make(s, ctx, avoid, star_filter, make_family)
     except BaseException:
         warmup.finish(helper, 0.0)  # an error or Ctrl-C does not wait for the helper
         raise
     warmup.finish(helper)
-    text = json.dumps(family.to_json(), indent=2) + "\n"  # what is written is what is checked
-    problems = check_family(json.loads(text))
+    with progress.stage("verify", total=len(family), unit="stars"):
+        text = json.dumps(family.to_json(), indent=2) + "\n"  # what is written is what is checked
+        problems = check_family(json.loads(text))
     if problems:  # the generator and the independent checker disagree: a bug, never a user error
         raise RuntimeError(f"internal error: the family failed its independent check: {problems[0]}")
     with staged_output(out_dir, force) as stage:
@@ -198,7 +201,8 @@ def stars_cmd(
         if preview:
             from starforge.render.stars import family_sheet
 
-            family_sheet(family, stage / "family.png")
+            with progress.stage("render", unit="pictures"):
+                family_sheet(family, stage / "family.png")
     _report(family, out_dir, time.perf_counter() - t0, quiet)
 
 
@@ -214,51 +218,19 @@ def _make(s, ctx, avoid, star_filter, make_family):
             for w in src.get("warnings", ()):
                 console(stderr=True).print(f"warning: {w}", soft_wrap=True, markup=False)
 
-    with progress() as bar:
-        task = bar.add_task("enumerating", total=None)
-
-        def tick(done, total):
-            bar.update(task, completed=done, total=total)
-
-        return make_family(
-            s, progress=tick, avoid_faces_mm=avoid_faces, avoid_sources=avoid_sources, star_filter=star_filter
-        )
+    enumerate_ = progress.stage("enumerate", unit="candidates")
+    return make_family(
+        s, progress=lambda done, total: enumerate_.update(done, total), avoid_faces_mm=avoid_faces,
+        avoid_sources=avoid_sources, star_filter=star_filter,
+    )
 
 
 def _report(family, out_dir: Path, seconds: float, quiet: bool) -> None:
+    if quiet:
+        return
     c = console()
     sm = family.summary
-    if not quiet:
-        from rich import box
-        from rich.table import Table  # (0.01 s of imports a quiet run does without)
-
-        # fits 80 columns: no vertical rules, one space between columns, nothing wraps
-        t = Table(
-            title=f"{family.spec.name}: {len(family)} stars, most accurate first (mm)",
-            box=box.SIMPLE_HEAD,
-            pad_edge=False,
-            padding=(0, 0),
-            collapse_padding=True,
-            show_lines=False,
-        )
-        for col in ("id", "u", "U", "v", "V", "w", "W", "box x y z", "depth", "face\nmargin", "tip TRE\n1 hidden"):
-            t.add_column(col, justify="right", no_wrap=True)
-        shown = family.stars if len(family) <= 30 else family.stars[:25]
-        for st in shown:
-            e = st.obb_extents
-            t.add_row(
-                str(st.id),
-                *[f"{x:.2f}" for x in st.lengths],
-                f"{e[0]:.1f} {e[1]:.1f} {e[2]:.1f}",
-                f"{st.depth_mm:.2f}" if st.depth_mm is not None else "",
-                f"{st.margins['family_face_mm']:.2f}",
-                f"{st.accuracy.get('tip_tre_hidden_mm', float('nan')):.2f}",
-            )
-        if len(family) > len(shown):
-            t.add_row("...", *[""] * 10)
-        c.print(t)
-        if len(family) > len(shown):
-            c.print(f"({len(family) - len(shown)} more stars in family.csv)")
+    _star_table(family, c)
     ub = sm.get("upper_bound")
     if family.spec.count is not None:
         bound = f" (any family of this spec has at most {ub})" if ub is not None else ""
@@ -276,3 +248,43 @@ def _report(family, out_dir: Path, seconds: float, quiet: bool) -> None:
         f"total {seconds:.2f} s; verified independently"
     )
     c.print(f"wrote {out_dir / 'family.json'}, family.csv and run.json (timings)")
+
+
+def _star_table(family, c) -> None:
+    """The stars as a table (the first 25 of a large family), every cell whole."""
+    from rich import box
+    from rich.table import Table  # (0.01 s of imports a quiet run does without)
+
+    heads = ("id", "u", "U", "v", "V", "w", "W", "box x y z", "depth", "face\nmargin", "tip TRE\n1 hidden")
+    shown = family.stars if len(family) <= 30 else family.stars[:25]
+    rows = []
+    for st in shown:
+        e = st.obb_extents
+        rows.append((
+            str(st.id),
+            *[f"{x:.2f}" for x in st.lengths],
+            f"{e[0]:.1f} {e[1]:.1f} {e[2]:.1f}",
+            f"{st.depth_mm:.2f}" if st.depth_mm is not None else "",
+            f"{st.margins['family_face_mm']:.2f}",
+            f"{st.accuracy.get('tip_tre_hidden_mm', float('nan')):.2f}",
+        ))  # fmt: skip
+    if len(family) > len(shown):
+        rows.append(("...", *[""] * 10))
+    # no vertical rules, one space between columns; a cell is never cut: each column is as wide as
+    # its longest cell (a terminal narrower than the table folds its lines)
+    t = Table(
+        title=f"{family.spec.name}: {len(family)} stars, most accurate first (mm)",
+        box=box.SIMPLE_HEAD,
+        pad_edge=False,
+        padding=(0, 0),
+        collapse_padding=True,
+        show_lines=False,
+    )
+    for k, col in enumerate(heads):
+        widest = max([len(r[k]) for r in rows] + [max(len(x) for x in col.split("\n"))])
+        t.add_column(col, justify="right", no_wrap=True, min_width=widest)
+    for r in rows:
+        t.add_row(*r)
+    c.print(t, crop=False)
+    if len(family) > len(shown):
+        c.print(f"({len(family) - len(shown)} more stars in family.csv)")

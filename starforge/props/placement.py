@@ -19,6 +19,7 @@ from starforge.props.costs import CostBreakdown, evaluate
 from starforge.props.optimizer import AnnealResult, anneal
 from starforge.props.sites import Sites
 from starforge.props.spec import PlaceSpec
+from starforge.runtime.progress import report as progress_report
 from starforge.spec import require
 
 
@@ -143,6 +144,8 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
     pivot = np.asarray(prop.mesh.bounds, dtype=float).mean(axis=0)
     check_cost(prop, spec, rig, len(kept), spec.resolution**3 * spec.orientations)  # before building them
     poses = make_poses(rig.volume, spec.resolution, spec.orientations, pivot, rng)
+    if progress is not None:
+        progress(0, None)  # the rays' stage starts with its work
     table = compute_table(
         prop.mesh,
         kept.points,
@@ -306,6 +309,19 @@ def run_placement(
     return place(load_prop(prop, units), s, seed=seed, progress=progress, avoid=avoid_faces, grip=cap)
 
 
+def _stages(progress):
+    """``progress(stage, done, total)``: the caller's callback (if any) and the process's progress
+    stages (:mod:`starforge.runtime.progress`)."""
+    shown = progress_report()
+
+    def both(name: str, done, total) -> None:
+        shown(name, done, total)
+        if progress is not None:
+            progress(name, done, total)
+
+    return both
+
+
 def place(
     prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None, grip=None, on_layout=None
 ) -> PlacementResult:
@@ -332,11 +348,12 @@ def place(
     require(isinstance(seed, int) and seed >= 0, f"seed must be an integer >= 0, got {seed}")
     rng = np.random.default_rng(seed)
     timings: dict = dict(getattr(prop, "timings", {}) or {})
-    vis_cb = (lambda d, n: progress("visibility", d, n)) if progress else None
+    progress = _stages(progress)
     from starforge.props.rig import load_rig
 
     warnings = prop_name_warnings(prop) + check_scale(prop, load_rig(spec.rig), spec.marker_diameter_m)
-    prep = prepare(prop, spec, rng, vis_cb, timings, grip)
+    progress("sites", 0, None)
+    prep = prepare(prop, spec, rng, lambda d, n: progress("rays", d, n), timings, grip)
     if spec.objective == "tracked":
         return _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress, on_layout)
     res = _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress)
@@ -350,7 +367,8 @@ def _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress) -> Pl
     table, sites = prep.table, prep.sites
     v = table.site_visibility
     t = time.perf_counter()
-    run_cb = (lambda d, n: progress("annealing", d, n)) if progress else None
+    run_cb = lambda d, n: progress("optimise", d, n)  # noqa: E731
+    run_cb(0, spec.chain.restarts)
     pose_seen = table.seen.any(axis=2)  # (s, p): some pair sees the site at the pose
     result = anneal(sites.points, v, spec.costs, spec.chain, rng, on_run=run_cb, site_pose_seen=pose_seen)
     t = _tick(timings, "optimize_s", t)
@@ -596,7 +614,8 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         max(ts.spread_fraction * float(ext[1]), 1e-4),
         None if avoid is None or not len(avoid) else np.asarray(avoid, float),
     )
-    run_cb = (lambda d, n: progress("optimizing", d, n)) if progress else None
+    run_cb = lambda d, n: progress("optimise", d, n)  # noqa: E731
+    run_cb(0, ts.restarts)
     validate = polish = ranking = None
     if ts.validation_poses:
         ranking = _HeldOut(prop, spec, seed, prep, VALIDATION_SEED_OFFSET)
@@ -640,6 +659,7 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
     )  # fmt: skip
     if on_layout is not None:
         on_layout(res)
+    progress("evaluate", 0, None)  # the layouts on fresh poses
     layouts = {"default": chosen, "greedy_local_search": opt.baselines["greedy_local_search"]["sites"]}
     if opt.baselines["best_of_random"]["sites"] is not None:
         layouts["best_of_random"] = opt.baselines["best_of_random"]["sites"]

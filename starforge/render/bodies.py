@@ -67,7 +67,7 @@ def render_body_png(body, path: str | Path, size_px: int = 480) -> Path:
     return Path(path)
 
 
-def render_sheet_png(bodies, path: str | Path, cell_px: int = 240) -> Path:
+def render_sheet_png(bodies, path: str | Path, cell_px: int = 240, box_mm=None) -> Path:
     """All bodies on one sheet at one scale (the largest body fills its cell), titled with ids."""
     from starforge.render._mpl import pyplot, save_png
 
@@ -88,3 +88,21 @@ def render_sheet_png(bodies, path: str | Path, cell_px: int = 240) -> Path:
     finally:
         plt.close(fig)
     return Path(path)
+
+
+def render_previews(bodies, folder: str | Path, box_mm=None) -> list[Path]:
+    """``folder/<body>.png`` per body and ``folder/sheet.png`` (:func:`render_sheet_png`), as
+    progress stage "preview" (:mod:`starforge.runtime.progress`).  ``box_mm``: the family's size
+    limit, drawn on the sheet against each body's outline."""
+    from starforge.runtime import progress
+
+    folder = Path(folder)
+    folder.mkdir(exist_ok=True)
+    written = []
+    with progress.stage("preview", total=len(bodies) + 1, unit="pictures") as st:
+        for b in bodies:
+            written.append(render_body_png(b, folder / f"{b.name}.png"))
+            st.update(advance=1)
+        written.append(render_sheet_png(bodies, folder / "sheet.png", box_mm=box_mm))
+        st.update(advance=1)
+    return written

@@ -318,8 +318,10 @@ def make_family(
             f"(certified upper bound)"
         )
     t1 = time.perf_counter()
+    from starforge.runtime import progress as runtime_progress
     from starforge.stars import warmup
 
+    runtime_progress.stage("select")
     warmup.ready("select")  # a first run's helper may still be compiling the selection's kernels
     excluded = np.zeros(len(index), dtype=bool)
     rounds = 0
