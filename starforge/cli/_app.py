@@ -12,6 +12,7 @@ import sys
 import typer
 
 from starforge.cli._args import QUIET, RootGroup
+from starforge.runtime.budget import DEFAULT_SECONDS, MEMORY_FRACTION
 
 app = typer.Typer(
     cls=RootGroup,
@@ -74,17 +75,17 @@ def _root(
     ctx: typer.Context,
     version: bool = typer.Option(False, "--version", help="Print the version and exit.", is_eager=True),
     max_memory: str = typer.Option(
-        None, "--max-memory", help="Memory any command may plan to use, e.g. 2G (default: half this machine's)."
+        None, "--max-memory", help=f"Memory any command may plan to use, e.g. 2G (default: {MEMORY_FRACTION:.0%} of this machine's; also accepted after the command)."
     ),
     quiet: bool = typer.Option(
         False, "--quiet", "-q", help="Print nothing but errors (also accepted after the command)."
     ),
-    max_seconds: float = typer.Option(None, "--max-seconds", help="Time any command may plan to take, s (default 7200)."),
+    max_seconds: float = typer.Option(None, "--max-seconds", help=f"Time any command may plan to take, s (default {DEFAULT_SECONDS:g}; also accepted after the command)."),
     scheduler: str = typer.Option(
         None,
         "--scheduler",
         help="Run parallel work (enumeration chunks, sweep cells) on the dask scheduler at this address "
-        "(default: $STARFORGE_SCHEDULER; unset: this machine).",
+        "(default: $STARFORGE_SCHEDULER; unset: this machine; also accepted after the command).",
     ),
 ) -> None:
     """Design optical motion-capture markers: unique marker-star families, printable bodies,

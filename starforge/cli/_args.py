@@ -128,6 +128,15 @@ def polish(cmd) -> None:
                 p.metavar = ""
             elif p.nargs == 3 and p.metavar is None:
                 p.metavar = "X,Y,Z"
+    plain_help = cmd.get_help_option
+
+    def help_option(ctx, _plain=plain_help):
+        opt = _plain(ctx)
+        if opt is not None:
+            opt.metavar = ""
+        return opt
+
+    cmd.get_help_option = help_option
     for sub in getattr(cmd, "commands", {}).values():
         polish(sub)
 

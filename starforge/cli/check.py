@@ -68,7 +68,7 @@ def check_cmd(
     preset: str = typer.Option(
         None,
         "--preset",
-        help="Vendor rules and tracker windows: art, ndi, qualisys, optitrack (or a TOML file).",
+        help="Vendor rules and tracker windows: art, ndi, qualisys, optitrack (or a TOML file; default: none).",
     ),
     match: float = typer.Option(
         None,

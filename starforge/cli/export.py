@@ -184,7 +184,8 @@ SEAT = typer.Option(
 MARKER = typer.Option(
     None,
     "--marker",
-    help="A bought marker from the catalogue (see `starforge templates markers`) or a TOML file.",
+    help="A bought marker from the catalogue (see `starforge templates markers`) or a TOML file (default: the "
+    "family's).",
 )
 NOZZLE = typer.Option(
     None, "--nozzle-mm", help="Printer nozzle, mm: engraved strokes and counters are 2 x wider (default 0.4)."
@@ -199,7 +200,11 @@ NO_LABEL = typer.Option(False, "--no-label", help="Do not engrave the star id.")
 
 
 _FILE = typer.Argument(..., help="family.json (or its folder), or a placement.json for tracker formats.")
-_OUT = typer.Option(None, "--out", help="Output folder (default: <FILE's folder>/bodies).")
+_OUT = typer.Option(
+    None,
+    "--out",
+    help="Output folder (default: <FILE's folder>/bodies with a CAD format, else <FILE's folder>/tracker).",
+)
 
 
 @app.command("export")

@@ -9,35 +9,60 @@ import typer
 from starforge.cli._app import app, console
 from starforge.cli._multi import MULTI, more_values
 from starforge.runtime import progress
+from starforge.stars.spec import STAR_CHOICES, STAR_DEFAULTS
+
+_D, _C = STAR_DEFAULTS, STAR_CHOICES
+
+
+def _default(key: str, unit: str = "mm") -> str:
+    """``"default 1.5 mm"``: the value StarSpec uses when neither the option nor the spec sets it."""
+    v = _D[key]
+    return f"default {v:g} {unit}".rstrip() if isinstance(v, float) else f"default {v}"
 
 
 @app.command("stars", context_settings=MULTI)
 def stars_cmd(
     ctx: typer.Context,
     spec: str = typer.Option(
-        None, "--spec", help="Template name (see `starforge templates stars`) or a TOML path."
+        None,
+        "--spec",
+        help="Template name (see `starforge templates stars`) or a TOML path; its values are the defaults of "
+        "the options below (default: finger when --box is not given either).",
     ),
     box: tuple[float, float, float] = typer.Option(
-        None, "--box", help="Size limit X Y Z in mm (physical star)."
+        None,
+        "--box",
+        help="Size limit X Y Z in mm (the physical star), e.g. 20.8,12.6,48.3 (default: the spec's).",
     ),
     marker: str = typer.Option(
         None,
         "--marker",
         help="Marker diameter in mm, or a bought marker from the catalogue (`starforge templates markers`) "
-        "or a TOML file: its diameter, and with --mount its seat's room.",
+        f"or a TOML file: its diameter, and with --mount its seat's room ({_default('marker_mm')}).",
     ),
-    delta: float = typer.Option(None, "--delta", help="Minimal length variation (pool step), mm."),
-    gap: float = typer.Option(None, "--gap", help="Minimum clear gap between spheres, mm."),
-    rule: str = typer.Option(None, "--rule", help="face (default) or pair (the paper's)."),
-    select: str = typer.Option(None, "--select", help="max (default) or greedy (the paper's)."),
+    delta: float = typer.Option(
+        None, "--delta", help=f"Minimal length variation (pool step), mm ({_default('delta_mm')})."
+    ),
+    gap: float = typer.Option(
+        None, "--gap", help=f"Minimum clear gap between spheres, mm ({_default('gap_mm')})."
+    ),
+    rule: str = typer.Option(
+        None, "--rule", help=f"{' or '.join(_C['rule'])} (the paper's: pair; {_default('rule')})."
+    ),
+    select: str = typer.Option(
+        None, "--select", help=f"{' or '.join(_C['select'])} (the paper's: greedy; {_default('select')})."
+    ),
     count: int = typer.Option(
-        None, "--count", help="Exactly N stars: the most accurate distinguishable ones."
+        None,
+        "--count",
+        help="Exactly N stars: the most accurate distinguishable ones (default: as many as fit).",
     ),
     tolerance: float = typer.Option(None, "--tolerance", help="Face/edge tolerance, mm (default: delta)."),
     box_method: str = typer.Option(
         None,
         "--box-method",
-        help="exact (default: some rotation fits, decided to 0.01 mm) or covariance (the paper's OBB).",
+        help=f"{' or '.join(_C['box_method'])}: exact: some rotation fits, decided to 0.01 mm; covariance: the "
+        f"paper's OBB ({_default('box_method')}).",
     ),
     min_depth: float = typer.Option(
         None,
@@ -50,28 +75,37 @@ def stars_cmd(
         help="Tip X Y Z in the placement frame, mm, for the predicted accuracy (default 0 0 -longest side).",
     ),
     noise: float = typer.Option(
-        None, "--noise", help="Marker noise sigma per axis for the predicted accuracy, mm (default 0.2)."
+        None,
+        "--noise",
+        help=f"Marker noise sigma per axis for the predicted accuracy, mm ({_default('noise_mm')}).",
     ),
     avoid: list[Path] = typer.Option(
         None,
         "--avoid",
         help="Bodies the lab already owns (family.json, placement.json, QTM .xml, .vsk, Atracsys .ini, NDI .rom, .motive, "
         ".csv), one or several after one flag (--avoid A.xml B.vsk) or the flag repeated: no new face comes "
-        "within the tolerance of theirs.",
+        "within the tolerance of theirs (default: none).",
     ),
     time_limit: float = typer.Option(
-        None, "--time-limit", help="Wall-clock safety limit of the exact solver, s."
+        None,
+        "--time-limit",
+        help=f"Wall-clock safety limit of the exact solver, s ({_default('time_limit_s', 's')}).",
     ),
     reserve: tuple[float, float, float] = typer.Option(
         None,
         "--reserve",
-        help="mm kept free for a mount on the shortest, middle, longest side, by hand (--mount computes it; `starforge mounts` lists each mount's).",
+        help="mm kept free for a mount on the shortest, middle, longest side, by hand (default: what --mount "
+        "needs, else 0,0,0; `starforge mounts` lists each mount's).",
     ),
-    preset: str = typer.Option(None, "--preset", help="Apply a tracker preset's tolerances (art, ndi, ...)."),
+    preset: str = typer.Option(
+        None,
+        "--preset",
+        help="Apply a tracker preset's tolerances (`starforge templates presets`; default: none).",
+    ),
     mount: str = typer.Option(
         None,
         "--mount",
-        help="Design for this mount (see `starforge mounts`): reserve its room, check every body.",
+        help="Design for this mount (see `starforge mounts`): reserve its room, check every body (default: none).",
     ),
     seat: str = typer.Option(
         None,
@@ -220,8 +254,11 @@ def _make(s, ctx, avoid, star_filter, make_family):
 
     enumerate_ = progress.stage("enumerate", unit="candidates")
     return make_family(
-        s, progress=lambda done, total: enumerate_.update(done, total), avoid_faces_mm=avoid_faces,
-        avoid_sources=avoid_sources, star_filter=star_filter,
+        s,
+        progress=lambda done, total: enumerate_.update(done, total),
+        avoid_faces_mm=avoid_faces,
+        avoid_sources=avoid_sources,
+        star_filter=star_filter,
     )
 
 

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import MISSING, dataclass, fields
+from typing import Literal, get_args
 
 from starforge.errors import StarforgeError
 from starforge.spec import from_mapping, positive, require
@@ -219,6 +219,13 @@ class StarSpec:
             return 0
         n = (hi - lo) / self.delta_mm + 1e-9
         return int(math.floor(n)) + 1 if n < 1e9 else 10**9  # capped: bounded-cost checks refuse it
+
+
+#: what each field of a StarSpec is when neither a template nor an option sets it (the CLI's help)
+STAR_DEFAULTS = {f.name: f.default for f in fields(StarSpec) if f.default is not MISSING}
+
+#: the values each choice field accepts
+STAR_CHOICES = {"rule": get_args(Rule), "select": get_args(Select), "box_method": get_args(BoxMethod)}
 
 
 def spec_from_mapping(data: dict, name: str | None = None) -> StarSpec:
