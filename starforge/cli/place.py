@@ -30,6 +30,16 @@ def _of_spec(value) -> str:
     return f"default: the spec's; {value} in `{_SPEC}`"
 
 
+# options shared by `place` and `place score`
+_RIG = typer.Option(None, "--rig", help=f"Rig template name or TOML file ({_of_spec(_S.get('rig'))}).")
+_RESOLUTION = typer.Option(
+    None, "--resolution", help=f"n for n x n x n prop positions in the capture volume ({_of_spec(_S['resolution'])})."
+)
+_ORIENTATIONS = typer.Option(
+    None, "--orientations", help=f"Prop orientations per position ({_of_spec(_S['orientations'])})."
+)
+
+
 class _DefaultGroup(TyperGroup):
     """Dispatch to a subcommand when the first argument names one, else to the default command."""
 
@@ -122,23 +132,15 @@ def run_cmd(
         help=f"Settings template name ({', '.join(list_templates('place'))}; `starforge templates place`) or "
         "TOML file: the defaults of the options below.",
     ),
-    rig: str = typer.Option(
-        None, "--rig", help=f"Rig template name or TOML file ({_of_spec(_S.get('rig'))})."
-    ),
+    rig: str = _RIG,
     markers: int = typer.Option(
         None,
         "--markers",
         help=f"Target number of markers, in [{_T.get('min_markers')}, {_T.get('max_markers')}] "
         f"({_of_spec(_T.get('target_markers'))}).",
     ),
-    resolution: int = typer.Option(
-        None,
-        "--resolution",
-        help=f"n for n x n x n prop positions in the capture volume ({_of_spec(_S['resolution'])}).",
-    ),
-    orientations: int = typer.Option(
-        None, "--orientations", help=f"Prop orientations per position ({_of_spec(_S['orientations'])})."
-    ),
+    resolution: int = _RESOLUTION,
+    orientations: int = _ORIENTATIONS,
     sites: int = typer.Option(
         None,
         "--sites",
@@ -284,15 +286,9 @@ def score_cmd(
     prop: str = _PROP,
     markers_csv: str = typer.Argument(..., help="Markers CSV (metres, prop frame); normals optional."),
     spec: str = typer.Option(_SPEC, "--spec", help="Settings template name or TOML file."),
-    rig: str = typer.Option(
-        None, "--rig", help=f"Rig template name or TOML file ({_of_spec(_S.get('rig'))})."
-    ),
-    resolution: int = typer.Option(
-        None, "--resolution", help=f"n for n x n x n prop positions ({_of_spec(_S['resolution'])})."
-    ),
-    orientations: int = typer.Option(
-        None, "--orientations", help=f"Prop orientations per position ({_of_spec(_S['orientations'])})."
-    ),
+    rig: str = _RIG,
+    resolution: int = _RESOLUTION,
+    orientations: int = _ORIENTATIONS,
     units: str = typer.Option("m", "--units", help="Units of the mesh file: m, cm or mm."),
     seed: int = typer.Option(0, "--seed", help="Seed for random orientations."),
     as_json: bool = typer.Option(False, "--json", help="Print the costs as JSON."),
