@@ -149,4 +149,43 @@ class RootGroup(TyperGroup):
         polish(self)
 
     def parse_args(self, ctx, args: list[str]) -> list[str]:
-        return super().parse_args(ctx, normalise(self, list(args), ctx.meta))
+        args = normalise(self, list(args), ctx.meta)
+        ctx.meta[ARGV] = list(args)  # click consumes the list it parses
+        return super().parse_args(ctx, args)
+
+
+#: the key in click's ``ctx.meta`` that holds the arguments as normalised (:func:`retyped`)
+ARGV = "starforge.argv"
+
+
+def _takes_value(token: str) -> bool:
+    return not token.startswith("-") or _number(token)
+
+
+def retyped(meta: dict, changes: dict) -> str:
+    """The user's command line with some options changed, for a message to suggest:
+    ``changes[flag]`` is the new value(s) (a string or a list; None drops the option); an option
+    not given is added at the end.  Everything else the user typed is kept."""
+    import shlex
+
+    args = list(meta.get(ARGV, ()))
+    out: list[str] = []
+    i = 0
+    while i < len(args):
+        a = args[i]
+        flag = a.split("=", 1)[0]
+        i += 1
+        if flag not in changes:
+            out.append(a)
+            continue
+        n = 0
+        while "=" not in a and i < len(args) and _takes_value(args[i]) and (n == 0 or flag in _MANY):
+            i, n = i + 1, n + 1
+    for flag, value in changes.items():
+        if value is not None:
+            out += [flag, *([value] if isinstance(value, str) else [str(v) for v in value])]
+    return "starforge " + shlex.join(out)
+
+
+#: options that take several values after one flag
+_MANY = {"--box", "--tip", "--reserve", "--avoid"}

@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from starforge.cli._app import app, console
+from starforge.cli._args import retyped
 from starforge.cli._multi import MULTI, more_values
 from starforge.runtime import progress
 from starforge.stars.spec import STAR_CHOICES, STAR_DEFAULTS
@@ -110,8 +111,9 @@ def stars_cmd(
     seat: str = typer.Option(
         None,
         "--seat",
-        help="With --mount: what each stem ends in, sphere (printed), glue, post, screw or insert "
-        "(default: the catalogue marker's attachment, else sphere); its room is reserved.",
+        help="With --mount: how each marker sits on the end of its stem (the marker's seat, not the body's "
+        "mount): sphere (printed), glue, post, screw (the marker's stud in a tap-drill bore) or insert (in a "
+        "heat-set insert); its room is reserved (default: the catalogue marker's attachment, else sphere).",
     ),
     name: str = typer.Option(None, "--name", help="Family name (default: the spec's name)."),
     out: Path = typer.Option(None, "--out", help="Output folder (default: out/<name>)."),
@@ -134,7 +136,6 @@ def stars_cmd(
     from starforge import __version__
     from starforge.catalog import load_template
     from starforge.io import check_name, check_writable, staged_output
-    from starforge.stars.enumerate import check_memory, check_size
     from starforge.stars.family import make_family
     from starforge.stars.model import family_csv
     from starforge.stars.spec import spec_from_mapping
@@ -200,23 +201,26 @@ def stars_cmd(
     elif seat is not None:
         from starforge.errors import StarforgeError
 
-        raise StarforgeError("--seat shapes the printed body: give --mount too (see `starforge mounts`)")
+        raise StarforgeError(
+            "--seat shapes the printed body, so it needs --mount (see `starforge mounts`), e.g. "
+            + retyped(ctx.meta, {"--mount": "flat"})
+        )
 
-    s = spec_from_mapping(data)
+    s = _spec(data, ctx, spec_from_mapping)
     check_name(s.name, "--name")
     out_dir = out if out is not None else Path("out") / s.name
     names = ["family.json", "family.csv", "run.json"] + (["family.png"] if preview else [])
     check_writable(out_dir, names, force)  # fail before the long work
     from starforge.stars import warmup
 
-    check_memory(s, allow_stream=True)  # a spec too large is refused before anything compiles
+    _check_cost(s, data, ctx, spec_from_mapping, "memory")  # too large: refused before anything compiles
     helper = warmup.start()  # a first run compiles on two cores (nothing on a warm cache)
     try:
         if helper is not None:
             with progress.stage("compile"):
                 warmup.compile_fit_decision()
                 warmup.ready("enumerate")  # the helper's kernels: loaded, not compiled a second time
-        check_size(s, allow_stream=True)  # memory and time estimated before the long work
+        _check_cost(s, data, ctx, spec_from_mapping, "size")  # memory and time estimated before the long work
         family = _make(s, ctx, avoid, star_filter, make_family)
     except BaseException:
         warmup.finish(helper, 0.0)  # an error or Ctrl-C does not wait for the helper
@@ -238,6 +242,78 @@ def stars_cmd(
             with progress.stage("render", unit="pictures"):
                 family_sheet(family, stage / "family.png")
     _report(family, out_dir, time.perf_counter() - t0, quiet)
+
+
+#: the option that sets each StarSpec field, for messages
+_OPTION_OF = {
+    "box_mm": "--box",
+    "marker_mm": "--marker",
+    "delta_mm": "--delta",
+    "gap_mm": "--gap",
+    "tolerance_mm": "--tolerance",
+    "min_depth_mm": "--min-depth",
+    "tip_mm": "--tip",
+    "noise_mm": "--noise",
+    "time_limit_s": "--time-limit",
+    "reserve_mm": "--reserve",
+}
+
+
+def as_options(message: str) -> str:
+    """A library message with each StarSpec field named by its option: ``delta_mm`` -> ``--delta``,
+    ``box_mm[0]`` -> ``--box's value 1``."""
+    import re
+
+    def one(m) -> str:
+        flag = _OPTION_OF[m.group(1)]
+        return f"{flag}'s value {int(m.group(2)) + 1}" if m.group(2) is not None else flag
+
+    return re.sub(r"\b(" + "|".join(_OPTION_OF) + r")\b(?:\[(\d)\])?", one, message)
+
+
+def _spec(data: dict, ctx, spec_from_mapping):
+    """The StarSpec of ``data``; a refusal names the options, and when a larger --box makes the
+    spec valid, the user's command with that box."""
+    from starforge.errors import StarforgeError
+
+    try:
+        return spec_from_mapping(data)
+    except StarforgeError as exc:
+        message = as_options(str(exc))
+        box = data.get("box_mm")
+        if box is not None:
+            for k in range(1, 17):
+                bigger = [round(float(x) * 1.25**k, 1) for x in box]
+                try:
+                    spec_from_mapping({**data, "box_mm": bigger})
+                except StarforgeError:
+                    continue
+                message += f"; a larger --box fits, e.g. {retyped(ctx.meta, {'--box': [f'{x:g}' for x in bigger]})}"
+                break
+        raise StarforgeError(message) from None
+
+
+def _check_cost(s, data: dict, ctx, spec_from_mapping, what: str) -> None:
+    """Refuse a spec whose enumeration would not fit in memory (``what`` "memory") or memory and
+    time ("size"), naming the options and, when a coarser --delta fits, the user's command with it."""
+    from starforge.errors import StarforgeError
+    from starforge.stars.enumerate import check_memory, check_size
+
+    check = check_memory if what == "memory" else check_size
+    try:
+        check(s, allow_stream=True)
+        return
+    except StarforgeError as exc:
+        message = as_options(str(exc))
+    for k in range(1, 12):
+        delta = float(f"{s.delta_mm * 1.5**k:.2g}")
+        try:
+            check(spec_from_mapping({**data, "delta_mm": delta}), allow_stream=True)
+        except StarforgeError:
+            continue
+        message += f"; a coarser --delta fits, e.g. {retyped(ctx.meta, {'--delta': f'{delta:g}'})}"
+        break
+    raise StarforgeError(message)
 
 
 def _make(s, ctx, avoid, star_filter, make_family):

@@ -220,13 +220,9 @@ def check_scale(prop, rig, marker_m: float) -> list[str]:
     ext = float(np.max(prop.mesh.extents))
     vol = float(np.max(rig.volume.size))
     if ext > 2 * vol or ext < 4 * marker_m:
-        from starforge.props.mesh import UNITS_TO_M
+        from starforge.props.mesh import units_hint
 
-        here = UNITS_TO_M.get(prop.units, 1.0)
-        fits = [u for u, f in UNITS_TO_M.items() if 4 * marker_m <= ext / here * f <= vol]
-        # of the units that make it plausible, the one nearest a hand-held size (0.3 m)
-        fits.sort(key=lambda u: abs(math.log(ext / here * UNITS_TO_M[u] / 0.3)))
-        hint = f"; pass --units {fits[0]}" if fits else ""
+        hint = "; " + units_hint(ext, prop.units, 4 * marker_m, vol)
         size = " x ".join(f"{e:.4g}" for e in prop.mesh.extents)
         raise StarforgeError(
             f"prop {prop.name} is {size} m read as {prop.units}: "

@@ -164,7 +164,13 @@ class StarSpec:
         if self.l_max_mm is not None:
             positive("l_max_mm", self.l_max_mm)
         lo, hi = self.pool_bounds_mm
-        require(hi > lo, f"the edge-length pool is empty: l_min {lo:.3f} mm >= l_max {hi:.3f} mm")
+        require(
+            hi > lo,
+            f"no star fits: its shortest edge (marker_mm + gap_mm, {lo:.2f} mm) is longer than the longest "
+            f"that fits in box_mm {[float(x) for x in self.box_mm]} less one marker ({hi:.2f} mm)"
+            if self.l_min_mm is None and self.l_max_mm is None
+            else f"the edge-length pool is empty: l_min_mm {lo:.2f} mm >= l_max_mm {hi:.2f} mm",
+        )
         require(
             self.pool_size >= 6,
             f"delta_mm {self.delta_mm} is too large: the pool [{lo:.2f}, {hi:.2f}] mm holds only "
