@@ -24,3 +24,35 @@ def save_png(fig, path: str | Path, dpi: int = 100) -> Path:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
     return atomic_write_bytes(path, buf.getvalue())
+
+
+def wrap_to_width(fig, text_artist, fraction: float = 0.96) -> None:
+    """Break ``text_artist``'s text into lines (at spaces) until it is no wider than ``fraction``
+    of its axes (of the figure for a figure's text): a long title fits instead of being cut at the
+    edge."""
+    import textwrap
+
+    full = text_artist.get_text()
+    renderer = fig.canvas.get_renderer()
+    limit = fraction * (text_artist.axes or fig).bbox.width
+    width = len(full)
+    while width > 20 and text_artist.get_window_extent(renderer).width > limit:
+        width = int(width * 0.85)
+        text_artist.set_text("\n".join(textwrap.wrap(full, width)))
+
+
+def text_boxes(fig) -> list[tuple[str, tuple[float, float, float, float]]]:
+    """Every visible, non-empty text of ``fig`` with its box in pixels (x0, y0, x1, y1): titles,
+    labels, tick labels, legend entries, free text; for checking that none overlaps another or
+    leaves the figure."""
+    from matplotlib.text import Text
+
+    renderer = fig.canvas.get_renderer()
+    fig.draw_without_rendering()
+    out = []
+    for t in fig.findobj(Text):
+        if not t.get_visible() or not t.get_text().strip() or (t.axes is not None and not t.axes.get_visible()):
+            continue
+        b = t.get_window_extent(renderer)
+        out.append((t.get_text(), (float(b.x0), float(b.y0), float(b.x1), float(b.y1))))
+    return out
