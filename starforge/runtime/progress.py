@@ -71,15 +71,13 @@ class Stage:
         return self.clock() - self.started
 
     def rate(self) -> float | None:
-        """Counts per second measured after the first count (from the stage's start when only one
-        count has come), None before any count."""
+        """Counts per second measured after the first count; None before a second count (the
+        first one's time includes the stage's set-up, which says little of the rate after it)."""
         if self.first is None or self.last is None:
             return None
         (t0, d0), (t1, d1) = self.first, self.last
         if t1 > t0 and d1 > d0:
             return (d1 - d0) / (t1 - t0)
-        if d1 > 0 and t1 > self.started:
-            return d1 / (t1 - self.started)
         return None
 
     def eta_s(self) -> float | None:
