@@ -143,7 +143,23 @@ def _stages(err: str) -> list[str]:
     return re.findall(r"^starforge [a-z-]+: \d+ s, (\S+) started", err, flags=re.M)
 
 
-def test_quiet_prints_nothing_and_otherwise_stages_come_in_order(tmp_path, capsys):
+@pytest.fixture
+def no_hold(monkeypatch):
+    """Plain progress lines from a command's first moment (a test's commands are short)."""
+    from starforge.cli import _progress
+
+    monkeypatch.setattr(_progress, "HOLD_S", 0.0)
+
+
+def test_a_command_refused_at_once_writes_only_its_error(tmp_path, capsys):
+    from conftest import run_cli
+
+    assert run_cli(["stars", "--box", "5,5,5", "--out", tmp_path / "s"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and err.startswith("error: ")
+
+
+def test_quiet_prints_nothing_and_otherwise_stages_come_in_order(tmp_path, capsys, no_hold):
     from conftest import run_cli
 
     args = ["stars", "--box", "16,12,24", "--delta", "2", "--out", tmp_path / "q"]
@@ -166,7 +182,7 @@ def test_quiet_before_the_command_and_global_options_after_it(tmp_path, capsys):
     assert out == "" and err == ""
 
 
-def test_check_stages_and_quiet(small_family, tmp_path, capsys):
+def test_check_stages_and_quiet(small_family, tmp_path, capsys, no_hold):
     from conftest import run_cli
 
     fam, _ = small_family
@@ -177,7 +193,7 @@ def test_check_stages_and_quiet(small_family, tmp_path, capsys):
     assert _stages(capsys.readouterr().err) == ["simulate", "curve", "render"]
 
 
-def test_export_stages_and_quiet(small_family, tmp_path, capsys):
+def test_export_stages_and_quiet(small_family, tmp_path, capsys, no_hold):
     from conftest import run_cli
 
     fam, _ = small_family

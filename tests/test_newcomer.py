@@ -141,7 +141,7 @@ def test_plain_progress_lines_without_a_terminal(capsys):
     shown = listener_for("stars", quiet=False)
     shown.close()
     assert isinstance(shown, Plain)  # pytest's stderr is not a terminal
-    listener = Plain("stars", interval_s=0.05)
+    listener = Plain("stars", interval_s=0.05, hold_s=0.0)
     try:
         with progress.reporting(listener):
             time.sleep(0.12)

@@ -17,6 +17,10 @@ import time
 #: seconds between two plain progress lines (when stderr is not a terminal)
 HEARTBEAT_S = 5.0
 
+#: seconds a command runs before it writes plain lines: a short command (or one refused at
+#: once) writes none, only its result or its one error line
+HOLD_S = HEARTBEAT_S
+
 
 def count_text(st) -> str:
     """``"70,778,880/211,771,560 candidates (33 %)"``, ``"12 bodies"`` or ``""`` (nothing counted)."""
@@ -90,10 +94,12 @@ def fork_safe_lock():
 class Plain:
     """Plain lines on stderr, ``starforge COMMAND: N s, <state>``: one when a stage starts, one per
     note, and one every ``interval_s`` from a daemon thread (``working`` before any stage); a
-    line the same as the one before is not repeated."""
+    line the same as the one before is not repeated, and nothing is written in the first
+    ``hold_s`` seconds (default :data:`HOLD_S`)."""
 
-    def __init__(self, command: str, interval_s: float = HEARTBEAT_S, stream=None) -> None:
+    def __init__(self, command: str, interval_s: float = HEARTBEAT_S, stream=None, hold_s: float | None = None) -> None:
         self.command, self.interval_s = command, interval_s
+        self.hold_s = HOLD_S if hold_s is None else hold_s
         self.stream = stream
         self.t0 = time.monotonic()
         self.open: list = []
@@ -104,8 +110,11 @@ class Plain:
         self.thread.fork_safe = True  # a process forked while it runs inherits no lock it holds
         self.thread.start()
 
-    def _say(self, text: str) -> None:
-        line = f"starforge {self.command}: {time.monotonic() - self.t0:.0f} s, {text}"
+    def _say(self, text: str, held: bool = True) -> None:
+        seconds = time.monotonic() - self.t0
+        if held and seconds < self.hold_s:  # the first heartbeat says where the command has got to
+            return
+        line = f"starforge {self.command}: {seconds:.0f} s, {text}"
         if line == self.last:  # nothing new to tell
             return
         self.last = line
@@ -135,7 +144,7 @@ class Plain:
             self.open.remove(st)
 
     def note(self, text: str) -> None:
-        self._say(f"note: {text}")
+        self._say(f"note: {text}", held=False)
 
     def close(self) -> None:
         self.stop.set()

@@ -288,14 +288,15 @@ def _spec(data: dict, ctx, spec_from_mapping):
                     spec_from_mapping({**data, "box_mm": bigger})
                 except StarforgeError:
                     continue
-                message += f"; a larger --box fits, e.g. {retyped(ctx.meta, {'--box': [f'{x:g}' for x in bigger]})}"
+                message += f"; a larger --box fits: e.g. {retyped(ctx.meta, {'--box': [f'{x:g}' for x in bigger]})}"
                 break
         raise StarforgeError(message) from None
 
 
 def _check_cost(s, data: dict, ctx, spec_from_mapping, what: str) -> None:
     """Refuse a spec whose enumeration would not fit in memory (``what`` "memory") or memory and
-    time ("size"), naming the options and, when a coarser --delta fits, the user's command with it."""
+    time ("size"), naming the options; for memory, when a coarser --delta fits, the user's command
+    with it (the time estimate runs a pilot sample: too slow to try several)."""
     from starforge.errors import StarforgeError
     from starforge.stars.enumerate import check_memory, check_size
 
@@ -305,13 +306,15 @@ def _check_cost(s, data: dict, ctx, spec_from_mapping, what: str) -> None:
         return
     except StarforgeError as exc:
         message = as_options(str(exc))
+    if what != "memory":
+        raise StarforgeError(message) from None
     for k in range(1, 12):
         delta = float(f"{s.delta_mm * 1.5**k:.2g}")
         try:
             check(spec_from_mapping({**data, "delta_mm": delta}), allow_stream=True)
         except StarforgeError:
             continue
-        message += f"; a coarser --delta fits, e.g. {retyped(ctx.meta, {'--delta': f'{delta:g}'})}"
+        message += f"; e.g. {retyped(ctx.meta, {'--delta': f'{delta:g}'})}"
         break
     raise StarforgeError(message)
 
