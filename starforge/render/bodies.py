@@ -113,7 +113,10 @@ def _limit_box(ax, body, limit_mm) -> bool:
 
 
 def _size_text(body, limit_mm) -> str:
-    size, _, _ = _limit_xy(body, limit_mm)
+    from starforge.cad.body import body_bounds
+
+    b = body_bounds(body)
+    size = b[1] - b[0]
     text = " x ".join(f"{v:.1f}" for v in size) + " mm"
     if limit_mm is not None:
         text += " (limit " + " x ".join(f"{v:g}" for v in limit_mm) + ")"
@@ -172,8 +175,8 @@ def render_sheet_png(bodies, path: str | Path, cell_px: int = 240, box_mm=None) 
             mid = (t.reshape(-1, 3).min(0) + t.reshape(-1, 3).max(0)) / 2
             ax.set_xlim(mid[0] - half, mid[0] + half)
             ax.set_ylim(mid[1] - half, mid[1] + half)
-            size = " x ".join(f"{v:.1f}" for v in _limit_xy(b, box_mm or (1, 1, 1))[0])
-            ax.set_title(f"star {b.star_id}\n{size} mm", fontsize=9, fontweight="bold",
+            size = _size_text(b, None)
+            ax.set_title(f"star {b.star_id}\n{size}", fontsize=9, fontweight="bold",
                          color="black" if fits else "#cf222e")
         note = f"from above, one scale: each cell spans {2 * half:.0f} mm"
         if box_mm is not None:
