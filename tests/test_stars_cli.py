@@ -217,7 +217,7 @@ def test_mount_reserves_its_room_and_every_body_fits(tmp_path):
 
 @pytest.mark.parametrize(
     "reserve,needle",
-    [((-1, 0, 0), "reserve_mm[0] must be >= 0"), ((9, 0, 0), "leaves no room"), ((3, 12, 0), "out of order")],
+    [((-1, 0, 0), "--reserve's value 1 must be >= 0"), ((9, 0, 0), "leaves no room"), ((3, 12, 0), "out of order")],
 )
 def test_bad_reserve(tmp_path, capsys, reserve, needle):
     assert run_cli(["stars", "--box", 16, 12, 24, "--reserve", *reserve, "--out", tmp_path / "o"]) == 2
