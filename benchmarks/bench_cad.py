@@ -422,6 +422,22 @@ def export_speed(repeat: int = 3) -> dict:
     return out
 
 
+def write_speed_docs(speed: dict) -> None:
+    """The export-speed figures as the results page's section."""
+    from _results import table, write_section
+
+    rows = [[r["load_1min_before"], r["command_s"], r["command_cpu_s"], round(r["seconds"], 2)] for r in speed["runs"]]
+    body = (
+        "`starforge export` of the finger family's 25 flat-mount stars with the plate, as STEP, STL and 3MF: "
+        f"**{speed['export_command_s_median']} s as a command** (median; target {speed['targets']['as a command']}) "
+        f"and **{speed['export_in_process_s_median']} s in process** (target {speed['targets']['in process']}); "
+        "the same files every run apart from `plate.step`: "
+        f"{'yes' if speed['files_identical_across_runs_except_plate_step'] else '**no**'}.\n\n"
+        + table(["load before", "command, s", "command CPU s (with its STEP worker)", "in process, s"], rows)
+    )
+    write_section("cad-speed", "Printable bodies: export speed", body)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--no-slicer", action="store_true")
@@ -450,17 +466,17 @@ def main() -> None:
                     help="slicers for the single stars (comma list; default: --slicers, which the plates get)")
     ap.add_argument("--speed-only", action="store_true", help="only the issue-20 export timings")
     ap.add_argument("--repeat", type=int, default=3, help="export-speed runs (0: skip the speed figures)")
+    ap.add_argument("--write-docs", action="store_true",
+                    help="with --speed-only: also write the figures into docs/results.md")
     args = ap.parse_args()
     count = lambda v: None if v == "all" else int(v)  # noqa: E731
     fmts = tuple(args.single_formats.split(","))
     plate_fmts = tuple(args.plate_formats.split(","))
     if args.speed_only:
-        print(
-            json.dumps(
-                {"machine": f"{platform.machine()}, {os.cpu_count()} cores", **export_speed(args.repeat)},
-                indent=2,
-            )
-        )
+        speed = export_speed(args.repeat)
+        print(json.dumps({"machine": f"{platform.machine()}, {os.cpu_count()} cores", **speed}, indent=2))
+        if args.write_docs:
+            write_speed_docs(speed)
         return
 
 

@@ -22,7 +22,8 @@ fresh poses only it tracks, those only the default tracks, and the exact paired 
 p-value: ``default_never_significantly_below_a_baseline`` fails only where a baseline is ahead
 by more than the evaluation's noise (p < 0.05).
 
-Run: ``python benchmarks/bench_place.py [--props hammer,box]``; a mesh of your own with
+Run: ``python benchmarks/bench_place.py [--props hammer,box] [--write-docs]`` (``--write-docs``
+also writes the figures into the docs' results page, ``docs/results.md``); a mesh of your own with
 ``--mesh FILE --units mm`` (several ``--mesh`` allowed; the grip with ``--grip`` or none with
 ``--grip none``): the same rows and targets on it, and the CLI timed on it.  Timings depend on
 the load: the JSON records ``/proc/loadavg`` before and after.
@@ -34,6 +35,7 @@ import argparse
 import json
 import os
 import platform
+import re
 import resource
 import subprocess
 import sys
@@ -108,6 +110,49 @@ def _paper_row(prop: str, **kw) -> dict:
     }
 
 
+def _percent(x) -> str:
+    return f"{100 * x:.1f} %"
+
+
+def write_docs(out: dict, meshes: bool) -> None:
+    """The figures of ``out`` as the results page's placement section (the built-ins, or the
+    meshes given with ``--mesh``)."""
+    from _results import table, write_section
+
+    rows = []
+    for prop, r in out["props"].items():
+        name = f"`{Path(prop).name}`"
+        if "refused" in r:
+            rows.append([name, "refused: " + r["refused"].split(";")[0], "", "", "", "", "", "", "", "", "", r["seconds"]])
+            continue
+        ev = r["evaluation"]
+        tracked = " / ".join(_percent(ev[k]["tracked"]) for k in ("default", "greedy_local_search", "best_of_random"))
+        recon = " / ".join(f"{ev[k]['markers_reconstructed']:.3f}" for k in ("default", "greedy_local_search", "best_of_random"))
+        rows.append([
+            name, r["sites_usable"], r["markers"], f"**{r['cost']}**", r["cost_greedy_local_search"],
+            r["cost_best_of_1000_random"], tracked, recon, r["min_base_contact"], r["min_edge_in_base_radii"],
+            r["selection"]["winner"].replace("_", " "), f"{r['seconds']} / {r['cpu_seconds']}",
+        ])
+    body = (
+        "Default settings, in process.  Tracked: the fraction of 1000 fresh poses (half the cameras lost at "
+        "random in each, the hand at the grip) in which >= 3 markers are reconstructed and span the 15 mm "
+        "triangle, for the chosen layout / greedy + swap search / the best of 1000 random layouts.\n\n"
+        + table(["prop", "usable sites", "markers", "cost", "greedy + local search", "best of 1000 random",
+                 "tracked (default / greedy / random)", "markers reconstructed (default / greedy / random)",
+                 "least base contact", "least edge distance (base radii)", "winner", "seconds wall / CPU"], rows)
+        + f"\n\n`starforge place {out['cli_prop']}` as a fresh process: median {out['hammer_cli_s']} s "
+        f"({out['hammer_cli_cpu_s']} CPU s in all its processes)."
+    )
+    targets = out.get("targets", {})
+    if targets:
+        # the page states what is wanted, not which issue asked for it
+        trows = [[k.replace("_", " "), re.sub(r"\s*\(issues? [^)]*\)", "", v["target"]), v["measured"],
+                  "yes" if v["met"] else "**no**"] for k, v in targets.items()]
+        body += "\n\n" + table(["target", "wanted", "measured", "met"], trows)
+    key, title = ("place-meshes", "Prop placement: your meshes") if meshes else ("place", "Prop placement")
+    write_section(key, title, body)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--props", default=",".join(PROPS), help="comma-separated built-in props")
@@ -116,6 +161,7 @@ def main() -> None:
     ap.add_argument("--grip", default=None, help="--grip of place for --mesh (x0,y0,z0,x1,y1,z1[,r] m, or none)")
     ap.add_argument("--marker", default=None, help="--marker of place (a catalogue name or a diameter in mm)")
     ap.add_argument("--cli-runs", type=int, default=3)
+    ap.add_argument("--write-docs", action="store_true", help="also write the figures into docs/results.md")
     a = ap.parse_args()
     props = list(a.mesh) or [p for p in a.props.split(",") if p]
     kw = {"units": a.units, "grip": a.grip} if a.mesh else {}
@@ -154,6 +200,8 @@ def main() -> None:
     if not rows:
         out["targets"] = {"refused": {"target": "a layout", "measured": refused, "met": False}}
         print(json.dumps(out, indent=2))
+        if a.write_docs:
+            write_docs(out, bool(a.mesh))
         return
     worst_default = min(r["evaluation"]["default"]["tracked"] for r in rows.values())
     below = [
@@ -189,6 +237,8 @@ def main() -> None:
         "paper_no_ball_cuts_in": {"target": ">= ball radius - 0.05 mm", "measured": min(r["least_clearance_mm"] - r["ball_radius_mm"] for r in paper.values()), "met": all(r["least_clearance_mm"] >= r["ball_radius_mm"] - 0.05 for r in paper.values())},
     }  # fmt: skip
     print(json.dumps(out, indent=2))
+    if a.write_docs:
+        write_docs(out, bool(a.mesh))
 
 
 if __name__ == "__main__":

@@ -1,6 +1,9 @@
 """Star-engine figures as JSON: every target of issue 9, each run as the user runs it.
 
-    python benchmarks/bench_stars.py [--repeat 2] [--skip-large] [--start-only]
+    python benchmarks/bench_stars.py [--repeat 2] [--skip-large] [--start-only] [--write-docs]
+
+``--write-docs`` also writes the figures into the docs' results page (``docs/results.md``,
+sections "Star families" and "Star families: speed").
 
 ``stars_first_run_vs_warm`` (issue 20): the finger default warm, on the first run after ``pip
 install .`` (the wheel is built as pip builds it, kernels compiled ahead of time, and unpacked
@@ -257,12 +260,66 @@ def _enumeration_speed(skip_large: bool) -> dict:
     return out
 
 
+#: the cases of the full run, as the results page names them
+CASE_TITLES = {
+    "finger_default": "default: face rule, exact fit, stars >= 2 mm deep",
+    "finger_min_depth_0": "`--min-depth 0` (flat stars allowed)",
+    "finger_pair_rule": "`--rule pair` (the paper's rule)",
+    "paper_method": "`--spec paper` (the paper's method)",
+    "finger_tolerance_2": "`--tolerance 2`",
+    "finger_delta_1.0": "`--delta 1.0`",
+    "small_14x10x30_delta_2": "`--box 14 10 30 --delta 2`",
+}
+
+
+def write_docs(res: dict) -> None:
+    """The figures of ``res`` as the results page's star sections (those it has)."""
+    from _results import table, write_section
+
+    speed = res.get("stars_first_run_vs_warm")
+    if speed:
+        h = speed["place_hammer"]
+        rows = [
+            ["`starforge stars` (finger default), warm", speed["warm_s_median"], speed["warm_cpu_s_median"]],
+            ["the first run after `pip install .` (empty user cache)", speed["first_run_s_median"],
+             speed["first_run_cpu_s_median"]],
+            ["a first run that compiles its kernels (a wheel built elsewhere)",
+             speed["compiling_first_run_s_median"], speed["compiling_first_run_cpu_s_median"]],
+            ["`starforge place` (the hammer), warm", h["warm_s_median"], ""],
+            ["`starforge place`, the first run after `pip install .`", h["first_run_s_median"], ""],
+            ["`starforge place`, a first run that compiles", h["compiling_first_run_s_median"], ""],
+        ]
+        body = (
+            "Medians of 3 fresh processes of a wheel of this checkout, built and unpacked as `pip install .` "
+            f"does (building it took {speed['wheel_build_s']} s, {speed['wheel_build_without_kernels_s']} s "
+            "without the kernels).\n\n" + table(["run", "seconds", "CPU seconds"], rows)
+        )
+        write_section("stars-speed", "Star families: speed", body)
+    cases = [k for k in CASE_TITLES if k in res]
+    if cases:
+        rows = []
+        for k in cases:
+            r = res[k]
+            gap = "proven maximum" if r["optimal"] else f"{r['gap']} ({r['gap_percent']} %)"
+            rows.append([CASE_TITLES[k], f"**{r['stars']:,}**", f"{r['upper_bound']:,}", gap,
+                         f"{r['min_depth_mm']} mm", r["seconds_median"], f"{r['peak_rss_mib']:,} MiB"])
+        body = (
+            "The paper's finger case (20.8 x 12.6 x 48.3 mm, 4 mm spheres, delta 1.5 mm; the paper made 25 "
+            "stars) unless the case says otherwise; each case one `starforge stars` command in a fresh "
+            "process, every family re-checked by the independent checker; seconds: the median of the runs.\n\n"
+            + table(["case", "stars", "certified upper bound", "gap", "smallest depth", "seconds",
+                     "peak memory"], rows)
+        )
+        write_section("stars-cases", "Star families", body)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--skip-large", action="store_true", help="skip the delta 1.0 case (about 2 minutes)")
     ap.add_argument("--start-only", action="store_true", help="only the issue-20 warm / first-run figures")
     ap.add_argument("--enumeration-only", action="store_true", help="only the enumeration's figures")
+    ap.add_argument("--write-docs", action="store_true", help="also write the figures into docs/results.md")
     args = ap.parse_args()
     res: dict = {"cpu_count": os.cpu_count()}
     if args.enumeration_only:
@@ -272,6 +329,8 @@ def main() -> None:
     if args.start_only:
         res["stars_first_run_vs_warm"] = first_run_vs_warm(max(3, args.repeat))
         print(json.dumps(res, indent=2))
+        if args.write_docs:
+            write_docs(res)
         return
     res["stars_first_run_vs_warm"] = first_run_vs_warm(max(3, args.repeat))
     res["fit_decision_one_thread"] = _fit_decision_speed()
@@ -314,6 +373,8 @@ def main() -> None:
     }
     res["paper_family_size"] = 25
     print(json.dumps(res, indent=2))
+    if args.write_docs:
+        write_docs(res)
 
 
 if __name__ == "__main__":

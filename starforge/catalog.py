@@ -58,10 +58,3 @@ def load_template(kind: str, name_or_path: str | Path) -> tuple[str, dict]:
     except tomllib.TOMLDecodeError as exc:  # a shipped template is broken: still one clear line
         raise StarforgeError(f"template {kind}/{text} is not valid TOML: {exc}") from None
 
-
-def marker_diameter_mm(text: str | float) -> float:
-    """A marker diameter, mm, from a number (``"6.4"``) or a marker catalogue name (``"6.4mm-post"``,
-    ``templates/markers``); unknown names list the known ones.  See :mod:`starforge.markers`."""
-    from starforge.markers import marker_diameter_mm as resolve
-
-    return resolve(text)

@@ -382,7 +382,7 @@ def test_screw_holes_clear_stems_and_label(family):
 @given(st.lists(st.floats(-5, 5), min_size=12, max_size=12))
 def test_ray_segment_distance_is_exact(xs):
     """Against brute force: dense points on the segment, each one's exact distance to the ray."""
-    from starforge.cad.primitives import ray_segment_distance
+    from starforge.geometry.distance import ray_segment_distance
 
     o, d, a, b = np.array(xs).reshape(4, 3)
     if np.linalg.norm(d) < 1e-3:

@@ -9,9 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from starforge.catalog import marker_diameter_mm
 from starforge.errors import StarforgeError
-from starforge.markers import THREADS, load_marker, marker_names
+from starforge.markers import THREADS, load_marker, marker_diameter_mm, marker_names
 
 
 def test_the_catalogue_holds_the_sizes_labs_buy_each_with_a_source():

@@ -187,7 +187,7 @@ def test_thumbnail_silhouette_matches_the_projected_hull():
     import trimesh
     from shapely.geometry import MultiPoint
 
-    from starforge.render.raster import rasterize, view_rotation
+    from starforge.cad.raster import rasterize, view_rotation
 
     box = trimesh.creation.box((30, 10, 5))
     img = rasterize(box.vertices, box.faces, size_px=200, supersample=4)
@@ -351,7 +351,7 @@ def test_stems_scale_with_the_marker_and_have_a_fillet_at_the_root():
 def _fillet_top_ring_inside_stem(fl, stem, samples: int = 72) -> float:
     """Least distance (mm) from the fillet's top ring (profile's last point, revolved) in to
     the stem's surface: > 0 when the ring lies strictly inside the stem."""
-    from starforge.cad.primitives import point_segment_distance
+    from starforge.geometry.distance import point_segment_distance
 
     t, r = fl.profile[-1]
     a = np.linspace(0, 2 * np.pi, samples, endpoint=False)

@@ -112,7 +112,7 @@ def test_units_check_names_the_units_option_in_every_case(extents, units, want, 
 
 
 def test_set_names_a_wrong_key_and_takes_a_metric_hole(capsys, tmp_path):
-    from starforge.cli.export import parse_sets
+    from starforge.cad.describe import parse_sets
     from starforge.errors import StarforgeError
     from starforge.markers import CLEARANCE_HOLES_MM
 
@@ -139,7 +139,7 @@ def test_thread_words_say_which_drill_and_insert():
 
 
 def test_an_oversize_refusal_keeps_the_marker_the_user_chose(small_family):
-    from starforge.cli.export import stars_command_for
+    from starforge.cad.describe import stars_command_for
     from starforge.stars.model import load_family
 
     fam, _ = small_family

@@ -66,7 +66,7 @@ def test_body_previews_and_sheet_have_no_overlapping_text(figures, small_family,
     fam, _ = small_family
     family = load_family(fam / "family.json")
     bs = family_bodies(family, [1, 2, 3], load_mount("flat"), BodySpec())
-    bodies.render_previews(bs, tmp_path / "preview", family.spec.box_mm)
+    bodies.draw_previews(bs, tmp_path / "preview", family.spec.box_mm)
     assert len(found) == 4
     for path, bad, n in found:
         assert n >= 2 and bad == [], path

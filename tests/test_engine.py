@@ -13,9 +13,9 @@ import signal
 import numpy as np
 import pytest
 
-from starforge.runtime import engine
 from starforge.cli import main
 from starforge.errors import StarforgeError
+from starforge.runtime import engine
 from starforge.stars import enumerate as E
 from starforge.stars.spec import StarSpec
 
@@ -58,7 +58,7 @@ def _same(a, b):
 def test_unrank_matches_the_lexicographic_walk():
     n, m = 13, 2
     start = np.array([k * m for k in range(6)], dtype=np.int64)
-    walk = E._subsets_from(n, m, start, 10_000)
+    walk = E.subsets_from(n, m, start, 10_000)
     assert len(walk) == E.admissible_subsets(n, m)
     for r in (0, 1, 7, len(walk) // 2, len(walk) - 1):
         assert E.unrank_subset(r, n, m).tolist() == walk[r].tolist()
@@ -189,7 +189,7 @@ def test_stage_counts_match_a_brute_force_recount():
 
     spec, got = SPEC, E.enumerate_candidates(SPEC, workers=1).stats
     n, m = spec.pool_size, spec.grid_steps
-    sub = E._subsets_from(n, m, np.array([k * m for k in range(6)], dtype=np.int64), 10**7)
+    sub = E.subsets_from(n, m, np.array([k * m for k in range(6)], dtype=np.int64), 10**7)
     L = E.edge_pool(spec)[sub[:, canonical_assignments()]].reshape(-1, 6)
     u, U, v, V, w, W = L.T
     cx = (u * u + w * w - v * v) / (2 * u)
@@ -251,7 +251,7 @@ def test_ils_restarts_on_the_cluster_are_the_serial_ones(cluster, monkeypatch):
     ok = internal_ok(c.index, "face", 1)
     index, volume = c.index[ok], c.box_volume[ok]
     star_of, row, n_rows = window_rows(index, "face", 1, len(c.pool_mm))
-    ptr, rows = sel._csr(star_of, row, len(index))
+    ptr, rows = sel.csr_rows(star_of, row, len(index))
     order = sel.compactness_order(index, c.pool_mm, volume)
     start, _ = sel.local_search(sel.greedy(order, ptr, rows, n_rows), order, ptr, rows, n_rows)
     first, _ = sel.ils(start, order, ptr, rows, n_rows, iterations=20)
@@ -283,7 +283,7 @@ def test_streamed_selection_on_the_cluster_is_the_serial_one(cluster, serial):
 
     from starforge.stars import stream as S
     from starforge.stars.rules import internal_ok, window_rows
-    from starforge.stars.select import _csr, compactness_order, greedy
+    from starforge.stars.select import compactness_order, csr_rows, greedy
 
     spec = replace(SPEC, select="greedy")
     here = S.stream_family(spec, workers=1)
@@ -293,7 +293,7 @@ def test_streamed_selection_on_the_cluster_is_the_serial_one(cluster, serial):
     ok = internal_ok(serial.index, "face", SPEC.grid_steps)
     index, volume = serial.index[ok], serial.box_volume[ok]
     star_of, row, n_rows = window_rows(index, "face", SPEC.grid_steps, len(serial.pool_mm))
-    ptr, rows = _csr(star_of, row, len(index))
+    ptr, rows = csr_rows(star_of, row, len(index))
     want = index[greedy(compactness_order(index, serial.pool_mm, volume), ptr, rows, n_rows)]
     assert here["index"].tobytes() == want[np.lexsort(want.T[::-1])].astype(np.int16).tobytes()
 

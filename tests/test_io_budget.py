@@ -6,9 +6,9 @@ import os
 
 import pytest
 
-from starforge.runtime import budget
 from starforge.errors import StarforgeError
 from starforge.io import check_input_file, check_name, check_writable, publish, staged_output
+from starforge.runtime import budget
 
 
 def _tree(folder):

@@ -110,8 +110,8 @@ def test_cache_dir_defaults_to_the_user_cache_folder(monkeypatch):
 
 
 def test_export_refusal_names_the_stars_command_that_fits():
+    from starforge.cad.describe import stars_command_for
     from starforge.catalog import load_template
-    from starforge.cli.export import stars_command_for
     from starforge.stars.spec import spec_from_mapping
 
     finger = spec_from_mapping({**load_template("stars", "finger")[1], "count": 25}, name="f25")

@@ -286,7 +286,9 @@ def test_pictures_drawn_in_a_child_process_are_identical(tmp_path, capsys):
     assert first.marker_sites == res.marker_sites and not first.evaluation and res.evaluation
     here = tmp_path / "here"
     here.mkdir()
-    write_outputs(res, here)  # drawn in this process, from the final result
+    from starforge.render.props import BackgroundRenderer
+
+    write_outputs(res, here, renderer=BackgroundRenderer(enabled=False))  # drawn in this process, from the final result
     for name in ("convergence.png", "layout.png", "guide.png", "guide.pdf", "markers.csv", "prop_markers.glb"):
         assert (out / name).read_bytes() == (here / name).read_bytes(), name
     assert not list(out.glob(".render*"))
@@ -337,7 +339,7 @@ def test_grip_no_hand_and_bases_stl(tmp_path, capsys):
 def avoid_seen(monkeypatch):
     """Stop ``place`` where the files to avoid are read; keep the prop and the files it was given."""
     import starforge.props.mesh as mesh
-    import starforge.stars.avoid as av
+    import starforge.tracking.avoid as av
     from starforge.errors import StarforgeError
 
     seen = []

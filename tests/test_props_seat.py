@@ -95,11 +95,11 @@ def test_a_ball_that_would_cut_in_is_refused():
     """A ball in the inside corner of an L: centre 2 mm off the floor, 1 mm from the wall."""
     import trimesh
 
-    from starforge.props.mesh import _union
+    from starforge.props.solids import union_solids
 
     floor = trimesh.creation.box(extents=(0.1, 0.1, 0.01))
     wall = trimesh.creation.box(extents=(0.01, 0.1, 0.05), transform=trimesh.transformations.translation_matrix([0.045, 0, 0.03]))
-    L = _union([floor, wall])
+    L = union_solids([floor, wall])
     seat = Seat("4 mm ball", 4.0, 0.0, 2.0)
     rules = SeatRules(base=False)
     pts = np.array([[0.039, 0.0, 0.005], [0.0, 0.0, 0.005]])

@@ -326,28 +326,6 @@ def test_issue_case_is_the_proven_maximum_by_an_independent_count(issue_case, tm
     assert {tuple(x) for x in np.round(canonical_lengths(fam), 6).tolist()} <= fit
 
 
-def test_quick_no_fit_proofs_never_reject_a_star_the_search_keeps(finger_sample):
-    """cone_excludes and caps_exclude run before the search: each must only reject stars the
-    search itself proves not to fit (never a fitting or undecided one), under the finger limit
-    and under random limits around it, and caps_exclude must reject stars cone_excludes keeps."""
-    from starforge.geometry.fit import caps_exclude, caps_workspace_size, cone_excludes
-
-    rng = np.random.default_rng(11)
-    P = finger_sample
-    buf = np.empty(caps_workspace_size(4))
-    extra = 0
-    for trial in range(4):
-        lim = np.sort(FINGER_LIMIT * (1.0 if trial == 0 else rng.uniform(0.7, 1.2, 3)))
-        status, _, _ = decide_fit(P, lim)
-        cone = np.array([cone_excludes(p, lim, SLACK_MM) for p in P])
-        caps = np.array([caps_exclude(p, lim, SLACK_MM, buf) for p in P])
-        assert (status[cone | caps] == NO_FIT).all()
-        extra += int((caps & ~cone).sum())
-        if trial == 0:
-            assert (caps & ~cone).sum() > 50 and (status == NO_FIT).sum() > (caps | cone).sum()
-    assert extra > 200
-
-
 def test_corner_test_is_sound_against_sampled_directions():
     """corners_exclude says no direction of a cube-map cell is thin enough only when none is:
     checked on directions drawn inside random cells (and at their corners) against random pair
@@ -472,7 +450,7 @@ def test_face_proof_rejects_only_what_the_plain_search_rejects(box):
     first = {}
     for name, table in (("off", E.NO_FACES), ("on", faces)):
         codes = np.empty((len(sub), 30), dtype=np.int8)
-        E._classify(*args, 0, table, codes, 0, len(sub))
+        E.classify_range(*args, 0, table, codes, 0, len(sub))
         first[name] = codes
     by_face = (first["on"] == E.NO_FIT) & (first["off"] != E.NO_FIT)
     assert ((first["on"] == first["off"]) | by_face).all() and by_face.sum() > 200

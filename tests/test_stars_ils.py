@@ -10,10 +10,10 @@ import starforge.stars.select as sel
 from starforge.stars.enumerate import enumerate_candidates
 from starforge.stars.rules import grid_steps, internal_ok, window_rows
 from starforge.stars.select import (
-    _csr,
     _Packing,
     block_bound,
     compactness_order,
+    csr_rows,
     greedy,
     ils,
     local_search,
@@ -34,7 +34,7 @@ def instance(cands, rule: str, m: int = 1):
     ok = internal_ok(cands.index, rule, m)
     index, volume = cands.index[ok], cands.box_volume[ok]
     star_of, row, n_rows = window_rows(index, rule, m, len(cands.pool_mm))
-    ptr, rows = _csr(star_of, row, len(index))
+    ptr, rows = csr_rows(star_of, row, len(index))
     order = compactness_order(index, cands.pool_mm, volume)
     return index, volume, star_of, row, n_rows, ptr, rows, order
 
@@ -77,7 +77,7 @@ def test_ils_variable_row_counts(cands):
     """Any row counts (m > 1 gives varying ones): drop random entries of the pair incidence."""
     _, _, star_of, row, n_rows, _, _, order = instance(cands, "pair")
     keep = np.random.default_rng(3).random(len(row)) < 0.6
-    ptr, rows = _csr(star_of[keep], row[keep], len(order))
+    ptr, rows = csr_rows(star_of[keep], row[keep], len(order))
     assert len(np.unique(np.diff(ptr))) > 3
     g = greedy(order, ptr, rows, n_rows)
     ls, _ = local_search(g, order, ptr, rows, n_rows)

@@ -154,7 +154,7 @@ def test_enumeration_is_sound_and_covers_every_covariance_fit(cands):
 def test_block_count_equals_a_set_of_block_tuples(m):
     """The block count (coded in narrow integers) is the number of distinct blocks, counted as
     Python tuples, minimised over the m^3 grid placements; any integer type of the keys."""
-    from starforge.stars.select import _count_blocks
+    from starforge.stars.select import count_blocks
 
     rng = np.random.default_rng(m)
     for hi in (6, 60, 250):
@@ -164,7 +164,7 @@ def test_block_count_equals_a_set_of_block_tuples(m):
             for off in itertools.product(range(m), repeat=3)
         )
         for dt in (np.uint8, np.int16, np.int64):
-            assert _count_blocks(F.astype(dt), m) == want
+            assert count_blocks(F.astype(dt), m) == want
 
 
 def test_compiled_face_block_count_is_the_numpy_count():
@@ -177,7 +177,7 @@ def test_compiled_face_block_count_is_the_numpy_count():
         idx = np.array([rng.choice(hi, 6, replace=False) for _ in range(4000)])
         faces = sel.key_triples(idx, "face")[:, :4].reshape(-1, 3)
         for m in (1, 2, 3):
-            want = sel._count_blocks(faces, m)
+            want = sel.count_blocks(faces, m)
             for dt in (np.uint8, np.int16, np.int64):
                 assert sel._count_face_blocks_compiled(idx.astype(dt), m) == want
     idx = np.array([rng.choice(30, 6, replace=False) for _ in range(500)]).astype(np.int16)
@@ -187,7 +187,7 @@ def test_compiled_face_block_count_is_the_numpy_count():
         compiled = sel.block_bound(idx, 2)
     finally:
         sel.BLOCK_KERNEL_STARS = old
-    assert compiled == sel.block_bound(idx, 2) == sel._count_blocks(sel.key_triples(idx, "face").reshape(-1, 3), 2) // 4
+    assert compiled == sel.block_bound(idx, 2) == sel.count_blocks(sel.key_triples(idx, "face").reshape(-1, 3), 2) // 4
 
 
 def test_fitting_box_volumes_are_the_plain_float_products():

@@ -16,7 +16,7 @@ import pytest
 
 from starforge.stars.enumerate import enumerate_candidates
 from starforge.stars.rules import internal_ok, window_rows
-from starforge.stars.select import _csr, compactness_order, greedy, ils, local_search
+from starforge.stars.select import compactness_order, csr_rows, greedy, ils, local_search
 from starforge.stars.spec import StarSpec
 
 
@@ -377,7 +377,7 @@ def instance(cands, rule: str, m: int, drop: float = 0.0):
     if drop:  # varying row counts per star
         keep = np.random.default_rng(3).random(len(row)) >= drop
         star_of, row = star_of[keep], row[keep]
-    ptr, rows = _csr(star_of, row, len(index))
+    ptr, rows = csr_rows(star_of, row, len(index))
     order = compactness_order(index, cands.pool_mm, volume)
     return ptr, rows, n_rows, order
 

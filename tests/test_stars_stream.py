@@ -12,10 +12,11 @@ import pytest
 from starforge.catalog import load_template
 from starforge.errors import StarforgeError
 from starforge.stars import enumerate as E
+from starforge.stars import sizing as Z
 from starforge.stars import stream as S
 from starforge.stars.family import make_family
 from starforge.stars.rules import internal_ok, key_triples, window_rows
-from starforge.stars.select import _csr, block_bound, compactness_order, greedy
+from starforge.stars.select import block_bound, compactness_order, csr_rows, greedy
 from starforge.stars.spec import StarSpec, spec_from_mapping
 
 SPEC = StarSpec(box_mm=(16, 12, 24), delta_mm=1.0, select="greedy")  # 133k candidates, ~1 s
@@ -55,7 +56,7 @@ def _in_memory_greedy(cands, rule, m):
     ok = internal_ok(cands.index, rule, m)
     index, volume = cands.index[ok], cands.box_volume[ok]
     star_of, row, n_rows = window_rows(index, rule, m, len(cands.pool_mm))
-    ptr, rows = _csr(star_of, row, len(index))
+    ptr, rows = csr_rows(star_of, row, len(index))
     chosen = index[greedy(compactness_order(index, cands.pool_mm, volume), ptr, rows, n_rows)]
     und = cands.undecided[internal_ok(cands.undecided, rule, m)]
     bound = block_bound(np.concatenate([index, und]), m)
@@ -139,11 +140,11 @@ def test_finger_at_half_a_millimetre_is_streamed_and_bounded(half, monkeypatch):
     # and so is a spill folder without room for it
     monkeypatch.delenv("STARFORGE_MAX_MEMORY")
     Usage = namedtuple("Usage", "total used free")
-    monkeypatch.setattr(S.shutil, "disk_usage", lambda p: Usage(10**9, 10**9 - 10**6, 10**6))
+    monkeypatch.setattr(Z.shutil, "disk_usage", lambda p: Usage(10**9, 10**9 - 10**6, 10**6))
     with pytest.raises(StarforgeError, match=r"spills about .* set STARFORGE_SPILL_DIR") as err:
         E.check_size(half, allow_stream=True)
     assert "\n" not in str(err.value)
-    assert S.stream_bytes(half, 280e6) < 4 * 2**30  # the estimate behind the run in the README
+    assert Z.stream_bytes(half, 280e6) < 4 * 2**30  # the estimate behind the run in the README
 
 
 def test_ordered_is_the_compactness_order(cands):

@@ -30,13 +30,13 @@ spec = StarSpec(box_mm=(16, 12, 24), delta_mm=2.0, box_method="covariance")  # n
 res = E.enumerate_chunk((spec, 0, 64, None))
 idx = res["fit"][:40]
 star_of, row, n_rows = window_rows(idx, "face", 1, spec.pool_size)
-ptr, rows = S._csr(star_of, row, len(idx))
+ptr, rows = S.csr_rows(star_of, row, len(idx))
 order = np.arange(len(idx))
 g = S.greedy(order, ptr, rows, n_rows)
 g, _ = S.local_search(g, order, ptr, rows, n_rows)
 S.ils(g, order, ptr, rows, n_rows, iterations=20)
 out = {}
-for f in (E._classify, E._subsets_from, S._greedy, S._csc,
+for f in (E.classify_range, E.subsets_from, S._greedy, S._csc,
           S._search):
     out[f.py_func.__name__] = [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]
 print(json.dumps(out))
@@ -86,9 +86,9 @@ def test_finish_closes_the_helpers_pipe():
 
 COLD = """
 from starforge.stars import warmup
-from starforge.stars.enumerate import _classify
-f = _classify._cache._cache_file
-here = _classify.targetctx.codegen().magic_tuple()
+from starforge.stars.enumerate import classify_range
+f = classify_range._cache._cache_file
+here = classify_range.targetctx.codegen().magic_tuple()
 out = [warmup.cache_is_cold()]
 f._save_index({("sig", ("x86_64-unknown-linux-gnu", "another-cpu", "+avx"), ("h", "h")): "x.1.nbc"})
 out.append(warmup.cache_is_cold())  # only another machine's entry: numba would compile

@@ -214,7 +214,7 @@ def test_exhaustive_cells_ignore_the_wall_clock(monkeypatch):
     c = enumerate_candidates(StarSpec(box_mm=(16, 12, 24), delta_mm=2.0))
     index = c.index[internal_ok(c.index, "face", 1)]
     star_of, row, n_rows = window_rows(index, "face", 1, len(c.pool_mm))
-    ptr, rows = sel._csr(star_of, row, len(index))
+    ptr, rows = sel.csr_rows(star_of, row, len(index))
     cols = np.arange(len(index))
     a = sel.milp(ptr, rows, n_rows, cols, None, 40)  # the node budget alone
     b = sel.milp(ptr, rows, n_rows, cols, 1e3, 40)  # a wall-clock limit that does not cut

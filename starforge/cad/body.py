@@ -25,8 +25,9 @@ import numpy as np
 
 from starforge.cad.label import label_boxes, label_counters, label_size  # noqa: F401 (the label's home; kept importable here)
 from starforge.cad.mounts import Mount, mount_geometry
-from starforge.cad.primitives import Cylinder, Revolved, Sphere, fillet_profile, segment_segment_distance
+from starforge.cad.primitives import Cylinder, Revolved, Sphere, fillet_profile
 from starforge.errors import StarforgeError
+from starforge.geometry.distance import segment_segment_distance
 from starforge.spec import in_range, require
 
 UP = np.array([0.0, 1.0, 0.0])

@@ -13,7 +13,7 @@ transform from that orientation back to family.json's placement frame.  Files (`
     plate.step / .stl / .3mf   every selected body on one bed (an assembly of named, coloured
                   solids in the STEP); plate_1, plate_2, ... when one bed cannot hold them
     bodies.json   per star: size, fit against the family limit, visibility, volumes, transforms
-    preview/<name>.png, preview/sheet.png   with ``preview=True`` (one scale throughout)
+    preview/<name>.png, preview/sheet.png   with ``preview`` (one scale throughout)
 
 Fit policy: every body (finished spheres included) is compared with the family's size limit
 before any CAD work; one that does not fit stops the export (StarforgeError naming the worst
@@ -144,7 +144,7 @@ def export_family(
     bed_mm=(200.0, 200.0),
     gap_mm: float = 5.0,
     plate: bool = True,
-    preview: bool = False,
+    preview=None,
     allow_oversize: bool = False,
     progress=None,
     bodies=None,
@@ -159,6 +159,8 @@ def export_family(
     them (they are described here otherwise).  ``step_worker``: a
     :class:`~starforge.cad.step_worker.StepProcess` the caller launched earlier (so that its
     kernel loads while the caller reads and checks its inputs); one is launched here otherwise.
+    ``preview(bodies, folder)``: draws the pictures into ``stage/preview``
+    (:func:`starforge.render.bodies.draw_previews`); None draws none.
     """
     formats = tuple(formats)
     bad = [f for f in formats if f not in CAD_FORMATS]
@@ -231,11 +233,10 @@ def export_family(
             entry["files"].append(f"{b.name}.step")
         for doc in plate_docs:
             doc["files"].append(f"{doc['name']}.step")
-    if preview:
-        from starforge.render.bodies import render_previews
-
+    if preview is not None:
         t4 = time.perf_counter()
-        render_previews(bodies, stage / "preview", family.spec.box_mm)
+        (stage / "preview").mkdir(exist_ok=True)
+        preview(bodies, stage / "preview")
         rep.timings["preview_s"] = time.perf_counter() - t4
     doc = {
         "format": "starforge.bodies",
@@ -277,10 +278,10 @@ def _mesh_plate(name, lay, bodies, meshes, formats, stage) -> dict:
     """One bed's STL / 3MF from the bodies' meshes (printing orientation, (v, f) arrays) moved
     by the layout's translations; its bodies.json entry (the STEP worker adds ``<name>.step``)."""
     from starforge.cad.mesh import MeshArrays, check_shell
+    from starforge.cad.raster import thumbnail_png
     from starforge.cad.stl import stl_bytes
     from starforge.cad.threemf import threemf_bytes
     from starforge.colours import body_colour
-    from starforge.render.raster import thumbnail_png
 
     files = []
     moved = []
@@ -346,11 +347,11 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick
     files and its bodies.json entry (appended to ``rep.bodies``).  A body's 3MF build item
     centres it on a ``bed_mm`` bed (:func:`bed_centre_offset`)."""
     from starforge.cad.mesh import MeshArrays, body_arrays, check_shell, mesh_volume
+    from starforge.cad.raster import thumbnail_png
     from starforge.cad.stl import stl_bytes
     from starforge.cad.threemf import threemf_bytes
     from starforge.cad.visibility import sphere_visibility
     from starforge.colours import body_colour
-    from starforge.render.raster import thumbnail_png
 
     for b, fit, T in zip(bodies, fits, to_print, strict=True):
         v, f = body_arrays(b, spec.sphere_segments, spec.cylinder_segments, check=False)  # checked below

@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from starforge.cad.body import UP, Body
-from starforge.cad.primitives import Cylinder, hemisphere_directions, ray_hits_spheres, ray_segment_distance
+from starforge.cad.primitives import Cylinder
+from starforge.geometry.distance import hemisphere_directions, ray_hits_spheres, ray_segment_distance
 
 
 def sphere_visibility(body: Body, directions: int = 400) -> np.ndarray:

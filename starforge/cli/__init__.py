@@ -15,7 +15,7 @@ import threading
 
 from starforge.cli._app import app
 
-__all__ = ["app", "main"]
+__all__ = ["app", "click_command", "main"]
 
 _loaded = False
 
@@ -27,6 +27,16 @@ def _load_commands() -> None:
     for mod in sorted(m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_")):
         importlib.import_module(f"{__name__}.{mod}")
     _loaded = True
+
+
+def click_command():
+    """The click command of the whole CLI, every command module loaded: what ``starforge --help``
+    and ``starforge COMMAND --help`` print, for tools that document the commands (the docs'
+    generated command pages)."""
+    import typer.main
+
+    _load_commands()
+    return typer.main.get_command(app)
 
 
 #: the signal that stopped the command (SIGINT or SIGTERM), for its one line and exit code

@@ -242,7 +242,7 @@ def run_cmd(
             cap = parse_grip(grip)
         avoid_faces = None
         if avoid:
-            from starforge.stars.avoid import faces_to_avoid
+            from starforge.tracking.avoid import faces_to_avoid
 
             avoid_faces = faces_to_avoid(avoid)[0] / 1000.0  # mm -> m
         names = [

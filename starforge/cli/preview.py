@@ -49,9 +49,10 @@ def preview_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
     """Draw each body (preview/star_<id>.png) and a sheet of all of them with their ids (preview/sheet.png)."""
-    from starforge.cli.export import default_out, describe_bodies
+    from starforge.cad.describe import describe_bodies
+    from starforge.cli.export import default_out
     from starforge.io import staged_output
-    from starforge.render.bodies import render_previews
+    from starforge.render.bodies import draw_previews
     from starforge.stars.model import load_family
 
     src = file / "family.json" if file.is_dir() else file
@@ -73,6 +74,6 @@ def preview_cmd(
     )
     out = out if out is not None else default_out(src, True)
     with staged_output(out, force) as stage:
-        render_previews(bodies, stage / "preview", family.spec.box_mm)
+        draw_previews(bodies, stage / "preview", family.spec.box_mm)
     if not quiet:
         console().print(f"wrote {len(bodies) + 1} pictures to {out}/preview/")

@@ -9,6 +9,7 @@ import typer
 from starforge.cli._app import app, console
 from starforge.cli._args import retyped
 from starforge.cli._multi import MULTI, more_values
+from starforge.errors import StarforgeError
 from starforge.runtime import progress
 from starforge.stars.spec import STAR_CHOICES, STAR_DEFAULTS
 
@@ -125,122 +126,58 @@ def stars_cmd(
 
     With no options it runs the paper's finger case (template `finger`).
     """
-    import json
     import time
 
+    from starforge import api
     from starforge.cli._app import allow_quick_exit, pause_gc
+    from starforge.io import check_writable
+    from starforge.stars import warmup
 
     # every file goes through staged_output, and the helper and threads are done on return
     allow_quick_exit()
     pause_gc()  # its objects are nearly all acyclic: no collector passes over numba's and scipy's heap
-    from starforge import __version__
-    from starforge.catalog import load_template
-    from starforge.io import check_name, check_writable, staged_output
-    from starforge.stars.family import make_family
-    from starforge.stars.model import family_csv
-    from starforge.stars.spec import spec_from_mapping
-    from starforge.stars.verify import check_family
-
     t0 = time.perf_counter()
-    data: dict = {}
-    spec_name = None
-    if spec is not None:
-        spec_name, data = load_template("stars", spec)
-    elif box is None:
-        spec_name, data = load_template("stars", "finger")
-    else:
-        spec_name = "custom"
-    if preset is not None:
-        from starforge.tracking.presets import star_spec_overrides
-
-        data.update(star_spec_overrides(preset))
-    marker_name = None
-    if marker is not None:
-        from starforge.catalog import marker_diameter_mm
-
-        try:
-            float(str(marker).strip().removesuffix("mm"))
-        except ValueError:
-            marker_name = str(marker).strip()
-        marker = marker_diameter_mm(marker)
-    overrides = {
-        "box_mm": list(box) if box is not None else None,
-        "marker_mm": marker,
-        "marker": marker_name,
-        "seat": seat,
-        "delta_mm": delta,
-        "gap_mm": gap,
-        "rule": rule,
-        "select": select,
-        "count": count,
-        "tolerance_mm": tolerance,
-        "box_method": box_method,
-        "min_depth_mm": min_depth,
-        "tip_mm": list(tip) if tip is not None else None,
-        "noise_mm": noise,
-        "time_limit_s": time_limit,
-        "reserve_mm": list(reserve) if reserve is not None else None,
-        "mount": mount,
-        "name": name,
-    }
-    data.update({k: v for k, v in overrides.items() if v is not None})
-    data.setdefault("name", spec_name)
-    star_filter = None
-    if data.get("mount") is not None:
-        from starforge.cad.body import body_spec_for
-        from starforge.cad.mounts import load_mount
-        from starforge.cad.reserve import bodies_fit, mount_reserve_mm
-
-        m = load_mount(data["mount"])
-        body = body_spec_for(data.get("marker"), data.get("seat"), float(data.get("marker_mm", 4.0)))
-        if reserve is None:
-            data["reserve_mm"] = list(mount_reserve_mm(m, float(data.get("marker_mm", 4.0)), body))
-
-        def star_filter(V, _m=m, _d=data, _b=body):
-            return bodies_fit(V, float(_d.get("marker_mm", 4.0)), _d["box_mm"], _m, _b)
-    elif seat is not None:
-        from starforge.errors import StarforgeError
-
+    if seat is not None and mount is None and spec is None:
         raise StarforgeError(
             "--seat shapes the printed body, so it needs --mount (see `starforge mounts`), e.g. "
             + retyped(ctx.meta, {"--mount": "flat"})
         )
-
-    s = _spec(data, ctx, spec_from_mapping)
-    check_name(s.name, "--name")
-    out_dir = out if out is not None else Path("out") / s.name
-    names = ["family.json", "family.csv", "run.json"] + (["family.png"] if preview else [])
-    check_writable(out_dir, names, force)  # fail before the long work
-    from starforge.stars import warmup
-
-    _check_cost(s, data, ctx, spec_from_mapping, "memory")  # too large: refused before anything compiles
+    given = dict(
+        box_mm=box, marker=marker, mount=mount, seat=seat, preset=preset, reserve_mm=reserve,
+        delta_mm=delta, gap_mm=gap, rule=rule, select=select, count=count, tolerance_mm=tolerance,
+        box_method=box_method, min_depth_mm=min_depth, tip_mm=list(tip) if tip is not None else None,
+        noise_mm=noise, time_limit_s=time_limit, name=name,
+    )  # fmt: skip
+    plan = _plan(spec, given, ctx)
+    out_dir = out if out is not None else Path("out") / plan.spec.name
+    check_writable(out_dir, [*api.FAMILY_FILES, *(["family.png"] if preview else [])], force)  # before the work
+    avoid = more_values("--avoid", avoid, ctx.args)
+    _check_memory(plan.spec, spec, given, ctx)  # a spec too large is refused before anything compiles
     helper = warmup.start()  # a first run compiles on two cores (nothing on a warm cache)
     try:
         if helper is not None:
             with progress.stage("compile"):
                 warmup.compile_fit_decision()
                 warmup.ready("enumerate")  # the helper's kernels: loaded, not compiled a second time
-        _check_cost(s, data, ctx, spec_from_mapping, "size")  # memory and time estimated before the long work
-        family = _make(s, ctx, avoid, star_filter, make_family)
+        enumerate_ = progress.stage("enumerate", unit="candidates")
+        try:
+            family = api.make_family(
+                plan,
+                avoid=avoid or (),
+                progress=lambda done, total: enumerate_.update(done, total),
+                on_stage=warmup.ready,  # a first run's helper may still be compiling the selection
+            )
+        except StarforgeError as exc:  # the time estimate, no star, a count not achievable
+            raise StarforgeError(as_options(str(exc))) from None
     except BaseException:
         warmup.finish(helper, 0.0)  # an error or Ctrl-C does not wait for the helper
         raise
     warmup.finish(helper)
-    with progress.stage("verify", total=len(family), unit="stars"):
-        text = json.dumps(family.to_json(), indent=2) + "\n"  # what is written is what is checked
-        problems = check_family(json.loads(text))
-    if problems:  # the generator and the independent checker disagree: a bug, never a user error
-        raise RuntimeError(f"internal error: the family failed its independent check: {problems[0]}")
-    with staged_output(out_dir, force) as stage:
-        (stage / "family.json").write_text(text, encoding="utf-8")
-        (stage / "family.csv").write_text(family_csv(family), encoding="utf-8")
-        run = {"seconds": family.timings, "verified": True, "starforge": __version__}
-        (stage / "run.json").write_text(json.dumps(run, indent=2) + "\n", encoding="utf-8")
-        if preview:
-            from starforge.render.stars import family_sheet
-
-            with progress.stage("render", unit="pictures"):
-                family_sheet(family, stage / "family.png")
+    for src in family.summary.get("avoid", ()):
+        for w in src.get("warnings", ()):
+            if not quiet:
+                console(stderr=True).print(f"warning: {w}", soft_wrap=True, markup=False)
+    api.write_family(family, out_dir, preview=preview, force=True)
     _report(family, out_dir, time.perf_counter() - t0, quiet)
 
 
@@ -271,74 +208,48 @@ def as_options(message: str) -> str:
     return re.sub(r"\b(" + "|".join(_OPTION_OF) + r")\b(?:\[(\d)\])?", one, message)
 
 
-def _spec(data: dict, ctx, spec_from_mapping):
-    """The StarSpec of ``data``; a refusal names the options, and when a larger --box makes the
-    spec valid, the user's command with that box."""
-    from starforge.errors import StarforgeError
+def _plan(spec, given: dict, ctx):
+    """The family's plan (:func:`starforge.api.plan_family`); a refusal names the options, and when
+    a larger --box makes the spec valid, the user's command with that box."""
+    from starforge import api
+    from starforge.catalog import load_template
 
     try:
-        return spec_from_mapping(data)
+        return api.plan_family(spec, **given)
     except StarforgeError as exc:
         message = as_options(str(exc))
-        box = data.get("box_mm")
-        if box is not None:
-            for k in range(1, 17):
-                bigger = [round(float(x) * 1.25**k, 1) for x in box]
-                try:
-                    spec_from_mapping({**data, "box_mm": bigger})
-                except StarforgeError:
-                    continue
-                message += f"; a larger --box fits: e.g. {retyped(ctx.meta, {'--box': [f'{x:g}' for x in bigger]})}"
-                break
+        box = given.get("box_mm") or load_template("stars", spec or "finger")[1].get("box_mm")
+        for k in range(1, 17) if box is not None else ():
+            bigger = [round(float(x) * 1.25**k, 1) for x in box]
+            try:
+                api.plan_family(spec, **{**given, "box_mm": bigger})
+            except StarforgeError:
+                continue
+            message += f"; a larger --box fits: e.g. {retyped(ctx.meta, {'--box': [f'{x:g}' for x in bigger]})}"
+            break
         raise StarforgeError(message) from None
 
 
-def _check_cost(s, data: dict, ctx, spec_from_mapping, what: str) -> None:
-    """Refuse a spec whose enumeration would not fit in memory (``what`` "memory") or memory and
-    time ("size"), naming the options; for memory, when a coarser --delta fits, the user's command
-    with it (the time estimate runs a pilot sample: too slow to try several)."""
-    from starforge.errors import StarforgeError
-    from starforge.stars.enumerate import check_memory, check_size
+def _check_memory(s, spec, given: dict, ctx) -> None:
+    """Refuse a spec whose enumeration would not fit in memory, naming the options and, when a
+    coarser --delta fits, the user's command with it."""
+    from starforge import api
+    from starforge.stars.enumerate import check_memory
 
-    check = check_memory if what == "memory" else check_size
     try:
-        check(s, allow_stream=True)
+        check_memory(s, allow_stream=True)
         return
     except StarforgeError as exc:
         message = as_options(str(exc))
-    if what != "memory":
-        raise StarforgeError(message) from None
     for k in range(1, 12):
         delta = float(f"{s.delta_mm * 1.5**k:.2g}")
         try:
-            check(spec_from_mapping({**data, "delta_mm": delta}), allow_stream=True)
+            check_memory(api.plan_family(spec, **{**given, "delta_mm": delta}).spec, allow_stream=True)
         except StarforgeError:
             continue
         message += f"; e.g. {retyped(ctx.meta, {'--delta': f'{delta:g}'})}"
         break
     raise StarforgeError(message)
-
-
-def _make(s, ctx, avoid, star_filter, make_family):
-    """The bodies to avoid, then the family, with a progress bar."""
-    avoid = more_values("--avoid", avoid, ctx.args)
-    avoid_faces, avoid_sources = None, None
-    if avoid:
-        from starforge.stars.avoid import faces_to_avoid
-
-        avoid_faces, avoid_sources = faces_to_avoid(avoid)
-        for src in avoid_sources:
-            for w in src.get("warnings", ()):
-                console(stderr=True).print(f"warning: {w}", soft_wrap=True, markup=False)
-
-    enumerate_ = progress.stage("enumerate", unit="candidates")
-    return make_family(
-        s,
-        progress=lambda done, total: enumerate_.update(done, total),
-        avoid_faces_mm=avoid_faces,
-        avoid_sources=avoid_sources,
-        star_filter=star_filter,
-    )
 
 
 def _report(family, out_dir: Path, seconds: float, quiet: bool) -> None:

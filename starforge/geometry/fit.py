@@ -66,10 +66,9 @@ undecided ones too.
 
 Before the search, the seven directions where the width of a tetrahedron has its local minima
 (the four face normals and the three common normals of opposite edges) are tried as ``a_1``:
-most sets that fit are accepted there.  Callers deciding many sets may run quick no-fit proofs
-first (:func:`face_table`, :func:`caps_exclude`, :func:`cone_excludes`, all widened by the
-slack so they never reject a set the search would leave undecided; the enumeration runs the
-face table only: behind it the other two caught too few stars to pay for themselves).
+most sets that fit are accepted there.  Callers deciding many sets may run a quick no-fit proof
+first (:func:`face_table`, widened by the slack so that it never rejects a set the search would
+leave undecided).
 
 The kernel is compiled with numba (serial, GIL released; :func:`decide_fit` spreads sets over
 threads, each set independent, so results do not depend on the thread count).
@@ -81,13 +80,17 @@ import math
 
 import numpy as np
 
+from starforge.tol import tol
+
 FIT, NO_FIT, UNDECIDED = 1, 0, -1
 
 #: default completeness slack, mm
 SLACK_MM = 0.01
 #: cells a single set may use before it is reported undecided (a work cap, never a silent drop)
 MAX_CELLS = 100_000
-_EPS = 1e-9
+#: float noise of a length (mm) and a generic zero, frozen into the kernels as constants
+_EPS = tol.length_mm
+_ZERO = tol.zero
 
 
 from starforge.runtime.kernels import numba  # noqa: E402  (compiled kernels; this module is imported only where fits are decided)
@@ -100,7 +103,7 @@ _jit = numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 _inner = numba.njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
 #: the fit decision's per-set search and its corner test: called from Python only by tests (and
 #: in the package only from kernels), so no cache entry of their own: a first run compiles them
-#: into decide_range, whose entry holds them, and writing theirs cost it ~0.15 CPU s
+#: into decide_range, whose entry holds them (entries of their own would cost a first run their writing)
 _uncached = numba.njit(nogil=True, no_cfunc_wrapper=True)
 
 
@@ -144,7 +147,7 @@ def _keeps(W, npair, c, s):
     """psi with (cos, sin) = (c, s) keeps every pair within its limits (1e-9 mm of noise)."""
     for i in range(npair):
         x, y = W[_X, i], W[_Y, i]
-        if abs(x * c + y * s) > W[_L2, i] + 1e-9 or abs(y * c - x * s) > W[_L3, i] + 1e-9:
+        if abs(x * c + y * s) > W[_L2, i] + _EPS or abs(y * c - x * s) > W[_L3, i] + _EPS:
             return False
     return True
 
@@ -219,141 +222,6 @@ def frame_rows(R, a0, a1, a2, u0, u1, u2, v0, v1, v2, c, s):
     R[2, 0] = a1 * R[1, 2] - a2 * R[1, 1]
     R[2, 1] = a2 * R[1, 0] - a0 * R[1, 2]
     R[2, 2] = a0 * R[1, 1] - a1 * R[1, 0]
-
-
-@_jit
-def cone_excludes(P, lim, slack):
-    """A quick proof that the points do not fit ``lim + slack`` (sorted; each side widened by
-    ``slack``), before the search: True only when proven.
-
-    If they fit, the box's longest axis a3 leaves every pair vector d within ``r =
-    hypot(l1, l2)`` of the line along a3 (its component in the plane of a1, a2 fits that
-    rectangle's diagonal), so a3 lies within ``asin(r / |d|)`` of the line of d.  Two pair
-    vectors whose lines make a larger angle than the sum of their two cone angles cannot share
-    such an a3.  Widening by ``slack`` keeps :func:`decide_one`'s undecided sets (which always
-    fit ``lim + slack``) out of reach of this test, so it never turns an undecided set into a
-    rejected one."""
-    k = P.shape[0]
-    r = math.hypot(lim[0] + slack, lim[1] + slack)
-    for i in range(k):
-        for j in range(i + 1, k):
-            a0, a1_, a2 = P[j, 0] - P[i, 0], P[j, 1] - P[i, 1], P[j, 2] - P[i, 2]
-            na = math.sqrt(a0 * a0 + a1_ * a1_ + a2 * a2)
-            if na <= r:
-                continue
-            ca = math.asin(r / na)
-            for p in range(k):
-                for q in range(p + 1, k):
-                    if p * k + q <= i * k + j:
-                        continue
-                    b0, b1, b2 = P[q, 0] - P[p, 0], P[q, 1] - P[p, 1], P[q, 2] - P[p, 2]
-                    nb = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
-                    if nb <= r:
-                        continue
-                    cb = math.asin(r / nb)
-                    if ca + cb >= 0.5 * math.pi:
-                        continue
-                    c = abs(a0 * b0 + a1_ * b1 + a2 * b2) / (na * nb)
-                    # the lines' angle exceeds ca + cb (with float noise kept on the safe side)
-                    if c < math.cos(ca + cb) - 1e-9:
-                        return True
-    return False
-
-
-def caps_workspace_size(k: int) -> int:
-    """Floats :func:`caps_exclude` needs for a set of ``k`` points."""
-    return 8 * (k * (k - 1) // 2)
-
-
-@_jit
-def caps_exclude(P, lim, slack, buf):
-    """A second quick proof that the points do not fit ``lim + slack`` (sorted; each side widened
-    by ``slack``), sharper than :func:`cone_excludes`: all the cones at once instead of two at a
-    time.  True only when proven; ``buf``: :func:`caps_workspace_size` floats of scratch.
-
-    As in :func:`cone_excludes`, a fitting box's longest axis a3 lies within ``c_d = asin(r /
-    |d|)`` of the line of every pair vector d longer than ``r = hypot(l1, l2)`` (both widened by
-    ``slack``).  Take the narrowest such cone, around e_0 = d_0 / |d_0|, and the sign of a3 with
-    ``a3 . e_0 >= 0``: a3 is in the cap C(e_0, c_0).  For every other long pair with ``c_0 + c_d
-    < pi/2`` only one of the caps C(+-e_d, c_d) can meet C(e_0, c_0) (the other's centre is at
-    least pi/2 from e_0), the one on e_0's side, so a3 is in that cap too (pairs with wider
-    cones are left out: fewer conditions, still necessary).  So a3 lies in the intersection K of
-    caps of radius < pi/2, all in the open hemisphere around e_0; K is convex.  If K is not empty
-    it holds a cap's centre (when K is a whole cap) or a point where two boundary circles cross
-    (a corner of K).  None of these candidates inside every cap (with ``1e-9`` of float noise
-    counted in K's favour) proves K empty: the points do not fit.  Widened by ``slack`` like
-    :func:`cone_excludes`, it never turns an undecided set into a rejected one."""
-    k = P.shape[0]
-    npair = k * (k - 1) // 2
-    r = math.hypot(lim[0] + slack, lim[1] + slack)
-    E = buf[: 3 * npair].reshape((npair, 3))
-    F = buf[3 * npair : 6 * npair].reshape((npair, 3))
-    A = buf[6 * npair : 7 * npair]
-    C = buf[7 * npair : 8 * npair]
-    m = 0
-    for i in range(k):
-        for j in range(i + 1, k):
-            d0, d1, d2 = P[j, 0] - P[i, 0], P[j, 1] - P[i, 1], P[j, 2] - P[i, 2]
-            nd = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            if nd <= r:
-                continue
-            E[m, 0], E[m, 1], E[m, 2] = d0 / nd, d1 / nd, d2 / nd
-            A[m] = math.asin(r / nd)
-            m += 1
-    if m < 3:
-        return False  # two cones are cone_excludes' case
-    b = 0
-    for j in range(1, m):
-        if A[j] < A[b]:
-            b = j
-    n = 0
-    for j in range(m):
-        if j != b and A[b] + A[j] >= 0.5 * math.pi - 1e-9:
-            continue
-        sg = -1.0 if E[b, 0] * E[j, 0] + E[b, 1] * E[j, 1] + E[b, 2] * E[j, 2] < 0 else 1.0
-        F[n, 0], F[n, 1], F[n, 2] = sg * E[j, 0], sg * E[j, 1], sg * E[j, 2]
-        C[n] = math.cos(A[j])
-        n += 1
-    if n < 3:
-        return False
-    tol = 1e-9
-    for a in range(n):  # a whole cap inside the others: its centre is in K
-        inside = True
-        for c in range(n):
-            if F[a, 0] * F[c, 0] + F[a, 1] * F[c, 1] + F[a, 2] * F[c, 2] < C[c] - tol:
-                inside = False
-                break
-        if inside:
-            return False
-    for a in range(n):  # the corners: x . F[a] = C[a], x . F[b] = C[b], |x| = 1
-        for b2 in range(a + 1, n):
-            g = F[a, 0] * F[b2, 0] + F[a, 1] * F[b2, 1] + F[a, 2] * F[b2, 2]
-            den = 1.0 - g * g
-            if den <= 1e-12:
-                continue
-            al = (C[a] - g * C[b2]) / den
-            be = (C[b2] - g * C[a]) / den
-            g2 = 1.0 - (al * al + be * be + 2 * al * be * g)
-            if g2 < -1e-12:
-                continue  # the two circles do not cross
-            gm = math.sqrt(max(0.0, g2))
-            n0 = F[a, 1] * F[b2, 2] - F[a, 2] * F[b2, 1]
-            n1 = F[a, 2] * F[b2, 0] - F[a, 0] * F[b2, 2]
-            n2 = F[a, 0] * F[b2, 1] - F[a, 1] * F[b2, 0]
-            nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-            n0, n1, n2 = n0 / nn, n1 / nn, n2 / nn
-            for sgn in (-1.0, 1.0):
-                x0 = al * F[a, 0] + be * F[b2, 0] + sgn * gm * n0
-                x1 = al * F[a, 1] + be * F[b2, 1] + sgn * gm * n1
-                x2 = al * F[a, 2] + be * F[b2, 2] + sgn * gm * n2
-                inside = True
-                for c in range(n):
-                    if x0 * F[c, 0] + x1 * F[c, 1] + x2 * F[c, 2] < C[c] - tol:
-                        inside = False
-                        break
-                if inside:
-                    return False
-    return True
 
 
 @_uncached
@@ -451,14 +319,14 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
             a1 = e12 * e20 - e10 * e22
             a2 = e10 * e21 - e11 * e20
             nn = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-            if nn <= 1e-12:
+            if nn <= _ZERO:
                 continue
             a0, a1, a2 = a0 / nn, a1 / nn, a2 / nn
             # accept a as the shortest axis: thin enough, and the exact inner problem solved
             w1 = 0.0
             for j in range(npair):
                 w1 = max(w1, abs(D[j, 0] * a0 + D[j, 1] * a1 + D[j, 2] * a2))
-            if w1 > lim[0] + 1e-9:
+            if w1 > lim[0] + _EPS:
                 continue
             for j in range(npair):
                 W[_L2, j] = lim[1]
@@ -468,8 +336,8 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
             if ok:
                 frame_rows(R, a0, a1, a2, u0, u1, u2, v0, v1, v2, cc, sc)
                 return 1, 7
-    theta_min = slack / max(diam, 1e-12)
-    l1w = (lim[0] + slack) * (1.0 + 1e-9) + 1e-9
+    theta_min = slack / max(diam, _ZERO)
+    l1w = (lim[0] + slack) * (1.0 + _EPS) + _EPS
     # 2. branch and bound over cube-map cells, depth first, best child first
     cap = STACK
     top = 0
@@ -536,7 +404,7 @@ def decide_ws(P, lim, slack, start, max_cells, R, ws, iws, prune):
         if not inner_xy(W, npair)[0]:
             continue
         # accept (as at the critical directions), with the widths and the projection reused
-        if w1 <= lim[0] + 1e-9:
+        if w1 <= lim[0] + _EPS:
             for j in range(npair):
                 W[_L2, j] = lim[1]
                 W[_L3, j] = lim[2]
@@ -614,7 +482,7 @@ def decide_range(P, lim, slack, start, max_cells, status, R, work, i0, i1, prune
 CHUNK = 256
 
 
-def _decide_all(P, lim, slack, start, max_cells, status, R, work, threads=None, prune=True) -> None:
+def decide_all(P, lim, slack, start, max_cells, status, R, work, threads=None, prune=True) -> None:
     """Every set, over up to ``threads`` threads (default: every core; each set is independent,
     so the result does not depend on the thread count or the chunking).  ``prune``: with the
     corner test (:func:`corners_exclude`; the outcome and frames are the same either way)."""
@@ -636,7 +504,7 @@ def fits_limit(ext, limit) -> np.ndarray:
     lo = np.minimum(np.minimum(a, b), c)
     hi = np.maximum(np.maximum(a, b), c)
     mid = a + b + c - lo - hi
-    lim = np.sort(np.asarray(limit, dtype=float)) * (1 + 1e-9) + 1e-9
+    lim = np.sort(np.asarray(limit, dtype=float)) * (1 + _EPS) + _EPS
     return (lo <= lim[0]) & (mid <= lim[1]) & (hi <= lim[2])
 
 
@@ -683,7 +551,7 @@ def decide_fit(
     R = np.full((n, 3, 3), np.nan)
     work = np.zeros(n, dtype=np.int64)
     if n:
-        _decide_all(P, lim, float(slack), int(start), int(max_cells), status, R, work, prune=prune)
+        decide_all(P, lim, float(slack), int(start), int(max_cells), status, R, work, prune=prune)
         R[status != FIT] = np.nan
     return status, R, work
 
@@ -713,9 +581,8 @@ def face_table(pool, min_steps: int, limit, slack: float = SLACK_MM, threads=Non
     set it leaves UNDECIDED (open cells at the smallest size) fits ``lim + slack`` up to the
     inner problem's ``1e-9`` mm (module docstring).  A face that does not fit
     ``lim + slack + FACE_HAIR_MM`` rules out both (the hair covers the float noise between the
-    face's corners here and in the set), so the search could only have said NO_FIT.  (Like
-    :func:`cone_excludes` and :func:`caps_exclude`, it may also settle a set that would have
-    run into ``max_cells``: proven not to fit instead of undecided.)  The table is a pure
+    face's corners here and in the set), so the search could only have said NO_FIT.  (It may also settle a set that would have run into ``max_cells``: proven not to fit instead
+    of undecided.)  The table is a pure
     function of its arguments (each triangle decided on its own, whatever the threads)."""
     pool = np.asarray(pool, dtype=float)
     n = len(pool)
@@ -726,7 +593,7 @@ def face_table(pool, min_steps: int, limit, slack: float = SLACK_MM, threads=Non
     pi, pj = np.nonzero(np.subtract.outer(np.arange(n), np.arange(n)) <= -m)  # i < j, m apart
     parts = []
     for kk in range(2 * m, n):  # the longest side: strictly shorter than the other two together
-        sel = (pj <= kk - m) & (pool[pi] + pool[pj] > pool[kk] * (1 + 1e-9))
+        sel = (pj <= kk - m) & (pool[pi] + pool[pj] > pool[kk] * (1 + _EPS))
         parts.append((pi[sel], pj[sel], np.full(int(sel.sum()), kk)))
     if not parts or not sum(len(x[0]) for x in parts):
         return table
@@ -742,7 +609,7 @@ def face_table(pool, min_steps: int, limit, slack: float = SLACK_MM, threads=Non
     status = np.zeros(len(P), dtype=np.int8)
     R = np.empty((len(P), 3, 3))
     work = np.zeros(len(P), dtype=np.int64)
-    _decide_all(P, lim, float(slack), 1, MAX_CELLS, status, R, work, threads)
+    decide_all(P, lim, float(slack), 1, MAX_CELLS, status, R, work, threads)
     no = status == NO_FIT
     i, j, k = i[no], j[no], k[no]
     for x, y, z in ((i, j, k), (i, k, j), (j, i, k), (j, k, i), (k, i, j), (k, j, i)):

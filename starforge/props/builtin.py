@@ -126,13 +126,13 @@ def builtin_mesh(name: str):
     """The named built-in prop as one watertight ``trimesh.Trimesh`` in metres, normals outward."""
     import trimesh
 
-    from starforge.props.mesh import _union
+    from starforge.props.solids import union_solids
 
     parts = _parts(name)
     for p in parts:
         if p.volume < 0:
             p.invert()
-    mesh = parts[0] if len(parts) == 1 else _union(parts)
+    mesh = parts[0] if len(parts) == 1 else union_solids(parts)
     if mesh is None:  # pragma: no cover - the shipped parts are valid solids
         mesh = trimesh.util.concatenate(parts)
     # manifold3d works in float32: snap its round-off (~1e-8 m) back to 0.1 micrometre

@@ -51,7 +51,7 @@ def camera_hits(mesh, centres, normals, rig, poses, capsules=(), grazing_limit_d
     dist = np.linalg.norm(d, axis=-1)
     ok &= -np.einsum("kmcj,kmj->kmc", d, wn) >= math.cos(math.radians(grazing_limit_deg)) * dist
     if len(capsules):
-        from starforge.cad.primitives import ray_segment_distance
+        from starforge.geometry.distance import ray_segment_distance
 
         # in the prop frame, where the hand is fixed: rays from the ball centres to the cameras
         # (the hand is within the prop's reach, the cameras metres away: a ray is the segment)

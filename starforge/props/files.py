@@ -329,7 +329,7 @@ def write_outputs(res: PlacementResult, folder: Path, render: bool = True, rende
     """Write every output of a placement into ``folder`` (a staging folder); return the file names.
 
     ``renderer``: a started :class:`starforge.render.props.BackgroundRenderer` to draw the
-    pictures in (default: drawn here when ``render``).  ``bases_stl``: also the prop with a pad
+    pictures in (required when ``render``; ``BackgroundRenderer(enabled=False)`` draws in this process).  ``bases_stl``: also the prop with a pad
     under every marker (:func:`starforge.props.guide.bases_mesh`) as ``prop_bases.stl``.
     """
     from starforge.io import atomic_write_bytes, atomic_write_json, atomic_write_text
@@ -337,9 +337,7 @@ def write_outputs(res: PlacementResult, folder: Path, render: bool = True, rende
     t = time.perf_counter()
     folder = Path(folder)
     if render and renderer is None:
-        from starforge.render.props import BackgroundRenderer
-
-        renderer = BackgroundRenderer(enabled=False)
+        raise ValueError("write_outputs(render=True) needs a renderer (starforge.render.props.BackgroundRenderer)")
     if render and not renderer.submitted:  # the CLI submits as soon as the layout is chosen
         renderer.submit(res, folder)
     names = []

@@ -51,7 +51,7 @@ def bases_mesh(prop_mesh, points: np.ndarray, normals: np.ndarray, base_mm: floa
     3D-printed prop comes out with the seats on it.  Returns a ``trimesh.Trimesh`` (m)."""
     import trimesh
 
-    from starforge.props.mesh import _union
+    from starforge.props.solids import union_solids
 
     h = height_mm / 1000.0
     parts = [prop_mesh.copy()]
@@ -59,5 +59,5 @@ def bases_mesh(prop_mesh, points: np.ndarray, normals: np.ndarray, base_mm: floa
         tf = trimesh.geometry.align_vectors([0, 0, 1], n)
         tf[:3, 3] = p
         parts.append(trimesh.creation.cylinder(radius=base_mm / 2000.0, height=2 * h, sections=32, transform=tf))
-    merged = _union(parts)
+    merged = union_solids(parts)
     return merged if merged is not None else trimesh.util.concatenate(parts)

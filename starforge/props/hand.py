@@ -279,7 +279,7 @@ def grip_segment(mesh) -> tuple[np.ndarray, np.ndarray, float]:
 
 def inside_capsules(points: np.ndarray, caps) -> np.ndarray:
     """(n,) bool: each point inside some capsule."""
-    from starforge.cad.primitives import point_segment_distance
+    from starforge.geometry.distance import point_segment_distance
 
     pts = np.asarray(points, float).reshape(-1, 3)
     out = np.zeros(len(pts), bool)

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
+from starforge.props.solids import union_solids
 
 UNITS_TO_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 MESH_SUFFIXES = (".stl", ".obj", ".ply", ".glb", ".gltf", ".off")
@@ -189,7 +190,7 @@ def repair_mesh(mesh, union_shells: bool = True):
         notes.append(f"{len(shells)} separate shells")
     tight = [s for s in shells if s.is_watertight and s.is_volume]
     if union_shells and len(tight) >= 2 and _any_overlap(tight):
-        merged = _union(tight)
+        merged = union_solids(tight)
         if merged is not None:
             loose = [s for s in shells if not (s.is_watertight and s.is_volume)]
             parts = [merged, *loose]
@@ -247,38 +248,6 @@ def _any_overlap(shells) -> bool:
             if np.all(lo[i] <= hi[j]) and np.all(lo[j] <= hi[i]):
                 return True
     return False
-
-
-def _union(shells):
-    """Boolean union of watertight shells with manifold3d; None when manifold refuses them."""
-    import manifold3d
-    import trimesh
-
-    try:
-        solids = [
-            manifold3d.Manifold(
-                manifold3d.Mesh(
-                    vert_properties=np.asarray(s.vertices, dtype=np.float32),
-                    tri_verts=np.asarray(s.faces, dtype=np.uint32),
-                )
-            )
-            for s in shells
-        ]
-        if any(s.status() != manifold3d.Error.NoError or s.is_empty() for s in solids):
-            return None
-        out = manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add).to_mesh()
-    except Exception:  # manifold3d refuses some inputs; the caller keeps the shells as they are
-        return None
-    merged = trimesh.Trimesh(
-        vertices=np.asarray(out.vert_properties[:, :3], dtype=float),
-        faces=np.asarray(out.tri_verts, dtype=np.int64),
-        process=False,
-    )
-    if len(merged.faces) == 0 or not merged.is_watertight:
-        return None
-    if merged.volume < 0:
-        merged.invert()
-    return merged
 
 
 def _nearest_origin(raw, origin, new):

@@ -264,7 +264,7 @@ def run_placement(
     seed: int = 0,
     units: str = "m",
     grip: str | None = None,
-    avoid: list[str] | None = None,
+    avoid: np.ndarray | None = None,
     progress=None,
     **overrides,
 ) -> PlacementResult:
@@ -281,8 +281,9 @@ def run_placement(
         Units of a mesh file (m, cm, mm).
     grip : str, optional
         ``x0,y0,z0,x1,y1,z1[,r]`` (prop frame, m), ``none`` for no hand; default: the prop's grip.
-    avoid : list of str, optional
-        Placements, star families or tracker files of bodies already in the room.
+    avoid : (k, 3) float, m, optional
+        Sorted side lengths of the marker triangles of bodies already in the room
+        (:func:`starforge.tracking.avoid.faces_to_avoid` reads them from files, in mm).
     **overrides
         :func:`starforge.props.spec.with_overrides` keywords (``markers``, ``marker_mm``, ...).
     """
@@ -297,12 +298,7 @@ def run_placement(
     elif grip is not None:
         cap = parse_grip(grip)
     s = with_overrides(s, **overrides)
-    avoid_faces = None
-    if avoid:
-        from starforge.stars.avoid import faces_to_avoid
-
-        avoid_faces = faces_to_avoid([Path(a) for a in avoid])[0] / 1000.0  # mm -> m
-    return place(load_prop(prop, units), s, seed=seed, progress=progress, avoid=avoid_faces, grip=cap)
+    return place(load_prop(prop, units), s, seed=seed, progress=progress, avoid=avoid, grip=cap)
 
 
 def _stages(progress):

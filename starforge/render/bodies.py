@@ -188,7 +188,7 @@ def render_sheet_png(bodies, path: str | Path, cell_px: int = 240, box_mm=None) 
     return Path(path)
 
 
-def render_previews(bodies, folder: str | Path, box_mm=None) -> list[Path]:
+def draw_previews(bodies, folder: str | Path, box_mm=None) -> list[Path]:
     """``folder/<body>.png`` per body and ``folder/sheet.png`` (:func:`render_sheet_png`), as
     progress stage "preview" (:mod:`starforge.runtime.progress`).  ``box_mm``: the family's size
     limit, drawn on the sheet against each body's outline."""

@@ -18,7 +18,7 @@ also each entry's stamp.  So
   left them stale);
 * two installed versions do not overwrite each other's entries.
 
-The numba cache folder is ``NUMBA_CACHE_DIR`` (:func:`starforge.cache_dir`'s ``numba`` folder
+The numba cache folder is ``NUMBA_CACHE_DIR`` (:func:`starforge.runtime.cache.cache_dir`'s ``numba`` folder
 unless the user set one), in the user's cache folder, never in the installed package.
 
 **Built ahead of time.**  Building a wheel (``pip install .`` builds one on the user's machine)
@@ -47,6 +47,8 @@ import zipfile
 
 import numba
 from numba.core import caching
+
+from starforge.runtime.cache import cache_dir
 
 __all__ = ["numba", "digest", "kernel_dir", "manifest", "prebuild"]
 
@@ -94,17 +96,11 @@ def manifest() -> dict:
 def kernel_dir() -> str:
     """This package's folder in the numba cache, ``starforge-<digest>``; on its first use in a
     process, unpacked from the shipped kernels when it does not exist yet (:func:`_seed`)."""
-    base = numba.config.CACHE_DIR or os.path.join(_user_cache(), "numba")
+    base = numba.config.CACHE_DIR or os.path.join(cache_dir(), "numba")
     path = os.path.join(base, f"starforge-{digest()}")
     if not os.path.isdir(path):
         _seed(SEED, path)
     return path
-
-
-def _user_cache() -> str:
-    from starforge import cache_dir
-
-    return cache_dir()
 
 
 def _seed(zip_path: str, target: str) -> bool:

@@ -7,16 +7,13 @@ existing body (each body's every marker triple, since a tracker may see any thre
 
 from __future__ import annotations
 
-import hashlib
 import itertools
-from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-from starforge.errors import StarforgeError
-
-#: triangles read from --avoid files at most (a 20-marker prop has 1,140; a 400-star family 1,600)
-MAX_TRIANGLES = 1_000_000
+from starforge.geometry.tetra import face_sides
+from starforge.tol import tol
 
 
 def body_triangles(points_mm: np.ndarray) -> np.ndarray:
@@ -31,29 +28,17 @@ def body_triangles(points_mm: np.ndarray) -> np.ndarray:
     return np.sort(np.stack([a, b, c], axis=1), axis=1)
 
 
-def faces_to_avoid(paths) -> tuple[np.ndarray, list[dict]]:
-    """Every triangle of every body in ``paths`` (family, placement or tracker files).
+def avoid_mask(
+    index: np.ndarray, pool: np.ndarray, avoid_faces_mm: np.ndarray | None, tol_mm: float
+) -> np.ndarray:
+    """Candidates none of whose faces is within ``tol_mm`` (every sorted side) of an avoided
+    triangle (k, 3): the face rule against bodies a lab already owns.  (n,) bool."""
+    if avoid_faces_mm is None or not len(avoid_faces_mm) or not len(index):
+        return np.ones(len(index), dtype=bool)
+    tree = cKDTree(np.sort(np.asarray(avoid_faces_mm, dtype=float), axis=1))
+    F = np.sort(face_sides(pool[index]), axis=2).reshape(-1, 3)
+    # Chebyshev distance < tol  <=>  every sorted side within the tolerance: indistinguishable
+    d, _ = tree.query(F, k=1, p=np.inf, distance_upper_bound=tol_mm)
+    clash = (d < tol_mm - tol.length_mm).reshape(len(index), 4).any(axis=1)
+    return ~clash
 
-    Returns (faces (k, 3) sorted sides in mm, sources: one record per file for family.json).
-    """
-    from starforge.tracking.bodies import load_bodies
-
-    faces, sources = [], []
-    total = 0
-    for p in paths:
-        bs = load_bodies([Path(p)])
-        tris = [body_triangles(b.points_mm) for b in bs.bodies]
-        n = sum(len(t) for t in tris)
-        total += n
-        if total > MAX_TRIANGLES:
-            raise StarforgeError(
-                f"--avoid files hold more than {MAX_TRIANGLES:,} marker triangles; give fewer bodies"
-            )
-        faces.extend(tris)
-        digest = hashlib.sha256(Path(bs.sources[0]).read_bytes()).hexdigest()[:16]
-        rec = {"file": str(p), "kind": bs.kind, "bodies": len(bs.bodies), "triangles": n, "sha256_16": digest}
-        if bs.warnings:
-            rec["warnings"] = list(bs.warnings)  # bodies left out (fewer than 3 markers), named
-        sources.append(rec)
-    F = np.concatenate(faces) if faces else np.zeros((0, 3))
-    return F, sources

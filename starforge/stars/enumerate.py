@@ -19,12 +19,7 @@ Pipeline, per labelled candidate (no Python loop per star; numba, subsets spread
    slack (:func:`~starforge.geometry.fit.face_table`, decided once per spec and process for
    every triangle of the pool) rules the star out, and the search could only have said NO_FIT
    too: a star it calls FIT fits the limit, one it leaves UNDECIDED fits the limit plus the
-   slack, and so would each face (the proof is in ``face_table``).  On the finger default it
-   settles 185,858 of the 584,731 stars that pass the necessary tests.  (The two earlier quick
-   proofs, :func:`~starforge.geometry.fit.cone_excludes` and
-   :func:`~starforge.geometry.fit.caps_exclude`, are no longer run: behind the table they
-   caught 12 and 627 more finger stars, which the search settles in 0.003 CPU s, for 0.07 CPU s
-   each.)  Then the search: proven to fit (a rotation is found), proven not to fit, or
+   slack, and so would each face (the proof is in ``face_table``).  Then the search: proven to fit (a rotation is found), proven not to fit, or
    undecided (fits, if at all, with less than :data:`~starforge.geometry.fit.SLACK_MM` to
    spare).  ``box_method="covariance"`` replaces it with the paper's test (the covariance box
    must fit).
@@ -47,7 +42,9 @@ from starforge.geometry.fit import SLACK_MM, face_table
 from starforge.geometry.sym3 import sym3_eigvals
 from starforge.geometry.tetra import canonical_assignments
 from starforge.runtime.kernels import numba
+from starforge.stars.sizing import require_stream
 from starforge.stars.spec import StarSpec
+from starforge.tol import tol
 
 #: outcome codes per labelled candidate (int8)
 UNREALISABLE, TOO_THIN, TOO_WIDE, KY_FAN, NO_FIT, UNDECIDED, FIT, NECESSARY_OK = 0, 1, 2, 3, 4, 5, 6, 7
@@ -60,6 +57,9 @@ BATCH_SUBSETS = 1 << 17
 SECONDS_PER_LABELLED = 2e-7
 #: bytes kept per fitting candidate (index, status, volume) and a generous share of fits
 BYTES_PER_CANDIDATE = 32
+#: float noise of a length (mm) and a generic zero, frozen into the kernels as constants
+_EPS = tol.length_mm
+_ZERO = tol.zero
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ class Candidates:
         return self.pool_mm[self.index]
 
 
-def _assignments() -> np.ndarray:
+def assignment_table() -> np.ndarray:
     """The 30 labellings (:func:`~starforge.geometry.tetra.canonical_assignments`, worked out
     once per process there) as int64, the kernels' type: a fresh array of 180 numbers."""
     return canonical_assignments().astype(np.int64)
@@ -168,7 +168,7 @@ def _pilot(spec: StarSpec, samples: int, cpu: bool) -> tuple[float, float]:
     rng = np.random.default_rng(0)
     draws = np.sort(np.array([rng.choice(free, 6, replace=False) for _ in range(samples)]), axis=1)
     sub = (draws + np.arange(6) * (m - 1)).astype(np.int16)
-    assign = _assignments()
+    assign = assignment_table()
     limit = np.sort(np.array(spec.centre_limit_mm, dtype=float))
     mode = 0 if spec.box_method == "exact" else 1
     lo = float(edge_pool(spec)[0])
@@ -235,8 +235,6 @@ def check_size(spec: StarSpec, allow_stream: bool = False) -> str:
     )
     path = "memory"
     if not in_memory and allow_stream and piloted and spec.grid_steps <= STREAM_MAX_STEPS:
-        from starforge.stars.stream import require_stream
-
         require_stream(spec, est["labelled"], fits)
         path = "stream"
     else:
@@ -263,7 +261,7 @@ def _what_advice(spec: StarSpec, est: dict) -> tuple[str, str]:
 
 
 @numba.njit(cache=True, no_cfunc_wrapper=True)
-def _subsets_from(n: int, m: int, start: np.ndarray, count: int) -> np.ndarray:
+def subsets_from(n: int, m: int, start: np.ndarray, count: int) -> np.ndarray:
     """``count`` admissible 6-subsets of range(n) (elements >= m apart) in lexicographic order,
     starting from ``start`` (6,); the last row returned is followed by ``start`` updated in place."""
     out = np.empty((count, 6), dtype=np.int16)
@@ -290,7 +288,7 @@ def _subsets_from(n: int, m: int, start: np.ndarray, count: int) -> np.ndarray:
     return out[:got]
 
 
-@numba.njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)  # only _classify calls it (its cache entry holds it)
+@numba.njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)  # only classify_range calls it (its cache entry holds it)
 def _width(L0, L1, L2, L3, L4, L5, vol6):
     """Tetrahedron width from lengths (u, U, v, V, w, W) and 6 x volume: the smallest of the four
     vertex-face heights and the three opposite-edge distances."""
@@ -298,14 +296,14 @@ def _width(L0, L1, L2, L3, L4, L5, vol6):
     w = 1e300
     for a, b, c in ((d01, d12, d02), (d01, d13, d03), (d02, d23, d03), (d12, d23, d13)):
         area4sq = 4 * a * b - (a + b - c) ** 2  # (4 * area)^2 (Heron on squared sides)
-        w = min(w, 2 * vol6 / math.sqrt(max(area4sq, 1e-12)))
+        w = min(w, 2 * vol6 / math.sqrt(max(area4sq, _ZERO)))
     for dd, p1, p2 in (
         (0.5 * (d03 + d12 - d02 - d13), d01, d23),
         (0.5 * (d01 + d23 - d02 - d13), d12, d03),
         (0.5 * (d01 + d23 - d03 - d12), d02, d13),
     ):
         cross2 = p1 * p2 - dd * dd
-        w = min(w, vol6 / math.sqrt(max(cross2, 1e-12)))
+        w = min(w, vol6 / math.sqrt(max(cross2, _ZERO)))
     return w
 
 
@@ -362,7 +360,7 @@ def classify(
     (:func:`starforge.runtime.engine.over_ranges`; each candidate independent, so the result does not
     depend on the thread count).
 
-    Two passes: the serial kernel :func:`_classify` runs the necessary tests (and in mode 0 the
+    Two passes: the serial kernel :func:`classify_range` runs the necessary tests (and in mode 0 the
     quick no-fit proofs: the face table ``faces``, :func:`spec_faces` of the same spec, or None
     for none) over ranges of ``chunk`` subsets; the candidates left
     (``NECESSARY_OK``) then go, :data:`DECIDE_SETS` at a time, to the fit decision's one compiled
@@ -385,7 +383,7 @@ def classify(
 def first_pass(
     subsets, assign, lo, step, lim, min_depth, mode, codes, threads=None, chunk=THREAD_SUBSETS, faces=None
 ):
-    """The first pass of :func:`classify` (:func:`_classify` over ranges of ``chunk`` subsets on
+    """The first pass of :func:`classify` (:func:`classify_range` over ranges of ``chunk`` subsets on
     up to ``threads`` threads): ``codes`` (s, 30) gets every code but the fit decision's, and
     ``NECESSARY_OK`` for the candidates left to it."""
     from starforge.runtime.engine import over_ranges
@@ -395,7 +393,7 @@ def first_pass(
     args = (subsets, assign, float(lo), float(step), lim, float(min_depth), int(mode), faces)
 
     def run(i0, i1):
-        _classify(*args, codes, i0, i1)
+        classify_range(*args, codes, i0, i1)
 
     over_ranges(run, len(subsets), chunk, threads)
 
@@ -406,7 +404,7 @@ def decide_left(subsets, assign, lo, step, lim, slack, max_cells, codes, threads
     their status (:data:`~starforge.geometry.fit.FIT`, ``NO_FIT``, ``UNDECIDED``) and the box
     volumes of those that fit, in that order; ``codes`` is left as it is (the enumeration counts
     and gathers from these compact arrays instead of scanning ``codes`` again)."""
-    from starforge.geometry.fit import _decide_all
+    from starforge.geometry.fit import decide_all
 
     left = np.flatnonzero(codes == NECESSARY_OK)
     status = np.zeros(len(left), dtype=np.int8)
@@ -418,14 +416,14 @@ def decide_left(subsets, assign, lo, step, lim, slack, max_cells, codes, threads
         st = status[b : b + DECIDE_SETS]
         R = np.zeros((len(P), 3, 3))  # rows of sets that do not fit stay 0 (finite)
         work = np.zeros(len(P), dtype=np.int64)
-        _decide_all(P, lim, float(slack), 1, int(max_cells), st, R, work, threads)
+        decide_all(P, lim, float(slack), 1, int(max_cells), st, R, work, threads)
         vols.append(_box_volume(P, R)[st == 1])  # (cheaper than copying the fits out first)
     return left, status, np.concatenate(vols) if vols else np.zeros(0)
 
 
 def _centres(L: np.ndarray) -> np.ndarray:
     """Sphere centres (n, 4, 3) of realisable stars from lengths (n, 6) (u, U, v, V, w, W), mm:
-    the trilateration of :func:`_classify`, operation for operation, so the floats are the
+    the trilateration of :func:`classify_range`, operation for operation, so the floats are the
     ones its tests saw (A at the origin, B on +x, C in the xy-plane, D above it)."""
     u, U, v, V, w, W = np.ascontiguousarray(L.T)  # contiguous columns: the same floats, faster
     cx = (u * u + w * w - v * v) / (2 * u)
@@ -464,12 +462,12 @@ def _box_volume(P: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)  # nogil: threads run it side by side; Ctrl-C is answered
-def _classify(subsets, assign, lo, step, lim, min_depth, mode, faces, codes, s0, s1):
+def classify_range(subsets, assign, lo, step, lim, min_depth, mode, faces, codes, s0, s1):
     """The first pass of :func:`classify` for subsets ``s0 .. s1 - 1``: realisable, deep
     enough, narrow enough, Ky Fan, and in mode 0 the quick no-fit proof (a face in ``faces``,
     :func:`face_table`, when it is not empty); what is left is
     ``NECESSARY_OK`` (serial: numba's ``parallel=True`` costs seconds of compile on a first run)."""
-    eps = 1e-9
+    eps = _EPS
     # allocated once per range (rows of P that no star writes stay 0): an allocation costs
     # atomic updates of numba's runtime counters that the threads contend for
     P = np.zeros((4, 3))
@@ -483,14 +481,14 @@ def _classify(subsets, assign, lo, step, lim, min_depth, mode, faces, codes, s0,
             V, w, W = Ls[assign[a, 3]], Ls[assign[a, 4]], Ls[assign[a, 5]]
             cx = (u * u + w * w - v * v) / (2 * u)
             cy2 = w * w - cx * cx
-            if cy2 <= 1e-9:
+            if cy2 <= _EPS:
                 codes[s, a] = 0
                 continue
             cy = math.sqrt(cy2)
             dx = (u * u + V * V - W * W) / (2 * u)
             dy = (V * V - U * U + w * w - 2 * dx * cx) / (2 * cy)
             dz2 = V * V - dx * dx - dy * dy
-            if dz2 <= 1e-9:
+            if dz2 <= _EPS:
                 codes[s, a] = 0
                 continue
             dz = math.sqrt(dz2)
@@ -543,7 +541,7 @@ def _covariance_fits(P: np.ndarray, limit: np.ndarray) -> tuple[np.ndarray, np.n
         return np.zeros(0, dtype=bool), np.zeros(0)
     _, _, ext = covariance_box(P)
     e = np.sort(ext, axis=1)
-    lim = np.sort(limit) * (1 + 1e-9) + 1e-9
+    lim = np.sort(limit) * (1 + _EPS) + _EPS
     return (e <= lim).all(axis=1), np.prod(ext, axis=1)
 
 
@@ -607,7 +605,7 @@ def enumerate_chunk(args: tuple) -> dict:
     step = float(spec.delta_mm)
     limit = np.sort(np.array(spec.centre_limit_mm, dtype=float))
     m = spec.grid_steps
-    assign = _assignments()
+    assign = assignment_table()
     mode = 0 if spec.box_method == "exact" else 1
     dt = index_dtype(len(pool))
     counts = np.zeros(8, dtype=np.int64)
@@ -616,7 +614,7 @@ def enumerate_chunk(args: tuple) -> dict:
     start = unrank_subset(rank, len(pool), m)
     left = int(count)
     while left > 0:
-        sub = _subsets_from(len(pool), m, start, min(BATCH_SUBSETS, left))
+        sub = subsets_from(len(pool), m, start, min(BATCH_SUBSETS, left))
         if not len(sub):
             break
         left -= len(sub)

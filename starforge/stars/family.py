@@ -6,7 +6,6 @@ import time
 
 import numpy as np
 
-from starforge.runtime.engine import beside
 from starforge.errors import NoStarError, StarforgeError
 from starforge.geometry.rigid import (
     default_tip_mm,
@@ -17,6 +16,8 @@ from starforge.geometry.rigid import (
     tre_rms,
 )
 from starforge.geometry.tetra import face_sides, tetra_width, vertices_from_lengths
+from starforge.runtime.engine import beside
+from starforge.stars.avoid import avoid_mask
 from starforge.stars.boxes import place_stars
 from starforge.stars.enumerate import Candidates, edge_pool, enumerate_candidates
 from starforge.stars.model import Family, Star
@@ -118,23 +119,6 @@ def _nearest_other_chebyshev(F: np.ndarray) -> np.ndarray:
     return out
 
 
-def avoid_mask(
-    index: np.ndarray, pool: np.ndarray, avoid_faces_mm: np.ndarray | None, tol_mm: float
-) -> np.ndarray:
-    """Candidates none of whose faces is within ``tol_mm`` (every sorted side) of an avoided
-    triangle (k, 3): the face rule against bodies a lab already owns.  (n,) bool."""
-    if avoid_faces_mm is None or not len(avoid_faces_mm) or not len(index):
-        return np.ones(len(index), dtype=bool)
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(np.sort(np.asarray(avoid_faces_mm, dtype=float), axis=1))
-    F = np.sort(face_sides(pool[index]), axis=2).reshape(-1, 3)
-    # Chebyshev distance < tol  <=>  every sorted side within the tolerance: indistinguishable
-    d, _ = tree.query(F, k=1, p=np.inf, distance_upper_bound=tol_mm)
-    clash = (d < tol_mm - 1e-9).reshape(len(index), 4).any(axis=1)
-    return ~clash
-
-
 def accuracy(vertices: np.ndarray, tip_mm: np.ndarray, sigma_mm: float) -> list[dict]:
     """Predicted accuracy of stars (n, 4, 3) in their placement frames, under isotropic marker
     noise ``sigma_mm`` per axis: rotation error (deg) and TRE at the tip (mm), with all four
@@ -178,21 +162,21 @@ def _spread_count(index: np.ndarray, order: np.ndarray, spec: StarSpec, pool_siz
     a time (up to twice the tolerance) while a greedy pick in accuracy order still reaches the
     count; the largest separation that does is used.  Returns (chosen, steps used).
     """
-    from starforge.stars.select import _csr
+    from starforge.stars.select import csr_rows
 
     top = order[:COUNT_POOL]
     m = spec.grid_steps
     best = None
     for m2 in range(2 * m, m - 1, -1):
         s2, r2, n2 = window_rows(index[top], spec.rule, m2, pool_size)
-        ptr, rows = _csr(s2, r2, len(top))
+        ptr, rows = csr_rows(s2, r2, len(top))
         got = top[greedy(np.arange(len(top)), ptr, rows, n2)]
         if len(got) >= spec.count or m2 == m:
             best = (got, m2)
             break
     if len(best[0]) < spec.count:  # even the tolerance itself is too tight among the top: use all
         s2, r2, n2 = window_rows(index, spec.rule, m, pool_size)
-        ptr, rows = _csr(s2, r2, len(index))
+        ptr, rows = csr_rows(s2, r2, len(index))
         best = (greedy(order, ptr, rows, n2), m)
     return best
 
@@ -204,7 +188,7 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, determin
     order_of = beside(compactness_order, index, pool, volume) if spec.count is None else None
     star_of, row, n_rows = window_rows(index, spec.rule, m, len(pool))
     if spec.count is not None:
-        from starforge.stars.select import Selection, _csr
+        from starforge.stars.select import Selection, csr_rows
 
         order = _count_order(index, pool, spec.noise_mm)
         chosen, m_used = _spread_count(index, order, spec, len(pool))
@@ -244,11 +228,11 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, determin
     if len(und) and sel.info.get("milp_status") == "optimal" and ub > len(sel.chosen):
         # the solver proved its optimum over the stars that fit; the undecided ones may fit too,
         # so solve once more with them for a bound that covers every star that really fits
-        from starforge.stars.select import _csr, milp, node_budget
+        from starforge.stars.select import csr_rows, milp, node_budget
 
         both = np.concatenate([index, und])
         s2, r2, n2 = window_rows(both, spec.rule, m, len(pool))
-        p2, rows2 = _csr(s2, r2, len(both))
+        p2, rows2 = csr_rows(s2, r2, len(both))
         opt, dual, status, reproducible = milp(
             p2, rows2, n2, np.arange(len(both)), None if deterministic else spec.time_limit_s,
             node_budget(len(rows2), work),
@@ -271,6 +255,7 @@ def make_family(
     milp_work: int | None = None,
     star_filter=None,
     deterministic: bool = False,
+    on_stage=None,
 ) -> Family:
     """Enumerate, select and place a family for ``spec``.
 
@@ -281,7 +266,8 @@ def make_family(
     keeps only stars it accepts (e.g. whose printed body with its mount fits the limit): the
     ones it rejects are replaced by selecting again without them.  ``deterministic``: the exact
     solver is stopped by its node budget alone, never by ``spec.time_limit_s`` (the same family
-    on any machine; see :func:`starforge.stars.select.select_family`).
+    on any machine; see :func:`starforge.stars.select.select_family`).  ``on_stage(name)`` is
+    called as the selection (``"select"``) starts (the CLI waits there for its compile helper).
 
     Raises StarforgeError when no star fits, or when ``spec.count`` exceeds what is achievable
     (naming the largest family found and the certified bound).
@@ -319,10 +305,10 @@ def make_family(
         )
     t1 = time.perf_counter()
     from starforge.runtime import progress as runtime_progress
-    from starforge.stars import warmup
 
     runtime_progress.stage("select")
-    warmup.ready("select")  # a first run's helper may still be compiling the selection's kernels
+    if on_stage is not None:
+        on_stage("select")
     excluded = np.zeros(len(index), dtype=bool)
     rounds = 0
     while True:

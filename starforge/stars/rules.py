@@ -102,9 +102,8 @@ def window_bytes(n_stars: float, rule: str, m: int) -> float:
 
 
 #: (star, window) entries from which :func:`window_rows` runs compiled (:func:`_window_codes`):
-#: on 20 M entries (``--delta 1.0``) about 0.5-1 s instead of 1.5-3.4 s; below it numpy's
-#: passes take a few hundredths of a second (the finger default: 1.4 M entries, 0.04 s) and a
-#: first run does not compile the kernels (0.5 CPU s)
+#: large windows (``--delta 1.0``) run several times faster compiled; below it numpy's passes
+#: take hundredths of a second and a first run compiles nothing for them
 WINDOW_KERNEL_ENTRIES = 4_000_000
 
 

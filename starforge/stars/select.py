@@ -42,7 +42,7 @@ class Selection:
     info: dict = field(default_factory=dict)
 
 
-def _csr(star_of: np.ndarray, row: np.ndarray, n: int):
+def csr_rows(star_of: np.ndarray, row: np.ndarray, n: int):
     """(ptr, rows): each star's rows, stars in order, in their given order within a star."""
     star_of = np.asarray(star_of)
     ptr = np.concatenate([[0], np.cumsum(np.bincount(star_of, minlength=n))])
@@ -101,7 +101,7 @@ def _greedy(order, ptr, rows, n_rows):
     return out[:k]
 
 
-def _count_blocks(faces: np.ndarray, m: int) -> int:
+def count_blocks(faces: np.ndarray, m: int) -> int:
     """Fewest distinct face blocks of side m over the m^3 placements of the block grid.
 
     ``faces`` (k, 3): non-negative integer face keys of any integer type.  Each block is coded
@@ -145,18 +145,18 @@ def block_bound(index: np.ndarray, m: int) -> int:
     if len(index) >= BLOCK_KERNEL_STARS:
         return _count_face_blocks_compiled(index, m) // 4
     faces = key_triples(index, "face")[:, :4].reshape(-1, 3)
-    return _count_blocks(faces, m) // 4
+    return count_blocks(faces, m) // 4
 
 
 def _count_face_blocks_compiled(index: np.ndarray, m: int) -> int:
-    """:func:`_count_blocks` of the stars' face keys (the same count), straight from their pool
+    """:func:`count_blocks` of the stars' face keys (the same count), straight from their pool
     indices (n, 6) in compiled code: no (4 n, 3) array of keys, one table of blocks."""
     from starforge.geometry.tetra import FACE_EDGES
 
     index = np.ascontiguousarray(index)
     base = (int(index.max()) + m - 1) // m + 1  # past every block coordinate (x + o) // m
     if base**3 > 1 << 26:  # a table that large: the general count
-        return _count_blocks(key_triples(index, "face")[:, :4].reshape(-1, 3), m)
+        return count_blocks(key_triples(index, "face")[:, :4].reshape(-1, 3), m)
     used = np.zeros(base**3, dtype=np.bool_)
     edges = np.ascontiguousarray(FACE_EDGES, dtype=np.int64)
     return min(
@@ -197,7 +197,7 @@ def pool_face_bound(pool_mm: np.ndarray, m: int, diagonal_mm: float) -> int:
     faces = np.stack([i[ok], j[ok], k[ok]], axis=1)
     if not len(faces):
         return 0
-    return _count_blocks(faces, m) // 4
+    return count_blocks(faces, m) // 4
 
 
 def local_search(
@@ -846,7 +846,7 @@ def ils_restarts(
 MILP_WORK = 8_000_000
 MILP_NODE_LIMIT = 6000
 #: largest set packing (nonzeros of the window matrix) handed to the exact solver; past it the
-#: root relaxation alone takes tens of seconds (measured: 83,544 nonzeros, 10 s)
+#: root relaxation alone takes tens of seconds
 MILP_MAX_NONZEROS = 40_000
 
 
@@ -922,7 +922,7 @@ def select_family(
     the candidates when the caller has it already.
     """
     n = len(index)
-    ptr, rows = _csr(star_of, row, n)
+    ptr, rows = csr_rows(star_of, row, n)
     order = compactness_order(index, pool, volume) if order is None else order
     t0 = time.perf_counter()
     chosen = greedy(order, ptr, rows, n_rows)

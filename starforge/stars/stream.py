@@ -28,70 +28,23 @@ float64 volume), in a temporary folder removed afterwards.
 
 from __future__ import annotations
 
-import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from starforge.errors import StarforgeError
 from starforge.geometry.tetra import FACE_EDGES
 from starforge.runtime.kernels import numba
 from starforge.stars.rules import VERTEX_EDGES, internal_ok, key3, key_triples
+from starforge.stars.sizing import (
+    BUCKETS,
+    SORT_BYTES_PER_STAR,
+    SPILL_BUFFER_BYTES,
+    STREAM_BASE_BYTES,
+    bitmap_sizes,
+    spill_dir,
+)
 from starforge.stars.spec import StarSpec
-
-#: equal ranges of box volume the fitting stars are spilled into
-BUCKETS = 1024
-#: spill buffers are written out when they hold this much
-SPILL_BUFFER_BYTES = 128 * 2**20
-#: bytes per fitting star while one volume range is sorted (indices, volume, the sort's keys
-#: and permutation), and a generous skew: a range may hold this many times its even share
-SORT_BYTES_PER_STAR = 96
-BUCKET_SKEW = 16
-#: base memory of the streamed path (interpreter, kernels, chunk results in flight)
-STREAM_BASE_BYTES = 400e6
-
-
-def _bitmap_sizes(spec: StarSpec) -> tuple[int, int]:
-    """(face-key bitmap, window bitmap) lengths: pool^3 and 2 (pool + m)^3."""
-    p, m = spec.pool_size, spec.grid_steps
-    return p**3, 2 * (p + m) ** 3
-
-
-def stream_bytes(spec: StarSpec, fits: float) -> float:
-    """Peak memory of the streamed path for about ``fits`` fitting stars, bytes."""
-    faces, windows = _bitmap_sizes(spec)
-    per_range = fits / BUCKETS * BUCKET_SKEW * SORT_BYTES_PER_STAR
-    return faces + windows + SPILL_BUFFER_BYTES + min(per_range, fits * SORT_BYTES_PER_STAR) + STREAM_BASE_BYTES
-
-
-def spill_dir() -> str:
-    """Where the spill files go: ``STARFORGE_SPILL_DIR``, else the system's temporary folder."""
-    return os.environ.get("STARFORGE_SPILL_DIR") or tempfile.gettempdir()
-
-
-def require_stream(spec: StarSpec, labelled: float, fits: float) -> None:
-    """Refuse in one line when the streamed path would not fit the memory limit or the spill
-    folder's free disk (``fits``: fitting stars estimated from the pilot sample; twice that is
-    asked of the disk, the pilot's share being a sample)."""
-    from starforge.runtime.budget import format_bytes, require_memory
-
-    require_memory(
-        stream_bytes(spec, fits),
-        f"the streamed selection among about {fits:,.0f} fitting stars (of {labelled:,.0f} labelled candidates)",
-        "raise delta_mm, gap_mm or tolerance_mm, or raise the memory limit",
-    )
-    disk = 2 * fits * 14
-    where = spill_dir()
-    free = shutil.disk_usage(where).free
-    if disk > free:
-        raise StarforgeError(
-            f"the streamed selection among about {fits:,.0f} fitting stars spills about {format_bytes(disk)} "
-            f"to {where}, which has {format_bytes(free)} free; set STARFORGE_SPILL_DIR to a larger folder "
-            f"or raise delta_mm"
-        )
 
 
 def _volume_max(spec: StarSpec) -> float:
@@ -257,9 +210,9 @@ def stream_family(
     signal (:func:`starforge.io.scratch_folder`).
     """
     from starforge.io import scratch_folder
+    from starforge.stars.avoid import avoid_mask
     from starforge.stars.enumerate import edge_pool, enumeration_stats, index_dtype, no_pool_error, run_chunks
-    from starforge.stars.family import avoid_mask
-    from starforge.stars.select import _count_blocks
+    from starforge.stars.select import count_blocks
 
     t0 = time.perf_counter()
     pool = edge_pool(spec)
@@ -298,7 +251,7 @@ def stream_family(
         # the greedy, range by range in compactness order
         t1 = time.perf_counter()
         keep_of = window_greedy(spec.rule, p, m)
-        cap = range_cap(_bitmap_sizes(spec)[1] + faces_seen.nbytes)  # the windows' bitmap, 1 byte each
+        cap = range_cap(bitmap_sizes(spec)[1] + faces_seen.nbytes)  # the windows' bitmap, 1 byte each
         chosen = []
         width = vmax / BUCKETS
         for k in range(BUCKETS):
@@ -314,7 +267,7 @@ def stream_family(
     # or is undecided (the same set block_bound sees in memory)
     codes = np.flatnonzero(faces_seen)
     faces = np.stack([codes // (p * p), (codes // p) % p, codes % p], axis=1)
-    bound = _count_blocks(faces, m) // 4 if len(faces) else 0
+    bound = count_blocks(faces, m) // 4 if len(faces) else 0
     info = {
         "greedy": int(len(index)),
         "greedy_s": round(t_sel, 3),

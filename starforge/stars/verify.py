@@ -18,8 +18,8 @@ _PAIRS = [((0, 1), (2, 3)), ((1, 2), (0, 3)), ((0, 2), (1, 3))]
 
 #: bytes of one block of face differences (the pairwise face check runs in blocks of rows)
 BLOCK_BYTES = 1e6
-#: seconds per star and per pair of stars of :func:`check_family` (2-core x86_64: 398 stars
-#: 0.8 s, 1,592 stars 9.5 s, measured at load 8; the quiet machine is about twice as fast)
+#: seconds per star and per pair of stars of :func:`check_family`, calibrated on a loaded 2-core
+#: x86_64 (a high estimate on a quiet machine)
 SECONDS_PER_STAR, SECONDS_PER_PAIR = 1e-3, 2e-6
 
 

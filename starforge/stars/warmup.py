@@ -90,10 +90,10 @@ def cache_is_cold() -> bool:
     entries numba will not load).  (Reads numba's cache index, keyed by signature and the
     target's triple, CPU and features; any doubt counts as warm, so nothing is started.)"""
     try:
-        from starforge.stars.enumerate import _classify
+        from starforge.stars.enumerate import classify_range
 
-        here = _classify.targetctx.codegen().magic_tuple()
-        return not any(key[1] == here for key in _classify._cache._cache_file._load_index())
+        here = classify_range.targetctx.codegen().magic_tuple()
+        return not any(key[1] == here for key in classify_range._cache._cache_file._load_index())
     except Exception:  # noqa: BLE001  (a private numba API: never fail a command over it)
         return False
 
@@ -160,21 +160,21 @@ def _helper() -> None:
     import numpy as np
 
     from starforge.stars import select as sel
-    from starforge.stars.enumerate import _assignments, _classify, _subsets_from
+    from starforge.stars.enumerate import assignment_table, classify_range, subsets_from
 
-    assign = _assignments()
+    assign = assignment_table()
     sub = np.array([[0, 1, 2, 3, 4, 5]], dtype=np.int16)
     codes = np.empty((1, len(assign)), dtype=np.int8)
     faces = np.zeros((6, 6, 6), dtype=np.int8)  # no claims (the pool indices of sub are < 6)
-    _classify(sub, assign, 10.0, 1.0, np.array([5.0, 10.0, 40.0]), 1.0, 0, faces, codes, 0, 1)
-    _subsets_from(8, 1, np.array([0, 1, 2, 3, 4, 5], dtype=np.int64), 2)
+    classify_range(sub, assign, 10.0, 1.0, np.array([5.0, 10.0, 40.0]), 1.0, 0, faces, codes, 0, 1)
+    subsets_from(8, 1, np.array([0, 1, 2, 3, 4, 5], dtype=np.int64), 2)
     _report("enumerate")
     # the selection, on two stars sharing rows: greedy, the packing, local search and the ILS
     from starforge.stars.rules import window_rows
 
     idx = np.array([[0, 1, 2, 3, 4, 5], [0, 1, 2, 3, 4, 6]], dtype=np.int16)
     star_of, row, n_rows = window_rows(idx, "face", 1, 8)
-    ptr, rows = sel._csr(star_of, row, len(idx))
+    ptr, rows = sel.csr_rows(star_of, row, len(idx))
     order = np.arange(len(idx))
     chosen = sel.greedy(order, ptr, rows, n_rows)
     chosen, _ = sel.local_search(chosen, order, ptr, rows, n_rows)
@@ -196,9 +196,8 @@ def _report(group: str) -> None:
 def _run() -> None:
     """The helper process: :func:`_helper`, reporting each group as it lands in the cache.
     Without the cyclic garbage collector: numba's compiler builds many short-lived object
-    graphs, and the collector's passes over them took a tenth of the compile (6.5 against 7.2
-    CPU s for every stars kernel in one process, for 53 MB more memory in this short-lived
-    process)."""
+    graphs, and the collector's passes over them cost compile time; this short-lived process
+    can afford the memory they hold instead."""
     import gc
 
     gc.disable()

@@ -1,0 +1,128 @@
+"""The README and the docs site say what the code does: the generated command pages cover every
+command and option of the CLI, the file-format page names every key a written family.json and
+placement.json hold, the README stays short and its links resolve."""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load(path: Path, name: str):
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def reference_pages() -> dict[str, str]:
+    return _load(ROOT / "docs" / "hooks" / "cli_reference.py", "docs_cli_reference").pages()
+
+
+def _walk(command, ctx):
+    """(context, command) for ``command`` and every subcommand below it, walked here with click's
+    own API, apart from the generator."""
+    yield ctx, command
+    if hasattr(command, "list_commands"):
+        for name in command.list_commands(ctx):
+            sub = command.get_command(ctx, name)
+            yield from _walk(sub, type(ctx)(sub, info_name=name, parent=ctx))
+
+
+def test_every_command_and_option_has_its_generated_page(reference_pages):
+    from starforge.cli import click_command
+
+    root = click_command()
+    root_ctx = root.context_class(root, info_name="starforge")
+    top = root.list_commands(root_ctx)
+    assert set(reference_pages) == {"reference/index.md"} | {f"reference/{n}.md" for n in top}
+    for name in top:
+        page = reference_pages[f"reference/{name}.md"]
+        cmd = root.get_command(root_ctx, name)
+        for ctx, sub in _walk(cmd, root.context_class(cmd, info_name=name, parent=root_ctx)):
+            assert f"`{ctx.command_path}`" in page, ctx.command_path
+            for param in sub.get_params(ctx):
+                for opt in [*param.opts, *param.secondary_opts]:
+                    if param.param_type_name == "option":
+                        assert re.search(rf"`[^`]*{re.escape(opt)}\b", page), (ctx.command_path, opt)
+    index = reference_pages["reference/index.md"]
+    for name in top:
+        assert f"]({name}.md)" in index
+    for opt in ("--max-memory", "--max-seconds", "--scheduler"):
+        assert f"`{opt}" in index
+
+
+def test_generated_help_text_is_markdown_safe(reference_pages):
+    """Angle brackets of help text outside code spans (``star_<id>.png``) are entities, never tags."""
+    for name, page in reference_pages.items():
+        prose = re.sub(r"`[^`]*`", "", re.sub(r"```.*?```", "", page, flags=re.S))
+        assert not re.search(r"<[A-Za-z_/]", prose), name
+
+
+def _key_paths(obj, prefix: str = ""):
+    if isinstance(obj, dict):
+        for key, value in obj.items():
+            yield from _key_paths(value, f"{prefix}.{key}" if prefix else key)
+    elif isinstance(obj, list) and obj and isinstance(obj[0], dict):
+        yield from _key_paths(obj[0], prefix + "[]")
+    else:
+        yield prefix
+
+
+def _documented(path: str, names: set[str]) -> bool:
+    """The path or one of its ancestors is a documented key."""
+    parts = path.split(".")
+    return any(".".join(parts[:k]) in names for k in range(len(parts), 0, -1))
+
+
+def _section_names(start: str, end: str) -> set[str]:
+    """The key names written in backticks in the formats page between two headings."""
+    text = (ROOT / "docs" / "formats.md").read_text(encoding="utf-8")
+    section = text[text.index(start) : text.index(end)]
+    return {m.strip() for cell in re.findall(r"`([^`]+)`", section) for m in cell.split(",")}
+
+
+def test_formats_page_names_every_family_json_key(small_family):
+    _, data = small_family
+    names = _section_names("## family.json", "## bodies.json")
+    missing = [p for p in _key_paths(data) if not _documented(p, names)]
+    assert not missing, missing
+
+
+@pytest.mark.slow
+def test_formats_page_names_every_placement_json_key():
+    from starforge.props.files import placement_json
+    from starforge.props.placement import run_placement
+
+    data = placement_json(run_placement("box", sites=150, orientations=8))
+    names = _section_names("## placement.json", "## check.json")
+    missing = [p for p in _key_paths(data) if not _documented(p, names)]
+    assert not missing, missing
+
+
+def test_readme_is_short_and_its_links_resolve():
+    """At most 200 lines (its commands are checked against the CLI in test_newcomer.py), and every
+    relative link (docs pages, pictures, the changelog, examples/) names a file or folder of the
+    repository."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(readme.splitlines()) <= 200
+    targets = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", readme)
+    local = [t for t in targets if "://" not in t]
+    assert local
+    for target in local:
+        assert (ROOT / target).exists(), target
+
+
+def test_results_page_sections_are_balanced():
+    text = (ROOT / "docs" / "results.md").read_text(encoding="utf-8")
+    begins = re.findall(r"<!-- begin (\S+) -->", text)
+    ends = re.findall(r"<!-- end (\S+) -->", text)
+    assert begins and begins == ends and len(set(begins)) == len(begins)
