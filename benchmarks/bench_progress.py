@@ -37,6 +37,11 @@ class Recorder:
         pass
 
 
+def _at_total(counts, end: float) -> float:
+    """When a stage's count first reached its total (its end when it never did)."""
+    return next((t for t, done, total, _ in counts if total and done >= total), end)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--spec", default="finger")
@@ -63,10 +68,16 @@ def main() -> None:
     }
     for name, s in stages.items():
         end = s["end"] or time.monotonic()
-        ratios = [eta / (end - t) for t, _, _, eta in s["counts"][2:] if eta is not None and end - t > 0.5]
+        # before the count reaches its total (after it, the time left is the stage's wrap-up)
+        ratios = [
+            eta / (last - t)
+            for t, done, total, eta in s["counts"][2:]
+            if eta is not None and total and done < total and (last := _at_total(s["counts"], end)) - t > 0.5
+        ]
         out["stages"][name] = {
             "seconds": round(end - s["start"], 2),
             "counts": len(s["counts"]),
+            "after_the_total_s": round(end - _at_total(s["counts"], end), 2),
             "eta_over_actual_min": round(min(ratios), 3) if ratios else None,
             "eta_over_actual_max": round(max(ratios), 3) if ratios else None,
         }
