@@ -27,6 +27,7 @@ from starforge.catalog import load_template
 from starforge.errors import StarforgeError
 from starforge.io import atomic_write_json, check_name, check_writable, staged_output
 from starforge.markers import marker_diameter_mm
+from starforge.runtime import progress as runtime_progress
 from starforge.stars.enumerate import check_memory, check_size
 from starforge.stars.family import make_family as _make_family
 from starforge.stars.model import Family, family_csv
@@ -257,7 +258,8 @@ def make_family(
         star_filter=plan.star_filter,
         on_stage=on_stage,
     )
-    problems = check_family(json.loads(json.dumps(family.to_json())))
+    with runtime_progress.stage("verify", total=len(family), unit="stars"):
+        problems = check_family(json.loads(json.dumps(family.to_json())))
     if problems:  # the generator and the independent checker disagree: a bug, never a user error
         raise RuntimeError(f"internal error: the family failed its independent check: {problems[0]}")
     return family
@@ -289,7 +291,8 @@ def write_family(
         if preview:
             from starforge.render.stars import family_sheet
 
-            family_sheet(family, stage / "family.png")
+            with runtime_progress.stage("render", unit="pictures"):
+                family_sheet(family, stage / "family.png")
     return folder
 
 
@@ -347,7 +350,11 @@ def export_bodies(
     folder = Path(out)
     previews = None
     if preview:
-        from starforge.render.bodies import draw_previews as previews
+        from functools import partial
+
+        from starforge.render.bodies import draw_previews
+
+        previews = partial(draw_previews, box_mm=fam.spec.box_mm)  # the sheet draws the limit
     with staged_output(folder, force) as stage:
         rep = export_family(
             fam, stage, m, spec, formats=tuple(formats), ids=ids, plate=plate, preview=previews, bodies=bodies,

@@ -47,6 +47,27 @@ THREADS = {
     "M4": Thread(3.3, 5.6, 8.1, 2.3),
     "M5": Thread(4.2, 6.4, 9.5, 2.6),
 }
+#: clearance holes a screw of each size passes through, mm: ISO 273, fine series
+CLEARANCE_HOLES_MM = {"M2": 2.2, "M2.5": 2.7, "M3": 3.2, "M4": 4.3, "M5": 5.3, "M6": 6.4}
+
+
+def metric_size(text: str) -> str | None:
+    """``"m3"`` -> ``"M3"`` when ``text`` names a metric screw size starforge knows, else None."""
+    t = str(text).strip().upper()
+    return t if t in CLEARANCE_HOLES_MM else None
+
+
+def thread_words(thread: str, attach: str) -> str:
+    """What an ``M3`` stud's seat is in a print, in words: the tap drill (``screw``) or the insert
+    and its hole (``insert``)."""
+    th = THREADS[thread]
+    if attach == "screw":
+        return f"{thread} stud screwed into a {th.tap_drill_mm:g} mm tap-drill bore (ISO 2306)"
+    return (
+        f"{thread} heat-set insert ({th.insert_length_mm:g} mm long) melted into a {th.insert_hole_mm:g} mm hole"
+    )
+
+
 #: an insert's hole is this much deeper than the insert (room for the plastic it displaces)
 INSERT_HOLE_EXTRA_MM = 0.5
 THREAD_SOURCES = (

@@ -26,6 +26,15 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 FINGER = ["--box", "20.8", "12.6", "48.3", "--marker", "4", "--delta", "1.5"]
 
 
+@pytest.fixture(autouse=True)
+def _no_progress_lines(monkeypatch):
+    """In-process commands write no plain progress lines (however slow the machine), so that a
+    test sees only what the command says; a test of the progress lines sets HOLD_S itself."""
+    from starforge.cli import _progress
+
+    monkeypatch.setattr(_progress, "HOLD_S", float("inf"))
+
+
 def run_cli(args: list[str]) -> int:
     """Run the CLI in-process; returns the exit code."""
     return main([str(a) for a in args])

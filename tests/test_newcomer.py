@@ -130,32 +130,42 @@ def test_export_refusal_names_the_stars_command_that_fits():
 
 
 def test_plain_progress_lines_without_a_terminal(capsys):
-    """Off a terminal the commands' progress becomes a plain line every interval, from a thread,
-    so that work which never calls back (numba's first compile) still shows it is alive."""
+    """Off a terminal the library's progress becomes plain lines: one when a stage starts and one
+    every interval from a thread (so that work which never calls back, numba's first compile,
+    still shows it is alive), with counts in thousands and no line repeated."""
     import time
 
-    from starforge.cli._app import PlainProgress, progress, start_heartbeat
+    from starforge.cli._progress import Plain, listener_for
+    from starforge.runtime import progress
 
-    assert isinstance(progress(), PlainProgress)  # pytest's stderr is not a terminal
-    stop = start_heartbeat("stars", interval_s=0.05)
+    shown = listener_for("stars", quiet=False)
+    shown.close()
+    assert isinstance(shown, Plain)  # pytest's stderr is not a terminal
+    listener = Plain("stars", interval_s=0.05, hold_s=0.0)
     try:
-        time.sleep(0.2)
-        with progress() as bar:
-            task = bar.add_task("enumerating", total=200)
-            bar.update(task, completed=50)
-            time.sleep(0.2)
-            bar.advance(task, 50)
-            time.sleep(0.2)
+        with progress.reporting(listener):
+            time.sleep(0.12)
+            with progress.stage("enumerate", total=20_000, unit="candidates") as st:
+                st.update(5_000)
+                time.sleep(0.12)
+                st.update(advance=5_000)
+                time.sleep(0.12)
+            with progress.stage("select"):
+                time.sleep(0.12)
     finally:
-        stop()
+        listener.close()
     lines = capsys.readouterr().err.splitlines()
     assert lines and all(line.startswith("starforge stars: ") for line in lines)
     assert any(line.endswith("s, working") for line in lines)
-    assert any("enumerating 50/200 (25 %)" in line for line in lines)
-    assert any("enumerating 100/200 (50 %)" in line for line in lines)
-    n = len(lines)
+    assert any("enumerate started, 20,000 candidates" in line for line in lines)
+    assert any("enumerate: 5,000/20,000 candidates (25 %)" in line for line in lines)
+    assert any("enumerate: 10,000/20,000 candidates (50 %)" in line for line in lines)
+    starts = [line.split(", ", 1)[1] for line in lines if "started" in line]
+    assert starts == ["enumerate started, 20,000 candidates", "select started"]
+    assert not any("enumerate" in line for line in lines[lines.index(next(x for x in lines if "select started" in x)):])
+    assert len(set(lines)) == len(lines)
     time.sleep(0.15)
-    assert len(capsys.readouterr().err.splitlines()) == 0 and n > 0  # stopped
+    assert len(capsys.readouterr().err.splitlines()) == 0  # stopped
 
 
 def test_stars_table_fits_80_columns(small_family, monkeypatch, capsys):

@@ -384,9 +384,9 @@ def test_spread_flag_leaves_other_arguments_alone():
 
 _FORK_CHECK = """
 import os, threading
-from starforge.cli._app import start_heartbeat
+from starforge.cli._progress import Plain
 from starforge.render.props import BackgroundRenderer
-stop = start_heartbeat("place", interval_s=0.01)
+stop = Plain("place", interval_s=0.01).close
 try:
     assert BackgroundRenderer()._fork
     with BackgroundRenderer() as r:  # forks beside a heartbeat printing every 10 ms

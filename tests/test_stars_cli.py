@@ -107,17 +107,17 @@ def test_template_spec_and_toml_path(tmp_path):
 @pytest.mark.parametrize(
     "args,needle",
     [
-        (["--box", 0, 12, 24], "box_mm[0] must be > 0"),
-        (["--box", 20, -1, 24], "box_mm[1] must be > 0"),
+        (["--box", 0, 12, 24], "--box's value 1 must be > 0"),
+        (["--box", 20, -1, 24], "--box's value 2 must be > 0"),
         (["--box", 3, 3, 3], "too small for one 4.0 mm sphere"),
-        (["--box", 20, 20, 20, "--delta", 8], "delta_mm 8.0 is too large"),
-        (["--box", 20, 20, 20, "--delta", -1.5], "delta_mm must be > 0"),
+        (["--box", 20, 20, 20, "--delta", 8], "--delta 8.0 is too large"),
+        (["--box", 20, 20, 20, "--delta", -1.5], "--delta must be > 0"),
         (["--box", 20, 20, 20, "--rule", "edge"], "rule must be one of face, pair"),
         (["--spec", "nosuchspec"], "unknown stars template 'nosuchspec'; known: finger"),
         (["--box", 60, 60, 60, "--delta", 0.5], "1,489,131,909,720 labelled candidates"),
-        (["--delta", "1e-310"], "delta_mm must be >= 0.001"),
-        (["--tolerance", 1000], "tolerance_mm 1000 is too large"),
-        (["--min-depth", 9], "min_depth_mm 9 leaves no star"),
+        (["--delta", "1e-310"], "--delta must be >= 0.001"),
+        (["--tolerance", 1000], "--tolerance 1000 is too large"),
+        (["--min-depth", 9], "--min-depth 9 leaves no star"),
         (["--name", "../x"], "--name must be"),
         (["--box", 16, 12, 24, "--delta", 2, "--count", 100000], "count 100000 is not achievable"),
     ],
@@ -217,7 +217,7 @@ def test_mount_reserves_its_room_and_every_body_fits(tmp_path):
 
 @pytest.mark.parametrize(
     "reserve,needle",
-    [((-1, 0, 0), "reserve_mm[0] must be >= 0"), ((9, 0, 0), "leaves no room"), ((3, 12, 0), "out of order")],
+    [((-1, 0, 0), "--reserve's value 1 must be >= 0"), ((9, 0, 0), "leaves no room"), ((3, 12, 0), "out of order")],
 )
 def test_bad_reserve(tmp_path, capsys, reserve, needle):
     assert run_cli(["stars", "--box", 16, 12, 24, "--reserve", *reserve, "--out", tmp_path / "o"]) == 2

@@ -9,21 +9,36 @@ from starforge.cad.export import check_fit, family_bodies, parse_ids
 from starforge.cad.mounts import load_mount
 from starforge.catalog import load_template
 from starforge.errors import StarforgeError
+from starforge.markers import CLEARANCE_HOLES_MM, metric_size
 from starforge.spec import from_mapping
 from starforge.stars.spec import spec_from_mapping
 
 
-def parse_sets(items) -> dict:
-    """``["hole_mm=2.5", "holes=2"]`` -> {"hole_mm": 2.5, "holes": 2.0} (values are numbers)."""
-    out = {}
+def parse_sets(items, mount_name: str) -> dict:
+    """``["hole_mm=M3", "holes=2"]`` -> {"hole_mm": 3.2, "holes": 2.0}: numbers, and a metric screw
+    size for a hole (its ISO 273 clearance hole); the keys are checked against ``mount_name``'s
+    parameters first, so a wrong key is named as such."""
+    out: dict = {}
+    known = None
     for item in items or []:
-        key, sep, val = str(item).partition("=")
-        if not sep or not key.strip():
-            raise StarforgeError(f"--set takes KEY=VALUE (a mount parameter), got {item!r}")
+        key, sep, val = (x.strip() for x in str(item).partition("="))
+        if not sep or not key:
+            raise StarforgeError(f"--set takes KEY=VALUE (a mount parameter), e.g. --set holes=2; got {item!r}")
+        known = known or load_mount(mount_name).params
+        if key not in known:
+            raise StarforgeError(
+                f"--set {key}: mount {mount_name} has no parameter {key}; its parameters: {', '.join(known)} "
+                f"(see `starforge mounts {mount_name}`)"
+            )
+        size = metric_size(val) if key.endswith("hole_mm") else None
+        if size is not None:
+            out[key] = CLEARANCE_HOLES_MM[size]
+            continue
         try:
-            out[key.strip()] = float(val)
+            out[key] = float(val)
         except ValueError:
-            raise StarforgeError(f"--set {key.strip()} needs a number, got {val!r}") from None
+            hint = f" or a metric screw size such as M3 ({', '.join(CLEARANCE_HOLES_MM)})" if key.endswith("hole_mm") else ""
+            raise StarforgeError(f"--set {key} needs a number in mm{hint}; got {val!r}") from None
     return out
 
 
@@ -38,7 +53,8 @@ def describe_bodies(family, mount, sets, ids, allow_oversize, **body_options):
     parameters, the body options (stems thinner than printable, ...), the ids, and the fit of
     every body against the family's size limit (unless ``allow_oversize``).
     """
-    m = load_mount(mount or family.spec.mount or "flat", parse_sets(sets))
+    name = mount or family.spec.mount or "flat"
+    m = load_mount(name, parse_sets(sets, name))
     # the marker and seat the family was designed for, unless told otherwise
     if body_options.get("marker") is None and getattr(family.spec, "marker", None) is not None:
         body_options["marker"] = family.spec.marker
@@ -57,7 +73,8 @@ def describe_bodies(family, mount, sets, ids, allow_oversize, **body_options):
         if family.spec.mount == m.name or sets:  # made for this mount already: the command would not help
             raise
         raise StarforgeError(
-            f"{exc}; or make a family for this mount: {stars_command_for(family.spec, m.name)}"
+            f"{exc}; or make a family for this mount: "
+            f"{stars_command_for(family.spec, m.name, body_options.get('marker'), body_options.get('seat'))}"
         ) from None
     return m, spec, id_list, bodies
 
@@ -79,9 +96,10 @@ _STARS_FLAGS = (
 )
 
 
-def stars_command_for(spec, mount_name: str) -> str:
+def stars_command_for(spec, mount_name: str, marker: str | None = None, seat: str | None = None) -> str:
     """The ``starforge stars`` command that makes ``spec``'s family again, for ``mount_name``: the
-    options where the spec differs from the default (the finger template), a new name."""
+    options where the spec differs from the default (the finger template), a new name; the bought
+    ``marker`` (a catalogue name, else the family's) and ``seat`` the bodies are made with."""
     base = spec_from_mapping(load_template("stars", "finger")[1], name="finger")
 
     def word(v) -> str:
@@ -90,9 +108,14 @@ def stars_command_for(spec, mount_name: str) -> str:
         return f"{v:g}" if isinstance(v, float) else str(v)
 
     parts = ["starforge stars"]
+    marker = marker or spec.marker
     for field, flag in _STARS_FLAGS:
         v = getattr(spec, field)
-        if v is not None and v != getattr(base, field):
+        if field == "marker_mm" and marker is not None:
+            parts.append(f"--marker {marker}")
+        elif v is not None and v != getattr(base, field):
             parts.append(f"{flag} {word(v)}")
     parts += [f"--name {spec.name}-{mount_name}", f"--mount {mount_name}"]
+    if seat or spec.seat:
+        parts.append(f"--seat {seat or spec.seat}")
     return " ".join(parts)

@@ -33,6 +33,7 @@ from starforge.cad.body import Body, BodySpec, body_bounds, build_body, closest_
 from starforge.cad.mounts import Mount
 from starforge.errors import StarforgeError
 from starforge.io import atomic_write_json
+from starforge.runtime.progress import stage as progress_stage
 from starforge.spec import to_mapping
 
 CAD_FORMATS = ("step", "stl", "3mf")
@@ -177,6 +178,7 @@ def export_family(
 
         step_worker = StepProcess()
     done = False
+    step_stage = None
     plate_docs: list = []
     rep.timings.update(mesh_s=0.0, plate_s=0.0, step_s=0.0)
     try:
@@ -194,27 +196,35 @@ def export_family(
             from starforge.colours import body_colour
 
             plates = [(n, lay.members, lay.transforms) for n, lay in zip(plate_names(len(beds)), beds, strict=True)]
+            # the STEP files are made beside the meshes and plates: a stage of their own
+            step_stage = progress_stage("STEP", total=len(bodies), unit="bodies", parallel=True)
             step_job = step_worker_mod.start(
                 bodies,
                 to_print,
                 [body_colour(b.star_id - 1) for b in bodies],
                 stage,
                 plates if plate else [],
-                tick,
+                _both(tick, step_stage),
                 worker=step_worker,
             )
         t1 = time.perf_counter()
-        _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick, bed_mm)
+        with progress_stage("mesh", total=len(bodies), unit="bodies") as mesh_stage:
+            _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, _both(tick, mesh_stage), bed_mm)
         rep.timings["mesh_s"] = time.perf_counter() - t1
         if plate:  # while the STEP worker still runs
             t3 = time.perf_counter()
-            for name, lay in zip(plate_names(len(beds)), beds, strict=True):
-                plate_docs.append(_mesh_plate(name, lay, bodies, meshes, formats, stage))
+            with progress_stage("plate", total=len(beds), unit="beds") as plate_stage:
+                for name, lay in zip(plate_names(len(beds)), beds, strict=True):
+                    plate_docs.append(_mesh_plate(name, lay, bodies, meshes, formats, stage))
+                    plate_stage.update(advance=1)
             rep.timings["plate_s"] = time.perf_counter() - t3
         if step_job is not None:
             volumes, rep.timings["step_s"] = step_job.result()
+            step_stage.end()
         done = True
     finally:
+        if step_stage is not None:
+            step_stage.end()
         if step_worker is not None and not done:
             step_worker.kill()  # an error or Ctrl-C here: no STEP file is begun after this
     if step_job is not None:
@@ -304,6 +314,16 @@ def _mesh_plate(name, lay, bodies, meshes, formats, stage) -> dict:
         "print_to_bed": [np.round(T, 9).tolist() for T in lay.transforms],
         "files": files,
     }
+
+
+def _both(tick, stage):
+    """One unit of work done: the caller's count (``tick``) and the progress stage's."""
+
+    def both() -> None:
+        tick()
+        stage.update(advance=1)
+
+    return both
 
 
 class _Ticker:

@@ -11,7 +11,11 @@ import sys
 
 import typer
 
+from starforge.cli._args import QUIET, RootGroup
+from starforge.runtime.budget import DEFAULT_SECONDS, MEMORY_FRACTION
+
 app = typer.Typer(
+    cls=RootGroup,
     name="starforge",
     help="Design optical motion-capture markers: unique marker-star families, printable bodies, "
     "prop marker placement and the files trackers load.",
@@ -66,131 +70,22 @@ def console(stderr: bool = False):
     return Console(stderr=stderr, highlight=False)
 
 
-def progress(transient: bool = True, disable: bool | None = None):
-    """Progress on stderr: a rich bar on a terminal; otherwise (a pipe, a log file, CI) the
-    heartbeat's plain line every few seconds shows the task's state (:class:`PlainProgress`)."""
-    if disable is None and not sys.stderr.isatty():
-        return PlainProgress()
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
-    return Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed}/{task.total}"),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        console=console(stderr=True),
-        transient=transient,
-        disable=bool(disable),
-    )
-
-
-#: seconds between two plain progress lines (when stderr is not a terminal)
-HEARTBEAT_S = 5.0
-
-#: what the command is doing now, read by the heartbeat: [description, done, total]
-_state: list = ["working", None, None]
-
-
-class PlainProgress:
-    """The part of rich's Progress API the commands use; it only records the state, which the
-    heartbeat (:func:`start_heartbeat`) prints as a plain line every few seconds."""
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc) -> None:
-        _state[:] = ["working", None, None]
-
-    def add_task(self, description: str, total=None, **_) -> int:
-        _state[:] = [description, 0, total]
-        return 0
-
-    def update(self, task, description=None, completed=None, total=None, advance=None, **_) -> None:
-        if description is not None:
-            _state[0] = description
-        if total is not None:
-            _state[2] = total
-        if completed is not None:
-            _state[1] = completed
-        if advance is not None:
-            _state[1] = (_state[1] or 0) + advance
-
-    def advance(self, task, advance: float = 1) -> None:
-        self.update(task, advance=advance)
-
-
-def _state_line(command: str, seconds: float) -> str:
-    what, done, total = _state
-    text = f"starforge {command}: {seconds:.0f} s, {what}"
-    if done is not None and total:
-        text += f" {done:,}/{total:,} ({100 * done / total:.0f} %)"
-    elif done:
-        text += f" {done:,}"
-    return text
-
-
-_FORK_LOCK: list = []
-
-
-def _fork_safe_lock():
-    """The heartbeat's print lock, held across every ``os.fork`` of this process (registered
-    once): a child forked while the heartbeat runs (the pictures' render processes) never
-    inherits stderr's lock taken, so the heartbeat thread is safe to fork beside."""
-    import os
-    import threading
-
-    if not _FORK_LOCK:
-        lock = threading.Lock()
-        if hasattr(os, "register_at_fork"):
-            os.register_at_fork(before=lock.acquire, after_in_parent=lock.release, after_in_child=lock.release)
-        _FORK_LOCK.append(lock)
-    return _FORK_LOCK[0]
-
-
-def start_heartbeat(command: str, interval_s: float = HEARTBEAT_S):
-    """Print a plain progress line on stderr every ``interval_s`` until the returned stop function
-    is called: long work (numba's first compile included) shows progress without a terminal."""
-    import threading
-    import time
-
-    stop = threading.Event()
-    t0 = time.monotonic()
-    _state[:] = ["working", None, None]
-    lock = _fork_safe_lock()
-
-    def beat() -> None:
-        while not stop.wait(interval_s):
-            try:
-                with lock:  # never forked half-way through a line (stderr's lock held)
-                    print(_state_line(command, time.monotonic() - t0), file=sys.stderr, flush=True)
-            except (OSError, ValueError):  # stderr closed: nobody is reading
-                return
-
-    th = threading.Thread(target=beat, name="starforge-heartbeat", daemon=True)
-    th.fork_safe = True  # a process forked while it runs inherits no lock it holds (see above)
-    th.start()
-
-    def stop_fn() -> None:
-        stop.set()
-        th.join(timeout=1.0)
-
-    return stop_fn
-
-
 @app.callback(invoke_without_command=True)
 def _root(
     ctx: typer.Context,
     version: bool = typer.Option(False, "--version", help="Print the version and exit.", is_eager=True),
     max_memory: str = typer.Option(
-        None, "--max-memory", help="Memory any command may plan to use, e.g. 2G (default: half this machine's)."
+        None, "--max-memory", help=f"Memory any command may plan to use, e.g. 2G (default: {MEMORY_FRACTION:.0%} of this machine's; also accepted after the command)."
     ),
-    max_seconds: float = typer.Option(None, "--max-seconds", help="Time any command may plan to take, s (default 7200)."),
+    quiet: bool = typer.Option(
+        False, "--quiet", "-q", help="Print nothing but errors (also accepted after the command)."
+    ),
+    max_seconds: float = typer.Option(None, "--max-seconds", help=f"Time any command may plan to take, s (default {DEFAULT_SECONDS:g}; also accepted after the command)."),
     scheduler: str = typer.Option(
         None,
         "--scheduler",
         help="Run parallel work (enumeration chunks, sweep cells) on the dask scheduler at this address "
-        "(default: $STARFORGE_SCHEDULER; unset: this machine).",
+        "(default: $STARFORGE_SCHEDULER; unset: this machine; also accepted after the command).",
     ),
 ) -> None:
     """Design optical motion-capture markers: unique marker-star families, printable bodies,
@@ -215,5 +110,21 @@ def _root(
     if ctx.invoked_subcommand is None:
         print(ctx.get_help())
         raise typer.Exit(0)
-    if not sys.stderr.isatty():  # a pipe or a log: plain progress lines every few seconds
-        ctx.call_on_close(start_heartbeat(ctx.invoked_subcommand))
+    _show_progress(ctx, quiet or bool(ctx.meta.get(QUIET)))
+
+
+def _show_progress(ctx: typer.Context, quiet: bool) -> None:
+    """Install the listener of the library's progress (:mod:`starforge.cli._progress`) until the
+    command ends."""
+    from starforge.cli._progress import listener_for
+    from starforge.runtime.progress import reporting
+
+    listener = listener_for(ctx.invoked_subcommand, quiet)
+    installed = reporting(listener)
+    installed.__enter__()
+
+    def close() -> None:
+        installed.__exit__(None, None, None)
+        listener.close()
+
+    ctx.call_on_close(close)

@@ -4,24 +4,23 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 
-from starforge.cli._app import console, progress
+from starforge.cli._app import console
+from starforge.runtime import progress
 
 
 @contextmanager
 def job_progress(label: str, noun: str, total: int, quiet: bool):
     """Yield ``(tick, where)`` for :func:`starforge.runtime.engine.map_tasks`'s ``progress`` and
-    ``on_plan``: a progress bar on a terminal, else the heartbeat's plain line every few seconds
-    (:func:`starforge.cli._app.progress`, for logs); ``where`` says once where the tasks run.
-    ``quiet``: neither."""
+    ``on_plan``: stage ``label`` counting ``noun`` (:mod:`starforge.runtime.progress`); ``where``
+    says once where the tasks run.  ``quiet``: nothing is said."""
     say = console(stderr=True)
-    with progress(disable=True if quiet else None) as bar:
-        task = bar.add_task(noun, total=total)
+    with progress.stage(label, total=total, unit=noun) as st:
 
         def tick(done: int, n: int) -> None:
-            bar.update(task, completed=done, total=n)
+            st.update(done, n)
 
         def where(plan) -> None:
             if not quiet:
-                say.print(f"{label}: {total} {noun} on {plan.describe()}")
+                say.print(f"{label}: {total:,} {noun} on {plan.describe()}")
 
         yield tick, where

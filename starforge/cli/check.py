@@ -6,7 +6,8 @@ from pathlib import Path
 
 import typer
 
-from starforge.cli._app import app, console, progress
+from starforge.cli._app import app, console
+from starforge.runtime import progress
 
 
 def _tip(text: str | None):
@@ -67,7 +68,7 @@ def check_cmd(
     preset: str = typer.Option(
         None,
         "--preset",
-        help="Vendor rules and tracker windows: art, ndi, qualisys, optitrack (or a TOML file).",
+        help="Vendor rules and tracker windows: art, ndi, qualisys, optitrack (or a TOML file; default: none).",
     ),
     match: float = typer.Option(
         None,
@@ -117,19 +118,15 @@ def check_cmd(
     out = Path(out)
     names = ["check.json"] + (["check.png"] if curve > 0 else [])
     check_writable(out, names, force)
-    with progress() as bar:
-        task = bar.add_task("frames", total=frames)
-
-        def cb(stage, done, total):
-            bar.update(task, description=stage, completed=done, total=total)
-
-        doc = run_check(bodyset, settings, progress=cb)
+    doc = run_check(bodyset, settings, progress=progress.report("frames"))
     with staged_output(out, force) as stage:
         atomic_write_json(stage / "check.json", doc)
         if curve > 0:
             from starforge.render.tracking import rates_plot
 
-            rates_plot(doc, stage / "check.png")
+            with progress.stage("render", total=1, unit="pictures") as st:
+                rates_plot(doc, stage / "check.png")
+                st.update(1)
     if quiet:
         return
     err = console(stderr=True)
@@ -140,7 +137,7 @@ def check_cmd(
     con.print(
         f"{doc['input']['bodies']} bodies, {s['frames']} frames, {s['world']} world, presence {s['presence']:g}, "
         f"noise {s['noise_mm']} mm, drop {s['drop']} ({s['drop_mode']}), ghosts {s['ghosts']}, "
-        f"match {s['match_mm']:g} mm ({s['window_source']}), residual {s['residual_mm']:g} mm, "
+        f"match {s['match_mm']:.3g} mm ({s['window_source']}), residual {s['residual_mm']:.3g} mm, "
         f"identify from {s['identify_from_markers']} markers"
     )
     if doc["input"]["bodies_never_hiding_a_marker"]:
@@ -166,14 +163,14 @@ def check_cmd(
         con.print(f"  {w['kind']}: {w['true']} -> {w['reported']}: {w['count']} ({100 * w['rate']:.3f} %)")
     fam = doc["accuracy"]["family"]
     at = doc["accuracy"]["tip_mm"]
-    tip = "(" + ", ".join(f"{x:g}" for x in at) + ") mm" if at is not None else "each body's tip"
+    tip = ", ".join(f"{x:.3g}" for x in at) + " mm" if at is not None else "each body's tip"
     hidden = (
         f"one marker hidden: median {fam['tip_tre_hidden_mm_median']:.3f} mm, worst {fam['tip_tre_hidden_mm_worst']:.3f} mm"
         if fam["tip_tre_hidden_mm_median"] is not None
         else "no body has a hidden-marker case"
     )
     con.print(
-        f"TRE at {tip} ({doc['accuracy']['tip_source']}): median {fam['tip_tre_mm_median']:.3f} mm, "
+        f"TRE at {tip}, {doc['accuracy']['tip_source']}: median {fam['tip_tre_mm_median']:.3f} mm, "
         f"worst {fam['tip_tre_mm_worst']:.3f} mm; {hidden}"
     )
     if "rules" in doc:

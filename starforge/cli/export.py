@@ -12,7 +12,8 @@ from pathlib import Path
 
 import typer
 
-from starforge.cli._app import app, console, progress
+from starforge.cli._app import app, console
+from starforge.markers import CLEARANCE_HOLES_MM, THREADS
 
 CAD_FORMATS = ("step", "stl", "3mf")
 TRACKER_FORMATS_DOC = ("qtm", "vsk", "atracsys", "rom", "motive", "csv")
@@ -74,18 +75,25 @@ MOUNT = typer.Option(
 )
 IDS = typer.Option(None, "--ids", help="Star ids, e.g. 1,2,5 or 1-4 (default: all).")
 SETS = typer.Option(
-    None, "--set", help="Mount parameter override KEY=VALUE (repeatable), e.g. --set holes=2."
+    None,
+    "--set",
+    help="Mount parameter override KEY=VALUE (repeatable; `starforge mounts NAME` lists them), e.g. --set holes=2 "
+    f"or --set hole_mm=M3 (a metric size: its ISO 273 clearance hole, M3: {CLEARANCE_HOLES_MM['M3']:g} mm).",
 )
 SEAT = typer.Option(
     None,
     "--seat",
-    help="What each stem ends in: sphere (printed), glue, post, screw or insert (a seat for a bought "
-    "--marker; default: the marker's own attachment, else the family's, else sphere).",
+    help="How each marker sits on the end of its stem (the marker's seat, not the body's mount): sphere "
+    "(printed with the body), glue (a pad), post, screw (the bought marker's stud in a tap-drill bore, M3: "
+    f"{THREADS['M3'].tap_drill_mm:g} mm) or insert (its stud in a heat-set insert, M3: a "
+    f"{THREADS['M3'].insert_hole_mm:g} mm hole); default: the --marker's own attachment, else the family's, "
+    "else sphere.",
 )
 MARKER = typer.Option(
     None,
     "--marker",
-    help="A bought marker from the catalogue (see `starforge templates markers`) or a TOML file.",
+    help="A bought marker from the catalogue (see `starforge templates markers`) or a TOML file (default: the "
+    "family's).",
 )
 NOZZLE = typer.Option(
     None, "--nozzle-mm", help="Printer nozzle, mm: engraved strokes and counters are 2 x wider (default 0.4)."
@@ -100,7 +108,11 @@ NO_LABEL = typer.Option(False, "--no-label", help="Do not engrave the star id.")
 
 
 _FILE = typer.Argument(..., help="family.json (or its folder), or a placement.json for tracker formats.")
-_OUT = typer.Option(None, "--out", help="Output folder (default: <FILE's folder>/bodies).")
+_OUT = typer.Option(
+    None,
+    "--out",
+    help="Output folder (default: <FILE's folder>/bodies with a CAD format, else <FILE's folder>/tracker).",
+)
 
 
 @app.command("export")
@@ -145,7 +157,7 @@ def export_cmd(
     ),
     out: Path = _OUT,
     force: bool = typer.Option(False, "--force", help="Overwrite existing outputs."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors and warnings."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors (warnings are in bodies.json and trackers.json)."),
 ) -> None:
     """Write printable star bodies (one file per star per format, plus a print plate) and/or
     tracker rigid-body files, all or nothing."""
@@ -217,27 +229,28 @@ def export_cmd(
         written: list = []
         previews = None
         if preview:
-            from starforge.render.bodies import draw_previews as previews
+            from functools import partial
+
+            from starforge.render.bodies import draw_previews
+
+            previews = partial(draw_previews, box_mm=family.spec.box_mm)  # the sheet draws the limit
         with staged_output(out, force) as stage:
             if cad:
-                with progress() as bar:
-                    task = bar.add_task("bodies", total=len(bodies))
-                    rep = export_family(
-                        family,
-                        stage,
-                        m,
-                        spec,
-                        formats=cad,
-                        ids=id_list,
-                        bed_mm=bed_mm,
-                        gap_mm=gap,
-                        plate=not no_plate,
-                        preview=previews,
-                        allow_oversize=allow_oversize,
-                        progress=lambda done, total: bar.update(task, completed=done, total=total),
-                        bodies=bodies,
-                        step_worker=worker,
-                    )
+                rep = export_family(
+                    family,
+                    stage,
+                    m,
+                    spec,
+                    formats=cad,
+                    ids=id_list,
+                    bed_mm=bed_mm,
+                    gap_mm=gap,
+                    plate=not no_plate,
+                    preview=previews,
+                    allow_oversize=allow_oversize,
+                    bodies=bodies,
+                    step_worker=worker,
+                )
                 written.extend(rep.files)
             if trk:
                 import json
@@ -257,6 +270,8 @@ def export_cmd(
     finally:
         if worker is not None:
             worker.kill()  # ended already, or never given a job (a refusal above)
+    if quiet:  # the warnings are in bodies.json / trackers.json
+        return
     err = console(stderr=True)
     for w in bodyset.warnings if trk else ():
         err.print(f"warning: {w}", soft_wrap=True, markup=False)
@@ -267,19 +282,20 @@ def export_cmd(
     if rep is not None:
         for w in rep.warnings:
             err.print(f"warning: {w}")
-    if not quiet:
-        con = console()
-        if rep is not None:
-            fits = sum(b["fits"] for b in rep.bodies)
-            con.print(
-                f"{len(rep.bodies)} bodies with mount {m.name} ({m.kind}): {fits} within the family's size limit, "
-                f"{rep.timings['total_s']:.1f} s"
-            )
-            worst = min(
-                ((v, b["name"], "ABCD"[i]) for b in rep.bodies for i, v in enumerate(b["visibility"]))
-            )
-            con.print(
-                f"least visible sphere: {worst[1]} {worst[2]}, {worst[0]:.2f} of its upper hemisphere free "
-                "(per sphere in bodies.json)"
-            )
-        con.print(f"wrote {len(written)} files to {out}/")
+    con = console()
+    if rep is not None:
+        fits = sum(b["fits"] for b in rep.bodies)
+        con.print(
+            f"{len(rep.bodies)} bodies with mount {m.name}{'' if m.kind == m.name else f' ({m.kind})'}: "
+            f"{fits} within the family's size limit, "
+            f"{rep.timings['total_s']:.1f} s"
+        )
+        worst = min(
+            ((v, b["name"], "ABCD"[i]) for b in rep.bodies for i, v in enumerate(b["visibility"]))
+        )
+        con.print(
+            f"least visible sphere: {worst[1]} {worst[2]}, {worst[0]:.2f} of its upper hemisphere free "
+            "(per sphere in bodies.json)"
+        )
+    con.print(f"wrote {len(written)} files to {out}/")
+

@@ -13,19 +13,44 @@ from pathlib import Path
 import typer
 from typer.core import TyperGroup
 
-from starforge.catalog import load_template
-from starforge.cli._app import app, console, progress
+from starforge.catalog import list_templates, load_template
+from starforge.cli._app import app, console
+from starforge.runtime import progress
 
 _DEFAULT = "run"
+
+#: the settings template ``--spec`` defaults to: the help states its values
+_SPEC = "default"
+_S = load_template("place", _SPEC)[1]
+_T = _S.get("track", {})
+
+
+def _of_spec(value) -> str:
+    """``"default: the spec's; 600 in `default`"``."""
+    return f"default: the spec's; {value} in `{_SPEC}`"
+
+
+# options shared by `place` and `place score`
+_RIG = typer.Option(None, "--rig", help=f"Rig template name or TOML file ({_of_spec(_S.get('rig'))}).")
+_RESOLUTION = typer.Option(
+    None, "--resolution", help=f"n for n x n x n prop positions in the capture volume ({_of_spec(_S['resolution'])})."
+)
+_ORIENTATIONS = typer.Option(
+    None, "--orientations", help=f"Prop orientations per position ({_of_spec(_S['orientations'])})."
+)
 
 
 class _DefaultGroup(TyperGroup):
     """Dispatch to a subcommand when the first argument names one, else to the default command."""
 
+    default_command = _DEFAULT
+
     def parse_args(self, ctx, args):
         from starforge.cli._multi import spread_flag
 
-        if not args or (args[0] not in self.commands and args[0] not in ctx.help_option_names):
+        if args and args[0] in ctx.help_option_names:  # the placement's options, and where score is
+            args = [_DEFAULT, *args]
+        if not args or args[0] not in self.commands:
             args = [_DEFAULT, *args]
         if args[0] == _DEFAULT:  # --avoid A B: every value up to the next option is a file to avoid
             args = [_DEFAULT, *spread_flag("--avoid", list(args[1:]))]
@@ -87,11 +112,18 @@ def _prop_and_spec(
 _DEFAULT_SITES = load_template("place", "default")[1].get("sites")
 
 _PROP = typer.Argument(
-    ..., help="Mesh file (STL, OBJ, PLY, GLB, OFF) or built-in prop name (builtin:NAME when a path has that name)."
+    ...,
+    help="Mesh file (STL, OBJ, PLY, GLB, OFF) or built-in prop name (builtin:NAME when a path has that name).",
 )
 
 
-@place_app.command(_DEFAULT, help="Optimize a marker set on PROP (the default command).")
+@place_app.command(
+    _DEFAULT,
+    help="Optimize a marker set on PROP; writes placement.json (source of truth), markers.csv, the prop "
+    "with its markers and the pictures.  `run` may be left out: `starforge place PROP [OPTIONS]`.  "
+    "To score a given layout instead: `starforge place score PROP MARKERS.csv` "
+    "(see `starforge place score --help`).",
+)
 def run_cmd(
     prop: str = typer.Argument(
         "hammer",
@@ -99,25 +131,41 @@ def run_cmd(
         "path has that name).",
     ),
     spec: str = typer.Option(
-        "default", "--spec", help="Settings template name (default, paper, long, robust; `starforge templates place`) or TOML file."
+        _SPEC,
+        "--spec",
+        help=f"Settings template name ({', '.join(list_templates('place'))}; `starforge templates place`) or "
+        "TOML file: the defaults of the options below.",
     ),
-    rig: str = typer.Option(None, "--rig", help="Rig template name or TOML file (default: the spec's)."),
-    markers: int = typer.Option(None, "--markers", help="Target number of markers (Table 1: 7), in [4, 20]."),
-    resolution: int = typer.Option(None, "--resolution", help="n for n x n x n prop positions (4, 8, 12)."),
-    orientations: int = typer.Option(None, "--orientations", help="Prop orientations per position (K)."),
+    rig: str = _RIG,
+    markers: int = typer.Option(
+        None,
+        "--markers",
+        help=f"Target number of markers, in [{_T.get('min_markers')}, {_T.get('max_markers')}] "
+        f"({_of_spec(_T.get('target_markers'))}).",
+    ),
+    resolution: int = _RESOLUTION,
+    orientations: int = _ORIENTATIONS,
     sites: int = typer.Option(
-        None, "--sites", help=f"Candidate sites (Poisson-disk samples; default: the spec's, {_DEFAULT_SITES} in the default spec)."
+        None,
+        "--sites",
+        help=f"Candidate sites, Poisson-disk samples on the surface ({_of_spec(_S['sites'])}).",
     ),
-    restarts: int = typer.Option(None, "--restarts", help="Independent annealing runs; the best is kept."),
+    restarts: int = typer.Option(
+        None,
+        "--restarts",
+        help=f"Annealing runs from the best random layout; the best layout is kept ({_of_spec(_T.get('restarts'))}).",
+    ),
     marker_mm: str = typer.Option(
         None,
         "--marker-mm",
         "--marker",
-        help="Marker: a catalogue name (4mm-flat, 6.4mm-post, 9.5mm-m3, 12.7mm-m3, 14mm-m4; its base seats it) or a "
-        "ball diameter in mm (default: the spec's, 9.5mm-m3).",
+        help=f"Marker: a catalogue name ({', '.join(list_templates('markers'))}; its base seats it) or a "
+        f"ball diameter in mm ({_of_spec(_T.get('marker'))}).",
     ),
     base_mm: float = typer.Option(
-        None, "--base-mm", help="Diameter of the flat base under each marker, mm (a stick-on pad; default: the marker's own)."
+        None,
+        "--base-mm",
+        help="Diameter of the flat base under each marker, mm (a stick-on pad; default: the marker's own).",
     ),
     grip: str = typer.Option(
         None,
@@ -134,21 +182,33 @@ def run_cmd(
         "its base overhangs an edge or a surface tilted more than 30 degrees (default 2).",
     ),
     cameras_lost: float = typer.Option(
-        None, "--cameras-lost", help="Fraction of the cameras lost at random in each scenario, [0, 1] (default 0.5)."
+        None,
+        "--cameras-lost",
+        help=f"Fraction of the cameras lost at random in each scenario, [0, 1] ({_of_spec(_T.get('cameras_lost'))}).",
     ),
     bases_stl: bool = typer.Option(
-        False, "--bases-stl", help="Also write prop_bases.stl: the prop with a flat pad under every marker (for printing)."
+        False,
+        "--bases-stl",
+        help="Also write prop_bases.stl: the prop with a flat pad under every marker (for printing).",
     ),
     avoid: list[Path] = typer.Option(
         None,
         "--avoid",
         help="Placements, star families or tracker files of bodies already in the room; several may follow one "
-        "flag (--avoid A B): every value up to the next option is one, so give PROP before --avoid.",
+        "flag (--avoid A B): every value up to the next option is one, so give PROP before --avoid (default: none).",
     ),
     units: str = typer.Option("m", "--units", help="Units of a mesh file: m, cm or mm."),
-    forbid_mesh: str = typer.Option(None, "--forbid-mesh", help="Mesh of a constrained area (no markers)."),
-    mask: str = typer.Option(None, "--mask", help="Per-face mask file (1 = no markers on that face)."),
-    mesh_format: str = typer.Option(None, "--mesh-format", help="glb or stl for the prop-with-markers mesh."),
+    forbid_mesh: str = typer.Option(
+        None, "--forbid-mesh", help="Mesh of a constrained area, no markers there (default: none)."
+    ),
+    mask: str = typer.Option(
+        None, "--mask", help="Per-face mask file, 1 = no markers on that face (default: none)."
+    ),
+    mesh_format: str = typer.Option(
+        None,
+        "--mesh-format",
+        help=f"glb or stl for the prop-with-markers mesh ({_of_spec(_S.get('mesh_format'))}).",
+    ),
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same result)."),
     out: str = typer.Option("out/place", "--out", help="Output folder."),
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
@@ -204,46 +264,40 @@ def run_cmd(
             "guide.pdf",
         ] + (["prop_bases.stl"] if bases_stl else [])
         check_writable(out, names, force)  # fail before the work, not after
-        with progress() as bar:
-            task = bar.add_task("visibility", total=None)
-
-            def cb(stage, done, total):
-                bar.update(task, description=stage, completed=done, total=total)
-
-            with staged_output(out, force) as stage:
-                # the pictures are drawn while the layouts are evaluated on fresh poses
-                res = place(
-                    p, s, seed=seed, progress=cb, avoid=avoid_faces, grip=cap,
-                    on_layout=lambda r: renderer.submit(r, stage),
-                )  # fmt: skip
-                bar.update(task, description="writing")
-                # rich imported while the pictures are drawn, not after them
-                err, con = console(stderr=True), None if quiet else console()
+        with staged_output(out, force) as stage:
+            # the pictures are drawn while the layouts are evaluated on fresh poses
+            res = place(
+                p, s, seed=seed, avoid=avoid_faces, grip=cap, on_layout=lambda r: renderer.submit(r, stage),
+            )  # fmt: skip
+            # rich imported while the pictures are drawn, not after them
+            err, con = console(stderr=True), None if quiet else console()
+            with progress.stage("render", unit="pictures"):
                 write_outputs(res, stage, renderer=renderer, bases_stl=bases_stl)
     from starforge.props.files import summary_lines
 
+    if quiet:  # the warnings are in placement.json
+        return
     for w in res.warnings:
         err.print(f"warning: {w}")
-    if not quiet:
-        for line in summary_lines(res):
-            con.print(line)
-        t = res.timings
-        load = t.get("load_s", 0.0) + t.get("repair_s", 0.0)
-        con.print(
-            f"time: load {load:.2f} s, sites {t.get('sample_s', 0):.2f} s, visibility {t['visibility_s']:.2f} s, "
-            f"optimization {t['optimize_s']:.2f} s, evaluation {t.get('evaluate_s', 0):.2f} s"
-        )
-        con.print(f"wrote {out}/: {', '.join(names)}")
+    for line in summary_lines(res):
+        con.print(line)
+    t = res.timings
+    load = t.get("load_s", 0.0) + t.get("repair_s", 0.0)
+    con.print(
+        f"time: load {load:.2f} s, sites {t.get('sample_s', 0):.2f} s, visibility {t['visibility_s']:.2f} s, "
+        f"optimization {t['optimize_s']:.2f} s, evaluation {t.get('evaluate_s', 0):.2f} s"
+    )
+    con.print(f"wrote {out}/: {', '.join(names)}")
 
 
 @place_app.command("score", help="Score a given marker layout (CSV id,x_m,y_m,z_m,nx,ny,nz) on PROP.")
 def score_cmd(
     prop: str = _PROP,
     markers_csv: str = typer.Argument(..., help="Markers CSV (metres, prop frame); normals optional."),
-    spec: str = typer.Option("default", "--spec", help="Settings template name or TOML file."),
-    rig: str = typer.Option(None, "--rig", help="Rig template name or TOML file."),
-    resolution: int = typer.Option(None, "--resolution", help="n for n x n x n prop positions."),
-    orientations: int = typer.Option(None, "--orientations", help="Prop orientations per position (K)."),
+    spec: str = typer.Option(_SPEC, "--spec", help="Settings template name or TOML file."),
+    rig: str = _RIG,
+    resolution: int = _RESOLUTION,
+    orientations: int = _ORIENTATIONS,
     units: str = typer.Option("m", "--units", help="Units of the mesh file: m, cm or mm."),
     seed: int = typer.Option(0, "--seed", help="Seed for random orientations."),
     as_json: bool = typer.Option(False, "--json", help="Print the costs as JSON."),

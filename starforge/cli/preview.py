@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from starforge.cli._app import app, console, progress
+from starforge.cli._app import app, console
 from starforge.cli.export import (
     COATING,
     IDS,
@@ -46,12 +46,13 @@ def preview_cmd(
     ),
     out: Path = _OUT,
     force: bool = typer.Option(False, "--force", help="Overwrite existing pictures."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
     """Draw each body (preview/star_<id>.png) and a sheet of all of them with their ids (preview/sheet.png)."""
     from starforge.cad.describe import describe_bodies
     from starforge.cli.export import default_out
     from starforge.io import staged_output
-    from starforge.render.bodies import render_body_png, render_sheet_png
+    from starforge.render.bodies import draw_previews
     from starforge.stars.model import load_family
 
     src = file / "family.json" if file.is_dir() else file
@@ -73,11 +74,6 @@ def preview_cmd(
     )
     out = out if out is not None else default_out(src, True)
     with staged_output(out, force) as stage:
-        (stage / "preview").mkdir()
-        with progress() as bar:
-            task = bar.add_task("pictures", total=len(bodies) + 1)
-            for b in bodies:
-                render_body_png(b, stage / "preview" / f"{b.name}.png")
-                bar.advance(task)
-            render_sheet_png(bodies, stage / "preview" / "sheet.png")
-    console().print(f"wrote {len(bodies) + 1} pictures to {out}/preview/")
+        draw_previews(bodies, stage / "preview", family.spec.box_mm)
+    if not quiet:
+        console().print(f"wrote {len(bodies) + 1} pictures to {out}/preview/")

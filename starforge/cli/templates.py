@@ -4,18 +4,19 @@ from __future__ import annotations
 
 import typer
 
+from starforge.catalog import KINDS
 from starforge.cli._app import app
 
 
 @app.command("templates")
 def templates_cmd(
-    kind: str = typer.Argument(None, help="stars, mounts, rigs, place or presets; all when omitted."),
+    kind: str = typer.Argument(None, help=f"{', '.join(KINDS)}; all when omitted."),
     show: str = typer.Option(None, "--show", help="Print one template's TOML text (KIND is required)."),
 ) -> None:
     """List the shipped templates, or print one to copy and edit."""
     from importlib import resources
 
-    from starforge.catalog import KINDS, list_templates, load_template
+    from starforge.catalog import list_templates, load_template
 
     if show:
         if not kind:

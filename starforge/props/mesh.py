@@ -7,6 +7,7 @@ list of plain-language notes saying what was repaired.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -56,6 +57,18 @@ class PropMesh:
         return np.asarray(self.mesh.extents, dtype=float)
 
 
+def units_hint(size_m: float, units: str, lo_m: float, hi_m: float) -> str:
+    """Advice naming ``--units`` for a prop ``size_m`` across when read as ``units``: the units
+    that make it between ``lo_m`` and ``hi_m``, the one nearest a hand-held size (0.3 m) first."""
+    here = UNITS_TO_M.get(units, 1.0)
+    fits = [u for u, f in UNITS_TO_M.items() if u != units and lo_m <= size_m / here * f <= hi_m]
+    fits.sort(key=lambda u: abs(math.log(size_m / here * UNITS_TO_M[u] / 0.3)))
+    if not fits:
+        return f"no --units ({', '.join(UNITS_TO_M)}) makes it a prop's size: check the file's scale"
+    size = size_m / here * UNITS_TO_M[fits[0]]
+    return f"pass --units {fits[0]} (it is then {size:.3g} m across)"
+
+
 def units_scale(units: str) -> float:
     """Metres per file unit; StarforgeError naming ``units`` when unknown."""
     if units not in UNITS_TO_M:
@@ -95,8 +108,8 @@ def load_mesh_file(path: str | Path, units: str = "m", what: str = "prop mesh"):
     size = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 0.0
     if size > MAX_SIZE_M:  # beyond this, float arithmetic in the repair overflows
         raise StarforgeError(
-            f"{what} {path} is {size:.3g} m across read as {units}: no prop is that large "
-            f"(at most {MAX_SIZE_M:g} m); check --units or the file's scale"
+            f"{what} {path} is {size:,.4g} m across read as {units}: no prop is that large "
+            f"(at most {MAX_SIZE_M:g} m); {units_hint(size, units, 0.01, MAX_SIZE_M)}"
         )
     return trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
 

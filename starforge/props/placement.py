@@ -19,6 +19,7 @@ from starforge.props.costs import CostBreakdown, evaluate
 from starforge.props.optimizer import AnnealResult, anneal
 from starforge.props.sites import Sites
 from starforge.props.spec import PlaceSpec
+from starforge.runtime.progress import report as progress_report
 from starforge.spec import require
 
 
@@ -173,6 +174,8 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
     pivot = np.asarray(prop.mesh.bounds, dtype=float).mean(axis=0)
     check_cost(prop, spec, rig, len(kept), spec.resolution**3 * spec.orientations)  # before building them
     poses = make_poses(rig.volume, spec.resolution, spec.orientations, pivot, rng)
+    if progress is not None:
+        progress(0, None)  # the rays' stage starts with its work
     pose_grip = assign_grips(len(poses), len(grips), np.random.default_rng(seed + GRIP_SEED_OFFSET))
     occ, starts = grip_arrays(grips)
     table = compute_table(
@@ -251,13 +254,9 @@ def check_scale(prop, rig, marker_m: float) -> list[str]:
     ext = float(np.max(prop.mesh.extents))
     vol = float(np.max(rig.volume.size))
     if ext > 2 * vol or ext < 4 * marker_m:
-        from starforge.props.mesh import UNITS_TO_M
+        from starforge.props.mesh import units_hint
 
-        here = UNITS_TO_M.get(prop.units, 1.0)
-        fits = [u for u, f in UNITS_TO_M.items() if 4 * marker_m <= ext / here * f <= vol]
-        # of the units that make it plausible, the one nearest a hand-held size (0.3 m)
-        fits.sort(key=lambda u: abs(math.log(ext / here * UNITS_TO_M[u] / 0.3)))
-        hint = f"; pass --units {fits[0]}" if fits else ""
+        hint = "; " + units_hint(ext, prop.units, 4 * marker_m, vol)
         size = " x ".join(f"{e:.4g}" for e in prop.mesh.extents)
         raise StarforgeError(
             f"prop {prop.name} is {size} m read as {prop.units}: "
@@ -336,6 +335,19 @@ def run_placement(
     return place(load_prop(prop, units), s, seed=seed, progress=progress, avoid=avoid, grip=cap)
 
 
+def _stages(progress):
+    """``progress(stage, done, total)``: the caller's callback (if any) and the process's progress
+    stages (:mod:`starforge.runtime.progress`)."""
+    shown = progress_report()
+
+    def both(name: str, done, total) -> None:
+        shown(name, done, total)
+        if progress is not None:
+            progress(name, done, total)
+
+    return both
+
+
 def place(
     prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None, grip=None, on_layout=None
 ) -> PlacementResult:
@@ -362,7 +374,7 @@ def place(
     require(isinstance(seed, int) and seed >= 0, f"seed must be an integer >= 0, got {seed}")
     rng = np.random.default_rng(seed)
     timings: dict = dict(getattr(prop, "timings", {}) or {})
-    vis_cb = (lambda d, n: progress("visibility", d, n)) if progress else None
+    progress = _stages(progress)
     from starforge.props.rig import load_rig
 
     warnings = prop_name_warnings(prop) + check_scale(prop, load_rig(spec.rig), spec.marker_diameter_m)
@@ -372,7 +384,8 @@ def place(
             f"a {seat.ball_mm:g} mm marker is not in the catalogue: a generic ball on a {seat.base_mm:g} mm base with its "
             f"centre {seat.centre_height_mm:g} mm above it is assumed (--marker NAME for a catalogue marker, --base-mm for the base)"
         )
-    prep = prepare(prop, spec, rng, vis_cb, timings, grip, seed)
+    progress("sites", 0, None)
+    prep = prepare(prop, spec, rng, lambda d, n: progress("rays", d, n), timings, grip, seed)
     warnings = warnings + list(prep.notes)
     if spec.objective == "tracked":
         return _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress, on_layout)
@@ -387,7 +400,8 @@ def _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress) -> Pl
     table, sites = prep.table, prep.sites
     v = table.site_visibility
     t = time.perf_counter()
-    run_cb = (lambda d, n: progress("annealing", d, n)) if progress else None
+    run_cb = lambda d, n: progress("optimise", d, n)  # noqa: E731
+    run_cb(0, spec.chain.restarts)
     pose_seen = table.seen.any(axis=2)  # (s, p): some pair sees the site at the pose
     result = anneal(sites.points, v, spec.costs, spec.chain, rng, on_run=run_cb, site_pose_seen=pose_seen)
     t = _tick(timings, "optimize_s", t)
@@ -643,7 +657,8 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         margin=prep.seat_report.margin_m,
         margin_target=spec.seat.margin_cap_mm / 1000.0,
     )
-    run_cb = (lambda d, n: progress("optimizing", d, n)) if progress else None
+    run_cb = lambda d, n: progress("optimise", d, n)  # noqa: E731
+    run_cb(0, ts.restarts)
     validate = polish = ranking = None
     if ts.validation_poses:
         ranking = _HeldOut(prop, spec, seed, prep, VALIDATION_SEED_OFFSET)
@@ -687,6 +702,7 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
     )  # fmt: skip
     if on_layout is not None:
         on_layout(res)
+    progress("evaluate", 0, None)  # the layouts on fresh poses
     layouts = {"default": chosen, "greedy_local_search": opt.baselines["greedy_local_search"]["sites"]}
     if opt.baselines["best_of_random"]["sites"] is not None:
         layouts["best_of_random"] = opt.baselines["best_of_random"]["sites"]

@@ -24,3 +24,45 @@ def save_png(fig, path: str | Path, dpi: int = 100) -> Path:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
     return atomic_write_bytes(path, buf.getvalue())
+
+
+def wrap_to_width(fig, text_artist, fraction: float = 0.96) -> None:
+    """Break ``text_artist``'s text into lines (at spaces) until it is no wider than ``fraction``
+    of its axes (of the figure for a figure's text): a long title fits instead of being cut at the
+    edge."""
+    import textwrap
+
+    full = text_artist.get_text()
+    renderer = fig.canvas.get_renderer()
+    limit = fraction * (text_artist.axes or fig).bbox.width
+    width = len(full)
+    while width > 20 and text_artist.get_window_extent(renderer).width > limit:
+        width = int(width * 0.85)
+        text_artist.set_text("\n".join(textwrap.wrap(full, width)))
+
+
+def text_boxes(fig) -> list[tuple[str, tuple[float, float, float, float]]]:
+    """Every text ``fig`` draws with its box in pixels (x0, y0, x1, y1): titles, labels, the tick
+    labels inside the axes' limits, legend entries, free text; for checking that none overlaps
+    another or leaves the figure."""
+    from matplotlib.text import Text
+
+    fig.draw_without_rendering()
+    renderer = fig.canvas.get_renderer()
+    ticks, shown = set(), set()
+    for ax in fig.axes:
+        for axis, (lo, hi) in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+            for tick in axis.get_major_ticks() + axis.get_minor_ticks():
+                labels = {id(tick.label1), id(tick.label2)}
+                ticks |= labels
+                if ax.axison and min(lo, hi) - 1e-9 <= tick.get_loc() <= max(lo, hi) + 1e-9:
+                    shown |= labels
+    out = []
+    for t in fig.findobj(Text):
+        if not t.get_visible() or not t.get_text().strip() or (id(t) in ticks and id(t) not in shown):
+            continue
+        if t.axes is not None and not t.axes.get_visible():
+            continue
+        b = t.get_window_extent(renderer)
+        out.append((t.get_text(), (float(b.x0), float(b.y0), float(b.x1), float(b.y1))))
+    return out

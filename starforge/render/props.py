@@ -92,7 +92,9 @@ def layout_png(res, path: str | Path) -> Path:
         ax.set_title(f"{title} (elevation {elev}, azimuth {azim} deg)", fontsize=8)
     cax = fig.add_axes([0.86, 0.15, 0.022, 0.62])
     if sc is not None:
-        fig.colorbar(sc, cax=cax).set_label(d.visibility_label, fontsize=8)
+        # the bar spans the markers' own range: when that does not start at 0, it says so
+        label = d.visibility_label if lo == 0 else f"{d.visibility_label}\n(scale from {lo:.2f}, not 0)"
+        fig.colorbar(sc, cax=cax).set_label(label, fontsize=8)
     fig.suptitle(
         f"{d.name}: {len(vis)} markers (numbered), mean {d.mean_visibility:.3f}; hollow: hidden by the prop"
         + (f"\norange: the hand in its {len(d.hand)} grip(s), fists dashed, wrists dotted" if d.hand is not None and len(d.hand) else ""),

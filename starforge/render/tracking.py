@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from starforge.render._mpl import pyplot, save_png
+from starforge.render._mpl import pyplot, save_png, wrap_to_width
 
 _DPI = 100
 
@@ -29,14 +29,15 @@ def rates_plot(check_doc: dict, path: Path) -> Path:
         ax.set_xlabel("marker noise sigma per axis [mm]")
         ax.set_ylabel("share of bodies [%]")
         ax.set_ylim(-2, 102)
-        ax.set_title(
+        title = ax.set_title(
             f"{check_doc['input']['bodies']} bodies, {s.get('world', 'open')} world, drop {s['drop']} "
-            f"({s['drop_mode']}), ghosts {s['ghosts']}, match {s['match_mm']:g} mm, "
-            f"choose {s.get('choose', 'fit')}, {c['frames']} frames/point",
+            f"({s['drop_mode']}), ghosts {s['ghosts']}, match {s['match_mm']:.3g} mm, "
+            f"choose {s.get('choose') or 'every rule'}, {c['frames']:,} frames a point",
             fontsize=8,
         )
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="center right")
+        wrap_to_width(fig, title)
         fig.tight_layout()
         save_png(fig, path, dpi=_DPI)
     finally:

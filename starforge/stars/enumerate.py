@@ -256,7 +256,7 @@ def _what_advice(spec: StarSpec, est: dict) -> tuple[str, str]:
         f"enumerating {est['labelled']:,} labelled candidates (a pool of {spec.pool_size} lengths, "
         f"{lo:.2f}..{hi:.2f} mm in {spec.delta_mm:g} mm steps)"
     )
-    advice = "raise delta_mm, gap_mm, l_min_mm or tolerance_mm, or lower l_max_mm"
+    advice = "raise delta_mm, gap_mm or tolerance_mm, or shrink box_mm"
     return what, advice
 
 

@@ -304,6 +304,9 @@ def make_family(
             f"(certified upper bound)"
         )
     t1 = time.perf_counter()
+    from starforge.runtime import progress as runtime_progress
+
+    runtime_progress.stage("select")
     if on_stage is not None:
         on_stage("select")
     excluded = np.zeros(len(index), dtype=bool)

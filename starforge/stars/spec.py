@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import MISSING, dataclass, fields
+from typing import Literal, get_args
 
 from starforge.errors import StarforgeError
 from starforge.spec import from_mapping, positive, require
@@ -164,7 +164,13 @@ class StarSpec:
         if self.l_max_mm is not None:
             positive("l_max_mm", self.l_max_mm)
         lo, hi = self.pool_bounds_mm
-        require(hi > lo, f"the edge-length pool is empty: l_min {lo:.3f} mm >= l_max {hi:.3f} mm")
+        require(
+            hi > lo,
+            f"no star fits: its shortest edge (marker_mm + gap_mm, {lo:.2f} mm) is longer than the longest "
+            f"that fits in box_mm {[float(x) for x in self.box_mm]} less one marker ({hi:.2f} mm)"
+            if self.l_min_mm is None and self.l_max_mm is None
+            else f"the edge-length pool is empty: l_min_mm {lo:.2f} mm >= l_max_mm {hi:.2f} mm",
+        )
         require(
             self.pool_size >= 6,
             f"delta_mm {self.delta_mm} is too large: the pool [{lo:.2f}, {hi:.2f}] mm holds only "
@@ -219,6 +225,13 @@ class StarSpec:
             return 0
         n = (hi - lo) / self.delta_mm + 1e-9
         return int(math.floor(n)) + 1 if n < 1e9 else 10**9  # capped: bounded-cost checks refuse it
+
+
+#: what each field of a StarSpec is when neither a template nor an option sets it (the CLI's help)
+STAR_DEFAULTS = {f.name: f.default for f in fields(StarSpec) if f.default is not MISSING}
+
+#: the values each choice field accepts
+STAR_CHOICES = {"rule": get_args(Rule), "select": get_args(Select), "box_method": get_args(BoxMethod)}
 
 
 def spec_from_mapping(data: dict, name: str | None = None) -> StarSpec:

@@ -101,7 +101,12 @@ def cache_is_cold() -> bool:
 def start() -> Helper | None:
     """Start the helper process when the cache is cold and there is a second core; None
     otherwise.  The caller ends it with :func:`finish`; meanwhile :func:`ready` waits for it."""
-    if (os.cpu_count() or 1) < 2 or not cache_is_cold():
+    if not cache_is_cold():
+        return None
+    from starforge.runtime.progress import note
+
+    note("a first run compiles the kernels once (tens of seconds); later runs load them from the cache")
+    if (os.cpu_count() or 1) < 2:
         return None
     try:
         proc = subprocess.Popen(

@@ -140,7 +140,7 @@ def safe_name(text: str) -> str:
 
 
 TIP_SOURCES = {
-    "family": "the family's tip (placement frame: long axis, one limit length below the mount face)",
+    "family": "the family's tip: on the long axis of the placement frame, one limit length below the mount face",
     "placement": "the prop's bounding-box corner with the largest predicted TRE",
     "tracker": "the body's origin (the point a tracker reports)",
 }

@@ -268,7 +268,9 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
     capped = [names[i] for i in np.flatnonzero(lib.counts - 3 < s.drop)]
     rules = (s.choose,) if s.choose is not None else ident.RULES
     rng = np.random.default_rng(s.seed)
-    cb = (lambda d, n: progress("frames", d, n)) if progress else None
+    cb = (lambda d, n: progress("simulate", d, n)) if progress else None
+    if cb is not None:
+        cb(0, s.frames)  # the stage starts with its work
     kw = {
         "world": s.world,
         "presence": s.presence,

@@ -1,0 +1,181 @@
+"""The help says what the code does: every option of every command, its default and its choices."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+import typer
+
+from starforge.cli import _load_commands, app, main
+from starforge.cli._args import normalise
+
+
+@pytest.fixture(scope="module")
+def root():
+    _load_commands()
+    return typer.main.get_command(app)
+
+
+def _walk(cmd, path):
+    yield path, cmd
+    for name, sub in getattr(cmd, "commands", {}).items():
+        yield from _walk(sub, [*path, name])
+
+
+def _options(root):
+    for path, cmd in _walk(root, ["starforge"]):
+        for p in cmd.params:
+            if p.param_type_name == "option":
+                yield " ".join(path), p
+
+
+def _help(args, capsys) -> str:
+    assert main([*args, "--help"]) == 0
+    text = capsys.readouterr().out
+    return " ".join(text.replace("│", " ").split())
+
+
+#: options whose absence means "none of these" (no value is filled in for them)
+_NOTHING_WHEN_ABSENT = {
+    "--version",
+    "--show",
+    "--set",
+    "--ids",
+    "--rig",
+    "--grip",
+    "--json",
+    "--tip",
+    "--match",
+    "--residual",
+}
+
+
+def test_every_option_says_what_it_is_when_not_given(root):
+    """An option the code fills in when it is absent shows that default: click's own (shown by
+    the help as [default: X]) or its help text says 'default'."""
+    missing = []
+    for where, p in _options(root):
+        if p.is_flag or p.required or p.default not in (None, ()):
+            continue
+        if "default" in (p.help or "").lower() or p.opts[0] in _NOTHING_WHEN_ABSENT:
+            continue
+        missing.append(f"{where} {p.opts[0]}")
+    assert not missing, missing
+
+
+def test_every_option_is_in_its_commands_help(root, capsys):
+    for path, cmd in _walk(root, ["starforge"]):
+        if getattr(cmd, "commands", None) and path[-1] != "place":
+            continue
+        text = _help(path[1:], capsys)
+        for p in cmd.params:
+            if p.param_type_name == "option":
+                assert p.opts[0] in text, (path, p.opts[0])
+        assert "<bool>" not in text  # a flag takes no value
+
+
+def test_place_help_shows_the_placement_options(capsys):
+    text = _help(["place"], capsys)
+    for flag in ("--sites", "--resolution", "--markers", "--marker", "--avoid", "place score"):
+        assert flag in text
+
+
+def _stated(help_text: str) -> str:
+    """The value a help text states for the `default` template: "...; 600 in `default`" -> "600"."""
+    m = re.search(r"; (\S+) in `default`", help_text)
+    assert m, help_text
+    return m.group(1)
+
+
+def test_place_defaults_in_help_are_the_ones_the_spec_uses(root):
+    from starforge.props.spec import load_spec
+
+    s = load_spec("default")
+    run = {p.opts[0]: p for p in root.commands["place"].commands["run"].params}
+    used = {
+        "--sites": s.sites,
+        "--resolution": s.resolution,
+        "--orientations": s.orientations,
+        "--markers": s.track.target_markers,
+        "--restarts": s.track.restarts,
+        "--cameras-lost": s.track.cameras_lost,
+        "--marker-mm": s.track.marker,
+        "--rig": s.rig,
+        "--mesh-format": s.mesh_format,
+    }
+    for flag, value in used.items():
+        assert _stated(run[flag].help) == str(value), flag
+    lo, hi = re.search(r"in \[(\d+), (\d+)\]", run["--markers"].help).groups()
+    assert (int(lo), int(hi)) == (s.track.min_markers, s.track.max_markers)
+    score = {p.opts[0]: p for p in root.commands["place"].commands["score"].params}
+    assert _stated(score["--resolution"].help) == str(s.resolution)
+
+
+def test_stars_defaults_and_choices_in_help_are_the_ones_used(root):
+    from starforge.errors import StarforgeError
+    from starforge.stars.spec import spec_from_mapping
+
+    s = spec_from_mapping({"box_mm": [20.8, 12.6, 48.3]})
+    opts = {p.opts[0]: p for p in root.commands["stars"].params}
+    for flag, value, unit in (
+        ("--delta", s.delta_mm, "mm"),
+        ("--gap", s.gap_mm, "mm"),
+        ("--marker", s.marker_mm, "mm"),
+        ("--noise", s.noise_mm, "mm"),
+        ("--time-limit", s.time_limit_s, "s"),
+    ):
+        assert f"default {value:g} {unit}" in opts[flag].help, flag
+    for flag, field in (("--rule", "rule"), ("--select", "select"), ("--box-method", "box_method")):
+        assert f"default {getattr(s, field)}" in opts[flag].help
+        listed = re.match(r"(\w+) or (\w+)", opts[flag].help).groups()
+        for v in listed:  # every choice shown is accepted ...
+            assert getattr(spec_from_mapping({"box_mm": [20.8, 12.6, 48.3], field: v}), field) == v
+        with pytest.raises((StarforgeError, ValueError)):  # ... and one not shown is not
+            spec_from_mapping({"box_mm": [20.8, 12.6, 48.3], field: "other"})
+
+
+def test_other_help_texts_match_the_code(root):
+    from starforge.catalog import KINDS
+    from starforge.cli.export import default_out
+    from starforge.runtime import budget
+
+    kind = next(p for p in root.commands["templates"].params if p.name == "kind")
+    assert all(k in kind.help for k in KINDS)
+    out = next(p for p in root.commands["export"].params if p.name == "out")
+    assert "/bodies" in out.help and "/tracker" in out.help
+    assert default_out(__import__("pathlib").Path("f/family.json"), False).name == "tracker"
+    secs = next(p for p in root.params if p.name == "max_seconds")
+    assert f"default {budget.DEFAULT_SECONDS:g}" in secs.help
+
+
+@pytest.mark.parametrize(
+    "given",
+    [["20.8,12.6,48.3"], ["20.8", "12.6", "48.3"], ["20.8,", "12.6,48.3"], ["20.8", "12.6,48.3"]],
+)
+def test_three_numbers_comma_or_space(root, given):
+    for flag, name in (("--box", "box"), ("--tip", "tip"), ("--reserve", "reserve")):
+        args = normalise(root, ["stars", flag, *given, "--delta", "2"], {})
+        ctx = root.commands["stars"].make_context("stars", args[1:])
+        assert tuple(ctx.params[name]) == (20.8, 12.6, 48.3) and ctx.params["delta"] == 2.0
+
+
+@pytest.mark.parametrize("given", [["25,15"], ["25", "15"], ["25", "15", "--delta", "1"], ["a,b,c"], []])
+def test_three_numbers_refused_with_the_way_out(given, capsys):
+    assert main(["stars", "--box", *given]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --box needs 3 values, e.g. --box 20.8,12.6,48.3") and err.count("\n") == 1
+
+
+def test_global_options_after_the_command(root):
+    meta: dict = {}
+    args = normalise(
+        root, ["stars", "--box", "1", "2", "3", "--scheduler", "tcp://x:1", "--max-memory", "2G"], meta
+    )
+    assert args[:4] == ["--max-memory", "2G", "--scheduler", "tcp://x:1"] and args[4] == "stars"
+    # a command with an option of that name keeps it
+    assert normalise(root, ["sweep", "--scheduler", "tcp://x:1"], {}) == ["sweep", "--scheduler", "tcp://x:1"]
+    normalise(root, ["check", "f.json", "-q"], meta)
+    assert meta.get("starforge.quiet")
+    assert normalise(root, ["-q", "check", "f.json"], {})[-1] == "f.json"
+    assert "-q" in normalise(root, ["-q", "check", "f.json"], {})[2:]  # the command's own -q too
