@@ -32,9 +32,12 @@ def _file_mode() -> int:
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` through a temp file in the same folder, then rename."""
+    """Write ``data`` to ``path`` through a temp file in the same folder, then rename.  Missing
+    folders on the way are created, but never a stage folder (:func:`staged_output`): one that
+    is gone was removed by its command, and a late writer (a helper process) must not bring it
+    back (FileNotFoundError instead)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _make_parents(path.parent)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         os.fchmod(fd, _file_mode())
@@ -47,6 +50,19 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def _make_parents(folder: Path) -> None:
+    missing = []
+    d = Path(os.path.abspath(folder))
+    while not os.path.lexists(d) and d != d.parent:
+        missing.append(d)
+        d = d.parent
+    for m in missing:
+        if m in _stages or m.name.endswith(_STAGE_SUFFIX):
+            raise FileNotFoundError(errno.ENOENT, "the stage folder was removed by its command", str(m))
+    if missing:
+        folder.mkdir(parents=True, exist_ok=True)
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:
@@ -217,7 +233,7 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
     if os.path.lexists(out_dir) and not out_dir.is_dir():
         raise StarforgeError(f"output path {out_dir} exists and is not a folder")
     # stage in the nearest folder that exists, so a failure creates no folder either
-    stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".staging",
+    stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=_STAGE_SUFFIX,
                                   dir=_nearest_existing(out_dir.parent)))
     _stages.add(stage)
     try:
@@ -252,6 +268,9 @@ def scratch_folder(prefix: str, where: str | Path | None = None) -> Iterator[Pat
         shutil.rmtree(folder, ignore_errors=True)
         _stages.discard(folder)
 
+
+#: the name ending of every stage folder (never created by :func:`atomic_write_bytes`)
+_STAGE_SUFFIX = ".staging"
 
 #: errors of a full or read-only file system while writing (ENOSPC, EDQUOT, EFBIG, EROFS)
 _FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS}

@@ -14,6 +14,7 @@ import sys
 import threading
 
 from starforge.cli._app import app
+from starforge.runtime.procs import end_children
 
 __all__ = ["app", "main"]
 
@@ -58,14 +59,15 @@ STOP_DEADLINE_S = 1.0
 _reported = threading.Lock()  # held by whoever reports the stop (the command, or the last resort)
 
 
-def _watch_signals(read_fd: int, done: threading.Event, discard_stages) -> None:
+def _watch_signals(read_fd: int, done: threading.Event, discard_stages, end_children) -> None:
     """The last resort, in a thread: Python runs a signal handler only between bytecodes of the
     main thread, and a compiled kernel (numba, HiGHS) does not return to Python until it is done.
     The signal's number also arrives on ``read_fd`` (signal.set_wakeup_fd) while such a kernel
     runs without the GIL; if the command has not ended STOP_DEADLINE_S later, remove its stage
-    folders (never in the middle of a publish), print the one line and exit at once.  It imports
-    nothing itself (``discard_stages`` comes in): a module lock it held while the process forks
-    would stay taken in the child forever."""
+    folders (never in the middle of a publish), end the command's helper processes, print the
+    one line and exit at once.  It imports nothing itself (``discard_stages`` and
+    ``end_children`` come in): a module lock it held while the process forks would stay taken
+    in the child forever."""
     while True:
         try:
             data = os.read(read_fd, 1)
@@ -82,6 +84,7 @@ def _watch_signals(read_fd: int, done: threading.Event, discard_stages) -> None:
         with _reported:
             if done.is_set() or not discard_stages():
                 return  # ended meanwhile, or a publish that would not finish: let it end on its own
+            end_children()
             _report_stop(_stopped_by[0] or signum)
             os._exit(128 + (_stopped_by[0] or signum))
 
@@ -110,7 +113,8 @@ def _install_signals():
     from starforge.io import discard_stages  # imported here, never in the thread
 
     watcher = threading.Thread(
-        target=_watch_signals, args=(read_fd, done, discard_stages), name="starforge-signals", daemon=True
+        target=_watch_signals, args=(read_fd, done, discard_stages, end_children), name="starforge-signals",
+        daemon=True,
     )
     # safe to fork beside (starforge.render.props forks render processes, starforge.cad.step_worker
     # its STEP worker): it imports nothing and holds no lock while it waits in os.read, and a
@@ -170,6 +174,7 @@ def main(argv: list[str] | None = None) -> int:
                 code = 128 + signum
                 _report_stop(signum)
     finally:
+        end_children()  # a helper the command did not wait for (an error, a signal) ends with it
         sys.unraisablehook = previous_hook
         undo()
         reset_interrupt()  # library calls after this command are not affected
