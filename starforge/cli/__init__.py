@@ -14,6 +14,7 @@ import sys
 import threading
 
 from starforge.cli._app import app
+from starforge.runtime.engine import ENV_SCHEDULER, silence_dask
 from starforge.runtime.procs import end_children
 
 __all__ = ["app", "main"]
@@ -160,6 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     reset_interrupt()
     _stopped_by[0] = None
     _quick_exit[0] = False
+    silence_dask()  # the engine's one line says what a cluster did wrong; dask's loggers stay quiet
+    scheduler_env = os.environ.get(ENV_SCHEDULER)  # --scheduler sets it for this command only
     done, undo = _install_signals()
     previous_hook = sys.unraisablehook
     sys.unraisablehook = _quiet_interrupts(previous_hook)
@@ -175,6 +178,10 @@ def main(argv: list[str] | None = None) -> int:
                 _report_stop(signum)
     finally:
         end_children()  # a helper the command did not wait for (an error, a signal) ends with it
+        if scheduler_env is None:
+            os.environ.pop(ENV_SCHEDULER, None)
+        else:
+            os.environ[ENV_SCHEDULER] = scheduler_env
         sys.unraisablehook = previous_hook
         undo()
         reset_interrupt()  # library calls after this command are not affected

@@ -178,6 +178,33 @@ def start_heartbeat(command: str, interval_s: float = HEARTBEAT_S):
     return stop_fn
 
 
+def use_scheduler(scheduler: str | None, probe: bool = True) -> None:
+    """Check the scheduler address (``--scheduler``, before or after the command, else
+    ``STARFORGE_SCHEDULER``) before any work starts and hand it to the engine through the
+    environment; with ``probe`` (the commands that run on it) also check, within seconds, that
+    a dask scheduler answers there.  StarforgeError in one line otherwise."""
+    import os
+
+    from starforge.runtime import engine
+
+    if scheduler:
+        os.environ[engine.ENV_SCHEDULER] = engine.parse_address(scheduler)
+    addr = engine.scheduler_address()
+    if probe and addr is not None and addr not in _probed:
+        engine.probe(addr)
+        _probed.add(addr)
+
+
+#: scheduler addresses that answered as dask schedulers in this process
+_probed: set = set()
+
+
+SCHEDULER_HELP = (
+    "Run parallel work (enumeration chunks, sweep cells, placements) on the dask scheduler at this "
+    "address: tcp://HOST:PORT, HOST:PORT or HOST (default: $STARFORGE_SCHEDULER; unset: this machine)."
+)
+
+
 @app.callback(invoke_without_command=True)
 def _root(
     ctx: typer.Context,
@@ -186,12 +213,7 @@ def _root(
         None, "--max-memory", help="Memory any command may plan to use, e.g. 2G (default: half this machine's)."
     ),
     max_seconds: float = typer.Option(None, "--max-seconds", help="Time any command may plan to take, s (default 7200)."),
-    scheduler: str = typer.Option(
-        None,
-        "--scheduler",
-        help="Run parallel work (enumeration chunks, sweep cells) on the dask scheduler at this address "
-        "(default: $STARFORGE_SCHEDULER; unset: this machine).",
-    ),
+    scheduler: str = typer.Option(None, "--scheduler", help=SCHEDULER_HELP),
 ) -> None:
     """Design optical motion-capture markers: unique marker-star families, printable bodies,
     prop marker placement and the files trackers load."""
@@ -203,10 +225,7 @@ def _root(
         os.environ[budget.ENV_MEMORY] = str(budget.parse_bytes(max_memory, "--max-memory"))
     if max_seconds is not None:
         os.environ[budget.ENV_SECONDS] = repr(budget.parse_seconds(max_seconds, "--max-seconds"))
-    if scheduler:
-        from starforge.runtime.engine import ENV_SCHEDULER
-
-        os.environ[ENV_SCHEDULER] = scheduler
+    use_scheduler(scheduler, probe=False)  # checked here; reached by the commands that use it
     if version:
         from starforge import __version__
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from starforge.cli._app import app, console, progress
+from starforge.cli._app import SCHEDULER_HELP, app, console, progress, use_scheduler
 from starforge.cli._multi import MULTI, more_values
 
 
@@ -83,6 +83,7 @@ def stars_cmd(
     force: bool = typer.Option(False, "--force", help="Overwrite existing outputs."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No table, just the summary line."),
     preview: bool = typer.Option(False, "--preview", help="Also draw family.png (the first 40 stars)."),
+    scheduler: str = typer.Option(None, "--scheduler", help=SCHEDULER_HELP),
 ) -> None:
     """Generate a family of unique marker stars; writes family.json (source of truth) and family.csv.
 
@@ -93,6 +94,7 @@ def stars_cmd(
 
     from starforge.cli._app import allow_quick_exit, pause_gc
 
+    use_scheduler(scheduler)
     # every file goes through staged_output, and the helper and threads are done on return
     allow_quick_exit()
     pause_gc()  # its objects are nearly all acyclic: no collector passes over numba's and scipy's heap

@@ -21,9 +21,15 @@ share of its worker's memory limit (local cluster: the command's memory budget,
 :mod:`starforge.runtime.budget`, divided among the workers); otherwise the run is refused in one line.
 Local workers run one task at a time, so the estimates bound what each worker holds.
 
-Faults: a worker that dies mid-run has its tasks rerun elsewhere by the scheduler (the results
-are pure, so nothing changes).  A scheduler that cannot be reached, or that goes away, raises
-:class:`~starforge.errors.StarforgeError` with one line; callers publish nothing then.
+Faults: the address is parsed before anything connects (:func:`parse_address`), and a raw
+handshake with a bounded wait (:func:`probe`) tells a dask scheduler from an endpoint that is
+not one (an HTTP server, a silent listener, a closed port, an unreachable host) before dask's
+client, which retries for its whole timeout, is started.  A worker that dies mid-run has its
+tasks rerun elsewhere by the scheduler (the results are pure, so nothing changes); a cluster
+left without workers for :data:`NO_WORKERS_S`, or a scheduler out of reach for
+:data:`LOST_SCHEDULER_S`, ends the run.  Each of these raises
+:class:`~starforge.errors.StarforgeError` with one line; callers publish nothing then, and dask's
+and asyncio's own reports of the same event are silenced (:func:`dask_quiet`).
 
 Progress: ``progress(done, total)`` after each finished task; and one plain log line per
 roughly 10 % on the ``starforge.runtime.engine`` logger.
@@ -36,6 +42,7 @@ import itertools
 import logging
 import math
 import os
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -46,7 +53,17 @@ ENV_SCHEDULER = "STARFORGE_SCHEDULER"
 #: estimated single-core work (s) from which a local cluster is started (below: in process)
 LOCAL_CLUSTER_SECONDS = 20.0
 #: seconds to wait when connecting to a scheduler, and for its first worker
-CONNECT_TIMEOUT_S = 10.0
+CONNECT_TIMEOUT_S = 5.0
+#: seconds a scheduler has to send dask's handshake once connected (it sends it at once)
+HANDSHAKE_S = 4.0
+#: seconds a running job waits for a cluster left with no worker before it gives up
+NO_WORKERS_S = 10.0
+#: seconds a running job waits for a scheduler that stopped answering before it gives up
+LOST_SCHEDULER_S = 5.0
+#: dask's default scheduler port
+DEFAULT_PORT = 8786
+#: the address forms :func:`parse_address` accepts, for its one-line refusals
+ADDRESS_FORMS = f"tcp://HOST:PORT, HOST:PORT or HOST (port {DEFAULT_PORT}); HOST a name, an IPv4 or [IPv6] address"
 
 log = logging.getLogger("starforge.runtime.engine")
 
@@ -87,11 +104,152 @@ class Plan:
 
 
 def scheduler_address(scheduler: str | None = None) -> str | None:
-    """The scheduler to use: ``scheduler`` if given, else ``STARFORGE_SCHEDULER``, else None."""
-    addr = scheduler if scheduler else os.environ.get(ENV_SCHEDULER, "").strip() or None
-    if addr is not None and "://" not in addr:
-        addr = f"tcp://{addr}"
-    return addr
+    """The scheduler to use, as ``tcp://host:port`` (:func:`parse_address`): ``scheduler`` if
+    given, else ``STARFORGE_SCHEDULER``, else None."""
+    if scheduler:
+        return parse_address(scheduler)
+    env = os.environ.get(ENV_SCHEDULER, "").strip()
+    return parse_address(env, ENV_SCHEDULER) if env else None
+
+
+_HOST = re.compile(r"(?=.{1,253}$)[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*\.?")
+
+
+def parse_address(text: str, option: str = "--scheduler") -> str:
+    """``text`` as ``tcp://host:port``, or StarforgeError in one line naming the accepted forms
+    (:data:`ADDRESS_FORMS`).  Only dask's TCP transport is used: ``tls://`` needs certificates
+    and ``ucx://`` a UCX installation, neither of which starforge's client is set up for.
+
+    >>> parse_address("10.0.0.1")
+    'tcp://10.0.0.1:8786'
+    >>> parse_address("tcp://[::1]:9000")
+    'tcp://[::1]:9000'
+    """
+    import ipaddress
+
+    raw = str(text).strip()
+    shown = raw if len(raw) <= 60 else raw[:57] + "..."
+
+    def bad(why: str) -> StarforgeError:
+        return StarforgeError(f"{option} {shown!r}: {why}; expected {ADDRESS_FORMS}")
+
+    rest = raw
+    if "://" in rest:
+        scheme, _, rest = rest.partition("://")
+        if scheme.lower() != "tcp":
+            raise bad(f"{scheme}:// is not supported (starforge connects over plain tcp://)")
+    if not rest or any(c in rest for c in "/?#@ \t"):
+        raise bad("not a scheduler address")
+    if rest.startswith("["):
+        host, sep, tail = rest[1:].partition("]")
+        try:
+            ipaddress.IPv6Address(host)
+        except ValueError:
+            raise bad(f"[{host}] is not an IPv6 address") from None
+        if tail and not tail.startswith(":"):
+            raise bad("text after the ]")
+        port_text = tail[1:] if tail else None
+        shown_host = f"[{host}]"
+    else:
+        if rest.count(":") > 1:
+            raise bad("an IPv6 address goes in brackets, [::1]:8786")
+        host, _, port_text = rest.partition(":") if ":" in rest else (rest, "", None)
+        if not _HOST.fullmatch(host):
+            raise bad(f"{host!r} is not a host name or address")
+        shown_host = host
+    if port_text is None:
+        port = DEFAULT_PORT
+    elif not (port_text.isascii() and port_text.isdigit()) or len(port_text) > 5 or not 1 <= int(port_text) <= 65535:
+        raise bad(f"the port must be a number from 1 to 65535, got {port_text[:12]!r}")
+    else:
+        port = int(port_text)
+    return f"tcp://{shown_host}:{port}"
+
+
+def _host_port(addr: str) -> tuple[str, int]:
+    hostport = addr.split("://", 1)[1]
+    host, _, port = hostport.rpartition(":")
+    return host.strip("[]"), int(port)
+
+
+def probe(addr: str, timeout_s: float = CONNECT_TIMEOUT_S, handshake_s: float = HANDSHAKE_S) -> None:
+    """Check that a dask scheduler answers at ``addr`` (``tcp://host:port``), within about
+    ``timeout_s + handshake_s`` seconds; StarforgeError in one line otherwise, saying what is
+    there instead: nothing (connection refused), no answer (an unreachable host or a
+    firewall), an HTTP server, a listener that sends nothing, or bytes that are not dask's.
+
+    A dask scheduler sends its handshake as soon as a connection is accepted (a frame of
+    distributed's TCP protocol: a little-endian uint64 length, then the number of sub-frames
+    and their lengths); that is read here without dask, and sent back as this side's
+    handshake (the same settings), so the scheduler sees an ordinary short-lived connection."""
+    import socket
+    import struct
+
+    host, port = _host_port(addr)
+    hint = f"start one with `dask scheduler`, or unset --scheduler / {ENV_SCHEDULER} to run on this machine"
+    try:
+        sock = socket.create_connection((host, port), timeout=timeout_s)
+    except socket.gaierror:
+        raise StarforgeError(f"cannot reach the dask scheduler at {addr}: unknown host {host!r}; {hint}") from None
+    except ConnectionRefusedError:
+        raise StarforgeError(
+            f"cannot reach the dask scheduler at {addr}: nothing listens there (connection refused); {hint}"
+        ) from None
+    except TimeoutError:
+        raise StarforgeError(
+            f"cannot reach the dask scheduler at {addr}: no answer in {timeout_s:g} s "
+            f"(host down, or a firewall); {hint}"
+        ) from None
+    except OSError as exc:
+        raise StarforgeError(f"cannot reach the dask scheduler at {addr}: {exc.strerror or exc}; {hint}") from None
+    not_dask = f"{addr} is not a dask scheduler"
+    with sock:
+        sock.settimeout(handshake_s)
+        try:
+            head = _recv_exact(sock, 16)
+        except TimeoutError:
+            if _speaks_http(sock):
+                raise StarforgeError(
+                    f"{not_dask}: an HTTP server answers there (a dask dashboard is usually on port 8787, "
+                    f"the scheduler on {DEFAULT_PORT})"
+                ) from None
+            raise StarforgeError(
+                f"{not_dask}: something accepts connections there but sent no dask handshake in "
+                f"{handshake_s:g} s (a scheduler sends one at once, unless it is too busy to answer)"
+            ) from None
+        except OSError as exc:
+            raise StarforgeError(f"{not_dask}: the connection failed ({exc.strerror or exc})") from None
+        total, frames = struct.unpack("<QQ", head) if len(head) == 16 else (0, 0)
+        if len(head) < 16 or not (16 <= total <= 1 << 20 and 1 <= frames <= 64):
+            said = head[:24].decode("latin-1").splitlines()[0] if head.strip() else "nothing"
+            raise StarforgeError(f"{not_dask}: it answered {said[:40]!r}, not dask's handshake")
+        try:
+            body = _recv_exact(sock, total - 8)
+            sock.sendall(head + body)
+        except OSError:  # it sent a handshake and went away: the client's connection says more
+            pass
+
+
+def _recv_exact(sock, n: int) -> bytes:
+    """Up to ``n`` bytes (fewer only when the peer closed the connection)."""
+    buf = b""
+    while len(buf) < n:
+        part = sock.recv(n - len(buf))
+        if not part:
+            break
+        buf += part
+    return buf
+
+
+def _speaks_http(sock) -> bool:
+    """Whether a listener that sent nothing answers an HTTP request (within one second)."""
+    try:
+        sock.settimeout(1.0)
+        sock.sendall(b"HEAD / HTTP/1.0\r\n\r\n")
+        reply = sock.recv(16)
+    except OSError:
+        reply = b""
+    return reply.startswith(b"HTTP/")
 
 
 def local_workers(workers: int | None = None) -> int:
@@ -128,14 +286,32 @@ def plan(
 def dask_quiet(on: bool = True):
     """dask's own connection, reconnect and shutdown chatter silenced (``on``) for the block:
     our one line says what went wrong."""
-    quiet = logging.getLogger("distributed")
-    level = quiet.level
+    loggers = [logging.getLogger(name) for name in _CHATTY]
+    levels = [q.level for q in loggers]
     if on:
-        quiet.setLevel(logging.CRITICAL)
+        for q in loggers:
+            q.setLevel(logging.CRITICAL + 1)
     try:
         yield
     finally:
-        quiet.setLevel(level)
+        if not _silenced[0]:
+            for q, level in zip(loggers, levels, strict=True):
+                q.setLevel(level)
+
+
+#: the loggers of dask's client and the event loop it runs on: connection errors, reconnects,
+#: and "Task exception was never retrieved" after a scheduler went away
+_CHATTY = ("distributed", "asyncio", "tornado", "tornado.application", "tornado.general")
+_silenced = [False]
+
+
+def silence_dask() -> None:
+    """Silence dask's and asyncio's loggers for the rest of the process (the CLI: its one line
+    says what went wrong; their reports come also while the client shuts down, after the
+    command's own error)."""
+    _silenced[0] = True
+    for name in _CHATTY:
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
 
 
 def plan_with_capacity(n_tasks: int, seconds: float = math.inf, workers: int | None = None, scheduler: str | None = None) -> Plan:
@@ -149,7 +325,7 @@ def plan_with_capacity(n_tasks: int, seconds: float = math.inf, workers: int | N
         try:
             return plan(n_tasks, seconds, workers, scheduler, client=client)
         finally:
-            client.close()
+            _close(client)
 
 
 def cluster_capacity(client) -> tuple[int, float]:
@@ -182,23 +358,39 @@ def require_task_memory(task_bytes: Sequence[float], p: Plan, what: str, advice:
 
 
 def _connect(addr: str):
+    """A client of the scheduler at ``addr``, after :func:`probe`, with at least one worker; every
+    wait bounded (:data:`CONNECT_TIMEOUT_S`)."""
+    probe(addr)
     from distributed import Client
 
     try:
         client = Client(addr, timeout=f"{CONNECT_TIMEOUT_S}s", set_as_default=False)
-    except (OSError, TimeoutError) as exc:
+    except Exception as exc:  # noqa: BLE001  (any failure of dask's handshake is the same one line)
         raise StarforgeError(
-            f"cannot reach the dask scheduler at {addr} ({type(exc).__name__}); start one with "
-            f"`dask scheduler`, or unset --scheduler / {ENV_SCHEDULER} to run on this machine"
+            f"cannot connect to the dask scheduler at {addr} ({type(exc).__name__}: {_first_line(exc)}); "
+            f"check that its dask version matches this one's, or unset --scheduler / {ENV_SCHEDULER}"
         ) from None
     try:
         client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
-    except (OSError, TimeoutError):
-        client.close()
+    except Exception:  # noqa: BLE001  (a timeout, or the scheduler gone meanwhile)
+        _close(client)
         raise StarforgeError(
             f"the dask scheduler at {addr} has no workers; start some with `dask worker {addr}`"
         ) from None
     return client
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0][:120] if text else "no message"
+
+
+def _close(client) -> None:
+    """Close a client without waiting long for a scheduler that is gone."""
+    try:
+        client.close(timeout=2)
+    except Exception:  # noqa: BLE001  (closing a lost connection: nothing left to report)
+        pass
 
 
 def _local_cluster(p: Plan):
@@ -324,9 +516,10 @@ def map_tasks(
             return _run_on(client, fn, items, ticker, p, consume)
         finally:
             if client is not None:
-                client.close()
+                _close(client)
             if cluster is not None:
-                cluster.close()
+                with contextlib.suppress(Exception):
+                    cluster.close(timeout=5)
 
 
 def _overlapped(fn, items, ticker: _Progress, consume, k: int) -> list:
@@ -363,22 +556,19 @@ def _overlapped(fn, items, ticker: _Progress, consume, k: int) -> list:
 def _run_on(client, fn, items, ticker: _Progress, p: Plan, consume=None) -> list:
     from distributed import as_completed
 
-    from starforge.io import interrupted
-
     futures = client.map(fn, items, pure=False)
     index = {f.key: i for i, f in enumerate(futures)}
     out: list = [None] * len(items) if consume is None else []
     where = p.address or "the local cluster"
+    health = _Health(client, where)
     try:
         with client.as_current():
-            for fut in as_completed(futures):
-                if interrupted():
-                    raise KeyboardInterrupt
+            for fut in _completed(as_completed(futures), health):
                 if fut.cancelled():  # the scheduler went away
                     raise StarforgeError(f"lost the dask scheduler at {where} mid-run; nothing was written")
                 try:
                     # waits if the worker that held this result died since: the task reruns
-                    res = fut.result()
+                    res = _result(fut, health)
                 except Exception as exc:
                     if _is_lost(exc):
                         raise
@@ -404,6 +594,76 @@ def _run_on(client, fn, items, ticker: _Progress, p: Plan, consume=None) -> list
             ) from None
         raise
     return out
+
+
+class _Health:
+    """Watches a running job's cluster, at most once a second: it raises StarforgeError when the
+    cluster has had no worker for :data:`NO_WORKERS_S` (the scheduler would wait for one for
+    ever) or the scheduler has not answered for :data:`LOST_SCHEDULER_S`."""
+
+    def __init__(self, client, where: str):
+        import time
+
+        self.client, self.where, self.clock = client, where, time.monotonic
+        now = self.clock()
+        self.next_at, self.workers_seen, self.answered = now + 1.0, now, now
+
+    def check(self) -> None:
+        from starforge.io import interrupted
+
+        if interrupted():
+            raise KeyboardInterrupt
+        now = self.clock()
+        if now < self.next_at:
+            return
+        self.next_at = now + 1.0
+        try:
+            threads = self.client.nthreads(callback_timeout=2)
+        except Exception:  # noqa: BLE001  (no answer: counted below)
+            threads = None
+        now = self.clock()
+        if threads is not None:
+            self.answered = now
+            if threads:
+                self.workers_seen = now
+        if now - self.answered > LOST_SCHEDULER_S:
+            raise StarforgeError(
+                f"lost the dask scheduler at {self.where} mid-run (no answer for {LOST_SCHEDULER_S:g} s); "
+                f"nothing was written"
+            )
+        if now - self.workers_seen > NO_WORKERS_S:
+            raise StarforgeError(
+                f"the dask cluster at {self.where} lost all its workers mid-run (none for {NO_WORKERS_S:g} s); "
+                f"nothing was written"
+            )
+
+
+def _completed(ac, health: _Health):
+    """The futures of ``ac`` (distributed's as_completed) as they finish, the cluster's health
+    checked while none does."""
+    import time
+
+    while not ac.is_empty():
+        batch = ac.next_batch(block=False)
+        if not batch:
+            health.check()
+            time.sleep(0.02)
+            continue
+        for fut in batch:
+            health.check()
+            yield fut
+
+
+def _result(fut, health: _Health):
+    """A finished future's result; if its worker died since, it reruns: wait for it with the
+    cluster's health checked."""
+    from distributed import TimeoutError as DaskTimeout
+
+    while True:
+        try:
+            return fut.result(timeout=1.0)
+        except (TimeoutError, DaskTimeout):
+            health.check()
 
 
 class _TaskFailed(Exception):
