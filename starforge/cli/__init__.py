@@ -213,8 +213,14 @@ def _end_process(code: int) -> None:
     runs (the interpreter would wait for it)."""
     from starforge.cli._app import _quick_exit
 
+    traced = sys.gettrace() is not None or sys.getprofile() is not None
+    if "distributed" in sys.modules and not traced:
+        # the engine closed every client and cluster it started; what dask leaves to the
+        # interpreter's exit (its event-loop thread, connections to a scheduler that may be
+        # gone) takes seconds to tear down, and dask reports on it after our one line
+        _flush_and_exit(code)
     others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon and t.is_alive()]
-    if not _quick_exit[0] or others or sys.gettrace() is not None or sys.getprofile() is not None:
+    if not _quick_exit[0] or others or traced:
         # everything is written and flushed; freezing what is left spares the interpreter's exit
         # a last walk over numba's and numpy's objects (measured: 0.15 CPU s, 0.5 s wall under
         # load, for `starforge stars`); atexit handlers and file flushes run as before
@@ -225,6 +231,10 @@ def _end_process(code: int) -> None:
     import atexit
 
     atexit._run_exitfuncs()
+    _flush_and_exit(code)
+
+
+def _flush_and_exit(code: int) -> None:
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

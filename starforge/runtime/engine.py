@@ -286,7 +286,9 @@ def plan(
 def dask_quiet(on: bool = True):
     """dask's own connection, reconnect and shutdown chatter silenced (``on``) for the block:
     our one line says what went wrong."""
-    loggers = [logging.getLogger(name) for name in _CHATTY]
+    if on:
+        import distributed  # noqa: F401  (its import configures its loggers: silenced after it)
+    loggers = _chatty_loggers()
     levels = [q.level for q in loggers]
     if on:
         for q in loggers:
@@ -299,10 +301,16 @@ def dask_quiet(on: bool = True):
                 q.setLevel(level)
 
 
-#: the loggers of dask's client and the event loop it runs on: connection errors, reconnects,
-#: and "Task exception was never retrieved" after a scheduler went away
-_CHATTY = ("distributed", "asyncio", "tornado", "tornado.application", "tornado.general")
+#: the loggers of dask's client and the event loop it runs on (and their children, which dask
+#: configures with levels of their own): connection errors, reconnects, and "Task exception
+#: was never retrieved" after a scheduler went away
+_CHATTY = ("distributed", "asyncio", "tornado")
 _silenced = [False]
+
+
+def _chatty_loggers() -> list[logging.Logger]:
+    names = [n for n in list(logging.root.manager.loggerDict) if n.split(".")[0] in _CHATTY]
+    return [logging.getLogger(n) for n in sorted(set(names) | set(_CHATTY))]
 
 
 def silence_dask() -> None:
@@ -310,8 +318,8 @@ def silence_dask() -> None:
     says what went wrong; their reports come also while the client shuts down, after the
     command's own error)."""
     _silenced[0] = True
-    for name in _CHATTY:
-        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+    for q in _chatty_loggers():
+        q.setLevel(logging.CRITICAL + 1)
 
 
 def plan_with_capacity(n_tasks: int, seconds: float = math.inf, workers: int | None = None, scheduler: str | None = None) -> Plan:
