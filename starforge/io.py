@@ -10,6 +10,7 @@ import os
 import re
 import shutil
 import signal
+import stat
 import tempfile
 import threading
 from collections.abc import Iterable, Iterator
@@ -301,30 +302,63 @@ def discard_stages(timeout_s: float = 5.0) -> bool:
     return True
 
 
-def check_input_file(path: str | Path, what: str = "file") -> Path:
-    """A readable regular file, or StarforgeError saying what is wrong with it (missing, a folder,
-    a device such as /dev/null, empty, unreadable)."""
+#: the largest input file of each kind, bytes: far above any real one, and small enough that
+#: parsing it stays inside a command's memory budget (Python's JSON, TOML and CSV readers hold
+#: 5-20 x a file's size as objects).  A 10,000-star family file is about 10 MB; meshes have
+#: their own memory estimate from their size and the work asked of them (starforge.props.mesh).
+INPUT_LIMITS = {
+    "json": 128 * 2**20,  # family, placement and body files
+    "toml": 2**20,  # specs, markers, mounts, rigs, presets
+    "csv": 64 * 2**20,  # marker and score tables
+    "mask": 128 * 2**20,  # --mask: one value per face
+    "tracker": 128 * 2**20,  # QTM XML, VSK, Atracsys INI, NDI ROM, Motive, body CSV
+    "mesh": 2 * 2**30,  # STL, OBJ, PLY, GLB, ...
+    "file": 256 * 2**20,  # anything else
+}
+
+
+def check_input_file(path: str | Path, what: str = "file", kind: str = "file") -> Path:
+    """A readable regular file no larger than ``INPUT_LIMITS[kind]``, or StarforgeError saying
+    what is wrong with it (missing, a folder, a device such as /dev/null, a symlink loop,
+    empty, unreadable, too large for its kind)."""
     path = Path(path)
     if not os.path.lexists(path):
         raise StarforgeError(f"{what} not found: {path}")
-    if path.is_dir():
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise StarforgeError(f"{what} {path} is a symbolic link that loops back on itself") from None
+        if exc.errno == errno.ENOENT:
+            raise StarforgeError(f"{what} {path} is a symbolic link to a missing file") from None
+        raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(st.st_mode):
         raise StarforgeError(f"{what} {path} is a folder, expected a file")
-    if not path.is_file():
+    if not stat.S_ISREG(st.st_mode):
         raise StarforgeError(f"{what} {path} is not a regular file")
     try:
-        size = path.stat().st_size
         with open(path, "rb"):
             pass
     except OSError as exc:
         raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
-    if size == 0:
+    if st.st_size == 0:
         raise StarforgeError(f"{what} {path} is empty")
+    limit = INPUT_LIMITS[kind]
+    if st.st_size > limit:
+        raise StarforgeError(
+            f"{what} {path} is {_mb(st.st_size)}, above the {_mb(limit)} a {kind} input may be; "
+            f"is it the right file?"
+        )
     return path
+
+
+def _mb(n: float) -> str:
+    return f"{n / 2**20:,.0f} MB" if n >= 2**20 else f"{n / 1024:,.0f} kB"
 
 
 def read_json(path: str | Path, what: str = "file") -> dict:
     """Read a JSON object with clear errors for a missing, empty or corrupt file."""
-    path = check_input_file(path, what)
+    path = check_input_file(path, what, "json")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:

@@ -95,6 +95,10 @@ def stars_cmd(
     from starforge.cli._app import allow_quick_exit, pause_gc
 
     use_scheduler(scheduler)
+    if avoid or ctx.args:  # the files to avoid exist and are readable before any work starts
+        from starforge.tracking.bodies import check_body_files
+
+        check_body_files(more_values("--avoid", avoid, ctx.args), "--avoid file")
     # every file goes through staged_output, and the helper and threads are done on return
     allow_quick_exit()
     pause_gc()  # its objects are nearly all acyclic: no collector passes over numba's and scipy's heap

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.io import read_json
+from starforge.io import check_input_file, read_json
 
 PLACEMENT_FORMAT = "starforge.placement"
 FAMILY_FORMAT = "starforge.family"
@@ -257,6 +258,26 @@ def _resolve(p: Path) -> Path:
     return p
 
 
+def check_body_files(paths, what: str = "input file") -> list[Path]:
+    """The files :func:`load_bodies` would read (a folder: its family.json or placement.json),
+    each checked (:func:`starforge.io.check_input_file`: it exists, is a regular file of a
+    readable size, no symbolic-link loop) and given once; StarforgeError in one line otherwise.
+    Cheap: commands call it before their work starts."""
+    if isinstance(paths, str | Path):
+        paths = [paths]
+    paths = [_resolve(Path(p)) for p in paths]
+    if not paths:
+        raise StarforgeError(f"no {what} given")
+    first: dict[str, Path] = {}
+    for p in paths:
+        check_input_file(p, what, "json" if p.suffix.lower() == ".json" else "tracker")
+        key = os.path.realpath(p)
+        if key in first:
+            raise StarforgeError(f"{p} is given twice (as {first[key]} before): give each file once")
+        first[key] = p
+    return paths
+
+
 def load_bodies(paths) -> BodySet:
     """Read star families, prop placements and tracker files (every format of
     :data:`starforge.tracking.formats.FORMATS`), in any mix; a folder means the family.json or placement.json inside it.
@@ -264,25 +285,13 @@ def load_bodies(paths) -> BodySet:
     Raises StarforgeError (one line) for a missing or corrupt file, a format it does not know,
     or a body that is not a rigid body a tracker could hold (see the module docstring).
     """
-    from starforge.io import check_input_file
     from starforge.tracking.formats import sniff_format
 
-    if isinstance(paths, str | Path):
-        paths = [paths]
-    paths = [_resolve(Path(p)) for p in paths]
-    if not paths:
-        raise StarforgeError("no input file given")
-    first: dict[Path, Path] = {}
-    for p in paths:
-        key = p.resolve()
-        if key in first:
-            raise StarforgeError(f"{p} is given twice (as {first[key]} before): give each file once")
-        first[key] = p
+    paths = check_body_files(paths)
     raw: list[Body] = []
     kinds, sources, notes, warnings = [], [], [], []
     tolerances, markers = [], []
     for p in paths:
-        check_input_file(p, "input file")
         fmt = sniff_format(p)
         if fmt is not None and p.suffix.lower() != ".json":
             raw.extend(_tracker_bodies(p, fmt, warnings))
