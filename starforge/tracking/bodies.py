@@ -17,7 +17,7 @@ or from the tracker files a lab already has.
 Any mix of these may be read together (a lab's existing bodies beside new ones): names are made
 unique, the match window defaults to the smallest family tolerance.  Bodies of any marker count
 from 3 to :data:`MAX_MARKERS` are kept.  Every body is checked for truth before use: at least 3
-markers, finite coordinates, no two markers closer than 0.1 mm, a
+markers, finite coordinates, no two markers closer than 0.1 mm, not all on one line, a
 spread that a marker body can have (:data:`SPREAD_MM`, else "other units?"), and bounded size
 (:data:`MAX_MARKERS` per body, :data:`MAX_TRIANGLES` in all).
 """
@@ -165,6 +165,14 @@ def check_body(where, name: str, P: np.ndarray) -> None:
     if d.min() < MIN_SEPARATION_MM:
         raise StarforgeError(
             f"{where}: body {name} has two markers {d.min():.3g} mm apart (one marker given twice?)"
+        )
+    C = P - P.mean(axis=0)
+    axis = np.linalg.svd(C, full_matrices=False)[2][0]
+    off_line = float(np.linalg.norm(C - np.outer(C @ axis, axis), axis=1).max())
+    if off_line < MIN_SEPARATION_MM:
+        raise StarforgeError(
+            f"{where}: body {name}'s markers lie on one line (all within {MIN_SEPARATION_MM:g} mm of it): no tracker can tell "
+            f"its rotation about that line; a rigid body needs markers off the line"
         )
 
 
