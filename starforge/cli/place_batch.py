@@ -32,7 +32,7 @@ def place_batch_cmd(
 
     from starforge.errors import StarforgeError
     from starforge.io import atomic_write_bytes, atomic_write_text, check_writable, staged_output
-    from starforge.props.batch import job_bytes, jobs, place_job
+    from starforge.props.batch import check_props, job_bytes, jobs, place_job
     from starforge.runtime import engine
 
     use_scheduler(scheduler)
@@ -43,7 +43,9 @@ def place_batch_cmd(
     todo = jobs(props, rig or [], units, spec, seed)
     out = Path(out)
     check_writable(out, [name for name, _ in todo] + ["batch.csv"], force)
+    # every input read before a cluster starts: the spec and rigs (the estimates), then the props
     est = [job_bytes(spec, job[3]) for _, job in todo]
+    check_props(props, units)
     with job_progress("place-batch", "placements", len(todo), quiet) as (tick, where):
         results = engine.map_tasks(
             place_job,

@@ -414,7 +414,9 @@ def _local_cluster(p: Plan):
         # taken (a notebook's cluster, a second starforge run), which dask reports as a warning
         scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
         memory_limit=int(p.task_bytes),
-        silence_logs=logging.ERROR,
+        # a task's own error comes back to the client as raised (one line from the CLI); the
+        # worker's log of it, with its traceback, would come first on the same stderr
+        silence_logs=logging.CRITICAL + 1,
     )
     return cluster, Client(cluster, set_as_default=False)
 
