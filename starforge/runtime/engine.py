@@ -221,7 +221,8 @@ def probe(addr: str, timeout_s: float = CONNECT_TIMEOUT_S, handshake_s: float = 
             raise StarforgeError(f"{not_dask}: the connection failed ({exc.strerror or exc})") from None
         total, frames = struct.unpack("<QQ", head) if len(head) == 16 else (0, 0)
         if len(head) < 16 or not (16 <= total <= 1 << 20 and 1 <= frames <= 64):
-            said = head[:24].decode("latin-1").splitlines()[0] if head.strip() else "nothing"
+            head += _recv_some(sock, 64)  # enough of its greeting to name it
+            said = head.decode("latin-1").splitlines()[0] if head.strip() else "nothing"
             raise StarforgeError(f"{not_dask}: it answered {said[:40]!r}, not dask's handshake")
         try:
             body = _recv_exact(sock, total - 8)
@@ -239,6 +240,15 @@ def _recv_exact(sock, n: int) -> bytes:
             break
         buf += part
     return buf
+
+
+def _recv_some(sock, n: int) -> bytes:
+    """Whatever of up to ``n`` more bytes arrives within a fifth of a second."""
+    try:
+        sock.settimeout(0.2)
+        return sock.recv(n)
+    except OSError:
+        return b""
 
 
 def _speaks_http(sock) -> bool:
