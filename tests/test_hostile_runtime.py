@@ -247,11 +247,19 @@ def test_a_cluster_that_loses_its_only_worker_ends_in_bounded_time(tmp_path):
                 "--out", str(work / "out")]
         with subprocess.Popen([sys.executable, "-c", CHILD, *argv], cwd=work, stderr=subprocess.PIPE, text=True,
                               start_new_session=True) as proc:
-            time.sleep(8.0)
+            said: list[str] = []
+            reader = threading.Thread(target=lambda: said.extend(proc.stderr), daemon=True)
+            reader.start()
+            deadline = time.monotonic() + 120
+            while not any("on the dask cluster" in line for line in said) and time.monotonic() < deadline:
+                time.sleep(0.1)  # the cells are submitted: now the only worker goes
+            time.sleep(1.0)
             _end(worker)
             t0 = time.perf_counter()
-            _, err = proc.communicate(timeout=60)
+            proc.wait(timeout=60)
             seconds = time.perf_counter() - t0
+            reader.join(5)
+        err = "".join(said)
         lines = [line for line in err.splitlines() if not line.startswith(("starforge ", "sweep: "))]
         assert proc.returncode == 2, err
         assert len(lines) == 1 and "nothing was written" in lines[0], err

@@ -219,6 +219,13 @@ def _end_process(code: int) -> None:
         # interpreter's exit (its event-loop thread, connections to a scheduler that may be
         # gone) takes seconds to tear down, and dask reports on it after our one line
         _flush_and_exit(code)
+    if _stopped_by[0] is not None and not traced:
+        # stopped by a signal: nothing was published and the stages are gone; a compiled kernel
+        # may still run on a worker thread, which the interpreter's exit would wait for
+        import atexit
+
+        atexit._run_exitfuncs()
+        _flush_and_exit(code)
     others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon and t.is_alive()]
     if not _quick_exit[0] or others or traced:
         # everything is written and flushed; freezing what is left spares the interpreter's exit
