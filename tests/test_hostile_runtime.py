@@ -282,8 +282,10 @@ def test_a_cluster_that_loses_its_only_worker_ends_in_bounded_time(tmp_path):
         (("place", "run", "hammer"), 7.0),
         (("place", "run", "hammer"), 10.0),  # while the pictures and the guide are drawn
         (("check", "{family}", "--frames", "200000"), 4.0),
+        # a local dask cluster's worker processes and semaphores (no resource-tracker warning)
+        (("sweep", "--delta", "1:3:0.5", "--cube", "18:30:3", "--samples", "20000", "--workers", "2"), 15.0),
     ],
-    ids=["stars", "export", "place-early", "place-mid", "place-drawing", "check"],
+    ids=["stars", "export", "place-early", "place-mid", "place-drawing", "check", "sweep-local-cluster"],
 )
 @pytest.mark.parametrize("signame", ["SIGTERM", "SIGINT"])
 def test_a_signal_ends_the_command_and_its_helpers(args, delay_s, signame, small_family, tmp_path):

@@ -411,8 +411,19 @@ def _close(client) -> None:
         pass
 
 
+#: the warning filter handed to multiprocessing's resource tracker (it takes this process's -W
+#: options when it starts): a run stopped by a signal ends at once, and the tracker then frees
+#: the semaphores of the local cluster's process pool itself, with a warning per run that says so
+_TRACKER_QUIET = "ignore::UserWarning:multiprocessing.resource_tracker"
+
+
 def _local_cluster(p: Plan):
+    import sys
+
     from distributed import Client, LocalCluster
+
+    if _TRACKER_QUIET not in sys.warnoptions:
+        sys.warnoptions.append(_TRACKER_QUIET)
 
     cluster = LocalCluster(
         n_workers=p.workers,
