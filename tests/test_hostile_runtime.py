@@ -23,7 +23,7 @@ import pytest
 from starforge.errors import StarforgeError
 from starforge.io import INPUT_LIMITS, check_input_file, check_name
 from starforge.props.batch import jobs
-from starforge.runtime import engine
+from starforge.runtime import address, engine
 from starforge.tracking.formats._common import num
 from tests.test_hostile_inputs import CHILD, _snapshot, left_in_session, run_child
 
@@ -46,8 +46,8 @@ SCHEDULER_BUDGET_S = 15.0
     ],
 )
 def test_accepted_addresses_are_canonical(text, want):
-    assert engine.parse_address(text) == want
-    assert engine.parse_address(want) == want  # canonical forms are fixed points
+    assert address.parse_address(text) == want
+    assert address.parse_address(want) == want  # canonical forms are fixed points
 
 
 @pytest.mark.parametrize(
@@ -73,7 +73,7 @@ def test_accepted_addresses_are_canonical(text, want):
 )
 def test_refused_addresses_name_the_accepted_forms(text, why):
     with pytest.raises(StarforgeError) as exc:
-        engine.parse_address(text)
+        address.parse_address(text)
     msg = str(exc.value)
     assert why in msg and "expected tcp://HOST:PORT, HOST:PORT or HOST" in msg
     assert "\n" not in msg and len(msg) < 300
@@ -144,7 +144,7 @@ def endpoints():
 def test_the_probe_names_what_answers_instead(endpoints, kind, message):
     t0 = time.perf_counter()
     with pytest.raises(StarforgeError, match=message):
-        engine.probe(engine.parse_address(endpoints[kind]), timeout_s=2.0, handshake_s=0.5)
+        address.probe(address.parse_address(endpoints[kind]), timeout_s=2.0, handshake_s=0.5)
     assert time.perf_counter() - t0 < 2.0 + 0.5 + 1.0 + 1.0  # connect, handshake, the HTTP question, slack
 
 

@@ -185,13 +185,13 @@ def use_scheduler(scheduler: str | None, probe: bool = True) -> None:
     a dask scheduler answers there.  StarforgeError in one line otherwise."""
     import os
 
-    from starforge.runtime import engine
+    from starforge.runtime import address
 
     if scheduler:
-        os.environ[engine.ENV_SCHEDULER] = engine.parse_address(scheduler)
-    addr = engine.scheduler_address()
+        os.environ[address.ENV_SCHEDULER] = address.parse_address(scheduler)
+    addr = address.scheduler_address()
     if probe and addr is not None and addr not in _probed:
-        engine.probe(addr)
+        address.probe(addr)
         _probed.add(addr)
 
 
