@@ -33,7 +33,7 @@ def read_toml(path: str | Path) -> dict:
     """Parse a TOML file with one-line errors for missing or corrupt files."""
     from starforge.io import check_input_file
 
-    path = check_input_file(path, "spec file")
+    path = check_input_file(path, "spec file", "toml")
     try:
         return tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark (Windows editors) is fine
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:

@@ -10,6 +10,7 @@ import os
 import re
 import shutil
 import signal
+import stat
 import tempfile
 import threading
 from collections.abc import Iterable, Iterator
@@ -32,9 +33,12 @@ def _file_mode() -> int:
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` through a temp file in the same folder, then rename."""
+    """Write ``data`` to ``path`` through a temp file in the same folder, then rename.  Missing
+    folders on the way are created, but never a stage folder (:func:`staged_output`): one that
+    is gone was removed by its command, and a late writer (a helper process) must not bring it
+    back (FileNotFoundError instead)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _make_parents(path.parent)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         os.fchmod(fd, _file_mode())
@@ -47,6 +51,19 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def _make_parents(folder: Path) -> None:
+    missing = []
+    d = Path(os.path.abspath(folder))
+    while not os.path.lexists(d) and d != d.parent:
+        missing.append(d)
+        d = d.parent
+    for m in missing:
+        if m in _stages or m.name.endswith(_STAGE_SUFFIX):
+            raise FileNotFoundError(errno.ENOENT, "the stage folder was removed by its command", str(m))
+    if missing:
+        folder.mkdir(parents=True, exist_ok=True)
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:
@@ -217,7 +234,7 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
     if os.path.lexists(out_dir) and not out_dir.is_dir():
         raise StarforgeError(f"output path {out_dir} exists and is not a folder")
     # stage in the nearest folder that exists, so a failure creates no folder either
-    stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".staging",
+    stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=_STAGE_SUFFIX,
                                   dir=_nearest_existing(out_dir.parent)))
     _stages.add(stage)
     try:
@@ -253,6 +270,9 @@ def scratch_folder(prefix: str, where: str | Path | None = None) -> Iterator[Pat
         _stages.discard(folder)
 
 
+#: the name ending of every stage folder (never created by :func:`atomic_write_bytes`)
+_STAGE_SUFFIX = ".staging"
+
 #: errors of a full or read-only file system while writing (ENOSPC, EDQUOT, EFBIG, EROFS)
 _FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS}
 
@@ -282,30 +302,63 @@ def discard_stages(timeout_s: float = 5.0) -> bool:
     return True
 
 
-def check_input_file(path: str | Path, what: str = "file") -> Path:
-    """A readable regular file, or StarforgeError saying what is wrong with it (missing, a folder,
-    a device such as /dev/null, empty, unreadable)."""
+#: the largest input file of each kind, bytes: far above any real one, and small enough that
+#: parsing it stays inside a command's memory budget (Python's JSON, TOML and CSV readers hold
+#: 5-20 x a file's size as objects).  A 10,000-star family file is about 10 MB; meshes have
+#: their own memory estimate from their size and the work asked of them (starforge.props.mesh).
+INPUT_LIMITS = {
+    "json": 128 * 2**20,  # family, placement and body files
+    "toml": 2**20,  # specs, markers, mounts, rigs, presets
+    "csv": 64 * 2**20,  # marker and score tables
+    "mask": 128 * 2**20,  # --mask: one value per face
+    "tracker": 128 * 2**20,  # QTM XML, VSK, Atracsys INI, NDI ROM, Motive, body CSV
+    "mesh": 2 * 2**30,  # STL, OBJ, PLY, GLB, ...
+    "file": 256 * 2**20,  # anything else
+}
+
+
+def check_input_file(path: str | Path, what: str = "file", kind: str = "file") -> Path:
+    """A readable regular file no larger than ``INPUT_LIMITS[kind]``, or StarforgeError saying
+    what is wrong with it (missing, a folder, a device such as /dev/null, a symlink loop,
+    empty, unreadable, too large for its kind)."""
     path = Path(path)
     if not os.path.lexists(path):
         raise StarforgeError(f"{what} not found: {path}")
-    if path.is_dir():
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise StarforgeError(f"{what} {path} is a symbolic link that loops back on itself") from None
+        if exc.errno == errno.ENOENT:
+            raise StarforgeError(f"{what} {path} is a symbolic link to a missing file") from None
+        raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(st.st_mode):
         raise StarforgeError(f"{what} {path} is a folder, expected a file")
-    if not path.is_file():
+    if not stat.S_ISREG(st.st_mode):
         raise StarforgeError(f"{what} {path} is not a regular file")
     try:
-        size = path.stat().st_size
         with open(path, "rb"):
             pass
     except OSError as exc:
         raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
-    if size == 0:
+    if st.st_size == 0:
         raise StarforgeError(f"{what} {path} is empty")
+    limit = INPUT_LIMITS[kind]
+    if st.st_size > limit:
+        raise StarforgeError(
+            f"{what} {path} is {_mb(st.st_size)}, above the {_mb(limit)} a {kind} input may be; "
+            f"is it the right file?"
+        )
     return path
+
+
+def _mb(n: float) -> str:
+    return f"{n / 2**20:,.0f} MB" if n >= 2**20 else f"{n / 1024:,.0f} kB"
 
 
 def read_json(path: str | Path, what: str = "file") -> dict:
     """Read a JSON object with clear errors for a missing, empty or corrupt file."""
-    path = check_input_file(path, what)
+    path = check_input_file(path, what, "json")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:

@@ -125,7 +125,12 @@ def test_unreachable_scheduler_is_one_line_and_publishes_nothing(tmp_path, capsy
 def test_the_environment_variable_names_the_scheduler(monkeypatch):
     monkeypatch.setenv(engine.ENV_SCHEDULER, "10.0.0.1:8786")
     assert engine.scheduler_address() == "tcp://10.0.0.1:8786"
-    assert engine.scheduler_address("tls://h:1") == "tls://h:1"
+    assert engine.scheduler_address("h:1") == "tcp://h:1"
+    with pytest.raises(StarforgeError, match=r"tls:// is not supported"):
+        engine.scheduler_address("tls://h:1")
+    monkeypatch.setenv(engine.ENV_SCHEDULER, "inproc://x")
+    with pytest.raises(StarforgeError, match=r"^STARFORGE_SCHEDULER 'inproc://x': inproc:// is not supported"):
+        engine.scheduler_address()
     monkeypatch.delenv(engine.ENV_SCHEDULER)
     assert engine.scheduler_address() is None
 
@@ -144,6 +149,22 @@ def test_results_come_back_in_item_order_in_process():
     assert got == [3, 1, 2]
 
 
+def _wait_listening(port: int, timeout_s: float = 60.0) -> None:
+    """Wait until something accepts connections on ``port`` (a scheduler starting up)."""
+    import socket
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+            return
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
 def test_a_scheduler_that_goes_away_is_one_error(monkeypatch):
     import socket
     import subprocess
@@ -160,6 +181,7 @@ def test_a_scheduler_that_goes_away_is_one_error(monkeypatch):
     sched = subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"], **quiet)
     work = subprocess.Popen([dask, "worker", addr, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"], **quiet)
     try:
+        _wait_listening(port)
         monkeypatch.setattr(E, "CHUNK_SUBSETS", 500)
         monkeypatch.setattr(engine, "CONNECT_TIMEOUT_S", 60.0)  # slow start on a loaded machine
 

@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 import subprocess
 import sys
 import textwrap
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -29,14 +30,27 @@ from tests.conftest import run_cli
 
 CHILD = textwrap.dedent(
     """
-    import resource, sys
+    import atexit, os, resource, sys
     cap = 2 * 1024 ** 3
     resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
+
+    def peak():  # the peak memory, for the benchmark's report
+        with open(os.environ["HOSTILE_RSS_FILE"], "w") as fh:
+            fh.write(str(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss))
+
+    if os.environ.get("HOSTILE_RSS_FILE"):
+        atexit.register(peak)
     from starforge.cli import main
-    sys.exit(main(sys.argv[1:]))
+    sys.argv[0] = "starforge"
+    main()  # as the console script: it ends the process the way a user's run ends
     """
 )
 LIMIT_S = 60
+#: the time budget of each case added with the bounded readers and the cluster client, s
+#: (a refusal takes 1-3 s here; the budget leaves room for a loaded machine)
+BUDGET_S = 20
+#: set by benchmarks/bench_hostile.py: a JSON line per case (clean, seconds, peak memory) goes there
+REPORT = os.environ.get("STARFORGE_HOSTILE_REPORT")
 
 
 @dataclass(frozen=True)
@@ -47,6 +61,43 @@ class Case:
     code: int = 2
     uses_out: bool = True
     env: dict = field(default_factory=dict)
+    budget_s: float = LIMIT_S
+
+
+def left_in_session(sid: int) -> list[int]:
+    """Processes still running (zombies excluded) in the session ``sid``: a command started with
+    ``start_new_session`` leaves none once it has exited."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[3]) == sid and fields[0] != "Z":
+            found.append(int(stat.parent.name))
+    return found
+
+
+def run_child(args, cwd, env, budget_s: float):
+    """Run the CLI in a child (its own session, address space capped) within ``budget_s``;
+    (completed process, seconds, peak memory in kB or None, processes it left behind)."""
+    rss = Path(cwd) / ".hostile-rss"
+    t0 = time.perf_counter()
+    with subprocess.Popen(
+        [sys.executable, "-c", CHILD, *map(str, args)], cwd=cwd, env={**env, "HOSTILE_RSS_FILE": str(rss)},
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    ) as proc:
+        try:
+            out, err = proc.communicate(timeout=budget_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, 9)
+            proc.communicate()
+            raise AssertionError(f"no answer within {budget_s} s: {list(args)[:6]}") from None
+    seconds = time.perf_counter() - t0
+    time.sleep(0.05)  # a helper killed as the command ended is reaped by then
+    peak = int(rss.read_text()) if rss.exists() else None
+    rss.unlink(missing_ok=True)
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err), seconds, peak, left_in_session(proc.pid)
 
 
 def _snapshot(folder: Path) -> dict:
@@ -146,6 +197,32 @@ def files(tmp_path_factory, small_family):
         fh.write(b"\0" * 80 + (5_000_000).to_bytes(4, "little"))
         fh.truncate(84 + 50 * 5_000_000)
     out["mesh_5m"] = d / "faces5m.stl"
+    # 1.5 GB files of every kind a reader takes (sparse: no disk used), refused from their size
+    for key, name in (("big_json", "big.json"), ("big_toml", "big.toml"), ("big_csv", "big.csv"),
+                      ("big_mask", "big_mask.txt"), ("big_xml", "big.xml")):
+        with open(d / name, "wb") as fh:
+            fh.truncate(1500 * 2**20)
+        out[key] = d / name
+    (d / "loop_a").symlink_to(d / "loop_b")
+    (d / "loop_b").symlink_to(d / "loop_a")
+    (d / "loop.json").symlink_to(d / "loop_a")
+    (d / "loop.stl").symlink_to(d / "loop_a")
+    out["loop_json"], out["loop_stl"] = d / "loop.json", d / "loop.stl"
+    (d / "underscore.xml").write_text(
+        '<QTM_Body_File_Ver_1.00><Bodies><Body><Name>probe</Name><Points><Point X="1_0" Y="0" Z="0"/>'
+        '<Point X="50" Y="0" Z="0"/><Point X="0" Y="35" Z="0"/><Point X="0" Y="0" Z="22"/></Points></Body>'
+        "</Bodies></QTM_Body_File_Ver_1.00>"
+    )
+    out["qtm_underscore"] = d / "underscore.xml"
+    (d / "collinear.csv").write_text(
+        "body,marker,x_mm,y_mm,z_mm\nA,1,0,0,0\nA,2,10,0,0\nA,3,25,0,0\n"
+        "B,1,0,0,0\nB,2,12,0,0\nB,3,12,20,0\nB,4,0,5,30\n"
+    )
+    out["collinear_csv"] = d / "collinear.csv"
+    sock = socket.socket()  # a port nothing listens on (bound, then released)
+    sock.bind(("127.0.0.1", 0))
+    out["closed_port"] = Path(f"127.0.0.1:{sock.getsockname()[1]}")
+    sock.close()
     return out
 
 
@@ -250,6 +327,56 @@ def _cases(f) -> list[Case]:
         Case("place-5m-faces-64-orientations", ("place", "run", str(f["mesh_5m"]), "--orientations", "64"),
              r"prop mesh .*faces5m.stl \(250 MB\) needs about .* memory"),
         Case("sweep-cube-nan", ("sweep", "--cube", "nan:40:5"), r"cube must hold finite numbers, got 'nan'"),
+    ] + [replace(c, budget_s=BUDGET_S) for c in _bounded_cases(f)]
+
+
+def _bounded_cases(f) -> list[Case]:
+    """The cases of the bounded readers, the cluster client and the checks before work."""
+    fam = str(f["good"])
+    return [
+        # every reader sizes its file first: a limit per kind, named with the file
+        Case("export-json-1.5GB", ("export", str(f["big_json"])), r"big.json is 1,500 MB, above the 128 MB a json input"),
+        Case("check-json-1.5GB", ("check", str(f["big_json"])), r"big.json is 1,500 MB, above the 128 MB a json input"),
+        Case("stars-toml-1.5GB", ("stars", "--spec", str(f["big_toml"])), r"big.toml is 1,500 MB, above the 1 MB a toml"),
+        Case("stars-marker-toml-1.5GB", ("stars", "--marker", str(f["big_toml"])), r"above the 1 MB a toml input"),
+        Case("mounts-marker-toml-1.5GB", ("mounts", "--marker", str(f["big_toml"])), r"above the 1 MB a toml input",
+             uses_out=False),
+        Case("place-score-csv-1.5GB", ("place", "score", "hammer", str(f["big_csv"])), r"above the 64 MB a csv input",
+             uses_out=False),
+        Case("place-mask-1.5GB", ("place", "run", "hammer", "--mask", str(f["big_mask"])), r"above the 128 MB a mask"),
+        Case("check-xml-1.5GB", ("check", str(f["big_xml"])), r"above the 128 MB a tracker input"),
+        Case("stars-avoid-json-1.5GB", ("stars", "--box", "16", "12", "24", "--avoid", str(f["big_json"])),
+             r"--avoid file .*big.json is 1,500 MB"),
+        # symbolic-link loops, wherever a file is read
+        *[Case(f"symlink-loop-{name}", args, r"loop.(json|stl) is a symbolic link that loops back on itself")
+          for name, args in (("export", ("export", str(f["loop_json"]))), ("check", ("check", str(f["loop_json"]))),
+                             ("stars-avoid", ("stars", "--avoid", str(f["loop_json"]))),
+                             ("place-avoid", ("place", "run", "hammer", "--avoid", str(f["loop_json"]))),
+                             ("place-mesh", ("place", "run", str(f["loop_stl"]))),
+                             ("place-forbid-mesh", ("place", "run", "hammer", "--forbid-mesh", str(f["loop_stl"]))))],
+        # values: plain decimal numbers, finite, in range; bodies a tracker can hold
+        Case("check-qtm-underscore-number", ("check", str(f["qtm_underscore"])), r"probe point X is not a number \('1_0'\)"),
+        Case("check-collinear-markers", ("check", str(f["collinear_csv"])), r"body A's markers lie on one line"),
+        *[Case(f"check-tip-{v}", ("check", fam, "--tip", f"{v},0,0"), r"tip must be three finite numbers within")
+          for v in ("nan", "inf", "1e308")],
+        Case("mounts-marker-1e308", ("mounts", "--marker", "1e308"), r"marker diameter must be in \[1, 50\] mm",
+             uses_out=False),
+        # the scheduler address: parsed before anything connects, one line naming the accepted forms
+        *[Case(f"scheduler-{name}", ("--scheduler", addr, "stars"),
+               r"--scheduler '.*': .*expected tcp://HOST:PORT, HOST:PORT or HOST")
+          for name, addr in (("tls", "tls://127.0.0.1:8786"), ("ucx", "ucx://127.0.0.1:8786"), ("inproc", "inproc://x"),
+                             ("port-abc", "tcp://127.0.0.1:abc"), ("port-5000-digits", "127.0.0.1:" + "9" * 5000),
+                             ("port-0", "127.0.0.1:0"), ("ipv6-bare", "::1"))],
+        Case("scheduler-after-stars", ("stars", "--scheduler", "tls://h:1"), r"tls:// is not supported"),
+        Case("scheduler-after-sweep", ("sweep", "--scheduler", "h:abc"), r"the port must be a number"),
+        Case("scheduler-after-place-batch", ("place-batch", "hammer", "--scheduler", "ucx://h:1"), r"ucx:// is not supported"),
+        Case("scheduler-env-garbage", ("stars",), r"^error: STARFORGE_SCHEDULER 'a b': not a scheduler address",
+             env={"STARFORGE_SCHEDULER": "a b"}),
+        Case("scheduler-closed-port", ("--scheduler", str(f["closed_port"]), "stars"),
+             r"cannot reach the dask scheduler at tcp://127.0.0.1:\d+: nothing listens there"),
+        # place-batch reads every prop before a job starts
+        Case("place-batch-bad-mesh", ("place-batch", "hammer", str(f["garbage_stl"])), r"garbage.stl"),
+        Case("place-batch-missing-mesh", ("place-batch", "hammer", "nope.stl"), r"not found: nope.stl"),
     ]
 
 
@@ -260,7 +387,8 @@ def _case_ids():
 _FILE_KEYS = (
     "good x300 x1e6 contradict coincident inch no_stars corrupt list garbage_stl empty_obj bad_toml "
     "wrongtype_toml unknownkey_toml box_mm speck far_csv bom_toml fifo id_negative id_huge family_10k "
-    "mesh_x1e30 mesh_x0001 mesh_5m"
+    "mesh_x1e30 mesh_x0001 mesh_5m big_json big_toml big_csv big_mask big_xml loop_json loop_stl qtm_underscore "
+    "collinear_csv closed_port"
 ).split()
 #: the plain progress lines a command prints every few seconds when stderr is not a terminal
 PROGRESS = r"^starforge [a-z]+: \d+ s, "
@@ -286,28 +414,28 @@ def test_hostile_input(case_id, files, tmp_path):
         "OMP_NUM_THREADS": "1",
         **case.env,
     }
-    t0 = time.perf_counter()
-    res = subprocess.run(
-        [sys.executable, "-c", CHILD, *args],
-        cwd=work,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=LIMIT_S,
-    )
-    print(case.id, f"{time.perf_counter() - t0:.2f} s")
-    err = res.stderr.strip()
-    assert "Traceback" not in res.stderr, res.stderr
-    assert res.returncode == case.code, (res.returncode, err)
-    if case.code == 2:
-        import re
+    clean, seconds, peak = False, None, None
+    try:
+        res, seconds, peak, left = run_child(args, work, env, case.budget_s)
+        print(case.id, f"{seconds:.2f} s")
+        err = res.stderr.strip()
+        assert "Traceback" not in res.stderr and "Warning" not in res.stderr, res.stderr
+        assert res.returncode == case.code, (res.returncode, err)
+        if case.code == 2:
+            import re
 
-        lines = [line for line in err.splitlines() if not re.match(PROGRESS, line)]
-        assert len(lines) == 1 and lines[0].startswith("error: "), err
-        assert re.search(case.pattern, lines[0]), lines[0]
-        said = lines[0].split("e.g. starforge ")[0]  # a command to copy may be long: the words may not
-        assert len(said) < 400, f"a long error line ({len(said)} characters)"
-    assert _snapshot(work) == before
+            lines = [line for line in err.splitlines() if not re.match(PROGRESS, line)]
+            assert len(lines) == 1 and lines[0].startswith("error: "), err
+            assert re.search(case.pattern, lines[0]), lines[0]
+            said = lines[0].split("e.g. starforge ")[0]  # a command to copy may be long: the words may not
+            assert len(said) < 400, f"a long error line ({len(said)} characters)"
+        assert _snapshot(work) == before
+        assert not left, f"processes left running: {left}"
+        clean = True
+    finally:
+        if REPORT:
+            with open(REPORT, "a") as fh:
+                fh.write(json.dumps({"case": case.id, "clean": clean, "seconds": seconds, "peak_kb": peak}) + "\n")
 
 
 def test_a_good_family_still_exports_under_the_same_limits(files, tmp_path):

@@ -25,6 +25,7 @@ import time
 from pathlib import Path
 
 from starforge.errors import StarforgeError
+from starforge.runtime.procs import adopt, fork_helper, release
 
 _BOOT = (
     "import sys\n"
@@ -112,9 +113,6 @@ def _forked_child(job_fd: int, out_fd: int, err_fd: int) -> None:
 
     code = 1
     try:
-        from starforge.runtime.procs import leave_parent_signals
-
-        leave_parent_signals(default_handlers=True)
         os.dup2(err_fd, 2)
         os.dup2(err_fd, 1)
         with os.fdopen(job_fd, "rb") as job_in, os.fdopen(out_fd, "w", encoding="utf-8") as out:
@@ -142,7 +140,7 @@ class _Forked:
         out_r, out_w = os.pipe()
         sys.stdout.flush()  # nothing buffered here is written twice
         sys.stderr.flush()
-        pid = os.fork()
+        pid = fork_helper(default_handlers=True)
         if pid == 0:
             os.close(job_w)
             os.close(out_r)
@@ -161,6 +159,7 @@ class _Forked:
             pid, status = os.waitpid(self.pid, flags)
             if pid:
                 self.returncode = os.waitstatus_to_exitcode(status)
+                release(self.pid)
         return self.returncode
 
     def poll(self) -> int | None:
@@ -214,6 +213,7 @@ class StepProcess:
                 stdout=subprocess.PIPE,
                 stderr=self.stderr,
             )
+            adopt(self.proc.pid)  # ended with the command (starforge.runtime.procs.end_children)
         self.writer: threading.Thread | None = None
         self.reader = threading.Thread(target=self._read, name="starforge-step", daemon=True)
         self.reader.start()
@@ -261,6 +261,7 @@ class StepProcess:
         if not self.sent:
             raise RuntimeError("result() before send(): the worker has no job")
         code = self.proc.wait()
+        release(self.proc.pid)
         self.writer.join()
         self.reader.join()
         self.proc.stdout.close()
@@ -283,6 +284,7 @@ class StepProcess:
         if self.proc.poll() is None:
             self.proc.kill()
         self.proc.wait()
+        release(self.proc.pid)
         if self.writer is not None:  # its write fails once the worker is gone
             self.writer.join()
         self.reader.join()

@@ -14,6 +14,8 @@ import sys
 import threading
 
 from starforge.cli._app import app
+from starforge.runtime.engine import ENV_SCHEDULER, silence_dask
+from starforge.runtime.procs import end_children
 
 __all__ = ["app", "click_command", "main"]
 
@@ -68,14 +70,15 @@ STOP_DEADLINE_S = 1.0
 _reported = threading.Lock()  # held by whoever reports the stop (the command, or the last resort)
 
 
-def _watch_signals(read_fd: int, done: threading.Event, discard_stages) -> None:
+def _watch_signals(read_fd: int, done: threading.Event, discard_stages, end_children) -> None:
     """The last resort, in a thread: Python runs a signal handler only between bytecodes of the
     main thread, and a compiled kernel (numba, HiGHS) does not return to Python until it is done.
     The signal's number also arrives on ``read_fd`` (signal.set_wakeup_fd) while such a kernel
     runs without the GIL; if the command has not ended STOP_DEADLINE_S later, remove its stage
-    folders (never in the middle of a publish), print the one line and exit at once.  It imports
-    nothing itself (``discard_stages`` comes in): a module lock it held while the process forks
-    would stay taken in the child forever."""
+    folders (never in the middle of a publish), end the command's helper processes, print the
+    one line and exit at once.  It imports nothing itself (``discard_stages`` and
+    ``end_children`` come in): a module lock it held while the process forks would stay taken
+    in the child forever."""
     while True:
         try:
             data = os.read(read_fd, 1)
@@ -92,6 +95,7 @@ def _watch_signals(read_fd: int, done: threading.Event, discard_stages) -> None:
         with _reported:
             if done.is_set() or not discard_stages():
                 return  # ended meanwhile, or a publish that would not finish: let it end on its own
+            end_children()
             _report_stop(_stopped_by[0] or signum)
             os._exit(128 + (_stopped_by[0] or signum))
 
@@ -120,7 +124,8 @@ def _install_signals():
     from starforge.io import discard_stages  # imported here, never in the thread
 
     watcher = threading.Thread(
-        target=_watch_signals, args=(read_fd, done, discard_stages), name="starforge-signals", daemon=True
+        target=_watch_signals, args=(read_fd, done, discard_stages, end_children), name="starforge-signals",
+        daemon=True,
     )
     # safe to fork beside (starforge.render.props forks render processes, starforge.cad.step_worker
     # its STEP worker): it imports nothing and holds no lock while it waits in os.read, and a
@@ -166,6 +171,8 @@ def main(argv: list[str] | None = None) -> int:
     reset_interrupt()
     _stopped_by[0] = None
     _quick_exit[0] = False
+    silence_dask()  # the engine's one line says what a cluster did wrong; dask's loggers stay quiet
+    scheduler_env = os.environ.get(ENV_SCHEDULER)  # --scheduler sets it for this command only
     done, undo = _install_signals()
     previous_hook = sys.unraisablehook
     sys.unraisablehook = _quiet_interrupts(previous_hook)
@@ -180,6 +187,11 @@ def main(argv: list[str] | None = None) -> int:
                 code = 128 + signum
                 _report_stop(signum)
     finally:
+        end_children()  # a helper the command did not wait for (an error, a signal) ends with it
+        if scheduler_env is None:
+            os.environ.pop(ENV_SCHEDULER, None)
+        else:
+            os.environ[ENV_SCHEDULER] = scheduler_env
         sys.unraisablehook = previous_hook
         undo()
         reset_interrupt()  # library calls after this command are not affected
@@ -211,8 +223,21 @@ def _end_process(code: int) -> None:
     runs (the interpreter would wait for it)."""
     from starforge.cli._app import _quick_exit
 
+    traced = sys.gettrace() is not None or sys.getprofile() is not None
+    if "distributed" in sys.modules and not traced:
+        # the engine closed every client and cluster it started; what dask leaves to the
+        # interpreter's exit (its event-loop thread, connections to a scheduler that may be
+        # gone) takes seconds to tear down, and dask reports on it after our one line
+        _flush_and_exit(code)
+    if _stopped_by[0] is not None and not traced:
+        # stopped by a signal: nothing was published and the stages are gone; a compiled kernel
+        # may still run on a worker thread, which the interpreter's exit would wait for
+        import atexit
+
+        atexit._run_exitfuncs()
+        _flush_and_exit(code)
     others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon and t.is_alive()]
-    if not _quick_exit[0] or others or sys.gettrace() is not None or sys.getprofile() is not None:
+    if not _quick_exit[0] or others or traced:
         # everything is written and flushed; freezing what is left spares the interpreter's exit
         # a last walk over numba's and numpy's objects (measured: 0.15 CPU s, 0.5 s wall under
         # load, for `starforge stars`); atexit handlers and file flushes run as before
@@ -223,6 +248,10 @@ def _end_process(code: int) -> None:
     import atexit
 
     atexit._run_exitfuncs()
+    _flush_and_exit(code)
+
+
+def _flush_and_exit(code: int) -> None:
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

@@ -70,6 +70,33 @@ def console(stderr: bool = False):
     return Console(stderr=stderr, highlight=False)
 
 
+def use_scheduler(scheduler: str | None, probe: bool = True) -> None:
+    """Check the scheduler address (``--scheduler``, before or after the command, else
+    ``STARFORGE_SCHEDULER``) before any work starts and hand it to the engine through the
+    environment; with ``probe`` (the commands that run on it) also check, within seconds, that
+    a dask scheduler answers there.  StarforgeError in one line otherwise."""
+    import os
+
+    from starforge.runtime import address
+
+    if scheduler:
+        os.environ[address.ENV_SCHEDULER] = address.parse_address(scheduler)
+    addr = address.scheduler_address()
+    if probe and addr is not None and addr not in _probed:
+        address.probe(addr)
+        _probed.add(addr)
+
+
+#: scheduler addresses that answered as dask schedulers in this process
+_probed: set = set()
+
+
+SCHEDULER_HELP = (
+    "Run parallel work (enumeration chunks, sweep cells, placements) on the dask scheduler at this "
+    "address: tcp://HOST:PORT, HOST:PORT or HOST (default: $STARFORGE_SCHEDULER; unset: this machine)."
+)
+
+
 @app.callback(invoke_without_command=True)
 def _root(
     ctx: typer.Context,
@@ -84,8 +111,7 @@ def _root(
     scheduler: str = typer.Option(
         None,
         "--scheduler",
-        help="Run parallel work (enumeration chunks, sweep cells) on the dask scheduler at this address "
-        "(default: $STARFORGE_SCHEDULER; unset: this machine; also accepted after the command).",
+        help=SCHEDULER_HELP + " Also accepted after the command.",
     ),
 ) -> None:
     """Design optical motion-capture markers: unique marker-star families, printable bodies,
@@ -98,10 +124,7 @@ def _root(
         os.environ[budget.ENV_MEMORY] = str(budget.parse_bytes(max_memory, "--max-memory"))
     if max_seconds is not None:
         os.environ[budget.ENV_SECONDS] = repr(budget.parse_seconds(max_seconds, "--max-seconds"))
-    if scheduler:
-        from starforge.runtime.engine import ENV_SCHEDULER
-
-        os.environ[ENV_SCHEDULER] = scheduler
+    use_scheduler(scheduler, probe=False)  # checked here; reached by the commands that use it
     if version:
         from starforge import __version__
 

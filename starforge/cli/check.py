@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import typer
@@ -21,7 +22,13 @@ def _tip(text: str | None):
         raise StarforgeError(f"tip must be three numbers x,y,z in mm, got {text!r}") from None
     if len(v) != 3:
         raise StarforgeError(f"tip must be three numbers x,y,z in mm, got {text!r}")
+    if not all(math.isfinite(x) and abs(x) <= MAX_TIP_MM for x in v):
+        raise StarforgeError(f"tip must be three finite numbers within {MAX_TIP_MM:,.0f} mm of the body, got {text!r}")
     return v
+
+
+#: how far from the body's frame a --tip may be, mm (10 m: past any tool's tip)
+MAX_TIP_MM = 10_000.0
 
 
 _FILES = typer.Argument(

@@ -13,17 +13,17 @@ from starforge.cli._app import app, console
 @app.command("mounts")
 def mounts_cmd(
     name: str = typer.Argument(None, help="A mount name (or TOML path) to show in detail; all when omitted."),
-    marker: float = typer.Option(
-        4.0, "--marker", help="Marker sphere diameter, mm, for the room (as `stars --marker`)."
+    marker: str = typer.Option(
+        "4", "--marker", help="Marker sphere diameter, mm, or a catalogue marker, for the room (as `stars --marker`)."
     ),
 ) -> None:
     """List the mounts a star body can have, with the room each needs in the size limit
     (what `starforge stars --mount NAME` reserves); with NAME, its parameters and ranges."""
     from starforge.cad.mounts import list_mounts, load_mount
     from starforge.cad.reserve import mount_reserve_mm
-    from starforge.spec import positive
+    from starforge.markers import marker_diameter_mm
 
-    marker = positive("--marker", marker)
+    marker = marker_diameter_mm(marker)  # the range `stars --marker` accepts
     con = console()
     mounts = [load_mount(name)] if name else list_mounts()
     for m in mounts:

@@ -81,13 +81,14 @@ def _prop_and_spec(
     s = load_spec(spec)
     cons = None
     if forbid_mesh or mask:
+        from starforge.io import check_input_file
+
         cons = s.constraints
         if forbid_mesh:
-            from starforge.io import check_input_file
-
-            check_input_file(forbid_mesh, "--forbid-mesh file")  # before the long work
+            check_input_file(forbid_mesh, "--forbid-mesh file", "mesh")  # before the long work
             cons = replace(cons, mesh=str(forbid_mesh))
         if mask:
+            check_input_file(mask, "--mask file", "mask")
             cons = replace(cons, mask=str(mask))
     s = with_overrides(
         s,
@@ -222,6 +223,10 @@ def run_cmd(
     pause_gc()  # before the render process forks (it draws with the collector off too) and the imports
     if seed < 0:
         raise StarforgeError(f"seed must be >= 0, got {seed}")
+    if avoid:  # the files to avoid exist and are readable before any work starts
+        from starforge.tracking.bodies import check_body_files
+
+        check_body_files(avoid, "--avoid file")
     # fork the picture-drawing process first, so that its matplotlib import overlaps our work
     with BackgroundRenderer() as renderer:
         from starforge.io import check_writable, staged_output

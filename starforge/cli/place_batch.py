@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from starforge.cli._app import app, console
+from starforge.cli._app import SCHEDULER_HELP, app, console, use_scheduler
 from starforge.cli._jobs import job_progress
 
 
@@ -23,9 +23,7 @@ def place_batch_cmd(
     units: str = typer.Option("m", "--units", help="Units of the mesh files: m, cm or mm."),
     seed: int = typer.Option(0, "--seed", help="Random seed of every job (same seed, same result)."),
     workers: int = typer.Option(0, "--workers", help="Local worker processes (0: every core; 1: in this process)."),
-    scheduler: str = typer.Option(
-        None, "--scheduler", help="Address of a dask scheduler (default: $STARFORGE_SCHEDULER, else this machine)."
-    ),
+    scheduler: str = typer.Option(None, "--scheduler", help=SCHEDULER_HELP),
     out: str = typer.Option("out/place-batch", "--out", help="Output folder."),
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
@@ -34,9 +32,10 @@ def place_batch_cmd(
 
     from starforge.errors import StarforgeError
     from starforge.io import atomic_write_bytes, atomic_write_text, check_writable, staged_output
-    from starforge.props.batch import job_bytes, jobs, place_job
+    from starforge.props.batch import check_props, job_bytes, jobs, place_job
     from starforge.runtime import engine
 
+    use_scheduler(scheduler)
     if seed < 0:
         raise StarforgeError(f"seed must be >= 0, got {seed}")
     if workers < 0:
@@ -44,7 +43,9 @@ def place_batch_cmd(
     todo = jobs(props, rig or [], units, spec, seed)
     out = Path(out)
     check_writable(out, [name for name, _ in todo] + ["batch.csv"], force)
+    # every input read before a cluster starts: the spec and rigs (the estimates), then the props
     est = [job_bytes(spec, job[3]) for _, job in todo]
+    check_props(props, units)
     with job_progress("place-batch", "placements", len(todo), quiet) as (tick, where):
         results = engine.map_tasks(
             place_job,

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from starforge.cli._app import app, console
+from starforge.cli._app import SCHEDULER_HELP, app, console, use_scheduler
 from starforge.cli._args import retyped
 from starforge.cli._multi import MULTI, more_values
 from starforge.errors import StarforgeError
@@ -121,6 +121,7 @@ def stars_cmd(
     force: bool = typer.Option(False, "--force", help="Overwrite existing outputs."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
     preview: bool = typer.Option(False, "--preview", help="Also draw family.png (the first 40 stars)."),
+    scheduler: str = typer.Option(None, "--scheduler", help=SCHEDULER_HELP),
 ) -> None:
     """Generate a family of unique marker stars; writes family.json (source of truth) and family.csv.
 
@@ -133,6 +134,11 @@ def stars_cmd(
     from starforge.io import check_writable
     from starforge.stars import warmup
 
+    use_scheduler(scheduler)
+    if avoid or ctx.args:  # the files to avoid exist and are readable before any work starts
+        from starforge.tracking.bodies import check_body_files
+
+        check_body_files(more_values("--avoid", avoid, ctx.args), "--avoid file")
     # every file goes through staged_output, and the helper and threads are done on return
     allow_quick_exit()
     pause_gc()  # its objects are nearly all acyclic: no collector passes over numba's and scipy's heap

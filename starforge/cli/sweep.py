@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from starforge.cli._app import app, console
+from starforge.cli._app import SCHEDULER_HELP, app, console, use_scheduler
 from starforge.cli._jobs import job_progress
 
 
@@ -35,11 +35,7 @@ def sweep_cmd(
     workers: int = typer.Option(
         0, "--workers", help="Local worker processes (0: every core; 1: in this process). Small sweeps run in process."
     ),
-    scheduler: str = typer.Option(
-        None,
-        "--scheduler",
-        help="Address of a dask scheduler to run the cells on (default: $STARFORGE_SCHEDULER, else this machine).",
-    ),
+    scheduler: str = typer.Option(None, "--scheduler", help=SCHEDULER_HELP),
     seed: int = typer.Option(0, "--seed", help="Random seed for the sampled cells."),
     out: str = typer.Option("out/sweep", "--out", help="Output folder."),
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
@@ -47,6 +43,8 @@ def sweep_cmd(
 ) -> None:
     from starforge.errors import StarforgeError
     from starforge.io import atomic_write_text, check_writable, staged_output
+
+    use_scheduler(scheduler)
     from starforge.tracking.sweep import parse_range, rows_csv, sweep
 
     if seed < 0:

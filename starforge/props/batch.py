@@ -49,13 +49,28 @@ def job_name(prop: str, rig: str | None, many_rigs: bool) -> str:
 
 
 def jobs(props, rigs, units: str, spec: str, seed: int) -> list[tuple[str, tuple]]:
-    """(folder name, job) for every prop x rig, in the order given; a name is never reused."""
+    """(folder name, job) for every prop x rig, in the order given.  A name is never reused,
+    nor one that differs from another only in case (one folder on macOS and Windows): a name
+    taken already gets the first free ``-2``, ``-3``, ... (``a b.stl`` and ``a_b.stl`` give
+    ``a_b`` and ``a_b-2``)."""
     rigs = list(rigs) or [None]
-    out, seen = [], {}
+    out, taken = [], set()
     for p in props:
         for r in rigs:
-            name = job_name(p, r, len(rigs) > 1)
-            k = seen.get(name, 0)
-            seen[name] = k + 1
-            out.append((name if k == 0 else f"{name}-{k + 1}", (p, units, spec, r, seed)))
+            base = job_name(p, r, len(rigs) > 1)
+            name, k = base, 1
+            while name.casefold() in taken:
+                k += 1
+                name = f"{base[: 100 - len(str(k)) - 1]}-{k}"
+            taken.add(name.casefold())
+            out.append((name, (p, units, spec, r, seed)))
     return out
+
+
+def check_props(props, units: str) -> None:
+    """Read every distinct prop once (a mesh file: exists, parses, holds triangles, sane size;
+    a built-in: known), so that a bad one is refused in one line before any job starts."""
+    from starforge.props.mesh import load_prop
+
+    for p in dict.fromkeys(str(x) for x in props):
+        load_prop(p, units, repair=False)

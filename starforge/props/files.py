@@ -287,7 +287,7 @@ def read_markers_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     """Marker positions (m) and normals (None when the columns are absent) from a markers CSV."""
     from starforge.io import check_input_file
 
-    path = check_input_file(Path(path), "markers file")
+    path = check_input_file(Path(path), "markers file", "csv")
     try:
         rows = list(csv.DictReader(path.read_text(encoding="utf-8").splitlines()))
     except (UnicodeDecodeError, csv.Error) as exc:

@@ -88,7 +88,7 @@ def load_mesh_file(path: str | Path, units: str = "m", what: str = "prop mesh"):
     from starforge.io import check_input_file
 
     scale = units_scale(units)
-    path = check_input_file(Path(path), what)
+    path = check_input_file(Path(path), what, "mesh")
     from starforge.runtime.budget import require_memory
 
     # a mesh in memory takes about 10-20 x its file size (vertices, faces, adjacency, repair)

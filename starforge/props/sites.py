@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
+from starforge.io import check_input_file
 from starforge.runtime.kernels import numba
 from starforge.spec import in_range, positive
 
@@ -196,9 +197,7 @@ class Constraints:
 
 def read_face_mask(path: str | Path, n_faces: int) -> np.ndarray:
     """(n_faces,) bool from a mask file; StarforgeError when missing, corrupt or of the wrong length."""
-    path = Path(path)
-    if not path.is_file():
-        raise StarforgeError(f"face mask not found: {path}")
+    path = check_input_file(Path(path), "face mask", "mask")
     try:
         if path.suffix.lower() == ".npy":
             values = np.load(path, allow_pickle=False).ravel()

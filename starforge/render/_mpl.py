@@ -8,9 +8,14 @@ from pathlib import Path
 
 
 def pyplot():
-    """matplotlib.pyplot with the non-interactive Agg backend."""
+    """matplotlib.pyplot with the non-interactive Agg backend.  A character its fonts lack (a
+    CJK prop or file name in a title) is drawn as a box without a warning per glyph on stderr:
+    the name itself is written in full in the text outputs."""
+    import warnings
+
     import matplotlib
 
+    warnings.filterwarnings("ignore", message=r"Glyph \d+ .* missing from font", category=UserWarning)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

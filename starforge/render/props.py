@@ -26,7 +26,7 @@ from starforge.render.prop_views import (
     plot_data,
     shaded,
 )
-from starforge.runtime.procs import leave_parent_signals
+from starforge.runtime.procs import fork_helper, release
 
 _DPI = 100
 
@@ -144,11 +144,11 @@ class BackgroundRenderer:
     def __enter__(self) -> BackgroundRenderer:
         if self._fork:
             pipes = [os.pipe() for _ in _ROLES]
-            pid = os.fork()
+            # the render processes form one process group, ended as a whole with the command
+            pid = fork_helper(group=True)
             if pid == 0:  # render process: never returns
                 for _, w in pipes:
                     os.close(w)
-                leave_parent_signals()
                 _first([r for r, _ in pipes])
             for r, _ in pipes:
                 os.close(r)
@@ -188,6 +188,7 @@ class BackgroundRenderer:
                 self._job = None
             return names
         _, status = os.waitpid(self._pid, 0)
+        release(self._pid)
         self._pid = None
         if self._sent is not None:
             self._sent.unlink(missing_ok=True)  # both render processes have read it
@@ -204,8 +205,13 @@ class BackgroundRenderer:
             if exc_type is not None:
                 import signal
 
-                os.kill(self._pid, signal.SIGKILL)  # the second still leaves at end-of-file
+                # both render processes, before they draw into a stage the caller removes
+                try:
+                    os.killpg(self._pid, signal.SIGKILL)
+                except OSError:
+                    os.kill(self._pid, signal.SIGKILL)
             os.waitpid(self._pid, 0)
+            release(self._pid)
             self._pid = None
 
 
@@ -250,7 +256,7 @@ def _first(reads: list[int]) -> None:
         _warm(_ROLES[0])
         kids = []
         for k in range(1, len(_ROLES)):
-            pid = os.fork()
+            pid = fork_helper()  # in this group; killed with the first if that one dies
             if pid == 0:
                 for j, r in enumerate(reads):
                     if j != k:

@@ -21,9 +21,15 @@ share of its worker's memory limit (local cluster: the command's memory budget,
 :mod:`starforge.runtime.budget`, divided among the workers); otherwise the run is refused in one line.
 Local workers run one task at a time, so the estimates bound what each worker holds.
 
-Faults: a worker that dies mid-run has its tasks rerun elsewhere by the scheduler (the results
-are pure, so nothing changes).  A scheduler that cannot be reached, or that goes away, raises
-:class:`~starforge.errors.StarforgeError` with one line; callers publish nothing then.
+Faults: the address is parsed before anything connects, and a raw handshake with a bounded wait
+tells a dask scheduler from an endpoint that is not one (an HTTP server, a silent listener, a
+closed port, an unreachable host) before dask's client, which retries for its whole timeout, is
+started (:mod:`starforge.runtime.address`).  A worker that dies mid-run has its
+tasks rerun elsewhere by the scheduler (the results are pure, so nothing changes); a cluster
+left without workers for :data:`NO_WORKERS_S`, or a scheduler out of reach for
+:data:`LOST_SCHEDULER_S`, ends the run.  Each of these raises
+:class:`~starforge.errors.StarforgeError` with one line; callers publish nothing then, and dask's
+and asyncio's own reports of the same event are silenced (:func:`dask_quiet`).
 
 Progress: ``progress(done, total)`` after each finished task; and one plain log line per
 roughly 10 % on the ``starforge.runtime.engine`` logger.
@@ -41,12 +47,16 @@ from dataclasses import dataclass
 from typing import Any
 
 from starforge.errors import StarforgeError
+from starforge.runtime.address import ENV_SCHEDULER, probe, scheduler_address
 
-ENV_SCHEDULER = "STARFORGE_SCHEDULER"
 #: estimated single-core work (s) from which a local cluster is started (below: in process)
 LOCAL_CLUSTER_SECONDS = 20.0
 #: seconds to wait when connecting to a scheduler, and for its first worker
-CONNECT_TIMEOUT_S = 10.0
+CONNECT_TIMEOUT_S = 5.0
+#: seconds a running job waits for a cluster left with no worker before it gives up
+NO_WORKERS_S = 10.0
+#: seconds a running job waits for a scheduler that stopped answering before it gives up
+LOST_SCHEDULER_S = 5.0
 
 log = logging.getLogger("starforge.runtime.engine")
 
@@ -86,14 +96,6 @@ class Plan:
         return f"the dask cluster at {self.address} ({self.workers} worker threads)"
 
 
-def scheduler_address(scheduler: str | None = None) -> str | None:
-    """The scheduler to use: ``scheduler`` if given, else ``STARFORGE_SCHEDULER``, else None."""
-    addr = scheduler if scheduler else os.environ.get(ENV_SCHEDULER, "").strip() or None
-    if addr is not None and "://" not in addr:
-        addr = f"tcp://{addr}"
-    return addr
-
-
 def local_workers(workers: int | None = None) -> int:
     """Worker processes of a local cluster: ``workers`` or every core."""
     return max(1, int(workers) if workers else (os.cpu_count() or 1))
@@ -128,14 +130,40 @@ def plan(
 def dask_quiet(on: bool = True):
     """dask's own connection, reconnect and shutdown chatter silenced (``on``) for the block:
     our one line says what went wrong."""
-    quiet = logging.getLogger("distributed")
-    level = quiet.level
     if on:
-        quiet.setLevel(logging.CRITICAL)
+        import distributed  # noqa: F401  (its import configures its loggers: silenced after it)
+    loggers = _chatty_loggers()
+    levels = [q.level for q in loggers]
+    if on:
+        for q in loggers:
+            q.setLevel(logging.CRITICAL + 1)
     try:
         yield
     finally:
-        quiet.setLevel(level)
+        if not _silenced[0]:
+            for q, level in zip(loggers, levels, strict=True):
+                q.setLevel(level)
+
+
+#: the loggers of dask's client and the event loop it runs on (and their children, which dask
+#: configures with levels of their own): connection errors, reconnects, and "Task exception
+#: was never retrieved" after a scheduler went away
+_CHATTY = ("distributed", "asyncio", "tornado")
+_silenced = [False]
+
+
+def _chatty_loggers() -> list[logging.Logger]:
+    names = [n for n in list(logging.root.manager.loggerDict) if n.split(".")[0] in _CHATTY]
+    return [logging.getLogger(n) for n in sorted(set(names) | set(_CHATTY))]
+
+
+def silence_dask() -> None:
+    """Silence dask's and asyncio's loggers for the rest of the process (the CLI: its one line
+    says what went wrong; their reports come also while the client shuts down, after the
+    command's own error)."""
+    _silenced[0] = True
+    for q in _chatty_loggers():
+        q.setLevel(logging.CRITICAL + 1)
 
 
 def plan_with_capacity(n_tasks: int, seconds: float = math.inf, workers: int | None = None, scheduler: str | None = None) -> Plan:
@@ -149,7 +177,7 @@ def plan_with_capacity(n_tasks: int, seconds: float = math.inf, workers: int | N
         try:
             return plan(n_tasks, seconds, workers, scheduler, client=client)
         finally:
-            client.close()
+            _close(client)
 
 
 def cluster_capacity(client) -> tuple[int, float]:
@@ -182,27 +210,54 @@ def require_task_memory(task_bytes: Sequence[float], p: Plan, what: str, advice:
 
 
 def _connect(addr: str):
+    """A client of the scheduler at ``addr``, after :func:`probe`, with at least one worker; every
+    wait bounded (:data:`CONNECT_TIMEOUT_S`)."""
+    probe(addr, CONNECT_TIMEOUT_S)
     from distributed import Client
 
     try:
         client = Client(addr, timeout=f"{CONNECT_TIMEOUT_S}s", set_as_default=False)
-    except (OSError, TimeoutError) as exc:
+    except Exception as exc:  # noqa: BLE001  (any failure of dask's handshake is the same one line)
         raise StarforgeError(
-            f"cannot reach the dask scheduler at {addr} ({type(exc).__name__}); start one with "
-            f"`dask scheduler`, or unset --scheduler / {ENV_SCHEDULER} to run on this machine"
+            f"cannot connect to the dask scheduler at {addr} ({type(exc).__name__}: {_first_line(exc)}); "
+            f"check that its dask version matches this one's, or unset --scheduler / {ENV_SCHEDULER}"
         ) from None
     try:
         client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
-    except (OSError, TimeoutError):
-        client.close()
+    except Exception:  # noqa: BLE001  (a timeout, or the scheduler gone meanwhile)
+        _close(client)
         raise StarforgeError(
             f"the dask scheduler at {addr} has no workers; start some with `dask worker {addr}`"
         ) from None
     return client
 
 
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0][:120] if text else "no message"
+
+
+def _close(client) -> None:
+    """Close a client without waiting long for a scheduler that is gone."""
+    try:
+        client.close(timeout=2)
+    except Exception:  # noqa: BLE001  (closing a lost connection: nothing left to report)
+        pass
+
+
+#: the warning filter handed to multiprocessing's resource tracker (it takes this process's -W
+#: options when it starts): a run stopped by a signal ends at once, and the tracker then frees
+#: the semaphores of the local cluster's process pool itself, with a warning per run that says so
+_TRACKER_QUIET = "ignore::UserWarning:multiprocessing.resource_tracker"
+
+
 def _local_cluster(p: Plan):
+    import sys
+
     from distributed import Client, LocalCluster
+
+    if _TRACKER_QUIET not in sys.warnoptions:
+        sys.warnoptions.append(_TRACKER_QUIET)
 
     cluster = LocalCluster(
         n_workers=p.workers,
@@ -214,7 +269,9 @@ def _local_cluster(p: Plan):
         # taken (a notebook's cluster, a second starforge run), which dask reports as a warning
         scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
         memory_limit=int(p.task_bytes),
-        silence_logs=logging.ERROR,
+        # a task's own error comes back to the client as raised (one line from the CLI); the
+        # worker's log of it, with its traceback, would come first on the same stderr
+        silence_logs=logging.CRITICAL + 1,
     )
     return cluster, Client(cluster, set_as_default=False)
 
@@ -324,9 +381,10 @@ def map_tasks(
             return _run_on(client, fn, items, ticker, p, consume)
         finally:
             if client is not None:
-                client.close()
+                _close(client)
             if cluster is not None:
-                cluster.close()
+                with contextlib.suppress(Exception):
+                    cluster.close(timeout=5)
 
 
 def _overlapped(fn, items, ticker: _Progress, consume, k: int) -> list:
@@ -363,22 +421,19 @@ def _overlapped(fn, items, ticker: _Progress, consume, k: int) -> list:
 def _run_on(client, fn, items, ticker: _Progress, p: Plan, consume=None) -> list:
     from distributed import as_completed
 
-    from starforge.io import interrupted
-
     futures = client.map(fn, items, pure=False)
     index = {f.key: i for i, f in enumerate(futures)}
     out: list = [None] * len(items) if consume is None else []
     where = p.address or "the local cluster"
+    health = _Health(client, where)
     try:
         with client.as_current():
-            for fut in as_completed(futures):
-                if interrupted():
-                    raise KeyboardInterrupt
+            for fut in _completed(as_completed(futures), health):
                 if fut.cancelled():  # the scheduler went away
                     raise StarforgeError(f"lost the dask scheduler at {where} mid-run; nothing was written")
                 try:
                     # waits if the worker that held this result died since: the task reruns
-                    res = fut.result()
+                    res = _result(fut, health)
                 except Exception as exc:
                     if _is_lost(exc):
                         raise
@@ -404,6 +459,76 @@ def _run_on(client, fn, items, ticker: _Progress, p: Plan, consume=None) -> list
             ) from None
         raise
     return out
+
+
+class _Health:
+    """Watches a running job's cluster, at most once a second: it raises StarforgeError when the
+    cluster has had no worker for :data:`NO_WORKERS_S` (the scheduler would wait for one for
+    ever) or the scheduler has not answered for :data:`LOST_SCHEDULER_S`."""
+
+    def __init__(self, client, where: str):
+        import time
+
+        self.client, self.where, self.clock = client, where, time.monotonic
+        now = self.clock()
+        self.next_at, self.workers_seen, self.answered = now + 1.0, now, now
+
+    def check(self) -> None:
+        from starforge.io import interrupted
+
+        if interrupted():
+            raise KeyboardInterrupt
+        now = self.clock()
+        if now < self.next_at:
+            return
+        self.next_at = now + 1.0
+        try:
+            threads = self.client.nthreads(callback_timeout=2)
+        except Exception:  # noqa: BLE001  (no answer: counted below)
+            threads = None
+        now = self.clock()
+        if threads is not None:
+            self.answered = now
+            if threads:
+                self.workers_seen = now
+        if now - self.answered > LOST_SCHEDULER_S:
+            raise StarforgeError(
+                f"lost the dask scheduler at {self.where} mid-run (no answer for {LOST_SCHEDULER_S:g} s); "
+                f"nothing was written"
+            )
+        if now - self.workers_seen > NO_WORKERS_S:
+            raise StarforgeError(
+                f"the dask cluster at {self.where} lost all its workers mid-run (none for {NO_WORKERS_S:g} s); "
+                f"nothing was written"
+            )
+
+
+def _completed(ac, health: _Health):
+    """The futures of ``ac`` (distributed's as_completed) as they finish, the cluster's health
+    checked while none does."""
+    import time
+
+    while not ac.is_empty():
+        batch = ac.next_batch(block=False)
+        if not batch:
+            health.check()
+            time.sleep(0.02)
+            continue
+        for fut in batch:
+            health.check()
+            yield fut
+
+
+def _result(fut, health: _Health):
+    """A finished future's result; if its worker died since, it reruns: wait for it with the
+    cluster's health checked."""
+    from distributed import TimeoutError as DaskTimeout
+
+    while True:
+        try:
+            return fut.result(timeout=1.0)
+        except (TimeoutError, DaskTimeout):
+            health.check()
 
 
 class _TaskFailed(Exception):

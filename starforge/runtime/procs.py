@@ -7,6 +7,11 @@ second import of numpy or of starforge), which is why the placement pictures
 where they can.  Forking is unsafe while another thread may hold a lock the child would inherit
 taken, so it is done only when every other thread declares itself ``fork_safe``; callers keep a
 path without ``os.fork`` for the rest.
+
+Every helper belongs to its command: :func:`fork_helper` (and :func:`adopt` for a launched
+interpreter) registers it, and :func:`end_children` ends whatever is still registered when the
+command ends, by an error, a signal or the CLI's last-resort exit; a forked helper also dies
+with its parent when that is killed outright.
 """
 
 from __future__ import annotations
@@ -45,3 +50,90 @@ def leave_parent_signals(default_handlers: bool = False) -> None:
             os.close(fd)
         except OSError:
             pass
+
+
+#: helper processes of this command: pid -> True when the helper leads its own process group
+#: (its own children are in it and end with it)
+_children: dict[int, bool] = {}
+
+
+def adopt(pid: int, group: bool = False) -> None:
+    """Register a helper process as this command's: :func:`end_children` ends it (the CLI calls
+    that when the command ends, however it ends).  ``group``: the helper leads its own process
+    group (see :func:`in_forked_child`), which is ended as a whole."""
+    if group:
+        try:  # also done by the child; whichever runs first makes the group
+            os.setpgid(pid, pid)
+        except OSError:
+            pass
+    _children[pid] = group
+
+
+def release(pid: int) -> None:
+    """The helper ``pid`` has been reaped: forget it (its pid may be reused)."""
+    _children.pop(pid, None)
+
+
+def end_children() -> None:
+    """SIGKILL every helper still registered (and each group a helper leads), so that none
+    outlives the command or writes after its stage folder is removed.  Safe from any thread
+    and after a fork (it imports nothing); the helpers are reaped by whoever waits for them,
+    or by the system once this process exits."""
+    import signal
+
+    for pid, group in list(_children.items()):
+        try:
+            if group:
+                os.killpg(pid, signal.SIGKILL)
+            else:
+                os.kill(pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            try:  # the group was never made (killed before setpgid): the process alone
+                os.kill(pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+
+
+def fork_helper(group: bool = False, default_handlers: bool = False) -> int:
+    """``os.fork`` for a helper of this command: 0 in the child, the child's pid (registered with
+    :func:`adopt`) in the parent.  The child forgets the parent's helpers (they are not its own),
+    leaves the parent's signal handling (:func:`leave_parent_signals`), asks the kernel to
+    SIGKILL it when its parent dies (Linux ``PR_SET_PDEATHSIG``, when forked from the main
+    thread: the kernel ties it to the forking thread), so that a parent killed outright leaves
+    no orphan writing into a removed folder, and with ``group`` leads a new process group, so
+    that :func:`end_children` ends it and every process it forks in one call."""
+    import threading
+
+    from_main = threading.current_thread() is threading.main_thread()
+    pid = os.fork()
+    if pid == 0:
+        _children.clear()
+        if group:
+            try:
+                os.setpgid(0, 0)
+            except OSError:
+                pass
+        if from_main:
+            _die_with_parent()
+        leave_parent_signals(default_handlers)
+        return 0
+    adopt(pid, group)
+    return pid
+
+
+def _die_with_parent() -> None:
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+        import signal
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        parent = os.getppid()
+        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
+        if os.getppid() != parent:  # the parent died before the request: end now
+            os._exit(1)
+    except (OSError, AttributeError):
+        pass

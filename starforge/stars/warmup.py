@@ -26,6 +26,8 @@ import subprocess
 import sys
 import threading
 
+from starforge.runtime.procs import adopt, release
+
 #: seconds this process waits at most for the helper's report of a group of kernels (a first
 #: run's groups take a few seconds each); past it, it compiles them itself as without a helper
 WAIT_S = 60.0
@@ -118,6 +120,7 @@ def start() -> Helper | None:
         )
     except OSError:
         return None
+    adopt(proc.pid)  # ended with the command (starforge.runtime.procs.end_children)
     _active[0] = Helper(proc)
     return _active[0]
 
@@ -137,6 +140,7 @@ def finish(helper: Helper | None, timeout_s: float = 30.0) -> None:
     if proc.poll() is None:
         proc.kill()
     proc.wait()
+    release(proc.pid)
     helper._listener.join(1.0)  # the pipe is at its end once the helper has exited
     if proc.stdout is not None:
         proc.stdout.close()  # not left to the garbage collector (a ResourceWarning)

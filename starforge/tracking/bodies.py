@@ -17,7 +17,7 @@ or from the tracker files a lab already has.
 Any mix of these may be read together (a lab's existing bodies beside new ones): names are made
 unique, the match window defaults to the smallest family tolerance.  Bodies of any marker count
 from 3 to :data:`MAX_MARKERS` are kept.  Every body is checked for truth before use: at least 3
-markers, finite coordinates, no two markers closer than 0.1 mm, a
+markers, finite coordinates, no two markers closer than 0.1 mm, not all on one line, a
 spread that a marker body can have (:data:`SPREAD_MM`, else "other units?"), and bounded size
 (:data:`MAX_MARKERS` per body, :data:`MAX_TRIANGLES` in all).
 """
@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.io import read_json
+from starforge.io import check_input_file, read_json
 
 PLACEMENT_FORMAT = "starforge.placement"
 FAMILY_FORMAT = "starforge.family"
@@ -165,6 +166,14 @@ def check_body(where, name: str, P: np.ndarray) -> None:
         raise StarforgeError(
             f"{where}: body {name} has two markers {d.min():.3g} mm apart (one marker given twice?)"
         )
+    C = P - P.mean(axis=0)
+    axis = np.linalg.svd(C, full_matrices=False)[2][0]
+    off_line = float(np.linalg.norm(C - np.outer(C @ axis, axis), axis=1).max())
+    if off_line < MIN_SEPARATION_MM:
+        raise StarforgeError(
+            f"{where}: body {name}'s markers lie on one line (all within {MIN_SEPARATION_MM:g} mm of it): no tracker can tell "
+            f"its rotation about that line; a rigid body needs markers off the line"
+        )
 
 
 def _family_bodies(path: Path, data: dict) -> tuple[list[Body], float, float]:
@@ -262,6 +271,26 @@ def _resolve(p: Path) -> Path:
     return p
 
 
+def check_body_files(paths, what: str = "input file") -> list[Path]:
+    """The files :func:`load_bodies` would read (a folder: its family.json or placement.json),
+    each checked (:func:`starforge.io.check_input_file`: it exists, is a regular file of a
+    readable size, no symbolic-link loop) and given once; StarforgeError in one line otherwise.
+    Cheap: commands call it before their work starts."""
+    if isinstance(paths, str | Path):
+        paths = [paths]
+    paths = [_resolve(Path(p)) for p in paths]
+    if not paths:
+        raise StarforgeError(f"no {what} given")
+    first: dict[str, Path] = {}
+    for p in paths:
+        check_input_file(p, what, "json" if p.suffix.lower() == ".json" else "tracker")
+        key = os.path.realpath(p)
+        if key in first:
+            raise StarforgeError(f"{p} is given twice (as {first[key]} before): give each file once")
+        first[key] = p
+    return paths
+
+
 def load_bodies(paths) -> BodySet:
     """Read star families, prop placements and tracker files (every format of
     :data:`starforge.tracking.formats.FORMATS`), in any mix; a folder means the family.json or placement.json inside it.
@@ -269,25 +298,13 @@ def load_bodies(paths) -> BodySet:
     Raises StarforgeError (one line) for a missing or corrupt file, a format it does not know,
     or a body that is not a rigid body a tracker could hold (see the module docstring).
     """
-    from starforge.io import check_input_file
     from starforge.tracking.formats import sniff_format
 
-    if isinstance(paths, str | Path):
-        paths = [paths]
-    paths = [_resolve(Path(p)) for p in paths]
-    if not paths:
-        raise StarforgeError("no input file given")
-    first: dict[Path, Path] = {}
-    for p in paths:
-        key = p.resolve()
-        if key in first:
-            raise StarforgeError(f"{p} is given twice (as {first[key]} before): give each file once")
-        first[key] = p
+    paths = check_body_files(paths)
     raw: list[Body] = []
     kinds, sources, notes, warnings = [], [], [], []
     tolerances, markers = [], []
     for p in paths:
-        check_input_file(p, "input file")
         fmt = sniff_format(p)
         if fmt is not None and p.suffix.lower() != ".json":
             raw.extend(_tracker_bodies(p, fmt, warnings))

@@ -5,6 +5,7 @@ Format modules import only this module (never each other, the bodies or the comm
 
 from __future__ import annotations
 
+import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -130,12 +131,19 @@ def parse_xml(path) -> ET.Element:
         raise StarforgeError(f"{path} is not valid XML ({exc})") from None
 
 
+#: a decimal number as tracker files write them: Python's float() also takes "1_0" (as 10),
+#: "nan", "infinity" and non-ASCII digits, which no tracker writes and which would be misread
+_NUMBER = re.compile(r"\s*[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\s*")
+
+
 def num(path, what: str, text) -> float:
-    """``text`` as a finite float, else one-line StarforgeError naming ``path`` and ``what``."""
-    try:
-        v = float(text)
-    except (TypeError, ValueError):
-        raise StarforgeError(f"{path}: {what} is not a number ({text!r})") from None
+    """``text`` as a finite float written as a plain decimal number, else one-line
+    StarforgeError naming ``path`` and ``what``."""
+    if isinstance(text, str) and text.strip().lstrip("+-").lower() in ("nan", "inf", "infinity"):
+        raise StarforgeError(f"{path}: {what} is not finite ({text!r})")
+    if not isinstance(text, str) or not _NUMBER.fullmatch(text) or not text.isascii():
+        raise StarforgeError(f"{path}: {what} is not a number ({text!r})")
+    v = float(text)
     if not np.isfinite(v):
         raise StarforgeError(f"{path}: {what} is not finite ({text!r})")
     return v

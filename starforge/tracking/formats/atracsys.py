@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.tracking.formats._common import Record, WriteContext, check_size, f2s, points_of
+from starforge.tracking.formats._common import Record, WriteContext, check_size, f2s, num, points_of
 
 SUFFIX = ".ini"
 #: what a geometry file carries besides its points (:data:`~starforge.tracking.formats._common.FIELDS`)
@@ -54,12 +54,13 @@ def load(path) -> list[Record]:
         gid = cp.getint("geometry", "id")
         if not 1 <= n <= 64:
             raise ValueError(f"count {n} is outside 1..64")
-        pts = [[cp.getfloat(f"fiducial{i}", c) for c in "xyz"] for i in range(n)]
+        raw = [[cp.get(f"fiducial{i}", c) for c in "xyz"] for i in range(n)]
     except (configparser.Error, ValueError, UnicodeDecodeError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else ""
         raise StarforgeError(
             f"{path} is not an Atracsys geometry file ({exc.__class__.__name__}: {msg})"
         ) from None
+    pts = [[num(path, f"fiducial{i} {c}", v) for c, v in zip("xyz", row, strict=True)] for i, row in enumerate(raw)]
     P = np.array(pts, dtype=float).reshape(-1, 3)
     if not np.isfinite(P).all():
         raise StarforgeError(f"{path}: fiducial coordinates must be finite numbers")

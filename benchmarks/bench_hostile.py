@@ -1,0 +1,74 @@
+"""The hostile suite as one figure: every case of tests/test_hostile_inputs.py (each the real CLI
+in a child process with a capped address space and a time budget), counted.
+
+Prints JSON: cases clean / total (one line, exit 2 or a correct result, nothing left behind, no
+process left, no traceback or warning on stderr, within the case's budget), the slowest case and
+the largest peak memory of a command (the child's own maximum resident set).  With ``--all``
+the runtime cases (tests/test_hostile_runtime.py: scheduler endpoints, lost workers, signals)
+run too and are counted by pytest's outcome.
+
+Run from the repository root: ``python benchmarks/bench_hostile.py [--all] [-k EXPR]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--all", action="store_true", help="also the runtime cases (minutes: clusters and signals)")
+    ap.add_argument("-k", default=None, help="only the cases matching this pytest expression")
+    opts = ap.parse_args()
+    with tempfile.TemporaryDirectory(prefix="bench-hostile-") as d:
+        report = Path(d) / "cases.jsonl"
+        junit = Path(d) / "junit.xml"
+        files = ["tests/test_hostile_inputs.py"] + (["tests/test_hostile_runtime.py"] if opts.all else [])
+        cmd = [sys.executable, "-m", "pytest", *files, "-q", "-p", "no:cacheprovider", "-m", "",
+               f"--junitxml={junit}"] + (["-k", opts.k] if opts.k else [])
+        env = {**os.environ, "STARFORGE_HOSTILE_REPORT": str(report), "PYTHONPATH": str(ROOT)}
+        t0 = time.perf_counter()
+        subprocess.run(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False)
+        wall = time.perf_counter() - t0
+        rows = [json.loads(line) for line in report.read_text().splitlines()] if report.exists() else []
+        tests, failures = _junit_counts(junit)
+    timed = [r for r in rows if r["seconds"] is not None]
+    peaks = [r for r in rows if r["peak_kb"] is not None]
+    slowest = max(timed, key=lambda r: r["seconds"], default=None)
+    largest = max(peaks, key=lambda r: r["peak_kb"], default=None)
+    print(json.dumps({
+        "cases_clean": sum(r["clean"] for r in rows),
+        "cases_total": len(rows),
+        "not_clean": [r["case"] for r in rows if not r["clean"]],
+        "worst_seconds": round(slowest["seconds"], 2) if slowest else None,
+        "worst_seconds_case": slowest["case"] if slowest else None,
+        "worst_peak_mb": round(largest["peak_kb"] / 1024, 1) if largest else None,
+        "worst_peak_case": largest["case"] if largest else None,
+        "pytest_tests": tests,
+        "pytest_failed": failures,
+        "wall_seconds": round(wall, 1),
+    }, indent=2))
+
+
+def _junit_counts(path: Path) -> tuple[int, int]:
+    """(tests run, tests failed or errored) from pytest's JUnit XML report."""
+    import xml.etree.ElementTree as ET
+
+    if not path.exists():
+        return 0, 0
+    suite = ET.parse(path).getroot()
+    suite = suite if suite.tag == "testsuite" else suite.find("testsuite")
+    return int(suite.get("tests", 0)), int(suite.get("failures", 0)) + int(suite.get("errors", 0))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,385 @@
+"""Hostile runtime: endpoints that are not a dask cluster, clusters that lose their workers,
+signals at any moment, names that collide, numbers that only look like numbers.
+
+The CLI cases run in a child process of their own session (``tests.test_hostile_inputs.run_child``)
+with a time budget; each asserts one line and exit 2 (or the signal's code), nothing written, no
+traceback or third-party warning on stderr, and no process left in the session.
+"""
+
+from __future__ import annotations
+
+import http.server
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from starforge.errors import StarforgeError
+from starforge.io import INPUT_LIMITS, check_input_file, check_name
+from starforge.props.batch import jobs
+from starforge.runtime import address, engine
+from starforge.tracking.formats._common import num
+from tests.test_hostile_inputs import CHILD, _snapshot, left_in_session, run_child
+
+#: the issue's bound: --scheduler at anything that is not a working dask cluster answers within it
+SCHEDULER_BUDGET_S = 15.0
+
+
+# --- the scheduler address ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "text, want",
+    [
+        ("10.0.0.1", "tcp://10.0.0.1:8786"),
+        ("tcp://10.0.0.1:9000", "tcp://10.0.0.1:9000"),
+        ("TCP://node-7.cluster.local:1", "tcp://node-7.cluster.local:1"),
+        ("[::1]:8786", "tcp://[::1]:8786"),
+        ("tcp://[fe80::1]", "tcp://[fe80::1]:8786"),
+        ("localhost:65535", "tcp://localhost:65535"),
+    ],
+)
+def test_accepted_addresses_are_canonical(text, want):
+    assert address.parse_address(text) == want
+    assert address.parse_address(want) == want  # canonical forms are fixed points
+
+
+@pytest.mark.parametrize(
+    "text, why",
+    [
+        ("tls://h:8786", "tls:// is not supported"),
+        ("ucx://h:8786", "ucx:// is not supported"),
+        ("inproc://x", "inproc:// is not supported"),
+        ("tcp://127.0.0.1:abc", "the port must be a number from 1 to 65535, got 'abc'"),
+        ("h:" + "9" * 5000, "the port must be a number"),
+        ("h:65536", "the port must be a number"),
+        ("h:0", "the port must be a number"),
+        ("h:-1", "the port must be a number"),
+        ("h:８７８６", "the port must be a number"),  # full-width digits: int() would take them
+        ("::1", "an IPv6 address goes in brackets"),
+        ("[zz]:1", "is not an IPv6 address"),
+        ("a b:1", "not a scheduler address"),
+        ("tcp://h:1/path", "not a scheduler address"),
+        ("user@h:1", "not a scheduler address"),
+        ("-h:1", "is not a host name"),
+        ("", "not a scheduler address"),
+    ],
+)
+def test_refused_addresses_name_the_accepted_forms(text, why):
+    with pytest.raises(StarforgeError) as exc:
+        address.parse_address(text)
+    msg = str(exc.value)
+    assert why in msg and "expected tcp://HOST:PORT, HOST:PORT or HOST" in msg
+    assert "\n" not in msg and len(msg) < 300
+
+
+# --- endpoints that are not a dask scheduler --------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def endpoints():
+    """Listeners that are not dask schedulers: one that never answers, an HTTP server, one that
+    sends other bytes and hangs up; and a port nothing listens on."""
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(16)
+
+    class Quiet(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):
+            self.send_response(200)
+            self.end_headers()
+
+        do_HEAD = do_GET
+
+        def log_message(self, *args):
+            pass
+
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Quiet)
+    threading.Thread(target=httpd.serve_forever, daemon=True).start()
+    chatty = socket.socket()
+    chatty.bind(("127.0.0.1", 0))
+    chatty.listen(16)
+
+    def banner():
+        while True:
+            try:
+                conn, _ = chatty.accept()
+            except OSError:
+                return
+            with conn:
+                conn.sendall(b"SSH-2.0-OpenSSH_9.6\r\n")
+
+    threading.Thread(target=banner, daemon=True).start()
+    free = socket.socket()
+    free.bind(("127.0.0.1", 0))
+    closed = free.getsockname()[1]
+    free.close()
+    yield {
+        "silent": f"127.0.0.1:{silent.getsockname()[1]}",
+        "http": f"127.0.0.1:{httpd.server_address[1]}",
+        "other-bytes": f"127.0.0.1:{chatty.getsockname()[1]}",
+        "closed": f"127.0.0.1:{closed}",
+    }
+    httpd.shutdown()
+    httpd.server_close()
+    silent.close()
+    chatty.close()
+
+
+@pytest.mark.parametrize(
+    "kind, message",
+    [
+        ("silent", r"is not a dask scheduler: something accepts connections there but sent no dask handshake"),
+        ("http", r"is not a dask scheduler: an HTTP server answers there"),
+        ("other-bytes", r"is not a dask scheduler: it answered 'SSH-2.0-OpenSSH_9.6', not dask's handshake"),
+        ("closed", r"cannot reach the dask scheduler at .*: nothing listens there"),
+    ],
+)
+def test_the_probe_names_what_answers_instead(endpoints, kind, message):
+    t0 = time.perf_counter()
+    with pytest.raises(StarforgeError, match=message):
+        address.probe(address.parse_address(endpoints[kind]), timeout_s=2.0, handshake_s=0.5)
+    assert time.perf_counter() - t0 < 2.0 + 0.5 + 1.0 + 1.0  # connect, handshake, the HTTP question, slack
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["silent", "http", "other-bytes", "closed"])
+@pytest.mark.parametrize("command", ["sweep", "stars", "place-batch"])
+def test_scheduler_at_a_non_dask_endpoint_is_one_line_within_15_s(endpoints, kind, command, tmp_path):
+    args = {
+        "sweep": ["sweep", "--delta", "3", "--cube", "18", "--samples", "1000"],
+        "stars": ["stars", "--box", "14", "10", "24"],
+        "place-batch": ["place-batch", "hammer", "hammer"],
+    }[command]
+    _one_line_exit_2(args + ["--scheduler", endpoints[kind]], tmp_path, r"dask scheduler")
+
+
+def _one_line_exit_2(args, tmp_path, pattern, env=None, budget_s=SCHEDULER_BUDGET_S):
+    import re
+
+    work = tmp_path / "work"
+    out = work / "out"
+    out.mkdir(parents=True)
+    (out / "keep.txt").write_text("a file the user had")
+    before = _snapshot(work)
+    res, seconds, _, left = run_child(
+        [*args, "--out", str(out)], work, {**os.environ, "OPENBLAS_NUM_THREADS": "1", **(env or {})}, budget_s
+    )
+    lines = [line for line in res.stderr.splitlines() if not line.startswith("starforge ")]  # progress lines
+    assert res.returncode == 2, res.stderr
+    assert len(lines) == 1 and lines[0].startswith("error: ") and re.search(pattern, lines[0]), res.stderr
+    assert seconds < budget_s
+    assert _snapshot(work) == before and not left
+
+
+# --- a real dask cluster that fails ------------------------------------------------------------
+
+
+def _free_port() -> int:
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+def _wait_listening(port: int, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+            return
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
+def _dask(*args) -> subprocess.Popen:
+    exe = os.path.join(os.path.dirname(sys.executable), "dask")
+    return subprocess.Popen([exe, *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+
+
+def _end(*procs) -> None:
+    for p in procs:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+
+
+@pytest.mark.slow
+def test_a_scheduler_without_workers_is_one_line(tmp_path):
+    pytest.importorskip("distributed")
+    port = _free_port()
+    sched = _dask("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard")
+    try:
+        _wait_listening(port)
+        _one_line_exit_2(["sweep", "--delta", "3", "--cube", "18", "--samples", "1000", "--scheduler", f"127.0.0.1:{port}"],
+                         tmp_path, r"has no workers; start some with `dask worker", budget_s=30.0)
+    finally:
+        _end(sched)
+
+
+@pytest.mark.slow
+def test_a_cluster_that_loses_its_only_worker_ends_in_bounded_time(tmp_path):
+    """The scheduler would wait for a worker for ever; the run ends NO_WORKERS_S after the last
+    one left, with one line and nothing written."""
+    pytest.importorskip("distributed")
+    port = _free_port()
+    addr = f"127.0.0.1:{port}"
+    sched = _dask("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard")
+    worker = _dask("worker", addr, "--nworkers", "1", "--nthreads", "1", "--no-dashboard")
+    work = tmp_path / "work"
+    work.mkdir()
+    try:
+        _wait_listening(port)
+        from distributed import Client
+
+        with Client(addr, timeout="60s", set_as_default=False) as c:
+            c.wait_for_workers(1, timeout=60)
+        argv = ["sweep", "--delta", "1:3:0.5", "--cube", "18:30:3", "--samples", "20000", "--scheduler", addr,
+                "--out", str(work / "out")]
+        with subprocess.Popen([sys.executable, "-c", CHILD, *argv], cwd=work, stderr=subprocess.PIPE, text=True,
+                              start_new_session=True) as proc:
+            said: list[str] = []
+            reader = threading.Thread(target=lambda: said.extend(proc.stderr), daemon=True)
+            reader.start()
+            deadline = time.monotonic() + 120
+            while not any("on the dask cluster" in line for line in said) and time.monotonic() < deadline:
+                time.sleep(0.1)  # the cells are submitted: now the only worker goes
+            time.sleep(1.0)
+            _end(worker)
+            t0 = time.perf_counter()
+            proc.wait(timeout=60)
+            seconds = time.perf_counter() - t0
+            reader.join(5)
+        err = "".join(said)
+        lines = [line for line in err.splitlines() if not line.startswith(("starforge ", "sweep: "))]
+        assert proc.returncode == 2, err
+        assert len(lines) == 1 and "nothing was written" in lines[0], err
+        assert seconds < engine.NO_WORKERS_S + 15.0
+        assert list(work.iterdir()) == [] and not left_in_session(proc.pid)
+    finally:
+        _end(worker, sched)
+
+
+# --- signals: the command and every helper end, nothing staged is left --------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "args, delay_s",
+    [
+        (("stars", "--delta", "1.0"), 4.0),
+        (("export", "{family}", "--allow-oversize", "--preview", "--format", "step,stl"), None),
+        (("place", "run", "hammer"), 3.0),
+        (("place", "run", "hammer"), 7.0),
+        (("place", "run", "hammer"), 10.0),  # while the pictures and the guide are drawn
+        (("check", "{family}", "--frames", "200000"), 4.0),
+        # a local dask cluster's worker processes and semaphores (no resource-tracker warning)
+        (("sweep", "--delta", "1:3:0.5", "--cube", "18:30:3", "--samples", "20000", "--workers", "2"), 15.0),
+    ],
+    ids=["stars", "export", "place-early", "place-mid", "place-drawing", "check", "sweep-local-cluster"],
+)
+@pytest.mark.parametrize("signame", ["SIGTERM", "SIGINT"])
+def test_a_signal_ends_the_command_and_its_helpers(args, delay_s, signame, small_family, tmp_path):
+    """SIGTERM or SIGINT at several moments: exit within 2 s with the signal's code and one line,
+    no process left in the command's session (render and STEP helpers included), no stage."""
+    work = tmp_path / "work"
+    out = work / "out"
+    out.mkdir(parents=True)
+    (out / "keep.txt").write_text("a file the user had")
+    before = _snapshot(work)
+    fam = small_family[0] / "family.json"
+    argv = [a.format(family=fam) for a in args] + ["--out", str(out), "--force"]
+    sig = getattr(signal, signame)
+    with subprocess.Popen([sys.executable, "-c", CHILD, *argv], cwd=work, stderr=subprocess.PIPE, text=True,
+                          env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}, start_new_session=True) as proc:
+        try:
+            if delay_s is None:  # export: signalled once it stages its files
+                deadline = time.monotonic() + 60
+                while not any(work.glob(".out.*.staging")) and time.monotonic() < deadline:
+                    time.sleep(0.02)
+            else:
+                time.sleep(delay_s)
+            if proc.poll() is not None:
+                pytest.skip("the work ended before the signal on this machine")
+            t0 = time.perf_counter()
+            proc.send_signal(sig)
+            _, err = proc.communicate(timeout=30)
+            seconds = time.perf_counter() - t0
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+    time.sleep(1.5)  # a helper that outlived the command would write (and recreate a stage) by now
+    assert proc.returncode == 128 + sig, err
+    assert seconds < 2.0, f"stopped {seconds:.2f} s after {signame}"
+    assert "Traceback" not in err and "Warning" not in err, err
+    assert not left_in_session(proc.pid)
+    assert _snapshot(work) == before
+
+
+# --- names, numbers, sizes --------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "props",
+    [
+        ["a b.stl", "a_b.stl"],
+        ["a b.stl", "a_b.stl", "a_b-2.stl"],
+        ["A_B.stl", "a_b.stl", "a b.STL", "a_b-2.stl", "a_b-2-2.obj"],
+        ["x" * 150 + ".stl", "x" * 120 + ".obj", "x" * 100 + ".ply"],
+        ["hammer", "hammer", "dir/hammer.stl", "./hammer.obj"],
+        ["..stl", "-.stl", "é.stl", "把手.stl"],
+    ],
+)
+def test_job_folder_names_never_collide(props):
+    for rigs in ([], ["vicon-8", "vicon.8"]):
+        names = [n for n, _ in jobs(props, rigs, "m", "default", 0)]
+        assert len(names) == len(props) * max(1, len(rigs))
+        assert len({n.casefold() for n in names}) == len(names)  # one folder each, case-insensitively too
+        for n in names:
+            check_name(n, "job name")
+
+
+@pytest.mark.parametrize(
+    "text, ok",
+    [("10", 10.0), ("-1.5e3", -1500.0), (".5", 0.5), ("5.", 5.0), (" 3 ", 3.0),
+     ("1_0", None), ("nan", None), ("-inf", None), ("1e999", None), ("0x10", None), ("١٢", None), ("", None)],
+)
+def test_tracker_numbers_are_plain_decimals(text, ok):
+    if ok is None:
+        with pytest.raises(StarforgeError, match=r"f: X is not (a number|finite)"):
+            num("f", "X", text)
+    else:
+        assert num("f", "X", text) == ok
+
+
+@pytest.mark.parametrize("kind", sorted(INPUT_LIMITS))
+def test_every_kind_of_input_is_sized_before_it_is_read(kind, tmp_path):
+    big = tmp_path / f"big.{kind}"
+    with open(big, "wb") as fh:  # sparse: no disk used
+        fh.truncate(INPUT_LIMITS[kind] + 1)
+    with pytest.raises(StarforgeError, match=rf"big.{kind} is .* above the .* a {kind} input may be"):
+        check_input_file(big, "input", kind)
+    at_limit = tmp_path / f"ok.{kind}"
+    with open(at_limit, "wb") as fh:
+        fh.truncate(INPUT_LIMITS[kind])
+    assert check_input_file(at_limit, "input", kind) == at_limit
+
+
+def test_links_that_loop_or_dangle_are_one_line(tmp_path):
+    (tmp_path / "a").symlink_to(tmp_path / "b")
+    (tmp_path / "b").symlink_to(tmp_path / "a")
+    (tmp_path / "gone").symlink_to(tmp_path / "missing")
+    with pytest.raises(StarforgeError, match="loops back on itself"):
+        check_input_file(tmp_path / "a", "input")
+    with pytest.raises(StarforgeError, match="a symbolic link to a missing file"):
+        check_input_file(tmp_path / "gone", "input")
+    assert sorted(p.name for p in Path(tmp_path).iterdir()) == ["a", "b", "gone"]
