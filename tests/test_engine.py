@@ -19,7 +19,7 @@ from starforge.errors import StarforgeError
 from starforge.stars import enumerate as E
 from starforge.stars.spec import StarSpec
 
-SPEC = StarSpec(box_mm=(14, 10, 30), delta_mm=1.0, tolerance_mm=2.0)  # 814k labelled, ~1 s
+SPEC = StarSpec(box_mm=(14, 10, 30), delta_mm=1.0, tolerance_mm=2.0)  # 814k labelled candidates
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Issue 10: the tracked objective re-checked independently, markers as balls, the optimizer
+"""The tracked objective re-checked independently, markers as balls, the optimizer
 against its baselines, distinct props, and props in the wrong units."""
 
 from __future__ import annotations

@@ -68,8 +68,8 @@ def test_ready_without_a_helper_returns_at_once():
 
 
 def test_finish_closes_the_helpers_pipe():
-    """A helper's report pipe is closed when it is finished (a first run in process left it to
-    the garbage collector, a ResourceWarning that failed the test run it happened in)."""
+    """A helper's report pipe is closed when it is finished (left to the garbage collector, it
+    would raise a ResourceWarning, an error under the test run's warning filter)."""
     import subprocess
     import sys
 
