@@ -10,11 +10,14 @@ from hypothesis import HealthCheck, settings
 
 from starforge.cli import main
 
-# One fixed hypothesis profile: the same examples on every run and machine (derandomize), no
-# example database carried between runs, no wall-clock deadlines on a loaded CI machine.
+# One fixed hypothesis profile: the same examples on every run and machine (derandomize), a fixed
+# number of them (a test's own @settings may ask for fewer or more), no example database carried
+# between runs, no wall-clock deadlines on a loaded CI machine.  Loaded unless HYPOTHESIS_PROFILE
+# names another.
 settings.register_profile(
     "ci",
     derandomize=True,
+    max_examples=100,
     database=None,
     deadline=None,
     print_blob=True,
