@@ -266,16 +266,38 @@ _FILE_KEYS = (
 PROGRESS = r"^starforge [a-z]+: \d+ s, "
 
 
-@pytest.mark.parametrize("case_id", _case_ids())
-def test_hostile_input(case_id, files, tmp_path):
-    case = {c.id: c for c in _cases(files)}[case_id]
+def _user_folder(tmp_path: Path) -> tuple[Path, Path, dict]:
+    """A working folder whose output folder already holds the user's files: (work, out, snapshot)."""
     work = tmp_path / "work"
     out = work / "out"
     out.mkdir(parents=True)
     (out / "keep.txt").write_text("a file the user had")
     (out / "mine").mkdir()
     (out / "mine" / "notes.txt").write_text("more of the user's files")
-    before = _snapshot(work)
+    return work, out, _snapshot(work)
+
+
+def _check_refusal(case: Case, code: int, err: str, work: Path, before: dict) -> None:
+    """The case's exit code; for a refusal one ``error: ...`` line matching its pattern; no
+    traceback; the working folder byte-for-byte as it was."""
+    import re
+
+    assert "Traceback" not in err, err
+    assert code == case.code, (code, err)
+    if case.code == 2:
+        lines = [line for line in err.splitlines() if not re.match(PROGRESS, line)]
+        assert len(lines) == 1 and lines[0].startswith("error: "), err
+        assert re.search(case.pattern, lines[0]), lines[0]
+        assert len(lines[0]) < 400, f"a long error line ({len(lines[0])} characters)"
+    assert _snapshot(work) == before
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case_id", _case_ids())
+def test_hostile_input(case_id, files, tmp_path):
+    """Each case as a user meets it: its own process, address space capped at 2 GiB."""
+    case = {c.id: c for c in _cases(files)}[case_id]
+    work, out, before = _user_folder(tmp_path)
     args = list(case.args)
     if case.uses_out:
         args += ["--out", str(out)]
@@ -286,7 +308,6 @@ def test_hostile_input(case_id, files, tmp_path):
         "OMP_NUM_THREADS": "1",
         **case.env,
     }
-    t0 = time.perf_counter()
     res = subprocess.run(
         [sys.executable, "-c", CHILD, *args],
         cwd=work,
@@ -295,18 +316,28 @@ def test_hostile_input(case_id, files, tmp_path):
         text=True,
         timeout=LIMIT_S,
     )
-    print(case.id, f"{time.perf_counter() - t0:.2f} s")
-    err = res.stderr.strip()
-    assert "Traceback" not in res.stderr, res.stderr
-    assert res.returncode == case.code, (res.returncode, err)
-    if case.code == 2:
-        import re
+    _check_refusal(case, res.returncode, res.stderr.strip(), work, before)
 
-        lines = [line for line in err.splitlines() if not re.match(PROGRESS, line)]
-        assert len(lines) == 1 and lines[0].startswith("error: "), err
-        assert re.search(case.pattern, lines[0]), lines[0]
-        assert len(lines[0]) < 400, f"a long error line ({len(lines[0])} characters)"
-    assert _snapshot(work) == before
+
+@pytest.mark.parametrize("case_id", _case_ids())
+def test_hostile_input_in_process(case_id, files, tmp_path, monkeypatch, capsys):
+    """Each case through the in-process entry point, with the same memory limit and the same
+    checks (the process and its address-space cap are what ``test_hostile_input`` adds)."""
+    from starforge.runtime import budget
+
+    case = {c.id: c for c in _cases(files)}[case_id]
+    work, out, before = _user_folder(tmp_path)
+    args = list(case.args)
+    if case.uses_out:
+        args += ["--out", str(out)]
+    # set through monkeypatch, so that what --max-memory / --max-seconds write is undone after
+    monkeypatch.setenv(budget.ENV_MEMORY, "1G")
+    monkeypatch.setenv(budget.ENV_SECONDS, repr(budget.DEFAULT_SECONDS))
+    for k, v in case.env.items():
+        monkeypatch.setenv(k, v)
+    monkeypatch.chdir(work)
+    code = run_cli(args)
+    _check_refusal(case, code, capsys.readouterr().err.strip(), work, before)
 
 
 def test_a_good_family_still_exports_under_the_same_limits(files, tmp_path):
@@ -329,6 +360,7 @@ def test_cli_in_process_agrees(files, tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "args, signame",
     [
@@ -415,7 +447,7 @@ def test_a_swallowed_ctrl_c_still_changes_nothing(tmp_path, monkeypatch):
     out.mkdir()
     (out / "keep.txt").write_text("a file the user had")
     before = _snapshot(out)
-    assert run_cli(["stars", "--box", "14", "10", "24", "--out", out, "--force"]) == 130
+    assert run_cli(["stars", "--box", "16", "12", "24", "--delta", "2", "--out", out, "--force"]) == 130
     assert _snapshot(out) == before
     assert not list(tmp_path.glob("*.staging"))
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored after the run

@@ -445,6 +445,7 @@ def test_render_processes_fork_beside_the_signal_watcher_and_leave_its_pipe():
     assert res.returncode == 0 and res.stdout.strip().endswith("ok"), res.stderr[-2000:]
 
 
+@pytest.mark.slow
 def test_place_as_a_process_ends_without_the_teardown_and_writes_the_same(tmp_path, capsys):
     """``python -m starforge place`` ends with os._exit after its atexit handlers (no module
     teardown) and runs with the cyclic garbage collector paused: its stdout still

@@ -10,6 +10,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 HELPER = (
     "from starforge.stars import warmup\n"
     "cold = warmup.cache_is_cold()\n"
@@ -43,6 +45,7 @@ print(json.dumps(out))
 """
 
 
+@pytest.mark.slow
 def test_helper_fills_the_cache_stars_then_loads(tmp_path):
     env = dict(os.environ, STARFORGE_CACHE_DIR=str(tmp_path / "cache"))
     env.pop("NUMBA_CACHE_DIR", None)
