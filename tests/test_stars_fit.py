@@ -88,14 +88,15 @@ def finger_sample():
     return vertices_from_lengths(L)
 
 
-def test_decision_agrees_with_a_dense_independent_search_both_ways(finger_sample):
-    P = finger_sample
-    assert len(P) == 2000
+@pytest.mark.parametrize("n", [500, pytest.param(2000, marks=pytest.mark.slow)])
+def test_decision_agrees_with_a_dense_independent_search_both_ways(finger_sample, n):
+    assert len(finger_sample) == 2000
+    P = finger_sample[:n]
     status, R, _ = decide_fit(P, FINGER_LIMIT)
     dense, _ = dense_best_slack(P, FINGER_LIMIT)
     # sound: every rotation returned really fits (checked here with its own extents)
     f = status == FIT
-    assert f.sum() > 200 and (status == NO_FIT).sum() > 200  # both outcomes are exercised
+    assert f.sum() > n // 10 and (status == NO_FIT).sum() > n // 10  # both outcomes are exercised
     assert (_slack(P[f], R[f][:, None], FINGER_LIMIT)[:, 0] >= -1e-7).all()
     assert np.allclose(np.linalg.det(R[f]), 1.0)
     # never contradicted: a set proven not to fit has no fitting rotation in the dense search
@@ -148,10 +149,11 @@ def solvable_case():
     return spec, enumerate_candidates(spec)
 
 
-def test_enumeration_is_complete_against_a_dense_search(solvable_case):
+@pytest.mark.parametrize("case", ["small", pytest.param("solvable_case", marks=pytest.mark.slow)])
+def test_enumeration_is_complete_against_a_dense_search(case, request):
     """Every labelled star of the pool, classified by the independent dense search: each one it
     fits with the slack to spare is a candidate, and every candidate fits."""
-    spec, cands = solvable_case
+    spec, cands = request.getfixturevalue(case)
     pool = cands.pool_mm
     L = pool[np.array(list(itertools.permutations(range(len(pool)), 6)))]
     L = np.unique(canonical_lengths(L[is_realisable(L)]), axis=0)
@@ -233,11 +235,11 @@ def test_bounds_are_certified_and_depth_is_kept(finger_face):
         assert (q.max(axis=0) - q.min(axis=0)).min() >= s["depth_mm"] - 1e-9
 
 
-def test_flat_stars_come_back_with_min_depth_0(tmp_path):
-    a, b = tmp_path / "a", tmp_path / "b"
-    assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--out", a, "-q"]) == 0
+def test_flat_stars_come_back_with_min_depth_0(small_family, tmp_path):
+    _, da = small_family  # --box 16 12 24 --delta 2, the default depth
+    b = tmp_path / "b"
     assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--min-depth", 0, "--out", b, "-q"]) == 0
-    da, db = (json.loads((p / "family.json").read_text()) for p in (a, b))
+    db = json.loads((b / "family.json").read_text())
     assert db["summary"]["enumeration"]["fitting"] > da["summary"]["enumeration"]["fitting"]
     assert min(s["depth_mm"] for s in db["stars"]) < 2.0 <= min(s["depth_mm"] for s in da["stars"])
     assert check_family(da) == [] and check_family(db) == []
