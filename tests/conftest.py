@@ -5,17 +5,24 @@ from __future__ import annotations
 import json
 import os
 import re
+from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, settings
 
 from starforge.cli import main
+from starforge.stars.family import make_family
+from starforge.stars.model import family_csv
+from starforge.stars.spec import spec_from_mapping
 
-# One fixed hypothesis profile: the same examples on every run and machine (derandomize), no
-# example database carried between runs, no wall-clock deadlines on a loaded CI machine.
+# One fixed hypothesis profile: the same examples on every run and machine (derandomize), a fixed
+# number of them (a test's own @settings may ask for fewer or more), no example database carried
+# between runs, no wall-clock deadlines on a loaded CI machine.  Loaded unless HYPOTHESIS_PROFILE
+# names another.
 settings.register_profile(
     "ci",
     derandomize=True,
+    max_examples=100,
     database=None,
     deadline=None,
     print_blob=True,
@@ -24,6 +31,8 @@ settings.register_profile(
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 FINGER = ["--box", "20.8", "12.6", "48.3", "--marker", "4", "--delta", "1.5"]
+#: the same spec as FINGER, as the library takes it (mm)
+FINGER_SPEC = {"box_mm": [20.8, 12.6, 48.3], "marker_mm": 4.0, "delta_mm": 1.5}
 
 
 @pytest.fixture(autouse=True)
@@ -40,28 +49,37 @@ def run_cli(args: list[str]) -> int:
     return main([str(a) for a in args])
 
 
+def family_files(out: Path, spec: dict) -> dict:
+    """Make a family for ``spec`` (a spec mapping, named "custom" as ``stars --box`` names it) with
+    the library and write ``family.json`` and ``family.csv`` into ``out`` as ``stars`` writes
+    them; returns the parsed family.json.  ``test_same_spec_same_bytes`` checks that the CLI
+    writes the same bytes."""
+    family = make_family(spec_from_mapping({"name": "custom", **spec}))
+    text = json.dumps(family.to_json(), indent=2) + "\n"
+    (out / "family.json").write_text(text, encoding="utf-8")
+    (out / "family.csv").write_text(family_csv(family), encoding="utf-8")
+    return json.loads(text)
+
+
 @pytest.fixture(scope="session")
 def finger_face(tmp_path_factory):
-    """The paper's finger case under the face rule, written by the CLI (path, parsed JSON)."""
+    """The paper's finger case under the face rule, made by the library once (path, parsed JSON)."""
     out = tmp_path_factory.mktemp("finger_face")
-    assert run_cli(["stars", *FINGER, "--rule", "face", "--out", out, "-q"]) == 0
-    return out, json.loads((out / "family.json").read_text())
+    return out, family_files(out, {**FINGER_SPEC, "rule": "face"})
 
 
 @pytest.fixture(scope="session")
 def finger_pair(tmp_path_factory):
-    """The paper's finger case under the paper's pair rule, written by the CLI."""
+    """The paper's finger case under the paper's pair rule, made by the library once."""
     out = tmp_path_factory.mktemp("finger_pair")
-    assert run_cli(["stars", *FINGER, "--rule", "pair", "--out", out, "-q"]) == 0
-    return out, json.loads((out / "family.json").read_text())
+    return out, family_files(out, {**FINGER_SPEC, "rule": "pair"})
 
 
 @pytest.fixture(scope="session")
 def small_family(tmp_path_factory):
-    """A small family (fast): 16 x 12 x 24 mm, 4 mm markers, delta 2 mm."""
+    """A small family (fast): 16 x 12 x 24 mm, 4 mm markers, delta 2 mm, made by the library once."""
     out = tmp_path_factory.mktemp("small")
-    assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--out", out, "-q"]) == 0
-    return out, json.loads((out / "family.json").read_text())
+    return out, family_files(out, {"box_mm": [16.0, 12.0, 24.0], "delta_mm": 2.0})
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""Issue 12: every file is ready to print as written.
+"""Every file is ready to print as written.
 
 Families made for a mount (``stars --mount``) on the paper's finger limit fit with it; bodies lie
 plate-down on Z = 0, the largest flat face on the bed, with no region starting in mid-air (a
@@ -362,12 +362,11 @@ def _fillet_top_ring_inside_stem(fl, stem, samples: int = 72) -> float:
 
 @pytest.mark.parametrize("mount", MOUNTS)
 def test_no_flat_level_is_made_of_slivers(mount):
-    """Issue 21: a root fillet's flat end flush with its stem left horizontal sliver triangles
-    (0.006 mm^2 in all, at the fillet's top, z = 2.9 mm on the flat mount) where the two
-    tessellations of the stem's circle disagree; Slic3r's 0.2 mm layer plane at 2.9 mm met
-    them and could not close its loops.  Every flat level of the mesh as written (float32) is
-    now a face somebody designed, at least one extrusion squared, and every fillet's top ring
-    lies inside its stem (tilted ones included), checked with exact segment distances."""
+    """No horizontal sliver triangles where two tessellations of a stem's circle disagree (a
+    root fillet's flat end flush with its stem would leave them at the fillet's top, where a
+    slicer's layer plane cannot close its loops): every flat level of the mesh as written
+    (float32) is a face somebody designed, at least one extrusion squared, and every fillet's
+    top ring lies inside its stem (tilted ones included), checked with exact segment distances."""
     from starforge.cad.mesh import body_mesh
     from starforge.cad.plate import print_transform
     from starforge.cad.printability import flat_levels

@@ -1,4 +1,4 @@
-"""Issue 21: families designed for the marker that will be bought, and files that are closed
+"""Families designed for the marker that will be bought, and files that are closed
 2-manifolds as written.
 
 ``stars --mount M --marker NAME --seat KIND`` reserves the seat's room, records the marker and
@@ -245,9 +245,9 @@ def test_seat_blocks_stand_on_a_cone_that_starts_inside_the_stem(marker):
 
 @pytest.mark.parametrize("marker", ["4mm-flat", "6.4mm-post"])
 def test_a_seat_on_a_leaning_stem_starts_nothing_in_mid_air(marker):
-    """Issue 21: the limb families' pads and bosses on leaning stems began as islands in
-    mid-air (their lowest rim, below where they met the stem); the layer analysis of the mesh
-    in its printing orientation finds none now."""
+    """Pads and bosses on leaning stems (as on the limb families) start nowhere in mid-air:
+    their lowest rim meets the stem, and the layer analysis of the mesh in its printing
+    orientation finds no island."""
     from starforge.cad.body import body_bounds
     from starforge.cad.plate import print_transform
     from starforge.cad.printability import layer_report

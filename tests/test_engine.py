@@ -19,7 +19,7 @@ from starforge.runtime import engine
 from starforge.stars import enumerate as E
 from starforge.stars.spec import StarSpec
 
-SPEC = StarSpec(box_mm=(14, 10, 30), delta_mm=1.0, tolerance_mm=2.0)  # 814k labelled, ~1 s
+SPEC = StarSpec(box_mm=(14, 10, 30), delta_mm=1.0, tolerance_mm=2.0)  # 814k labelled candidates
 
 
 @pytest.fixture(scope="module")
@@ -71,6 +71,7 @@ def test_chunked_enumeration_equals_one_chunk(serial, monkeypatch):
     _same(E.enumerate_candidates(SPEC, workers=2), serial)  # two chunks at once, on 2 threads each
 
 
+@pytest.mark.slow  # starts dask processes
 def test_enumeration_on_the_cluster_equals_serial(cluster, serial, monkeypatch):
     monkeypatch.setattr(E, "CHUNK_SUBSETS", 2000)
     seen = []
@@ -79,6 +80,7 @@ def test_enumeration_on_the_cluster_equals_serial(cluster, serial, monkeypatch):
     assert seen == sorted(seen) and seen[-1] == serial.stats["labelled"]
 
 
+@pytest.mark.slow  # starts dask processes
 def test_a_killed_worker_changes_nothing(cluster, serial, monkeypatch):
     from distributed import Client
 
@@ -100,6 +102,7 @@ def test_a_killed_worker_changes_nothing(cluster, serial, monkeypatch):
         assert pids[0] not in c.run(os.getpid).values()
 
 
+@pytest.mark.slow  # starts dask processes
 def test_sweep_on_the_cluster_equals_serial(cluster, tmp_path):
     from starforge.tracking.sweep import rows_csv, sweep
 
@@ -165,6 +168,7 @@ def _wait_listening(port: int, timeout_s: float = 60.0) -> None:
             time.sleep(0.1)
 
 
+@pytest.mark.slow  # starts dask processes
 def test_a_scheduler_that_goes_away_is_one_error(monkeypatch):
     import socket
     import subprocess
@@ -256,12 +260,14 @@ def test_global_scheduler_option_reaches_the_enumeration(tmp_path, capsys, monke
     assert not out.exists()
 
 
+@pytest.mark.slow  # starts dask processes
 def test_a_tasks_own_error_comes_back_as_raised(cluster, tmp_path):
     missing = str(tmp_path / "no-such-file")
     with pytest.raises(FileNotFoundError):  # not mistaken for a lost connection (an OSError too)
         engine.map_tasks(os.stat, [str(tmp_path), missing], scheduler=cluster.scheduler_address)
 
 
+@pytest.mark.slow  # starts dask processes
 def test_ils_restarts_on_the_cluster_are_the_serial_ones(cluster, monkeypatch):
     """The exact selection's ILS restarts as tasks on 2 workers: the same family, iterations and
     restart count as one after another here, with the stop at the bound emulated in seed order."""
@@ -298,6 +304,7 @@ def test_ils_restarts_on_the_cluster_are_the_serial_ones(cluster, monkeypatch):
     assert len(np.unique(used_rows)) == len(used_rows)
 
 
+@pytest.mark.slow  # starts dask processes
 def test_streamed_selection_on_the_cluster_is_the_serial_one(cluster, serial):
     """The streamed path (chunk results consumed as they arrive, in completion order) gives the
     same family on 2 workers as in process, and the in-memory greedy's family."""
@@ -320,6 +327,7 @@ def test_streamed_selection_on_the_cluster_is_the_serial_one(cluster, serial):
     assert here["index"].tobytes() == want[np.lexsort(want.T[::-1])].astype(np.int16).tobytes()
 
 
+@pytest.mark.slow  # starts dask processes
 def test_auto_sweep_asks_a_remote_cluster_for_its_memory(cluster, monkeypatch):
     """``--exhaustive auto`` on a scheduler decides each cell against the cluster's real worker
     memory (a short connection), with a margin under dask's 95 % restart threshold."""

@@ -194,7 +194,7 @@ def test_stars_table_fits_80_columns(small_family, monkeypatch, capsys):
 
 
 def test_pictures_are_framed_and_scaled(small_family, tmp_path):
-    """The star preview fills most of its frame (it filled a third), and family.png's scale bar
+    """The star preview fills most of its frame, and family.png's scale bar
     is a round length no longer than half the limit's width."""
     from matplotlib.image import imread
 

@@ -435,10 +435,9 @@ print("ok")
 
 
 def test_render_processes_fork_beside_the_signal_watcher_and_leave_its_pipe():
-    """The CLI's last-resort signal watcher (a thread) does not keep the pictures in-process (it
-    did: every place run drew them in its own process, about 1.1 s of CPU on the critical path);
-    a render process stops writing into the watcher's wakeup pipe, so a signal sent to it alone
-    is not taken for the command's own."""
+    """The CLI's last-resort signal watcher (a thread) does not keep the pictures in-process
+    (they are drawn off the critical path, in a forked process); a render process stops writing
+    into the watcher's wakeup pipe, so a signal sent to it alone is not taken for the command's own."""
     import os
     import subprocess
     import sys
@@ -449,9 +448,10 @@ def test_render_processes_fork_beside_the_signal_watcher_and_leave_its_pipe():
     assert res.returncode == 0 and res.stdout.strip().endswith("ok"), res.stderr[-2000:]
 
 
+@pytest.mark.slow
 def test_place_as_a_process_ends_without_the_teardown_and_writes_the_same(tmp_path, capsys):
     """``python -m starforge place`` ends with os._exit after its atexit handlers (no module
-    teardown: about 0.3 s CPU) and runs with the cyclic garbage collector paused: its stdout still
+    teardown) and runs with the cyclic garbage collector paused: its stdout still
     arrives in full, its exit code is the command's, its files are the bytes an in-process run
     (collector paused, then on again) writes (placement.json but for its timings)."""
     import os

@@ -75,6 +75,17 @@ def test_same_spec_same_bytes(small_family, tmp_path):
     assert (tmp_path / "family.csv").read_bytes() == (out / "family.csv").read_bytes()
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("rule", ["face", "pair"])
+def test_the_cli_writes_the_finger_family_the_library_makes(rule, request, tmp_path):
+    """``stars`` on the paper's finger case (warm-up, verification, staged output) writes the
+    bytes of the library's family that the finger fixtures hold."""
+    out, _ = request.getfixturevalue(f"finger_{rule}")
+    assert run_cli(["stars", *FINGER, "--rule", rule, "--out", tmp_path, "-q"]) == 0
+    for name in ("family.json", "family.csv"):
+        assert (tmp_path / name).read_bytes() == (out / name).read_bytes()
+
+
 def test_count_picks_n_and_refuses_the_impossible(small_family, tmp_path, capsys):
     _, doc = small_family
     n = len(doc["stars"])

@@ -93,8 +93,9 @@ def _packing_ok(chosen, star, row):
 
 
 @pytest.mark.parametrize("rule", ["face", "pair"])
-def test_selection_is_a_packing_and_milp_is_optimal(cands, rule):
-    keep = np.random.default_rng(5).choice(len(cands), 200, replace=False)
+@pytest.mark.parametrize("n", [100, pytest.param(200, marks=pytest.mark.slow)])
+def test_selection_is_a_packing_and_milp_is_optimal(cands, rule, n):
+    keep = np.random.default_rng(5).choice(len(cands), n, replace=False)
     idx = cands.index[np.sort(keep)]
     star, row, n_rows = window_rows(idx, rule, 1, len(cands.pool_mm))
     order_ = np.argsort(star, kind="stable")

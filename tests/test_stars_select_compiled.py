@@ -1,10 +1,9 @@
-"""The compiled selection (local search, iterated local search) against the Python
-implementation it replaced, kept here as the reference: the same family, the same swap and
-iteration counts, byte for byte, on many instances, seeds, budgets and bounds.
+"""The compiled selection (local search, iterated local search) against a plain Python
+reference: the same family, the same swap and iteration counts, byte for byte, on many
+instances, seeds, budgets and bounds.
 
-The reference below is the code of ``starforge.stars.select`` before the loops were compiled
-(a Python loop around small kernels, a heap and sets, numpy batches for the perturbation);
-it is test code only."""
+The reference below is the same algorithm written without compiled loops (a Python loop around
+small kernels, a heap and sets, numpy batches for the perturbation); it is test code only."""
 
 from __future__ import annotations
 
@@ -430,7 +429,7 @@ def test_no_draw_qualifies():
     assert got[1] == want[1] == 1 and np.array_equal(got[0], want[0])
 
 
-# the compactness order as it was (a lexsort of every key), the reference of the single volume sort
+# the compactness order as a lexsort of every key: the reference of the single volume sort
 
 
 def ref_compactness_order(index: np.ndarray, pool: np.ndarray, volume: np.ndarray) -> np.ndarray:

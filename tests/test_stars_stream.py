@@ -19,7 +19,7 @@ from starforge.stars.rules import internal_ok, key_triples, window_rows
 from starforge.stars.select import block_bound, compactness_order, csr_rows, greedy
 from starforge.stars.spec import StarSpec, spec_from_mapping
 
-SPEC = StarSpec(box_mm=(16, 12, 24), delta_mm=1.0, select="greedy")  # 133k candidates, ~1 s
+SPEC = StarSpec(box_mm=(16, 12, 24), delta_mm=1.0, select="greedy")  # 133k candidates
 _RUN_CHUNKS = E.run_chunks
 _CHUNKS: dict[str, list] = {}
 

@@ -10,6 +10,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 HELPER = (
     "from starforge.stars import warmup\n"
     "cold = warmup.cache_is_cold()\n"
@@ -43,6 +45,7 @@ print(json.dumps(out))
 """
 
 
+@pytest.mark.slow
 def test_helper_fills_the_cache_stars_then_loads(tmp_path):
     env = dict(os.environ, STARFORGE_CACHE_DIR=str(tmp_path / "cache"))
     env.pop("NUMBA_CACHE_DIR", None)
@@ -68,8 +71,8 @@ def test_ready_without_a_helper_returns_at_once():
 
 
 def test_finish_closes_the_helpers_pipe():
-    """A helper's report pipe is closed when it is finished (a first run in process left it to
-    the garbage collector, a ResourceWarning that failed the test run it happened in)."""
+    """A helper's report pipe is closed when it is finished (left to the garbage collector, it
+    would raise a ResourceWarning, an error under the test run's warning filter)."""
     import subprocess
     import sys
 

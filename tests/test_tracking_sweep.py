@@ -106,21 +106,28 @@ def test_cells_are_labelled_by_size():
     assert by_cube[22.0]["method"] == "interval"
 
 
-def test_sweep_cli_writes_csv_and_png(tmp_path):
+@pytest.mark.parametrize(
+    "deltas, cubes, workers",
+    [
+        ("3", "18", "1"),  # one cell in this process
+        pytest.param("2,3", "18,24", "2", marks=pytest.mark.slow),  # four cells on a local cluster
+    ],
+)
+def test_sweep_cli_writes_csv_and_png(tmp_path, deltas, cubes, workers):
     out = tmp_path / "sw"
     rc = main(
         [
             "sweep",
             "--delta",
-            "2,3",
+            deltas,
             "--cube",
-            "18,24",
+            cubes,
             "--exhaustive",
             "200000",
             "--samples",
             "3000",
             "--workers",
-            "2",
+            workers,
             "--out",
             str(out),
             "-q",
@@ -129,7 +136,7 @@ def test_sweep_cli_writes_csv_and_png(tmp_path):
     assert rc == 0
     with (out / "sweep.csv").open(newline="") as fh:
         rows = list(csv.DictReader(fh))
-    assert len(rows) == 2 * 2 * 2  # deltas x cubes x rules
+    assert len(rows) == len(deltas.split(",")) * len(cubes.split(",")) * 2  # deltas x cubes x rules
     assert {r["rule"] for r in rows} == {"face", "pair"}
     assert {r["method"] for r in rows} <= {"exhaustive", "interval", "none"}
     for r in rows:
