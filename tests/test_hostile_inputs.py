@@ -571,12 +571,12 @@ def test_a_swallowed_ctrl_c_still_changes_nothing(tmp_path, monkeypatch):
 
     monkeypatch.setattr(fam, "make_family", swallowing)
     import starforge.api
-    import starforge.cli
+    import starforge.runtime.process
 
     monkeypatch.setattr(starforge.api, "_make_family", swallowing)  # the name the API calls it by
 
     # the last resort (exit 1 s after the signal) is tested in a child process, not in this one
-    monkeypatch.setattr(starforge.cli, "STOP_DEADLINE_S", 60.0)
+    monkeypatch.setattr(starforge.runtime.process, "STOP_DEADLINE_S", 60.0)
     out = tmp_path / "out"
     out.mkdir()
     (out / "keep.txt").write_text("a file the user had")

@@ -418,16 +418,16 @@ def test_render_processes_fork_beside_the_heartbeat_only():
 
 _SIGNALS_FORK_CHECK = """
 import os, signal, time
-import starforge.cli as cli
+import starforge.runtime.process as process
 from starforge.render.props import BackgroundRenderer
-done, undo = cli._install_signals()
+done, undo = process._install_signals()
 try:
     assert BackgroundRenderer()._fork  # the signal watcher is safe to fork beside
     with BackgroundRenderer() as r:
         time.sleep(0.5)
         os.kill(r._pid, signal.SIGTERM)  # a signal meant for the render process only
         time.sleep(0.5)
-    assert cli._stopped_by[0] is None, cli._stopped_by  # never reached the parent's watcher
+    assert process._stopped_by[0] is None, process._stopped_by  # never reached the parent's watcher
 finally:
     undo()
 print("ok")
@@ -479,7 +479,7 @@ def test_place_as_a_process_ends_without_the_teardown_and_writes_the_same(tmp_pa
 
 
 def test_quick_exit_runs_the_atexit_handlers_and_only_when_allowed_and_safe(monkeypatch):
-    """:func:`starforge.cli._end_process`: atexit handlers, then os._exit with the code, after a
+    """:func:`starforge.runtime.process.end_process`: atexit handlers, then os._exit with the code, after a
     command that allowed it; the ordinary sys.exit otherwise, under a tracer, or while a
     non-daemon thread runs."""
     import atexit
@@ -487,8 +487,8 @@ def test_quick_exit_runs_the_atexit_handlers_and_only_when_allowed_and_safe(monk
     import sys
     import threading
 
-    import starforge.cli as cli
-    from starforge.cli._app import _quick_exit
+    from starforge.runtime import process
+    from starforge.runtime.process import _quick_exit
 
     calls = []
     monkeypatch.setattr(atexit, "_run_exitfuncs", lambda: calls.append("atexit"))
@@ -498,7 +498,7 @@ def test_quick_exit_runs_the_atexit_handlers_and_only_when_allowed_and_safe(monk
     before = _quick_exit[0]
     _quick_exit[0] = True
     try:
-        cli._end_process(3)
+        process.end_process(3)
         assert calls == ["atexit", ("_exit", 3)]
         calls.clear()
         release = threading.Event()
@@ -506,18 +506,18 @@ def test_quick_exit_runs_the_atexit_handlers_and_only_when_allowed_and_safe(monk
         th.start()
         try:
             with pytest.raises(SystemExit) as e:
-                cli._end_process(4)  # the interpreter would wait for that thread: so does the exit
+                process.end_process(4)  # the interpreter would wait for that thread: so does the exit
             assert e.value.code == 4 and calls == []
         finally:
             release.set()
             th.join()
         monkeypatch.setattr(sys, "gettrace", lambda: (lambda *a: None))
         with pytest.raises(SystemExit):
-            cli._end_process(0)  # coverage writes its data at the teardown
+            process.end_process(0)  # coverage writes its data at the teardown
         monkeypatch.setattr(sys, "gettrace", lambda: None)
         _quick_exit[0] = False
         with pytest.raises(SystemExit):
-            cli._end_process(0)  # a command that did not allow it
+            process.end_process(0)  # a command that did not allow it
         assert calls == []
     finally:
         _quick_exit[0] = before
@@ -591,7 +591,7 @@ def test_smaller_points_marker_names_sites_help_symmetry_line(capsys, monkeypatc
     monkeypatch.setenv("COLUMNS", "200")
     code, out, _ = _run(["place", "run", "--help"], capsys)
     assert code == 0
-    assert f"{load_template('place', 'default')[1]['sites']} in the default spec" in " ".join(out.split())
+    assert f"{load_template('place', 'default')[1]['sites']} in `default`" in " ".join(out.split())
     # a margin at the search's cap is a floor, not a measurement
     assert symmetry_line(0.005, 5.0).startswith("near-symmetry margin: >= 5 mm")
     assert "below the 5 mm target" in symmetry_line(0.0031, 5.0)

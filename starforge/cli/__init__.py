@@ -7,15 +7,11 @@ line on stderr and exit code 2, never a traceback.
 from __future__ import annotations
 
 import importlib
-import os
 import pkgutil
-import signal
 import sys
-import threading
 
 from starforge.cli._app import app
-from starforge.runtime.engine import ENV_SCHEDULER, silence_dask
-from starforge.runtime.procs import end_children
+from starforge.runtime import process
 
 __all__ = ["app", "click_command", "main"]
 
@@ -41,223 +37,14 @@ def click_command():
     return typer.main.get_command(app)
 
 
-#: the signal that stopped the command (SIGINT or SIGTERM), for its one line and exit code
-_stopped_by: list = [None]
-
-
-def _on_signal(signum, frame):
-    """Ctrl-C and SIGTERM alike, in the main thread: remember it (even where a library swallows
-    the exception below) and unwind; nothing staged is published (starforge.io.staged_output
-    checks the flag)."""
-    _noted(signum)
-    raise KeyboardInterrupt
-
-
-def _noted(signum: int) -> bool:
-    """Record the stopping signal; True the first time."""
-    from starforge.io import note_interrupt
-
-    note_interrupt()
-    if _stopped_by[0] is None:
-        _stopped_by[0] = signum
-        return True
-    return False
-
-
-#: seconds a command has to stop on its own after Ctrl-C or SIGTERM before the last resort
-STOP_DEADLINE_S = 1.0
-
-_reported = threading.Lock()  # held by whoever reports the stop (the command, or the last resort)
-
-
-def _watch_signals(read_fd: int, done: threading.Event, discard_stages, end_children) -> None:
-    """The last resort, in a thread: Python runs a signal handler only between bytecodes of the
-    main thread, and a compiled kernel (numba, HiGHS) does not return to Python until it is done.
-    The signal's number also arrives on ``read_fd`` (signal.set_wakeup_fd) while such a kernel
-    runs without the GIL; if the command has not ended STOP_DEADLINE_S later, remove its stage
-    folders (never in the middle of a publish), end the command's helper processes, print the
-    one line and exit at once.  It imports nothing itself (``discard_stages`` and
-    ``end_children`` come in): a module lock it held while the process forks would stay taken
-    in the child forever."""
-    while True:
-        try:
-            data = os.read(read_fd, 1)
-        except OSError:
-            return
-        if not data:  # the command ended and closed the pipe
-            return
-        signum = data[0]
-        if signum not in (signal.SIGINT, signal.SIGTERM):
-            continue
-        _noted(signum)
-        if done.wait(STOP_DEADLINE_S):
-            return
-        with _reported:
-            if done.is_set() or not discard_stages():
-                return  # ended meanwhile, or a publish that would not finish: let it end on its own
-            end_children()
-            _report_stop(_stopped_by[0] or signum)
-            os._exit(128 + (_stopped_by[0] or signum))
-
-
-def _report_stop(signum: int) -> None:
-    word = "terminated" if signum == signal.SIGTERM else "interrupted"
-    try:
-        print(f"{word}; no output was changed", file=sys.stderr, flush=True)
-    except (OSError, ValueError):
-        pass
-
-
-def _install_signals():
-    """Handlers for SIGINT and SIGTERM and the last-resort watcher; returns (the event to set
-    when the command has ended, under ``_reported``; the undo function)."""
-    done = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        return done, lambda: None
-    previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-    read_fd, write_fd = os.pipe()
-    os.set_blocking(write_fd, False)
-    try:
-        old_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
-    except (ValueError, OSError):
-        old_fd = None
-    from starforge.io import discard_stages  # imported here, never in the thread
-
-    watcher = threading.Thread(
-        target=_watch_signals, args=(read_fd, done, discard_stages, end_children), name="starforge-signals",
-        daemon=True,
-    )
-    # safe to fork beside (starforge.render.props forks render processes, starforge.cad.step_worker
-    # its STEP worker): it imports nothing and holds no lock while it waits in os.read, and a
-    # forked child drops the wakeup fd (starforge.runtime.procs), so it never writes into the watcher's pipe
-    watcher.fork_safe = True
-    watcher.start()
-
-    def undo() -> None:
-        with _reported:  # if the last resort holds it, it is exiting the process
-            done.set()
-        if old_fd is not None:
-            signal.set_wakeup_fd(old_fd)
-        os.close(write_fd)  # the watcher reads EOF and ends
-        watcher.join(timeout=1.0)
-        os.close(read_fd)
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-
-    return done, undo
-
-
-def _quiet_interrupts(previous):
-    """An unraisable-exception hook: a Ctrl-C that lands inside a callback Python cannot raise
-    from (numba compiles inside llvmlite's ctypes callbacks) is recorded as an interrupt, without
-    the 'Exception ignored in ... Traceback' print; anything else goes to ``previous``."""
-    from starforge.io import note_interrupt
-
-    def hook(unraisable) -> None:
-        if unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt):
-            note_interrupt()
-            return
-        previous(unraisable)
-
-    return hook
-
-
 def main(argv: list[str] | None = None) -> int:
     """Console-script entry point; returns (and exits with) the process exit code."""
-    from starforge.cli._app import _quick_exit
-    from starforge.io import interrupted, reset_interrupt
-
     _load_commands()
-    reset_interrupt()
-    _stopped_by[0] = None
-    _quick_exit[0] = False
-    silence_dask()  # the engine's one line says what a cluster did wrong; dask's loggers stay quiet
-    scheduler_env = os.environ.get(ENV_SCHEDULER)  # --scheduler sets it for this command only
-    done, undo = _install_signals()
-    previous_hook = sys.unraisablehook
-    sys.unraisablehook = _quiet_interrupts(previous_hook)
-    try:
-        code = _run(argv)
-        # every Ctrl-C or SIGTERM ends here: raised, turned into click's Abort, or swallowed by a
-        # library (nothing was published in any case: starforge.io.staged_output checks the flag)
-        with _reported:  # if the last resort holds it, it is exiting the process
-            done.set()
-            if interrupted() and code in (0, 130):
-                signum = _stopped_by[0] or signal.SIGINT
-                code = 128 + signum
-                _report_stop(signum)
-    finally:
-        end_children()  # a helper the command did not wait for (an error, a signal) ends with it
-        if scheduler_env is None:
-            os.environ.pop(ENV_SCHEDULER, None)
-        else:
-            os.environ[ENV_SCHEDULER] = scheduler_env
-        sys.unraisablehook = previous_hook
-        undo()
-        reset_interrupt()  # library calls after this command are not affected
-        _resume_gc()
+    with process.command() as cmd:
+        code = cmd.finish(_run(argv))
     if argv is None:  # the console script: the process ends here
-        _end_process(code)
+        process.end_process(code)
     return code
-
-
-def _resume_gc() -> None:
-    """Turn the garbage collector back on if a command paused it (:func:`starforge.cli._app.pause_gc`)."""
-    import gc
-
-    from starforge.cli._app import _gc_was
-
-    if _gc_was[0]:
-        gc.enable()
-    _gc_was[0] = None
-
-
-def _end_process(code: int) -> None:
-    """Exit the process with ``code``.  After a command that allowed it
-    (:func:`starforge.cli._app.allow_quick_exit`), without the interpreter's teardown: clearing
-    the modules of a process that imported numba, scipy and trimesh costs about 0.3 s of CPU
-    after the last output is published (a seventh of ``starforge place`` on the built-in hammer),
-    and the operating system frees that memory at once.  The ``atexit`` handlers still run and
-    stdout and stderr are flushed.  The ordinary exit under a tracer or profiler (coverage,
-    cProfile: they write their data at the teardown) and while a thread that is not a daemon
-    runs (the interpreter would wait for it)."""
-    from starforge.cli._app import _quick_exit
-
-    traced = sys.gettrace() is not None or sys.getprofile() is not None
-    if "distributed" in sys.modules and not traced:
-        # the engine closed every client and cluster it started; what dask leaves to the
-        # interpreter's exit (its event-loop thread, connections to a scheduler that may be
-        # gone) takes seconds to tear down, and dask reports on it after our one line
-        _flush_and_exit(code)
-    if _stopped_by[0] is not None and not traced:
-        # stopped by a signal: nothing was published and the stages are gone; a compiled kernel
-        # may still run on a worker thread, which the interpreter's exit would wait for
-        import atexit
-
-        atexit._run_exitfuncs()
-        _flush_and_exit(code)
-    others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon and t.is_alive()]
-    if not _quick_exit[0] or others or traced:
-        # everything is written and flushed; freezing what is left spares the interpreter's exit
-        # a last walk over numba's and numpy's objects (measured: 0.15 CPU s, 0.5 s wall under
-        # load, for `starforge stars`); atexit handlers and file flushes run as before
-        import gc
-
-        gc.freeze()
-        sys.exit(code)
-    import atexit
-
-    atexit._run_exitfuncs()
-    _flush_and_exit(code)
-
-
-def _flush_and_exit(code: int) -> None:
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):  # a closed pipe: nothing more can be said on it
-            pass
-    os._exit(code)
 
 
 def _run(argv: list[str] | None) -> int:

@@ -26,37 +26,6 @@ app = typer.Typer(
 )
 
 
-#: set by a command that allows the process to end without the interpreter's teardown
-#: (:func:`allow_quick_exit`); read by :func:`starforge.cli.main`
-_quick_exit = [False]
-
-
-def allow_quick_exit() -> None:
-    """Let the process end without the interpreter's teardown once this command returns
-    (:func:`starforge.cli.main`): for a command whose every output is written, closed and
-    published (``starforge.io``) by the time it returns, and that leaves no thread of its own
-    running."""
-    _quick_exit[0] = True
-
-
-#: whether the cyclic garbage collector ran before :func:`pause_gc` turned it off
-_gc_was = [None]
-
-
-def pause_gc() -> None:
-    """Turn Python's cyclic garbage collector off until the command returns (
-    :func:`starforge.cli.main` turns it back on): for a short command whose objects are nearly all
-    acyclic and freed by reference counting.  The collector's passes over the heap of numba,
-    scipy and trimesh while they are imported and numba's target is set up cost 0.1-0.3 s of the
-    main process's CPU in a ``starforge place`` run (measured on a loaded machine: medians 1.85
-    vs 1.52 s with the collector off from the start), for a few hundred kB of cycles reclaimed."""
-    import gc
-
-    if _gc_was[0] is None:
-        _gc_was[0] = gc.isenabled()
-    gc.disable()
-
-
 def fail(message: str, code: int = 2) -> typer.Exit:
     """Print ``error: message`` on stderr and return an Exit(code) to raise."""
     print(f"error: {message}", file=sys.stderr)

@@ -109,8 +109,6 @@ def _prop_and_spec(
     return load_prop(prop, units), s
 
 
-#: the default spec's candidate sites, for the help text (read from the template, not restated)
-_DEFAULT_SITES = load_template("place", "default")[1].get("sites")
 
 _PROP = typer.Argument(
     ...,
@@ -215,9 +213,9 @@ def run_cmd(
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
-    from starforge.cli._app import allow_quick_exit, pause_gc
     from starforge.errors import StarforgeError
     from starforge.render.props import BackgroundRenderer
+    from starforge.runtime.process import allow_quick_exit, pause_gc
 
     allow_quick_exit()  # every file goes through staged_output; the render processes are waited for
     pause_gc()  # before the render process forks (it draws with the collector off too) and the imports
@@ -309,8 +307,8 @@ def score_cmd(
 ) -> None:
     import json
 
-    from starforge.cli._app import allow_quick_exit
     from starforge.props.files import read_markers_csv
+    from starforge.runtime.process import allow_quick_exit
 
     allow_quick_exit()  # writes nothing but stdout
     from starforge.props.placement import score_layout

@@ -130,8 +130,8 @@ def stars_cmd(
     import time
 
     from starforge import api
-    from starforge.cli._app import allow_quick_exit, pause_gc
     from starforge.io import check_writable
+    from starforge.runtime.process import allow_quick_exit, pause_gc
     from starforge.stars import warmup
 
     use_scheduler(scheduler)
