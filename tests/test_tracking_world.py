@@ -155,7 +155,7 @@ def test_qualisys_simulates_the_tolerances_its_files_carry(small_family, tmp_pat
     doc = json.loads((out / "check.json").read_text())
     assert doc["settings"]["match_mm"] == summary["qtm"]["bone_length_tolerance_mm"]
     assert doc["settings"]["residual_mm"] == summary["qtm"]["maximum_residual_mm"]
-    assert doc["settings"]["choose"] == "window"
+    assert doc["settings"]["choose"] == "fit"
 
 
 def test_art_exact_drop_below_four_markers_is_refused(small_family, tmp_path, capsys):

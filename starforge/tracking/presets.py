@@ -76,7 +76,7 @@ class TrackerSettings:
     reflect: bool = False
     identify_markers: int = 3  # matched markers a reported identification needs
     window: str = "fixed"
-    choose: str = "window"
+    choose: str = "fit"
 
     def __post_init__(self):
         from starforge.tracking.identify import CHOOSE
