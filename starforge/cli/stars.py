@@ -58,8 +58,11 @@ def stars_cmd(
         ".csv), one or several after one flag (--avoid A.xml B.vsk) or the flag repeated: no new face comes "
         "within the tolerance of theirs.",
     ),
-    time_limit: float = typer.Option(
-        None, "--time-limit", help="Wall-clock safety limit of the exact solver, s."
+    work: int = typer.Option(
+        None,
+        "--work",
+        help="Work budget of the exact selection, nonzeros x solver nodes (default 8000000): deterministic, so the "
+        "family and its proven bound are the same at any load; raise it to prove a larger spec optimal.",
     ),
     reserve: tuple[float, float, float] = typer.Option(
         None,
@@ -142,7 +145,7 @@ def stars_cmd(
         "min_depth_mm": min_depth,
         "tip_mm": list(tip) if tip is not None else None,
         "noise_mm": noise,
-        "time_limit_s": time_limit,
+        "work": work,
         "reserve_mm": list(reserve) if reserve is not None else None,
         "mount": mount,
         "name": name,

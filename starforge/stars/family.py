@@ -197,7 +197,7 @@ def _spread_count(index: np.ndarray, order: np.ndarray, spec: StarSpec, pool_siz
     return best
 
 
-def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, deterministic: bool = False):
+def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
     """Select the family among ``index`` (see :func:`make_family`); returns (Selection, bound)."""
     m = spec.grid_steps
     # the selection's order (numpy sorts) on a thread beside the key windows (compiled)
@@ -224,7 +224,6 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, determin
                 bound=bound,
                 n_undecided=len(und),
                 milp_work=work,
-                deterministic=deterministic,
             )
             info.update(sel.info)
             if len(sel.chosen) < spec.count:
@@ -238,7 +237,7 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, determin
     else:
         sel = select_family(
             index, pool, volume, star_of, row, n_rows, spec, bound=bound, n_undecided=len(und), milp_work=work,
-            deterministic=deterministic, order=order_of(),
+            order=order_of(),
         )
     ub = sel.upper_bound
     if len(und) and sel.info.get("milp_status") == "optimal" and ub > len(sel.chosen):
@@ -250,8 +249,7 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, determin
         s2, r2, n2 = window_rows(both, spec.rule, m, len(pool))
         p2, rows2 = _csr(s2, r2, len(both))
         opt, dual, status, reproducible = milp(
-            p2, rows2, n2, np.arange(len(both)), None if deterministic else spec.time_limit_s,
-            node_budget(len(rows2), work),
+            p2, rows2, n2, np.arange(len(both)), None, node_budget(len(rows2), work),
         )
         if reproducible:
             b2 = len(opt) if status == "optimal" else dual
@@ -270,25 +268,21 @@ def make_family(
     avoid_sources: list[dict] | None = None,
     milp_work: int | None = None,
     star_filter=None,
-    deterministic: bool = False,
 ) -> Family:
     """Enumerate, select and place a family for ``spec``.
 
     ``avoid_faces_mm`` (k, 3): triangles of bodies the lab already owns; no face of a new star
     comes within the tolerance of one (``avoid_sources`` describes them for family.json).
-    ``milp_work``: the exact solver's deterministic work budget (nonzeros x nodes; default
-    :data:`starforge.stars.select.MILP_WORK`).  ``star_filter(vertices (n, 4, 3)) -> (n,) bool``
+    ``milp_work``: the exact solver's deterministic work budget (nonzeros x nodes; default the
+    spec's ``work``).  ``star_filter(vertices (n, 4, 3)) -> (n,) bool``
     keeps only stars it accepts (e.g. whose printed body with its mount fits the limit): the
-    ones it rejects are replaced by selecting again without them.  ``deterministic``: the exact
-    solver is stopped by its node budget alone, never by ``spec.time_limit_s`` (the same family
-    on any machine; see :func:`starforge.stars.select.select_family`).
+    ones it rejects are replaced by selecting again without them.  The exact solver is stopped by its
+    node budget alone, never by the wall clock: the same family on any machine and at any load.
 
     Raises StarforgeError when no star fits, or when ``spec.count`` exceeds what is achievable
     (naming the largest family found and the certified bound).
     """
-    from starforge.stars.select import MILP_WORK
-
-    work = MILP_WORK if milp_work is None else int(milp_work)
+    work = spec.work if milp_work is None else int(milp_work)
     t0 = time.perf_counter()
     if candidates is None:
         from starforge.stars.enumerate import check_size
@@ -326,7 +320,7 @@ def make_family(
     while True:
         keep = np.flatnonzero(~excluded)
         kept = (index, volume) if len(keep) == len(index) else (np.take(index, keep, axis=0), volume[keep])
-        sel, ub = _choose(*kept, und, bound, spec, pool, work, deterministic)
+        sel, ub = _choose(*kept, und, bound, spec, pool, work)
         chosen = keep[np.sort(sel.chosen)]
         L = pool[index[chosen]]
         # the family's margins depend on its lengths alone: computed beside the placement
@@ -431,7 +425,7 @@ def _assemble(
                 accuracy=acc[i],
             )
         )
-    timings = {k: info.pop(k) for k in list(info) if k.endswith("_s") and k != "time_limit_s"}
+    timings = {k: info.pop(k) for k in list(info) if k.endswith("_s")}
     enum_stats = {k: v for k, v in enum_stats.items() if k != "seconds"}
     timings.update(
         enumerate=round(secs["enumerate"], 3), select=round(secs["select"], 3), total=round(time.perf_counter() - t0, 3)
