@@ -49,7 +49,10 @@ def stars_cmd(
         help="Tip X Y Z in the placement frame, mm, for the predicted accuracy (default 0 0 -longest side).",
     ),
     noise: float = typer.Option(
-        None, "--noise", help="Marker noise sigma per axis for the predicted accuracy, mm (default 0.2)."
+        None,
+        "--noise",
+        help="Marker noise sigma per axis, mm (default 0.2): the predicted accuracy, and with it (or --preset) "
+        "the face tolerance, twice the tracker's window at this noise (unless --tolerance).",
     ),
     avoid: list[Path] = typer.Option(
         None,
@@ -69,7 +72,12 @@ def stars_cmd(
         "--reserve",
         help="mm kept free for a mount on the shortest, middle, longest side, by hand (--mount computes it; `starforge mounts` lists each mount's).",
     ),
-    preset: str = typer.Option(None, "--preset", help="Apply a tracker preset's tolerances (art, ndi, ...)."),
+    preset: str = typer.Option(
+        None,
+        "--preset",
+        help="Design for a tracker (art, ndi, qualisys, optitrack, vicon, atracsys, or a TOML file): its rules, "
+        "and faces apart by twice its window at --noise.",
+    ),
     mount: str = typer.Option(
         None,
         "--mount",
@@ -117,10 +125,17 @@ def stars_cmd(
         spec_name, data = load_template("stars", "finger")
     else:
         spec_name = "custom"
-    if preset is not None:
-        from starforge.tracking.presets import star_spec_overrides
+    from starforge.tracking.presets import star_spec_overrides
 
+    if preset is not None:
         data.update(star_spec_overrides(preset))
+    if (preset is not None or noise is not None) and tolerance is None:
+        # designed for the tracker: faces apart by twice its window at this noise
+        from starforge.tracking.presets import design_tolerance_mm
+
+        nz = noise if noise is not None else float(data.get("noise_mm", 0.2))
+        floor = star_spec_overrides(preset).get("tolerance_mm") if preset is not None else None
+        data["tolerance_mm"] = round(design_tolerance_mm(preset, nz, floor), 6)
     marker_name = None
     if marker is not None:
         from starforge.catalog import marker_diameter_mm

@@ -20,7 +20,7 @@ from starforge.geometry.tetra import face_sides, tetra_width, vertices_from_leng
 from starforge.stars.boxes import place_stars
 from starforge.stars.enumerate import Candidates, edge_pool, enumerate_candidates
 from starforge.stars.model import Family, Star
-from starforge.stars.rules import internal_ok, window_rows
+from starforge.stars.rules import internal_ok, window_bytes, window_rows
 from starforge.stars.select import block_bound, compactness_order, greedy, select_family
 from starforge.stars.spec import StarSpec
 
@@ -176,14 +176,19 @@ def _spread_count(index: np.ndarray, order: np.ndarray, spec: StarSpec, pool_siz
     which is what keeps a tracker from confusing them under noise.  Among the
     :data:`COUNT_POOL` most accurate candidates, the face separation is raised one pool step at
     a time (up to twice the tolerance) while a greedy pick in accuracy order still reaches the
-    count; the largest separation that does is used.  Returns (chosen, steps used).
+    count; the largest separation that does is used.  A separation whose key windows would take
+    more memory than the whole family's selection is skipped.  Returns (chosen, steps used).
     """
     from starforge.stars.select import _csr
 
     top = order[:COUNT_POOL]
     m = spec.grid_steps
     best = None
+    # never more memory than selecting among every candidate at the tolerance itself
+    whole = window_bytes(len(index), spec.rule, m)
     for m2 in range(2 * m, m - 1, -1):
+        if m2 > m and window_bytes(len(top), spec.rule, m2) > whole:
+            continue
         s2, r2, n2 = window_rows(index[top], spec.rule, m2, pool_size)
         ptr, rows = _csr(s2, r2, len(top))
         got = top[greedy(np.arange(len(top)), ptr, rows, n2)]
