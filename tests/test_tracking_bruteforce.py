@@ -130,3 +130,27 @@ def test_the_best_hypothesis_is_the_brute_forces_under_both_headline_rules(hide,
         ok = best[0][3] == b and all(lab[p] == m for p, m in best[0][4].items() if lab[p] >= 0)
         outcomes["right" if ok else "wrong"] += 1
     assert outcomes["right"] > 0
+
+
+def test_ambiguous_matches_are_withheld_exactly_when_a_rival_fits_alike():
+    """unambiguous() against the definition, pair by pair: a chosen match is dropped iff another
+    hypothesis with as many markers shares an observed point and fits within the ratio."""
+    rng = np.random.default_rng(3)
+    bodies = _bodies(rng)
+    lib = ident.build_library(bodies)
+    scenes = [_scene(bodies, i % len(bodies), rng, True, 2)[0] for i in range(30)]
+    pts = np.stack(scenes)
+    h = ident.hypotheses(lib, pts, MATCH, RESIDUAL)
+    chosen = ident.resolve(h, np.arange(len(pts)), pts.shape[1], len(bodies))
+    for ratio in (1.0, 1.5, 3.0):
+        kept = set(ident.unambiguous(h, chosen, pts.shape[1], h.rms, ratio).tolist())
+        for i in chosen.tolist():
+            mine = {(h.scene[i], p) for p in h.assign[i] if p >= 0}
+            rivals = [
+                j
+                for j in range(len(h.scene))
+                if j != i and h.n[j] == h.n[i] and mine & {(h.scene[j], p) for p in h.assign[j] if p >= 0}
+            ]
+            alike = ratio > 1 and any(h.rms[j] <= ratio * h.rms[i] for j in rivals)
+            assert (i in kept) == (not alike)
+    assert len(ident.unambiguous(h, chosen, pts.shape[1], h.rms, 3.0)) < len(chosen)  # some are withheld

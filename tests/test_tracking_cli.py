@@ -216,6 +216,8 @@ def test_check_a_labs_files_beside_a_family(small_family, tmp_path):
         0,
         "--choose",
         "fit",
+        "--ambiguity",
+        1,
         "--out",
         out,
         "-q",

@@ -63,6 +63,12 @@ def check_cmd(
         "(then the smallest sorted-distance difference) or the stress model window (one match inside the "
         "window at random). Default: all on the same frames, headlined by the worst of fit and sides.",
     ),
+    ambiguity: float = typer.Option(
+        None,
+        "--ambiguity",
+        help="Report a match only when every rival explanation of its points fits this many times worse "
+        "(default 2: a missed frame rather than a wrong body or pose; 1: always the best match).",
+    ),
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same result)."),
     preset: str = typer.Option(
         None,
@@ -108,6 +114,7 @@ def check_cmd(
         world=world,
         presence=presence,
         choose=choose,
+        ambiguity=ambiguity,
     )
     if preset is not None:
         from starforge.tracking.presets import load_preset
@@ -203,6 +210,7 @@ def _headline(doc: dict) -> str:
     return (
         f"identified {100 * doc['identification_rate']:.3f} %, wrong body {100 * doc['wrong_body_rate']:.3f} %, "
         f"wrong pose {100 * doc['flip_rate']:.3f} %, missed {100 * doc['missed_rate']:.3f} % under rule {head} "
-        f"({worst}: {doc['headline_means']}, window {s['match_mm']:g} mm, residual {s['residual_mm']:g} mm); "
+        f"({worst}: {doc['headline_means']}, window {s['match_mm']:g} mm, residual {s['residual_mm']:g} mm, "
+        f"withheld when a rival fits within x{s['ambiguity_ratio']:g}); "
         f"{verdict}"
     )

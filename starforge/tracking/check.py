@@ -62,6 +62,9 @@ class CheckSettings:
     world : "open" (each cluster identified on its own; default) or "closed" (each label once
         per frame: assumes every body is in every frame)
     presence : probability that a body is in a frame (bodies come and go)
+    ambiguity : a headline rule reports a match only when every rival explanation of its points
+        with as many markers fits this many times worse (:func:`starforge.tracking.identify.
+        unambiguous`; 1: never withheld); None: :data:`starforge.tracking.identify.AMBIGUITY`
     choose : simulate one ranking rule only (:data:`starforge.tracking.identify.CHOOSE`: ``fit``,
         ``sides`` or the stress model ``window``); None: every rule, headlined by the worst
         headline rule
@@ -82,6 +85,7 @@ class CheckSettings:
     world: str = "open"
     presence: float = 1.0
     choose: str | None = None
+    ambiguity: float | None = None
 
     def __post_init__(self):
         from starforge.tracking.identify import CHOOSE
@@ -98,6 +102,11 @@ class CheckSettings:
         require(self.ghosts >= 0, f"ghosts must be >= 0, got {self.ghosts}")
         require(self.frames >= 1, f"frames must be >= 1, got {self.frames}")
         require(self.curve_points >= 0, f"curve_points must be >= 0, got {self.curve_points}")
+        if self.ambiguity is not None:
+            require(
+                1.0 <= self.ambiguity <= 100.0,
+                f"ambiguity must be in [1, 100] (1: report the best match however close a rival), got {self.ambiguity}",
+            )
         if self.match_mm is not None:
             require(self.match_mm > 0, f"match must be > 0 mm, got {self.match_mm}")
         if self.residual_mm is not None:
@@ -300,6 +309,7 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
         "drop_exact": s.drop_exact,
         "reflect": tr["reflect"],
         "rules": rules,
+        "ambiguity": ident.AMBIGUITY if s.ambiguity is None else s.ambiguity,
     }
     tallies = ident.run_rules(lib, s.frames, s.noise_mm, s.drop, s.ghosts, rng, match, res, progress=cb, **kw)
     by_rule = {r: t.rates() for r, t in tallies.items()}
@@ -359,6 +369,7 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
             "identify_from_markers": tr["min_markers"],
             "choose": tr["choose"],
             "choose_means": ident.CHOOSE[tr["choose"]],
+            "ambiguity_ratio": ident.AMBIGUITY if s.ambiguity is None else s.ambiguity,
             "rules": list(rules),
             "tip_mm": acc["tip_mm"],
         },

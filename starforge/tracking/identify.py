@@ -380,6 +380,51 @@ def resolve(
     return np.flatnonzero(accepted)
 
 
+def unambiguous(
+    h: Hypotheses, chosen: np.ndarray, n_points: int, value: np.ndarray, ratio: float
+) -> np.ndarray:
+    """The hypotheses of ``chosen`` that no rival makes ambiguous: a rival is another hypothesis
+    with as many markers that shares an observed point with it; a chosen match is kept only
+    when every rival's ``value`` (its residual, or its sorted-distance difference) exceeds
+    ``ratio`` times its own.  A tracker that cannot tell two explanations of the same points
+    apart reports neither: a missed frame instead of a wrong body or a wrong pose (the ghost
+    that completes a wrong triangle from two real markers fits about as well as the right one).
+    ``ratio`` <= 1 keeps every chosen one."""
+    if ratio <= 1.0 or len(chosen) == 0:
+        return chosen
+    H = len(h.scene)
+    pt = np.where(h.assign >= 0, h.scene[:, None] * n_points + h.assign, -1)
+    ok = np.ones(H, dtype=bool)
+    n_res = int(pt.max()) + 1
+    for k in np.unique(h.n[chosen]):
+        members = np.flatnonzero(h.n == k)
+        rows = pt[members]
+        valid = rows >= 0
+        ids = np.broadcast_to(members[:, None], rows.shape)[valid]
+        res = rows[valid]
+        vals = value[ids]
+        # the two smallest values per observed point, and who holds the smallest
+        order = np.lexsort((vals, res))
+        res_s, vals_s, ids_s = res[order], vals[order], ids[order]
+        first = np.ones(len(res_s), dtype=bool)
+        first[1:] = res_s[1:] != res_s[:-1]
+        best1 = np.full(n_res, np.inf)
+        who1 = np.full(n_res, -1)
+        best1[res_s[first]] = vals_s[first]
+        who1[res_s[first]] = ids_s[first]
+        second = np.zeros(len(res_s), dtype=bool)
+        second[1:] = ~first[1:] & first[:-1]
+        best2 = np.full(n_res, np.inf)
+        best2[res_s[second]] = vals_s[second]
+        mine = chosen[h.n[chosen] == k]
+        r = pt[mine]
+        v = r >= 0
+        rc = np.where(v, r, 0)
+        rival = np.where(v, np.where(who1[rc] == mine[:, None], best2[rc], best1[rc]), np.inf).min(axis=1)
+        ok[mine] = rival > ratio * value[mine]
+    return chosen[ok[chosen]]
+
+
 @dataclass(frozen=True)
 class Scenes:
     """Simulated observations.
@@ -617,6 +662,11 @@ def sides_key(lib: Library, pts: np.ndarray, h: Hypotheses, chunk: int = 20000) 
     return out
 
 
+#: ``check``'s ambiguity ratio for the headline rules (:func:`unambiguous`): a chosen match is
+#: reported only when every rival explanation of its points with as many markers fits at least this
+#: many times worse (:func:`run_rules` withholds nothing unless asked)
+AMBIGUITY = 2.0
+
 #: caps on what ``check`` simulates, whatever the machine
 MAX_GHOSTS = 20
 MAX_FRAMES = 10_000_000
@@ -648,6 +698,7 @@ def run(
     presence: float = 1.0,
     min_markers: int = 3,
     choose: str = "fit",
+    ambiguity: float | None = None,
 ) -> Tally:
     """Simulate ``n_frames`` frames and identify them; returns the :class:`Tally`.
 
@@ -674,6 +725,7 @@ def run(
         presence,
         min_markers,
         (choose,),
+        ambiguity,
     )[choose]
 
 
@@ -694,6 +746,7 @@ def run_rules(
     presence: float = 1.0,
     min_markers: int = 3,
     rules=RULES,
+    ambiguity: float | None = None,
 ) -> dict[str, Tally]:
     """As :func:`run`, identifying the same simulated frames under each ranking rule of
     ``rules`` (:data:`CHOOSE`): {rule: Tally}.  The frames and hypotheses are shared, only the
@@ -703,6 +756,7 @@ def run_rules(
     require(0.0 < presence <= 1.0, f"presence must be in (0, 1], got {presence}")
     require(3 <= min_markers, f"min_markers must be >= 3, got {min_markers}")
     rules = tuple(rules)
+    ambiguity = 1.0 if ambiguity is None else float(ambiguity)
     for choose in rules:
         require(choose in CHOOSE, f"choose must be one of {', '.join(CHOOSE)}, got {choose!r}")
     B = lib.n_bodies
@@ -722,15 +776,18 @@ def run_rules(
         group = sc.frame if world == "closed" else np.arange(len(sc.body))
         random_key = rng.random(len(h.scene))
         for choose in rules:
+            value = h.rms
             if choose == "window":
                 key = random_key
             elif choose == "sides":
                 # sorted-side difference first, ties (a flip scores like the right match) at random
-                sk = sides_key(lib, sc.pts, h)
-                key = np.argsort(np.lexsort((random_key, sk))).astype(float)
+                value = sides_key(lib, sc.pts, h)
+                key = np.argsort(np.lexsort((random_key, value))).astype(float)
             else:
                 key = None
             chosen = resolve(h, group, sc.pts.shape[1], B, key)
+            if choose != "window":
+                chosen = unambiguous(h, chosen, sc.pts.shape[1], value, ambiguity)
             score(sc, h, chosen, tallies[choose])
             tallies[choose].frames += f
         done += f
