@@ -8,7 +8,8 @@ The document (``format: starforge.check``, version 1, all lengths mm)::
                   identify_from_markers, choose, preset, tip_mm},
      "identification_rate", "mislabel_rate" (wrong poses + wrong bodies), "flip_rate" (wrong
      pose: the right body with its labels swapped), "wrong_body_rate", "missed_rate",
-     "phantom_rate"                                the headline: under ``headline_rule``, the worst
+     "phantom_rate", "withheld_rate" (part of the missed: ambiguous matches withheld)
+                                                   the headline: under ``headline_rule``, the worst
                                                    of the headline rules (or ``--choose``'s),
      "headline_means", "headline_rules", "safe_under" (headline rules with no wrong body or pose),
      "by_rule": {rule: {rates, "means", "kind" (headline or stress), "source"}}, same frames,

@@ -505,6 +505,7 @@ class Tally:
     phantoms: np.ndarray = None  # (B,) label reported on mostly-ghost points
     frames: int = 0
     scenes: int = 0  # body appearances scored (frames x bodies present)
+    withheld: int = 0  # chosen matches withheld as ambiguous (:func:`unambiguous`)
 
     def __post_init__(self):
         B = self.n_bodies
@@ -534,6 +535,7 @@ class Tally:
             "wrong_body_rate": self.mislabels / n,
             "missed_rate": int(self.missed.sum()) / n,
             "phantom_rate": int(self.phantoms.sum()) / n,
+            "withheld_rate": self.withheld / n,
         }
 
 
@@ -787,7 +789,9 @@ def run_rules(
                 key = None
             chosen = resolve(h, group, sc.pts.shape[1], B, key)
             if choose != "window":
-                chosen = unambiguous(h, chosen, sc.pts.shape[1], value, ambiguity)
+                kept = unambiguous(h, chosen, sc.pts.shape[1], value, ambiguity)
+                tallies[choose].withheld += len(chosen) - len(kept)
+                chosen = kept
             score(sc, h, chosen, tallies[choose])
             tallies[choose].frames += f
         done += f
