@@ -63,3 +63,26 @@ def test_work_is_validated_and_old_files_load():
         StarSpec(**SPEC, work=0)
     old = {**SPEC, "time_limit_s": 60.0}  # family files written before the work budget
     assert spec_from_mapping(old).work == StarSpec(**SPEC).work
+
+
+def test_count_builds_no_key_windows_larger_than_the_whole_familys(monkeypatch):
+    """--count N raises the face separation only while its key windows take no more memory than
+    selecting among every candidate at the tolerance itself."""
+    from starforge.stars import family as fam_mod
+    from starforge.stars.rules import window_bytes
+
+    calls = []
+    real = fam_mod.window_rows
+
+    def spy(index, rule, m, pool_size):
+        calls.append((len(index), rule, m))
+        return real(index, rule, m, pool_size)
+
+    monkeypatch.setattr(fam_mod, "window_rows", spy)
+    spec = StarSpec(**SPEC, count=5, tolerance_mm=2.0)
+    fam = make_family(spec)
+    assert len(fam.stars) == 5
+    n_all, rule, m = max(calls, key=lambda c: c[0])  # the whole candidate set at the tolerance
+    assert m == spec.grid_steps
+    for n, r, mm in calls:
+        assert window_bytes(n, r, mm) <= window_bytes(n_all, rule, m)
