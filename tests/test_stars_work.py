@@ -20,7 +20,9 @@ SPEC = {"box_mm": (16.0, 12.0, 24.0), "delta_mm": 2.0}
 def _without_timings(fam) -> str:
     doc = fam.to_json()
     doc.pop("timings", None)
-    doc["summary"]["selection"] = {k: v for k, v in doc["summary"]["selection"].items() if not k.endswith("_s")}
+    doc["summary"]["selection"] = {
+        k: v for k, v in doc["summary"]["selection"].items() if not k.endswith("_s")
+    }
     return json.dumps(doc, sort_keys=True)
 
 
