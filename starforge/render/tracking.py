@@ -32,7 +32,7 @@ def rates_plot(check_doc: dict, path: Path) -> Path:
         ax.set_ylim(-2, 102)
         ax.set_title(
             f"{check_doc['input']['bodies']} bodies, {s.get('world', 'open')} world, drop {s['drop']} "
-            f"({s['drop_mode']}), ghosts {s['ghosts']}, match {s['match_mm']:g} mm, "
+            f"({s['drop_mode']}), ghosts {s['ghosts']}, match {s['match_mm']:g} mm,\n"
             f"rule {c.get('rule', check_doc.get('headline_rule', 'fit'))} (the headline's), "
             f"{c['frames']} frames/point",
             fontsize=8,
