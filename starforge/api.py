@@ -33,6 +33,7 @@ from starforge.stars.family import make_family as _make_family
 from starforge.stars.model import Family, family_csv
 from starforge.stars.spec import StarSpec, spec_from_mapping
 from starforge.stars.verify import check_family
+from starforge.tracking.presets import design_tolerance_mm, star_spec_overrides
 
 __all__ = [
     "StarPlan",
@@ -145,7 +146,9 @@ def plan_family(
     seat : str, optional
         With ``mount``: what each stem ends in (sphere, glue, post, screw, insert).
     preset : str, optional
-        A tracker preset whose tolerances the family follows (``starforge templates presets``).
+        Design for a tracker (``starforge templates presets``): its rules, and faces apart by
+        twice its window at the spec's noise (``noise_mm``), unless ``tolerance_mm`` is given.
+        ``noise_mm`` alone designs for starforge's default tracker the same way.
     reserve_mm : (3,) float, mm, optional
         Room kept free for a mount by hand (``mount`` computes it otherwise).
     **overrides
@@ -165,9 +168,13 @@ def plan_family(
         name, data = "custom", {}
     data = dict(data)
     if preset is not None:
-        from starforge.tracking.presets import star_spec_overrides
-
         data.update(star_spec_overrides(preset))
+    noise = overrides.get("noise_mm")
+    if (preset is not None or noise is not None) and overrides.get("tolerance_mm") is None:
+        # designed for the tracker: faces apart by twice its window at this noise
+        nz = noise if noise is not None else float(data.get("noise_mm", 0.2))
+        floor = star_spec_overrides(preset).get("tolerance_mm") if preset is not None else None
+        data["tolerance_mm"] = round(design_tolerance_mm(preset, nz, floor), 6)
     marker_name = None
     if marker is not None:
         try:

@@ -106,8 +106,7 @@ def test_a_killed_worker_changes_nothing(cluster, serial, monkeypatch):
 def test_sweep_on_the_cluster_equals_serial(cluster, tmp_path):
     from starforge.tracking.sweep import rows_csv, sweep
 
-    # interval cells (seeded samples and the pool bound): exhaustive cells' exact selection has
-    # a wall-clock limit (spec.time_limit_s), so on a loaded machine their bound may differ
+    # interval cells (seeded samples and the pool bound), which a cluster runs as tasks
     args = (4.0, [2.0, 3.0], [18.0, 24.0], ("face", "pair"), 0, 1_000)
     a = rows_csv(sweep(*args, workers=1))
     b = rows_csv(sweep(*args, scheduler=cluster.scheduler_address))

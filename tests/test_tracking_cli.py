@@ -135,7 +135,7 @@ def test_check_refuses_to_overwrite(checked, capsys):
         (["--frames", "1e20"], "--frames"),
         (["--frames", "9000000", "--ghosts", "20"], "would take about"),
         (["--world", "flat"], "world must be open or closed"),
-        (["--choose", "best"], "choose must be one of fit, window"),
+        (["--choose", "best"], "choose must be one of fit, sides, window"),
     ],
 )
 def test_bad_options_one_line_exit_2(small_family, tmp_path, capsys, args, message):
@@ -181,7 +181,13 @@ def test_check_on_two_placements(tmp_path):
     assert rc == 0
     doc = json.loads((out / "check.json").read_text())
     assert doc["input"]["kind"] == "placement" and doc["confusion"]["labels"] == ["wand", "probe"]
-    assert doc["settings"]["match_mm"] == 2.0  # no family tolerance: the default window
+    # the window is the bone tolerance starforge writes into vendor files for these bodies
+    from starforge.tracking.bodies import load_bodies
+    from starforge.tracking.tolerances import export_tolerances
+
+    written = export_tolerances([x.points_mm for x in load_bodies([a, b]).bodies], 0.2)
+    assert doc["settings"]["match_mm"] == written["bone_length_tolerance_mm"]
+    assert doc["settings"]["residual_mm"] == written["maximum_residual_mm"]
     # placements are metres: the TRE uses the mm layout, at the prop's origin by default
     assert doc["accuracy"]["tip_mm"] == [0.0, 0.0, 0.0]
     wand = pos * 1000.0
@@ -210,6 +216,8 @@ def test_check_a_labs_files_beside_a_family(small_family, tmp_path):
         0,
         "--choose",
         "fit",
+        "--ambiguity",
+        1,
         "--out",
         out,
         "-q",

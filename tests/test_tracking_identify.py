@@ -33,6 +33,7 @@ def test_face_rule_family_drop1_identifies_999(family_lib):
     bs, lib = family_lib
     tol = bs.tolerance_mm
     rng = np.random.default_rng(7)
+    # a window as wide as the margin lets wrong faces through the gate: the best fit decides
     t = ident.run(lib, 1500, 0.1 * tol, 1, 0, rng, match_mm=tol, residual_mm=tol / 2, drop_exact=True)
     r = t.rates()
     assert t.instances == 1500 * len(bs.bodies)
@@ -55,6 +56,9 @@ def test_symmetric_body_is_reported_as_flipping():
     t = ident.run(lib, 600, 0.05, 0, 0, np.random.default_rng(3), match_mm=1.0, residual_mm=0.5)
     assert t.flips[1] > 0.2 * 600  # the two fits tie: a large share flips
     assert t.flips[0] == 0
+    # a tracker that withholds ambiguous matches misses those frames instead of flipping
+    w = ident.run(lib, 600, 0.05, 0, 0, np.random.default_rng(3), 1.0, 0.5, ambiguity=ident.AMBIGUITY)
+    assert w.flips[1] < 0.02 * 600 and w.missed[1] > 0.9 * 600 and w.flips[0] == 0
     flips = ident.self_matches(SYM, 1.0, 0.5)
     assert flips and flips[0][0] < 1e-6
     assert any(np.array_equal(a, [1, 0, 3, 2]) for _, a in flips)

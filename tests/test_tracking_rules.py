@@ -1,5 +1,5 @@
 """Bodies of any marker count in ``check`` (3-marker bodies: no hidden-marker case, valid JSON),
-and identification under every ranking rule trackers use, headlined by the worst."""
+and identification under every ranking rule, headlined by the worst rule trackers document."""
 
 from __future__ import annotations
 
@@ -33,10 +33,14 @@ def test_three_and_five_marker_bodies_beside_a_family(small_family, tmp_path):
     rows = {r["body"]: r for r in doc["accuracy"]["bodies"]}
     assert rows["three"]["tip_tre_hidden_mm"] is None and rows["probe"]["tip_tre_hidden_mm"] > 0
     assert "three" in doc["accuracy"]["family"]["bodies_without_hidden_case"]
-    # every rule reported, the headline is the worst
-    assert set(doc["by_rule"]) == set(ident.CHOOSE)
-    worst = min(v["identification_rate"] for v in doc["by_rule"].values())
+    # every rule reported, the headline is the worst of the headline rules (never a stress model)
+    assert set(doc["by_rule"]) == set(ident.RULES)
+    assert doc["headline_rule"] in ident.HEADLINE_RULES
+    worst = min(doc["by_rule"][r]["identification_rate"] for r in ident.HEADLINE_RULES)
     assert doc["identification_rate"] == worst == doc["by_rule"][doc["headline_rule"]]["identification_rate"]
+    assert {r for r, v in doc["by_rule"].items() if v["kind"] == "stress"} == set(ident.STRESS_RULES)
+    # the plot's curve is the headline's rule
+    assert doc["curve"]["rule"] == doc["headline_rule"]
     # the 3-marker body (far from every star) is always identified whole
     i = doc["confusion"]["labels"].index("three")
     assert doc["confusion"]["matrix"][i][i] == 40

@@ -119,8 +119,9 @@ def test_preset_simulation_agrees_with_its_own_rule_check(preset, bodies):
     points = {"clean": CLEAN, "symmetric": SYMMETRIC, "shared": SHARED}[bodies]
     p = load_preset(preset)
     exact = p.tracker.identify_markers == 3  # hide exactly one marker where three identify
+    # the best-match tracker (nothing withheld as ambiguous): every confusion the geometry allows shows
     s = CheckSettings(
-        noise_mm=0.02, drop=1, drop_exact=exact, frames=400, curve_points=0, preset=preset, seed=1
+        noise_mm=0.02, drop=1, drop_exact=exact, frames=400, curve_points=0, preset=preset, seed=1, ambiguity=1.0
     )
     doc = run_check(_bodyset(points), s)
     listed = {v["rule"] for v in doc["rules"]["violations"]} & CONFUSIONS
@@ -155,7 +156,7 @@ def test_qualisys_simulates_the_tolerances_its_files_carry(small_family, tmp_pat
     doc = json.loads((out / "check.json").read_text())
     assert doc["settings"]["match_mm"] == summary["qtm"]["bone_length_tolerance_mm"]
     assert doc["settings"]["residual_mm"] == summary["qtm"]["maximum_residual_mm"]
-    assert doc["settings"]["choose"] == "window"
+    assert doc["settings"]["choose"] == "fit"
 
 
 def test_art_exact_drop_below_four_markers_is_refused(small_family, tmp_path, capsys):

@@ -67,9 +67,15 @@ def check_cmd(
     choose: str = typer.Option(
         None,
         "--choose",
-        help="Rank matches by one rule only: fit (lowest residual wins), window (a tracker that treats every "
-        "distance inside its window as equal takes one at random) or sides (smallest sorted-side-length "
-        "difference). Default: every rule on the same frames, the headline the worst.",
+            help="Simulate one rule only: fit (gate every distance by the window, then the best rigid fit), sides "
+        "(then the smallest sorted-distance difference) or the stress model window (one match inside the "
+        "window at random). Default: all on the same frames, headlined by the worst of fit and sides.",
+    ),
+    ambiguity: float = typer.Option(
+        None,
+        "--ambiguity",
+        help="Report a match only when every rival explanation of its points fits this many times worse "
+        "(default 2: a missed frame rather than a wrong body or pose; 1: always the best match).",
     ),
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same result)."),
     preset: str = typer.Option(
@@ -116,6 +122,7 @@ def check_cmd(
         world=world,
         presence=presence,
         choose=choose,
+        ambiguity=ambiguity,
     )
     if preset is not None:
         from starforge.tracking.presets import load_preset
@@ -155,19 +162,20 @@ def check_cmd(
         )
     for note in doc["input"]["notes"]:
         con.print(f"note: {note}")
+    con.print(_headline(doc), soft_wrap=True)
     for rule, r in doc["by_rule"].items():
+        kind = "stress model" if r["kind"] == "stress" else "rule"
         con.print(
-            f"  rule {rule} ({r['means']}): identified {100 * r['identification_rate']:.3f} %, "
-            f"confused {100 * r['mislabel_rate']:.3f} %"
+            f"  {kind} {rule} ({r['means']}): identified {100 * r['identification_rate']:.3f} %, "
+            f"wrong body {100 * r['wrong_body_rate']:.3f} %, wrong pose {100 * r['flip_rate']:.3f} %"
         )
-    con.print(
-        f"identified {100 * doc['identification_rate']:.3f} %, confused {100 * doc['mislabel_rate']:.3f} % "
-        f"(flips {100 * doc['flip_rate']:.3f} %, wrong body {100 * doc['wrong_body_rate']:.3f} %), "
-        f"missed {100 * doc['missed_rate']:.3f} % (rule {doc['headline_rule']}"
-        f"{', the worst' if len(doc['by_rule']) > 1 else ''})"
-    )
     for w in doc["worst_pairs"][:5]:
-        con.print(f"  {w['kind']}: {w['true']} -> {w['reported']}: {w['count']} ({100 * w['rate']:.3f} %)")
+        what = (
+            f"labels swapped: wrong pose: {w['true']}"
+            if w["kind"] == "flip"
+            else f"wrong body: {w['true']} seen as {w['reported']}"
+        )
+        con.print(f"  {what}: {w['count']} ({100 * w['rate']:.3f} %)")
     fam = doc["accuracy"]["family"]
     at = doc["accuracy"]["tip_mm"]
     tip = ", ".join(f"{x:.3g}" for x in at) + " mm" if at is not None else "each body's tip"
@@ -188,3 +196,27 @@ def check_cmd(
         if len(v) > 10:
             con.print(f"  ... {len(v) - 10} more in check.json")
     con.print(f"wrote {out}/: {', '.join(names)} ({doc['seconds']['total']:.1f} s)")
+
+
+def _headline(doc: dict) -> str:
+    """One line: the headline's rates, the rule they are under and what that rule does, and the
+    rules under which no frame gave a wrong body or a wrong pose."""
+    s = doc["settings"]
+    head = doc["headline_rule"]
+    rules = doc["headline_rules"]
+    worst = f"the worse of {' and '.join(rules)}" if len(rules) > 1 else "the rule simulated"
+    safe = doc["safe_under"]
+    verdict = (
+        f"no wrong body or pose under {', '.join(safe)}"
+        if safe
+        else "wrong bodies or poses under every headline rule"
+    )
+    w = doc.get("withheld_rate", 0.0)
+    withheld = f" ({100 * w:.3f} % withheld: a rival explanation fit alike)" if w > 0 else ""
+    return (
+        f"identified {100 * doc['identification_rate']:.3f} %, wrong body {100 * doc['wrong_body_rate']:.3f} %, "
+        f"wrong pose {100 * doc['flip_rate']:.3f} %, missed {100 * doc['missed_rate']:.3f} %{withheld} under rule {head} "
+        f"({worst}: {doc['headline_means']}, window {s['match_mm']:g} mm, residual {s['residual_mm']:g} mm, "
+        f"withheld when a rival fits within x{s['ambiguity_ratio']:g}); "
+        f"{verdict}"
+    )

@@ -79,7 +79,8 @@ def stars_cmd(
     noise: float = typer.Option(
         None,
         "--noise",
-        help=f"Marker noise sigma per axis for the predicted accuracy, mm ({_default('noise_mm')}).",
+        help="Marker noise sigma per axis, mm (default 0.2): the predicted accuracy, and with it (or --preset) "
+        "the face tolerance, twice the tracker's window at this noise (unless --tolerance).",
     ),
     avoid: list[Path] = typer.Option(
         None,
@@ -88,10 +89,11 @@ def stars_cmd(
         ".csv), one or several after one flag (--avoid A.xml B.vsk) or the flag repeated: no new face comes "
         "within the tolerance of theirs (default: none).",
     ),
-    time_limit: float = typer.Option(
+    work: int = typer.Option(
         None,
-        "--time-limit",
-        help=f"Wall-clock safety limit of the exact solver, s ({_default('time_limit_s', 's')}).",
+        "--work",
+        help="Work budget of the exact selection, nonzeros x solver nodes (default 8000000): deterministic, so the "
+        "family and its proven bound are the same at any load; raise it to prove a larger spec optimal.",
     ),
     reserve: tuple[float, float, float] = typer.Option(
         None,
@@ -102,7 +104,8 @@ def stars_cmd(
     preset: str = typer.Option(
         None,
         "--preset",
-        help="Apply a tracker preset's tolerances (`starforge templates presets`; default: none).",
+        help="Design for a tracker (art, ndi, qualisys, optitrack, vicon, atracsys, or a TOML file): its rules, "
+        "and faces apart by twice its window at --noise (`starforge templates presets`; default: none).",
     ),
     mount: str = typer.Option(
         None,
@@ -152,7 +155,7 @@ def stars_cmd(
         box_mm=box, marker=marker, mount=mount, seat=seat, preset=preset, reserve_mm=reserve,
         delta_mm=delta, gap_mm=gap, rule=rule, select=select, count=count, tolerance_mm=tolerance,
         box_method=box_method, min_depth_mm=min_depth, tip_mm=list(tip) if tip is not None else None,
-        noise_mm=noise, time_limit_s=time_limit, name=name,
+        noise_mm=noise, work=work, name=name,
     )  # fmt: skip
     plan = _plan(spec, given, ctx)
     out_dir = out if out is not None else Path("out") / plan.spec.name
@@ -197,7 +200,7 @@ _OPTION_OF = {
     "min_depth_mm": "--min-depth",
     "tip_mm": "--tip",
     "noise_mm": "--noise",
-    "time_limit_s": "--time-limit",
+    "work": "--work",
     "reserve_mm": "--reserve",
 }
 

@@ -11,7 +11,8 @@ _DPI = 100
 
 
 def rates_plot(check_doc: dict, path: Path) -> Path:
-    """Identification and mislabel rates against marker noise (sigma per axis, mm)."""
+    """Identification and wrong body or pose rates against marker noise (sigma per axis, mm),
+    under the rule the check's headline names (``curve.rule``)."""
     plt = pyplot()
     c = check_doc["curve"]
     s = check_doc["settings"]
@@ -23,7 +24,7 @@ def rates_plot(check_doc: dict, path: Path) -> Path:
             [100 * v for v in c["mislabel_rate"]],
             "s-",
             color="C3",
-            label="confused (wrong body or flip)",
+            label="wrong body or wrong pose",
         )
         ax.axvline(s["noise_mm"], color="0.6", ls=":", lw=1)
         ax.set_xlabel("marker noise sigma per axis [mm]")
@@ -31,8 +32,9 @@ def rates_plot(check_doc: dict, path: Path) -> Path:
         ax.set_ylim(-2, 102)
         title = ax.set_title(
             f"{check_doc['input']['bodies']} bodies, {s.get('world', 'open')} world, drop {s['drop']} "
-            f"({s['drop_mode']}), ghosts {s['ghosts']}, match {s['match_mm']:.3g} mm, "
-            f"choose {s.get('choose') or 'every rule'}, {c['frames']:,} frames a point",
+            f"({s['drop_mode']}), ghosts {s['ghosts']}, match {s['match_mm']:.3g} mm,\n"
+            f"rule {c.get('rule', check_doc.get('headline_rule', 'fit'))} (the headline's), "
+            f"{c['frames']:,} frames a point",
             fontsize=8,
         )
         ax.grid(alpha=0.3)

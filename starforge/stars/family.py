@@ -21,7 +21,7 @@ from starforge.stars.avoid import avoid_mask
 from starforge.stars.boxes import place_stars
 from starforge.stars.enumerate import Candidates, edge_pool, enumerate_candidates
 from starforge.stars.model import Family, Star
-from starforge.stars.rules import internal_ok, window_rows
+from starforge.stars.rules import internal_ok, window_bytes, window_rows
 from starforge.stars.select import block_bound, compactness_order, greedy, select_family
 from starforge.stars.spec import StarSpec
 
@@ -160,14 +160,19 @@ def _spread_count(index: np.ndarray, order: np.ndarray, spec: StarSpec, pool_siz
     which is what keeps a tracker from confusing them under noise.  Among the
     :data:`COUNT_POOL` most accurate candidates, the face separation is raised one pool step at
     a time (up to twice the tolerance) while a greedy pick in accuracy order still reaches the
-    count; the largest separation that does is used.  Returns (chosen, steps used).
+    count; the largest separation that does is used.  A separation whose key windows would take
+    more memory than the whole family's selection is skipped.  Returns (chosen, steps used).
     """
     from starforge.stars.select import csr_rows
 
     top = order[:COUNT_POOL]
     m = spec.grid_steps
     best = None
+    # never more memory than selecting among every candidate at the tolerance itself
+    whole = window_bytes(len(index), spec.rule, m)
     for m2 in range(2 * m, m - 1, -1):
+        if m2 > m and window_bytes(len(top), spec.rule, m2) > whole:
+            continue
         s2, r2, n2 = window_rows(index[top], spec.rule, m2, pool_size)
         ptr, rows = csr_rows(s2, r2, len(top))
         got = top[greedy(np.arange(len(top)), ptr, rows, n2)]
@@ -181,7 +186,7 @@ def _spread_count(index: np.ndarray, order: np.ndarray, spec: StarSpec, pool_siz
     return best
 
 
-def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, deterministic: bool = False):
+def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
     """Select the family among ``index`` (see :func:`make_family`); returns (Selection, bound)."""
     m = spec.grid_steps
     # the selection's order (numpy sorts) on a thread beside the key windows (compiled)
@@ -208,7 +213,6 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, determin
                 bound=bound,
                 n_undecided=len(und),
                 milp_work=work,
-                deterministic=deterministic,
             )
             info.update(sel.info)
             if len(sel.chosen) < spec.count:
@@ -222,7 +226,7 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, determin
     else:
         sel = select_family(
             index, pool, volume, star_of, row, n_rows, spec, bound=bound, n_undecided=len(und), milp_work=work,
-            deterministic=deterministic, order=order_of(),
+            order=order_of(),
         )
     ub = sel.upper_bound
     if len(und) and sel.info.get("milp_status") == "optimal" and ub > len(sel.chosen):
@@ -234,8 +238,7 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int, determin
         s2, r2, n2 = window_rows(both, spec.rule, m, len(pool))
         p2, rows2 = csr_rows(s2, r2, len(both))
         opt, dual, status, reproducible = milp(
-            p2, rows2, n2, np.arange(len(both)), None if deterministic else spec.time_limit_s,
-            node_budget(len(rows2), work),
+            p2, rows2, n2, np.arange(len(both)), None, node_budget(len(rows2), work),
         )
         if reproducible:
             b2 = len(opt) if status == "optimal" else dual
@@ -254,27 +257,23 @@ def make_family(
     avoid_sources: list[dict] | None = None,
     milp_work: int | None = None,
     star_filter=None,
-    deterministic: bool = False,
     on_stage=None,
 ) -> Family:
     """Enumerate, select and place a family for ``spec``.
 
     ``avoid_faces_mm`` (k, 3): triangles of bodies the lab already owns; no face of a new star
     comes within the tolerance of one (``avoid_sources`` describes them for family.json).
-    ``milp_work``: the exact solver's deterministic work budget (nonzeros x nodes; default
-    :data:`starforge.stars.select.MILP_WORK`).  ``star_filter(vertices (n, 4, 3)) -> (n,) bool``
+    ``milp_work``: the exact solver's deterministic work budget (nonzeros x nodes; default the
+    spec's ``work``).  ``star_filter(vertices (n, 4, 3)) -> (n,) bool``
     keeps only stars it accepts (e.g. whose printed body with its mount fits the limit): the
-    ones it rejects are replaced by selecting again without them.  ``deterministic``: the exact
-    solver is stopped by its node budget alone, never by ``spec.time_limit_s`` (the same family
-    on any machine; see :func:`starforge.stars.select.select_family`).  ``on_stage(name)`` is
+    ones it rejects are replaced by selecting again without them.  The exact solver is stopped by its
+    node budget alone, never by the wall clock: the same family on any machine and at any load.  ``on_stage(name)`` is
     called as the selection (``"select"``) starts (the CLI waits there for its compile helper).
 
     Raises StarforgeError when no star fits, or when ``spec.count`` exceeds what is achievable
     (naming the largest family found and the certified bound).
     """
-    from starforge.stars.select import MILP_WORK
-
-    work = MILP_WORK if milp_work is None else int(milp_work)
+    work = spec.work if milp_work is None else int(milp_work)
     t0 = time.perf_counter()
     if candidates is None:
         from starforge.stars.enumerate import check_size
@@ -314,7 +313,7 @@ def make_family(
     while True:
         keep = np.flatnonzero(~excluded)
         kept = (index, volume) if len(keep) == len(index) else (np.take(index, keep, axis=0), volume[keep])
-        sel, ub = _choose(*kept, und, bound, spec, pool, work, deterministic)
+        sel, ub = _choose(*kept, und, bound, spec, pool, work)
         chosen = keep[np.sort(sel.chosen)]
         L = pool[index[chosen]]
         # the family's margins depend on its lengths alone: computed beside the placement
@@ -419,7 +418,7 @@ def _assemble(
                 accuracy=acc[i],
             )
         )
-    timings = {k: info.pop(k) for k in list(info) if k.endswith("_s") and k != "time_limit_s"}
+    timings = {k: info.pop(k) for k in list(info) if k.endswith("_s")}
     enum_stats = {k: v for k, v in enum_stats.items() if k != "seconds"}
     timings.update(
         enumerate=round(secs["enumerate"], 3), select=round(secs["select"], 3), total=round(time.perf_counter() - t0, 3)

@@ -8,7 +8,7 @@
   ``ILS_ITERATIONS``; on small instances also ``ILS_RESTARTS`` short restarts with other fixed
   seeds), then, when the window matrix is small enough (``MILP_MAX_NONZEROS``), the
   exact MILP (HiGHS through ``scipy.optimize.milp``) under a deterministic node budget
-  (:func:`node_budget`); a run cut by the wall-clock safety limit is not used.
+  (:func:`node_budget`, from the spec's ``work``): no wall clock decides anything.
 
 Upper bounds are certified: the caller's block bound over every star that may fit, tightened by
 the solver's dual bound (plus the undecided stars it did not see) when it ran.
@@ -26,7 +26,7 @@ import numpy as np
 
 from starforge.runtime.kernels import numba
 from starforge.stars.rules import key3, key_triples
-from starforge.stars.spec import StarSpec
+from starforge.stars.spec import WORK, StarSpec
 
 #: the kernels only ever called from other kernels: no Python or C-callback wrapper, and no
 #: cache entry of their own (each is compiled into its one caller, whose cache entry holds it;
@@ -841,9 +841,9 @@ def ils_restarts(
     return chosen, used, ran
 
 
-#: HiGHS branch-and-bound work budget, in nonzeros x nodes: a deterministic effort limit (the
-#: wall-clock limit is only a safety net; a run it cuts is not used, so results stay reproducible)
-MILP_WORK = 8_000_000
+#: HiGHS branch-and-bound work budget, in nonzeros x nodes: a deterministic effort limit, so
+#: results are the same at any load (the spec's ``work`` sets it for ``stars``)
+MILP_WORK = WORK
 MILP_NODE_LIMIT = 6000
 #: largest set packing (nonzeros of the window matrix) handed to the exact solver; past it the
 #: root relaxation alone takes tens of seconds
@@ -851,8 +851,10 @@ MILP_MAX_NONZEROS = 40_000
 
 
 def node_budget(nonzeros: int, work: int = MILP_WORK) -> int:
-    """Nodes HiGHS may explore for a problem with ``nonzeros`` entries (at least 20)."""
-    return int(max(20, min(MILP_NODE_LIMIT, work // max(1, nonzeros))))
+    """Nodes HiGHS may explore for a problem with ``nonzeros`` entries: ``work / nonzeros``, at
+    least 20 and at most :data:`MILP_NODE_LIMIT` scaled by ``work / MILP_WORK``."""
+    cap = MILP_NODE_LIMIT * max(1.0, work / MILP_WORK)
+    return int(max(20, min(cap, work // max(1, nonzeros))))
 
 
 def milp(ptr, rows, n_rows, cols: np.ndarray, time_limit: float | None, node_limit: int = MILP_NODE_LIMIT):
@@ -904,8 +906,7 @@ def select_family(
     ils_iterations: int | None = None,
     bound: int | None = None,
     n_undecided: int = 0,
-    milp_work: int = MILP_WORK,
-    deterministic: bool = False,
+    milp_work: int | None = None,
     order: np.ndarray | None = None,
 ) -> Selection:
     """Choose the family among the candidates (see module docstring).
@@ -916,10 +917,10 @@ def select_family(
     ``n_undecided``: stars left out of ``index`` that might fit; the solver's dual bound covers
     ``index`` only, so it certifies ``dual + n_undecided`` (an optimal family over a superset
     loses at most those stars when they are removed).
-    ``deterministic``: the exact solver runs without its wall-clock safety limit
-    (``spec.time_limit_s``), stopped by the node budget alone, so the family and bound are the
-    same on any machine (the sweep's exhaustive cells).  ``order``: :func:`compactness_order` of
-    the candidates when the caller has it already.
+    ``milp_work``: the exact solver's work budget (nonzeros x nodes; default ``spec.work``): its
+    node limit alone stops it, never the wall clock, so the family and bound are the same on any
+    machine and at any load.  ``order``: :func:`compactness_order` of the candidates when the
+    caller has it already.
     """
     n = len(index)
     ptr, rows = csr_rows(star_of, row, n)
@@ -961,12 +962,11 @@ def select_family(
     else:
         info.update(ils=int(len(chosen)), ils_iterations=0)
     if len(chosen) < bound and nnz <= MILP_MAX_NONZEROS:
-        # exact set packing over every candidate under a deterministic node budget; a run cut
-        # by the wall-clock safety limit is not used, so the same spec gives the same family
+        # exact set packing over every candidate under a deterministic node budget (no wall
+        # clock), so the same spec gives the same family and bound at any load
         t2 = time.perf_counter()
-        nodes = node_budget(nnz, milp_work)
-        wall = None if deterministic else spec.time_limit_s
-        m_chosen, dual, status, reproducible = milp(ptr, rows, n_rows, np.arange(n), wall, nodes)
+        nodes = node_budget(nnz, spec.work if milp_work is None else int(milp_work))
+        m_chosen, dual, status, reproducible = milp(ptr, rows, n_rows, np.arange(n), None, nodes)
         info.update(
             milp_columns=int(n), milp_node_budget=nodes, milp_status=status, milp_used=bool(reproducible)
         )
@@ -983,9 +983,7 @@ def select_family(
                 bound = solver_bound
                 info["bound_from"] = "solver"
         else:
-            info["milp_note"] = (
-                "stopped by --time-limit before its node budget: not used, so runs stay reproducible"
-            )
+            info["milp_note"] = "the solver returned no solution: its result is not used"
     elif len(chosen) < bound:
         info["milp_skipped"] = (
             f"{nnz:,} nonzeros > {MILP_MAX_NONZEROS:,}: family from greedy + local search, bound from blocks"

@@ -9,6 +9,11 @@ from typing import Literal, get_args
 from starforge.errors import StarforgeError
 from starforge.spec import from_mapping, positive, require
 
+#: default work budget of the exact selection, nonzeros x branch-and-bound nodes
+WORK = 8_000_000
+#: largest work budget accepted (about a day of solving)
+MAX_WORK = 10**12
+
 Rule = Literal["face", "pair"]
 Select = Literal["max", "greedy"]
 BoxMethod = Literal["exact", "covariance"]
@@ -53,8 +58,12 @@ class StarSpec:
         :func:`starforge.geometry.rigid.default_tip_mm` (long axis, one limit length below).
     noise_mm : float
         Marker-centre noise (sigma per axis) for the predicted accuracy, mm.
-    time_limit_s : float
-        Wall-clock safety limit for the exact solver; its deterministic work budget decides.
+    work : int
+        The exact solver's work budget, in nonzeros of the set packing x branch-and-bound nodes
+        (HiGHS's node limit): deterministic, so the family, its bound and whether it is proven
+        optimal are the same on any machine and at any load.  The default proves the finger
+        cases optimal where HiGHS can; a spec whose proof needs more reports "not optimal" with
+        its certified bound.
     reserve_mm : (3,) float
         Millimetres of the size limit kept free for a mount, along its shortest, middle and
         longest side (a manual override; ``mount`` computes it).
@@ -88,7 +97,7 @@ class StarSpec:
     min_depth_mm: float | None = None
     tip_mm: tuple[float, float, float] | None = None
     noise_mm: float = 0.2
-    time_limit_s: float = 60.0
+    work: int = WORK
     reserve_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mount: str | None = None
     marker: str | None = None
@@ -128,7 +137,10 @@ class StarSpec:
                 require(math.isfinite(t) and abs(t) <= 1e5, f"tip_mm[{i}] must be within 100 m, got {t}")
         require(math.isfinite(self.noise_mm) and self.noise_mm > 0, f"noise_mm must be > 0, got {self.noise_mm}")
         require(self.gap_mm >= 0 and math.isfinite(self.gap_mm), f"gap_mm must be >= 0, got {self.gap_mm}")
-        positive("time_limit_s", self.time_limit_s)
+        require(
+            isinstance(self.work, int) and 1 <= self.work <= MAX_WORK,
+            f"work must be an integer in [1, {MAX_WORK:.0e}] (nonzeros x solver nodes), got {self.work}",
+        )
         if self.tolerance_mm is not None:
             positive("tolerance_mm", self.tolerance_mm)
         if self.count is not None:
@@ -237,6 +249,8 @@ STAR_CHOICES = {"rule": get_args(Rule), "select": get_args(Select), "box_method"
 def spec_from_mapping(data: dict, name: str | None = None) -> StarSpec:
     """A StarSpec from TOML/JSON data (unknown keys refused)."""
     data = dict(data)
+    # a wall-clock limit (written by older files) no longer decides anything: the work budget does
+    data.pop("time_limit_s", None)
     if name is not None and "name" not in data:
         data["name"] = name
     if "box_mm" not in data:

@@ -6,10 +6,13 @@ The document (``format: starforge.check``, version 1, all lengths mm)::
      "settings": {... every setting a rate depends on: noise, drop (mode), ghosts, frames, seed,
                   match_mm / residual_mm and where they come from, world, presence,
                   identify_from_markers, choose, preset, tip_mm},
-     "identification_rate", "mislabel_rate" (flips + wrong bodies), "flip_rate",
-     "wrong_body_rate", "missed_rate", "phantom_rate"      the headline: under ``headline_rule``,
-                                                   the worst of the rules (or ``--choose``'s),
-     "by_rule": {rule: {rates, "means"}},          every ranking rule trackers use, same frames,
+     "identification_rate", "mislabel_rate" (wrong poses + wrong bodies), "flip_rate" (wrong
+     pose: the right body with its labels swapped), "wrong_body_rate", "missed_rate",
+     "phantom_rate", "withheld_rate" (part of the missed: ambiguous matches withheld)
+                                                   the headline: under ``headline_rule``, the worst
+                                                   of the headline rules (or ``--choose``'s),
+     "headline_means", "headline_rules", "safe_under" (headline rules with no wrong body or pose),
+     "by_rule": {rule: {rates, "means", "kind" (headline or stress), "source"}}, same frames,
      "confusion": {"labels": [...], "matrix": B x B (true row, reported column; diagonal correct)},
      "flips": [...], "missed": [...],              per body
      "worst_pairs": [...],                          most frequent confusions in the simulation
@@ -20,7 +23,8 @@ The document (``format: starforge.check``, version 1, all lengths mm)::
                               "worst_hidden_marker", "rotation_deg", "rotation_hidden_deg"}],
                   "family": {median and worst, all markers and worst one hidden}},
      "rules": {"preset", "window_mm", "violations": [...]},   with --preset
-     "curve": {"noise_mm": [...], "identification_rate": [...], "mislabel_rate": [...]}}
+     "curve": {"rule" (the headline's), "noise_mm": [...], "identification_rate": [...],
+               "mislabel_rate": [...]}}
 """
 
 from __future__ import annotations
@@ -59,8 +63,12 @@ class CheckSettings:
     world : "open" (each cluster identified on its own; default) or "closed" (each label once
         per frame: assumes every body is in every frame)
     presence : probability that a body is in a frame (bodies come and go)
-    choose : how matches inside the window are ranked, ``fit`` or ``window``
-        (:data:`starforge.tracking.identify.CHOOSE`); None: the preset's, else ``fit``
+    ambiguity : a headline rule reports a match only when every rival explanation of its points
+        with as many markers fits this many times worse (:func:`starforge.tracking.identify.
+        unambiguous`; 1: never withheld); None: :data:`starforge.tracking.identify.AMBIGUITY`
+    choose : simulate one ranking rule only (:data:`starforge.tracking.identify.CHOOSE`: ``fit``,
+        ``sides`` or the stress model ``window``); None: every rule, headlined by the worst
+        headline rule
     """
 
     noise_mm: float = 0.2
@@ -78,6 +86,7 @@ class CheckSettings:
     world: str = "open"
     presence: float = 1.0
     choose: str | None = None
+    ambiguity: float | None = None
 
     def __post_init__(self):
         from starforge.tracking.identify import CHOOSE
@@ -96,6 +105,11 @@ class CheckSettings:
         require(self.ghosts >= 0, f"ghosts must be >= 0, got {self.ghosts}")
         require(self.frames >= 1, f"frames must be >= 1, got {self.frames}")
         require(self.curve_points >= 0, f"curve_points must be >= 0, got {self.curve_points}")
+        if self.ambiguity is not None:
+            require(
+                1.0 <= self.ambiguity <= 100.0,
+                f"ambiguity must be in [1, 100] (1: report the best match however close a rival), got {self.ambiguity}",
+            )
         if self.match_mm is not None:
             require(self.match_mm > 0, f"match must be > 0 mm, got {self.match_mm}")
         if self.residual_mm is not None:
@@ -135,39 +149,44 @@ def resolve_windows(bodyset, s: CheckSettings, preset=None) -> dict:
     """The tracker in effect: ``match_mm``, ``residual_mm``, ``reflect``, ``choose``,
     ``min_markers`` and where the window comes from (``window_source``).
 
-    The window is ``--match`` if given, else the preset's (fixed, or for QTM the tolerance
-    starforge writes into QTM files for these bodies), else the smallest family tolerance, else
-    2 mm; the residual limit ``--residual``, else the preset's, else half the window.
+    The window is ``--match`` if given, else the preset's (fixed, or for QTM, NDI and Motive
+    the tolerance starforge writes into vendor files for these bodies), else that tolerance
+    itself: the bone-length tolerance and residual limit of
+    :func:`starforge.tracking.tolerances.export_tolerances` at the simulated noise, so that
+    ``check`` simulates the gates the lab's files carry.  The residual limit is ``--residual``,
+    else the preset's (fixed presets), else the one written into the files.
     """
     from starforge.tracking.tolerances import export_tolerances
 
     reflect = bool(preset.tracker.reflect) if preset is not None else False
     choose = s.choose or (preset.tracker.choose if preset is not None else "fit")
     res = None
+    written = None
+    if s.match_mm is None or s.residual_mm is None:
+        written = export_tolerances([b.points_mm for b in bodyset.bodies], s.noise_mm)
     if s.match_mm is not None:
         match, source = s.match_mm, "--match"
-    elif preset is not None and preset.tracker.window != "fixed":
-        q = export_tolerances([b.points_mm for b in bodyset.bodies], s.noise_mm)
-        match, res = q["bone_length_tolerance_mm"], q["maximum_residual_mm"]
+    elif preset is not None and preset.tracker.window == "fixed":
+        match, res, source = preset.tracker.match_mm, preset.tracker.residual_mm, f"preset {preset.name}"
+    else:
+        match, res = written["bone_length_tolerance_mm"], written["maximum_residual_mm"]
         what = {
             "qtm_export": "the BoneLengthTolerance and MaximumResidual starforge writes into QTM files",
             "rom_export": "the maximum marker error starforge writes into NDI .rom files (residual) and the same "
             "distance tolerance (NDI's window is not published)",
         }.get(
-            preset.tracker.window,
-            "the tolerances starforge derives (the vendor's window is a per-body setting)",
+            preset.tracker.window if preset is not None else "",
+            "the bone tolerance and residual limit starforge writes into vendor files",
         )
-        source = f"preset {preset.name}: {what} for these bodies at {s.noise_mm:g} mm noise (margin {q['margin_mm']:g} mm)"
-    elif preset is not None:
-        match, res, source = preset.tracker.match_mm, preset.tracker.residual_mm, f"preset {preset.name}"
-    elif bodyset.tolerance_mm is not None:
-        match, source = float(bodyset.tolerance_mm), "the family tolerance"
-    else:
-        match, source = 2.0, "starforge's default for bodies without a family tolerance"
+        who = f"preset {preset.name}: " if preset is not None else ""
+        source = (
+            f"{who}{what} for these bodies at {s.noise_mm:g} mm noise (half their smallest key margin "
+            f"{written['margin_mm']:g} mm, at least {written['bone_from_noise_mm']:.3g} mm for the noise)"
+        )
     if s.residual_mm is not None:
         res = s.residual_mm
     elif res is None:
-        res = match / 2
+        res = written["maximum_residual_mm"] if written is not None else match / 2
     return {
         "match_mm": float(match),
         "residual_mm": float(res),
@@ -175,7 +194,24 @@ def resolve_windows(bodyset, s: CheckSettings, preset=None) -> dict:
         "choose": choose,
         "min_markers": preset.tracker.identify_markers if preset is not None else 3,
         "window_source": source,
+        "margin_mm": float(written["margin_mm"]) if written is not None else None,
     }
+
+
+def headline_rule(by_rule: dict, rules) -> str:
+    """The rule ``check`` headlines: the worst (lowest identification, then most wrong bodies
+    and poses) of the headline rules simulated, or of ``rules`` when none is (``--choose``)."""
+    from starforge.tracking.identify import HEADLINE_RULES
+
+    pool = [r for r in rules if r in HEADLINE_RULES] or list(rules)
+    return min(pool, key=lambda r: (by_rule[r]["identification_rate"], -by_rule[r]["mislabel_rate"]))
+
+
+def safe_rules(by_rule: dict) -> list[str]:
+    """The simulated headline rules under which no frame gave a wrong body or a wrong pose."""
+    from starforge.tracking.identify import HEADLINE_RULES
+
+    return [r for r in HEADLINE_RULES if r in by_rule and by_rule[r]["mislabel_rate"] == 0]
 
 
 def accuracy_report(bodyset, s: CheckSettings) -> dict:
@@ -278,10 +314,11 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
         "drop_exact": s.drop_exact,
         "reflect": tr["reflect"],
         "rules": rules,
+        "ambiguity": ident.AMBIGUITY if s.ambiguity is None else s.ambiguity,
     }
     tallies = ident.run_rules(lib, s.frames, s.noise_mm, s.drop, s.ghosts, rng, match, res, progress=cb, **kw)
     by_rule = {r: t.rates() for r, t in tallies.items()}
-    head = min(rules, key=lambda r: (by_rule[r]["identification_rate"], -by_rule[r]["mislabel_rate"]))
+    head = headline_rule(by_rule, rules)
     tally = tallies[head]
     t_main = time.perf_counter() - t0
     curve = None
@@ -291,13 +328,20 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
         levels = np.unique(np.round(np.concatenate([np.linspace(0.0, top, s.curve_points), [s.noise_mm]]), 9))
         idr, mis = [], []
         for i, nz in enumerate(levels):
-            ts = ident.run_rules(lib, cf, float(nz), s.drop, s.ghosts, rng, match, res, **kw)
-            rs = [t.rates() for t in ts.values()]
-            idr.append(min(r["identification_rate"] for r in rs))
-            mis.append(max(r["mislabel_rate"] for r in rs))
+            # the headline's rule only: check.png plots the rule the headline names
+            r = ident.run_rules(lib, cf, float(nz), s.drop, s.ghosts, rng, match, res, **{**kw, "rules": (head,)})
+            rate = r[head].rates()
+            idr.append(rate["identification_rate"])
+            mis.append(rate["mislabel_rate"])
             if progress:
                 progress("curve", i + 1, len(levels))
-        curve = {"noise_mm": levels.tolist(), "frames": cf, "identification_rate": idr, "mislabel_rate": mis}
+        curve = {
+            "rule": head,
+            "noise_mm": levels.tolist(),
+            "frames": cf,
+            "identification_rate": idr,
+            "mislabel_rate": mis,
+        }
     acc = accuracy_report(bodyset, s)
     doc = {
         "format": FORMAT,
@@ -322,6 +366,7 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
             "match_mm": match,
             "residual_mm": res,
             "window_source": tr["window_source"],
+            "key_margin_mm": tr["margin_mm"],
             "mirror_blind": tr["reflect"],
             "preset": s.preset,
             "world": s.world,
@@ -329,12 +374,20 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
             "identify_from_markers": tr["min_markers"],
             "choose": tr["choose"],
             "choose_means": ident.CHOOSE[tr["choose"]],
+            "ambiguity_ratio": ident.AMBIGUITY if s.ambiguity is None else s.ambiguity,
             "rules": list(rules),
             "tip_mm": acc["tip_mm"],
         },
         **tally.rates(),
         "headline_rule": head,
-        "by_rule": {r: {**v, "means": ident.CHOOSE[r]} for r, v in by_rule.items()},
+        "headline_means": ident.CHOOSE[head],
+        "headline_rules": [r for r in ident.HEADLINE_RULES if r in by_rule],
+        "safe_under": safe_rules(by_rule),
+        "by_rule": {
+            r: {**v, "means": ident.CHOOSE[r], "kind": "stress" if r in ident.STRESS_RULES else "headline",
+                "source": ident.RULE_SOURCES.get(r)}
+            for r, v in by_rule.items()
+        },
         "instances": tally.instances,
         "confusion": {"labels": names, "matrix": tally.confusion.tolist()},
         "flips": tally.flips.tolist(),

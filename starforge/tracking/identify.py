@@ -273,37 +273,25 @@ def hypotheses(
     scene_pts = pts[scene]  # (H, P, 3)
     used = np.zeros((H, P), dtype=bool)
     np.put_along_axis(used, slots, True, axis=1)
-    best_d = np.full((H, nmax), np.inf)
-    for j in range(nmax):
-        todo = assign[:, j] < 0
-        if not todo.any():
-            continue
-        dist = np.linalg.norm(scene_pts - pred[:, j][:, None, :], axis=2)  # (H, P)
-        dist = np.where(np.isnan(dist) | used, np.inf, dist)
-        k = dist.argmin(axis=1)
-        dk = dist[np.arange(H), k]
-        hit = todo & (dk <= match_mm)
-        assign[hit, j] = k[hit]
-        best_d[hit, j] = dk[hit]
-    # one observed point per model marker: keep the closer of two claims
-    for j in range(nmax):
-        for k in range(j + 1, nmax):
-            clash = (assign[:, j] >= 0) & (assign[:, j] == assign[:, k])
-            if clash.any():
-                drop_k = clash & (best_d[:, k] >= best_d[:, j])
-                drop_j = clash & ~drop_k
-                assign[drop_k, k] = -1
-                assign[drop_j, j] = -1
-    w = (assign >= 0).astype(float)
-    obs_all = pts[scene[:, None], np.maximum(assign, 0)]
-    more = w.sum(axis=1) > 3  # only these gained markers: refit them, keep the 3-point fit otherwise
+    seed_assign = assign.copy()
+    _extend(assign, used, scene_pts, pred, model_all, match_mm)
+    R0, t0 = R.copy(), t.copy()
+    more = (assign >= 0).sum(axis=1) > 3  # only these gained markers: refit them
     if more.any():
-        R[more], t[more] = kabsch(model_all[more], obs_all[more], w[more], reflect=reflect)
-    fit = np.einsum("hij,hkj->hki", R, np.nan_to_num(model_all)) + t[:, None, :]
-    err = np.where(w > 0, np.linalg.norm(np.nan_to_num(obs_all) - fit, axis=2), 0.0)
-    n = w.sum(axis=1).astype(int)
-    rms = np.sqrt((err**2).sum(axis=1) / n)
-    acc = (n >= 3) & (rms <= residual_mm) & (err.max(axis=1) <= match_mm)
+        w = (assign[more] >= 0).astype(float)
+        obs_m = pts[scene[more][:, None], np.maximum(assign[more], 0)]
+        R[more], t[more] = kabsch(model_all[more], obs_m, w, reflect=reflect)
+    n, rms, worst = _fit_errors(pts, scene, assign, model_all, R, t)
+    acc = (rms <= residual_mm) & (worst <= match_mm)
+    # a gained marker that breaks the fit's limits is left out again: the seed's 3-marker match
+    back = ~acc & more
+    if back.any():
+        assign[back], R[back], t[back] = seed_assign[back], R0[back], t0[back]
+        n[back], rms[back], worst[back] = _fit_errors(
+            pts, scene[back], assign[back], model_all[back], R[back], t[back]
+        )
+        acc[back] = (rms[back] <= residual_mm) & (worst[back] <= match_mm)
+    acc &= n >= 3
     scene, body, assign, n, rms = scene[acc], body[acc], assign[acc], n[acc], rms[acc]
     if len(scene) == 0:
         return empty
@@ -311,6 +299,47 @@ def hypotheses(
     _, first = np.unique(key, axis=0, return_index=True)
     first = np.sort(first)
     return Hypotheses(scene[first], body[first], assign[first], n[first], rms[first])
+
+
+def _fit_errors(pts, scene, assign, model_all, R, t):
+    """Matched markers, RMS residual and largest residual (mm) of hypotheses' fits ``R``, ``t``."""
+    w = assign >= 0
+    obs = pts[scene[:, None], np.maximum(assign, 0)]
+    fit = np.einsum("hij,hkj->hki", R, np.nan_to_num(model_all)) + t[:, None, :]
+    err = np.where(w, np.linalg.norm(np.nan_to_num(obs) - fit, axis=2), 0.0)
+    n = w.sum(axis=1).astype(int)
+    return n, np.sqrt((err**2).sum(axis=1) / np.maximum(n, 1)), err.max(axis=1)
+
+
+def _extend(assign, used, scene_pts, pred, model_all, match_mm: float) -> None:
+    """Add to each hypothesis the body's other markers (in place): for marker ``j``, the unused
+    observed point nearest its predicted place ``pred`` (within twice the window) among those
+    whose distances to every marker matched so far differ from the body's by at most
+    ``match_mm``.  The final fit's limits then decide (:func:`hypotheses`).
+
+    The distance test is QTM's bone rule: "for a marker to be included in the 6DOF body none of
+    the distances to the other markers in the body may exceed the Bone tolerance" (Qualisys QTM
+    manual, Calculating 6DOF data:
+    https://docs.qualisys.com/qtm/content/processing_measurement/calculating_6dof_data.htm).
+    """
+    H, nmax = assign.shape
+    rows = np.arange(H)
+    d_mod = np.linalg.norm(model_all[:, :, None] - model_all[:, None, :], axis=3)  # (H, nmax, nmax)
+    for j in range(nmax):
+        todo = (assign[:, j] < 0) & ~np.isnan(model_all[:, j, 0])
+        if not todo.any():
+            continue
+        kept = assign >= 0
+        obs_kept = scene_pts[rows[:, None], np.maximum(assign, 0)]  # (H, nmax, 3)
+        d_obs = np.linalg.norm(scene_pts[:, :, None] - obs_kept[:, None, :], axis=3)  # (H, P, nmax)
+        with np.errstate(invalid="ignore"):
+            off = (np.abs(d_obs - d_mod[:, j][:, None, :]) > match_mm) & kept[:, None, :]
+        dist = np.linalg.norm(scene_pts - pred[:, j][:, None, :], axis=2)  # (H, P)
+        dist = np.where(np.isnan(dist) | used | off.any(axis=2), np.inf, dist)
+        k = dist.argmin(axis=1)
+        hit = todo & (dist[rows, k] <= 2.0 * match_mm)
+        assign[hit, j] = k[hit]
+        used[hit, k[hit]] = True
 
 
 def resolve(
@@ -349,6 +378,51 @@ def resolve(
         taken[res_c[valid & win[:, None]]] = True
         alive &= ~win & ~np.where(valid, taken[res_c], False).any(axis=1)
     return np.flatnonzero(accepted)
+
+
+def unambiguous(
+    h: Hypotheses, chosen: np.ndarray, n_points: int, value: np.ndarray, ratio: float
+) -> np.ndarray:
+    """The hypotheses of ``chosen`` that no rival makes ambiguous: a rival is another hypothesis
+    with as many markers that shares an observed point with it; a chosen match is kept only
+    when every rival's ``value`` (its residual, or its sorted-distance difference) exceeds
+    ``ratio`` times its own.  A tracker that cannot tell two explanations of the same points
+    apart reports neither: a missed frame instead of a wrong body or a wrong pose (the ghost
+    that completes a wrong triangle from two real markers fits about as well as the right one).
+    ``ratio`` <= 1 keeps every chosen one."""
+    if ratio <= 1.0 or len(chosen) == 0:
+        return chosen
+    H = len(h.scene)
+    pt = np.where(h.assign >= 0, h.scene[:, None] * n_points + h.assign, -1)
+    ok = np.ones(H, dtype=bool)
+    n_res = int(pt.max()) + 1
+    for k in np.unique(h.n[chosen]):
+        members = np.flatnonzero(h.n == k)
+        rows = pt[members]
+        valid = rows >= 0
+        ids = np.broadcast_to(members[:, None], rows.shape)[valid]
+        res = rows[valid]
+        vals = value[ids]
+        # the two smallest values per observed point, and who holds the smallest
+        order = np.lexsort((vals, res))
+        res_s, vals_s, ids_s = res[order], vals[order], ids[order]
+        first = np.ones(len(res_s), dtype=bool)
+        first[1:] = res_s[1:] != res_s[:-1]
+        best1 = np.full(n_res, np.inf)
+        who1 = np.full(n_res, -1)
+        best1[res_s[first]] = vals_s[first]
+        who1[res_s[first]] = ids_s[first]
+        second = np.zeros(len(res_s), dtype=bool)
+        second[1:] = ~first[1:] & first[:-1]
+        best2 = np.full(n_res, np.inf)
+        best2[res_s[second]] = vals_s[second]
+        mine = chosen[h.n[chosen] == k]
+        r = pt[mine]
+        v = r >= 0
+        rc = np.where(v, r, 0)
+        rival = np.where(v, np.where(who1[rc] == mine[:, None], best2[rc], best1[rc]), np.inf).min(axis=1)
+        ok[mine] = rival > ratio * value[mine]
+    return chosen[ok[chosen]]
 
 
 @dataclass(frozen=True)
@@ -431,6 +505,7 @@ class Tally:
     phantoms: np.ndarray = None  # (B,) label reported on mostly-ghost points
     frames: int = 0
     scenes: int = 0  # body appearances scored (frames x bodies present)
+    withheld: int = 0  # chosen matches withheld as ambiguous (:func:`unambiguous`)
 
     def __post_init__(self):
         B = self.n_bodies
@@ -460,6 +535,7 @@ class Tally:
             "wrong_body_rate": self.mislabels / n,
             "missed_rate": int(self.missed.sum()) / n,
             "phantom_rate": int(self.phantoms.sum()) / n,
+            "withheld_rate": self.withheld / n,
         }
 
 
@@ -527,17 +603,38 @@ def check_settings(
     )
 
 
-#: how a tracker picks among a cluster's accepted matches with equally many markers:
-#: ``fit``: the lowest RMS residual (a tracker that ranks by its rigid fit);
-#: ``window``: any of them, at random (a tracker that, as its vendor documents, treats every
-#: distance inside its window as the same and so cannot rank matches inside it)
+#: how a tracker picks among a cluster's accepted matches with equally many markers (every one
+#: of them passed the distance gate and the residual limit first)
 CHOOSE = {
-    "fit": "the lowest rigid-fit residual wins",
-    "window": "matches inside the window are equal; one is taken at random",
-    "sides": "the smallest difference of sorted marker distances wins (correspondence-blind); ties at random",
+    "fit": "gate every distance by the window, then the best rigid fit",
+    "sides": "gate by the window, then the smallest sorted-distance difference (blind to which marker is which)",
+    "window": "stress model: every match inside the window counts the same, one is taken at random",
 }
-#: the rules ``check`` reports side by side (its headline is the worst)
-RULES = tuple(CHOOSE)
+#: the rules a vendor's documentation or public code shows; ``check``'s headline is the worst
+#: of these (:data:`RULE_SOURCES`)
+HEADLINE_RULES = ("fit", "sides")
+#: stress models no tracker documents: reported apart, never the headline
+STRESS_RULES = ("window",)
+#: every rule ``check`` simulates on the same frames
+RULES = HEADLINE_RULES + STRESS_RULES
+#: where each headline rule comes from
+RULE_SOURCES = {
+    "fit": (
+        "Qualisys QTM: a marker joins a body only if none of its distances to the body's other markers is "
+        "outside the Bone tolerance, and 6DOF data is reported only under the Max residual "
+        "(https://docs.qualisys.com/qtm/content/processing_measurement/calculating_6dof_data.htm); OptiTrack "
+        "Motive: Deflection, the distance a marker may deviate from its expected position "
+        "(https://v110.wiki.optitrack.com/index.php?title=Rigid_Body_Properties); NDI Polaris: marker solutions "
+        "are matched to the tools' known geometry, a bad transformation fit is rejected "
+        "(https://www.manualslib.com/manual/3087896/Northern-Digital-Polaris-Vicra.html?page=50); Atracsys "
+        "fusionTrack: matching tolerance on every fiducial distance, then a least-squares registration error "
+        "(https://manualshive.com/ru/manual/atracsys/fusiontrack-500/3005017?page=43)"
+    ),
+    "sides": (
+        "lab code that identifies a body by comparing its measured inter-marker distances (scipy pdist) with "
+        "the known ones within an epsilon, without a rigid fit, as public motion-capture scripts do"
+    ),
+}
 
 
 def sides_key(lib: Library, pts: np.ndarray, h: Hypotheses, chunk: int = 20000) -> np.ndarray:
@@ -566,6 +663,11 @@ def sides_key(lib: Library, pts: np.ndarray, h: Hypotheses, chunk: int = 20000) 
         out[sl] = np.abs(do - dm).max(axis=1)
     return out
 
+
+#: ``check``'s ambiguity ratio for the headline rules (:func:`unambiguous`): a chosen match is
+#: reported only when every rival explanation of its points with as many markers fits at least this
+#: many times worse (:func:`run_rules` withholds nothing unless asked)
+AMBIGUITY = 2.0
 
 #: caps on what ``check`` simulates, whatever the machine
 MAX_GHOSTS = 20
@@ -598,6 +700,7 @@ def run(
     presence: float = 1.0,
     min_markers: int = 3,
     choose: str = "fit",
+    ambiguity: float | None = None,
 ) -> Tally:
     """Simulate ``n_frames`` frames and identify them; returns the :class:`Tally`.
 
@@ -624,6 +727,7 @@ def run(
         presence,
         min_markers,
         (choose,),
+        ambiguity,
     )[choose]
 
 
@@ -644,6 +748,7 @@ def run_rules(
     presence: float = 1.0,
     min_markers: int = 3,
     rules=RULES,
+    ambiguity: float | None = None,
 ) -> dict[str, Tally]:
     """As :func:`run`, identifying the same simulated frames under each ranking rule of
     ``rules`` (:data:`CHOOSE`): {rule: Tally}.  The frames and hypotheses are shared, only the
@@ -653,6 +758,7 @@ def run_rules(
     require(0.0 < presence <= 1.0, f"presence must be in (0, 1], got {presence}")
     require(3 <= min_markers, f"min_markers must be >= 3, got {min_markers}")
     rules = tuple(rules)
+    ambiguity = 1.0 if ambiguity is None else float(ambiguity)
     for choose in rules:
         require(choose in CHOOSE, f"choose must be one of {', '.join(CHOOSE)}, got {choose!r}")
     B = lib.n_bodies
@@ -672,15 +778,20 @@ def run_rules(
         group = sc.frame if world == "closed" else np.arange(len(sc.body))
         random_key = rng.random(len(h.scene))
         for choose in rules:
+            value = h.rms
             if choose == "window":
                 key = random_key
             elif choose == "sides":
                 # sorted-side difference first, ties (a flip scores like the right match) at random
-                sk = sides_key(lib, sc.pts, h)
-                key = np.argsort(np.lexsort((random_key, sk))).astype(float)
+                value = sides_key(lib, sc.pts, h)
+                key = np.argsort(np.lexsort((random_key, value))).astype(float)
             else:
                 key = None
             chosen = resolve(h, group, sc.pts.shape[1], B, key)
+            if choose != "window":
+                kept = unambiguous(h, chosen, sc.pts.shape[1], value, ambiguity)
+                tallies[choose].withheld += len(chosen) - len(kept)
+                chosen = kept
             score(sc, h, chosen, tallies[choose])
             tallies[choose].frames += f
         done += f

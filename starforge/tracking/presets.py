@@ -76,7 +76,7 @@ class TrackerSettings:
     reflect: bool = False
     identify_markers: int = 3  # matched markers a reported identification needs
     window: str = "fixed"
-    choose: str = "window"
+    choose: str = "fit"
 
     def __post_init__(self):
         from starforge.tracking.identify import CHOOSE
@@ -147,6 +147,21 @@ def star_spec_overrides(preset_name: str) -> dict:
     E.g. ``star_spec_overrides("art") == {"delta_mm": 5.0, "tolerance_mm": 5.0, "l_min_mm": 31.0}``.
     """
     return dict(load_preset(preset_name).stars)
+
+
+def design_tolerance_mm(preset_name: str | None, noise_mm: float, floor_mm: float | None = None) -> float:
+    """The face tolerance ``stars`` designs a family with for a tracker (``preset_name``, None:
+    starforge's default tracker, which gates by the tolerance written into vendor files) at
+    ``noise_mm``: :func:`starforge.tracking.tolerances.design_margin_mm` of its window, at least
+    ``floor_mm`` (a vendor rule such as ART's 5 mm distinct distances), mm."""
+    from starforge.tracking.tolerances import design_margin_mm
+
+    window = None
+    if preset_name is not None:
+        tr = load_preset(preset_name).tracker
+        window = tr.match_mm if tr.window == "fixed" else None
+    margin = design_margin_mm(noise_mm, window)
+    return max(margin, float(floor_mm)) if floor_mm is not None else margin
 
 
 def _pair_distances(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

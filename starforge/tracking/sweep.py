@@ -223,7 +223,7 @@ def run_cell(args: tuple) -> list[dict]:
             t1 = time.perf_counter()
             try:
                 fam = make_family(
-                    replace(spec0, rule=r), candidates=cands, milp_work=SWEEP_MILP_WORK, deterministic=True
+                    replace(spec0, rule=r), candidates=cands, milp_work=SWEEP_MILP_WORK
                 )
                 n, ub, opt = len(fam.stars), fam.summary["upper_bound"], bool(fam.summary["optimal"])
             except NoStarError:  # only "no star fits" is an answer; any other refusal fails the cell

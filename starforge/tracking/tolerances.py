@@ -110,3 +110,28 @@ def export_tolerances(points_list, noise_mm: float = 0.2, keep: float = KEEP) ->
             f"(or a quieter tracker) avoid it"
         )
     return out
+
+
+def design_margin_mm(
+    noise_mm: float, window_mm: float | None = None, n_markers: int = 4, keep: float = KEEP
+) -> float:
+    """The key margin a family needs to be safe for a tracker, mm: every face differs from every
+    other face, and from itself relabelled, by at least this in some sorted side.
+
+    A tracker gates every distance by its window ``window_mm`` (None: the one starforge writes
+    into vendor files, the noise tolerance :func:`bone_tolerance_noise_mm`; a fixed window is
+    widened to it, or the right body's frames fail its gate).  A wrong face is ``m`` away and
+    measured at least ``m - lower`` away, so it stays out of the gate when ``m >= window +
+    lower``; and the tolerance written, ``m / 2`` (:func:`export_tolerances`), must keep the
+    right frames, ``m / 2 >= lower``.  Both hold for ``m = 2 max(window, lower)``: the tolerance
+    written into the files is then the window itself (at least 3 sigma of a distance, at most
+    half the smallest key margin).
+
+    >>> round(design_margin_mm(0.2), 3)  # the default tracker at 0.2 mm: its 1.218 mm window, twice
+    2.436
+    >>> design_margin_mm(0.2, window_mm=2.0)  # ART's fixed 2 mm window
+    4.0
+    """
+    lower = bone_tolerance_noise_mm(noise_mm, n_markers, keep)
+    window = lower if window_mm is None else max(float(window_mm), lower)
+    return 2.0 * window

@@ -1,0 +1,198 @@
+"""Families designed for the tracker: identification targets and the price of safety, as JSON.
+
+    python benchmarks/bench_tracker.py [--frames 2000] [--seed 0] [--ghosts 0,1,2,3]
+        [--part all|targets|presets|price] [--png docs/img/tracker-price.png]
+
+The finger box (the default ``starforge stars`` template), 0.2 mm noise per axis, the open
+world, ``check``'s default tracker (the tolerances written into vendor files, its ambiguity
+ratio) and its two headline rules (fit, sides), one seed:
+
+* ``targets``: the default family and ``--count 25``: identified and wrong body + wrong pose
+  under every headline rule with up to one marker hidden and no ghosts; all four markers seen
+  with 2 ghosts; one hidden (exactly) with 0..3 ghosts (the curve of wrong poses and bodies
+  against the ghost count), and at 2 ghosts without withholding ambiguous matches
+  (``ambiguity`` 1: the best match is always reported).
+* ``presets``: for each preset whose rules the finger box admits, the family made with
+  ``--preset X`` and checked with ``--preset X`` (up to one hidden, no ghosts).
+* ``price``: family size against the tracker's window and the noise (``design_margin_mm``), the
+  pool step half the tolerance (at least 1.5 mm), as a table and a picture (``--png``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+
+def _family(**over):
+    from starforge.catalog import load_template
+    from starforge.stars.family import make_family
+    from starforge.stars.spec import spec_from_mapping
+
+    _, data = load_template("stars", "finger")
+    data.update(over)
+    return make_family(spec_from_mapping(data, name="bench"))
+
+
+def _bodyset(fam):
+    from starforge.geometry.rigid import default_tip_mm
+    from starforge.tracking.bodies import Body, BodySet
+
+    tip = tuple(float(x) for x in default_tip_mm(fam.spec.box_mm))
+    bodies = tuple(Body(f"s{s.id:03d}", s.id, s.vertices, tip) for s in fam.stars)
+    return BodySet("family", ("bench",), bodies, float(fam.spec.tol_mm), float(fam.spec.marker_mm), tip)
+
+
+def _rates(bodyset, frames, seed, **kw) -> dict:
+    from starforge.tracking.check import CheckSettings, run_check
+
+    doc = run_check(bodyset, CheckSettings(frames=frames, seed=seed, curve_points=0, noise_mm=0.2, **kw))
+    out = {
+        "match_mm": doc["settings"]["match_mm"],
+        "residual_mm": doc["settings"]["residual_mm"],
+        "ambiguity": doc["settings"]["ambiguity_ratio"],
+        "headline_rule": doc["headline_rule"],
+        "safe_under": doc["safe_under"],
+    }
+    for r in doc["headline_rules"]:
+        v = doc["by_rule"][r]
+        out[r] = {
+            "identified_percent": round(100 * v["identification_rate"], 4),
+            "wrong_body_percent": round(100 * v["wrong_body_rate"], 4),
+            "wrong_pose_percent": round(100 * v["flip_rate"], 4),
+            "missed_percent": round(100 * v["missed_rate"], 4),
+        }
+    return out
+
+
+def targets(frames: int, seed: int, ghost_counts) -> dict:
+    rows = {}
+    for name, over in (("default", {}), ("count25", {"count": 25})):
+        t0 = time.perf_counter()
+        fam = _family(**over)
+        bs = _bodyset(fam)
+        row = {
+            "stars": len(fam.stars),
+            "tolerance_mm": fam.spec.tol_mm,
+            "make_s": round(time.perf_counter() - t0, 2),
+        }
+        row["drop1_ghosts0"] = _rates(bs, frames, seed, drop=1)
+        row["all_seen_ghosts2"] = _rates(bs, frames, seed, drop=0, ghosts=2)
+        row["one_hidden_by_ghosts"] = {
+            str(g): _rates(bs, frames, seed, drop=1, drop_exact=True, ghosts=g) for g in ghost_counts
+        }
+        # the best match always reported (nothing withheld), at 2 ghosts
+        row["one_hidden_2_ghosts_best_match"] = _rates(
+            bs, frames, seed, drop=1, drop_exact=True, ghosts=2, ambiguity=1.0
+        )
+        rows[name] = row
+    return rows
+
+
+def presets(frames: int, seed: int) -> dict:
+    from starforge.errors import StarforgeError
+    from starforge.tracking.presets import design_tolerance_mm, preset_names, star_spec_overrides
+
+    rows = {}
+    for name in preset_names():
+        over = star_spec_overrides(name)
+        over["tolerance_mm"] = design_tolerance_mm(name, 0.2, over.get("tolerance_mm"))
+        try:
+            fam = _family(**over)
+        except StarforgeError as e:  # e.g. ART's 30 mm distances in a finger box
+            rows[name] = {"skipped": str(e)}
+            continue
+        rows[name] = {
+            "stars": len(fam.stars),
+            "tolerance_mm": round(fam.spec.tol_mm, 6),
+            **_rates(_bodyset(fam), frames, seed, drop=1, preset=name),
+        }
+    return rows
+
+
+def price(noises=(0.1, 0.2, 0.3, 0.5), windows=(None, 2.0)) -> list[dict]:
+    from starforge.tracking.tolerances import design_margin_mm
+
+    rows = []
+    for w in windows:
+        for nz in noises:
+            tol = design_margin_mm(nz, w)
+            delta = max(1.5, tol / 2)
+            t0 = time.perf_counter()
+            fam = _family(tolerance_mm=tol, delta_mm=delta, noise_mm=nz)
+            rows.append(
+                {
+                    "window_mm": "noise (written)" if w is None else w,
+                    "noise_mm": nz,
+                    "key_margin_mm": round(tol, 4),
+                    "pool_step_mm": round(delta, 4),
+                    "stars": len(fam.stars),
+                    "upper_bound": fam.summary["upper_bound"],
+                    "seconds": round(time.perf_counter() - t0, 2),
+                }
+            )
+    return rows
+
+
+def price_png(rows, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.0, 4.0))
+    for w in dict.fromkeys(r["window_mm"] for r in rows):
+        rr = [r for r in rows if r["window_mm"] == w]
+        label = "window from the noise" if not isinstance(w, float) else f"fixed {w:g} mm window"
+        ax.plot([r["noise_mm"] for r in rr], [r["stars"] for r in rr], "o-", label=label)
+        for r in rr:
+            ax.annotate(
+                f"{r['key_margin_mm']:.1f}",
+                (r["noise_mm"], r["stars"]),
+                fontsize=7,
+                xytext=(3, 3),
+                textcoords="offset points",
+            )
+    ax.set_xlabel("marker noise sigma per axis [mm]")
+    ax.set_ylabel("stars in the finger box")
+    ax.set_yscale("log")
+    ax.set_title("Tracker-safe finger families (labels: key margin, mm)", fontsize=9)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=2000)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--ghosts", default="0,1,2,3")
+    ap.add_argument("--part", choices=("all", "targets", "presets", "price"), default="all")
+    ap.add_argument("--png", type=Path, default=Path("docs/img/tracker-price.png"))
+    a = ap.parse_args()
+    out = {
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "load": os.getloadavg()[0]},
+        "frames": a.frames,
+        "seed": a.seed,
+        "noise_mm": 0.2,
+    }
+    if a.part in ("all", "targets"):
+        out["targets"] = targets(a.frames, a.seed, [int(x) for x in a.ghosts.split(",")])
+    if a.part in ("all", "presets"):
+        out["presets"] = presets(a.frames, a.seed)
+    if a.part in ("all", "price"):
+        out["price"] = price()
+        price_png(out["price"], a.png)
+        out["price_png"] = str(a.png)
+    print(json.dumps(out, indent=2))
+
+
+if __name__ == "__main__":
+    main()
