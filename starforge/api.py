@@ -173,6 +173,8 @@ def plan_family(
     if (preset is not None or noise is not None) and overrides.get("tolerance_mm") is None:
         # designed for the tracker: faces apart by twice its window at this noise
         nz = noise if noise is not None else float(data.get("noise_mm", 0.2))
+        if not 0 <= nz < float("inf"):
+            raise StarforgeError(f"noise_mm must be a finite number >= 0, got {nz}")
         floor = star_spec_overrides(preset).get("tolerance_mm") if preset is not None else None
         data["tolerance_mm"] = round(design_tolerance_mm(preset, nz, floor), 6)
     marker_name = None

@@ -17,16 +17,14 @@ from starforge.cad.body import BodySpec, body_bounds, build_body, fit_report, la
 from starforge.cad.export import parse_ids
 from starforge.cad.mounts import KINDS, MAX_GRID, find_spot, list_mounts, load_mount
 from starforge.cad.plate import layout_plates
-from starforge.cad.primitives import (
-    Box,
-    Cylinder,
-    Sphere,
+from starforge.cad.primitives import Box, Cylinder, Sphere
+from starforge.cad.visibility import sphere_visibility
+from starforge.errors import StarforgeError
+from starforge.geometry.distance import (
     hemisphere_directions,
     point_segment_distance,
     segment_segment_distance,
 )
-from starforge.cad.visibility import sphere_visibility
-from starforge.errors import StarforgeError
 from starforge.stars.model import load_family
 
 DATA = Path(__file__).parent / "data" / "cad" / "small_family.json"

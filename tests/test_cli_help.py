@@ -123,9 +123,9 @@ def test_stars_defaults_and_choices_in_help_are_the_ones_used(root):
         ("--gap", s.gap_mm, "mm"),
         ("--marker", s.marker_mm, "mm"),
         ("--noise", s.noise_mm, "mm"),
-        ("--time-limit", s.time_limit_s, "s"),
     ):
         assert f"default {value:g} {unit}" in opts[flag].help, flag
+    assert f"default {s.work}" in opts["--work"].help
     for flag, field in (("--rule", "rule"), ("--select", "select"), ("--box-method", "box_method")):
         assert f"default {getattr(s, field)}" in opts[flag].help
         listed = re.match(r"(\w+) or (\w+)", opts[flag].help).groups()
@@ -170,11 +170,12 @@ def test_three_numbers_refused_with_the_way_out(given, capsys):
 def test_global_options_after_the_command(root):
     meta: dict = {}
     args = normalise(
-        root, ["stars", "--box", "1", "2", "3", "--scheduler", "tcp://x:1", "--max-memory", "2G"], meta
+        root, ["check", "f.json", "--scheduler", "tcp://x:1", "--max-memory", "2G"], meta
     )
-    assert args[:4] == ["--max-memory", "2G", "--scheduler", "tcp://x:1"] and args[4] == "stars"
+    assert args[:4] == ["--max-memory", "2G", "--scheduler", "tcp://x:1"] and args[4] == "check"
     # a command with an option of that name keeps it
     assert normalise(root, ["sweep", "--scheduler", "tcp://x:1"], {}) == ["sweep", "--scheduler", "tcp://x:1"]
+    assert normalise(root, ["stars", "--scheduler", "tcp://x:1"], {}) == ["stars", "--scheduler", "tcp://x:1"]
     normalise(root, ["check", "f.json", "-q"], meta)
     assert meta.get("starforge.quiet")
     assert normalise(root, ["-q", "check", "f.json"], {})[-1] == "f.json"

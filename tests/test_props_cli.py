@@ -368,7 +368,10 @@ def avoid_seen(monkeypatch):
         (["--avoid=A.json", "B.xml"], "hammer", ["A.json", "B.xml"]),
     ],
 )
-def test_avoid_takes_every_value_up_to_the_next_option(tmp_path, capsys, avoid_seen, args, prop, files):
+def test_avoid_takes_every_value_up_to_the_next_option(tmp_path, capsys, monkeypatch, avoid_seen, args, prop, files):
+    monkeypatch.chdir(tmp_path)  # the files exist (they are checked before any work); their reading is faked
+    for name in ("A.json", "B.xml", "C.vsk"):
+        (tmp_path / name).write_text("{}")
     code, _, err = _run(["place", *args, "--out", str(tmp_path / "o")], capsys)
     assert code == 2 and "stopped before the placement" in err
     assert avoid_seen == [("prop", prop), ("avoid", files)]

@@ -215,8 +215,7 @@ def _headline(doc: dict) -> str:
     withheld = f" ({100 * w:.3f} % withheld: a rival explanation fit alike)" if w > 0 else ""
     return (
         f"identified {100 * doc['identification_rate']:.3f} %, wrong body {100 * doc['wrong_body_rate']:.3f} %, "
-        f"wrong pose {100 * doc['flip_rate']:.3f} %, missed {100 * doc['missed_rate']:.3f} %{withheld} under rule {head} "
-        f"({worst}: {doc['headline_means']}, window {s['match_mm']:g} mm, residual {s['residual_mm']:g} mm, "
-        f"withheld when a rival fits within x{s['ambiguity_ratio']:g}); "
-        f"{verdict}"
+        f"wrong pose {100 * doc['flip_rate']:.3f} %, missed {100 * doc['missed_rate']:.3f} %{withheld} under rule {head}, "
+        f"{worst}; {verdict}\n  rule {head}: {doc['headline_means']}; window {s['match_mm']:.3g} mm, "
+        f"residual {s['residual_mm']:.3g} mm; a match is withheld when a rival fits within x{s['ambiguity_ratio']:g}"
     )

@@ -21,9 +21,13 @@ def mounts_cmd(
     (what `starforge stars --mount NAME` reserves); with NAME, its parameters and ranges."""
     from starforge.cad.mounts import list_mounts, load_mount
     from starforge.cad.reserve import mount_reserve_mm
+    from starforge.errors import StarforgeError
     from starforge.markers import marker_diameter_mm
 
-    marker = marker_diameter_mm(marker)  # the range `stars --marker` accepts
+    try:
+        marker = marker_diameter_mm(marker)  # the range `stars --marker` accepts
+    except StarforgeError as exc:
+        raise StarforgeError(f"--marker: {exc}") from None
     con = console()
     mounts = [load_mount(name)] if name else list_mounts()
     for m in mounts:

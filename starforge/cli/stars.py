@@ -79,7 +79,7 @@ def stars_cmd(
     noise: float = typer.Option(
         None,
         "--noise",
-        help="Marker noise sigma per axis, mm (default 0.2): the predicted accuracy, and with it (or --preset) "
+        help=f"Marker noise sigma per axis, mm ({_default('noise_mm')}): the predicted accuracy, and with it (or --preset) "
         "the face tolerance, twice the tracker's window at this noise (unless --tolerance).",
     ),
     avoid: list[Path] = typer.Option(
@@ -92,7 +92,7 @@ def stars_cmd(
     work: int = typer.Option(
         None,
         "--work",
-        help="Work budget of the exact selection, nonzeros x solver nodes (default 8000000): deterministic, so the "
+        help=f"Work budget of the exact selection, nonzeros x solver nodes ({_default('work')}): deterministic, so the "
         "family and its proven bound are the same at any load; raise it to prove a larger spec optimal.",
     ),
     reserve: tuple[float, float, float] = typer.Option(
