@@ -222,6 +222,7 @@ def make_family(
     avoid: Sequence[str | Path] = (),
     progress: Callable[[int, int | None], None] | None = None,
     on_stage: Callable[[str], None] | None = None,
+    warn: Callable[[str], None] | None = None,
 ) -> Family:
     """Enumerate, select, place and independently verify a family.
 
@@ -236,6 +237,9 @@ def make_family(
         ``progress(done, total)`` during the enumeration.
     on_stage : callable, optional
         ``on_stage(name)`` as each stage starts (``"select"``).
+    warn : callable, optional
+        ``warn(text)`` for each warning about the ``avoid`` files (bodies left out), as soon as
+        they are read, before the enumeration.
 
     Raises
     ------
@@ -259,6 +263,9 @@ def make_family(
         from starforge.tracking.avoid import faces_to_avoid
 
         avoid_faces, avoid_sources = faces_to_avoid([Path(a) for a in avoid])
+        for src in avoid_sources if warn is not None else ():
+            for text in src.get("warnings", ()):
+                warn(text)
     family = _make_family(
         s,
         progress=progress,

@@ -46,7 +46,7 @@ def captured(monkeypatch):
 
 
 def _stars(tmp_path, *avoid):
-    return run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, *avoid, "--out", tmp_path / "o", "-q"])
+    return run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, *avoid, "--out", tmp_path / "o"])
 
 
 def test_several_files_after_one_flag_equal_the_flag_repeated(lab, captured, capsys):

@@ -175,6 +175,7 @@ def stars_cmd(
                 avoid=avoid or (),
                 progress=lambda done, total: enumerate_.update(done, total),
                 on_stage=warmup.ready,  # a first run's helper may still be compiling the selection
+                warn=None if quiet else _warn,
             )
         except StarforgeError as exc:  # the time estimate, no star, a count not achievable
             raise StarforgeError(as_options(str(exc))) from None
@@ -182,12 +183,12 @@ def stars_cmd(
         warmup.finish(helper, 0.0)  # an error or Ctrl-C does not wait for the helper
         raise
     warmup.finish(helper)
-    for src in family.summary.get("avoid", ()):
-        for w in src.get("warnings", ()):
-            if not quiet:
-                console(stderr=True).print(f"warning: {w}", soft_wrap=True, markup=False)
     api.write_family(family, out_dir, preview=preview, force=True)
     _report(family, out_dir, time.perf_counter() - t0, quiet)
+
+
+def _warn(text: str) -> None:
+    console(stderr=True).print(f"warning: {text}", soft_wrap=True, markup=False)
 
 
 #: the option that sets each StarSpec field, for messages
