@@ -201,4 +201,4 @@ def test_export_stages_and_quiet(small_family, tmp_path, capsys, no_hold):
     assert run_cli([*args, "-q", "--out", tmp_path / "q"]) == 0
     assert capsys.readouterr() == ("", "")
     assert run_cli([*args, "--out", tmp_path / "v"]) == 0
-    assert _stages(capsys.readouterr().err) == ["mesh", "plate", "preview"]
+    assert _stages(capsys.readouterr().err) == ["mesh", "plate", "preview", "sheet"]
