@@ -23,9 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
+from starforge.cad.tools import ToolSet
 from starforge.catalog import load_template
 from starforge.errors import StarforgeError
-from starforge.io import atomic_write_json, check_name, check_writable, staged_output
+from starforge.io import atomic_write_json, check_name, check_writable, read_json, staged_output
 from starforge.markers import marker_diameter_mm
 from starforge.runtime import progress as runtime_progress
 from starforge.stars.enumerate import check_memory, check_size
@@ -312,8 +313,47 @@ def write_family(
     return folder
 
 
+def load_printable(path: str | Path, marker: str | float | None = None):
+    """What ``export`` prints from ``path``: a ``family.json`` (or its folder) as a
+    :class:`~starforge.stars.model.Family`, or a tracker file's rigid bodies (QTM, Vicon, Atracsys,
+    NDI .rom, Motive, CSV; 3 to 16 markers each) as a :class:`~starforge.cad.tools.ToolSet`, each
+    body in its own placement frame, its files named after it.
+
+    ``marker``: the marker (diameter in mm or catalogue name) a tool's spheres are printed for;
+    None takes the file's, else 4 mm.  A family keeps the marker it was made for.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> f = Path(tempfile.mkdtemp()) / "wand.csv"
+    >>> _ = f.write_text("body,marker,x_mm,y_mm,z_mm\\n" + "".join(
+    ...     f"wand,{i},{x},{y},{z}\\n" for i, (x, y, z) in enumerate([(0, 0, 0), (40, 0, 0), (0, 55, 0), (70, 30, 5), (20, 80, 10)])))
+    >>> tools = load_printable(f)
+    >>> [(t.name, len(t.vertices)) for t in tools.stars], tools.spec.marker_mm
+    ([('wand', 5)], 4.0)
+    """
+    from starforge.cad.tools import tool_set
+    from starforge.stars.model import FORMAT, load_family
+    from starforge.tracking.convert import file_stems, read_records
+
+    p = Path(path)
+    src = p / "family.json" if p.is_dir() else p
+    if src.suffix.lower() == ".json":
+        data = read_json(src, what="family file")
+        if data.get("format") != FORMAT:
+            raise StarforgeError(
+                f"CAD formats (step, stl, 3mf) print a family.json or a tracker file's bodies; {src} is "
+                f"{data.get('format')!r}"
+            )
+        return load_family(src)
+    records = read_records([src]).records
+    stems = file_stems([r.name for r in records])
+    bodies = [(s, r.points_mm, r.body_id, r.marker_mm) for s, r in zip(stems, records, strict=True)]
+    return tool_set(bodies, name=src.stem, marker_mm=None if marker is None else marker_diameter_mm(marker))
+
+
 def export_bodies(
-    family: Family | str | Path,
+    family: Family | ToolSet | str | Path,
     out: str | Path,
     *,
     mount: str | None = None,
@@ -330,8 +370,9 @@ def export_bodies(
 
     Parameters
     ----------
-    family : Family or path
-        A family, or its ``family.json`` (or folder).
+    family : Family, ToolSet or path
+        A family, or its ``family.json`` (or folder); or a tracker file whose rigid bodies (3 to 16
+        markers) are printed as tools (:func:`load_printable`).
     out : path
         Output folder.
     mount : str, optional
@@ -356,9 +397,7 @@ def export_bodies(
     """
     from starforge.cad.describe import describe_bodies
     from starforge.cad.export import CAD_FORMATS, export_family
-    from starforge.stars.model import load_family
-
-    fam = family if isinstance(family, Family) else load_family(family)
+    fam = family if isinstance(family, (Family, ToolSet)) else load_printable(family)
     bad = [f for f in formats if f not in CAD_FORMATS]
     if bad:
         raise StarforgeError(f"unknown CAD format {bad[0]!r}; known: {', '.join(CAD_FORMATS)}")

@@ -107,7 +107,11 @@ POST = typer.Option(None, "--post-mm", help="Post diameter for --seat post, mm (
 NO_LABEL = typer.Option(False, "--no-label", help="Do not engrave the star id.")
 
 
-_FILE = typer.Argument(..., help="family.json (or its folder), or a placement.json for tracker formats.")
+_FILE = typer.Argument(
+    ...,
+    help="family.json (or its folder); a tracker file (QTM, VSK, Atracsys, ROM, Motive, CSV) whose bodies of 3 to "
+    "16 markers print as tools; or a placement.json for tracker formats.",
+)
 _OUT = typer.Option(
     None,
     "--out",
@@ -161,9 +165,10 @@ def export_cmd(
 ) -> None:
     """Write printable star bodies (one file per star per format, plus a print plate) and/or
     tracker rigid-body files, all or nothing."""
+    from starforge.cad.body import sphere_letter
     from starforge.cad.describe import describe_bodies
     from starforge.errors import StarforgeError
-    from starforge.io import read_json, staged_output
+    from starforge.io import staged_output
 
     cad, trk = split_formats(formats)
     worker = None
@@ -176,14 +181,9 @@ def export_cmd(
                 from starforge.cad.step_worker import StepProcess
 
                 worker = StepProcess()
-            from starforge.stars.model import FORMAT, load_family
+            from starforge.api import load_printable
 
-            data = read_json(src, what="family file")
-            if data.get("format") != FORMAT:
-                raise StarforgeError(
-                    f"CAD formats ({', '.join(cad)}) need a family.json; {src} is {data.get('format')!r}"
-                )
-            family = load_family(src)
+            family = load_printable(src, marker)
             from starforge.cad.export import expected_files, export_family, print_layout
             from starforge.io import check_writable
 
@@ -204,7 +204,7 @@ def export_cmd(
                 post_mm=post_mm,
                 label=False if no_label else None,
             )
-            _, beds = print_layout(bodies, bed_mm, gap)
+            _, beds = print_layout(bodies, bed_mm, gap, not no_plate)
             check_writable(out, expected_files(bodies, cad, not no_plate, preview, len(beds)), force)
         elif ids or sets or preview:
             raise StarforgeError("--ids, --set and --preview apply to CAD formats (step, stl, 3mf)")
@@ -287,11 +287,11 @@ def export_cmd(
         fits = sum(b["fits"] for b in rep.bodies)
         con.print(
             f"{len(rep.bodies)} bodies with mount {m.name}{'' if m.kind == m.name else f' ({m.kind})'}: "
-            f"{fits} within the family's size limit, "
-            f"{rep.timings['total_s']:.1f} s"
+            + ("tools without a size limit, " if family.spec.box_mm is None else f"{fits} within the family's size limit, ")
+            + f"{rep.timings['total_s']:.1f} s"
         )
         worst = min(
-            ((v, b["name"], "ABCD"[i]) for b in rep.bodies for i, v in enumerate(b["visibility"]))
+            ((v, b["name"], sphere_letter(i)) for b in rep.bodies for i, v in enumerate(b["visibility"]))
         )
         con.print(
             f"least visible sphere: {worst[1]} {worst[2]}, {worst[0]:.2f} of its upper hemisphere free "
