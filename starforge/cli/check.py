@@ -132,7 +132,7 @@ def check_cmd(
     out = Path(out)
     names = ["check.json"] + (["check.png"] if curve > 0 else [])
     check_writable(out, names, force)
-    doc = run_check(bodyset, settings, progress=progress.report("frames"))
+    doc = run_check(bodyset, settings, progress=progress.report({"simulate": "frames", "curve": "noise levels"}))
     with staged_output(out, force) as stage:
         atomic_write_json(stage / "check.json", doc)
         if curve > 0:
