@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import re
+import shutil
+import subprocess
 
 import numpy as np
 import pytest
@@ -102,3 +105,17 @@ def test_export_command_takes_a_tracker_file(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "smaller --marker" in err and "Traceback" not in err
     assert not (tmp_path / "p").exists()
+
+
+@pytest.mark.skipif(shutil.which("slic3r") is None, reason="Slic3r is not installed here (Debian: apt-get install slic3r)")
+def test_slic3r_slices_a_six_marker_tool_without_a_warning(tmp_path):
+    src = tmp_path / "tool.csv"
+    _csv(src, {"tool": _tool(6, seed=21)})
+    api.export_bodies(src, tmp_path / "out", formats=("stl",), plate=False)
+    res = subprocess.run(
+        ["slic3r", str(tmp_path / "out" / "tool.stl"), "--layer-height", "0.2", "--first-layer-height", "0.2",
+         "--nozzle-diameter", "0.4", "--export-svg", "-o", str(tmp_path / "slices.svg")],
+        capture_output=True, text=True, timeout=240, cwd=tmp_path,
+    )
+    assert res.returncode == 0 and (tmp_path / "slices.svg").stat().st_size > 0, res.stderr[-2000:]
+    assert not [ln for ln in (res.stdout + res.stderr).splitlines() if re.search(r"warn|unable|error", ln, re.I)]
