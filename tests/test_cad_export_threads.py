@@ -42,7 +42,7 @@ from starforge import load_family
 from starforge.cad.body import BodySpec
 from starforge.cad.export import export_family, family_bodies, print_layout
 from starforge.cad.mounts import load_mount
-from starforge.cad.occ import body_solid, placed, write_step
+from starforge.cad.brep import body_solid, placed, write_step
 from starforge.colours import body_colour
 fam, mount, spec = load_family(sys.argv[1]), load_mount("flat"), BodySpec()
 out = Path(sys.argv[2])

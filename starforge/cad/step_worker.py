@@ -38,7 +38,7 @@ _BOOT = (
 def run_job(job: dict, say) -> None:
     """Build and write every STEP file of ``job``; ``say(line)`` after each (``body i volume``
     per body, ``plate name`` per plate)."""
-    from starforge.cad.occ import assembly, body_solid, placed, write_step
+    from starforge.cad.brep import assembly, body_solid, placed, write_step
 
     stage = Path(job["stage"])
     solids = []
@@ -71,9 +71,9 @@ def _serve(job_in, out) -> int:
     1 after ``error <message>`` for a StarforgeError (anything else propagates: a traceback on
     stderr).  The kernel is loaded first, while the caller may still be describing the job; an
     empty job (the caller changed its mind) ends the worker quietly, status 0."""
-    import OCP.TopoDS  # noqa: F401  (OCP's one large extension module: most of the import time)
+    import build123d  # noqa: F401  (the kernel: most of the worker's start-up)
 
-    import starforge.cad.occ  # noqa: F401
+    import starforge.cad.brep  # noqa: F401
 
     data = job_in.read()
     if not data:
