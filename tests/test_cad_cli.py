@@ -82,7 +82,7 @@ def test_export_writes_one_file_per_star_per_format(exported):
 def test_exported_files_reload_with_centres(exported):
     import trimesh
 
-    from starforge.cad.occ import read_step
+    from starforge.cad.brep import read_step
     from starforge.stars.model import load_family
 
     fam = load_family(exported.parent / "family.json")

@@ -1,39 +1,51 @@
-"""Exact B-rep backend on build123d: a :class:`~starforge.cad.body.Body` -> one valid solid, STEP files.
+"""Exact B-rep bodies on build123d: a :class:`~starforge.cad.body.Body` -> one valid solid, STEP files.
 
-build123d's direct API builds everything: each primitive is a ``Solid.make_sphere`` /
-``make_box`` / ``make_cylinder`` / ``revolve`` / ``extrude`` placed by a ``Plane``; the body is
-``Shape.fuse`` of the added primitives, ``Shape.cut`` by the subtracted ones, ``Shape.clean``
-(coplanar faces merged), checked with ``is_valid`` and required to be a single solid.  A solid
-carries its STEP name and colour (``label``, ``color``); a plate is a ``Compound`` whose children
-are its bodies' solids, each ``moved`` to its place on the bed; ``export_step`` writes both.
+build123d's direct API builds everything (no builder contexts): each primitive is a
+``Solid.make_sphere`` / ``make_box`` / ``make_cylinder`` / ``revolve`` / ``extrude`` placed by a
+``Plane``; the body is ``fuse`` of the added primitives, ``cut`` by the subtracted ones, merged
+coplanar faces (``clean``), checked with ``is_valid`` and required to be a single solid.  A
+solid carries its STEP name and colour (``label``, ``color``); a plate is a ``Compound`` whose
+children are its bodies' solids, each ``moved`` to its place on the bed; ``export_step`` writes
+both, ``import_step`` reads them back.
 
-build123d (and OCP under it) loads here only, inside the functions: its import takes seconds,
-so ``import starforge`` and the commands that build no solid stay fast.  OCP is called directly
-once, where build123d has no call: a rigid transform baked into the geometry
-(``BRepBuilderAPI_Transform`` with a copy; build123d's ``transform_shape`` only sets a location,
-which a STEP file writes as an assembly of one part).
+OCP (the OpenCascade bindings under build123d) is called once, where build123d has no call:
+:func:`placed` bakes a rigid transform into a copy of the geometry.
+
+build123d loads in :func:`kernel` only: its import takes seconds, so ``import starforge`` and
+the commands that build no solid stay fast.
 """
 
 from __future__ import annotations
+
+import copy
 
 import numpy as np
 
 from starforge.cad.body import Body
 from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere, merge_coaxial, plate_cuts
 from starforge.errors import StarforgeError
+from starforge.geometry.outline import rect_union_outlines
 
 #: the header's time stamp: fixed, so the same solid gives the same file
 STEP_TIMESTAMP = "2000-01-01T00:00:00"
 #: write each face's parameter-space curves too?  They repeat what the 3D edges and surfaces
 #: already define, and readers rebuild them (OCCT does on import); without them a body's file
-#: is 2.4 x smaller and quicker to write
+#: is less than half the size and quicker to write
 STEP_PCURVES = False
+#: the printing rotation :func:`placed` takes: +90 deg about x (:func:`starforge.cad.plate.print_transform`)
+PRINT_ROTATION = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def kernel():
+    """The build123d module (imported on the first call)."""
+    import build123d
+
+    return build123d
 
 
 def _plane(origin, z=(0.0, 0.0, 1.0)):
-    """A build123d Plane at ``origin`` (3,) mm with its normal along ``z`` (3,) (X chosen as OCCT does)."""
-    import build123d as bd
-
+    """A Plane at ``origin`` (3,) mm with its normal along ``z`` (3,) (its X chosen as OCCT's gp_Ax3 does)."""
+    bd = kernel()
     return bd.Plane(origin=tuple(map(float, origin)), z_dir=tuple(map(float, z)))
 
 
@@ -44,15 +56,13 @@ def primitive_solid(p, axis=None):
     its parallels (an iso-parametric circle), which OCCT intersects several times faster than a
     circle across the sphere's parametrisation.  The solid is the same either way.
     """
-    import build123d as bd
-
+    bd = kernel()
     if isinstance(p, Sphere):
         return bd.Solid.make_sphere(p.radius_mm, _plane(p.centre, (0.0, 0.0, 1.0) if axis is None else axis))
     if isinstance(p, Box):
         return bd.Solid.make_box(*p.size, _plane(np.subtract(p.centre, np.divide(p.size, 2))))
     if isinstance(p, Cylinder):
-        d = np.subtract(p.p1, p.p0)
-        return bd.Solid.make_cylinder(p.radius_mm, p.length_mm, _plane(p.p0, d))
+        return bd.Solid.make_cylinder(p.radius_mm, p.length_mm, _plane(p.p0, np.subtract(p.p1, p.p0)))
     if isinstance(p, Revolved):
         return _revolved_solid(p)
     raise TypeError(f"unknown primitive {type(p).__name__}")
@@ -60,16 +70,15 @@ def primitive_solid(p, axis=None):
 
 def _revolved_solid(p: Revolved):
     """The profile polygon (axis, polyline, axis) in a plane through the axis, turned 360 deg."""
-    import build123d as bd
-
-    u = p.axis
+    bd = kernel()
+    u = np.asarray(p.axis, float)
     helper = np.array([1.0, 0, 0]) if abs(u[0]) < 0.9 else np.array([0, 1.0, 0])
     w = np.cross(u, helper)
     w /= np.linalg.norm(w)
     o = np.array(p.p0)
     pts = [o + p.profile[0][0] * u, *(o + t * u + r * w for t, r in p.profile), o + p.profile[-1][0] * u]
-    face = bd.Face(bd.Wire.make_polygon([tuple(q) for q in pts]))
-    return bd.Solid.revolve(face, 360, bd.Axis(tuple(o), tuple(u)))
+    face = bd.Face(bd.Wire.make_polygon([tuple(map(float, q)) for q in pts]))
+    return bd.Solid.revolve(face, 360, bd.Axis(tuple(map(float, o)), tuple(map(float, u))))
 
 
 def _sphere_axes(body: Body, parts) -> dict:
@@ -84,12 +93,10 @@ def _sphere_axes(body: Body, parts) -> dict:
     return out
 
 
-def _cuts(subtract) -> list:
+def cut_tools(subtract) -> list:
     """(solid, (2, 3) bounds) per cut: boxes that span the same height (y) range, such as an
     engraved id's pixel runs, as one prism of their outline (the same solid: a union of boxes
     over one y range is the union of their rectangles, extruded), the rest one by one."""
-    from starforge.geometry.outline import rect_union_outlines
-
     spans: dict = {}
     for c in subtract:
         if isinstance(c, Box):
@@ -104,8 +111,7 @@ def _cuts(subtract) -> list:
         if key in done:
             continue
         done.add(key)
-        boxes = [b.bounds() for b in spans[key]]
-        rects = [(b[0, 0], b[1, 0], b[0, 2], b[1, 2]) for b in boxes]  # (x0, x1, z0, z1)
+        rects = [(b[0, 0], b[1, 0], b[0, 2], b[1, 2]) for b in (x.bounds() for x in spans[key])]  # (x0, x1, z0, z1)
         for outer, holes in rect_union_outlines(rects):
             lo = np.array([outer[:, 0].min(), key[0], outer[:, 1].min()])
             hi = np.array([outer[:, 0].max(), key[1], outer[:, 1].max()])
@@ -116,7 +122,7 @@ def _cuts(subtract) -> list:
 def _prism(outer, holes, y0: float, height: float):
     """The solid between y = ``y0`` and ``y0 + height`` over a polygon with holes, given as
     (k, 2) (x, z) corners (outer counter-clockwise in (x, z), holes clockwise)."""
-    import build123d as bd
+    bd = kernel()
 
     def wire(loop):
         return bd.Wire.make_polygon([(float(x), float(y0), float(z)) for x, z in loop])
@@ -131,13 +137,14 @@ def body_solid(body: Body):
     for OCCT and gives the same solid: a cut whose bounds meet only a plate's is made on that
     plate before the union ((A u B) - C = (A - C) u B when C misses B), and a vertical stem with
     its root fillet is one solid of revolution (:func:`~starforge.cad.primitives.merge_coaxial`),
-    boxes cut over one height range (the id's pixel runs) one prism of their outline (:func:`_cuts`).
-    build123d merges the coplanar faces each boolean leaves (``clean``).
+    boxes cut over one height range (the id's pixel runs) one prism of their outline
+    (:func:`cut_tools`).  The coplanar faces the booleans leave are merged once, at the end.
     """
+    bd = kernel()
     parts = merge_coaxial(body.add)
     axes = _sphere_axes(body, parts)
     adds = [primitive_solid(p, axes.get(i)) for i, p in enumerate(parts)]
-    cuts = _cuts(body.subtract)
+    cuts = cut_tools(body.subtract)
     early: dict[int, list] = {}
     late = []
     for (solid, _), plate in zip(cuts, plate_cuts(parts, [cb for _, cb in cuts]), strict=True):
@@ -145,12 +152,13 @@ def body_solid(body: Body):
             late.append(solid)
         else:
             early.setdefault(plate, []).append(solid)
-    for i, tools in early.items():
-        adds[i] = adds[i].cut(*tools)
-    shape = adds[0].fuse(*adds[1:]) if len(adds) > 1 else adds[0]
-    if late:
-        shape = shape.cut(*late)
-    solids = shape.solids()
+    with bd.SkipClean():  # one clean() below instead of one per boolean
+        for i, tools in early.items():
+            adds[i] = adds[i].cut(*tools)
+        shape = adds[0].fuse(*adds[1:]) if len(adds) > 1 else adds[0]
+        if late:
+            shape = shape.cut(*late)
+    solids = shape.clean().solids()
     if len(solids) != 1:
         raise StarforgeError(f"{body.name}: the STEP body has {len(solids)} solids, expected one")
     out = solids[0]
@@ -161,9 +169,8 @@ def body_solid(body: Body):
 
 
 def _location(T):
-    """build123d Location of a rigid (4, 4) transform (its axes as given, no angles)."""
-    import build123d as bd
-
+    """The Location of a rigid (4, 4) transform, from its axes as given (no angles)."""
+    bd = kernel()
     M = np.asarray(T, float)
     return bd.Location(bd.Plane(origin=tuple(M[:3, 3]), x_dir=tuple(M[:3, 0]), z_dir=tuple(M[:3, 2])))
 
@@ -172,11 +179,13 @@ def placed(solid, T, name: str, colour):
     """A copy of ``solid`` with its geometry moved by the rigid transform ``T`` (4, 4) (the
     printing rotation, +90 deg about x, plus a translation, as
     :func:`starforge.cad.plate.print_transform` makes), named and coloured ((r, g, b) 0..255)."""
-    import build123d as bd
+    # OCP here: a STEP writer turns a solid with a location into an assembly of one part, so the
+    # geometry itself moves; build123d's transform_shape keeps the geometry and sets a location,
+    # and its rotate / translate (transform=True) take an angle, whose cosine is not 0 at 90 deg
     from OCP.BRepBuilderAPI import BRepBuilderAPI_Transform
 
-    R = np.asarray(T, float)[:3, :3]
-    if not np.allclose(R, [[1, 0, 0], [0, 0, -1], [0, 1, 0]]):
+    bd = kernel()
+    if not np.allclose(np.asarray(T, float)[:3, :3], PRINT_ROTATION):
         raise ValueError("placed() takes the printing rotation (+90 deg about x) only")
     trsf = _location(T).wrapped.Transformation()
     out = bd.Solid(BRepBuilderAPI_Transform(solid.wrapped, trsf, True).Shape())
@@ -188,12 +197,11 @@ def placed(solid, T, name: str, colour):
 def assembly(solids, transforms, name: str):
     """A STEP assembly named ``name`` of named, coloured ``solids``, each moved by one of
     ``transforms`` (4, 4); the instances share their solid's geometry."""
-    import build123d as bd
-
+    bd = kernel()
     parts = []
     for s, T in zip(solids, transforms, strict=True):
-        part = bd.Solid(s.wrapped.Moved(_location(T).wrapped))
-        part.label, part.color = s.label, s.color
+        part = copy.copy(s)  # build123d's shallow copy: another instance of the same geometry
+        part.move(_location(T))
         parts.append(part)
     return bd.Compound(parts, label=name, children=parts)
 
@@ -201,16 +209,15 @@ def assembly(solids, transforms, name: str):
 def write_step(shape, path) -> None:
     """Write a named solid or an :func:`assembly` to a STEP file (AP214, mm, fixed header time
     stamp).  The caller stages the path (atomic outputs)."""
-    import build123d as bd
-
+    bd = kernel()
     try:
-        bd.export_step(shape, str(path), bd.Unit.MM, write_pcurves=STEP_PCURVES, timestamp=STEP_TIMESTAMP)
+        ok = bd.export_step(shape, str(path), bd.Unit.MM, write_pcurves=STEP_PCURVES, timestamp=STEP_TIMESTAMP)
     except RuntimeError as exc:
         raise StarforgeError(f"could not write STEP file {path}: {exc}") from None
+    if not ok:
+        raise StarforgeError(f"could not write STEP file {path}")
 
 
-def read_step(path):
-    """The solids of a STEP file (list of build123d Solids)."""
-    import build123d as bd
-
-    return bd.import_step(str(path)).solids()
+def read_step(path) -> list:
+    """The solids of a STEP file (build123d Solids)."""
+    return kernel().import_step(str(path)).solids()

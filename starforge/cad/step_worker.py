@@ -24,6 +24,7 @@ import threading
 import time
 from pathlib import Path
 
+from starforge.cad.brep import assembly, body_solid, kernel, placed, write_step
 from starforge.errors import StarforgeError
 from starforge.runtime.procs import adopt, fork_helper, release
 
@@ -38,8 +39,6 @@ _BOOT = (
 def run_job(job: dict, say) -> None:
     """Build and write every STEP file of ``job``; ``say(line)`` after each (``body i volume``
     per body, ``plate name`` per plate)."""
-    from starforge.cad.brep import assembly, body_solid, placed, write_step
-
     stage = Path(job["stage"])
     solids = []
     for i, (b, T, colour) in enumerate(zip(job["bodies"], job["transforms"], job["colours"], strict=True)):
@@ -71,9 +70,7 @@ def _serve(job_in, out) -> int:
     1 after ``error <message>`` for a StarforgeError (anything else propagates: a traceback on
     stderr).  The kernel is loaded first, while the caller may still be describing the job; an
     empty job (the caller changed its mind) ends the worker quietly, status 0."""
-    import build123d  # noqa: F401  (the kernel: most of the worker's start-up)
-
-    import starforge.cad.brep  # noqa: F401
+    kernel()  # build123d and OCP under it: most of the worker's start-up
 
     data = job_in.read()
     if not data:
