@@ -11,13 +11,17 @@ both, ``import_step`` reads them back.
 OCP (the OpenCascade bindings under build123d) is called once, where build123d has no call:
 :func:`placed` bakes a rigid transform into a copy of the geometry.
 
-build123d loads in :func:`kernel` only: its import takes seconds, so ``import starforge`` and
-the commands that build no solid stay fast.
+build123d loads in :func:`kernel` only, the modules the bodies use: its import takes seconds, so
+``import starforge`` and the commands that build no solid stay fast.
 """
 
 from __future__ import annotations
 
 import copy
+import importlib
+import importlib.util
+import sys
+import types
 
 import numpy as np
 
@@ -36,11 +40,45 @@ STEP_PCURVES = False
 PRINT_ROTATION = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 
-def kernel():
-    """The build123d module (imported on the first call)."""
-    import build123d
+#: the build123d modules the bodies use; its package's ``__init__`` imports every builder,
+#: importer and exporter too (scikit-learn, ezdxf, SVG and font readers), which a STEP worker
+#: would wait for (``benchmarks/bench_cad.py --speed-only`` prints both imports' CPU seconds)
+KERNEL_MODULES = ("build123d.build_enums", "build123d.geometry", "build123d.topology", "build123d.exporters3d",
+                  "build123d.importers")
+_kernel = None
 
-    return build123d
+
+def kernel():
+    """build123d's direct API: a namespace of the modules in :data:`KERNEL_MODULES` (imported
+    on the first call), or the package itself once something has imported it whole.
+
+    Python runs a package's ``__init__`` before any of its modules; :func:`_import_modules`
+    imports the modules under a package object whose ``__init__`` has not run, then removes it,
+    so a later ``import build123d`` runs the real one, which finds these modules loaded and uses
+    them (the classes are the same objects either way).
+    """
+    global _kernel
+    if _kernel is None:
+        if "build123d" in sys.modules:
+            return sys.modules["build123d"]
+        mods = _import_modules()
+        _kernel = types.SimpleNamespace(**{k: v for m in mods for k, v in vars(m).items() if not k.startswith("_")})
+    return _kernel
+
+
+def _import_modules() -> list:
+    """The modules of :data:`KERNEL_MODULES`, imported without build123d's ``__init__``; the
+    whole package if that fails (a build123d whose modules need its ``__init__``)."""
+    spec = importlib.util.find_spec("build123d")
+    sys.modules["build123d"] = importlib.util.module_from_spec(spec)  # its __init__ not run
+    try:
+        mods = [importlib.import_module(m) for m in KERNEL_MODULES]
+    except (ImportError, AttributeError):
+        for m in [m for m in sys.modules if m == "build123d" or m.startswith("build123d.")]:
+            del sys.modules[m]
+        return [importlib.import_module("build123d")]
+    del sys.modules["build123d"]
+    return mods
 
 
 def _plane(origin, z=(0.0, 0.0, 1.0)):

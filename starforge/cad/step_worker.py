@@ -180,12 +180,17 @@ class StepProcess:
     :meth:`result` waits for it, :meth:`kill` ends it early.  A context manager: leaving the
     ``with`` block ends a worker that has not finished (harmless after :meth:`result`).
 
-    ``fork``: True forks this process, False launches a fresh interpreter, None (default) forks
-    where :func:`starforge.runtime.procs.can_fork` allows and OCP is not loaded here (``forked`` says
-    which).  The files are the same bytes either way."""
+    ``fork``: True forks this process (ValueError when OCP is loaded here), False launches a
+    fresh interpreter, None (default) forks where :func:`starforge.runtime.procs.can_fork` allows
+    and OCP is not loaded here (``forked`` says which).  The files are the same bytes either way."""
 
     def __init__(self, fork: bool | None = None) -> None:
         import starforge
+
+        # a kernel loaded here would be the child's too: its STEP counters advanced, and the
+        # thread pool its parallel booleans started here gone (a child's boolean waits forever)
+        if fork and "OCP" in sys.modules:
+            raise ValueError("StepProcess(fork=True) with OCP loaded in this process; pass fork=False or None")
 
         root = str(Path(starforge.__file__).resolve().parent.parent)
         self.t0 = time.perf_counter()
@@ -198,7 +203,6 @@ class StepProcess:
         if fork is None:
             from starforge.runtime.procs import can_fork
 
-            # a kernel loaded here already would be the child's too, its STEP counters advanced
             fork = can_fork() and "OCP" not in sys.modules
         self.forked = bool(fork)
         if self.forked:
