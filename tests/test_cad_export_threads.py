@@ -216,3 +216,25 @@ def test_the_exporting_process_loads_no_cad_kernel(tmp_path):
     )
     assert res.stdout.strip().splitlines()[-1] == "[]"
     assert sorted(p.name for p in tmp_path.glob("star_001.*")) == ["star_001.3mf", "star_001.step", "star_001.stl"]
+
+
+KERNEL = """
+import sys
+from starforge.cad.brep import kernel
+bd = kernel()
+slim = sorted(m for m in ("build123d", "sklearn", "ezdxf") if m in sys.modules)
+import build123d
+same = all(getattr(build123d, n) is getattr(bd, n) for n in ("Solid", "Compound", "Location", "export_step"))
+print(slim, same, type(bd).__name__)
+"""
+
+
+def test_the_worker_kernel_is_build123d_without_its_package_init():
+    """kernel() in a fresh interpreter loads the build123d modules the bodies use and not the
+    package's other importers (scikit-learn, ezdxf); a later ``import build123d`` gives the very
+    same classes."""
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-c", KERNEL], check=True, capture_output=True, text=True)
+    assert res.stdout.strip().splitlines()[-1] == "[] True SimpleNamespace"
