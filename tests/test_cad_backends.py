@@ -48,22 +48,11 @@ def _sphere_centres_from_mesh(mesh, centres, r_printed):
     return np.array(out)
 
 
-def _occ_sphere_centres(solid):
-    """Centres of the spherical faces of an OCCT solid (from the surface definitions)."""
-    from OCP.BRepAdaptor import BRepAdaptor_Surface
-    from OCP.GeomAbs import GeomAbs_Sphere
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
+def _solid_sphere_centres(solid):
+    """Centres of the spherical faces of a build123d solid (from the surface definitions)."""
+    import build123d as bd
 
-    out = []
-    ex = TopExp_Explorer(solid.shape, TopAbs_FACE)
-    while ex.More():
-        s = BRepAdaptor_Surface((getattr(TopoDS, "Face_s", None) or TopoDS.Face)(ex.Current()))
-        if s.GetType() == GeomAbs_Sphere:
-            p = s.Sphere().Location()
-            out.append((p.X(), p.Y(), p.Z()))
-        ex.Next()
+    out = [tuple(f.axis_of_rotation.position) for f in solid.faces() if f.geom_type == bd.GeomType.SPHERE]
     return np.unique(np.round(np.array(out), 9), axis=0)
 
 
@@ -100,8 +89,8 @@ CASES = [(m.name, which) for m in list_mounts() for which in ("default", "lo", "
 
 @pytest.mark.parametrize(("mount_name", "which"), CASES)
 def test_every_mount_builds_in_both_backends(family, mount_name, which):
+    from starforge.cad.brep import body_solid
     from starforge.cad.mesh import body_mesh
-    from starforge.cad.occ import body_solid
 
     m = load_mount(mount_name)
     if which != "default":
@@ -120,10 +109,10 @@ def test_every_mount_builds_in_both_backends(family, mount_name, which):
     assert solid.is_valid
     assert mesh.volume == pytest.approx(solid.volume, rel=0.01)
     # the sphere centres the STEP solid carries are family.json's
-    occ = _occ_sphere_centres(solid)
-    assert len(occ) == 4
+    centres = _solid_sphere_centres(solid)
+    assert len(centres) == 4
     for c in s.vertices:
-        assert np.linalg.norm(occ - c, axis=1).min() < 0.01
+        assert np.linalg.norm(centres - c, axis=1).min() < 0.01
 
 
 def test_saddle_channel_wider_than_the_segment_is_refused(family):
@@ -135,7 +124,7 @@ def test_saddle_channel_wider_than_the_segment_is_refused(family):
 
 
 def test_step_file_reimports_as_one_valid_named_solid(family, tmp_path):
-    from starforge.cad.occ import body_solid, read_step, write_step
+    from starforge.cad.brep import body_solid, read_step, write_step
 
     for s in family.stars[:2]:
         b = build_body(s.id, s.vertices, 4.0, load_mount("flat"), BodySpec())
@@ -175,8 +164,8 @@ def test_stl_and_3mf_reload_watertight_with_centres(family, tmp_path):
 
 
 def test_posts_build_in_both_backends(family):
+    from starforge.cad.brep import body_solid
     from starforge.cad.mesh import body_mesh
-    from starforge.cad.occ import body_solid
 
     s = family.stars[0]
     b = build_body(s.id, s.vertices, 4.0, load_mount("flat"), BodySpec(seat="post"))
@@ -194,8 +183,8 @@ def test_posts_build_in_both_backends(family):
 
 @pytest.mark.parametrize("tip", ["sphere"])
 def test_volumes_agree_for_every_star(family, tip):
+    from starforge.cad.brep import body_solid
     from starforge.cad.mesh import body_mesh
-    from starforge.cad.occ import body_solid
 
     for s, name in itertools.product(family.stars, ["magnet"]):
         b = build_body(s.id, s.vertices, 4.0, load_mount(name), BodySpec(seat=tip))
@@ -204,8 +193,8 @@ def test_volumes_agree_for_every_star(family, tip):
 
 def test_volume_matches_closed_form_for_a_simple_body():
     """Isolated vertical stems, no hole, no label: plate + spheres + the stems' free parts."""
+    from starforge.cad.brep import body_solid
     from starforge.cad.mesh import body_mesh
-    from starforge.cad.occ import body_solid
     from starforge.cad.primitives import Box
 
     c = np.array([[0, 0, 0], [20, 3, 0], [0, 1, 25], [20, 5, 25]], float)

@@ -82,7 +82,7 @@ def test_export_writes_one_file_per_star_per_format(exported):
 def test_exported_files_reload_with_centres(exported):
     import trimesh
 
-    from starforge.cad.occ import read_step
+    from starforge.cad.brep import read_step
     from starforge.stars.model import load_family
 
     fam = load_family(exported.parent / "family.json")
@@ -108,6 +108,48 @@ def test_exported_files_reload_with_centres(exported):
             shell = d[(d > 0.5 * r) & (d < 1.5 * r)]
             assert len(shell) > 50 and np.abs(np.median(shell) - r) < 0.01
         assert len(entry["visibility"]) == 4 and all(0 <= x <= 1 for x in entry["visibility"])
+
+
+def _box(shape) -> np.ndarray:
+    """(2, 3) bounding box of a build123d shape, mm."""
+    b = shape.bounding_box()
+    return np.array([tuple(b.min), tuple(b.max)])
+
+
+def test_each_step_file_is_its_mesh_named_and_coloured(exported):
+    """Each body's STEP file, read back, against its STL file and bodies.json: one valid solid
+    named after the body in the body's colour, the volume the worker reported, the STL's volume
+    within the mesh's chord error, and the STL's box within a sphere segment's sagitta along and
+    across the segments (the mesh's vertices lie within that of the exact surfaces); the plate's STEP holds the
+    same solids moved by its bed translations."""
+    import build123d as bd
+    import trimesh
+
+    from starforge.cad.body import BodySpec
+
+    doc = json.loads((exported / "bodies.json").read_text())
+    r_max = max(e["printed_sphere_mm"] for e in doc["bodies"]) / 2
+    sagitta = r_max * (1 - np.cos(np.pi / BodySpec().sphere_segments))
+    singles = {}
+    for entry in doc["bodies"]:
+        step = bd.import_step(str(exported / f"{entry['name']}.step"))
+        assert step.label == entry["name"] and len(step.solids()) == 1 and step.solids()[0].is_valid
+        assert np.allclose(tuple(step.color)[:3], np.array(entry["colour_rgb"]) / 255, atol=0.5 / 255)
+        assert step.volume == pytest.approx(entry["step_volume_mm3"], rel=1e-6)
+        stl = trimesh.load(exported / f"{entry['name']}.stl", force="mesh")
+        assert stl.is_watertight and stl.body_count == 1
+        assert stl.volume == pytest.approx(step.volume, rel=1e-3)
+        box = _box(step)
+        assert np.abs(box - stl.bounds).max() <= 2 * sagitta + 1e-4
+        singles[entry["name"]] = (step.volume, box)
+    (plate_doc,) = doc["plates"]
+    plate = bd.import_step(str(exported / "plate.step"))
+    children = {c.label: c for c in plate.children}
+    assert sorted(children) == sorted(plate_doc["bodies"])
+    for name, T in zip(plate_doc["bodies"], plate_doc["print_to_bed"], strict=True):
+        volume, box = singles[name]
+        assert children[name].volume == pytest.approx(volume, rel=1e-9)
+        assert np.abs(_box(children[name]) - (box + np.array(T)[:3, 3])).max() < 1e-3
 
 
 def _build_items(path):

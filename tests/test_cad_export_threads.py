@@ -42,7 +42,7 @@ from starforge import load_family
 from starforge.cad.body import BodySpec
 from starforge.cad.export import export_family, family_bodies, print_layout
 from starforge.cad.mounts import load_mount
-from starforge.cad.occ import body_solid, placed, write_step
+from starforge.cad.brep import body_solid, placed, write_step
 from starforge.colours import body_colour
 fam, mount, spec = load_family(sys.argv[1]), load_mount("flat"), BodySpec()
 out = Path(sys.argv[2])
@@ -91,41 +91,85 @@ def test_mesh_files_and_entries_do_not_depend_on_step(both):
         }
 
 
-@pytest.mark.parametrize("fork", [True, False], ids=["forked", "launched"])
-def test_a_worker_error_is_one_clear_error(tmp_path, fork):
+WORKER_ERROR = """
+import sys
+from pathlib import Path
+from starforge import load_family
+from starforge.cad import step_worker
+from starforge.cad.body import BodySpec
+from starforge.cad.export import family_bodies, print_layout
+from starforge.cad.mounts import load_mount
+from starforge.errors import StarforgeError
+
+bodies = family_bodies(load_family(sys.argv[1]), [1], load_mount("flat"), BodySpec())
+transforms, _ = print_layout(bodies, (200.0, 200.0), 5.0)
+worker = step_worker.StepProcess(fork=sys.argv[3] == "forked")
+job = step_worker.start(bodies, transforms, [(1, 2, 3)], Path(sys.argv[2]) / "missing", worker=worker)
+try:
+    job.result()
+except StarforgeError as exc:
+    print(job.forked, job.proc.returncode, exc)
+"""
+
+CRASHING_WORKER = """
+import signal
+import sys
+from pathlib import Path
+from starforge.cad import step_worker
+from starforge.errors import StarforgeError
+
+fork = sys.argv[3] == "forked"
+idle = step_worker.StepProcess(fork=fork)
+idle.kill()
+worker = step_worker.StepProcess(fork=fork)
+worker.proc.kill()
+worker.send(step_worker.job_for([], [], [], Path(sys.argv[2])))
+try:
+    worker.result()
+except StarforgeError as exc:
+    print(idle.proc.returncode is not None, worker.forked, worker.proc.returncode == -signal.SIGKILL, exc)
+"""
+
+
+def _fresh(script: str, tmp_path, how: str) -> str:
+    """The last line ``script`` prints, run in a fresh interpreter (a worker is forked only
+    from a process without OCP loaded; this one may have it from other tests)."""
+    import subprocess
+    import sys
+
+    res = subprocess.run(
+        [sys.executable, "-c", script, str(DATA), str(tmp_path), how], check=True, capture_output=True, text=True
+    )
+    return res.stdout.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize("how", ["forked", "launched"])
+def test_a_worker_error_is_one_clear_error(tmp_path, how):
     """The worker's StarforgeError (here: an unwritable folder) comes back as the parent's."""
-    from starforge.cad import step_worker
-    from starforge.cad.export import family_bodies, print_layout
-    from starforge.errors import StarforgeError
-
-    fam = load_family(DATA)
-    bodies = family_bodies(fam, [1], load_mount("flat"), BodySpec())
-    transforms, _ = print_layout(bodies, (200.0, 200.0), 5.0)
-    worker = step_worker.StepProcess(fork=fork)
-    job = step_worker.start(bodies, transforms, [(1, 2, 3)], tmp_path / "missing", worker=worker)
-    with pytest.raises(StarforgeError, match="could not write STEP file"):
-        job.result()
-    assert job.proc.returncode == 1
+    forked, code, message = _fresh(WORKER_ERROR, tmp_path, how).split(" ", 2)
+    assert forked == str(how == "forked") and code == "1"
+    assert message.startswith("could not write STEP file")
 
 
-@pytest.mark.parametrize("fork", [True, False], ids=["forked", "launched"])
-def test_a_crashing_worker_is_reported_and_reaped(tmp_path, fork):
+@pytest.mark.parametrize("how", ["forked", "launched"])
+def test_a_crashing_worker_is_reported_and_reaped(tmp_path, how):
     """A worker that dies without a word (here: killed before its job) is one clear error with
     its exit status, and nothing is left running; a worker never given a job is ended by kill()."""
     import signal
 
-    from starforge.cad import step_worker
-    from starforge.errors import StarforgeError
+    line = _fresh(CRASHING_WORKER, tmp_path, how)
+    assert line.startswith(f"True {how == 'forked'} True STEP export failed (exit status {-signal.SIGKILL})")
 
-    idle = step_worker.StepProcess(fork=fork)
-    idle.kill()
-    assert idle.proc.returncode is not None
-    worker = step_worker.StepProcess(fork=fork)
-    worker.proc.kill()
-    worker.send(step_worker.job_for([], [], [], tmp_path))
-    with pytest.raises(StarforgeError, match=f"exit status {-signal.SIGKILL}"):
-        worker.result()
-    assert worker.proc.returncode == -signal.SIGKILL
+
+def test_a_fork_beside_a_loaded_kernel_is_refused():
+    """A worker forked from a process with OCP loaded would inherit a kernel whose thread pool
+    is gone: refused with the options that work."""
+    from starforge.cad import step_worker
+    from starforge.cad.brep import kernel
+
+    kernel()
+    with pytest.raises(ValueError, match="pass fork=False or None"):
+        step_worker.StepProcess(fork=True)
 
 
 def test_a_mesh_failure_stops_the_worker(tmp_path, monkeypatch):
@@ -172,3 +216,25 @@ def test_the_exporting_process_loads_no_cad_kernel(tmp_path):
     )
     assert res.stdout.strip().splitlines()[-1] == "[]"
     assert sorted(p.name for p in tmp_path.glob("star_001.*")) == ["star_001.3mf", "star_001.step", "star_001.stl"]
+
+
+KERNEL = """
+import sys
+from starforge.cad.brep import kernel
+bd = kernel()
+slim = sorted(m for m in ("build123d", "sklearn", "ezdxf") if m in sys.modules)
+import build123d
+same = all(getattr(build123d, n) is getattr(bd, n) for n in ("Solid", "Compound", "Location", "export_step"))
+print(slim, same, type(bd).__name__)
+"""
+
+
+def test_the_worker_kernel_is_build123d_without_its_package_init():
+    """kernel() in a fresh interpreter loads the build123d modules the bodies use and not the
+    package's other importers (scikit-learn, ezdxf); a later ``import build123d`` gives the very
+    same classes."""
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-c", KERNEL], check=True, capture_output=True, text=True)
+    assert res.stdout.strip().splitlines()[-1] == "[] True SimpleNamespace"

@@ -1,5 +1,5 @@
 """What the export does faster must give the same result: a vertical stem with its root fillet
-as one solid of revolution (merge_coaxial), an engraving's boxes as one prism (occ.cut_tools), the
+as one solid of revolution (merge_coaxial), an engraving's boxes as one prism (brep.cut_tools), the
 STL written from arrays (stl.stl_bytes), the mesh volume without trimesh (mesh.mesh_volume)."""
 
 from __future__ import annotations
@@ -64,22 +64,20 @@ def test_each_vertical_stem_of_a_family_merges_with_its_fillet():
 
 @pytest.mark.parametrize("mount", ["flat", "strap", "adhesive"])
 def test_the_engraving_prism_is_the_union_of_its_boxes(mount):
-    """The plate cut by the prisms (OCP) against the plate cut box by box through build123d."""
-    import build123d as bd
-
-    from starforge.cad.occ import cut_tools, primitive_solid
+    """The plate cut by the prisms against the plate cut box by box."""
+    from starforge.cad.brep import cut_tools, primitive_solid
 
     s = load_family(DATA).stars[0]
     b = build_body(s.id, s.vertices, 4.0, load_mount(mount), BodySpec(label_mm=4.0))
     plate = primitive_solid([p for p in b.add if isinstance(p, Box)][0])
-    one_by_one = bd.Solid(plate).cut(*(bd.Solid(primitive_solid(c)) for c in b.subtract))
+    one_by_one = plate.cut(*(primitive_solid(c) for c in b.subtract))
     cuts = cut_tools(b.subtract)
     assert len(cuts) < len(b.subtract)  # the id's boxes became fewer tools
-    as_prisms = bd.Solid(plate).cut(*(bd.Solid(c) for c, _ in cuts))
+    as_prisms = plate.cut(*(c for c, _ in cuts))
     assert as_prisms.is_valid
     assert as_prisms.volume == pytest.approx(one_by_one.volume, rel=1e-12, abs=1e-9)
     for solid, bounds in cuts:  # the bounds the cut is sorted by hold the solid
-        box = bd.Solid(solid).bounding_box()
+        box = solid.bounding_box()
         assert (np.array(tuple(box.min)) >= bounds[0] - 1e-6).all()
         assert (np.array(tuple(box.max)) <= bounds[1] + 1e-6).all()
 

@@ -135,7 +135,7 @@ def test_redesigned_mounts_stand_on_flat_ground(made_for, mount):
 def test_step_and_mesh_agree_and_the_plate_is_a_named_coloured_assembly(made_for):
     import build123d as bd
 
-    from starforge.cad.occ import read_step
+    from starforge.cad.brep import read_step
 
     for mount in ("flat", "saddle"):
         _, _, out, doc = made_for(mount)

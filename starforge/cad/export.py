@@ -7,7 +7,7 @@ orientation (plate down on Z = 0, the body's up along +Z, centred on the Z axis;
 transform from that orientation back to family.json's placement frame.  Files (``<name>`` =
 ``star_<id>``, id zero-padded to 3)::
 
-    <name>.step   one solid named <name>, coloured (OpenCascade through OCP)
+    <name>.step   one solid named <name>, coloured (build123d on OpenCascade)
     <name>.stl    one watertight shell (manifold3d), binary STL, mm
     <name>.3mf    the same mesh, one named, coloured object, with a thumbnail, mm
     plate.step / .stl / .3mf   every selected body on one bed (an assembly of named, coloured

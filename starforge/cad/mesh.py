@@ -114,7 +114,7 @@ CUT_MARGIN_MM = 0.05
 def body_manifold(body: Body, sphere_segments: int = 64, cylinder_segments: int = 32):
     """The body as one Manifold: (union of ``add``) minus (union of ``subtract``).
 
-    Evaluated as OCCT does (:func:`starforge.cad.occ.body_solid`): a vertical stem with its
+    Evaluated as OCCT does (:func:`starforge.cad.brep.body_solid`): a vertical stem with its
     fillet is one solid of revolution, a cut that meets only a plate is made on that plate
     before the one batch union (:func:`~starforge.cad.primitives.plate_cuts`), the rest after.
     """

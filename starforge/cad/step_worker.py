@@ -24,6 +24,7 @@ import threading
 import time
 from pathlib import Path
 
+from starforge.cad.brep import assembly, body_solid, kernel, placed, write_step
 from starforge.errors import StarforgeError
 from starforge.runtime.procs import adopt, fork_helper, release
 
@@ -38,8 +39,6 @@ _BOOT = (
 def run_job(job: dict, say) -> None:
     """Build and write every STEP file of ``job``; ``say(line)`` after each (``body i volume``
     per body, ``plate name`` per plate)."""
-    from starforge.cad.occ import assembly, body_solid, placed, write_step
-
     stage = Path(job["stage"])
     solids = []
     for i, (b, T, colour) in enumerate(zip(job["bodies"], job["transforms"], job["colours"], strict=True)):
@@ -71,9 +70,7 @@ def _serve(job_in, out) -> int:
     1 after ``error <message>`` for a StarforgeError (anything else propagates: a traceback on
     stderr).  The kernel is loaded first, while the caller may still be describing the job; an
     empty job (the caller changed its mind) ends the worker quietly, status 0."""
-    import OCP.TopoDS  # noqa: F401  (OCP's one large extension module: most of the import time)
-
-    import starforge.cad.occ  # noqa: F401
+    kernel()  # build123d and OCP under it: most of the worker's start-up
 
     data = job_in.read()
     if not data:
@@ -183,12 +180,17 @@ class StepProcess:
     :meth:`result` waits for it, :meth:`kill` ends it early.  A context manager: leaving the
     ``with`` block ends a worker that has not finished (harmless after :meth:`result`).
 
-    ``fork``: True forks this process, False launches a fresh interpreter, None (default) forks
-    where :func:`starforge.runtime.procs.can_fork` allows and OCP is not loaded here (``forked`` says
-    which).  The files are the same bytes either way."""
+    ``fork``: True forks this process (ValueError when OCP is loaded here), False launches a
+    fresh interpreter, None (default) forks where :func:`starforge.runtime.procs.can_fork` allows
+    and OCP is not loaded here (``forked`` says which).  The files are the same bytes either way."""
 
     def __init__(self, fork: bool | None = None) -> None:
         import starforge
+
+        # a kernel loaded here would be the child's too: its STEP counters advanced, and the
+        # thread pool its parallel booleans started here gone (a child's boolean waits forever)
+        if fork and "OCP" in sys.modules:
+            raise ValueError("StepProcess(fork=True) with OCP loaded in this process; pass fork=False or None")
 
         root = str(Path(starforge.__file__).resolve().parent.parent)
         self.t0 = time.perf_counter()
@@ -201,7 +203,6 @@ class StepProcess:
         if fork is None:
             from starforge.runtime.procs import can_fork
 
-            # a kernel loaded here already would be the child's too, its STEP counters advanced
             fork = can_fork() and "OCP" not in sys.modules
         self.forked = bool(fork)
         if self.forked:

@@ -1,0 +1,261 @@
+"""Exact B-rep bodies on build123d: a :class:`~starforge.cad.body.Body` -> one valid solid, STEP files.
+
+build123d's direct API builds everything (no builder contexts): each primitive is a
+``Solid.make_sphere`` / ``make_box`` / ``make_cylinder`` / ``revolve`` / ``extrude`` placed by a
+``Plane``; the body is ``fuse`` of the added primitives, ``cut`` by the subtracted ones, merged
+coplanar faces (``clean``), checked with ``is_valid`` and required to be a single solid.  A
+solid carries its STEP name and colour (``label``, ``color``); a plate is a ``Compound`` whose
+children are its bodies' solids, each ``moved`` to its place on the bed; ``export_step`` writes
+both, ``import_step`` reads them back.
+
+OCP (the OpenCascade bindings under build123d) is called once, where build123d has no call:
+:func:`placed` bakes a rigid transform into a copy of the geometry.
+
+build123d loads in :func:`kernel` only, the modules the bodies use: its import takes seconds, so
+``import starforge`` and the commands that build no solid stay fast.
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib
+import importlib.util
+import sys
+import types
+
+import numpy as np
+
+from starforge.cad.body import Body
+from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere, merge_coaxial, plate_cuts
+from starforge.errors import StarforgeError
+from starforge.geometry.outline import rect_union_outlines
+
+#: the header's time stamp: fixed, so the same solid gives the same file
+STEP_TIMESTAMP = "2000-01-01T00:00:00"
+#: write each face's parameter-space curves too?  They repeat what the 3D edges and surfaces
+#: already define, and readers rebuild them (OCCT does on import); without them a body's file
+#: is less than half the size and quicker to write
+STEP_PCURVES = False
+#: the printing rotation :func:`placed` takes: +90 deg about x (:func:`starforge.cad.plate.print_transform`)
+PRINT_ROTATION = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+#: the build123d modules the bodies use; its package's ``__init__`` imports every builder,
+#: importer and exporter too (scikit-learn, ezdxf, SVG and font readers), which a STEP worker
+#: would wait for (``benchmarks/bench_cad.py --speed-only`` prints both imports' CPU seconds)
+KERNEL_MODULES = ("build123d.build_enums", "build123d.geometry", "build123d.topology", "build123d.exporters3d",
+                  "build123d.importers")
+_kernel = None
+
+
+def kernel():
+    """build123d's direct API: a namespace of the modules in :data:`KERNEL_MODULES` (imported
+    on the first call), or the package itself once something has imported it whole.
+
+    Python runs a package's ``__init__`` before any of its modules; :func:`_import_modules`
+    imports the modules under a package object whose ``__init__`` has not run, then removes it,
+    so a later ``import build123d`` runs the real one, which finds these modules loaded and uses
+    them (the classes are the same objects either way).
+    """
+    global _kernel
+    if _kernel is None:
+        if "build123d" in sys.modules:
+            return sys.modules["build123d"]
+        mods = _import_modules()
+        _kernel = types.SimpleNamespace(**{k: v for m in mods for k, v in vars(m).items() if not k.startswith("_")})
+    return _kernel
+
+
+def _import_modules() -> list:
+    """The modules of :data:`KERNEL_MODULES`, imported without build123d's ``__init__``; the
+    whole package if that fails (a build123d whose modules need its ``__init__``)."""
+    spec = importlib.util.find_spec("build123d")
+    sys.modules["build123d"] = importlib.util.module_from_spec(spec)  # its __init__ not run
+    try:
+        mods = [importlib.import_module(m) for m in KERNEL_MODULES]
+    except (ImportError, AttributeError):
+        for m in [m for m in sys.modules if m == "build123d" or m.startswith("build123d.")]:
+            del sys.modules[m]
+        return [importlib.import_module("build123d")]
+    del sys.modules["build123d"]
+    return mods
+
+
+def _plane(origin, z=(0.0, 0.0, 1.0)):
+    """A Plane at ``origin`` (3,) mm with its normal along ``z`` (3,) (its X chosen as OCCT's gp_Ax3 does)."""
+    bd = kernel()
+    return bd.Plane(origin=tuple(map(float, origin)), z_dir=tuple(map(float, z)))
+
+
+def primitive_solid(p, axis=None):
+    """One primitive as a build123d Solid, mm.
+
+    ``axis`` (3,) orients a sphere's pole along a stem: the stem then meets the sphere on one of
+    its parallels (an iso-parametric circle), which OCCT intersects several times faster than a
+    circle across the sphere's parametrisation.  The solid is the same either way.
+    """
+    bd = kernel()
+    if isinstance(p, Sphere):
+        return bd.Solid.make_sphere(p.radius_mm, _plane(p.centre, (0.0, 0.0, 1.0) if axis is None else axis))
+    if isinstance(p, Box):
+        return bd.Solid.make_box(*p.size, _plane(np.subtract(p.centre, np.divide(p.size, 2))))
+    if isinstance(p, Cylinder):
+        return bd.Solid.make_cylinder(p.radius_mm, p.length_mm, _plane(p.p0, np.subtract(p.p1, p.p0)))
+    if isinstance(p, Revolved):
+        return _revolved_solid(p)
+    raise TypeError(f"unknown primitive {type(p).__name__}")
+
+
+def _revolved_solid(p: Revolved):
+    """The profile polygon (axis, polyline, axis) in a plane through the axis, turned 360 deg."""
+    bd = kernel()
+    u = np.asarray(p.axis, float)
+    helper = np.array([1.0, 0, 0]) if abs(u[0]) < 0.9 else np.array([0, 1.0, 0])
+    w = np.cross(u, helper)
+    w /= np.linalg.norm(w)
+    o = np.array(p.p0)
+    pts = [o + p.profile[0][0] * u, *(o + t * u + r * w for t, r in p.profile), o + p.profile[-1][0] * u]
+    face = bd.Face(bd.Wire.make_polygon([tuple(map(float, q)) for q in pts]))
+    return bd.Solid.revolve(face, 360, bd.Axis(tuple(map(float, o)), tuple(map(float, u))))
+
+
+def _sphere_axes(body: Body, parts) -> dict:
+    """{index in ``parts`` of a sphere: its stem's direction} (stems end at their sphere's centre)."""
+    out = {}
+    ends = {tuple(np.round(s.p1, 9)): np.subtract(s.p1, s.p0) for s in body.stems}
+    for i, p in enumerate(parts):
+        if isinstance(p, Sphere):
+            u = ends.get(tuple(np.round(p.centre, 9)))
+            if u is not None:
+                out[i] = u
+    return out
+
+
+def cut_tools(subtract) -> list:
+    """(solid, (2, 3) bounds) per cut: boxes that span the same height (y) range, such as an
+    engraved id's pixel runs, as one prism of their outline (the same solid: a union of boxes
+    over one y range is the union of their rectangles, extruded), the rest one by one."""
+    spans: dict = {}
+    for c in subtract:
+        if isinstance(c, Box):
+            b = c.bounds()
+            spans.setdefault((b[0, 1], b[1, 1]), []).append(c)
+    out, done = [], set()
+    for c in subtract:
+        key = (c.bounds()[0, 1], c.bounds()[1, 1]) if isinstance(c, Box) else None
+        if key is None or len(spans[key]) < 2:
+            out.append((primitive_solid(c), c.bounds()))
+            continue
+        if key in done:
+            continue
+        done.add(key)
+        rects = [(b[0, 0], b[1, 0], b[0, 2], b[1, 2]) for b in (x.bounds() for x in spans[key])]  # (x0, x1, z0, z1)
+        for outer, holes in rect_union_outlines(rects):
+            lo = np.array([outer[:, 0].min(), key[0], outer[:, 1].min()])
+            hi = np.array([outer[:, 0].max(), key[1], outer[:, 1].max()])
+            out.append((_prism(outer, holes, key[0], key[1] - key[0]), np.array([lo, hi])))
+    return out
+
+
+def _prism(outer, holes, y0: float, height: float):
+    """The solid between y = ``y0`` and ``y0 + height`` over a polygon with holes, given as
+    (k, 2) (x, z) corners (outer counter-clockwise in (x, z), holes clockwise)."""
+    bd = kernel()
+
+    def wire(loop):
+        return bd.Wire.make_polygon([(float(x), float(y0), float(z)) for x, z in loop])
+
+    return bd.Solid.extrude(bd.Face(wire(outer), [wire(h) for h in holes]), (0.0, float(height), 0.0))
+
+
+def body_solid(body: Body):
+    """The body as one valid build123d Solid, labelled ``body.name``.
+
+    (union of ``add``) minus (union of ``subtract``), evaluated in the order that is fastest
+    for OCCT and gives the same solid: a cut whose bounds meet only a plate's is made on that
+    plate before the union ((A u B) - C = (A - C) u B when C misses B), and a vertical stem with
+    its root fillet is one solid of revolution (:func:`~starforge.cad.primitives.merge_coaxial`),
+    boxes cut over one height range (the id's pixel runs) one prism of their outline
+    (:func:`cut_tools`).  The coplanar faces the booleans leave are merged once, at the end.
+    """
+    bd = kernel()
+    parts = merge_coaxial(body.add)
+    axes = _sphere_axes(body, parts)
+    adds = [primitive_solid(p, axes.get(i)) for i, p in enumerate(parts)]
+    cuts = cut_tools(body.subtract)
+    early: dict[int, list] = {}
+    late = []
+    for (solid, _), plate in zip(cuts, plate_cuts(parts, [cb for _, cb in cuts]), strict=True):
+        if plate is None:
+            late.append(solid)
+        else:
+            early.setdefault(plate, []).append(solid)
+    with bd.SkipClean():  # one clean() below instead of one per boolean
+        for i, tools in early.items():
+            adds[i] = adds[i].cut(*tools)
+        shape = adds[0].fuse(*adds[1:]) if len(adds) > 1 else adds[0]
+        if late:
+            shape = shape.cut(*late)
+    solids = shape.clean().solids()
+    if len(solids) != 1:
+        raise StarforgeError(f"{body.name}: the STEP body has {len(solids)} solids, expected one")
+    out = solids[0]
+    if not out.is_valid:
+        raise StarforgeError(f"{body.name}: OCCT's validity check failed for the solid")
+    out.label = body.name
+    return out
+
+
+def _location(T):
+    """The Location of a rigid (4, 4) transform, from its axes as given (no angles)."""
+    bd = kernel()
+    M = np.asarray(T, float)
+    return bd.Location(bd.Plane(origin=tuple(M[:3, 3]), x_dir=tuple(M[:3, 0]), z_dir=tuple(M[:3, 2])))
+
+
+def placed(solid, T, name: str, colour):
+    """A copy of ``solid`` with its geometry moved by the rigid transform ``T`` (4, 4) (the
+    printing rotation, +90 deg about x, plus a translation, as
+    :func:`starforge.cad.plate.print_transform` makes), named and coloured ((r, g, b) 0..255)."""
+    # OCP here: a STEP writer turns a solid with a location into an assembly of one part, so the
+    # geometry itself moves; build123d's transform_shape keeps the geometry and sets a location,
+    # and its rotate / translate (transform=True) take an angle, whose cosine is not 0 at 90 deg
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_Transform
+
+    bd = kernel()
+    if not np.allclose(np.asarray(T, float)[:3, :3], PRINT_ROTATION):
+        raise ValueError("placed() takes the printing rotation (+90 deg about x) only")
+    trsf = _location(T).wrapped.Transformation()
+    out = bd.Solid(BRepBuilderAPI_Transform(solid.wrapped, trsf, True).Shape())
+    out.label = name
+    out.color = bd.Color(*(int(c) / 255 for c in colour))
+    return out
+
+
+def assembly(solids, transforms, name: str):
+    """A STEP assembly named ``name`` of named, coloured ``solids``, each moved by one of
+    ``transforms`` (4, 4); the instances share their solid's geometry."""
+    bd = kernel()
+    parts = []
+    for s, T in zip(solids, transforms, strict=True):
+        part = copy.copy(s)  # build123d's shallow copy: another instance of the same geometry
+        part.move(_location(T))
+        parts.append(part)
+    return bd.Compound(parts, label=name, children=parts)
+
+
+def write_step(shape, path) -> None:
+    """Write a named solid or an :func:`assembly` to a STEP file (AP214, mm, fixed header time
+    stamp).  The caller stages the path (atomic outputs)."""
+    bd = kernel()
+    try:
+        ok = bd.export_step(shape, str(path), bd.Unit.MM, write_pcurves=STEP_PCURVES, timestamp=STEP_TIMESTAMP)
+    except RuntimeError as exc:
+        raise StarforgeError(f"could not write STEP file {path}: {exc}") from None
+    if not ok:
+        raise StarforgeError(f"could not write STEP file {path}")
+
+
+def read_step(path) -> list:
+    """The solids of a STEP file (build123d Solids)."""
+    return kernel().import_step(str(path)).solids()
