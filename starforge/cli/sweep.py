@@ -8,6 +8,7 @@ import typer
 
 from starforge.cli._app import SCHEDULER_HELP, app, console, use_scheduler
 from starforge.cli._jobs import job_progress
+from starforge.words import counted
 
 
 @app.command(
@@ -93,7 +94,7 @@ def sweep_cmd(
     con = console()
     ex = sum(r["method"] == "exhaustive" for r in rows)
     lb = sum(r["method"] == "interval" for r in rows)
-    con.print(f"{n} cells x {len(rules)} rules: {ex} exhaustive, {lb} certified intervals")
+    con.print(f"{counted(n, 'cell')} x {counted(len(rules), 'rule')}: {ex} exhaustive, {counted(lb, 'certified interval')}")
     for r in rules:
         best = max((x for x in rows if x["rule"] == r), key=lambda x: x["stars"])
         con.print(

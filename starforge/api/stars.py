@@ -1,24 +1,16 @@
-"""The few calls a notebook needs; the command line calls the same ones.
+"""Star families: a spec from a template and options, the family made and verified, its files.
 
-Each call takes plain values (names of shipped templates, paths, numbers in the units their
-names give) and returns a typed result: a :class:`~starforge.stars.model.Family`, a
-:class:`~starforge.props.placement.PlacementResult`, an :class:`ExportResult`, a
-:class:`CheckResult`.  Files are written only by the ``write_*`` and ``export_*`` calls, into a
-staging folder published at once (nothing half-written is left behind), and never over
-existing files without ``force=True``.
-
->>> import starforge.api as sf
->>> plan = sf.plan_family(box_mm=(14, 10, 30), delta_mm=2.0)
->>> family = sf.make_family(plan)
->>> len(family) > 0 and family.spec.box_mm == (14.0, 10.0, 30.0)
-True
+``starforge stars`` is :func:`run_stars`; a notebook calls :func:`plan_family`,
+:func:`make_family` and :func:`write_family` one by one.
 """
 
 from __future__ import annotations
 
 import json
+import re
+import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -34,19 +26,19 @@ from starforge.stars.model import Family, family_csv
 from starforge.stars.spec import StarSpec, spec_from_mapping
 from starforge.stars.verify import check_family
 from starforge.tracking.presets import design_tolerance_mm, star_spec_overrides
+from starforge.words import counted
 
 __all__ = [
+    "FAMILY_FILES",
+    "STAR_OPTIONS",
     "StarPlan",
-    "ExportResult",
-    "CheckResult",
-    "plan_family",
+    "StarsRun",
+    "as_options",
+    "describe_family",
     "make_family",
+    "plan_family",
+    "run_stars",
     "write_family",
-    "export_bodies",
-    "write_tracker_files",
-    "place_markers",
-    "write_placement",
-    "check",
 ]
 
 #: files :func:`write_family` writes (``family.png`` too with ``preview``)
@@ -68,55 +60,6 @@ class StarPlan:
 
     spec: StarSpec
     star_filter: Callable[[np.ndarray], np.ndarray] | None = None
-
-
-@dataclass(frozen=True)
-class ExportResult:
-    """What :func:`export_bodies` wrote.
-
-    Attributes
-    ----------
-    folder : Path
-        The output folder.
-    files : tuple of str
-        Every file written, relative to ``folder``.
-    bodies : int
-        Printable bodies written.
-    entries : tuple of dict
-        ``bodies.json``'s entry of each body (files, size, fit, visibility, volumes).
-    warnings : tuple of str
-    """
-
-    folder: Path
-    files: tuple[str, ...]
-    bodies: int
-    entries: tuple[dict, ...] = field(repr=False)
-    warnings: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True)
-class CheckResult:
-    """How often a simulated tracker identifies each body (:func:`check`).
-
-    Rates are fractions of (body, frame) events in [0, 1].
-
-    Attributes
-    ----------
-    rule : str
-        The identification rule of the headline rates.
-    identified, wrong_body, wrong_pose, missed : float
-        Right body with the right labels; another body reported; the right body with its
-        markers relabelled (a wrong pose); nothing reported.
-    document : dict
-        The whole ``check.json`` document (every rule, worst pairs, accuracy).
-    """
-
-    rule: str
-    identified: float
-    wrong_body: float
-    wrong_pose: float
-    missed: float
-    document: dict = field(repr=False)
 
 
 def plan_family(
@@ -312,202 +255,202 @@ def write_family(
     return folder
 
 
-def export_bodies(
-    family: Family | str | Path,
-    out: str | Path,
+
+
+@dataclass(frozen=True)
+class StarsRun:
+    """What :func:`run_stars` made and wrote.
+
+    Attributes
+    ----------
+    family : Family
+        The verified family.
+    folder : Path
+        Where its files are.
+    seconds : float
+        Wall time of the whole run, s.
+    """
+
+    family: Family
+    folder: Path
+    seconds: float
+
+
+#: the option that sets each StarSpec field, for messages
+STAR_OPTIONS = {
+    "box_mm": "--box",
+    "marker_mm": "--marker",
+    "delta_mm": "--delta",
+    "gap_mm": "--gap",
+    "tolerance_mm": "--tolerance",
+    "min_depth_mm": "--min-depth",
+    "tip_mm": "--tip",
+    "noise_mm": "--noise",
+    "work": "--work",
+    "reserve_mm": "--reserve",
+}
+
+_OPTION_KEYS = re.compile(r"\b(" + "|".join(STAR_OPTIONS) + r")\b(?:\[(\d)\])?")
+
+
+def as_options(message: str) -> str:
+    """A library message with each StarSpec field named by its option: ``delta_mm`` -> ``--delta``,
+    ``box_mm[0]`` -> ``--box's value 1``.
+
+    Examples
+    --------
+    >>> as_options("box_mm[2] must be > 0 and delta_mm too")
+    "--box's value 3 must be > 0 and --delta too"
+    """
+
+    def one(m: re.Match) -> str:
+        flag = STAR_OPTIONS[m.group(1)]
+        return f"{flag}'s value {int(m.group(2)) + 1}" if m.group(2) is not None else flag
+
+    return _OPTION_KEYS.sub(one, message)
+
+
+def command_with(changes: dict) -> str:
+    """``starforge stars`` with the options in ``changes`` (flag -> value or list of values): the
+    command a message suggests when the user's own command line is not known."""
+    words = [str(w) for flag, v in changes.items() for w in (flag, *([v] if isinstance(v, str) else v))]
+    return " ".join(["starforge stars", *words])
+
+
+def run_stars(
+    spec: str | Path | None = None,
     *,
-    mount: str | None = None,
-    formats: Sequence[str] = ("step", "stl", "3mf"),
-    ids: str | None = None,
-    sets: Sequence[str] = (),
-    plate: bool = True,
+    out: str | Path | None = None,
+    avoid: Sequence[str | Path] = (),
     preview: bool = False,
-    allow_oversize: bool = False,
     force: bool = False,
-) -> ExportResult:
-    """Printable bodies of a family: spheres, stems and the mount, as STEP and watertight
-    STL/3MF, and a print plate.
+    warn: Callable[[str], None] | None = None,
+    retype: Callable[[dict], str] = command_with,
+    **options,
+) -> StarsRun:
+    """``starforge stars`` as one call: plan the family (:func:`plan_family`), refuse before any
+    work what cannot be written, fit in memory or be planned (each refusal names the options,
+    and where a larger ``box_mm`` or a coarser ``delta_mm`` would do, the command with it), make
+    and verify it (:func:`make_family`, a first run compiling in a helper process) and write it
+    (:func:`write_family`).
 
     Parameters
     ----------
-    family : Family or path
-        A family, or its ``family.json`` (or folder).
-    out : path
-        Output folder.
-    mount : str, optional
-        Mount template name or TOML file (``starforge mounts``); default the family's, else ``flat``.
-    formats : sequence of str
-        Any of ``step``, ``stl``, ``3mf``.
-    ids : str, optional
-        Star ids, e.g. ``"1,2,5"`` or ``"1-4"`` (default: all).
-    sets : sequence of str
-        Mount parameters, ``"KEY=VALUE"``.
-    allow_oversize : bool
-        Write bodies that do not fit the family's size limit (refused otherwise, naming the
-        ``starforge stars --mount`` command that makes a family that fits).
+    spec : str or Path, optional
+        Template name or TOML file (see :func:`plan_family`).
+    out : path, optional
+        Output folder (default ``out/<name>``).
+    avoid : sequence of path
+        Bodies the lab already owns (see :func:`make_family`).
+    retype : callable
+        ``retype(changes) -> str``: the user's command with the options in ``changes`` changed
+        (flag -> value), for a refusal to suggest.
+    **options
+        :func:`plan_family`'s keywords (``box_mm``, ``marker``, ``mount``, ``delta_mm``...);
+        None means not given.
 
     Examples
     --------
     >>> import tempfile
-    >>> fam = make_family(plan_family(box_mm=(20.8, 12.6, 48.3), count=2, mount="flat"))
-    >>> res = export_bodies(fam, Path(tempfile.mkdtemp()) / "bodies", formats=("stl",), plate=False)
-    >>> res.bodies, sorted(res.files)[:2]
-    (2, ['bodies.json', 'star_001.stl'])
+    >>> run = run_stars(box_mm=(14, 10, 30), delta_mm=2.0, count=2, out=Path(tempfile.mkdtemp()) / "f")
+    >>> len(run.family), sorted(p.name for p in run.folder.iterdir())
+    (2, ['family.csv', 'family.json', 'run.json'])
     """
-    from starforge.cad.describe import describe_bodies
-    from starforge.cad.export import CAD_FORMATS, export_family
-    from starforge.stars.model import load_family
+    from starforge.stars import warmup
+    from starforge.tracking.bodies import check_body_files
 
-    fam = family if isinstance(family, Family) else load_family(family)
-    bad = [f for f in formats if f not in CAD_FORMATS]
-    if bad:
-        raise StarforgeError(f"unknown CAD format {bad[0]!r}; known: {', '.join(CAD_FORMATS)}")
-    m, spec, ids, bodies = describe_bodies(fam, mount, sets, ids, allow_oversize)
-    folder = Path(out)
-    previews = None
-    if preview:
-        from functools import partial
-
-        from starforge.render.bodies import draw_previews
-
-        previews = partial(draw_previews, box_mm=fam.spec.box_mm)  # the sheet draws the limit
-    with staged_output(folder, force) as stage:
-        rep = export_family(
-            fam, stage, m, spec, formats=tuple(formats), ids=ids, plate=plate, preview=previews, bodies=bodies,
-            allow_oversize=allow_oversize,
+    if avoid:  # the files to avoid exist and are readable before any work starts
+        check_body_files([Path(a) for a in avoid], "--avoid file")
+    t0 = time.perf_counter()
+    if options.get("seat") is not None and options.get("mount") is None and spec is None:
+        raise StarforgeError(
+            "--seat shapes the printed body, so it needs --mount (see `starforge mounts`), e.g. "
+            + retype({"--mount": "flat"})
         )
-        files = tuple(sorted(str(p.relative_to(stage)) for p in stage.rglob("*") if p.is_file()))
-    return ExportResult(folder, files, len(bodies), tuple(rep.bodies), tuple(rep.warnings))
+    plan = _plan_or_hint(spec, options, retype)
+    folder = Path(out) if out is not None else Path("out") / plan.spec.name
+    check_writable(folder, [*FAMILY_FILES, *(["family.png"] if preview else [])], force)  # before the work
+    _check_memory_or_hint(plan.spec, spec, options, retype)  # refused before anything compiles
+    helper = warmup.start()  # a first run compiles on two cores (nothing on a warm cache)
+    try:
+        if helper is not None:
+            with runtime_progress.stage("compile"):
+                warmup.compile_fit_decision()
+                warmup.ready("enumerate")  # the helper's kernels: loaded, not compiled a second time
+        enumerate_ = runtime_progress.stage("enumerate", unit="candidates")
+        try:
+            family = make_family(
+                plan,
+                avoid=avoid,
+                progress=lambda done, total: enumerate_.update(done, total),
+                on_stage=warmup.ready,  # a first run's helper may still be compiling the selection
+                warn=warn,
+            )
+        except StarforgeError as exc:  # the time estimate, no star, a count not achievable
+            raise StarforgeError(as_options(str(exc))) from None
+    except BaseException:
+        warmup.finish(helper, 0.0)  # an error or Ctrl-C does not wait for the helper
+        raise
+    warmup.finish(helper)
+    write_family(family, folder, preview=preview, force=True)
+    return StarsRun(family, folder, time.perf_counter() - t0)
 
 
-def write_tracker_files(
-    sources: Sequence[str | Path],
-    out: str | Path,
-    *,
-    formats: Sequence[str] = ("qtm", "vsk", "atracsys", "csv"),
-    noise_mm: float = 0.2,
-    force: bool = False,
-) -> dict:
-    """Rigid-body files trackers load, for every body in ``sources`` (family.json,
-    placement.json or tracker files); returns ``trackers.json``'s content.
-
-    Parameters
-    ----------
-    formats : sequence of str
-        Any of the registry's (``starforge templates`` lists them): ``qtm``, ``vsk``,
-        ``atracsys``, ``rom``, ``motive``, ``csv``.
-    noise_mm : float
-        Marker noise the written tolerances assume, sigma per axis, mm.
-    """
-    from starforge.tracking.export import write_rigid_bodies
-
-    folder = Path(out)
-    with staged_output(folder, force) as stage:
-        doc = write_rigid_bodies([Path(p) for p in sources], list(formats), stage, noise_mm=noise_mm)
-    return doc
+def _plan_or_hint(spec, options: dict, retype: Callable[[dict], str]) -> StarPlan:
+    """:func:`plan_family`; a refusal names the options, and when a larger box makes the spec
+    valid, the command with that box."""
+    try:
+        return plan_family(spec, **options)
+    except StarforgeError as exc:
+        message = as_options(str(exc))
+        box = options.get("box_mm") or load_template("stars", spec or "finger")[1].get("box_mm")
+        for k in range(1, 17) if box is not None else ():
+            bigger = [round(float(x) * 1.25**k, 1) for x in box]
+            try:
+                plan_family(spec, **{**options, "box_mm": bigger})
+            except StarforgeError:
+                continue
+            message += f"; a larger --box fits: e.g. {retype({'--box': [f'{x:g}' for x in bigger]})}"
+            break
+        raise StarforgeError(message) from None
 
 
-def place_markers(
-    prop: str = "hammer",
-    *,
-    spec: str = "default",
-    seed: int = 0,
-    units: str = "m",
-    avoid: Sequence[str | Path] = (),
-    grip: str | None = None,
-    progress=None,
-    **overrides,
-):
-    """Where to stick markers on a prop: a built-in name or a mesh file, optimized by
-    reversible-jump MCMC so that a tracker keeps it while a hand holds it and cameras drop out.
-
-    Parameters
-    ----------
-    prop : str
-        Built-in prop (``hammer``, ``sword``, ...) or a mesh path (STL, OBJ, PLY, GLB...).
-    spec : str
-        Place template name or TOML file (``starforge templates place``).
-    units : str
-        Units of a mesh file: ``m``, ``cm`` or ``mm``.
-    avoid : sequence of path
-        Bodies already in the room (placements, families, tracker files).
-    **overrides
-        Template keys (``markers``, ``sites``, ``resolution``, ``orientations``, ``marker_mm``...).
-
-    Returns
-    -------
-    PlacementResult
-
-    Examples
-    --------
-    >>> res = place_markers("box", sites=150, resolution=1, orientations=6, seed=1)
-    >>> len(res.marker_points) >= 4 and res.marker_points.shape[1] == 3
-    True
-    """
-    from starforge.props.placement import run_placement
-
-    faces = None
-    if avoid:
-        from starforge.tracking.avoid import faces_to_avoid
-
-        faces = faces_to_avoid([Path(a) for a in avoid])[0] / 1000.0  # mm -> m
-    return run_placement(prop, spec, seed=seed, units=units, grip=grip, avoid=faces, progress=progress, **overrides)
+def _check_memory_or_hint(s: StarSpec, spec, options: dict, retype: Callable[[dict], str]) -> None:
+    """Refuse a spec whose enumeration would not fit in memory, naming the options and, when a
+    coarser delta fits, the command with it."""
+    try:
+        check_memory(s, allow_stream=True)
+        return
+    except StarforgeError as exc:
+        message = as_options(str(exc))
+    for k in range(1, 12):
+        delta = float(f"{s.delta_mm * 1.5**k:.2g}")
+        try:
+            check_memory(plan_family(spec, **{**options, "delta_mm": delta}).spec, allow_stream=True)
+        except StarforgeError:
+            continue
+        message += f"; e.g. {retype({'--delta': f'{delta:g}'})}"
+        break
+    raise StarforgeError(message)
 
 
-def write_placement(result, out: str | Path, *, pictures: bool = True, force: bool = False) -> Path:
-    """Write a placement's files (``placement.json``, ``markers.csv``, the prop with its markers,
-    and with ``pictures`` the layout, convergence and rigging-guide pictures); returns the folder."""
-    from starforge.props.files import write_outputs
-
-    renderer = None
-    if pictures:
-        from starforge.render.props import BackgroundRenderer
-
-        renderer = BackgroundRenderer(enabled=False)
-    folder = Path(out)
-    with staged_output(folder, force) as stage:
-        write_outputs(result, stage, render=pictures, renderer=renderer)
-    return folder
-
-
-def check(
-    sources: Sequence[str | Path],
-    *,
-    noise_mm: float = 0.2,
-    drop: int = 1,
-    ghosts: int = 0,
-    frames: int = 2000,
-    seed: int = 0,
-    preset: str | None = None,
-    **settings,
-) -> CheckResult:
-    """Simulate tracker frames for the bodies in ``sources`` and identify them as trackers do.
-
-    Parameters
-    ----------
-    sources : sequence of path
-        Families, placements and a lab's tracker files, in any mix.
-    noise_mm : float
-        Marker centre noise, sigma per axis, mm.
-    drop : int
-        Up to this many markers hidden per body and frame.
-    ghosts : int
-        Stray points near each body per frame.
-    **settings
-        Other :class:`starforge.tracking.check.CheckSettings` fields.
-    """
-    from starforge.tracking.bodies import load_bodies
-    from starforge.tracking.check import CheckSettings, run_check
-
-    s = CheckSettings(
-        noise_mm=noise_mm, drop=drop, ghosts=ghosts, frames=frames, seed=seed, preset=preset, **settings
-    )
-    doc = run_check(load_bodies([Path(p) for p in sources]), s)
-    return CheckResult(
-        rule=doc["headline_rule"],
-        identified=doc["identification_rate"],
-        wrong_body=doc["wrong_body_rate"],
-        wrong_pose=doc["flip_rate"],
-        missed=doc["missed_rate"],
-        document=doc,
+def describe_family(family: Family, seconds: float) -> str:
+    """One line: how many stars, under which rule and selection, how far from the best possible,
+    what the enumeration kept at each test, and the time each stage took."""
+    sm = family.summary
+    ub = sm.get("upper_bound")
+    if family.spec.count is not None:
+        bound = f" (any family of this spec has at most {ub})" if ub is not None else ""
+    elif sm.get("optimal"):
+        bound = f", optimal: proven upper bound {ub}"
+    else:
+        bound = f", certified upper bound {ub} (gap {sm['gap']})" if ub is not None else ""
+    en = sm["enumeration"]
+    und = f", {en['undecided']:,} undecided (fit within 0.01 mm, if at all)" if en.get("undecided") else ""
+    return (
+        f"{counted(len(family), 'star')}, rule {family.spec.rule}, select {sm['select']}{bound}; "
+        f"{en['labelled']:,} labelled candidates: {en['realisable']:,} realisable, {en['deep_enough']:,} at least "
+        f"{sm['min_depth_mm']:g} mm deep, {en['kyfan_ok']:,} pass the necessary fit tests, {sm['candidates']:,} fit{und}; "
+        f"enumerate {family.timings['enumerate']:.2f} s, select {family.timings['select']:.2f} s, "
+        f"total {seconds:.2f} s; verified independently"
     )
