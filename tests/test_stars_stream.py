@@ -16,7 +16,8 @@ from starforge.stars import sizing as Z
 from starforge.stars import stream as S
 from starforge.stars.family import make_family
 from starforge.stars.rules import internal_ok, key_triples, window_rows
-from starforge.stars.select import block_bound, compactness_order, csr_rows, greedy
+from starforge.stars.bounds import block_bound
+from starforge.stars.select import compactness_order, csr_rows, greedy
 from starforge.stars.spec import StarSpec, spec_from_mapping
 
 SPEC = StarSpec(box_mm=(16, 12, 24), delta_mm=1.0, select="greedy")  # 133k candidates

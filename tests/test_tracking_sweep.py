@@ -76,7 +76,7 @@ def test_interval_ends_bracket_the_exhaustive_maximum():
     """For cells small enough to solve exhaustively, the interval's certified upper end is at
     least the exhaustive family and the sampled lower end at most its certified bound."""
     from starforge.stars.enumerate import edge_pool
-    from starforge.stars.select import pool_face_bound
+    from starforge.stars.bounds import pool_face_bound
 
     for cube in (16.0, 18.0):
         exhaustive = run_cell((4.0, 2.0, cube, ("face",), 10**9, 1000, 0, None))[0]

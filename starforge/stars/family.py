@@ -18,11 +18,12 @@ from starforge.geometry.rigid import (
 from starforge.geometry.tetra import face_sides, tetra_width, vertices_from_lengths
 from starforge.runtime.engine import beside
 from starforge.stars.avoid import avoid_mask
+from starforge.stars.bounds import block_bound
 from starforge.stars.boxes import place_stars
 from starforge.stars.enumerate import Candidates, edge_pool, enumerate_candidates
 from starforge.stars.model import Family, Star
 from starforge.stars.rules import internal_ok, window_bytes, window_rows
-from starforge.stars.select import block_bound, compactness_order, greedy, select_family
+from starforge.stars.select import compactness_order, greedy, select_family
 from starforge.stars.spec import StarSpec
 
 

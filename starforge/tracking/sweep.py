@@ -18,7 +18,7 @@ Every (delta, cube) cell is honest about what it knows, and the CSV says which:
   proven to fit by the exact fit decision; the family is re-checked by
   :func:`starforge.stars.family.margins`.  A family that fits a cube fits every larger one, so
   the lower end is raised to the best family of any smaller cube of the same delta.  The upper
-  end is :func:`starforge.stars.select.pool_face_bound`: a block bound over every triangle a star
+  end is :func:`starforge.stars.bounds.pool_face_bound`: a block bound over every triangle a star
   could use, valid without enumerating.
 
 The plot draws exhaustive cells as points and intervals as bars, never a sampled count as a
@@ -186,8 +186,8 @@ def run_cell(args: tuple) -> list[dict]:
     marker, delta, cube, rules, exhaustive_labelled, samples, seed, min_depth = args
     from dataclasses import replace
 
+    from starforge.stars.bounds import pool_face_bound
     from starforge.stars.enumerate import edge_pool, labelled_count
-    from starforge.stars.select import pool_face_bound
     from starforge.stars.spec import StarSpec
 
     rows = []
