@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 import starforge.stars.select as sel
-from starforge.stars.enumerate import enumerate_candidates
-from starforge.stars.rules import grid_steps, internal_ok, window_rows
 from starforge.stars.bounds import block_bound
+from starforge.stars.enumerate import enumerate_candidates
 from starforge.stars.packing import Packing
+from starforge.stars.rules import grid_steps, internal_ok, window_rows
 from starforge.stars.select import (
     compactness_order,
     csr_rows,

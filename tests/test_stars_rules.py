@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from starforge.geometry.tetra import RELABELLINGS, face_sides
+from starforge.stars.bounds import block_bound
 from starforge.stars.enumerate import enumerate_candidates
 from starforge.stars.rules import grid_steps, internal_ok, window_rows
-from starforge.stars.bounds import block_bound
 from starforge.stars.select import compactness_order, greedy, local_search, milp
 from starforge.stars.spec import StarSpec
 

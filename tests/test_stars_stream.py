@@ -14,9 +14,9 @@ from starforge.errors import StarforgeError
 from starforge.stars import enumerate as E
 from starforge.stars import sizing as Z
 from starforge.stars import stream as S
+from starforge.stars.bounds import block_bound
 from starforge.stars.family import make_family
 from starforge.stars.rules import internal_ok, key_triples, window_rows
-from starforge.stars.bounds import block_bound
 from starforge.stars.select import compactness_order, csr_rows, greedy
 from starforge.stars.spec import StarSpec, spec_from_mapping
 
