@@ -436,7 +436,7 @@ def test_face_proof_rejects_only_what_the_plain_search_rejects(box):
     first pass without it) are, one by one, proven not to fit by the plain search
     (``prune=False``, no quick proofs); and the whole enumeration, codes and box volumes of
     every labelled candidate, is the same with and without the table."""
-    from starforge.stars import enumerate as E
+    from starforge.stars import classify as E
 
     spec = StarSpec(box_mm=box, marker_mm=4, delta_mm=1.5)
     pool, m = edge_pool(spec), spec.grid_steps
@@ -473,7 +473,7 @@ def test_star_box_volume_is_the_general_formula_bit_for_bit():
     """The enumeration's box volume leaves out the terms with the zero coordinates of a star
     placed by the trilateration; the floats must be those of the general formula (every point,
     every term, left to right), on random stars under random rotations."""
-    from starforge.stars.enumerate import _box_volume, _centres
+    from starforge.stars.classify import _box_volume, _centres
 
     rng = np.random.default_rng(8)
     L = rng.uniform(5, 40, (20_000, 6))

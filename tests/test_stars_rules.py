@@ -197,7 +197,7 @@ def test_fitting_box_volumes_are_the_plain_float_products():
     row, each projection summed x0 r0 + x1 r1 + x2 r2 in Python floats, for centres placed as
     the enumeration places them (A at the origin, B on +x, C in the xy-plane): the selection
     orders stars by them, so the family depends on every bit."""
-    from starforge.stars.enumerate import _box_volume
+    from starforge.stars.classify import _box_volume
 
     rng = np.random.default_rng(5)
     P, R = rng.normal(size=(30, 4, 3)) * 7, rng.normal(size=(30, 3, 3))

@@ -245,7 +245,7 @@ def test_large_exhaustive_cells_are_timed_by_their_own_pilot(monkeypatch):
     """A cube cell whose fixed-rate guess is past PILOT_ABOVE_S is estimated from its pilot's
     CPU rate and fit share (enumeration + one selection per rule); small cells never pay for a
     pilot.  The pilot itself is the enumeration's, classified exactly as the enumeration does."""
-    from starforge.stars.enumerate import labelled_count, pilot
+    from starforge.stars.estimate import labelled_count, pilot
     from starforge.tracking import sweep as S
 
     calls = []

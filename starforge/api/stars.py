@@ -20,7 +20,7 @@ from starforge.errors import StarforgeError
 from starforge.io import atomic_write_json, check_name, check_writable, staged_output
 from starforge.markers import marker_diameter_mm
 from starforge.runtime import progress as runtime_progress
-from starforge.stars.enumerate import check_memory, check_size
+from starforge.stars.estimate import check_memory, check_size
 from starforge.stars.family import make_family as _make_family
 from starforge.stars.model import Family, family_csv
 from starforge.stars.spec import StarSpec, spec_from_mapping

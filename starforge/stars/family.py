@@ -20,7 +20,8 @@ from starforge.runtime.engine import beside
 from starforge.stars.avoid import avoid_mask
 from starforge.stars.bounds import block_bound
 from starforge.stars.boxes import place_stars
-from starforge.stars.enumerate import Candidates, edge_pool, enumerate_candidates
+from starforge.stars.classify import edge_pool
+from starforge.stars.enumerate import Candidates, enumerate_candidates
 from starforge.stars.model import Family, Star
 from starforge.stars.rules import internal_ok, window_bytes, window_rows
 from starforge.stars.select import compactness_order, greedy, select_family
@@ -277,7 +278,7 @@ def make_family(
     work = spec.work if milp_work is None else int(milp_work)
     t0 = time.perf_counter()
     if candidates is None:
-        from starforge.stars.enumerate import check_size
+        from starforge.stars.estimate import check_size
 
         if check_size(spec, allow_stream=True) == "stream":
             return _streamed_family(spec, progress, avoid_faces_mm, avoid_sources, star_filter, t0)
