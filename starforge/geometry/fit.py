@@ -486,7 +486,7 @@ def decide_all(P, lim, slack, start, max_cells, status, R, work, threads=None, p
     """Every set, over up to ``threads`` threads (default: every core; each set is independent,
     so the result does not depend on the thread count or the chunking).  ``prune``: with the
     corner test (:func:`corners_exclude`; the outcome and frames are the same either way)."""
-    from starforge.runtime.engine import over_ranges
+    from starforge.runtime.threads import over_ranges
 
     flag = 1 if prune else 0
 

@@ -142,7 +142,7 @@ def classify(
 ):
     """Outcome code and fitting-box volume of every labelled candidate of ``subsets`` (s, 6),
     written into ``codes`` (s, 30) int8 and ``volumes`` (s, 30), on up to ``threads`` threads
-    (:func:`starforge.runtime.engine.over_ranges`; each candidate independent, so the result does not
+    (:func:`starforge.runtime.threads.over_ranges`; each candidate independent, so the result does not
     depend on the thread count).
 
     Two passes: the serial kernel :func:`classify_range` runs the necessary tests (and in mode 0 the
@@ -171,7 +171,7 @@ def first_pass(
     """The first pass of :func:`classify` (:func:`classify_range` over ranges of ``chunk`` subsets on
     up to ``threads`` threads): ``codes`` (s, 30) gets every code but the fit decision's, and
     ``NECESSARY_OK`` for the candidates left to it."""
-    from starforge.runtime.engine import over_ranges
+    from starforge.runtime.threads import over_ranges
 
     if faces is None:
         faces = NO_FACES

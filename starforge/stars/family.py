@@ -16,7 +16,7 @@ from starforge.geometry.rigid import (
     tre_rms,
 )
 from starforge.geometry.tetra import face_sides, tetra_width, vertices_from_lengths
-from starforge.runtime.engine import beside
+from starforge.runtime.threads import beside
 from starforge.stars.avoid import avoid_mask
 from starforge.stars.bounds import block_bound
 from starforge.stars.boxes import place_stars
@@ -385,7 +385,7 @@ def _assemble(
 ) -> Family:
     """The family from its chosen stars (pool indices (k, 6), lengths, placements): accuracy,
     margins, ids (most accurate first) and the summary.  ``margins_of_L``: a function giving
-    :func:`margins` of ``L`` in its own order (started earlier, :func:`starforge.runtime.engine.beside`);
+    :func:`margins` of ``L`` in its own order (started earlier, :func:`starforge.runtime.threads.beside`);
     by default they are computed here.  (A margin is a minimum of exact differences over the
     other stars: the same floats in any order of the stars.)"""
     for i, item in enumerate(placed):
