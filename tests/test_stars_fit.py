@@ -392,7 +392,7 @@ def test_face_table_claims_only_triangles_a_dense_search_cannot_fit():
     fits into the limit widened by the slack (and many the table leaves unmarked do fit, so
     the check is not empty); the table is symmetric in its three indices, and marks only
     triples of lengths a star's face can have."""
-    from starforge.geometry.fit import FACE_TABLE_MAX_POOL, face_table
+    from starforge.geometry.faces import FACE_TABLE_MAX_POOL, face_table
 
     spec = _finger_spec()
     pool, m, limit = edge_pool(spec), spec.grid_steps, np.sort(spec.centre_limit_mm)

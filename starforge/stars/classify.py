@@ -12,7 +12,8 @@ import math
 
 import numpy as np
 
-from starforge.geometry.fit import SLACK_MM, face_table
+from starforge.geometry.faces import face_table
+from starforge.geometry.fit import SLACK_MM
 from starforge.geometry.sym3 import sym3_eigvals
 from starforge.geometry.tetra import canonical_assignments
 from starforge.runtime.kernels import numba
@@ -101,7 +102,7 @@ _FACES: dict = {}
 
 
 def spec_faces(spec: StarSpec, threads: int | None = None) -> np.ndarray:
-    """The face table of ``spec``'s exact fit decision (:func:`~starforge.geometry.fit.face_table`
+    """The face table of ``spec``'s exact fit decision (:func:`~starforge.geometry.faces.face_table`
     of its pool, tolerance in pool steps, centre limit and :data:`SLACK_MM`); the empty table
     for ``box_method = "covariance"``.  Computed once per process and kept (the last four): on
     the finger box it costs 0.005 CPU s at the default ``delta_mm = 1.5``, 0.02 at 1.0 and 0.16

@@ -16,7 +16,7 @@ Pipeline, per labelled candidate (no Python loop per star; numba, subsets spread
    squared over 4; variance along a direction is at most a quarter of the width squared);
 6. the fit decision (:mod:`starforge.geometry.fit`): first a quick no-fit proof, a table
    lookup: a face (three pool lengths) that provably does not fit the limit widened by the
-   slack (:func:`~starforge.geometry.fit.face_table`, decided once per spec and process for
+   slack (:func:`~starforge.geometry.faces.face_table`, decided once per spec and process for
    every triangle of the pool) rules the star out, and the search could only have said NO_FIT
    too: a star it calls FIT fits the limit, one it leaves UNDECIDED fits the limit plus the
    slack, and so would each face (the proof is in ``face_table``).  Then the search: proven to fit (a rotation is found), proven not to fit, or
