@@ -6,7 +6,7 @@ names give) and returns a typed result: a :class:`~starforge.stars.model.Family`
 :class:`CheckResult`.  Files are written only by the ``write_*``, ``export_*`` and ``run_*``
 calls, into a staging folder published at once (nothing half-written is left behind), and
 never over existing files without ``force=True``.  Each ``run_*`` call is one command
-(``starforge stars``, ``export``, ``check``) with its options as keywords, and each
+(``starforge stars``, ``export``, ``check``, ``sweep``) with its options as keywords, and each
 ``describe_*`` call says its result in the words the command prints.
 
 >>> import starforge.api as sf
@@ -37,6 +37,7 @@ from starforge.api.stars import (
     run_stars,
     write_family,
 )
+from starforge.api.sweep import SweepPlan, SweepRun, describe_sweep, plan_sweep, run_sweep
 
 __all__ = [
     "FAMILY_FILES",
@@ -60,4 +61,9 @@ __all__ = [
     "check",
     "run_check",
     "describe_check",
+    "SweepPlan",
+    "SweepRun",
+    "plan_sweep",
+    "run_sweep",
+    "describe_sweep",
 ]

@@ -11,7 +11,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from starforge.cad.export import CAD_FORMATS
 from starforge.errors import StarforgeError
 from starforge.io import check_writable, read_json, staged_output
 from starforge.stars.model import Family
@@ -75,6 +74,7 @@ def split_formats(text: str) -> tuple[list[str], list[str]]:
     >>> split_formats("step, qtm,stl,step")
     (['step', 'stl'], ['qtm'])
     """
+    from starforge.cad.export import CAD_FORMATS
     from starforge.tracking.formats import TRACKER_FORMATS
 
     cad, trk = [], []
@@ -329,7 +329,7 @@ def export_bodies(
     (2, ['bodies.json', 'star_001.stl'])
     """
     from starforge.cad.describe import describe_bodies
-    from starforge.cad.export import export_family
+    from starforge.cad.export import CAD_FORMATS, export_family
     from starforge.stars.model import load_family
 
     fam = family if isinstance(family, Family) else load_family(family)

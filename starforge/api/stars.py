@@ -20,11 +20,8 @@ from starforge.errors import StarforgeError
 from starforge.io import atomic_write_json, check_name, check_writable, staged_output
 from starforge.markers import marker_diameter_mm
 from starforge.runtime import progress as runtime_progress
-from starforge.stars.estimate import check_memory, check_size
-from starforge.stars.family import make_family as _make_family
 from starforge.stars.model import Family, family_csv
 from starforge.stars.spec import StarSpec, spec_from_mapping
-from starforge.stars.verify import check_family
 from starforge.tracking.presets import design_tolerance_mm, star_spec_overrides
 from starforge.words import counted
 
@@ -196,6 +193,11 @@ def make_family(
     >>> len(fam), [s.id for s in fam.stars]
     (3, [1, 2, 3])
     """
+    # the enumeration's compiled kernels load here, not when the API is imported
+    from starforge.stars.estimate import check_memory, check_size
+    from starforge.stars.family import make_family as make_stars
+    from starforge.stars.verify import check_family
+
     if not isinstance(plan, StarPlan):
         plan = plan_family(plan)
     s = plan.spec
@@ -209,7 +211,7 @@ def make_family(
         for src in avoid_sources if warn is not None else ():
             for text in src.get("warnings", ()):
                 warn(text)
-    family = _make_family(
+    family = make_stars(
         s,
         progress=progress,
         avoid_faces_mm=avoid_faces,
@@ -418,6 +420,8 @@ def _plan_or_hint(spec, options: dict, retype: Callable[[dict], str]) -> StarPla
 def _check_memory_or_hint(s: StarSpec, spec, options: dict, retype: Callable[[dict], str]) -> None:
     """Refuse a spec whose enumeration would not fit in memory, naming the options and, when a
     coarser delta fits, the command with it."""
+    from starforge.stars.estimate import check_memory
+
     try:
         check_memory(s, allow_stream=True)
         return
