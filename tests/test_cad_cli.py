@@ -188,7 +188,7 @@ def _bad_family(path: Path, kind: str) -> Path:
         (["missing"], "not found"),
         (["corrupt"], "not valid JSON"),
         (["version"], "version 99"),
-        (["other"], "need a family.json"),
+        (["other"], "print a family.json or a tracker file"),
         (["ok", "--stem-mm", "0.5"], "printable minimum"),
         (["ok", "--mount", "strap"], r"mount strap does not fit: .* by \d+\.\d\d mm; pass --allow-oversize"),
         (["ok", "--mount", "bogus"], "known: adhesive, flat, magnet, saddle, strap"),

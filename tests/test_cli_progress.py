@@ -141,6 +141,21 @@ def test_a_stage_callback_starts_each_named_stage_once():
     assert [c for c in rec.calls if c[0] == "started"] == [("started", "rays"), ("started", "optimise")]
 
 
+def test_a_stage_callback_counts_each_stage_in_its_own_unit():
+    units = []
+
+    class Units(Record):
+        def started(self, st):
+            units.append((st.name, st.unit))
+
+    with progress.reporting(Units(), Clock()):
+        cb = progress.report({"simulate": "frames", "curve": "noise levels"})
+        cb("simulate", 1, 10)
+        cb("curve", 1, 8)
+        cb("render", 0, 1)
+    assert units == [("simulate", "frames"), ("curve", "noise levels"), ("render", "")]
+
+
 def test_nobody_listening_costs_nothing():
     assert progress.current() is None
     with progress.stage("alone", 2) as s:
@@ -212,4 +227,4 @@ def test_export_stages_and_quiet(small_family, tmp_path, capsys, no_hold):
     assert run_cli([*args, "-q", "--out", tmp_path / "q"]) == 0
     assert capsys.readouterr() == ("", "")
     assert run_cli([*args, "--out", tmp_path / "v"]) == 0
-    assert _stages(capsys.readouterr().err) == ["mesh", "plate", "preview"]
+    assert _stages(capsys.readouterr().err) == ["mesh", "plate", "preview", "sheet"]

@@ -22,6 +22,7 @@ from starforge.api.bodies import (
     ExportResult,
     describe_export,
     export_bodies,
+    load_printable,
     run_export,
     write_tracker_files,
 )
@@ -53,6 +54,7 @@ __all__ = [
     "run_stars",
     "describe_family",
     "export_bodies",
+    "load_printable",
     "write_tracker_files",
     "run_export",
     "describe_export",

@@ -11,8 +11,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from starforge.cad.tools import ToolSet
 from starforge.errors import StarforgeError
 from starforge.io import check_writable, read_json, staged_output
+from starforge.markers import marker_diameter_mm
 from starforge.stars.model import Family
 from starforge.words import counted
 
@@ -21,6 +23,7 @@ __all__ = [
     "default_out",
     "describe_export",
     "export_bodies",
+    "load_printable",
     "parse_bed",
     "run_export",
     "split_formats",
@@ -48,6 +51,8 @@ class ExportResult:
         The bodies' mount and its kind (None without a CAD format).
     seconds : float
         Time the bodies took, s.
+    size_limited : bool
+        Whether the bodies have a size limit (a family's; tools from a tracker file have none).
     tracker_warnings : tuple of str
         About the bodies read for tracker files (left out, renamed).
     tolerance_note : str or None
@@ -62,6 +67,7 @@ class ExportResult:
     mount: str | None = None
     mount_kind: str | None = None
     seconds: float = 0.0
+    size_limited: bool = True
     tracker_warnings: tuple[str, ...] = ()
     tolerance_note: str | None = None
 
@@ -127,6 +133,45 @@ def default_out(file: Path, cad: bool) -> Path:
     return folder / ("bodies" if cad else "tracker")
 
 
+def load_printable(path: str | Path, marker: str | float | None = None):
+    """What ``export`` prints from ``path``: a ``family.json`` (or its folder) as a
+    :class:`~starforge.stars.model.Family`, or a tracker file's rigid bodies (QTM, Vicon, Atracsys,
+    NDI .rom, Motive, CSV; 3 to 16 markers each) as a :class:`~starforge.cad.tools.ToolSet`, each
+    body in its own placement frame, its files named after it.
+
+    ``marker``: the marker (diameter in mm or catalogue name) a tool's spheres are printed for;
+    None takes the file's, else 4 mm.  A family keeps the marker it was made for.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> f = Path(tempfile.mkdtemp()) / "wand.csv"
+    >>> _ = f.write_text("body,marker,x_mm,y_mm,z_mm\\n" + "".join(
+    ...     f"wand,{i},{x},{y},{z}\\n" for i, (x, y, z) in enumerate([(0, 0, 0), (40, 0, 0), (0, 55, 0), (70, 30, 5), (20, 80, 10)])))
+    >>> tools = load_printable(f)
+    >>> [(t.name, len(t.vertices)) for t in tools.stars], tools.spec.marker_mm
+    ([('wand', 5)], 4.0)
+    """
+    from starforge.cad.tools import tool_set
+    from starforge.stars.model import FORMAT, load_family
+    from starforge.tracking.convert import file_stems, read_records
+
+    p = Path(path)
+    src = p / "family.json" if p.is_dir() else p
+    if src.suffix.lower() == ".json":
+        data = read_json(src, what="family file")
+        if data.get("format") != FORMAT:
+            raise StarforgeError(
+                f"CAD formats (step, stl, 3mf) print a family.json or a tracker file's bodies; {src} is "
+                f"{data.get('format')!r}"
+            )
+        return load_family(src)
+    records = read_records([src]).records
+    stems = file_stems([r.name for r in records])
+    bodies = [(s, r.points_mm, r.body_id, r.marker_mm) for s, r in zip(stems, records, strict=True)]
+    return tool_set(bodies, name=src.stem, marker_mm=None if marker is None else marker_diameter_mm(marker))
+
+
 def run_export(
     file: str | Path,
     formats: str = "step,stl,3mf",
@@ -187,20 +232,13 @@ def run_export(
                 from starforge.cad.step_worker import StepProcess
 
                 worker = StepProcess()
-            from starforge.stars.model import FORMAT, load_family
-
-            data = read_json(src, what="family file")
-            if data.get("format") != FORMAT:
-                raise StarforgeError(
-                    f"CAD formats ({', '.join(cad)}) need a family.json; {src} is {data.get('format')!r}"
-                )
-            family = load_family(src)
+            family = load_printable(src, body_options.get("marker"))
             from starforge.cad.export import expected_files, export_family, print_layout
 
             bed_mm = parse_bed(bed)
             # fail before the work, not after: mount, stems, ids, fit, existing files
             m, spec, id_list, bodies = describe_bodies(family, mount, sets, ids, allow_oversize, **body_options)
-            _, beds = print_layout(bodies, bed_mm, gap_mm)
+            _, beds = print_layout(bodies, bed_mm, gap_mm, plate)
             check_writable(out, expected_files(bodies, cad, plate, preview, len(beds)), force)
         elif ids or sets or preview:
             raise StarforgeError("--ids, --set and --preview apply to CAD formats (step, stl, 3mf)")
@@ -260,6 +298,7 @@ def run_export(
         mount=m.name if rep is not None else None,
         mount_kind=m.kind if rep is not None else None,
         seconds=rep.timings["total_s"] if rep is not None else 0.0,
+        size_limited=family is None or family.spec.box_mm is not None,
         tracker_warnings=tuple(bodyset.warnings) if trk else (),
         tolerance_note=summary["tolerances"].get("note") if summary is not None else None,
     )
@@ -268,15 +307,18 @@ def run_export(
 def describe_export(run: ExportResult) -> list[str]:
     """The lines that sum an export up: the bodies, their mount and fit, the least visible
     sphere (with a CAD format), and what was written where."""
+    from starforge.cad.body import sphere_letter
+
     lines = []
     if run.mount is not None:
         fits = sum(b["fits"] for b in run.entries)
         kind = "" if run.mount_kind == run.mount else f" ({run.mount_kind})"
         lines.append(
             f"{counted(run.bodies, 'body')} with mount {run.mount}{kind}: "
-            f"{fits} within the family's size limit, {run.seconds:.1f} s"
+            + (f"{fits} within the family's size limit, " if run.size_limited else "tools without a size limit, ")
+            + f"{run.seconds:.1f} s"
         )
-        worst = min((v, b["name"], "ABCD"[i]) for b in run.entries for i, v in enumerate(b["visibility"]))
+        worst = min((v, b["name"], sphere_letter(i)) for b in run.entries for i, v in enumerate(b["visibility"]))
         lines.append(
             f"least visible sphere: {worst[1]} {worst[2]}, {worst[0]:.2f} of its upper hemisphere free "
             "(per sphere in bodies.json)"
@@ -286,7 +328,7 @@ def describe_export(run: ExportResult) -> list[str]:
 
 
 def export_bodies(
-    family: Family | str | Path,
+    family: Family | ToolSet | str | Path,
     out: str | Path,
     *,
     mount: str | None = None,
@@ -303,8 +345,9 @@ def export_bodies(
 
     Parameters
     ----------
-    family : Family or path
-        A family, or its ``family.json`` (or folder).
+    family : Family, ToolSet or path
+        A family, or its ``family.json`` (or folder); or a tracker file whose rigid bodies (3 to 16
+        markers) are printed as tools (:func:`load_printable`).
     out : path
         Output folder.
     mount : str, optional
@@ -330,9 +373,8 @@ def export_bodies(
     """
     from starforge.cad.describe import describe_bodies
     from starforge.cad.export import CAD_FORMATS, export_family
-    from starforge.stars.model import load_family
 
-    fam = family if isinstance(family, Family) else load_family(family)
+    fam = family if isinstance(family, (Family, ToolSet)) else load_printable(family)
     bad = [f for f in formats if f not in CAD_FORMATS]
     if bad:
         raise StarforgeError(f"unknown CAD format {bad[0]!r}; known: {', '.join(CAD_FORMATS)}")

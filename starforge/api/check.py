@@ -156,7 +156,7 @@ def run_check(
     folder = Path(out)
     names = ("check.json",) + (("check.png",) if curve_points > 0 else ())
     check_writable(folder, names, force)
-    doc = simulate(bodyset, s, progress=progress.report("frames"))
+    doc = simulate(bodyset, s, progress=progress.report({"simulate": "frames", "curve": "noise levels"}))
     with staged_output(folder, force) as stage:
         atomic_write_json(stage / "check.json", doc)
         if curve_points > 0:

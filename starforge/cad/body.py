@@ -218,6 +218,11 @@ class Body:
         return np.array(self.centres, dtype=float)
 
 
+def sphere_letter(i: int) -> str:
+    """A body's i-th sphere as the family paper names a star's: A, B, C, D, then E, F, ..."""
+    return chr(ord("A") + int(i))
+
+
 def body_name(star_id: int) -> str:
     """File stem and STEP name of a star's body: ``star_007``."""
     return f"star_{int(star_id):03d}"
@@ -284,7 +289,7 @@ def route_stems(
                 break
         if found is None:
             raise StarforgeError(
-                f"no stem route for sphere {'ABCD'[i] if n == 4 else i} clear of the other spheres "
+                f"no stem route for sphere {sphere_letter(i)} clear of the other spheres "
                 f"(stem {2 * stem_radius_mm:.2f} mm, tilt <= {max_tilt_deg:g} deg)"
             )
         roots[i] = found
@@ -606,10 +611,11 @@ class FitReport:
 
 
 def fit_report(body: Body, limit_mm) -> FitReport:
-    """Compare the body's sorted sides with the sorted limit (any axis assignment)."""
+    """Compare the body's sorted sides with the sorted limit (any axis assignment); a limit of
+    None (a tool read from a tracker file) is met by any body."""
     b = body_bounds(body)
     size = b[1] - b[0]
-    lim = np.asarray(limit_mm, float)
+    lim = np.full(3, np.inf) if limit_mm is None else np.asarray(limit_mm, float)
     excess = np.maximum(np.sort(size) - np.sort(lim) - 1e-9, 0.0)
     return FitReport(
         size_mm=tuple(float(v) for v in size),

@@ -24,13 +24,22 @@ in bodies.json.  A family made with ``starforge stars --mount NAME`` never needs
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from starforge.cad.body import Body, BodySpec, body_bounds, build_body, closest_features_mm, fit_report
+from starforge.cad.body import (
+    Body,
+    BodySpec,
+    body_bounds,
+    build_body,
+    closest_features_mm,
+    fit_report,
+    sphere_letter,
+)
 from starforge.cad.mounts import Mount
+from starforge.cad.tools import Tool
 from starforge.errors import StarforgeError
 from starforge.io import atomic_write_json
 from starforge.runtime.progress import stage as progress_stage
@@ -86,9 +95,10 @@ def family_bodies(family, ids, mount: Mount, spec: BodySpec) -> list[Body]:
     bodies = []
     for s in stars:
         try:
-            bodies.append(build_body(s.id, s.vertices, family.spec.marker_mm, mount, spec))
+            b = build_body(s.id, s.vertices, family.spec.marker_mm, mount, spec)
         except StarforgeError as exc:
-            raise StarforgeError(f"star {s.id}: {exc}") from None
+            raise StarforgeError(f"{s.name if isinstance(s, Tool) else f'star {s.id}'}: {exc}") from None
+        bodies.append(replace(b, name=s.name) if isinstance(s, Tool) else b)  # a tool's files carry its name
     return bodies
 
 
@@ -110,8 +120,9 @@ def plate_names(n_beds: int) -> list[str]:
     return ["plate"] if n_beds == 1 else [f"plate_{k + 1}" for k in range(n_beds)]
 
 
-def print_layout(bodies, bed_mm, gap_mm):
-    """(print transforms (one per body), bed layouts) from the bodies' geometry (no CAD kernel)."""
+def print_layout(bodies, bed_mm, gap_mm, plate: bool = True):
+    """(print transforms (one per body), bed layouts) from the bodies' geometry (no CAD kernel);
+    no beds without a ``plate`` (a body larger than the bed is then no reason to refuse)."""
     from starforge.cad.plate import layout_plates, print_transform
 
     transforms = [print_transform(body_bounds(b, finished=True)) for b in bodies]
@@ -121,7 +132,7 @@ def print_layout(bodies, bed_mm, gap_mm):
         corners = np.array([[bb[i, 0], bb[j, 1], bb[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
         q = corners @ T[:3, :3].T + T[:3, 3]
         bounds.append([q.min(axis=0), q.max(axis=0)])
-    return transforms, layout_plates(bounds, bed_mm, gap_mm)
+    return transforms, layout_plates(bounds, bed_mm, gap_mm) if plate else []
 
 
 def expected_files(bodies, formats, plate: bool = True, preview: bool = False, n_beds: int = 1) -> list[str]:
@@ -185,7 +196,7 @@ def export_family(
         if bodies is None:
             bodies = family_bodies(family, ids, mount, spec)
         fits = check_fit(bodies, family.spec.box_mm, mount.name, allow_oversize)
-        to_print, beds = print_layout(bodies, bed_mm, gap_mm)
+        to_print, beds = print_layout(bodies, bed_mm, gap_mm, plate)
         rep.timings["describe_s"] = time.perf_counter() - t0
         meshes: list = []
         tick = _Ticker(progress, len(bodies) * (2 if "step" in formats else 1))
@@ -244,7 +255,7 @@ def export_family(
         "units": "mm",
         "family": {
             "name": family.spec.name,
-            "box_mm": list(family.spec.box_mm),
+            "box_mm": None if family.spec.box_mm is None else list(family.spec.box_mm),
             "marker_mm": family.spec.marker_mm,
         },
         "mount": {"name": mount.name, "kind": mount.kind, "params": mount.params},
@@ -386,7 +397,7 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick
             ]
         vis = sphere_visibility(b)
         entry["visibility"] = [round(float(v), 4) for v in vis]
-        low = [f"{'ABCD'[i]} {v:.2f}" for i, v in enumerate(vis) if v < spec.min_visibility]
+        low = [f"{sphere_letter(i)} {v:.2f}" for i, v in enumerate(vis) if v < spec.min_visibility]
         if low:
             rep.warnings.append(
                 f"{b.name}: sphere(s) {', '.join(low)} see less than {spec.min_visibility:.2f} of their upper hemisphere"

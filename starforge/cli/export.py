@@ -53,7 +53,11 @@ POST = typer.Option(None, "--post-mm", help="Post diameter for --seat post, mm (
 NO_LABEL = typer.Option(False, "--no-label", help="Do not engrave the star id.")
 
 
-_FILE = typer.Argument(..., help="family.json (or its folder), or a placement.json for tracker formats.")
+_FILE = typer.Argument(
+    ...,
+    help="family.json (or its folder); a tracker file (QTM, VSK, Atracsys, ROM, Motive, CSV) whose bodies of 3 to "
+    "16 markers print as tools; or a placement.json for tracker formats.",
+)
 _OUT = typer.Option(
     None,
     "--out",

@@ -13,7 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
+from starforge.cad.body import body_bounds, body_name
+
 _DPI = 110
+
+
+#: bodies up to this size, mm, are drawn with the triangles' own edge length; larger ones with
+#: edges in proportion
+VIEW_SPAN_MM = 64.0
 
 
 def _view_triangles(body, segments: int = 20, edge_mm: float = 0.8) -> np.ndarray:
@@ -21,8 +28,12 @@ def _view_triangles(body, segments: int = 20, edge_mm: float = 0.8) -> np.ndarra
     from starforge.cad.mesh import body_manifold, manifold_arrays
     from starforge.cad.plate import TO_BED
 
-    # even-sized triangles: matplotlib sorts whole triangles by depth, long slivers misdraw
-    solid = body_manifold(body, sphere_segments=segments, cylinder_segments=12).refine_to_length(edge_mm)
+    # even-sized triangles: matplotlib sorts whole triangles by depth, long slivers misdraw; on a
+    # body larger than a star's (a lab's tool) they grow with it, so a picture keeps about a
+    # star's count of them (matplotlib's drawing time grows with the count)
+    solid = body_manifold(body, sphere_segments=segments, cylinder_segments=12)
+    span = float(np.ptp(body_bounds(body), axis=0).max())
+    solid = solid.refine_to_length(max(edge_mm, edge_mm * span / VIEW_SPAN_MM))
     v, f = manifold_arrays(solid)
     return (v @ TO_BED.T)[f]
 
@@ -123,6 +134,11 @@ def _size_text(body, limit_mm) -> str:
     return text
 
 
+def body_title(body) -> str:
+    """``star 4`` for a star's body; ``Cup (id 4)`` for a tool's (its files carry its name)."""
+    return f"star {body.star_id}" if body.name == body_name(body.star_id) else f"{body.name} (id {body.star_id})"
+
+
 def render_body_png(body, path: str | Path, size_px: int = 480, limit_mm=None) -> Path:
     """One body: a three-quarter view and a top view (its engraved id readable), titled
     ``star <id>, mount <mount>`` with its size (and the family's size limit, dashed round the
@@ -134,14 +150,16 @@ def render_body_png(body, path: str | Path, size_px: int = 480, limit_mm=None) -
     try:
         tris = _view_triangles(body)
         ax = fig.add_axes((0.0, 0.0, 0.5, 0.84), projection="3d")
-        _draw(ax, tris, "")
+        ext = np.sort(np.ptp(tris.reshape(-1, 3), axis=0))
+        # the view cube's corners lie far outside a slender body (zoomed in), not a squat one
+        _draw(ax, tris, "", zoom=1.45 if ext[1] <= 0.6 * ext[2] else 1.0)
         top = fig.add_axes((0.54, 0.06, 0.42, 0.74))
         _top(top, tris, body.label_face_y)
         if limit_mm is not None:
             _limit_box(top, body, limit_mm)
         top.autoscale_view()
         top.set_title("from above", fontsize=9)
-        fig.text(0.5, 0.95, f"star {body.star_id}, mount {body.mount}", ha="center", va="center",
+        fig.text(0.5, 0.95, f"{body_title(body)}, mount {body.mount}", ha="center", va="center",
                  fontsize=14, fontweight="bold")
         fig.text(0.5, 0.88, "size " + _size_text(body, limit_mm), ha="center", va="center", fontsize=9)
         save_png(fig, path, dpi=_DPI)
@@ -176,7 +194,7 @@ def render_sheet_png(bodies, path: str | Path, cell_px: int = 240, box_mm=None) 
             ax.set_xlim(mid[0] - half, mid[0] + half)
             ax.set_ylim(mid[1] - half, mid[1] + half)
             size = _size_text(b, None)
-            ax.set_title(f"star {b.star_id}\n{size}", fontsize=9, fontweight="bold",
+            ax.set_title(f"{body_title(b)}\n{size}", fontsize=9, fontweight="bold",
                          color="black" if fits else "#cf222e")
         note = f"from above, one scale: each cell spans {2 * half:.0f} mm"
         if box_mm is not None:
@@ -190,17 +208,19 @@ def render_sheet_png(bodies, path: str | Path, cell_px: int = 240, box_mm=None) 
 
 def draw_previews(bodies, folder: str | Path, box_mm=None) -> list[Path]:
     """``folder/<body>.png`` per body and ``folder/sheet.png`` (:func:`render_sheet_png`), as
-    progress stage "preview" (:mod:`starforge.runtime.progress`).  ``box_mm``: the family's size
+    progress stages "preview" and "sheet" (:mod:`starforge.runtime.progress`).  ``box_mm``: the family's size
     limit, drawn on the sheet against each body's outline."""
     from starforge.runtime import progress
 
     folder = Path(folder)
     folder.mkdir(exist_ok=True)
     written = []
-    with progress.stage("preview", total=len(bodies) + 1, unit="pictures") as st:
+    with progress.stage("preview", total=len(bodies), unit="pictures") as st:
         for b in bodies:
             written.append(render_body_png(b, folder / f"{b.name}.png", limit_mm=box_mm))
             st.update(advance=1)
+    # a stage of its own: the sheet draws every body, so as one more count it would take the
+    # preview's measured rate several times too short
+    with progress.stage("sheet"):
         written.append(render_sheet_png(bodies, folder / "sheet.png", box_mm=box_mm))
-        st.update(advance=1)
     return written

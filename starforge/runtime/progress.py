@@ -174,15 +174,16 @@ def note(text: str) -> None:
         rep.note(text)
 
 
-def report(unit: str = "") -> Callable[..., None]:
+def report(unit: str | dict[str, str] = "") -> Callable[..., None]:
     """A ``progress(stage_name, done, total)`` callback for library functions that take one: a new
-    name starts that stage on the installed reporter, a known one updates it."""
+    name starts that stage on the installed reporter, a known one updates it.  ``unit``: what
+    every stage counts, or a unit per stage name."""
     held: list[Stage | None] = [None]
 
     def cb(name: str, done: int | None, total: int | None = None) -> None:
         st = held[0]
         if st is None or st.name != name or st.ended:
-            st = held[0] = stage(name, total, unit)
+            st = held[0] = stage(name, total, unit.get(name, "") if isinstance(unit, dict) else unit)
         st.update(done, total)
 
     return cb

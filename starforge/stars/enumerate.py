@@ -131,6 +131,17 @@ def chunks(spec: StarSpec, size: int | None = None) -> list[tuple[int, int]]:
     return [(r, min(size, total - r)) for r in range(0, total, size)]
 
 
+def spread_order(n: int) -> np.ndarray:
+    """``0..n-1`` in bit-reversed order (those below ``n`` of the next power of two): every prefix
+    of it is spread evenly over the range, e.g. 0, 4, 2, 6, 1, 5, 3 for ``n = 7``."""
+    bits = max(int(n - 1).bit_length(), 1)
+    ranks = np.arange(1 << bits)
+    rev = np.zeros_like(ranks)
+    for b in range(bits):
+        rev |= ((ranks >> b) & 1) << (bits - 1 - b)
+    return rev[rev < n]
+
+
 def index_dtype(pool_size: int) -> type:
     """The narrowest integer type that holds pool indices: uint8 up to 256 lengths, else int16."""
     return np.uint8 if pool_size <= 256 else np.int16
@@ -231,12 +242,20 @@ def run_chunks(spec: StarSpec, consume, progress=None, workers: int | None = Non
     seconds = est["seconds"] * cores if remote else 0.0
     p = engine.plan(len(parts), seconds, workers, scheduler)
     threads = workers if p.mode == "serial" else 1
+    # the chunks run in a spread order (every prefix samples the whole rank range): their cost
+    # grows with the rank, so in rank order the rate measured early says little of the rate
+    # later, and the progress's time left would be several times too short
+    run_order = spread_order(len(parts))
+    parts = [parts[k] for k in run_order]
     tick = None
     if progress is not None:
         sizes = np.cumsum([c for _, c in parts]) * 30
 
         def tick(done, _n):
             progress(int(sizes[done - 1]), total)
+
+    def consume_ranked(i, res):
+        consume(int(run_order[i]), res)
 
     task_bytes = [chunk_bytes(c) for _, c in parts]
     # in process, two chunks at once where two fit in memory: one chunk's numpy work between
@@ -254,7 +273,7 @@ def run_chunks(spec: StarSpec, consume, progress=None, workers: int | None = Non
         progress=tick,
         what=f"enumerating {total:,} labelled candidates",
         advice="raise delta_mm or tolerance_mm, or use workers with more memory",
-        consume=consume,
+        consume=consume_ranked,
         overlap=overlap,
     )
     return int(sum(c for _, c in parts) * 30)
