@@ -229,7 +229,7 @@ ENUM_PROBE = (
     "    w, c = time.perf_counter(), time.process_time(); r = enumerate_candidates(spec)\n"
     "    runs.append((time.perf_counter() - w, time.process_time() - c))\n"
     "st = {k: v for k, v in r.stats.items() if k != 'seconds'}\n"
-    "from starforge.geometry.fit import face_table\n"
+    "from starforge.geometry.faces import face_table\n"
     "from starforge.stars.enumerate import SLACK_MM, edge_pool\n"
     "c = time.process_time(); T = face_table(edge_pool(spec), spec.grid_steps, spec.centre_limit_mm, SLACK_MM)\n"
     "face = {'cpu_s': round(time.process_time() - c, 4), 'no_fit_triangles': int(T.sum()) // 6}\n"

@@ -24,8 +24,14 @@ def small_family():
 @pytest.mark.slow
 def test_every_docstring_example_runs(monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
-    failed, tried = doctest.testmod(sf, optionflags=doctest.ELLIPSIS)
-    assert tried >= 6 and failed == 0
+    import importlib
+
+    tried = 0
+    for name in ("", ".stars", ".bodies", ".check", ".place", ".sweep"):
+        result = doctest.testmod(importlib.import_module("starforge.api" + name), optionflags=doctest.ELLIPSIS)
+        assert result.failed == 0, name
+        tried += result.attempted
+    assert tried >= 12
 
 
 def test_written_family_reloads_and_passes_the_independent_check(small_family, tmp_path):

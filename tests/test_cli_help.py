@@ -136,8 +136,8 @@ def test_stars_defaults_and_choices_in_help_are_the_ones_used(root):
 
 
 def test_other_help_texts_match_the_code(root):
+    from starforge.api.bodies import default_out
     from starforge.catalog import KINDS
-    from starforge.cli.export import default_out
     from starforge.runtime import budget
 
     kind = next(p for p in root.commands["templates"].params if p.name == "kind")

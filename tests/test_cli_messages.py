@@ -155,7 +155,9 @@ def test_export_summary_says_the_mount_once(small_family, tmp_path, capsys):
         run_cli(["export", fam, "--format", "stl", "--ids", "1", "--allow-oversize", "--out", tmp_path]) == 0
     )
     out = capsys.readouterr().out
-    assert "1 bodies with mount flat:" in out and "flat (flat)" not in out
+    assert "1 body with mount flat:" in out and "flat (flat)" not in out
+    written = [p for p in tmp_path.rglob("*") if p.is_file()]
+    assert f"wrote {len(written)} files to" in out
 
 
 def test_check_summary_rounds_and_does_not_nest(small_family, tmp_path, capsys):
@@ -167,6 +169,18 @@ def test_check_summary_rounds_and_does_not_nest(small_family, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "match 1.22 mm" in out and "1.21776" not in out
     assert all(_nesting(line) <= 1 for line in out.splitlines()), out
+
+
+def test_check_summary_names_its_window_without_nesting(small_family, tmp_path, capsys):
+    """The window derived from the bodies (its source has a parenthesis of its own) and a single
+    picture: every line nests at most one parenthesis, and counts of one read in the singular."""
+    fam, doc = small_family
+    args = ["check", fam, "--frames", "100", "--curve", "1", "--out", tmp_path]
+    assert run_cli(args) == 0
+    captured = capsys.readouterr()
+    assert "window from the bone tolerance" in captured.out
+    assert all(_nesting(line) <= 1 for line in captured.out.splitlines()), captured.out
+    assert "1 pictures" not in captured.err and "1 bodies" not in captured.out
 
 
 def test_star_table_cells_are_whole_on_a_narrow_terminal(small_family):

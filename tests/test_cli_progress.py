@@ -93,6 +93,17 @@ def test_counts_read_with_separators_and_never_none():
     assert count_text(s) == "70,778,880/211,771,560 candidates (33 %)"
 
 
+def test_a_count_of_one_reads_in_the_singular():
+    clock = Clock()
+    one = progress.Stage(None, "render", 1, "pictures", clock)
+    assert count_text(one) == "0/1 picture (0 %)"
+    many = progress.Stage(None, "mesh", None, "bodies", clock)
+    many.update(1)
+    assert count_text(many) == "1 body"
+    many.update(2)
+    assert count_text(many) == "2 bodies"
+
+
 def test_a_stage_ends_the_one_before_unless_it_runs_beside_it():
     rec = Record()
     with progress.reporting(rec, Clock()) as rep:

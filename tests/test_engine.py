@@ -350,11 +350,11 @@ def test_a_task_planned_above_the_usable_share_is_refused():
 
 
 def test_beside_returns_the_result_or_the_error_of_the_call():
-    """engine.beside: the result of fn(*args) (the same as in place), its exception raised
+    """threads.beside: the result of fn(*args) (the same as in place), its exception raised
     where the result is asked for, and no thread left behind."""
     import threading
 
-    from starforge.runtime.engine import beside
+    from starforge.runtime.threads import beside
     from starforge.stars.family import margins
 
     L = np.random.default_rng(0).uniform(8, 40, (50, 6))

@@ -570,10 +570,8 @@ def test_a_swallowed_ctrl_c_still_changes_nothing(tmp_path, monkeypatch):
         return out
 
     monkeypatch.setattr(fam, "make_family", swallowing)
-    import starforge.api
     import starforge.runtime.process
 
-    monkeypatch.setattr(starforge.api, "_make_family", swallowing)  # the name the API calls it by
 
     # the last resort (exit 1 s after the signal) is tested in a child process, not in this one
     monkeypatch.setattr(starforge.runtime.process, "STOP_DEADLINE_S", 60.0)

@@ -392,7 +392,7 @@ def test_face_table_claims_only_triangles_a_dense_search_cannot_fit():
     fits into the limit widened by the slack (and many the table leaves unmarked do fit, so
     the check is not empty); the table is symmetric in its three indices, and marks only
     triples of lengths a star's face can have."""
-    from starforge.geometry.fit import FACE_TABLE_MAX_POOL, face_table
+    from starforge.geometry.faces import FACE_TABLE_MAX_POOL, face_table
 
     spec = _finger_spec()
     pool, m, limit = edge_pool(spec), spec.grid_steps, np.sort(spec.centre_limit_mm)
@@ -436,7 +436,7 @@ def test_face_proof_rejects_only_what_the_plain_search_rejects(box):
     first pass without it) are, one by one, proven not to fit by the plain search
     (``prune=False``, no quick proofs); and the whole enumeration, codes and box volumes of
     every labelled candidate, is the same with and without the table."""
-    from starforge.stars import enumerate as E
+    from starforge.stars import classify as E
 
     spec = StarSpec(box_mm=box, marker_mm=4, delta_mm=1.5)
     pool, m = edge_pool(spec), spec.grid_steps
@@ -473,7 +473,7 @@ def test_star_box_volume_is_the_general_formula_bit_for_bit():
     """The enumeration's box volume leaves out the terms with the zero coordinates of a star
     placed by the trilateration; the floats must be those of the general formula (every point,
     every term, left to right), on random stars under random rotations."""
-    from starforge.stars.enumerate import _box_volume, _centres
+    from starforge.stars.classify import _box_volume, _centres
 
     rng = np.random.default_rng(8)
     L = rng.uniform(5, 40, (20_000, 6))

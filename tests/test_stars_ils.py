@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 import starforge.stars.select as sel
+from starforge.stars.bounds import block_bound
 from starforge.stars.enumerate import enumerate_candidates
+from starforge.stars.packing import Packing
 from starforge.stars.rules import grid_steps, internal_ok, window_rows
 from starforge.stars.select import (
-    _Packing,
-    block_bound,
     compactness_order,
     csr_rows,
     greedy,
@@ -115,7 +115,7 @@ def test_packing_bookkeeping_matches_recount(cands):
     n = len(ptr) - 1
     rank = np.empty(n, dtype=np.int64)
     rank[order] = np.arange(n)
-    P = _Packing(greedy(order, ptr, rows, n_rows), ptr, rows, n_rows, rank)
+    P = Packing(greedy(order, ptr, rows, n_rows), ptr, rows, n_rows, rank)
     rng = np.random.default_rng(1)
 
     def check():

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from starforge.geometry.tetra import RELABELLINGS, face_sides
+from starforge.stars.bounds import block_bound
 from starforge.stars.enumerate import enumerate_candidates
 from starforge.stars.rules import grid_steps, internal_ok, window_rows
-from starforge.stars.select import block_bound, compactness_order, greedy, local_search, milp
+from starforge.stars.select import compactness_order, greedy, local_search, milp
 from starforge.stars.spec import StarSpec
 
 SPEC = StarSpec(box_mm=(16, 12, 24), delta_mm=2.0)
@@ -155,7 +156,7 @@ def test_enumeration_is_sound_and_covers_every_covariance_fit(cands):
 def test_block_count_equals_a_set_of_block_tuples(m):
     """The block count (coded in narrow integers) is the number of distinct blocks, counted as
     Python tuples, minimised over the m^3 grid placements; any integer type of the keys."""
-    from starforge.stars.select import count_blocks
+    from starforge.stars.bounds import count_blocks
 
     rng = np.random.default_rng(m)
     for hi in (6, 60, 250):
@@ -171,7 +172,7 @@ def test_block_count_equals_a_set_of_block_tuples(m):
 def test_compiled_face_block_count_is_the_numpy_count():
     """block_bound's compiled count (large inputs) gives numpy's count of the face keys' blocks,
     for every block size and index type, and block_bound takes it from the threshold up."""
-    import starforge.stars.select as sel
+    import starforge.stars.bounds as sel
 
     rng = np.random.default_rng(11)
     for hi in (8, 40, 200):
@@ -180,7 +181,7 @@ def test_compiled_face_block_count_is_the_numpy_count():
         for m in (1, 2, 3):
             want = sel.count_blocks(faces, m)
             for dt in (np.uint8, np.int16, np.int64):
-                assert sel._count_face_blocks_compiled(idx.astype(dt), m) == want
+                assert sel.count_face_blocks_compiled(idx.astype(dt), m) == want
     idx = np.array([rng.choice(30, 6, replace=False) for _ in range(500)]).astype(np.int16)
     old = sel.BLOCK_KERNEL_STARS
     try:
@@ -196,7 +197,7 @@ def test_fitting_box_volumes_are_the_plain_float_products():
     row, each projection summed x0 r0 + x1 r1 + x2 r2 in Python floats, for centres placed as
     the enumeration places them (A at the origin, B on +x, C in the xy-plane): the selection
     orders stars by them, so the family depends on every bit."""
-    from starforge.stars.enumerate import _box_volume
+    from starforge.stars.classify import _box_volume
 
     rng = np.random.default_rng(5)
     P, R = rng.normal(size=(30, 4, 3)) * 7, rng.normal(size=(30, 3, 3))

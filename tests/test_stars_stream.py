@@ -12,11 +12,13 @@ import pytest
 from starforge.catalog import load_template
 from starforge.errors import StarforgeError
 from starforge.stars import enumerate as E
+from starforge.stars import estimate
 from starforge.stars import sizing as Z
 from starforge.stars import stream as S
+from starforge.stars.bounds import block_bound
 from starforge.stars.family import make_family
 from starforge.stars.rules import internal_ok, key_triples, window_rows
-from starforge.stars.select import block_bound, compactness_order, csr_rows, greedy
+from starforge.stars.select import compactness_order, csr_rows, greedy
 from starforge.stars.spec import StarSpec, spec_from_mapping
 
 SPEC = StarSpec(box_mm=(16, 12, 24), delta_mm=1.0, select="greedy")  # 133k candidates
@@ -108,7 +110,7 @@ def test_streamed_family_does_not_depend_on_the_completion_order(cands, monkeypa
 
 def test_make_family_streamed_equals_in_memory(monkeypatch):
     a = make_family(SPEC)
-    monkeypatch.setattr(E, "check_size", lambda spec, allow_stream=False: "stream")
+    monkeypatch.setattr(estimate, "check_size", lambda spec, allow_stream=False: "stream")
     b = make_family(SPEC)
     assert [s.to_json() for s in a.stars] == [s.to_json() for s in b.stars]
     assert b.summary["upper_bound"] == a.summary["upper_bound"]

@@ -24,7 +24,7 @@ HELPER = (
 AFTER = """
 import json
 import numpy as np
-from starforge.stars import enumerate as E, select as S
+from starforge.stars import classify as C, enumerate as E, packing as K, select as S
 from starforge.stars.rules import window_rows
 from starforge.stars.spec import StarSpec
 
@@ -38,8 +38,8 @@ g = S.greedy(order, ptr, rows, n_rows)
 g, _ = S.local_search(g, order, ptr, rows, n_rows)
 S.ils(g, order, ptr, rows, n_rows, iterations=20)
 out = {}
-for f in (E.classify_range, E.subsets_from, S._greedy, S._csc,
-          S._search):
+for f in (C.classify_range, C.subsets_from, S._greedy, K._csc,
+          K._search):
     out[f.py_func.__name__] = [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]
 print(json.dumps(out))
 """
@@ -89,7 +89,7 @@ def test_finish_closes_the_helpers_pipe():
 
 COLD = """
 from starforge.stars import warmup
-from starforge.stars.enumerate import classify_range
+from starforge.stars.classify import classify_range
 f = classify_range._cache._cache_file
 here = classify_range.targetctx.codegen().magic_tuple()
 out = [warmup.cache_is_cold()]

@@ -33,7 +33,7 @@ def lab(tmp_path):
 @pytest.fixture
 def captured(monkeypatch):
     """Stop ``stars`` where the family would be made and keep what it was given."""
-    import starforge.api as api
+    import starforge.stars.family as family
 
     seen = []
 
@@ -41,7 +41,7 @@ def captured(monkeypatch):
         seen.append(kw["avoid_sources"])
         raise StarforgeError("stopped before the enumeration (test)")
 
-    monkeypatch.setattr(api, "_make_family", fake)  # the name the API calls the family maker by
+    monkeypatch.setattr(family, "make_family", fake)  # the API looks the family maker up when it runs
     return seen
 
 

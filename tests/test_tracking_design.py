@@ -12,6 +12,7 @@ import pytest
 from scipy.stats import norm
 
 from starforge.tracking import identify as ident
+from starforge.tracking import library
 from starforge.tracking.bodies import load_bodies
 from starforge.tracking.presets import design_tolerance_mm, preset_names
 from starforge.tracking.tolerances import bone_tolerance_noise_mm, design_margin_mm, export_tolerances
@@ -65,7 +66,7 @@ def test_a_family_made_for_a_preset_is_safe_under_it(preset, tmp_path):
     doc = json.loads((fam / "family.json").read_text())
     bodies = load_bodies(fam / "family.json")
     lib = ident.build_library([b.points_mm for b in bodies.bodies])
-    margin = ident.drop1_margin_mm(lib)
+    margin = library.drop1_margin_mm(lib)
     # the key margin (faces, and faces relabelled) is at least the designed one
     assert (
         margin >= design_margin_mm(0.2) - 1e-6 and doc["spec"]["tolerance_mm"] >= design_margin_mm(0.2) - 1e-6

@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from starforge.geometry.rigid import kabsch
 from starforge.tracking import identify as ident
+from starforge.tracking import library
 from starforge.tracking.bodies import load_bodies
 from starforge.tracking.check import closest_triangles
 
@@ -160,9 +161,9 @@ def test_close_pairs_and_margin_match_brute_force(seed, bodies, n):
     S = lib.tri_sorted
     D = np.abs(S[:, None] - S[None]).max(axis=2)
     for window in (0.5, 3.0):
-        i, j, d = ident.close_triangle_pairs(lib, window, chunk=7)
+        i, j, d = library.close_triangle_pairs(lib, window, chunk=7)
         want = {(a, b) for a, b in zip(*np.nonzero(D < window), strict=True) if a < b}
         assert set(zip(i.tolist(), j.tolist(), strict=True)) == want
         assert np.allclose(d, D[i, j])
     np.fill_diagonal(D, np.inf)
-    assert ident.drop1_margin_mm(lib) == pytest.approx(min(D.min(), np.diff(S, axis=1).min()))
+    assert library.drop1_margin_mm(lib) == pytest.approx(min(D.min(), np.diff(S, axis=1).min()))

@@ -75,8 +75,8 @@ def test_sampled_lower_bound_is_a_valid_family(rule):
 def test_interval_ends_bracket_the_exhaustive_maximum():
     """For cells small enough to solve exhaustively, the interval's certified upper end is at
     least the exhaustive family and the sampled lower end at most its certified bound."""
+    from starforge.stars.bounds import pool_face_bound
     from starforge.stars.enumerate import edge_pool
-    from starforge.stars.select import pool_face_bound
 
     for cube in (16.0, 18.0):
         exhaustive = run_cell((4.0, 2.0, cube, ("face",), 10**9, 1000, 0, None))[0]
@@ -245,7 +245,7 @@ def test_large_exhaustive_cells_are_timed_by_their_own_pilot(monkeypatch):
     """A cube cell whose fixed-rate guess is past PILOT_ABOVE_S is estimated from its pilot's
     CPU rate and fit share (enumeration + one selection per rule); small cells never pay for a
     pilot.  The pilot itself is the enumeration's, classified exactly as the enumeration does."""
-    from starforge.stars.enumerate import labelled_count, pilot
+    from starforge.stars.estimate import labelled_count, pilot
     from starforge.tracking import sweep as S
 
     calls = []

@@ -14,6 +14,8 @@ import sys
 import threading
 import time
 
+from starforge.words import singular
+
 #: seconds between two plain progress lines (when stderr is not a terminal)
 HEARTBEAT_S = 5.0
 
@@ -22,13 +24,17 @@ HEARTBEAT_S = 5.0
 HOLD_S = HEARTBEAT_S
 
 
+def unit_of(n: int, unit: str) -> str:
+    """A stage's unit (a plural noun, or ``""``) for a count of ``n``: ``" picture"`` for 1."""
+    return f" {singular(unit) if n == 1 else unit}" if unit else ""
+
+
 def count_text(st) -> str:
     """``"70,778,880/211,771,560 candidates (33 %)"``, ``"12 bodies"`` or ``""`` (nothing counted)."""
-    unit = f" {st.unit}" if st.unit else ""
     if st.total:
-        return f"{st.done:,}/{st.total:,}{unit} ({100 * st.done / st.total:.0f} %)"
+        return f"{st.done:,}/{st.total:,}{unit_of(st.total, st.unit)} ({100 * st.done / st.total:.0f} %)"
     if st.done:
-        return f"{st.done:,}{unit}"
+        return f"{st.done:,}{unit_of(st.done, st.unit)}"
     return ""
 
 
@@ -133,7 +139,7 @@ class Plain:
 
     def started(self, st) -> None:
         self.open.append(st)
-        total = f", {st.total:,} {st.unit}".rstrip() if st.total else ""
+        total = f", {st.total:,}{unit_of(st.total, st.unit)}" if st.total else ""
         self._say(f"{st.name} started{total}")
 
     def changed(self, st) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import typer
 
 from starforge.cli._app import app
+from starforge.words import counted
 
 _FILES = typer.Argument(
     ...,
@@ -55,8 +56,8 @@ def convert_cmd(
     if quiet:
         return
     typer.echo(
-        f"{len(source.records)} bodies from {len(source.sources)} files -> {len(result.files)} "
-        f"{result.format} files in {out}"
+        f"{counted(len(source.records), 'body')} from {counted(len(source.sources), 'file')} -> "
+        f"{counted(len(result.files), result.format + ' file')} in {out}"
     )
     for line in (*source.warnings, result.lost_line()):
         if line:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import typer
 
 from starforge.cli._app import app
+from starforge.words import counted
 
 
 @app.command(
@@ -53,7 +54,7 @@ def measure_cmd(
             (stage / rel).write_bytes(data)
     if quiet:
         return
-    typer.echo(f"{len(bodies)} bodies from {traj.points_mm.shape[0]} frames of {recording} -> {out}")
+    typer.echo(f"{counted(len(bodies), 'body')} from {counted(traj.points_mm.shape[0], 'frame')} of {recording} -> {out}")
     for b in bodies:
         typer.echo(
             f"  {b.name}: {len(b.labels)} markers ({', '.join(b.labels)}), scatter <= {b.scatter_mm.max():.3f} mm, "

@@ -49,8 +49,8 @@ def preview_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
     """Draw each body (preview/star_<id>.png) and a sheet of all of them with their ids (preview/sheet.png)."""
+    from starforge.api.bodies import default_out
     from starforge.cad.describe import describe_bodies
-    from starforge.cli.export import default_out
     from starforge.io import staged_output
     from starforge.render.bodies import draw_previews
     from starforge.stars.model import load_family

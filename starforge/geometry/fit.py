@@ -66,9 +66,9 @@ undecided ones too.
 
 Before the search, the seven directions where the width of a tetrahedron has its local minima
 (the four face normals and the three common normals of opposite edges) are tried as ``a_1``:
-most sets that fit are accepted there.  Callers deciding many sets may run a quick no-fit proof
-first (:func:`face_table`, widened by the slack so that it never rejects a set the search would
-leave undecided).
+most sets that fit are accepted there.  Callers deciding many sets may run a quick no-fit
+proof first (:func:`starforge.geometry.faces.face_table`, widened by the slack so that it
+never rejects a set the search would leave undecided).
 
 The kernel is compiled with numba (serial, GIL released; :func:`decide_fit` spreads sets over
 threads, each set independent, so results do not depend on the thread count).
@@ -486,7 +486,7 @@ def decide_all(P, lim, slack, start, max_cells, status, R, work, threads=None, p
     """Every set, over up to ``threads`` threads (default: every core; each set is independent,
     so the result does not depend on the thread count or the chunking).  ``prune``: with the
     corner test (:func:`corners_exclude`; the outcome and frames are the same either way)."""
-    from starforge.runtime.engine import over_ranges
+    from starforge.runtime.threads import over_ranges
 
     flag = 1 if prune else 0
 
@@ -556,62 +556,3 @@ def decide_fit(
     return status, R, work
 
 
-#: added to ``lim + slack`` when faces are decided (:func:`face_table`): it covers the float
-#: noise between a face placed from its three lengths and the same face inside a star (about
-#: 1e-13 mm), and the search's own ``1e-9`` mm, many times over
-FACE_HAIR_MM = 1e-7
-#: pools up to this many lengths get a face table (n^3 bytes: 16 MB at 256)
-FACE_TABLE_MAX_POOL = 256
-
-
-def face_table(pool, min_steps: int, limit, slack: float = SLACK_MM, threads=None) -> np.ndarray:
-    """Which triangles of pool lengths provably do not fit the limit widened by ``slack``: a
-    quick no-fit proof for whole point sets that contain such a triangle.
-
-    Returns ``(n, n, n)`` int8 (``n = len(pool)``): 1 at ``[i, j, k]`` (in every order of the
-    three indices) when the triangle with sides ``pool[i], pool[j], pool[k]`` does not fit the
-    box ``sorted(limit) + slack + FACE_HAIR_MM`` in any orientation, proven by the search
-    (:func:`decide_fit` on the triangle's three corners: its NO_FIT is a proof whatever its
-    own slack); 0 where that is not proven, and for triples not pairwise ``min_steps`` pool
-    steps apart or not strictly a triangle (no claim).  A pool longer than
-    :data:`FACE_TABLE_MAX_POOL` gets an empty ``(0, 0, 0)`` table (no claims).
-
-    Why a set with such a face can be rejected without the search, outcome for outcome: a
-    subset of a set that fits a box fits it too.  A set the search calls FIT fits ``lim``; a
-    set it leaves UNDECIDED (open cells at the smallest size) fits ``lim + slack`` up to the
-    inner problem's ``1e-9`` mm (module docstring).  A face that does not fit
-    ``lim + slack + FACE_HAIR_MM`` rules out both (the hair covers the float noise between the
-    face's corners here and in the set), so the search could only have said NO_FIT.  (It may also settle a set that would have run into ``max_cells``: proven not to fit instead
-    of undecided.)  The table is a pure
-    function of its arguments (each triangle decided on its own, whatever the threads)."""
-    pool = np.asarray(pool, dtype=float)
-    n = len(pool)
-    if n > FACE_TABLE_MAX_POOL:
-        return np.zeros((0, 0, 0), dtype=np.int8)
-    table = np.zeros((n, n, n), dtype=np.int8)
-    m = max(1, int(min_steps))
-    pi, pj = np.nonzero(np.subtract.outer(np.arange(n), np.arange(n)) <= -m)  # i < j, m apart
-    parts = []
-    for kk in range(2 * m, n):  # the longest side: strictly shorter than the other two together
-        sel = (pj <= kk - m) & (pool[pi] + pool[pj] > pool[kk] * (1 + _EPS))
-        parts.append((pi[sel], pj[sel], np.full(int(sel.sum()), kk)))
-    if not parts or not sum(len(x[0]) for x in parts):
-        return table
-    i, j, k = (np.concatenate([x[t] for x in parts]) for t in range(3))
-    a, b, c = pool[i], pool[j], pool[k]  # a < b < c
-    # the triangle's corners: 0, (c, 0, 0), and the corner at distance b from 0, a from (c, 0, 0)
-    cx = (c * c + b * b - a * a) / (2 * c)
-    P = np.zeros((len(i), 3, 3))
-    P[:, 1, 0] = c
-    P[:, 2, 0] = cx
-    P[:, 2, 1] = np.sqrt(np.maximum(b * b - cx * cx, 0.0))
-    lim = np.sort(np.asarray(limit, dtype=float)) + float(slack) + FACE_HAIR_MM
-    status = np.zeros(len(P), dtype=np.int8)
-    R = np.empty((len(P), 3, 3))
-    work = np.zeros(len(P), dtype=np.int64)
-    decide_all(P, lim, float(slack), 1, MAX_CELLS, status, R, work, threads)
-    no = status == NO_FIT
-    i, j, k = i[no], j[no], k[no]
-    for x, y, z in ((i, j, k), (i, k, j), (j, i, k), (j, k, i), (k, i, j), (k, j, i)):
-        table[x, y, z] = 1
-    return table

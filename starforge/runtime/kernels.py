@@ -203,7 +203,7 @@ SIGNATURES = (
     ("starforge.geometry.sym3:line_spread2_many", "float64[::1], float64[:, ::1], float64[:, ::1]"),
     ("starforge.geometry.sym3:line_spread2_at_least_many", "float64[::1], float64[:, ::1], float64[:, ::1], float64"),
     (
-        "starforge.stars.select:_face_blocks",
+        "starforge.stars.bounds:_face_blocks",
         "int16[:, ::1], int64[:, ::1], int64, int64, int64, int64, int64, boolean[::1]",
     ),
     ("starforge.stars.rules:_window_codes", "int32[:, ::1], int64[:, ::1], int64, int64"),

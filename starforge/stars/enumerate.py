@@ -16,7 +16,7 @@ Pipeline, per labelled candidate (no Python loop per star; numba, subsets spread
    squared over 4; variance along a direction is at most a quarter of the width squared);
 6. the fit decision (:mod:`starforge.geometry.fit`): first a quick no-fit proof, a table
    lookup: a face (three pool lengths) that provably does not fit the limit widened by the
-   slack (:func:`~starforge.geometry.fit.face_table`, decided once per spec and process for
+   slack (:func:`~starforge.geometry.faces.face_table`, decided once per spec and process for
    every triangle of the pool) rules the star out, and the search could only have said NO_FIT
    too: a star it calls FIT fits the limit, one it leaves UNDECIDED fits the limit plus the
    slack, and so would each face (the proof is in ``face_table``).  Then the search: proven to fit (a rotation is found), proven not to fit, or
@@ -38,28 +38,35 @@ from dataclasses import dataclass
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.geometry.fit import SLACK_MM, face_table
-from starforge.geometry.sym3 import sym3_eigvals
-from starforge.geometry.tetra import canonical_assignments
+from starforge.geometry.fit import SLACK_MM
 from starforge.runtime.kernels import numba
-from starforge.stars.sizing import require_stream
+from starforge.stars.classify import (
+    BATCH_SUBSETS,
+    DECIDE_SETS,
+    FIT,
+    KY_FAN,
+    NECESSARY_OK,
+    NO_FIT,
+    TOO_THIN,
+    TOO_WIDE,
+    UNDECIDED,
+    UNREALISABLE,
+    assignment_table,
+    covariance_fits,
+    decide_left,
+    edge_pool,
+    first_pass,
+    spec_faces,
+    subsets_from,
+)
+from starforge.stars.estimate import (
+    BYTES_PER_CANDIDATE,
+    admissible_subsets,
+    check_size,
+    estimate,
+    labelled_count,
+)
 from starforge.stars.spec import StarSpec
-from starforge.tol import tol
-
-#: outcome codes per labelled candidate (int8)
-UNREALISABLE, TOO_THIN, TOO_WIDE, KY_FAN, NO_FIT, UNDECIDED, FIT, NECESSARY_OK = 0, 1, 2, 3, 4, 5, 6, 7
-STAGES = ("unrealisable", "too_thin", "too_wide", "ky_fan", "no_fit", "undecided", "fit")
-#: subsets per compiled batch (bounds the working memory: 30 codes + 30 volumes each)
-BATCH_SUBSETS = 1 << 17
-#: wall seconds per labelled candidate on 2 cores, measured on uniformly drawn finger-case
-#: subsets (2.2e-7; a first guess, replaced by a pilot measurement for any spec estimated to
-#: take more than a few seconds: :func:`check_size`)
-SECONDS_PER_LABELLED = 2e-7
-#: bytes kept per fitting candidate (index, status, volume) and a generous share of fits
-BYTES_PER_CANDIDATE = 32
-#: float noise of a length (mm) and a generic zero, frozen into the kernels as constants
-_EPS = tol.length_mm
-_ZERO = tol.zero
 
 
 @dataclass(frozen=True)
@@ -88,461 +95,6 @@ class Candidates:
     def lengths(self) -> np.ndarray:
         """(m, 6) float, mm."""
         return self.pool_mm[self.index]
-
-
-def assignment_table() -> np.ndarray:
-    """The 30 labellings (:func:`~starforge.geometry.tetra.canonical_assignments`, worked out
-    once per process there) as int64, the kernels' type: a fresh array of 180 numbers."""
-    return canonical_assignments().astype(np.int64)
-
-
-def edge_pool(spec: StarSpec) -> np.ndarray:
-    """The pool of edge lengths, mm: ``l_min + k * delta`` up to ``l_max``."""
-    lo, _ = spec.pool_bounds_mm
-    return lo + spec.delta_mm * np.arange(spec.pool_size)
-
-
-def labelled_count(spec: StarSpec) -> int:
-    """Labelled candidates the enumeration will look at: 30 per admissible 6-subset."""
-    return 30 * admissible_subsets(spec.pool_size, spec.grid_steps)
-
-
-def admissible_subsets(n: int, m: int) -> int:
-    """6-subsets of range(n) whose elements differ pairwise by >= m (stars-and-bars)."""
-    k = 6
-    free = n - (m - 1) * (k - 1)
-    return math.comb(free, k) if free >= k else 0
-
-
-def estimate(spec: StarSpec) -> dict:
-    """Labelled candidates, seconds (2 cores) and bytes the enumeration of ``spec`` needs."""
-    labelled = labelled_count(spec)
-    cores = max(1, min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS))
-    seconds = labelled * SECONDS_PER_LABELLED * 2 / cores  # the rate was measured on 2 cores
-    # working memory: one batch of codes and volumes, the subsets of a batch, and the kept fits
-    # (at most a quarter of the labelled candidates, a generous bound seen on every spec tried)
-    nbytes = BATCH_SUBSETS * 30 * 5 + labelled / 4 * BYTES_PER_CANDIDATE + 200e6
-    return {"labelled": labelled, "seconds": seconds, "bytes": nbytes}
-
-
-#: admissible 6-subsets drawn for the pilot timing of :func:`check_size`
-PILOT_SUBSETS = 256
-#: the pilot builds the face table (:func:`spec_faces`) for pools of up to this many admissible
-#: triples (about 0.1-0.5 CPU s; the finger pool at delta 0.5: 105,995); past it the table costs
-#: seconds (a 60 mm cube at delta 0.5: 1.0 M triples, 5.7 CPU s), and a spec refused by the size
-#: check would wait for it
-PILOT_FACE_TRIANGLES = 200_000
-
-
-#: pilot measurements of this process, by (spec, samples, cpu): a ``stars`` run checks its size
-#: up to three times (the command, the family, the enumeration) and measures once
-_PILOTS: dict = {}
-
-
-def pilot(spec: StarSpec, samples: int = PILOT_SUBSETS, cpu: bool = False) -> tuple[float, float]:
-    """(wall seconds per labelled candidate, share of labelled candidates that fit), measured on
-    ``samples`` admissible 6-subsets drawn uniformly (fixed seed) and classified exactly as the
-    enumeration will.  The cost per candidate depends on the spec (how many stars reach the fit
-    decision, how hard it is), so a fixed rate can be off by an order of magnitude; a pilot is
-    not (within about 2x).  Measured once per spec in a process (later calls return the first
-    measurement).
-
-    ``cpu=True``: the rate is CPU seconds of one thread instead (the kernel run on one thread,
-    timed with :func:`time.thread_time`), for work that runs one task per core (sweep cells):
-    unlike wall time, it does not grow with the load of other jobs on the machine."""
-    key = (spec, int(samples), bool(cpu))
-    try:
-        hash(key)
-    except TypeError:  # a spec holding a list: measured every time
-        return _pilot(spec, int(samples), bool(cpu))
-    if key not in _PILOTS:
-        _PILOTS[key] = _pilot(spec, int(samples), bool(cpu))
-    return _PILOTS[key]
-
-
-def _pilot(spec: StarSpec, samples: int, cpu: bool) -> tuple[float, float]:
-    n, m = spec.pool_size, spec.grid_steps
-    free = n - (m - 1) * 5
-    if free < 6:
-        return SECONDS_PER_LABELLED, 0.0
-    rng = np.random.default_rng(0)
-    draws = np.sort(np.array([rng.choice(free, 6, replace=False) for _ in range(samples)]), axis=1)
-    sub = (draws + np.arange(6) * (m - 1)).astype(np.int16)
-    assign = assignment_table()
-    limit = np.sort(np.array(spec.centre_limit_mm, dtype=float))
-    mode = 0 if spec.box_method == "exact" else 1
-    lo = float(edge_pool(spec)[0])
-    codes = np.empty((len(sub), len(assign)), dtype=np.int8)
-    vols = np.empty((len(sub), len(assign)))
-    args = (assign, lo, float(spec.delta_mm), limit, spec.depth_mm, SLACK_MM, 100_000, mode)
-    # the table is kept for the enumeration (not part of the rate); one of many triangles takes
-    # seconds, and the pilot runs before any refusal: then it measures without (a higher rate)
-    n_tri = math.comb(max(0, n - 2 * (m - 1)), 3)
-    faces = spec_faces(spec) if n_tri <= PILOT_FACE_TRIANGLES else NO_FACES
-    classify(sub[:1], *args, codes[:1], vols[:1], faces=faces)  # compile or load the kernel, untimed
-    if cpu:
-        t = time.thread_time()
-        classify(sub, *args, codes, vols, threads=1, faces=faces)
-        rate = max(2 * SECONDS_PER_LABELLED, (time.thread_time() - t) / codes.size)
-    else:
-        t = time.perf_counter()
-        classify(sub, *args, codes, vols, chunk=16, faces=faces)  # on every thread, as the enumeration runs
-        rate = max(SECONDS_PER_LABELLED, (time.perf_counter() - t) / codes.size)
-    return rate, float(np.isin(codes, (FIT, NECESSARY_OK)).mean())
-
-
-#: tolerance in pool steps up to which a spec whose candidates do not fit in memory is selected
-#: by the streamed greedy (:mod:`starforge.stars.stream`): it checks ``m**3`` key windows per key
-#: of every fitting star, so its time grows with the cube of the tolerance in steps
-STREAM_MAX_STEPS = 2
-
-
-def check_memory(spec: StarSpec, allow_stream: bool = False) -> dict:
-    """Refuse, before any work, an enumeration past the memory limit (one line); returns
-    :func:`estimate`.  No compiled code runs (:func:`check_size` adds the time).  With
-    ``allow_stream`` a spec the streamed greedy may take (tolerance up to
-    :data:`STREAM_MAX_STEPS` pool steps) is left to :func:`check_size`, which decides after its
-    pilot."""
-    from starforge.runtime.budget import require_memory
-
-    est = estimate(spec)
-    if not (allow_stream and spec.grid_steps <= STREAM_MAX_STEPS):
-        require_memory(est["bytes"], *_what_advice(spec, est))
-    return est
-
-
-def check_size(spec: StarSpec, allow_stream: bool = False) -> str:
-    """Refuse, before any work, an enumeration past the memory or time limit (one line).  The
-    time is the labelled count times a rate measured on a pilot sample of the spec's own stars.
-
-    Returns where the candidates go: ``"memory"`` (gathered, then selected in memory) or, with
-    ``allow_stream``, ``"stream"`` when they would not fit in memory but the streamed greedy
-    (:func:`starforge.stars.stream.stream_family`) holds them within the memory and disk limits.
-    """
-    from starforge.runtime.budget import memory_limit_bytes, require_memory, require_time
-    from starforge.stars.rules import window_bytes
-
-    est = estimate(spec)
-    fits, piloted = None, False
-    if est["labelled"] and est["seconds"] > 2.0:  # cheap specs need no pilot
-        rate, fit_share = pilot(spec)
-        est["seconds"] = est["labelled"] * rate
-        fits = est["labelled"] * fit_share
-        piloted = True
-    # the selection's key windows grow with the cube of the tolerance in pool steps
-    in_memory = est["bytes"] <= memory_limit_bytes() and (
-        fits is None or window_bytes(fits, spec.rule, spec.grid_steps) <= memory_limit_bytes()
-    )
-    path = "memory"
-    if not in_memory and allow_stream and piloted and spec.grid_steps <= STREAM_MAX_STEPS:
-        require_stream(spec, est["labelled"], fits)
-        path = "stream"
-    else:
-        require_memory(est["bytes"], *_what_advice(spec, est))
-        if fits is not None:
-            require_memory(
-                window_bytes(fits, spec.rule, spec.grid_steps),
-                f"selecting among about {fits:,.0f} fitting stars (a pilot sample) with a tolerance of "
-                f"{spec.grid_steps} pool steps ({spec.grid_steps**3:,} key windows per face)",
-                "lower tolerance_mm or raise delta_mm",
-            )
-    require_time(est["seconds"], *_what_advice(spec, est))
-    return path
-
-
-def _what_advice(spec: StarSpec, est: dict) -> tuple[str, str]:
-    lo, hi = spec.pool_bounds_mm
-    what = (
-        f"enumerating {est['labelled']:,} labelled candidates (a pool of {spec.pool_size} lengths, "
-        f"{lo:.2f}..{hi:.2f} mm in {spec.delta_mm:g} mm steps)"
-    )
-    advice = "raise delta_mm, gap_mm or tolerance_mm, or shrink box_mm"
-    return what, advice
-
-
-@numba.njit(cache=True, no_cfunc_wrapper=True)
-def subsets_from(n: int, m: int, start: np.ndarray, count: int) -> np.ndarray:
-    """``count`` admissible 6-subsets of range(n) (elements >= m apart) in lexicographic order,
-    starting from ``start`` (6,); the last row returned is followed by ``start`` updated in place."""
-    out = np.empty((count, 6), dtype=np.int16)
-    c = start.copy()
-    got = 0
-    while got < count:
-        if c[0] < 0:
-            break
-        for j in range(6):
-            out[got, j] = c[j]
-        got += 1
-        # next admissible combination: bump the rightmost element that can move
-        i = 5
-        while i >= 0 and c[i] >= n - 1 - (5 - i) * m:
-            i -= 1
-        if i < 0:
-            c[0] = -1
-            break
-        c[i] += 1
-        for j in range(i + 1, 6):
-            c[j] = c[j - 1] + m
-    for j in range(6):
-        start[j] = c[j]
-    return out[:got]
-
-
-@numba.njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)  # only classify_range calls it (its cache entry holds it)
-def _width(L0, L1, L2, L3, L4, L5, vol6):
-    """Tetrahedron width from lengths (u, U, v, V, w, W) and 6 x volume: the smallest of the four
-    vertex-face heights and the three opposite-edge distances."""
-    d01, d23, d12, d03, d02, d13 = L0 * L0, L1 * L1, L2 * L2, L3 * L3, L4 * L4, L5 * L5
-    w = 1e300
-    for a, b, c in ((d01, d12, d02), (d01, d13, d03), (d02, d23, d03), (d12, d23, d13)):
-        area4sq = 4 * a * b - (a + b - c) ** 2  # (4 * area)^2 (Heron on squared sides)
-        w = min(w, 2 * vol6 / math.sqrt(max(area4sq, _ZERO)))
-    for dd, p1, p2 in (
-        (0.5 * (d03 + d12 - d02 - d13), d01, d23),
-        (0.5 * (d01 + d23 - d02 - d13), d12, d03),
-        (0.5 * (d01 + d23 - d03 - d12), d02, d13),
-    ):
-        cross2 = p1 * p2 - dd * dd
-        w = min(w, vol6 / math.sqrt(max(cross2, _ZERO)))
-    return w
-
-
-#: subsets per thread task of :func:`classify`
-THREAD_SUBSETS = 2048
-#: the empty face table: no face proof (mode 1, and pools past the table's size)
-NO_FACES = np.zeros((0, 0, 0), dtype=np.int8)
-#: face tables of this process (:func:`spec_faces`), by pool, tolerance steps and limit
-_FACES: dict = {}
-
-
-def spec_faces(spec: StarSpec, threads: int | None = None) -> np.ndarray:
-    """The face table of ``spec``'s exact fit decision (:func:`~starforge.geometry.fit.face_table`
-    of its pool, tolerance in pool steps, centre limit and :data:`SLACK_MM`); the empty table
-    for ``box_method = "covariance"``.  Computed once per process and kept (the last four): on
-    the finger box it costs 0.005 CPU s at the default ``delta_mm = 1.5``, 0.02 at 1.0 and 0.16
-    at 0.5 (about n^3 / 6 triangles for n pool lengths), where an enumeration chunk, its own task
-    (:func:`enumerate_chunk`), takes one to two.  A pure function of the spec, so results do not
-    depend on where it was computed."""
-    if spec.box_method != "exact":
-        return NO_FACES
-    pool = edge_pool(spec)
-    limit = tuple(sorted(float(x) for x in spec.centre_limit_mm))
-    key = (len(pool), float(pool[0]), float(spec.delta_mm), int(spec.grid_steps), limit)
-    if key not in _FACES:
-        while len(_FACES) >= 4:
-            _FACES.pop(next(iter(_FACES)))
-        _FACES[key] = face_table(pool, spec.grid_steps, limit, SLACK_MM, threads)
-    return _FACES[key]
-
-
-#: sets handed to the fit decision at once (bounds its working memory: points, rotations)
-DECIDE_SETS = 1 << 16
-
-
-def classify(
-    subsets,
-    assign,
-    lo,
-    step,
-    lim,
-    min_depth,
-    slack,
-    max_cells,
-    mode,
-    codes,
-    volumes,
-    threads=None,
-    chunk=THREAD_SUBSETS,
-    faces=None,
-):
-    """Outcome code and fitting-box volume of every labelled candidate of ``subsets`` (s, 6),
-    written into ``codes`` (s, 30) int8 and ``volumes`` (s, 30), on up to ``threads`` threads
-    (:func:`starforge.runtime.engine.over_ranges`; each candidate independent, so the result does not
-    depend on the thread count).
-
-    Two passes: the serial kernel :func:`classify_range` runs the necessary tests (and in mode 0 the
-    quick no-fit proofs: the face table ``faces``, :func:`spec_faces` of the same spec, or None
-    for none) over ranges of ``chunk`` subsets; the candidates left
-    (``NECESSARY_OK``) then go, :data:`DECIDE_SETS` at a time, to the fit decision's one compiled
-    entry (:func:`starforge.geometry.fit.decide_range`, shared with ``decide_fit``, so a first
-    run compiles that code once).
-
-    mode 0: the exact fit decision; mode 1: stop after the necessary tests (NECESSARY_OK).
-    """
-    first_pass(subsets, assign, lo, step, lim, min_depth, mode, codes, threads, chunk, faces)
-    volumes[:] = np.nan
-    if mode == 1:
-        return
-    left, status, vol = decide_left(subsets, assign, lo, step, lim, slack, max_cells, codes, threads)
-    s, a = np.divmod(left, codes.shape[1])
-    codes[s, a] = np.where(status == 1, FIT, np.where(status == 0, NO_FIT, UNDECIDED))
-    fit = status == 1
-    volumes[s[fit], a[fit]] = vol
-
-
-def first_pass(
-    subsets, assign, lo, step, lim, min_depth, mode, codes, threads=None, chunk=THREAD_SUBSETS, faces=None
-):
-    """The first pass of :func:`classify` (:func:`classify_range` over ranges of ``chunk`` subsets on
-    up to ``threads`` threads): ``codes`` (s, 30) gets every code but the fit decision's, and
-    ``NECESSARY_OK`` for the candidates left to it."""
-    from starforge.runtime.engine import over_ranges
-
-    if faces is None:
-        faces = NO_FACES
-    args = (subsets, assign, float(lo), float(step), lim, float(min_depth), int(mode), faces)
-
-    def run(i0, i1):
-        classify_range(*args, codes, i0, i1)
-
-    over_ranges(run, len(subsets), chunk, threads)
-
-
-def decide_left(subsets, assign, lo, step, lim, slack, max_cells, codes, threads=None):
-    """The fit decision for the candidates the first pass left (``NECESSARY_OK`` in ``codes``),
-    :data:`DECIDE_SETS` at a time.  Returns their flat positions in ``codes`` (row-major order),
-    their status (:data:`~starforge.geometry.fit.FIT`, ``NO_FIT``, ``UNDECIDED``) and the box
-    volumes of those that fit, in that order; ``codes`` is left as it is (the enumeration counts
-    and gathers from these compact arrays instead of scanning ``codes`` again)."""
-    from starforge.geometry.fit import decide_all
-
-    left = np.flatnonzero(codes == NECESSARY_OK)
-    status = np.zeros(len(left), dtype=np.int8)
-    vols = []
-    for b in range(0, len(left), DECIDE_SETS):
-        s, a = np.divmod(left[b : b + DECIDE_SETS], codes.shape[1])
-        L = float(lo) + float(step) * np.take_along_axis(subsets[s], assign[a], axis=1)
-        P = _centres(L)
-        st = status[b : b + DECIDE_SETS]
-        R = np.zeros((len(P), 3, 3))  # rows of sets that do not fit stay 0 (finite)
-        work = np.zeros(len(P), dtype=np.int64)
-        decide_all(P, lim, float(slack), 1, int(max_cells), st, R, work, threads)
-        vols.append(_box_volume(P, R)[st == 1])  # (cheaper than copying the fits out first)
-    return left, status, np.concatenate(vols) if vols else np.zeros(0)
-
-
-def _centres(L: np.ndarray) -> np.ndarray:
-    """Sphere centres (n, 4, 3) of realisable stars from lengths (n, 6) (u, U, v, V, w, W), mm:
-    the trilateration of :func:`classify_range`, operation for operation, so the floats are the
-    ones its tests saw (A at the origin, B on +x, C in the xy-plane, D above it)."""
-    u, U, v, V, w, W = np.ascontiguousarray(L.T)  # contiguous columns: the same floats, faster
-    cx = (u * u + w * w - v * v) / (2 * u)
-    cy = np.sqrt(w * w - cx * cx)
-    dx = (u * u + V * V - W * W) / (2 * u)
-    dy = (V * V - U * U + w * w - 2 * dx * cx) / (2 * cy)
-    dz = np.sqrt(V * V - dx * dx - dy * dy)
-    P = np.zeros((len(L), 4, 3))
-    P[:, 1, 0] = u
-    P[:, 2, 0], P[:, 2, 1] = cx, cy
-    P[:, 3, 0], P[:, 3, 1], P[:, 3, 2] = dx, dy, dz
-    return P
-
-
-def _box_volume(P: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """Volume of the box of each star's centres (n, 4, 3), placed by :func:`_centres` (A at the
-    origin, B on +x, C in the xy-plane), along the rows of R (n, 3, 3), mm^3.
-
-    The same floats as the general formula (per axis, each point's ``r0 x + r1 y + r2 z`` left
-    to right, the largest less the smallest, the three sides multiplied): the terms left out
-    are products with coordinates that are exactly 0 (A's, B's y and z, C's z), which change no
-    sum but the sign of a zero, and no side of a realisable star is 0.  Sums and products in a
-    fixed order: the same floats whatever the batch."""
-    u = P[:, 1, 0]
-    cx, cy = P[:, 2, 0], P[:, 2, 1]
-    dx, dy, dz = P[:, 3, 0], P[:, 3, 1], P[:, 3, 2]
-    vol = None
-    for k in range(3):
-        r0, r1, r2 = R[:, k, 0], R[:, k, 1], R[:, k, 2]
-        # point by point (a reduction over an axis of 4 is slow in numpy); A projects to 0
-        pb, pc, pd = r0 * u, r0 * cx + r1 * cy, r0 * dx + r1 * dy + r2 * dz
-        hi = np.maximum(np.maximum(np.maximum(pb, 0.0), pc), pd)
-        lo = np.minimum(np.minimum(np.minimum(pb, 0.0), pc), pd)
-        vol = hi - lo if vol is None else vol * (hi - lo)
-    return vol
-
-
-@numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)  # nogil: threads run it side by side; Ctrl-C is answered
-def classify_range(subsets, assign, lo, step, lim, min_depth, mode, faces, codes, s0, s1):
-    """The first pass of :func:`classify` for subsets ``s0 .. s1 - 1``: realisable, deep
-    enough, narrow enough, Ky Fan, and in mode 0 the quick no-fit proof (a face in ``faces``,
-    :func:`face_table`, when it is not empty); what is left is
-    ``NECESSARY_OK`` (serial: numba's ``parallel=True`` costs seconds of compile on a first run)."""
-    eps = _EPS
-    # allocated once per range (rows of P that no star writes stay 0): an allocation costs
-    # atomic updates of numba's runtime counters that the threads contend for
-    P = np.zeros((4, 3))
-    use_faces = mode == 0 and faces.shape[0] > 0
-    Ls = np.empty(6)  # the subset's six lengths, worked out once for its 30 assignments
-    for s in range(s0, s1):
-        for j in range(6):
-            Ls[j] = lo + step * subsets[s, j]
-        for a in range(assign.shape[0]):
-            u, U, v = Ls[assign[a, 0]], Ls[assign[a, 1]], Ls[assign[a, 2]]
-            V, w, W = Ls[assign[a, 3]], Ls[assign[a, 4]], Ls[assign[a, 5]]
-            cx = (u * u + w * w - v * v) / (2 * u)
-            cy2 = w * w - cx * cx
-            if cy2 <= _EPS:
-                codes[s, a] = 0
-                continue
-            cy = math.sqrt(cy2)
-            dx = (u * u + V * V - W * W) / (2 * u)
-            dy = (V * V - U * U + w * w - 2 * dx * cx) / (2 * cy)
-            dz2 = V * V - dx * dx - dy * dy
-            if dz2 <= _EPS:
-                codes[s, a] = 0
-                continue
-            dz = math.sqrt(dz2)
-            width = _width(u, U, v, V, w, W, u * cy * dz)
-            if width < min_depth - eps:
-                codes[s, a] = 1
-                continue
-            if width > lim[0] + eps:
-                codes[s, a] = 2
-                continue
-            # Ky Fan on the covariance (1/4 normalisation) of the four centres
-            mx, my, mz = (u + cx + dx) / 4, (cy + dy) / 4, dz / 4
-            P[1, 0] = u
-            P[2, 0], P[2, 1] = cx, cy
-            P[3, 0], P[3, 1], P[3, 2] = dx, dy, dz
-            sxx = syy = szz = sxy = syz = sxz = 0.0
-            for i in range(4):
-                X, Y, Z = P[i, 0] - mx, P[i, 1] - my, P[i, 2] - mz
-                sxx += X * X
-                syy += Y * Y
-                szz += Z * Z
-                sxy += X * Y
-                syz += Y * Z
-                sxz += X * Z
-            e1, e2, e3 = sym3_eigvals(sxx / 4, syy / 4, szz / 4, sxy / 4, syz / 4, sxz / 4)
-            if (
-                e1 > lim[0] ** 2 / 4 + eps
-                or e1 + e2 > (lim[0] ** 2 + lim[1] ** 2) / 4 + eps
-                or e1 + e2 + e3 > (lim[0] ** 2 + lim[1] ** 2 + lim[2] ** 2) / 4 + eps
-            ):
-                codes[s, a] = 3
-                continue
-            # a face that does not fit (faces ACD, BCD, ABD, ABC: the first two catch most)
-            if use_faces and (
-                faces[subsets[s, assign[a, 4]], subsets[s, assign[a, 3]], subsets[s, assign[a, 1]]]
-                or faces[subsets[s, assign[a, 2]], subsets[s, assign[a, 5]], subsets[s, assign[a, 1]]]
-                or faces[subsets[s, assign[a, 0]], subsets[s, assign[a, 3]], subsets[s, assign[a, 5]]]
-                or faces[subsets[s, assign[a, 0]], subsets[s, assign[a, 2]], subsets[s, assign[a, 4]]]
-            ):
-                codes[s, a] = 4  # proven not to fit: a face does not fit
-                continue
-            codes[s, a] = 7
-
-
-def _covariance_fits(P: np.ndarray, limit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The paper's test: the covariance box fits (sorted against sorted).  Returns (fits, volume)."""
-    from starforge.geometry.obb import covariance_box
-
-    if not len(P):
-        return np.zeros(0, dtype=bool), np.zeros(0)
-    _, _, ext = covariance_box(P)
-    e = np.sort(ext, axis=1)
-    lim = np.sort(limit) * (1 + _EPS) + _EPS
-    return (e <= lim).all(axis=1), np.prod(ext, axis=1)
 
 
 #: subsets per enumeration chunk (one task: about 4 M labelled candidates, 1-2 s on one core)
@@ -639,7 +191,7 @@ def enumerate_chunk(args: tuple) -> dict:
             idx = np.take_along_axis(sub[s], assign[a], axis=1)
             from starforge.geometry.tetra import vertices_from_lengths
 
-            fits, vol = _covariance_fits(vertices_from_lengths(pool[idx]), limit)
+            fits, vol = covariance_fits(vertices_from_lengths(pool[idx]), limit)
             counts[FIT] += int(fits.sum())
             counts[NO_FIT] += int((~fits).sum())
             fit_idx.append(idx[fits].astype(dt))

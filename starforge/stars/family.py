@@ -16,13 +16,15 @@ from starforge.geometry.rigid import (
     tre_rms,
 )
 from starforge.geometry.tetra import face_sides, tetra_width, vertices_from_lengths
-from starforge.runtime.engine import beside
+from starforge.runtime.threads import beside
 from starforge.stars.avoid import avoid_mask
+from starforge.stars.bounds import block_bound
 from starforge.stars.boxes import place_stars
-from starforge.stars.enumerate import Candidates, edge_pool, enumerate_candidates
+from starforge.stars.classify import edge_pool
+from starforge.stars.enumerate import Candidates, enumerate_candidates
 from starforge.stars.model import Family, Star
 from starforge.stars.rules import internal_ok, window_bytes, window_rows
-from starforge.stars.select import block_bound, compactness_order, greedy, select_family
+from starforge.stars.select import compactness_order, greedy, select_family
 from starforge.stars.spec import StarSpec
 
 
@@ -276,7 +278,7 @@ def make_family(
     work = spec.work if milp_work is None else int(milp_work)
     t0 = time.perf_counter()
     if candidates is None:
-        from starforge.stars.enumerate import check_size
+        from starforge.stars.estimate import check_size
 
         if check_size(spec, allow_stream=True) == "stream":
             return _streamed_family(spec, progress, avoid_faces_mm, avoid_sources, star_filter, t0)
@@ -383,7 +385,7 @@ def _assemble(
 ) -> Family:
     """The family from its chosen stars (pool indices (k, 6), lengths, placements): accuracy,
     margins, ids (most accurate first) and the summary.  ``margins_of_L``: a function giving
-    :func:`margins` of ``L`` in its own order (started earlier, :func:`starforge.runtime.engine.beside`);
+    :func:`margins` of ``L`` in its own order (started earlier, :func:`starforge.runtime.threads.beside`);
     by default they are computed here.  (A margin is a minimum of exact differences over the
     other stars: the same floats in any order of the stars.)"""
     for i, item in enumerate(placed):

@@ -1,6 +1,6 @@
 """What the streamed selection (:mod:`starforge.stars.stream`) needs: memory and spill disk.
 
-The size check (:func:`starforge.stars.enumerate.check_size`) asks :func:`require_stream` before
+The size check (:func:`starforge.stars.estimate.check_size`) asks :func:`require_stream` before
 any work whether a spec too large for memory fits the streamed path.
 """
 

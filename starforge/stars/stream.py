@@ -211,8 +211,9 @@ def stream_family(
     """
     from starforge.io import scratch_folder
     from starforge.stars.avoid import avoid_mask
-    from starforge.stars.enumerate import edge_pool, enumeration_stats, index_dtype, no_pool_error, run_chunks
-    from starforge.stars.select import count_blocks
+    from starforge.stars.bounds import count_blocks
+    from starforge.stars.classify import edge_pool
+    from starforge.stars.enumerate import enumeration_stats, index_dtype, no_pool_error, run_chunks
 
     t0 = time.perf_counter()
     pool = edge_pool(spec)

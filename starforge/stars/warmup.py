@@ -92,7 +92,7 @@ def cache_is_cold() -> bool:
     entries numba will not load).  (Reads numba's cache index, keyed by signature and the
     target's triple, CPU and features; any doubt counts as warm, so nothing is started.)"""
     try:
-        from starforge.stars.enumerate import classify_range
+        from starforge.stars.classify import classify_range
 
         here = classify_range.targetctx.codegen().magic_tuple()
         return not any(key[1] == here for key in classify_range._cache._cache_file._load_index())
@@ -164,7 +164,7 @@ def _helper() -> None:
     import numpy as np
 
     from starforge.stars import select as sel
-    from starforge.stars.enumerate import assignment_table, classify_range, subsets_from
+    from starforge.stars.classify import assignment_table, classify_range, subsets_from
 
     assign = assignment_table()
     sub = np.array([[0, 1, 2, 3, 4, 5]], dtype=np.int16)

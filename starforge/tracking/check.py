@@ -119,7 +119,7 @@ class CheckSettings:
 def closest_triangles(lib, window_mm: float, k: int = 10) -> list[dict]:
     """The ``k`` body pairs (a body with itself included: two of its own triangles) whose
     triangles come closest: bottleneck distance of sorted sides, mm (below ``window_mm`` only)."""
-    from starforge.tracking.identify import close_triangle_pairs
+    from starforge.tracking.library import close_triangle_pairs
 
     qi, qj, d = close_triangle_pairs(lib, window_mm)
     best: dict = {}
@@ -275,6 +275,7 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
     ``progress(stage, done, total)`` is called as frames are processed.
     """
     from starforge.tracking import identify as ident
+    from starforge.tracking.library import build_library, drop1_margin_mm
 
     t0 = time.perf_counter()
     preset = None
@@ -288,7 +289,7 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
         min(len(p) for p in points) >= 3,
         f"every body needs at least 3 markers to be identified; the smallest has {min(len(p) for p in points)}",
     )
-    lib = ident.build_library(points, names)
+    lib = build_library(points, names)
     tr = resolve_windows(bodyset, s, preset)
     match, res = tr["match_mm"], tr["residual_mm"]
     ident.check_settings(lib, s.noise_mm, s.drop, s.ghosts, s.frames, match, res)
@@ -395,7 +396,7 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
         "phantoms": tally.phantoms.tolist(),
         "worst_pairs": _worst_pairs(tally, names),
         "closest_triangles": closest_triangles(lib, 2 * match),
-        "drop1_margin_mm": ident.drop1_margin_mm(lib),
+        "drop1_margin_mm": drop1_margin_mm(lib),
         "accuracy": acc,
     }
     if preset is not None:

@@ -212,7 +212,8 @@ def identify_recording(
     an unlabelled cluster, are identified as that body with every marker right, by the same
     triangle matching and rigid fit ``starforge check`` simulates
     (:mod:`starforge.tracking.identify`, each cluster on its own)."""
-    from starforge.tracking.identify import build_library, hypotheses, resolve
+    from starforge.tracking.identify import hypotheses, resolve
+    from starforge.tracking.library import build_library
 
     lib = build_library([b.points_mm for b in bodies], [b.name for b in bodies])
     index = {x: i for i, x in enumerate(traj.labels)}

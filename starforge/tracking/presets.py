@@ -264,7 +264,8 @@ def check_between(
     * with ``identify_markers`` >= 4: ``shared_markers`` (that many markers of one body match as
       many of another).
     """
-    from starforge.tracking.identify import build_library, close_triangle_pairs, hypotheses
+    from starforge.tracking.identify import hypotheses
+    from starforge.tracking.library import build_library, close_triangle_pairs
 
     w = rules.equal_mm if window_mm is None else float(window_mm)
     out: list[Violation] = []

@@ -18,7 +18,7 @@ Every (delta, cube) cell is honest about what it knows, and the CSV says which:
   proven to fit by the exact fit decision; the family is re-checked by
   :func:`starforge.stars.family.margins`.  A family that fits a cube fits every larger one, so
   the lower end is raised to the best family of any smaller cube of the same delta.  The upper
-  end is :func:`starforge.stars.select.pool_face_bound`: a block bound over every triangle a star
+  end is :func:`starforge.stars.bounds.pool_face_bound`: a block bound over every triangle a star
   could use, valid without enumerating.
 
 The plot draws exhaustive cells as points and intervals as bars, never a sampled count as a
@@ -122,7 +122,7 @@ def sampled_lower_bound(spec, rng: np.random.Generator, samples: int = SAMPLES, 
         tetra_width,
         vertices_from_lengths,
     )
-    from starforge.stars.enumerate import edge_pool
+    from starforge.stars.classify import edge_pool
     from starforge.stars.family import margins
     from starforge.stars.rules import grid_steps, internal_ok
     from starforge.stars.stream import window_greedy
@@ -186,8 +186,9 @@ def run_cell(args: tuple) -> list[dict]:
     marker, delta, cube, rules, exhaustive_labelled, samples, seed, min_depth = args
     from dataclasses import replace
 
-    from starforge.stars.enumerate import edge_pool, labelled_count
-    from starforge.stars.select import pool_face_bound
+    from starforge.stars.bounds import pool_face_bound
+    from starforge.stars.classify import edge_pool
+    from starforge.stars.estimate import labelled_count
     from starforge.stars.spec import StarSpec
 
     rows = []
@@ -283,10 +284,10 @@ FIT_SHARE_MARGIN = 1.2
 @functools.lru_cache(maxsize=1024)
 def _cell_pilot(marker_mm: float, delta: float, cube: float) -> tuple[float, float]:
     """(CPU seconds per labelled candidate on one core, share that fit) of a cube cell, from the
-    enumeration's pilot sample (:func:`starforge.stars.enumerate.pilot`, about 0.1-0.4 s): in a
+    enumeration's pilot sample (:func:`starforge.stars.estimate.pilot`, about 0.1-0.4 s): in a
     cube far more candidates reach the fit decision than in a finger box, and deciding them is
     harder (near-symmetric limits), so the fixed rate was up to 8x low there."""
-    from starforge.stars.enumerate import pilot
+    from starforge.stars.estimate import pilot
     from starforge.stars.spec import StarSpec
 
     return pilot(StarSpec(box_mm=(cube, cube, cube), marker_mm=marker_mm, delta_mm=delta), cpu=True)
@@ -299,8 +300,8 @@ def cell_estimate(
     exhaustive cell is its enumeration plus one selection per rule; past :data:`PILOT_ABOVE_S`
     at the fixed rate, both come from a pilot sample of the cell's own stars
     (:func:`_cell_pilot`)."""
-    from starforge.stars.enumerate import BYTES_PER_CANDIDATE, SECONDS_PER_LABELLED
-    from starforge.stars.enumerate import estimate as enum_estimate
+    from starforge.stars.estimate import BYTES_PER_CANDIDATE, SECONDS_PER_LABELLED
+    from starforge.stars.estimate import estimate as enum_estimate
     from starforge.stars.rules import window_bytes
     from starforge.stars.spec import StarSpec
 
@@ -338,7 +339,7 @@ def _auto_limit(marker_mm: float, delta: float, cube: float, rules, samples: int
     """The cell's exhaustive threshold under ``--exhaustive auto``: its own labelled count when
     its enumeration fits ``share`` bytes (one worker's memory) and MAX_EXHAUSTIVE, else -1
     (an interval)."""
-    from starforge.stars.enumerate import labelled_count
+    from starforge.stars.estimate import labelled_count
     from starforge.stars.spec import StarSpec
 
     try:

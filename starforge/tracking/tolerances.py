@@ -12,7 +12,7 @@ wrong bodies out.  With ``noise_mm`` (sigma per axis) on every marker centre:
   with probability ``loss / C(n, 2)``: ``lower = sigma_d * z`` with ``z`` the two-sided normal
   quantile (a union bound: exact or conservative);
 * a wrong body differs from the right one by at least the bodies' one-marker-hidden margin
-  ``m`` (:func:`starforge.tracking.identify.drop1_margin_mm`) in some distance; measured, it stays
+  ``m`` (:func:`starforge.tracking.library.drop1_margin_mm`) in some distance; measured, it stays
   at least ``m - lower`` away, so any tolerance under ``m - lower`` keeps it out.  The tolerance
   written is the midpoint of ``[lower, m - lower]``, i.e. ``m / 2``; when ``m < 2 lower`` the
   margins cannot serve this noise, the tolerance is ``lower`` (frames are kept) and a note says
@@ -79,7 +79,7 @@ def export_tolerances(points_list, noise_mm: float = 0.2, keep: float = KEEP) ->
     lower bound), ``rule`` (how they were derived) and ``note`` when the margins are too small
     for the noise.
     """
-    from starforge.tracking.identify import build_library, drop1_margin_mm
+    from starforge.tracking.library import build_library, drop1_margin_mm
 
     non_negative("noise", noise_mm)
     n = max(len(p) for p in points_list)
