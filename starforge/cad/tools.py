@@ -17,7 +17,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.stars.boxes import place_stars
 
 #: the most markers a printed tool holds (a stem each, routed clear of the others)
 MAX_MARKERS = 16
@@ -79,6 +78,10 @@ def tool_set(
     :data:`MAX_MARKERS` markers, or with two markers closer than a marker's diameter (their
     spheres would overlap).
     """
+    # the placement's box search (scipy, numba) loads here, not with the export that imports
+    # :class:`Tool`: exporting a family needs neither
+    from starforge.stars.boxes import place_stars
+
     bodies = list(bodies)
     if not bodies:
         raise StarforgeError("no rigid body to print in the input; give a tracker file that holds one")
