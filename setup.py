@@ -31,7 +31,7 @@ class BuildPyWithKernels(build_py):
         scratch = tempfile.mkdtemp(prefix="starforge-build-")
         env = dict(os.environ, NUMBA_CACHE_DIR=scratch, STARFORGE_CACHE_DIR=scratch)  # prebuild's own
         env["PYTHONPATH"] = os.pathsep.join(filter(None, [os.path.abspath(self.build_lib), env.get("PYTHONPATH")]))
-        code = "from starforge.runtime.kernels import _prebuild_main; _prebuild_main()"
+        code = "from starforge.runtime.kernels import prebuild_main; prebuild_main()"
         try:
             res = subprocess.run([sys.executable, "-c", code, out], env=env, cwd=self.build_lib)
         finally:

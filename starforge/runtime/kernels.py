@@ -271,6 +271,6 @@ def prebuild(zip_path: str, groups: tuple[str, ...] = _GROUPS, timeout_s: float 
         os.replace(tmp, zip_path)
 
 
-def _prebuild_main() -> None:
-    """``python -c "from starforge.runtime.kernels import _prebuild_main; _prebuild_main()" OUT.zip``"""
+def prebuild_main() -> None:
+    """``python -c "from starforge.runtime.kernels import prebuild_main; prebuild_main()" OUT.zip``"""
     prebuild(sys.argv[1])

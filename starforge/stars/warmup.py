@@ -112,7 +112,7 @@ def start() -> Helper | None:
         return None
     try:
         proc = subprocess.Popen(
-            [sys.executable, "-c", "from starforge.stars.warmup import _run; _run()"],
+            [sys.executable, "-c", "from starforge.stars.warmup import child_main; child_main()"],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
@@ -197,7 +197,7 @@ def _report(group: str) -> None:
         sys.stdout.flush()
 
 
-def _run() -> None:
+def child_main() -> None:
     """The helper process: :func:`_helper`, reporting each group as it lands in the cache.
     Without the cyclic garbage collector: numba's compiler builds many short-lived object
     graphs, and the collector's passes over them cost compile time; this short-lived process
