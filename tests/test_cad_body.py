@@ -13,11 +13,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from starforge.cad.body import BodySpec, body_bounds, build_body, fit_report, label_boxes, route_stems
+from starforge.cad.body import BodySpec, body_bounds, build_body, fit_report, label_boxes
 from starforge.cad.export import parse_ids
 from starforge.cad.mounts import KINDS, MAX_GRID, find_spot, list_mounts, load_mount
 from starforge.cad.plate import layout_plates
 from starforge.cad.primitives import Box, Cylinder, Sphere
+from starforge.cad.stems import route_stems
 from starforge.cad.visibility import sphere_visibility
 from starforge.errors import StarforgeError
 from starforge.geometry.distance import (

@@ -307,7 +307,7 @@ def run_export(
 def describe_export(run: ExportResult) -> list[str]:
     """The lines that sum an export up: the bodies, their mount and fit, the least visible
     sphere (with a CAD format), and what was written where."""
-    from starforge.cad.body import sphere_letter
+    from starforge.cad.stems import sphere_letter
 
     lines = []
     if run.mount is not None:

@@ -36,9 +36,9 @@ from starforge.cad.body import (
     build_body,
     closest_features_mm,
     fit_report,
-    sphere_letter,
 )
 from starforge.cad.mounts import Mount
+from starforge.cad.stems import sphere_letter
 from starforge.cad.tools import Tool
 from starforge.errors import StarforgeError
 from starforge.io import atomic_write_json
