@@ -9,7 +9,7 @@ height).  The cost of a layout, lowest best, is led by the fraction of poses not
     C = w_untracked * untracked + w_spare * spare_shortfall + w_visibility * (1 - mean visibility)
       + w_spread * max(0, 1 - spread / spread_target) + w_near_symmetry * max(0, 1 - margin / target)
       + w_spacing * pairs closer than the spacing + w_count * (1 - exp(-(n - n0)^2 / 2))
-      + w_avoid * triangles within the tolerance of another prop's
+      + w_avoid * (triangles within the tolerance of another prop's + own conflicts)
       + w_margin * mean seat-margin shortfall
 
 with *spare_shortfall* the mean shortfall of the markers seen
@@ -20,6 +20,11 @@ line cannot give an orientation), *margin* the near-symmetry margin
 (:func:`starforge.props.symmetry.near_symmetry_margin`), and the *seat-margin shortfall* each
 marker's room to spare beyond its base (:attr:`starforge.props.seat.SeatReport.margin_m`) short
 of ``margin_target``, as a fraction of it (a marker stuck a little off its mark still seats).
+The *own conflicts* are the pairs of the layout's own triangles a tracker seeing three markers
+may mistake for each other, and its triangles it may match to themselves relabelled (two sides
+within the tolerance): :func:`starforge.props.distinct.own_triangles` at ``avoid_tolerance_mm``,
+the same tolerance other props' triangles keep.  A layout without them is flip-proof from any
+three or four of its markers (:mod:`starforge.props.distinct`).
 
 Per pose the optimizer keeps the count, sum and second moments of the seen markers, so a move
 updates every pose in O(poses) and the collinearity test is a closed-form 3 x 3 eigenvalue.
@@ -33,8 +38,9 @@ heuristic otherwise), cooled geometrically with a convergence stop, annealing th
 its near-symmetry term.  The greedy layout, the best random layout as it is, and every chain's
 best and the best random layout after the swap search are the candidates; with a held-out
 sample (``validate``: random poses with their own camera losses and seed, never the
-evaluation's) they are ranked by their tracked fraction there, then by their cost on both
-samples together, so the result is never behind either baseline on that ranking, and
+evaluation's) they are ranked by their conflicts first (close pairs and triangles a tracker may
+mistake, after :func:`untangle` swapped markers out of them: a wrong pose is worse than a missed
+frame), then by their tracked fraction there, then by their cost on both samples together, so the result is never behind either baseline on that ranking, and
 placement.json reports what each gave.  With ``polish`` the leader and the cheapest candidate
 also compete after :func:`held_out_polish` on a tuning sample of their own (not the ranking
 sample, so the ranking is not biased towards them), unless the leader tracks every ranking
@@ -62,6 +68,7 @@ from starforge.geometry.sym3 import (
     line_spread2_many,
     moments,
 )
+from starforge.props.distinct import clashes, face_tree, own_triangles
 from starforge.runtime.kernels import numba
 from starforge.spec import in_range, non_negative, positive
 
@@ -93,7 +100,7 @@ class TrackSettings:
     w_margin: float = 0.5
     near_symmetry_target_mm: float = 5.0
     spread_fraction: float = 0.2
-    avoid_tolerance_mm: float = 2.0
+    avoid_tolerance_mm: float = 2.0  # every triangle keeps this from other bodies' and the layout's own (sorted sides)
     iterations: int = 3000
     stall: int = 2000
     restarts: int = 2
@@ -300,10 +307,8 @@ class Problem:
         self.knn = tree.query(self.points, k=k)[1][:, 1:] if k > 1 else np.zeros((len(self.points), 0), int)
         self.seen_f = self.pose_seen.astype(np.float64)
         self.min_spread2 = (TRIANGLE_SPREAD * self.settings.min_height_mm / 1000.0) ** 2
-        self._avoid_tree = None
         self._margins: dict = {}
-        if self.avoid_faces is not None and len(self.avoid_faces):
-            self._avoid_tree = cKDTree(np.sort(np.asarray(self.avoid_faces, float), axis=1))
+        self._avoid_tree = face_tree(self.avoid_faces)
 
     @property
     def poses(self) -> int:
@@ -334,6 +339,7 @@ class Problem:
             "close_pairs": close,
             "markers": n,
             "avoid_conflicts": self._avoid_count(P),
+            **self._own(P),
             "margin_shortfall": float(self._margin_short(idx).mean()) if n else 0.0,
         }
         if symmetry:
@@ -367,9 +373,9 @@ class Problem:
         return 1.0 - float(self._seen_counts(np.asarray(sites, dtype=np.int64))[1].mean())
 
     def crowding(self, sites) -> int:
-        """The ``close_pairs`` plus ``avoid_conflicts`` terms of :meth:`terms` alone."""
+        """The ``close_pairs``, ``avoid_conflicts`` and ``own_conflicts`` terms of :meth:`terms` alone."""
         P = self.points[np.asarray(sites, dtype=np.int64)]
-        return self._close_pairs(P) + self._avoid_count(P)
+        return self._close_pairs(P) + self._avoid_count(P) + self._own(P)["own_conflicts"]
 
     def _margin(self, idx: np.ndarray) -> float:
         """The near-symmetry margin of a site set (cached: chains revisit layouts)."""
@@ -397,7 +403,7 @@ class Problem:
             + s.w_near_symmetry * max(0.0, 1.0 - t["near_symmetry_margin_m"] * 1000.0 / s.near_symmetry_target_mm)
             + s.w_spacing * t["close_pairs"]
             + s.w_count * (1.0 - math.exp(-((n - s.target_markers) ** 2) / 2.0))
-            + s.w_avoid * t["avoid_conflicts"]
+            + s.w_avoid * (t["avoid_conflicts"] + t.get("own_conflicts", 0))
             + s.w_margin * t.get("margin_shortfall", 0.0)
         )
 
@@ -410,14 +416,15 @@ class Problem:
         t["near_symmetry_margin_m"] = self._margin(np.asarray(sites, dtype=np.int64))
         return self._total(t)
 
-    def _avoid_count(self, P: np.ndarray) -> int:
-        if self._avoid_tree is None or len(P) < 3:
-            return 0
-        from starforge.stars.avoid import body_triangles
+    def _own(self, P: np.ndarray) -> dict:
+        """The layout's own triangles a tracker may mistake for each other or for themselves
+        relabelled (:func:`starforge.props.distinct.own_triangles` at ``avoid_tolerance_mm``), and
+        its self-margin, m."""
+        conflicts, margin = own_triangles(P, self.settings.avoid_tolerance_mm / 1000.0)
+        return {"own_conflicts": conflicts, "self_margin_m": margin}
 
-        tri = body_triangles(P * 1000.0) / 1000.0
-        d, _ = self._avoid_tree.query(tri, k=1, p=np.inf, distance_upper_bound=self.settings.avoid_tolerance_mm / 1000.0)
-        return int((d < self.settings.avoid_tolerance_mm / 1000.0).sum())
+    def _avoid_count(self, P: np.ndarray) -> int:
+        return clashes(P, self._avoid_tree, self.settings.avoid_tolerance_mm / 1000.0)
 
     # --- cheap screening of many candidate additions at once ------------------------------------
     def tracked_additions(self, sites, candidates) -> np.ndarray:
@@ -481,6 +488,33 @@ def greedy_local_search(prob: Problem, candidates_top: int = 12) -> list[int]:
         best = min(top.tolist(), key=lambda c: (prob.cost([*sites, c]), c))
         sites.append(int(best))
     return local_search(prob, sites)
+
+
+def untangle(prob: Problem, sites: list[int], rounds: int = 10, top: int = 60) -> list[int]:
+    """Swap one marker for another site while it lowers the layout's conflicts (:meth:`Problem.
+    crowding`: close pairs, triangles a tracker may mistake for another prop's or the layout's
+    own): each round takes the swap with the fewest conflicts, then the lowest screened cost,
+    among the ``top`` best-screened sites for every marker.  A layout without conflicts is
+    returned as it is."""
+    sites = list(sites)
+    cur = prob.crowding(sites)
+    for _ in range(rounds):
+        if cur == 0:
+            break
+        best = None
+        for k in range(len(sites)):
+            rest = sites[:k] + sites[k + 1 :]
+            free = np.setdiff1d(_screen_pool(prob, sites), sites)
+            approx = prob.screen_additions(rest, free)
+            for i in np.argsort(approx, kind="stable")[:top].tolist():
+                trial = rest[:k] + [int(free[i])] + rest[k:]
+                key = (prob.crowding(trial), float(approx[i]))
+                if key[0] < cur and (best is None or key < best[0]):
+                    best = (key, trial)
+        if best is None:
+            break
+        sites, cur = best[1], best[0][0]
+    return sites
 
 
 def local_search(prob: Problem, sites: list[int], rounds: int = 20, candidates_top: int = 12) -> list[int]:
@@ -695,7 +729,11 @@ def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=No
         cands["best_of_random_polished"] = tuple(local_search(prob, list(r_sites)))
     for k, r in enumerate(runs):
         cands[f"chain_{k}_polished"] = tuple(local_search(prob, list(r.sites)))
+    for name, sites in cands.items():  # conflicts first: a tracker must never mistake the layout
+        if prob.crowding(sites):
+            cands[name] = tuple(untangle(prob, list(sites)))
     costs = {name: prob.cost(list(sites)) for name, sites in cands.items()}
+    crowd = {name: prob.crowding(sites) for name, sites in cands.items()}
     sec["polish_s"] = round(time.perf_counter() - t, 3)
     held = {name: None for name in cands}
     if validate is not None:
@@ -706,8 +744,8 @@ def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=No
     def key(name):  # first listed wins a tie: the greedy layout, then the random baseline
         h = held[name]
         if h is None:
-            return (costs[name],)
-        return (h["untracked"], costs[name] + h["cost"])
+            return (crowd[name], costs[name])
+        return (crowd[name], h["untracked"], costs[name] + h["cost"])
 
     order = sorted(cands, key=key)  # stable
     polished = "none"
@@ -732,6 +770,7 @@ def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=No
                 if sorted(tuned) not in [sorted(c) for c in cands.values()]:
                     cands[name] = tuned
                     costs[name] = prob.cost(list(tuned))
+                    crowd[name] = prob.crowding(tuned)
                     held[name] = validate([tuned])[0]
             order = sorted(cands, key=key)
         sec["held_out_polish_s"] = round(time.perf_counter() - t, 3)
