@@ -476,7 +476,7 @@ def test_crowding_and_untracked_are_the_terms_they_stand_for():
         sites = rng.choice(len(prob.points), int(rng.integers(3, 9)), replace=False).tolist()
         t = prob.terms(sites, symmetry=False)
         assert prob.untracked(sites) == t["untracked"]
-        assert prob.crowding(sites) == t["close_pairs"] + t["avoid_conflicts"]
+        assert prob.crowding(sites) == t["close_pairs"] + t["avoid_conflicts"] + t["own_conflicts"]
 
 
 @pytest.mark.parametrize("case", ["all_tracked", "expensive_leader", "none_tracked_fully"])

@@ -11,9 +11,7 @@ from starforge.cli._app import SCHEDULER_HELP, app, console, use_scheduler
 from starforge.cli._jobs import job_progress
 from starforge.cli.place import NOISE, PRESET, distinct_tolerance_mm
 
-CSV_HEADER = (
-    "job,prop,rig,markers,total_cost,tracked,self_margin_mm,closest,closest_margin_mm,wrong_rate_3_seen"
-)
+CSV_HEADER = "job,prop,rig,markers,total_cost,tracked,self_margin_mm,closest,closest_margin_mm,wrong_rate_3_seen,placed_again"
 
 
 @app.command(
@@ -84,7 +82,8 @@ def place_batch_cmd(
     distinct = distinct_tolerance_mm(s, preset, noise)
     todo = jobs(props, rig or [], units, spec, seed, copies, faces, distinct)
     out = Path(out)
-    check_writable(out, [f for names, _ in todo for f in names] + ["batch.csv"], force)
+    # a layout's folder may be there from an earlier run: its placement.json is what --force replaces
+    check_writable(out, [f"{f}/placement.json" for names, _ in todo for f in names] + ["batch.csv"], force)
     # every input read before a cluster starts: the spec and rigs (the estimates), then the props
     est = [job_bytes(spec, job[3]) for _, job in todo]
     check_props(props, units)
@@ -113,10 +112,10 @@ def place_batch_cmd(
         )
         for r in dict.fromkeys(x[1][3] for x in rows)
     }  # fmt: skip  (one fleet per rig: a room)
-    lines = [CSV_HEADER] + [_csv_row(x, reports[x[1][3]]) for x in rows]
+    lines = [CSV_HEADER] + [_csv_row(x, reports[x[1][3]], i in redone) for i, x in enumerate(rows)]
     with staged_output(out, force) as stage:
         for name, _, files, _ in rows:
-            (stage / name).mkdir()
+            (stage / name).mkdir()  # staged: published beside (or over, with --force) what is there
             for fname, data in files.items():
                 atomic_write_bytes(stage / name / fname, data)
         atomic_write_text(stage / "batch.csv", "\n".join(lines) + "\n")
@@ -138,9 +137,10 @@ def place_batch_cmd(
     con.print(f"wrote {out}/: {len(rows)} placement folders and batch.csv")
 
 
-def _csv_row(row, report: dict) -> str:
-    """One layout's batch.csv line: its placement's cost and tracked fraction on fresh poses, and
-    from the fleet check its self-margin, closest other layout and wrong rate with 3 seen."""
+def _csv_row(row, report: dict, again: bool) -> str:
+    """One layout's batch.csv line: its placement's cost and tracked fraction on fresh poses, from
+    the fleet check its self-margin, closest other layout and wrong rate with 3 seen, and whether
+    it was placed again to keep clear of the others."""
     import json
 
     name, job, files, _ = row
@@ -150,5 +150,5 @@ def _csv_row(row, report: dict) -> str:
     closest = "" if b["closest"] is None else f"{b['closest_margin_mm']:.4f}"
     return (
         f"{name},{job[0]},{job[3] or ''},{cost.get('markers', '')},{cost.get('total', '')},{ev.get('tracked', '')},"
-        f"{b['self_margin_mm']:.4f},{b['closest'] or ''},{closest},{b['wrong_rate']:.6f}"
+        f"{b['self_margin_mm']:.4f},{b['closest'] or ''},{closest},{b['wrong_rate']:.6f},{int(again)}"
     )

@@ -21,6 +21,7 @@ every one of the 24 correspondences).
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 
@@ -73,6 +74,47 @@ def clashes(points: np.ndarray, tree, tol: float) -> int:
         body_triangles(np.asarray(points, dtype=float)), k=1, p=np.inf, distance_upper_bound=tol
     )
     return int((d < tol).sum())
+
+
+@functools.lru_cache(maxsize=64)
+def _pairs(n: int) -> np.ndarray:
+    """(C(n, 2), 2) every marker pair of n markers (read-only)."""
+    ij = np.array(list(itertools.combinations(range(n), 2)), dtype=np.intp).reshape(-1, 2)
+    ij.setflags(write=False)
+    return ij
+
+
+def added_conflicts(
+    points: np.ndarray, candidates: np.ndarray, tree, tol: float, chunk: int = 64
+) -> np.ndarray:
+    """(k,) for each candidate point c: how many conflicts the layout ``points + [c]`` has beyond
+    those of ``points`` alone: its new triangles (two markers and c) within ``tol`` of one of
+    ``tree``'s (:func:`clashes`), of one of the layout's triangles or of each other, or with two
+    sides within ``tol`` (:func:`own_triangles`).  So ``own_triangles(points + [c])[0] +
+    clashes(points + [c])`` is that of ``points`` plus this, for every candidate at once."""
+    P = np.asarray(points, dtype=float)
+    C = np.asarray(candidates, dtype=float).reshape(-1, 3)
+    out = np.zeros(len(C), dtype=np.int64)
+    if len(P) < 2 or not len(C):
+        return out
+    ij = _pairs(len(P))
+    base = np.linalg.norm(P[ij[:, 0]] - P[ij[:, 1]], axis=1)
+    old = body_triangles(P)
+    iu = np.triu_indices(len(ij), 1)
+    for a in range(0, len(C), chunk):
+        Q = C[a : a + chunk]
+        b = np.linalg.norm(Q[:, None] - P[None, ij[:, 0]], axis=2)
+        c = np.linalg.norm(Q[:, None] - P[None, ij[:, 1]], axis=2)
+        F = np.sort(np.stack([np.broadcast_to(base, b.shape), b, c], axis=2), axis=2)  # (q, m, 3)
+        n = (np.diff(F, axis=2).min(axis=2) < tol).sum(axis=1)
+        n += (np.abs(F[:, :, None] - F[:, None]).max(axis=3)[:, iu[0], iu[1]] < tol).sum(axis=1)
+        if len(old):
+            n += (np.abs(F[:, :, None] - old[None, None]).max(axis=3) < tol).sum(axis=(1, 2))
+        if tree is not None:
+            d, _ = tree.query(F.reshape(-1, 3), k=1, p=np.inf, distance_upper_bound=tol)
+            n += (d.reshape(F.shape[:2]) < tol).sum(axis=1)
+        out[a : a + len(Q)] = n
+    return out
 
 
 #: the 6 marker pairs of a 4-subset, in a fixed order

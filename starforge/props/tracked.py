@@ -40,7 +40,8 @@ best and the best random layout after the swap search are the candidates; with a
 sample (``validate``: random poses with their own camera losses and seed, never the
 evaluation's) they are ranked by their conflicts first (close pairs and triangles a tracker may
 mistake, after :func:`untangle` swapped markers out of them: a wrong pose is worse than a missed
-frame), then by their tracked fraction there, then by their cost on both samples together, so the result is never behind either baseline on that ranking, and
+frame; when every candidate keeps a conflict and no chain ran, :data:`RESCUE_CHAINS` chains run
+and compete too), then by their tracked fraction there, then by their cost on both samples together, so the result is never behind either baseline on that ranking, and
 placement.json reports what each gave.  With ``polish`` the leader and the cheapest candidate
 also compete after :func:`held_out_polish` on a tuning sample of their own (not the ranking
 sample, so the ranking is not biased towards them), unless the leader tracks every ranking
@@ -68,7 +69,7 @@ from starforge.geometry.sym3 import (
     line_spread2_many,
     moments,
 )
-from starforge.props.distinct import clashes, face_tree, own_triangles
+from starforge.props.distinct import added_conflicts, clashes, face_tree, own_triangles
 from starforge.runtime.kernels import numba
 from starforge.spec import in_range, non_negative, positive
 
@@ -437,8 +438,24 @@ class Problem:
         cand = np.asarray(candidates, dtype=np.int64)
         return _screen_tracked(cnt0, s10, s20, self.pose_seen[cand], self.points[cand], self.moments[cand], self.min_spread2)
 
+    def _added(self, idx: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For each candidate c: the close pairs c makes with ``idx``, and the triangle conflicts
+        (other props' and own) of ``idx + [c]``."""
+        P, C = self.points[idx], self.points[cand]
+        close = (np.linalg.norm(C[:, None] - P[None], axis=2) < self.spacing).sum(axis=1) if len(idx) else np.zeros(len(C), np.int64)
+        tol = self.settings.avoid_tolerance_mm / 1000.0
+        base = self._avoid_count(P) + self._own(P)["own_conflicts"]
+        return close, base + added_conflicts(P, C, self._avoid_tree, tol)
+
+    def crowding_additions(self, sites, candidates) -> np.ndarray:
+        """(k,) :meth:`crowding` of ``sites + [c]`` for each candidate c, all at once."""
+        idx = np.asarray(sites, dtype=np.int64)
+        close, conflicts = self._added(idx, np.asarray(candidates, dtype=np.int64))
+        return self._close_pairs(self.points[idx]) + close + conflicts
+
     def screen_additions(self, sites, candidates: np.ndarray) -> np.ndarray:
-        """An approximate cost (no near-symmetry, no avoid) of ``sites + [c]`` for each candidate c."""
+        """An approximate cost (no near-symmetry) of ``sites + [c]`` for each candidate c; its
+        new close pairs and its triangle conflicts are exact (:meth:`crowding_additions`)."""
         s = self.settings
         idx = np.asarray(sites, dtype=np.int64)
         tracked = self.tracked_additions(idx, candidates)
@@ -446,11 +463,7 @@ class Problem:
         n = len(idx) + 1
         vis = (self.visibility[idx].sum() + self.visibility[candidates]) / n
         P = self.points[idx]
-        if len(idx):
-            d = np.linalg.norm(self.points[candidates][:, None] - P[None], axis=2)
-            close = (d < self.spacing).sum(axis=1)
-        else:
-            close = np.zeros(len(candidates))
+        close, conflicts = self._added(idx, cand)
         allm = self.moments[idx].sum(0)[None] + self.moments[candidates]
         alls = P.sum(0)[None] + self.points[candidates]
         spread = np.sqrt(line_spread2_many(np.full(len(candidates), float(n)), alls, allm)) if n >= 2 else np.zeros(len(candidates))
@@ -459,6 +472,7 @@ class Problem:
             + s.w_visibility * (1.0 - vis)
             + s.w_spread * np.maximum(0.0, 1.0 - spread / self.spread_target)
             + s.w_spacing * close
+            + s.w_avoid * conflicts
             + s.w_margin * (self._margin_short(idx).sum() + self._margin_short(cand)) / n
         )
 
@@ -490,27 +504,32 @@ def greedy_local_search(prob: Problem, candidates_top: int = 12) -> list[int]:
     return local_search(prob, sites)
 
 
-def untangle(prob: Problem, sites: list[int], rounds: int = 10, top: int = 60) -> list[int]:
+def untangle(prob: Problem, sites: list[int], rounds: int = 20) -> list[int]:
     """Swap one marker for another site while it lowers the layout's conflicts (:meth:`Problem.
     crowding`: close pairs, triangles a tracker may mistake for another prop's or the layout's
     own): each round takes the swap with the fewest conflicts, then the lowest screened cost,
-    among the ``top`` best-screened sites for every marker.  A layout without conflicts is
-    returned as it is."""
+    over every marker and every free site (:meth:`Problem.crowding_additions` counts them all at
+    once).  A layout without conflicts is returned as it is."""
     sites = list(sites)
     cur = prob.crowding(sites)
+    every = np.arange(len(prob.points))
     for _ in range(rounds):
         if cur == 0:
             break
         best = None
         for k in range(len(sites)):
             rest = sites[:k] + sites[k + 1 :]
-            free = np.setdiff1d(_screen_pool(prob, sites), sites)
-            approx = prob.screen_additions(rest, free)
-            for i in np.argsort(approx, kind="stable")[:top].tolist():
-                trial = rest[:k] + [int(free[i])] + rest[k:]
-                key = (prob.crowding(trial), float(approx[i]))
-                if key[0] < cur and (best is None or key < best[0]):
-                    best = (key, trial)
+            free = np.setdiff1d(every, sites)
+            crowd = prob.crowding_additions(rest, free)
+            fewest = crowd.min() if len(free) else cur
+            if fewest >= cur or (best is not None and fewest > best[0][0]):
+                continue
+            few = free[crowd == fewest]
+            approx = prob.screen_additions(rest, few)
+            i = int(np.argmin(approx))
+            key = (int(fewest), float(approx[i]))
+            if best is None or key < best[0]:
+                best = (key, rest[:k] + [int(few[i])] + rest[k:])
         if best is None:
             break
         sites, cur = best[1], best[0][0]
@@ -683,6 +702,10 @@ def chain(prob: Problem, start: list[int], rng: np.random.Generator) -> ChainRun
     return ChainRun(best_sites, float(best), n_it, hist[:n_it].copy(), accepted)
 
 
+#: annealing chains run when no candidate is free of conflicts and the spec runs none
+RESCUE_CHAINS = 2
+
+
 @dataclass(frozen=True)
 class Optimized:
     """The chosen layout and everything that competed with it."""
@@ -748,6 +771,18 @@ def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=No
         return (crowd[name], h["untracked"], costs[name] + h["cost"])
 
     order = sorted(cands, key=key)  # stable
+    if crowd[order[0]] and s.restarts == 0:
+        # conflicts left that single swaps cannot clear: the reversible-jump chains search too
+        # (their add and remove moves also try fewer markers, which span fewer triangles)
+        t = time.perf_counter()
+        for k in range(RESCUE_CHAINS):
+            runs.append(chain(prob, greedy if r_sites is None else r_sites, rng))
+            name = f"chain_{k}_polished"
+            cands[name] = tuple(untangle(prob, local_search(prob, list(runs[-1].sites))))
+            costs[name], crowd[name] = prob.cost(list(cands[name])), prob.crowding(cands[name])
+            held[name] = validate([cands[name]])[0] if validate is not None else None
+        order = sorted(cands, key=key)
+        sec["chains_s"] = round(time.perf_counter() - t, 3)
     polished = "none"
     if polish is not None and validate is not None:
         # the leader on the held-out sample and the cheapest candidate, each polished on a tuning
