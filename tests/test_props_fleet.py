@@ -150,9 +150,9 @@ def test_copies_are_mutually_distinct_and_flip_proof(tiny_spec):
     from starforge.props.files import distinct_report
     from starforge.props.mesh import load_prop
     from starforge.props.placement import place, place_copies
-    from starforge.props.spec import load_spec, with_overrides
+    from starforge.props.spec import load_spec
 
-    spec = with_overrides(load_spec(str(tiny_spec)), distinct_mm=2.6)
+    spec = load_spec(str(tiny_spec))  # the default tolerance, 2.6 mm
     prop = load_prop("hammer", "m")
     res = place_copies(prop, spec, 3, seed=0)
     assert len(res) == 3
@@ -222,7 +222,7 @@ def test_closest_pairs_match_a_brute_force():
 
 
 @pytest.mark.slow
-def test_place_batch_copies_report_matches_the_files(tmp_path, tiny_spec):
+def test_place_batch_copies_report_matches_the_files(tmp_path, tiny_spec, capsys):
     out = tmp_path / "fleet"
     assert (
         run_cli(
@@ -259,6 +259,12 @@ def test_place_batch_copies_report_matches_the_files(tmp_path, tiny_spec):
     assert _between(pts[0], pts[1]) == pytest.approx(d, abs=1e-3)
     tol = json.loads((out / "hammer-01" / "placement.json").read_text())["tracked"]["distinct_mm"]
     assert d >= tol
+    capsys.readouterr()
+    csv_path = out / "hammer-01" / "markers.csv"
+    assert run_cli(["place", "score", "hammer", csv_path, "--spec", tiny_spec, "--json"]) == 0
+    scored = json.loads(capsys.readouterr().out)  # the layout re-scored from its markers.csv
+    assert scored["self_margin_mm"] == pytest.approx(_brute_margin(pts[0], 3), abs=0.01)
+    assert scored["self_margin_4_mm"] == pytest.approx(_brute_margin(pts[0], 4), abs=0.01)
 
 
 def test_place_batch_refusals(tmp_path, cli_error, tiny_spec):
@@ -288,13 +294,21 @@ def test_job_names_never_collide():
 
 
 def test_distinct_tolerance_follows_the_tracker():
+    from pathlib import Path
+
+    from starforge.catalog import read_toml
     from starforge.cli.place import distinct_tolerance_mm
     from starforge.props.spec import load_spec
     from starforge.tracking.tolerances import bone_tolerance_noise_mm
 
     s = load_spec("default")
     n = s.track.target_markers
-    assert distinct_tolerance_mm(s, None, 0.2) == pytest.approx(2 * bone_tolerance_noise_mm(0.2, n))
+    design = 2 * bone_tolerance_noise_mm(0.2, n)  # twice the default tracker's window at 0.2 mm
+    shipped = read_toml(Path(__file__).parents[1] / "templates" / "place" / "default.toml")["track"]
+    for value in (TrackSettings().avoid_tolerance_mm, shipped["avoid_tolerance_mm"]):
+        assert design <= value < design + 0.05  # the library's default: that, rounded up
+    assert distinct_tolerance_mm(s, None, 0.2) == max(s.track.avoid_tolerance_mm, design)
+    assert distinct_tolerance_mm(s, None, 0.5) == pytest.approx(2 * bone_tolerance_noise_mm(0.5, n))
     assert distinct_tolerance_mm(s, "art", 0.2) == pytest.approx(
         2 * max(2.0, bone_tolerance_noise_mm(0.2, n))
     )

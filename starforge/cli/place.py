@@ -359,6 +359,13 @@ def score_cmd(
     con.print(f"  seated: {sum(seated)} of {len(seated)} markers (their base rests on the surface, clear of sharp edges)")
     if "tracked_fraction" in extra:
         con.print(f"  tracked in {100 * extra['tracked_fraction']:.1f} % of the scenarios, mean visibility {cost.mean_visibility:.3f}")
+        m3, m4 = (extra[k] for k in ("self_margin_mm", "self_margin_4_mm"))
+        if m3 is not None:
+            con.print(
+                f"  self-margin {m3:.2f} mm from any 3 markers"
+                + (f", {m4:.2f} mm from any 4" if m4 is not None else "")
+                + " (under a tracker's window, those markers flip)"
+            )
         ev = extra.get("evaluation")
         if ev:
             con.print(

@@ -888,9 +888,14 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
             prop.mesh, {"layout": (centres, nrm)}, rig, pivot, spec.evaluation, seed, ts.min_height_mm, grips,
             spec.grazing_limit_deg,
         )  # fmt: skip
+        from starforge.props.distinct import subset_margin
+
+        m3, m4 = (subset_margin(centres * 1000.0, k) for k in (3, 4))
         extra = {
             "objective": "tracked",
             "tracked_fraction": 1 - t["untracked"],
+            "self_margin_mm": None if math.isinf(m3) else m3,  # from any 3 markers (flip-proof above the window)
+            "self_margin_4_mm": None if math.isinf(m4) else m4,
             "spacing_m": prob.spacing,
             "evaluation": ev["layout"],
             **seated,

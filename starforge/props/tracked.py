@@ -101,7 +101,7 @@ class TrackSettings:
     w_margin: float = 0.5
     near_symmetry_target_mm: float = 5.0
     spread_fraction: float = 0.2
-    avoid_tolerance_mm: float = 2.0  # every triangle keeps this from other bodies' and the layout's own (sorted sides)
+    avoid_tolerance_mm: float = 2.6  # every triangle keeps this from other bodies' and the layout's own (sorted sides)
     iterations: int = 3000
     stall: int = 2000
     restarts: int = 2
