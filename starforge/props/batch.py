@@ -136,15 +136,16 @@ def jobs(
     ``a_b-2``)."""
     rigs = list(rigs) or [None]
     out, taken = [], set()
+    room = 100 - (0 if copies == 1 else 1 + max(2, len(str(copies))))  # a name's length, its copy's suffix left
     for p in props:
         for r in rigs:
-            base = job_name(p, r, len(rigs) > 1)
+            base = job_name(p, r, len(rigs) > 1)[:room]
             name, k = base, 1
             while name.casefold() in taken or any(
                 f"{name}-{c:02d}".casefold() in taken for c in range(1, copies + 1)
             ):
                 k += 1
-                name = f"{base[: 100 - len(str(k)) - 1]}-{k}"
+                name = f"{base[: room - len(str(k)) - 1]}-{k}"
             folders = [name] if copies == 1 else [f"{name}-{c:02d}" for c in range(1, copies + 1)]
             taken.update(f.casefold() for f in folders)
             out.append((folders, (p, units, spec, r, seed, copies, avoid, distinct_mm)))
