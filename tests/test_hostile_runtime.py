@@ -340,9 +340,9 @@ def test_a_signal_ends_the_command_and_its_helpers(args, delay_s, signame, small
     ],
 )
 def test_job_folder_names_never_collide(props):
-    for rigs in ([], ["vicon-8", "vicon.8"]):
-        names = [n for n, _ in jobs(props, rigs, "m", "default", 0)]
-        assert len(names) == len(props) * max(1, len(rigs))
+    for rigs, copies in (([], 1), (["vicon-8", "vicon.8"], 1), ([], 3)):
+        names = [n for folders, _ in jobs(props, rigs, "m", "default", 0, copies) for n in folders]
+        assert len(names) == len(props) * max(1, len(rigs)) * copies
         assert len({n.casefold() for n in names}) == len(names)  # one folder each, case-insensitively too
         for n in names:
             check_name(n, "job name")

@@ -436,10 +436,10 @@ def test_a_prop_no_layout_can_track_is_refused_up_front(tmp_path, capsys):
 
 
 def test_held_out_polish_never_loses_and_ends_where_no_swap_helps():
-    """The held-out polish on random problems: it never adds close pairs, never tracks fewer of
-    the tuning scenarios than its start, and (screening every site) stops only where a brute
-    force over every single swap finds none that tracks more without a close pair, or ties and
-    costs less on the searched scenarios."""
+    """The held-out polish on random problems: it never adds close pairs or triangle conflicts,
+    never tracks fewer of the tuning scenarios than its start, and (screening every site) stops
+    only where a brute force over every single swap finds none that tracks more without a close
+    pair or conflict, or ties and costs less on the searched scenarios."""
     from starforge.props.tracked import held_out_polish
 
     moved = 0
@@ -452,7 +452,8 @@ def test_held_out_polish_never_loses_and_ends_where_no_swap_helps():
 
         def key(lay, searched=searched, tuning=tuning, pool=pool):
             t = searched.terms([int(pool[i]) for i in lay])
-            return (t["close_pairs"], tuning.terms(lay)["untracked"], t["total"])
+            conflicts = t["close_pairs"] + t["avoid_conflicts"] + t["own_conflicts"]
+            return (conflicts, tuning.terms(lay)["untracked"], t["total"])
 
         got = held_out_polish(tuning, searched, start, pool, rounds=50, top=20)
         assert len(set(got)) == len(got) == 5 and all(0 <= i < 20 for i in got)
@@ -475,7 +476,7 @@ def test_crowding_and_untracked_are_the_terms_they_stand_for():
         sites = rng.choice(len(prob.points), int(rng.integers(3, 9)), replace=False).tolist()
         t = prob.terms(sites, symmetry=False)
         assert prob.untracked(sites) == t["untracked"]
-        assert prob.crowding(sites) == t["close_pairs"] + t["avoid_conflicts"]
+        assert prob.crowding(sites) == t["close_pairs"] + t["avoid_conflicts"] + t["own_conflicts"]
 
 
 @pytest.mark.parametrize("case", ["all_tracked", "expensive_leader", "none_tracked_fully"])

@@ -110,6 +110,32 @@ def _prop_and_spec(
 
 
 
+#: the marker noise the layouts' triangles are designed for by default, mm
+NOISE_MM = 0.2
+PRESET = typer.Option(
+    None,
+    "--preset",
+    help="Design for a tracker (`starforge templates presets`; default: starforge's own, which gates by the "
+    "tolerance written into vendor files): every marker triangle keeps twice its window at --noise from the "
+    "layout's other triangles, from itself relabelled, and from other bodies' (the larger of that and the "
+    "spec's avoid_tolerance_mm).",
+)
+NOISE = typer.Option(NOISE_MM, "--noise", help="Marker noise sigma per axis, mm, the tracker's window is designed for.")
+
+
+def distinct_tolerance_mm(spec, preset: str | None, noise_mm: float) -> float:
+    """How far (mm, every sorted side) the layout's triangles keep from each other and from
+    other bodies': twice the tracker's window at ``noise_mm``
+    (:func:`starforge.tracking.presets.design_tolerance_mm` for bodies of the spec's marker
+    count), or the spec's ``avoid_tolerance_mm`` when larger."""
+    from starforge.spec import in_range
+    from starforge.tracking.presets import design_tolerance_mm
+
+    in_range("noise", noise_mm, 0.0, 100.0)
+    n = spec.track.target_markers if spec.objective == "tracked" else spec.costs.target_markers
+    return max(spec.track.avoid_tolerance_mm, design_tolerance_mm(preset, noise_mm, n_markers=n))
+
+
 _PROP = typer.Argument(
     ...,
     help="Mesh file (STL, OBJ, PLY, GLB, OFF) or built-in prop name (builtin:NAME when a path has that name).",
@@ -208,6 +234,8 @@ def run_cmd(
         "--mesh-format",
         help=f"glb or stl for the prop-with-markers mesh ({_of_spec(_S.get('mesh_format'))}).",
     ),
+    preset: str = PRESET,
+    noise: float = NOISE,
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same result)."),
     out: str = typer.Option("out/place", "--out", help="Output folder."),
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
@@ -251,6 +279,9 @@ def run_cmd(
             cameras_lost,
             placement_error,
         )
+        from starforge.props.spec import with_overrides
+
+        s = with_overrides(s, distinct_mm=distinct_tolerance_mm(s, preset, noise))
         cap = None if no_hand else grip
         avoid_faces = None
         if avoid:
@@ -328,6 +359,13 @@ def score_cmd(
     con.print(f"  seated: {sum(seated)} of {len(seated)} markers (their base rests on the surface, clear of sharp edges)")
     if "tracked_fraction" in extra:
         con.print(f"  tracked in {100 * extra['tracked_fraction']:.1f} % of the scenarios, mean visibility {cost.mean_visibility:.3f}")
+        m3, m4 = (extra[k] for k in ("self_margin_mm", "self_margin_4_mm"))
+        if m3 is not None:
+            con.print(
+                f"  self-margin {m3:.2f} mm from any 3 markers"
+                + (f", {m4:.2f} mm from any 4" if m4 is not None else "")
+                + " (under a tracker's window, those markers flip)"
+            )
         ev = extra.get("evaluation")
         if ev:
             con.print(

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from starforge.errors import StarforgeError
+from starforge.props.distinct import subset_margin
 
 if TYPE_CHECKING:
     from starforge.props.placement import PlacementResult
@@ -201,6 +202,7 @@ def placement_json(res: PlacementResult) -> dict:
             "close_pairs": t["close_pairs"],
             "spacing_m": _r(res.spacing_m),
             "avoid_conflicts": t["avoid_conflicts"],
+            **distinct_report(res),
             "cost": _r(t["total"]),
             "scenarios": {
                 "poses": len(res.poses),
@@ -496,6 +498,13 @@ def summary_lines(res: PlacementResult) -> list[str]:
         )
         if not math.isinf(t["near_symmetry_margin_m"]):
             lines.append(symmetry_line(t["near_symmetry_margin_m"], res.spec.track.near_symmetry_target_mm))
+        d = distinct_report(res)
+        if d["self_margin_mm"] is not None:
+            lines.append(
+                f"self-margin: {d['self_margin_mm']:.2f} mm from any 3 markers, "
+                + (f"{d['self_margin_4_mm']:.2f} mm from any 4" if d["self_margin_4_mm"] is not None else "no 4-marker subset")
+                + f" (kept: {d['distinct_mm']:g} mm; {d['own_conflicts']} own triangle conflicts)"
+            )
         return lines
     lines.append(
         f"markers: {c.markers}, cost {c.total:.4f} (visibility {c.visibility:.4f}, count {c.count:.4f}, "
@@ -510,6 +519,20 @@ def summary_lines(res: PlacementResult) -> list[str]:
     if not math.isinf(c.margin_m):
         lines.append(f"near-symmetry margin: {c.margin_m * 1000:.1f} mm")
     return lines
+
+
+def distinct_report(res: PlacementResult) -> dict:
+    """How far the layout lies from mistaking itself (:mod:`starforge.props.distinct`), mm: the
+    tolerance its triangles keep (``distinct_mm``), the conflicts below it, and its self-margins
+    from any 3 and any 4 of its markers (ball centres; None when it has too few markers)."""
+    P = res.centres() * 1000.0
+    m3, m4 = subset_margin(P, 3), subset_margin(P, 4)
+    return {
+        "distinct_mm": res.spec.track.avoid_tolerance_mm,
+        "own_conflicts": int(res.tracked.terms.get("own_conflicts", 0)),
+        "self_margin_mm": None if math.isinf(m3) else _r(m3, 6),
+        "self_margin_4_mm": None if math.isinf(m4) else _r(m4, 6),
+    }
 
 
 def symmetry_line(margin_m: float, target_mm: float) -> str:

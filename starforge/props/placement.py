@@ -21,6 +21,7 @@ from starforge.props.sites import Sites
 from starforge.props.spec import PlaceSpec
 from starforge.runtime.progress import report as progress_report
 from starforge.spec import require
+from starforge.stars.avoid import body_triangles
 
 
 @dataclass(frozen=True)
@@ -348,6 +349,27 @@ def _stages(progress):
     return both
 
 
+def _prepared(prop, spec: PlaceSpec, seed: int, progress, grip):
+    """What every placement starts from: ``(rng, timings, progress, warnings, prepared)``, the
+    generator having drawn the sites and poses."""
+    require(isinstance(seed, int) and seed >= 0, f"seed must be an integer >= 0, got {seed}")
+    rng = np.random.default_rng(seed)
+    timings: dict = dict(getattr(prop, "timings", {}) or {})
+    progress = _stages(progress)
+    from starforge.props.rig import load_rig
+
+    warnings = prop_name_warnings(prop) + check_scale(prop, load_rig(spec.rig), spec.marker_diameter_m)
+    seat = spec.marker_seat()
+    if seat.name.endswith(" mm ball"):
+        warnings.append(
+            f"a {seat.ball_mm:g} mm marker is not in the catalogue: a generic ball on a {seat.base_mm:g} mm base with its "
+            f"centre {seat.centre_height_mm:g} mm above it is assumed (--marker NAME for a catalogue marker, --base-mm for the base)"
+        )
+    progress("sites", 0, None)
+    prep = prepare(prop, spec, rng, lambda d, n: progress("rays", d, n), timings, grip, seed)
+    return rng, timings, progress, warnings + list(prep.notes), prep
+
+
 def place(
     prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None, grip=None, on_layout=None
 ) -> PlacementResult:
@@ -371,28 +393,38 @@ def place(
         (the tracked objective): ``result`` then lacks only ``evaluation`` and that step's
         warnings (the CLI starts drawing the pictures, which need neither).
     """
-    require(isinstance(seed, int) and seed >= 0, f"seed must be an integer >= 0, got {seed}")
-    rng = np.random.default_rng(seed)
-    timings: dict = dict(getattr(prop, "timings", {}) or {})
-    progress = _stages(progress)
-    from starforge.props.rig import load_rig
-
-    warnings = prop_name_warnings(prop) + check_scale(prop, load_rig(spec.rig), spec.marker_diameter_m)
-    seat = spec.marker_seat()
-    if seat.name.endswith(" mm ball"):
-        warnings.append(
-            f"a {seat.ball_mm:g} mm marker is not in the catalogue: a generic ball on a {seat.base_mm:g} mm base with its "
-            f"centre {seat.centre_height_mm:g} mm above it is assumed (--marker NAME for a catalogue marker, --base-mm for the base)"
-        )
-    progress("sites", 0, None)
-    prep = prepare(prop, spec, rng, lambda d, n: progress("rays", d, n), timings, grip, seed)
-    warnings = warnings + list(prep.notes)
+    rng, timings, progress, warnings, prep = _prepared(prop, spec, seed, progress, grip)
     if spec.objective == "tracked":
         return _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress, on_layout)
     res = _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress)
     if on_layout is not None:
         on_layout(res)
     return res
+
+
+def place_copies(
+    prop, spec: PlaceSpec, copies: int, seed: int = 0, progress=None, avoid=None, grip=None
+) -> list[PlacementResult]:
+    """``copies`` layouts on one prop (an airframe, a tool a lab owns several of) that a tracker
+    tells apart: optimized one after the other on one visibility table, each avoiding the
+    triangles of every layout before it and of ``avoid`` (sorted sides, m) by
+    ``track.avoid_tolerance_mm``, as well as its own (:mod:`starforge.props.distinct`).  The
+    first equals :func:`place` with the same seed; each later one continues its random stream,
+    so the set is deterministic.  Every copy is scored on the same scenarios (the hand, camera
+    loss) and checked on the same fresh poses.  Tracked objective only."""
+    require(isinstance(copies, int) and copies >= 1, f"copies must be an integer >= 1, got {copies}")
+    require(
+        spec.objective == "tracked",
+        f"copies need the tracked objective (the default spec); the spec's objective is {spec.objective!r}",
+    )
+    rng, timings, progress, warnings, prep = _prepared(prop, spec, seed, progress, grip)
+    faces = np.zeros((0, 3)) if avoid is None else np.asarray(avoid, float).reshape(-1, 3)
+    out = []
+    for _ in range(copies):
+        res = _place_tracked(prop, spec, seed, rng, prep, dict(timings), warnings, faces, progress)
+        out.append(res)
+        faces = np.concatenate([faces, body_triangles(res.centres())])
+    return out
 
 
 def _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress) -> PlacementResult:
@@ -731,6 +763,12 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         warnings.append(
             f"{terms['avoid_conflicts']} marker triangle(s) within {ts.avoid_tolerance_mm:g} mm of another prop's"
         )
+    if terms.get("own_conflicts"):
+        warnings.append(
+            f"{terms['own_conflicts']} of the layout's own triangles lie within {ts.avoid_tolerance_mm:g} mm of another "
+            f"of them or of themselves relabelled (self-margin {terms['self_margin_m'] * 1000:.2f} mm): a tracker that "
+            "sees only those three markers may report a wrong pose; try more --sites or fewer --markers"
+        )
     ahead = [
         f"{k.replace('_', ' ')} ({v['poses_only_it_tracks']} poses only it tracks, {v['poses_only_default_tracks']} "
         f"only the chosen one; paired exact test p = {v['paired_p_value']:.2g}"
@@ -850,9 +888,14 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
             prop.mesh, {"layout": (centres, nrm)}, rig, pivot, spec.evaluation, seed, ts.min_height_mm, grips,
             spec.grazing_limit_deg,
         )  # fmt: skip
+        from starforge.props.distinct import subset_margin
+
+        m3, m4 = (subset_margin(centres * 1000.0, k) for k in (3, 4))
         extra = {
             "objective": "tracked",
             "tracked_fraction": 1 - t["untracked"],
+            "self_margin_mm": None if math.isinf(m3) else m3,  # from any 3 markers (flip-proof above the window)
+            "self_margin_4_mm": None if math.isinf(m4) else m4,
             "spacing_m": prob.spacing,
             "evaluation": ev["layout"],
             **seated,

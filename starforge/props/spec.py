@@ -109,11 +109,14 @@ def with_overrides(
     hand: bool | None = None,
     cameras_lost: float | None = None,
     placement_error_mm: float | None = None,
+    distinct_mm: float | None = None,
 ) -> PlaceSpec:
     """The spec with CLI options applied (each validated by the dataclasses).  ``marker_mm``: a
     diameter in mm or a marker catalogue name (:mod:`starforge.markers`); ``base_mm``: the base
     under it (0: its own); ``cameras_lost``: the fraction of the cameras lost in each scenario;
-    ``placement_error_mm``: how far off its mark a marker may be stuck and still seat."""
+    ``placement_error_mm``: how far off its mark a marker may be stuck and still seat;
+    ``distinct_mm``: how far (every sorted side) each marker triangle keeps from the layout's
+    others and from other bodies' (``track.avoid_tolerance_mm``)."""
     if markers is not None:
         cs = spec.track if spec.objective == "tracked" else spec.costs
         require(
@@ -153,6 +156,8 @@ def with_overrides(
         )
     if cameras_lost is not None:
         spec = replace(spec, track=replace(spec.track, cameras_lost=float(cameras_lost)))
+    if distinct_mm is not None:
+        spec = replace(spec, track=replace(spec.track, avoid_tolerance_mm=float(distinct_mm)))
     if placement_error_mm is not None:
         spec = replace(spec, seat=replace(spec.seat, placement_error_mm=float(placement_error_mm)))
     kw = {

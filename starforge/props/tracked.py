@@ -9,7 +9,7 @@ height).  The cost of a layout, lowest best, is led by the fraction of poses not
     C = w_untracked * untracked + w_spare * spare_shortfall + w_visibility * (1 - mean visibility)
       + w_spread * max(0, 1 - spread / spread_target) + w_near_symmetry * max(0, 1 - margin / target)
       + w_spacing * pairs closer than the spacing + w_count * (1 - exp(-(n - n0)^2 / 2))
-      + w_avoid * triangles within the tolerance of another prop's
+      + w_avoid * (triangles within the tolerance of another prop's + own conflicts)
       + w_margin * mean seat-margin shortfall
 
 with *spare_shortfall* the mean shortfall of the markers seen
@@ -20,6 +20,11 @@ line cannot give an orientation), *margin* the near-symmetry margin
 (:func:`starforge.props.symmetry.near_symmetry_margin`), and the *seat-margin shortfall* each
 marker's room to spare beyond its base (:attr:`starforge.props.seat.SeatReport.margin_m`) short
 of ``margin_target``, as a fraction of it (a marker stuck a little off its mark still seats).
+The *own conflicts* are the pairs of the layout's own triangles a tracker seeing three markers
+may mistake for each other, and its triangles it may match to themselves relabelled (two sides
+within the tolerance): :func:`starforge.props.distinct.own_triangles` at ``avoid_tolerance_mm``,
+the same tolerance other props' triangles keep.  A layout without them is flip-proof from any
+three or four of its markers (:mod:`starforge.props.distinct`).
 
 Per pose the optimizer keeps the count, sum and second moments of the seen markers, so a move
 updates every pose in O(poses) and the collinearity test is a closed-form 3 x 3 eigenvalue.
@@ -33,8 +38,10 @@ heuristic otherwise), cooled geometrically with a convergence stop, annealing th
 its near-symmetry term.  The greedy layout, the best random layout as it is, and every chain's
 best and the best random layout after the swap search are the candidates; with a held-out
 sample (``validate``: random poses with their own camera losses and seed, never the
-evaluation's) they are ranked by their tracked fraction there, then by their cost on both
-samples together, so the result is never behind either baseline on that ranking, and
+evaluation's) they are ranked by their conflicts first (close pairs and triangles a tracker may
+mistake, after :func:`untangle` swapped markers out of them: a wrong pose is worse than a missed
+frame; when every candidate keeps a conflict and no chain ran, :data:`RESCUE_CHAINS` chains run
+and compete too), then by their tracked fraction there, then by their cost on both samples together, so the result is never behind either baseline on that ranking, and
 placement.json reports what each gave.  With ``polish`` the leader and the cheapest candidate
 also compete after :func:`held_out_polish` on a tuning sample of their own (not the ranking
 sample, so the ranking is not biased towards them), unless the leader tracks every ranking
@@ -62,6 +69,7 @@ from starforge.geometry.sym3 import (
     line_spread2_many,
     moments,
 )
+from starforge.props.distinct import added_conflicts, clashes, face_tree, own_triangles
 from starforge.runtime.kernels import numba
 from starforge.spec import in_range, non_negative, positive
 
@@ -93,7 +101,7 @@ class TrackSettings:
     w_margin: float = 0.5
     near_symmetry_target_mm: float = 5.0
     spread_fraction: float = 0.2
-    avoid_tolerance_mm: float = 2.0
+    avoid_tolerance_mm: float = 2.6  # every triangle keeps this from other bodies' and the layout's own (sorted sides)
     iterations: int = 3000
     stall: int = 2000
     restarts: int = 2
@@ -300,10 +308,8 @@ class Problem:
         self.knn = tree.query(self.points, k=k)[1][:, 1:] if k > 1 else np.zeros((len(self.points), 0), int)
         self.seen_f = self.pose_seen.astype(np.float64)
         self.min_spread2 = (TRIANGLE_SPREAD * self.settings.min_height_mm / 1000.0) ** 2
-        self._avoid_tree = None
         self._margins: dict = {}
-        if self.avoid_faces is not None and len(self.avoid_faces):
-            self._avoid_tree = cKDTree(np.sort(np.asarray(self.avoid_faces, float), axis=1))
+        self._avoid_tree = face_tree(self.avoid_faces)
 
     @property
     def poses(self) -> int:
@@ -334,6 +340,7 @@ class Problem:
             "close_pairs": close,
             "markers": n,
             "avoid_conflicts": self._avoid_count(P),
+            **self._own(P),
             "margin_shortfall": float(self._margin_short(idx).mean()) if n else 0.0,
         }
         if symmetry:
@@ -367,9 +374,9 @@ class Problem:
         return 1.0 - float(self._seen_counts(np.asarray(sites, dtype=np.int64))[1].mean())
 
     def crowding(self, sites) -> int:
-        """The ``close_pairs`` plus ``avoid_conflicts`` terms of :meth:`terms` alone."""
+        """The ``close_pairs``, ``avoid_conflicts`` and ``own_conflicts`` terms of :meth:`terms` alone."""
         P = self.points[np.asarray(sites, dtype=np.int64)]
-        return self._close_pairs(P) + self._avoid_count(P)
+        return self._close_pairs(P) + self._avoid_count(P) + self._own(P)["own_conflicts"]
 
     def _margin(self, idx: np.ndarray) -> float:
         """The near-symmetry margin of a site set (cached: chains revisit layouts)."""
@@ -397,7 +404,7 @@ class Problem:
             + s.w_near_symmetry * max(0.0, 1.0 - t["near_symmetry_margin_m"] * 1000.0 / s.near_symmetry_target_mm)
             + s.w_spacing * t["close_pairs"]
             + s.w_count * (1.0 - math.exp(-((n - s.target_markers) ** 2) / 2.0))
-            + s.w_avoid * t["avoid_conflicts"]
+            + s.w_avoid * (t["avoid_conflicts"] + t.get("own_conflicts", 0))
             + s.w_margin * t.get("margin_shortfall", 0.0)
         )
 
@@ -410,14 +417,15 @@ class Problem:
         t["near_symmetry_margin_m"] = self._margin(np.asarray(sites, dtype=np.int64))
         return self._total(t)
 
-    def _avoid_count(self, P: np.ndarray) -> int:
-        if self._avoid_tree is None or len(P) < 3:
-            return 0
-        from starforge.stars.avoid import body_triangles
+    def _own(self, P: np.ndarray) -> dict:
+        """The layout's own triangles a tracker may mistake for each other or for themselves
+        relabelled (:func:`starforge.props.distinct.own_triangles` at ``avoid_tolerance_mm``), and
+        its self-margin, m."""
+        conflicts, margin = own_triangles(P, self.settings.avoid_tolerance_mm / 1000.0)
+        return {"own_conflicts": conflicts, "self_margin_m": margin}
 
-        tri = body_triangles(P * 1000.0) / 1000.0
-        d, _ = self._avoid_tree.query(tri, k=1, p=np.inf, distance_upper_bound=self.settings.avoid_tolerance_mm / 1000.0)
-        return int((d < self.settings.avoid_tolerance_mm / 1000.0).sum())
+    def _avoid_count(self, P: np.ndarray) -> int:
+        return clashes(P, self._avoid_tree, self.settings.avoid_tolerance_mm / 1000.0)
 
     # --- cheap screening of many candidate additions at once ------------------------------------
     def tracked_additions(self, sites, candidates) -> np.ndarray:
@@ -430,8 +438,24 @@ class Problem:
         cand = np.asarray(candidates, dtype=np.int64)
         return _screen_tracked(cnt0, s10, s20, self.pose_seen[cand], self.points[cand], self.moments[cand], self.min_spread2)
 
+    def _added(self, idx: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For each candidate c: the close pairs c makes with ``idx``, and the triangle conflicts
+        (other props' and own) of ``idx + [c]``."""
+        P, C = self.points[idx], self.points[cand]
+        close = (np.linalg.norm(C[:, None] - P[None], axis=2) < self.spacing).sum(axis=1) if len(idx) else np.zeros(len(C), np.int64)
+        tol = self.settings.avoid_tolerance_mm / 1000.0
+        base = self._avoid_count(P) + self._own(P)["own_conflicts"]
+        return close, base + added_conflicts(P, C, self._avoid_tree, tol)
+
+    def crowding_additions(self, sites, candidates) -> np.ndarray:
+        """(k,) :meth:`crowding` of ``sites + [c]`` for each candidate c, all at once."""
+        idx = np.asarray(sites, dtype=np.int64)
+        close, conflicts = self._added(idx, np.asarray(candidates, dtype=np.int64))
+        return self._close_pairs(self.points[idx]) + close + conflicts
+
     def screen_additions(self, sites, candidates: np.ndarray) -> np.ndarray:
-        """An approximate cost (no near-symmetry, no avoid) of ``sites + [c]`` for each candidate c."""
+        """An approximate cost (no near-symmetry) of ``sites + [c]`` for each candidate c; its
+        new close pairs and its triangle conflicts are exact (:meth:`crowding_additions`)."""
         s = self.settings
         idx = np.asarray(sites, dtype=np.int64)
         tracked = self.tracked_additions(idx, candidates)
@@ -439,11 +463,7 @@ class Problem:
         n = len(idx) + 1
         vis = (self.visibility[idx].sum() + self.visibility[candidates]) / n
         P = self.points[idx]
-        if len(idx):
-            d = np.linalg.norm(self.points[candidates][:, None] - P[None], axis=2)
-            close = (d < self.spacing).sum(axis=1)
-        else:
-            close = np.zeros(len(candidates))
+        close, conflicts = self._added(idx, cand)
         allm = self.moments[idx].sum(0)[None] + self.moments[candidates]
         alls = P.sum(0)[None] + self.points[candidates]
         spread = np.sqrt(line_spread2_many(np.full(len(candidates), float(n)), alls, allm)) if n >= 2 else np.zeros(len(candidates))
@@ -452,6 +472,7 @@ class Problem:
             + s.w_visibility * (1.0 - vis)
             + s.w_spread * np.maximum(0.0, 1.0 - spread / self.spread_target)
             + s.w_spacing * close
+            + s.w_avoid * conflicts
             + s.w_margin * (self._margin_short(idx).sum() + self._margin_short(cand)) / n
         )
 
@@ -481,6 +502,38 @@ def greedy_local_search(prob: Problem, candidates_top: int = 12) -> list[int]:
         best = min(top.tolist(), key=lambda c: (prob.cost([*sites, c]), c))
         sites.append(int(best))
     return local_search(prob, sites)
+
+
+def untangle(prob: Problem, sites: list[int], rounds: int = 20) -> list[int]:
+    """Swap one marker for another site while it lowers the layout's conflicts (:meth:`Problem.
+    crowding`: close pairs, triangles a tracker may mistake for another prop's or the layout's
+    own): each round takes the swap with the fewest conflicts, then the lowest screened cost,
+    over every marker and every free site (:meth:`Problem.crowding_additions` counts them all at
+    once).  A layout without conflicts is returned as it is."""
+    sites = list(sites)
+    cur = prob.crowding(sites)
+    every = np.arange(len(prob.points))
+    for _ in range(rounds):
+        if cur == 0:
+            break
+        best = None
+        for k in range(len(sites)):
+            rest = sites[:k] + sites[k + 1 :]
+            free = np.setdiff1d(every, sites)
+            crowd = prob.crowding_additions(rest, free)
+            fewest = crowd.min() if len(free) else cur
+            if fewest >= cur or (best is not None and fewest > best[0][0]):
+                continue
+            few = free[crowd == fewest]
+            approx = prob.screen_additions(rest, few)
+            i = int(np.argmin(approx))
+            key = (int(fewest), float(approx[i]))
+            if best is None or key < best[0]:
+                best = (key, rest[:k] + [int(few[i])] + rest[k:])
+        if best is None:
+            break
+        sites, cur = best[1], best[0][0]
+    return sites
 
 
 def local_search(prob: Problem, sites: list[int], rounds: int = 20, candidates_top: int = 12) -> list[int]:
@@ -649,6 +702,10 @@ def chain(prob: Problem, start: list[int], rng: np.random.Generator) -> ChainRun
     return ChainRun(best_sites, float(best), n_it, hist[:n_it].copy(), accepted)
 
 
+#: annealing chains run when no candidate is free of conflicts and the spec runs none
+RESCUE_CHAINS = 2
+
+
 @dataclass(frozen=True)
 class Optimized:
     """The chosen layout and everything that competed with it."""
@@ -695,7 +752,11 @@ def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=No
         cands["best_of_random_polished"] = tuple(local_search(prob, list(r_sites)))
     for k, r in enumerate(runs):
         cands[f"chain_{k}_polished"] = tuple(local_search(prob, list(r.sites)))
+    for name, sites in cands.items():  # conflicts first: a tracker must never mistake the layout
+        if prob.crowding(sites):
+            cands[name] = tuple(untangle(prob, list(sites)))
     costs = {name: prob.cost(list(sites)) for name, sites in cands.items()}
+    crowd = {name: prob.crowding(sites) for name, sites in cands.items()}
     sec["polish_s"] = round(time.perf_counter() - t, 3)
     held = {name: None for name in cands}
     if validate is not None:
@@ -706,10 +767,22 @@ def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=No
     def key(name):  # first listed wins a tie: the greedy layout, then the random baseline
         h = held[name]
         if h is None:
-            return (costs[name],)
-        return (h["untracked"], costs[name] + h["cost"])
+            return (crowd[name], costs[name])
+        return (crowd[name], h["untracked"], costs[name] + h["cost"])
 
     order = sorted(cands, key=key)  # stable
+    if crowd[order[0]] and s.restarts == 0:
+        # conflicts left that single swaps cannot clear: the reversible-jump chains search too
+        # (their add and remove moves also try fewer markers, which span fewer triangles)
+        t = time.perf_counter()
+        for k in range(RESCUE_CHAINS):
+            runs.append(chain(prob, greedy if r_sites is None else r_sites, rng))
+            name = f"chain_{k}_polished"
+            cands[name] = tuple(untangle(prob, local_search(prob, list(runs[-1].sites))))
+            costs[name], crowd[name] = prob.cost(list(cands[name])), prob.crowding(cands[name])
+            held[name] = validate([cands[name]])[0] if validate is not None else None
+        order = sorted(cands, key=key)
+        sec["chains_s"] = round(time.perf_counter() - t, 3)
     polished = "none"
     if polish is not None and validate is not None:
         # the leader on the held-out sample and the cheapest candidate, each polished on a tuning
@@ -732,6 +805,7 @@ def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=No
                 if sorted(tuned) not in [sorted(c) for c in cands.values()]:
                     cands[name] = tuned
                     costs[name] = prob.cost(list(tuned))
+                    crowd[name] = prob.crowding(tuned)
                     held[name] = validate([tuned])[0]
             order = sorted(cands, key=key)
         sec["held_out_polish_s"] = round(time.perf_counter() - t, 3)

@@ -7,6 +7,7 @@ existing body (each body's every marker triple, since a tracker may see any thre
 
 from __future__ import annotations
 
+import functools
 import itertools
 
 import numpy as np
@@ -16,10 +17,18 @@ from starforge.geometry.tetra import face_sides
 from starforge.tol import tol
 
 
+@functools.lru_cache(maxsize=64)
+def _triples(n: int) -> np.ndarray:
+    """(C(n, 3), 3) every marker triple of n markers (read-only; optimizers ask for it per layout)."""
+    tri = np.array(list(itertools.combinations(range(n), 3)), dtype=np.intp).reshape(-1, 3)
+    tri.setflags(write=False)
+    return tri
+
+
 def body_triangles(points_mm: np.ndarray) -> np.ndarray:
     """Sorted side lengths (t, 3), mm, of every marker triple of one body (n, 3)."""
     P = np.asarray(points_mm, dtype=float)
-    tri = np.array(list(itertools.combinations(range(len(P)), 3)), dtype=np.intp).reshape(-1, 3)
+    tri = _triples(len(P))
     if not len(tri):
         return np.zeros((0, 3))
     a = np.linalg.norm(P[tri[:, 0]] - P[tri[:, 1]], axis=1)

@@ -149,18 +149,21 @@ def star_spec_overrides(preset_name: str) -> dict:
     return dict(load_preset(preset_name).stars)
 
 
-def design_tolerance_mm(preset_name: str | None, noise_mm: float, floor_mm: float | None = None) -> float:
+def design_tolerance_mm(
+    preset_name: str | None, noise_mm: float, floor_mm: float | None = None, n_markers: int = 4
+) -> float:
     """The face tolerance ``stars`` designs a family with for a tracker (``preset_name``, None:
     starforge's default tracker, which gates by the tolerance written into vendor files) at
-    ``noise_mm``: :func:`starforge.tracking.tolerances.design_margin_mm` of its window, at least
-    ``floor_mm`` (a vendor rule such as ART's 5 mm distinct distances), mm."""
+    ``noise_mm``: :func:`starforge.tracking.tolerances.design_margin_mm` of its window for
+    bodies of ``n_markers`` markers, at least ``floor_mm`` (a vendor rule such as ART's 5 mm
+    distinct distances), mm.  ``place`` keeps its layouts' triangles this far apart."""
     from starforge.tracking.tolerances import design_margin_mm
 
     window = None
     if preset_name is not None:
         tr = load_preset(preset_name).tracker
         window = tr.match_mm if tr.window == "fixed" else None
-    margin = design_margin_mm(noise_mm, window)
+    margin = design_margin_mm(noise_mm, window, n_markers)
     return max(margin, float(floor_mm)) if floor_mm is not None else margin
 
 
