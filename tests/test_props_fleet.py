@@ -211,7 +211,7 @@ def test_make_distinct_repairs_every_clash_and_keeps_clear_layouts():
 
 def test_closest_pairs_match_a_brute_force():
     from starforge.tracking.fleet import closest_pairs
-    from starforge.tracking.identify import build_library
+    from starforge.tracking.library import build_library
 
     rng = np.random.default_rng(8)
     bodies = [rng.uniform(0, 80, (int(rng.integers(3, 6)), 3)) for _ in range(4)]
@@ -296,8 +296,8 @@ def test_job_names_never_collide():
 def test_distinct_tolerance_follows_the_tracker():
     from pathlib import Path
 
+    from starforge.api.place import distinct_tolerance_mm
     from starforge.catalog import read_toml
-    from starforge.cli.place import distinct_tolerance_mm
     from starforge.props.spec import load_spec
     from starforge.tracking.tolerances import bone_tolerance_noise_mm
 

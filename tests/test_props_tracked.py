@@ -113,6 +113,7 @@ def test_cost_with_a_bound_and_the_margin_cache_agree_with_the_full_terms():
     [("hammer", "box"), pytest.param(("racket", "sword", "bottle", "shield", "umbrella"), marks=pytest.mark.slow)],
 )
 def test_the_default_beats_or_ties_both_baselines_on_every_builtin_prop(props):
+    from starforge.props.distinct import subset_margin
     from starforge.props.mesh import load_prop
     from starforge.props.placement import place
     from starforge.props.spec import load_spec, with_overrides
@@ -127,10 +128,13 @@ def test_the_default_beats_or_ties_both_baselines_on_every_builtin_prop(props):
         cands = sel["candidates"]
         won = cands[sel["winner"]]
         assert tuple(won["sites"]) == res.marker_sites
-        # both baselines compete as they are, and the winner is first on the held-out tracked
-        # fraction, then on the cost of both samples together
-        assert cands["greedy_local_search"]["sites"] == b["greedy_local_search"]["sites"]
-        assert cands["best_of_random"]["sites"] == b["best_of_random"]["sites"]
+        # both baselines compete as they are, or untangled where their own triangles come within
+        # the tracker's margin (then with a wider margin: recounted by subset_margin), and the
+        # winner is first on the held-out tracked fraction, then on the cost of both samples together
+        for name in ("greedy_local_search", "best_of_random"):
+            got, base = cands[name]["sites"], b[name]["sites"]
+            if got != base:
+                assert subset_margin(res.centres(got), 3) > subset_margin(res.centres(base), 3)
         for c in cands.values():
             assert (1 - won["validation_tracked"], won["selection_cost"]) <= (1 - c["validation_tracked"], c["selection_cost"] + 1e-12)
             assert c["selection_cost"] == pytest.approx(c["cost"] + c["validation_cost"])

@@ -27,7 +27,7 @@ from starforge.api.bodies import (
     write_tracker_files,
 )
 from starforge.api.check import CheckResult, CheckRun, CheckSummary, check, describe_check, run_check
-from starforge.api.place import place_markers, write_placement
+from starforge.api.place import distinct_tolerance_mm, place_markers, write_placement
 from starforge.api.stars import (
     FAMILY_FILES,
     StarPlan,
@@ -58,6 +58,7 @@ __all__ = [
     "write_tracker_files",
     "run_export",
     "describe_export",
+    "distinct_tolerance_mm",
     "place_markers",
     "write_placement",
     "check",

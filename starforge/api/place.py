@@ -7,7 +7,20 @@ from pathlib import Path
 
 from starforge.io import staged_output
 
-__all__ = ["place_markers", "write_placement"]
+__all__ = ["distinct_tolerance_mm", "place_markers", "write_placement"]
+
+
+def distinct_tolerance_mm(spec, preset: str | None, noise_mm: float) -> float:
+    """How far (mm, every sorted side) the layout's triangles keep from each other and from
+    other bodies': twice the tracker's window at ``noise_mm``
+    (:func:`starforge.tracking.presets.design_tolerance_mm` for bodies of the spec's marker
+    count), or the spec's ``avoid_tolerance_mm`` when larger."""
+    from starforge.spec import in_range
+    from starforge.tracking.presets import design_tolerance_mm
+
+    in_range("noise", noise_mm, 0.0, 100.0)
+    n = spec.track.target_markers if spec.objective == "tracked" else spec.costs.target_markers
+    return max(spec.track.avoid_tolerance_mm, design_tolerance_mm(preset, noise_mm, n_markers=n))
 
 
 def place_markers(
@@ -18,6 +31,8 @@ def place_markers(
     units: str = "m",
     avoid: Sequence[str | Path] = (),
     grip: str | None = None,
+    preset: str | None = None,
+    noise_mm: float = 0.2,
     progress=None,
     **overrides,
 ):
@@ -34,6 +49,10 @@ def place_markers(
         Units of a mesh file: ``m``, ``cm`` or ``mm``.
     avoid : sequence of path
         Bodies already in the room (placements, families, tracker files).
+    preset, noise_mm : str or None, float
+        The tracker the layout is designed for and its marker noise (sigma per axis, mm): every
+        marker triangle keeps :func:`distinct_tolerance_mm` from the others, from itself
+        relabelled and from ``avoid``'s.
     **overrides
         Template keys (``markers``, ``sites``, ``resolution``, ``orientations``, ``marker_mm``...).
 
@@ -48,7 +67,11 @@ def place_markers(
     True
     """
     from starforge.props.placement import run_placement
+    from starforge.props.spec import load_spec, with_overrides
 
+    if "distinct_mm" not in overrides:
+        designed = with_overrides(load_spec(spec), **{k: v for k, v in overrides.items() if k != "hand"})
+        overrides["distinct_mm"] = distinct_tolerance_mm(designed, preset, noise_mm)
     faces = None
     if avoid:
         from starforge.tracking.avoid import faces_to_avoid

@@ -13,6 +13,7 @@ from pathlib import Path
 import typer
 from typer.core import TyperGroup
 
+from starforge.api.place import distinct_tolerance_mm
 from starforge.catalog import list_templates, load_template
 from starforge.cli._app import app, console
 from starforge.runtime import progress
@@ -121,19 +122,6 @@ PRESET = typer.Option(
     "spec's avoid_tolerance_mm).",
 )
 NOISE = typer.Option(NOISE_MM, "--noise", help="Marker noise sigma per axis, mm, the tracker's window is designed for.")
-
-
-def distinct_tolerance_mm(spec, preset: str | None, noise_mm: float) -> float:
-    """How far (mm, every sorted side) the layout's triangles keep from each other and from
-    other bodies': twice the tracker's window at ``noise_mm``
-    (:func:`starforge.tracking.presets.design_tolerance_mm` for bodies of the spec's marker
-    count), or the spec's ``avoid_tolerance_mm`` when larger."""
-    from starforge.spec import in_range
-    from starforge.tracking.presets import design_tolerance_mm
-
-    in_range("noise", noise_mm, 0.0, 100.0)
-    n = spec.track.target_markers if spec.objective == "tracked" else spec.costs.target_markers
-    return max(spec.track.avoid_tolerance_mm, design_tolerance_mm(preset, noise_mm, n_markers=n))
 
 
 _PROP = typer.Argument(

@@ -7,9 +7,10 @@ from pathlib import Path
 
 import typer
 
+from starforge.api.place import distinct_tolerance_mm
 from starforge.cli._app import SCHEDULER_HELP, app, console, use_scheduler
 from starforge.cli._jobs import job_progress
-from starforge.cli.place import NOISE, PRESET, distinct_tolerance_mm
+from starforge.cli.place import NOISE, PRESET
 
 CSV_HEADER = "job,prop,rig,markers,total_cost,tracked,self_margin_mm,closest,closest_margin_mm,wrong_rate_3_seen,placed_again"
 

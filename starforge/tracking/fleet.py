@@ -17,7 +17,7 @@ import numpy as np
 
 from starforge.tracking.bodies import Body, BodySet
 from starforge.tracking.check import CheckSettings, run_check
-from starforge.tracking.identify import Library, build_library, close_triangle_pairs, drop1_margin_mm
+from starforge.tracking.library import Library, build_library, close_triangle_pairs, drop1_margin_mm
 
 
 def closest_pairs(lib: Library, start_mm: float = 2.0) -> list[tuple[int, float]]:
