@@ -168,6 +168,10 @@ def export_cmd(
     cad, trk = split_formats(formats)
     worker = None
     try:
+        from starforge.spec import in_range
+        from starforge.stars.spec import MAX_NOISE_MM
+
+        in_range("noise", noise, 0.0, MAX_NOISE_MM)  # checked whatever the formats, before any work
         src = file / "family.json" if file.is_dir() else file
         out = out if out is not None else default_out(src, bool(cad))
         family = None
@@ -209,12 +213,9 @@ def export_cmd(
         elif ids or sets or preview:
             raise StarforgeError("--ids, --set and --preview apply to CAD formats (step, stl, 3mf)")
         if trk:
-            from starforge.spec import non_negative
             from starforge.tracking.bodies import load_bodies
             from starforge.tracking.export import check_exportable
             from starforge.tracking.formats import parse_formats
-
-            non_negative("noise", noise)
 
             trk = parse_formats(trk)
             bodyset = load_bodies(src)  # read and checked before any file is written

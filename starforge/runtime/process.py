@@ -19,7 +19,7 @@ from starforge.io import discard_stages, interrupted, note_interrupt, reset_inte
 from starforge.runtime.engine import ENV_SCHEDULER, silence_dask
 from starforge.runtime.procs import end_children
 
-__all__ = ["STOP_DEADLINE_S", "Command", "allow_quick_exit", "command", "end_process", "pause_gc"]
+__all__ = ["STOP_DEADLINE_S", "Command", "allow_quick_exit", "command", "end_process", "pause_gc", "stop_early"]
 
 #: set by a command that allows the process to end without the interpreter's teardown
 _quick_exit = [False]
@@ -109,6 +109,21 @@ def _report_stop(signum: int) -> None:
         sys.stderr.flush()
     except (OSError, ValueError):
         pass
+
+
+def stop_early() -> None:
+    """Until :func:`command` installs its own handlers: Ctrl-C or SIGTERM while the CLI's modules
+    are still being imported ends the process at once with the one line.  Nothing has started
+    then (no output, no stage, no helper); without this, an import would end in a
+    KeyboardInterrupt traceback, or SIGTERM silently.  For the console script only (it sets
+    the process's handlers)."""
+
+    def early(signum, frame):
+        _report_stop(signum)
+        os._exit(128 + signum)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, early)
 
 
 def _install_signals():
