@@ -1,7 +1,7 @@
 """``python -m starforge`` and the ``starforge`` console script: the signal handlers first, then
 the CLI's imports (a Ctrl-C while they load ends in one line, not a traceback)."""
 
-from starforge.runtime.process import stop_early
+from starforge.runtime.procs import stop_early
 
 
 def run() -> None:

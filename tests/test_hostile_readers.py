@@ -200,7 +200,7 @@ def _case_ids() -> list[str]:
     return [c.id for c in _cases({k: Path(k) for k in _KEYS})]
 
 
-@pytest.mark.parametrize("case_id", _case_ids())
+@pytest.mark.parametrize("case_id", [i for i in _case_ids() if not i.endswith("inf")])  # inf: in the slow twin
 def test_hostile_reader_or_value_in_process(case_id, tracker_files, tmp_path, monkeypatch, capsys):
     run_case_in_process({c.id: c for c in _cases(tracker_files)}[case_id], tmp_path, monkeypatch, capsys)
 

@@ -404,7 +404,7 @@ def test_a_signal_before_the_command_starts_is_one_line(signame, code, word):
     CLI's imports take a large share of a second) ends the process with the one line."""
     script = (
         "import os, signal, time\n"
-        "from starforge.runtime.process import stop_early\n"
+        "from starforge.runtime.procs import stop_early\n"
         "stop_early()\n"
         f"os.kill(os.getpid(), signal.{signame})\n"
         "time.sleep(30)\n"
