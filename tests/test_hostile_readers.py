@@ -211,7 +211,7 @@ def test_hostile_reader_or_value(case_id, tracker_files, tmp_path):
     run_case_in_child({c.id: c for c in _cases(tracker_files)}[case_id], tmp_path)
 
 
-# --- a full disk: every command that writes, with writes past 4 kB refused (EFBIG) ---------------
+# --- a full disk: every command that writes, with writes past 256 bytes refused (EFBIG) ----------
 
 FULL_DISK = {
     "stars": ("stars", "--box", "16", "12", "24", "--delta", "2"),
@@ -219,7 +219,7 @@ FULL_DISK = {
     "check": ("check", "{family}", "--frames", "200", "--curve", "0"),
     "convert": ("convert", "{family}", "--format", "motive"),
     "drawing": ("drawing", "{family}"),
-    "preview": ("preview", "{family}", "--ids", "1"),
+    "preview": ("preview", "{family}", "--ids", "1", "--allow-oversize"),
     "place": ("place", "run", "hammer", "--resolution", "1", "--orientations", "4", "--sites", "150",
               "--restarts", "1"),
 }
@@ -230,7 +230,7 @@ FULL_DISK = {
 def test_a_full_disk_is_one_line_and_leaves_nothing(command, tracker_files, tmp_path):
     args = tuple(a.format(family=tracker_files["family"]) for a in FULL_DISK[command])
     case = Case(f"full-disk-{command}", args, r"cannot write the outputs for .*out: File too large",
-                env={"HOSTILE_FILE_BYTES": "4096"}, budget_s=BUDGET_S)
+                env={"HOSTILE_FILE_BYTES": "256"})  # the CPU budget counts; the wall clock guards a hang
     run_case_in_child(case, tmp_path)
 
 
@@ -268,3 +268,25 @@ def test_concurrent_runs_on_one_out_leave_one_whole_result(small_family, tmp_pat
             with open(REPORT, "a") as fh:
                 fh.write(json.dumps({"case": "concurrent-8-stars-one-out", "clean": clean, "seconds": None,
                                      "cpu_seconds": None, "peak_kb": None}) + "\n")
+
+
+def test_an_error_raised_while_a_writer_cleans_up_after_a_full_disk_is_a_full_disk(tmp_path):
+    """matplotlib's PDF writer, closed after a write failed for lack of room, raises a zlib error
+    of its own: the one line still says the outputs could not be written, and nothing is left."""
+    import errno
+
+    from starforge.errors import StarforgeError
+    from starforge.io import staged_output
+
+    out = tmp_path / "out"
+    with pytest.raises(StarforgeError, match=r"cannot write the outputs for .*out: File too large"):
+        with staged_output(out) as stage:
+            (stage / "drawing.pdf").write_text("half")
+            try:
+                raise OSError(errno.EFBIG, os.strerror(errno.EFBIG))
+            finally:
+                raise RuntimeError("Error -2 while flushing: inconsistent stream state")
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(RuntimeError, match="not a disk error"):  # any other error passes as it is
+        with staged_output(out):
+            raise RuntimeError("not a disk error")
