@@ -46,7 +46,7 @@ def main() -> None:
         subprocess.run(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False)
         wall = time.perf_counter() - t0
         rows = [json.loads(line) for line in report.read_text().splitlines()] if report.exists() else []
-        tests, failures = _junit_counts(junit)
+        tests, failed = _junit_counts(junit)
     timed = [r for r in rows if r["seconds"] is not None]
     peaks = [r for r in rows if r["peak_kb"] is not None]
     slowest = max(timed, key=lambda r: r["seconds"], default=None)
@@ -63,21 +63,24 @@ def main() -> None:
         "worst_peak_mb": round(largest["peak_kb"] / 1024, 1) if largest else None,
         "worst_peak_case": largest["case"] if largest else None,
         "pytest_tests": tests,
-        "pytest_failed": failures,
+        "pytest_failed": len(failed),
+        "pytest_failed_tests": failed,
         "wall_seconds": round(wall, 1),
         "load_average": os.getloadavg(),
     }, indent=2))
 
 
-def _junit_counts(path: Path) -> tuple[int, int]:
-    """(tests run, tests failed or errored) from pytest's JUnit XML report."""
+def _junit_counts(path: Path) -> tuple[int, list[str]]:
+    """(tests run, the names of the tests that failed or errored) from pytest's JUnit XML report."""
     import xml.etree.ElementTree as ET
 
     if not path.exists():
-        return 0, 0
+        return 0, []
     suite = ET.parse(path).getroot()
     suite = suite if suite.tag == "testsuite" else suite.find("testsuite")
-    return int(suite.get("tests", 0)), int(suite.get("failures", 0)) + int(suite.get("errors", 0))
+    failed = [case.get("name") for case in suite.iter("testcase")
+              if case.find("failure") is not None or case.find("error") is not None]
+    return int(suite.get("tests", 0)), failed
 
 
 if __name__ == "__main__":
