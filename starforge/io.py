@@ -240,10 +240,13 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
     try:
         try:
             yield stage
-        except OSError as exc:
-            if exc.errno in _FULL:  # say where: the message alone names no path
+        except Exception as exc:
+            # a writer that fails while cleaning up after a full disk (matplotlib's PDF writer
+            # ends in a zlib error) still means a full disk
+            full = _full_disk_error(exc)
+            if full is not None:  # say where: the message alone names no path
                 raise StarforgeError(
-                    f"cannot write the outputs for {out_dir}: {exc.strerror or exc} (staging in {stage.parent})"
+                    f"cannot write the outputs for {out_dir}: {full.strerror or full} (staging in {stage.parent})"
                 ) from None
             raise
         if _interrupted:  # a Ctrl-C somebody swallowed: publish nothing
@@ -255,6 +258,17 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
     finally:
         shutil.rmtree(stage, ignore_errors=True)
         _stages.discard(stage)
+
+
+def _full_disk_error(exc: BaseException) -> OSError | None:
+    """The OSError of a full or read-only file system that ``exc`` is or arose from, else None."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OSError) and exc.errno in _FULL:
+            return exc
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 @contextmanager

@@ -8,6 +8,7 @@ traceback or third-party warning on stderr, and no process left in the session.
 
 from __future__ import annotations
 
+import contextlib
 import http.server
 import os
 import signal
@@ -25,7 +26,7 @@ from starforge.io import INPUT_LIMITS, check_input_file, check_name
 from starforge.props.batch import jobs
 from starforge.runtime import address, engine
 from starforge.tracking.formats._common import num
-from tests.test_hostile_inputs import CHILD, _snapshot, left_in_session, run_child
+from tests.test_hostile_inputs import CHILD, left_in_session, run_child, snapshot
 
 #: the issue's bound: --scheduler at anything that is not a working dask cluster answers within it
 SCHEDULER_BUDGET_S = 15.0
@@ -82,8 +83,8 @@ def test_refused_addresses_name_the_accepted_forms(text, why):
 # --- endpoints that are not a dask scheduler --------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def endpoints():
+@contextlib.contextmanager
+def not_dask_endpoints():
     """Listeners that are not dask schedulers: one that never answers, an HTTP server, one that
     sends other bytes and hangs up; and a port nothing listens on."""
     silent = socket.socket()
@@ -120,16 +121,24 @@ def endpoints():
     free.bind(("127.0.0.1", 0))
     closed = free.getsockname()[1]
     free.close()
-    yield {
-        "silent": f"127.0.0.1:{silent.getsockname()[1]}",
-        "http": f"127.0.0.1:{httpd.server_address[1]}",
-        "other-bytes": f"127.0.0.1:{chatty.getsockname()[1]}",
-        "closed": f"127.0.0.1:{closed}",
-    }
-    httpd.shutdown()
-    httpd.server_close()
-    silent.close()
-    chatty.close()
+    try:
+        yield {
+            "silent": f"127.0.0.1:{silent.getsockname()[1]}",
+            "http": f"127.0.0.1:{httpd.server_address[1]}",
+            "other-bytes": f"127.0.0.1:{chatty.getsockname()[1]}",
+            "closed": f"127.0.0.1:{closed}",
+        }
+    finally:
+        httpd.shutdown()
+        httpd.server_close()
+        silent.close()
+        chatty.close()
+
+
+@pytest.fixture(scope="module")
+def endpoints():
+    with not_dask_endpoints() as ends:
+        yield ends
 
 
 @pytest.mark.parametrize(
@@ -167,21 +176,22 @@ def _one_line_exit_2(args, tmp_path, pattern, env=None, budget_s=SCHEDULER_BUDGE
     out = work / "out"
     out.mkdir(parents=True)
     (out / "keep.txt").write_text("a file the user had")
-    before = _snapshot(work)
-    res, seconds, _, left = run_child(
+    before = snapshot(work)
+    run = run_child(
         [*args, "--out", str(out)], work, {**os.environ, "OPENBLAS_NUM_THREADS": "1", **(env or {})}, budget_s
     )
+    res = run.res
     lines = [line for line in res.stderr.splitlines() if not line.startswith("starforge ")]  # progress lines
     assert res.returncode == 2, res.stderr
     assert len(lines) == 1 and lines[0].startswith("error: ") and re.search(pattern, lines[0]), res.stderr
-    assert seconds < budget_s
-    assert _snapshot(work) == before and not left
+    assert run.seconds < budget_s
+    assert snapshot(work) == before and not run.left
 
 
 # --- a real dask cluster that fails ------------------------------------------------------------
 
 
-def _free_port() -> int:
+def free_port() -> int:
     s = socket.socket()
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
@@ -189,7 +199,7 @@ def _free_port() -> int:
     return port
 
 
-def _wait_listening(port: int, timeout_s: float = 60.0) -> None:
+def wait_listening(port: int, timeout_s: float = 60.0) -> None:
     deadline = time.monotonic() + timeout_s
     while True:
         try:
@@ -201,12 +211,12 @@ def _wait_listening(port: int, timeout_s: float = 60.0) -> None:
             time.sleep(0.1)
 
 
-def _dask(*args) -> subprocess.Popen:
+def dask_cli(*args) -> subprocess.Popen:
     exe = os.path.join(os.path.dirname(sys.executable), "dask")
     return subprocess.Popen([exe, *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
 
 
-def _end(*procs) -> None:
+def end_group(*procs) -> None:
     for p in procs:
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
@@ -216,14 +226,14 @@ def _end(*procs) -> None:
 @pytest.mark.slow
 def test_a_scheduler_without_workers_is_one_line(tmp_path):
     pytest.importorskip("distributed")
-    port = _free_port()
-    sched = _dask("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard")
+    port = free_port()
+    sched = dask_cli("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard")
     try:
-        _wait_listening(port)
+        wait_listening(port)
         _one_line_exit_2(["sweep", "--delta", "3", "--cube", "18", "--samples", "1000", "--scheduler", f"127.0.0.1:{port}"],
                          tmp_path, r"has no workers; start some with `dask worker", budget_s=30.0)
     finally:
-        _end(sched)
+        end_group(sched)
 
 
 @pytest.mark.slow
@@ -231,14 +241,14 @@ def test_a_cluster_that_loses_its_only_worker_ends_in_bounded_time(tmp_path):
     """The scheduler would wait for a worker for ever; the run ends NO_WORKERS_S after the last
     one left, with one line and nothing written."""
     pytest.importorskip("distributed")
-    port = _free_port()
+    port = free_port()
     addr = f"127.0.0.1:{port}"
-    sched = _dask("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard")
-    worker = _dask("worker", addr, "--nworkers", "1", "--nthreads", "1", "--no-dashboard")
+    sched = dask_cli("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard")
+    worker = dask_cli("worker", addr, "--nworkers", "1", "--nthreads", "1", "--no-dashboard")
     work = tmp_path / "work"
     work.mkdir()
     try:
-        _wait_listening(port)
+        wait_listening(port)
         from distributed import Client
 
         with Client(addr, timeout="60s", set_as_default=False) as c:
@@ -254,7 +264,7 @@ def test_a_cluster_that_loses_its_only_worker_ends_in_bounded_time(tmp_path):
             while not any("on the dask cluster" in line for line in said) and time.monotonic() < deadline:
                 time.sleep(0.1)  # the cells are submitted: now the only worker goes
             time.sleep(1.0)
-            _end(worker)
+            end_group(worker)
             t0 = time.perf_counter()
             proc.wait(timeout=60)
             seconds = time.perf_counter() - t0
@@ -266,7 +276,7 @@ def test_a_cluster_that_loses_its_only_worker_ends_in_bounded_time(tmp_path):
         assert seconds < engine.NO_WORKERS_S + 15.0
         assert list(work.iterdir()) == [] and not left_in_session(proc.pid)
     finally:
-        _end(worker, sched)
+        end_group(worker, sched)
 
 
 # --- signals: the command and every helper end, nothing staged is left --------------------------
@@ -295,7 +305,7 @@ def test_a_signal_ends_the_command_and_its_helpers(args, delay_s, signame, small
     out = work / "out"
     out.mkdir(parents=True)
     (out / "keep.txt").write_text("a file the user had")
-    before = _snapshot(work)
+    before = snapshot(work)
     fam = small_family[0] / "family.json"
     argv = [a.format(family=fam) for a in args] + ["--out", str(out), "--force"]
     sig = getattr(signal, signame)
@@ -322,7 +332,7 @@ def test_a_signal_ends_the_command_and_its_helpers(args, delay_s, signame, small
     assert seconds < 2.0, f"stopped {seconds:.2f} s after {signame}"
     assert "Traceback" not in err and "Warning" not in err, err
     assert not left_in_session(proc.pid)
-    assert _snapshot(work) == before
+    assert snapshot(work) == before
 
 
 # --- names, numbers, sizes --------------------------------------------------------------------
@@ -383,3 +393,32 @@ def test_links_that_loop_or_dangle_are_one_line(tmp_path):
     with pytest.raises(StarforgeError, match="a symbolic link to a missing file"):
         check_input_file(tmp_path / "gone", "input")
     assert sorted(p.name for p in Path(tmp_path).iterdir()) == ["a", "b", "gone"]
+
+
+# --- a signal while the CLI's modules load --------------------------------------------------------
+
+
+@pytest.mark.parametrize("signame, code, word", [("SIGINT", 130, "interrupted"), ("SIGTERM", 143, "terminated")])
+def test_a_signal_before_the_command_starts_is_one_line(signame, code, word):
+    """The console script sets its signal handlers before it imports the CLI: a signal then (the
+    CLI's imports take a large share of a second) ends the process with the one line."""
+    script = (
+        "import os, signal, time\n"
+        "from starforge.runtime.procs import stop_early\n"
+        "stop_early()\n"
+        f"os.kill(os.getpid(), signal.{signame})\n"
+        "time.sleep(30)\n"
+    )
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=30)
+    assert res.returncode == code
+    assert res.stderr.splitlines() == [f"{word}; no output was changed"]
+
+
+def test_the_console_script_sets_its_handlers_before_the_cli_loads():
+    script = "import sys\nimport starforge.__main__\nprint('starforge.cli' in sys.modules)\n"
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=30)
+    assert res.stdout.strip() == "False", res.stderr
+    import starforge.__main__ as entry
+
+    src = Path(entry.__file__).read_text()
+    assert src.index("stop_early()") < src.index("from starforge.cli import main")

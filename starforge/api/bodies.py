@@ -219,7 +219,10 @@ def run_export(
     ('bodies', 2, ['bodies.json', 'csv/custom_001.csv'])
     """
     from starforge.cad.describe import describe_bodies
+    from starforge.spec import in_range
+    from starforge.stars.spec import MAX_NOISE_MM
 
+    in_range("noise", noise_mm, 0.0, MAX_NOISE_MM)  # checked whatever the formats, before any work
     cad, trk = split_formats(formats)
     worker = None
     file = Path(file)

@@ -21,7 +21,7 @@ from starforge.io import atomic_write_json, check_name, check_writable, staged_o
 from starforge.markers import marker_diameter_mm
 from starforge.runtime import progress as runtime_progress
 from starforge.stars.model import Family, family_csv
-from starforge.stars.spec import StarSpec, spec_from_mapping
+from starforge.stars.spec import MAX_NOISE_MM, StarSpec, spec_from_mapping
 from starforge.tracking.presets import design_tolerance_mm, star_spec_overrides
 from starforge.words import counted
 
@@ -113,8 +113,8 @@ def plan_family(
     if (preset is not None or noise is not None) and overrides.get("tolerance_mm") is None:
         # designed for the tracker: faces apart by twice its window at this noise
         nz = noise if noise is not None else float(data.get("noise_mm", 0.2))
-        if not 0 <= nz < float("inf"):
-            raise StarforgeError(f"noise_mm must be a finite number >= 0, got {nz}")
+        if not 0 <= nz <= MAX_NOISE_MM:
+            raise StarforgeError(f"noise_mm must be in [0, {MAX_NOISE_MM:g}] mm (sigma per axis), got {nz:g}")
         floor = star_spec_overrides(preset).get("tolerance_mm") if preset is not None else None
         data["tolerance_mm"] = round(design_tolerance_mm(preset, nz, floor), 6)
     marker_name = None

@@ -93,7 +93,8 @@ def sweep_plot(rows: list[dict], path: Path, marker_mm: float) -> Path:
             ax.set_ylabel("stars")
             ax.set_title(f"{rule} rule, {marker_mm:g} mm markers (bars: certified intervals)", fontsize=9)
             ax.grid(alpha=0.3, which="both")
-            ax.legend(fontsize=7)
+            if ax.get_legend_handles_labels()[0]:  # cells that found no star draw nothing to name
+                ax.legend(fontsize=7)
         fig.tight_layout()
         save_png(fig, path, dpi=_DPI)
     finally:

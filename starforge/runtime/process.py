@@ -17,7 +17,7 @@ import threading
 
 from starforge.io import discard_stages, interrupted, note_interrupt, reset_interrupt
 from starforge.runtime.engine import ENV_SCHEDULER, silence_dask
-from starforge.runtime.procs import end_children
+from starforge.runtime.procs import end_children, report_stop
 
 __all__ = ["STOP_DEADLINE_S", "Command", "allow_quick_exit", "command", "end_process", "pause_gc"]
 
@@ -98,17 +98,8 @@ def _watch_signals(read_fd: int, done: threading.Event, discard_stages, end_chil
             if done.is_set() or not discard_stages():
                 return  # ended meanwhile, or a publish that would not finish: let it end on its own
             end_children()
-            _report_stop(_stopped_by[0] or signum)
+            report_stop(_stopped_by[0] or signum)
             os._exit(128 + (_stopped_by[0] or signum))
-
-
-def _report_stop(signum: int) -> None:
-    word = "terminated" if signum == signal.SIGTERM else "interrupted"
-    try:
-        sys.stderr.write(f"{word}; no output was changed\n")
-        sys.stderr.flush()
-    except (OSError, ValueError):
-        pass
 
 
 def _install_signals():
@@ -177,7 +168,7 @@ class Command:
             if interrupted() and code in (0, 130):
                 signum = _stopped_by[0] or signal.SIGINT
                 code = 128 + signum
-                _report_stop(signum)
+                report_stop(signum)
         return code
 
 

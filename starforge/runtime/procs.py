@@ -1,5 +1,6 @@
 """Forked helper processes: when this process may fork, and what a forked child gives up of its
-parent's signal handling.
+parent's signal handling; and the one line a command stopped by a signal ends with, with the
+handlers the console script sets before anything else is imported (:func:`stop_early`).
 
 A forked child starts with everything the parent has imported (no interpreter start-up, no
 second import of numpy or of starforge), which is why the placement pictures
@@ -17,6 +18,8 @@ with its parent when that is killed outright.
 from __future__ import annotations
 
 import os
+import signal
+import sys
 
 
 def can_fork() -> bool:
@@ -36,7 +39,6 @@ def leave_parent_signals(default_handlers: bool = False) -> None:
     last-resort watcher reads it; a signal meant for this process is not the parent's) and close
     this process's copy of its write end.  ``default_handlers``: also put Python's own handlers
     back for SIGINT (KeyboardInterrupt) and SIGTERM (end at once) in place of the parent's."""
-    import signal
 
     try:
         if default_handlers:
@@ -79,8 +81,6 @@ def end_children() -> None:
     outlives the command or writes after its stage folder is removed.  Safe from any thread
     and after a fork (it imports nothing); the helpers are reaped by whoever waits for them,
     or by the system once this process exits."""
-    import signal
-
     for pid, group in list(_children.items()):
         try:
             if group:
@@ -122,13 +122,10 @@ def fork_helper(group: bool = False, default_handlers: bool = False) -> int:
 
 
 def _die_with_parent() -> None:
-    import sys
-
     if not sys.platform.startswith("linux"):
         return
     try:
         import ctypes
-        import signal
 
         libc = ctypes.CDLL(None, use_errno=True)
         parent = os.getppid()
@@ -137,3 +134,27 @@ def _die_with_parent() -> None:
             os._exit(1)
     except (OSError, AttributeError):
         pass
+
+
+def report_stop(signum: int) -> None:
+    """The one line of a command stopped by SIGTERM or Ctrl-C (nothing was published)."""
+    word = "terminated" if signum == signal.SIGTERM else "interrupted"
+    try:
+        sys.stderr.write(f"{word}; no output was changed\n")
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass
+
+
+def stop_early() -> None:
+    """Until :mod:`starforge.runtime.process` installs a command's own handlers: Ctrl-C or SIGTERM
+    while the CLI's modules are still being imported ends the process at once with the one line.
+    Nothing has started then (no output, no stage, no helper); without this, an import would end
+    in a KeyboardInterrupt traceback, or SIGTERM silently.  For the console script only (it sets
+    the process's handlers); this module imports nothing else, so they are set within milliseconds."""
+    def early(signum, frame):
+        report_stop(signum)
+        os._exit(128 + signum)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, early)

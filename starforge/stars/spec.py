@@ -13,6 +13,8 @@ from starforge.spec import from_mapping, positive, require
 WORK = 8_000_000
 #: largest work budget accepted (about a day of solving)
 MAX_WORK = 10**12
+#: largest marker noise accepted, mm (sigma per axis): beyond, no tracker identifies anything
+MAX_NOISE_MM = 100.0
 
 Rule = Literal["face", "pair"]
 Select = Literal["max", "greedy"]
@@ -136,7 +138,12 @@ class StarSpec:
             for i, t in enumerate(self.tip_mm):
                 require(math.isfinite(t) and abs(t) <= 1e5, f"tip_mm[{i}] must be within 100 m, got {t}")
         require(math.isfinite(self.noise_mm) and self.noise_mm > 0, f"noise_mm must be > 0, got {self.noise_mm}")
+        require(
+            self.noise_mm <= MAX_NOISE_MM,
+            f"noise_mm must be at most {MAX_NOISE_MM:g} mm (sigma per axis), got {self.noise_mm:g}",
+        )
         require(self.gap_mm >= 0 and math.isfinite(self.gap_mm), f"gap_mm must be >= 0, got {self.gap_mm}")
+        require(self.gap_mm <= 10_000, f"gap_mm must be <= 10000 mm (the largest box side), got {self.gap_mm:g}")
         require(
             isinstance(self.work, int) and 1 <= self.work <= MAX_WORK,
             f"work must be an integer in [1, {MAX_WORK:.0e}] (nonzeros x solver nodes), got {self.work}",

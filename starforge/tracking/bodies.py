@@ -41,6 +41,9 @@ FAMILY_FORMAT = "starforge.family"
 
 #: marker spreads a rigid body can have, mm (a body outside these is in other units or corrupt)
 SPREAD_MM = (1.0, 20_000.0)
+#: how far from its origin a marker of a body may lie, mm (100 m: any room; beyond, the file is
+#: in other units or corrupt, and squares of its coordinates overflow)
+MAX_COORDINATE_MM = 1e5
 #: markers closer than this are one marker twice, mm
 MIN_SEPARATION_MM = 0.1
 #: markers per body at most (a tracker identifies from marker triples: C(n, 3) of them)
@@ -155,6 +158,11 @@ def check_body(where, name: str, P: np.ndarray) -> None:
         raise StarforgeError(f"{where}: body {name} has {len(P)} markers; at most {MAX_MARKERS} per body")
     if not np.isfinite(P).all():
         raise StarforgeError(f"{where}: body {name} has coordinates that are not finite numbers")
+    if np.abs(P).max() > MAX_COORDINATE_MM:
+        raise StarforgeError(
+            f"{where}: body {name} has markers beyond {MAX_COORDINATE_MM / 1000:g} m of its origin "
+            f"(is the file in other units?)"
+        )
     spread = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
     if not SPREAD_MM[0] <= spread <= SPREAD_MM[1]:
         raise StarforgeError(

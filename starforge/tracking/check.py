@@ -35,13 +35,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from starforge.spec import non_negative, require
+from starforge.stars.spec import MAX_NOISE_MM
 
 FORMAT = "starforge.check"
 VERSION = 1
 
 
 #: largest marker noise a check simulates, mm (a tracker's noise is well under a millimetre)
-MAX_NOISE_MM = 100.0
+#: the largest matching window and rigid-fit limit accepted, mm: a window wider than any marker
+#: body matches every triangle to every other (and their pairs fill memory)
+MAX_WINDOW_MM = 100.0
 
 
 @dataclass(frozen=True)
@@ -111,9 +114,12 @@ class CheckSettings:
                 f"ambiguity must be in [1, 100] (1: report the best match however close a rival), got {self.ambiguity}",
             )
         if self.match_mm is not None:
-            require(self.match_mm > 0, f"match must be > 0 mm, got {self.match_mm}")
+            require(0 < self.match_mm <= MAX_WINDOW_MM, f"match must be in (0, {MAX_WINDOW_MM:g}] mm, got {self.match_mm:g}")
         if self.residual_mm is not None:
-            require(self.residual_mm > 0, f"residual must be > 0 mm, got {self.residual_mm}")
+            require(
+                0 < self.residual_mm <= MAX_WINDOW_MM,
+                f"residual must be in (0, {MAX_WINDOW_MM:g}] mm, got {self.residual_mm:g}",
+            )
 
 
 def closest_triangles(lib, window_mm: float, k: int = 10) -> list[dict]:

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
+from starforge.stars.spec import MAX_NOISE_MM
 from starforge.tracking.bodies import check_body, load_bodies, safe_name
 from starforge.tracking.formats import FORMATS, Record, WriteContext, get_format, sniff_format
 
@@ -221,8 +222,8 @@ def convert_to(
     """:func:`convert_records`, or with ``fmt`` ``family`` a ``family.json`` of the bodies
     (4 markers each; :func:`starforge.tracking.asfamily.family_from_bodies`, with ``mount`` and
     ``reserve_for``)."""
-    if not (np.isfinite(noise_mm) and noise_mm > 0):
-        raise StarforgeError(f"noise must be > 0 mm, got {noise_mm}")
+    if not (np.isfinite(noise_mm) and 0 < noise_mm <= MAX_NOISE_MM):
+        raise StarforgeError(f"noise must be in (0, {MAX_NOISE_MM:g}] mm (sigma per axis), got {noise_mm:g}")
     if str(fmt).strip().lower() != "family":
         if str(fmt).strip().lower() not in FORMATS:
             raise StarforgeError(f"unknown --format {fmt!r}; known: {', '.join(FORMATS)}, family")

@@ -34,6 +34,7 @@ import time
 import numpy as np
 
 from starforge.errors import NoStarError, StarforgeError
+from starforge.markers import marker_diameter_mm
 from starforge.spec import positive, require
 
 COLUMNS = (
@@ -55,6 +56,8 @@ COLUMNS = (
 EXHAUSTIVE_LABELLED = 20_000_000
 #: random candidates drawn per interval cell (fixed: the same seed gives the same family)
 SAMPLES = 200_000
+#: the largest delta and cube side a sweep takes, mm (the largest box side a star spec takes)
+MAX_SIDE_MM = 10_000.0
 #: the exact solver's work budget per exhaustive cell (a tenth of a stars run's); it is the only
 #: limit there (no wall-clock limit: a cell's family, bound and "optimal" are the same on any
 #: machine; a cell whose budget runs out before the proof is reported with optimal = false)
@@ -386,7 +389,14 @@ def sweep(
     from starforge.runtime import engine
     from starforge.runtime.budget import require_time
 
-    positive("marker_mm", marker_mm)
+    marker_mm = marker_diameter_mm(marker_mm)
+    if min_depth_mm is not None:
+        require(
+            math.isfinite(min_depth_mm) and 0 <= min_depth_mm <= MAX_SIDE_MM,
+            f"min_depth_mm must be in [0, {MAX_SIDE_MM:g}] mm, got {min_depth_mm}",
+        )
+    for name, values in (("delta", deltas), ("cube", cubes)):
+        require(max(values) <= MAX_SIDE_MM, f"{name} must be at most {MAX_SIDE_MM:g} mm, got {max(values):g}")
     if exhaustive_labelled is not None:
         require(exhaustive_labelled >= 0, f"exhaustive_labelled must be >= 0, got {exhaustive_labelled}")
         require(
