@@ -41,7 +41,6 @@ def _nesting(text: str) -> int:
     return most
 
 
-@pytest.mark.slow
 def test_a_box_too_small_names_box_and_a_box_that_fits(tmp_path, capsys):
     line = _error(["stars", "--box", "5", "5", "5", "--marker", "4", "--out", tmp_path / "a", "-q"], capsys)
     assert "--box" in line and not _KEYS.search(line) and _nesting(line) <= 1

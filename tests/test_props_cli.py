@@ -247,6 +247,7 @@ def test_constraints_from_the_cli(tmp_path, capsys):
     assert f"({doc['sites']['forbidden']} constrained, " in stdout
 
 
+@pytest.mark.slow
 def test_orientations_and_help(tmp_path, capsys):
     out = tmp_path / "o"
     code, _, err = _run(["place", "racket", *FAST, "--orientations", "3", "--out", str(out)], capsys)
@@ -329,6 +330,7 @@ def test_guide_pdf_in_standard_fonts_unless_a_text_needs_more(tmp_path):
     assert b"/Helvetica" not in pdf and b"DejaVu" in pdf
 
 
+@pytest.mark.slow
 def test_grip_no_hand_and_bases_stl(tmp_path, capsys):
     """--grip places the hand where asked, --no-hand removes it, --bases-stl writes a watertight
     prop with one pad per marker, and the guide names every marker."""
