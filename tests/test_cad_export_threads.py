@@ -62,6 +62,7 @@ else:
 """
 
 
+@pytest.mark.slow
 def test_step_files_equal_a_serial_build(tmp_path):
     """Each in a fresh process: OCCT numbers some STEP entities with a process-wide counter, so
     a file depends on how many were written before it in the same process (and in which order)."""

@@ -31,6 +31,8 @@ from tests.test_cad_backends import _sphere_centres_from_mesh
 
 FINGER_BOX = (20.8, 12.6, 48.3)
 MOUNTS = [m.name for m in list_mounts()]
+#: every mount, those the other checks do not use checked by ``pytest -m slow``
+MOUNT_PARAMS = [m if m in ("flat", "saddle", "strap") else pytest.param(m, marks=pytest.mark.slow) for m in MOUNTS]
 PRUSA = shutil.which("prusa-slicer")
 SLIC3R = shutil.which("slic3r")
 
@@ -56,7 +58,7 @@ def made_for(tmp_path_factory):
     return make
 
 
-@pytest.mark.parametrize("mount", MOUNTS)
+@pytest.mark.parametrize("mount", MOUNT_PARAMS)
 def test_a_family_made_for_its_mount_fits_the_finger_limit_and_exports(made_for, mount):
     _, fam, _, doc = made_for(mount)
     assert fam["spec"]["mount"] == mount and doc["mount"]["name"] == mount
@@ -78,7 +80,7 @@ def _downward_flat_areas(mesh) -> dict:
     return out
 
 
-@pytest.mark.parametrize("mount", MOUNTS)
+@pytest.mark.parametrize("mount", MOUNT_PARAMS)
 def test_bodies_lie_plate_down_and_print_without_supports(made_for, mount):
     import trimesh
 

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -18,6 +21,17 @@ def _run(args, capsys):
     code = main(args)
     out, err = capsys.readouterr()
     return code, out, err
+
+
+@pytest.fixture(scope="module")
+def hammer_run(tmp_path_factory):
+    """``place hammer`` with the FAST settings, run once through the CLI: (folder, stdout)."""
+    out = tmp_path_factory.mktemp("hammer") / "o"
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        code = main(["place", "hammer", *FAST, "--out", str(out)])
+    assert code == 0
+    return out, stdout.getvalue()
 
 
 def test_place_default_command_writes_everything(tmp_path, capsys):
@@ -115,6 +129,7 @@ def _assert_same_outputs(a_dir, b_dir):
             assert a.read_bytes() == b.read_bytes(), name
 
 
+@pytest.mark.slow
 def test_same_seed_same_bytes(tmp_path, capsys):
     outs = []
     for k in range(2):
@@ -145,9 +160,9 @@ def test_score_subcommand_rescores_a_layout(tmp_path, capsys):
     assert code == 0, err and "cost" in stdout
 
 
-def test_refuses_to_overwrite_without_force(tmp_path, capsys):
+def test_refuses_to_overwrite_without_force(hammer_run, tmp_path, capsys):
     out = tmp_path / "o"
-    assert _run(["place", "hammer", *FAST, "--out", str(out)], capsys)[0] == 0
+    shutil.copytree(hammer_run[0], out)
     before = {n: (out / n).read_bytes() for n in OUTPUTS}
     code, _, err = _run(["place", "hammer", *FAST, "--seed", "5", "--out", str(out)], capsys)
     assert code == 2 and "--force" in err and err.count("\n") == 1
@@ -232,6 +247,7 @@ def test_constraints_from_the_cli(tmp_path, capsys):
     assert f"({doc['sites']['forbidden']} constrained, " in stdout
 
 
+@pytest.mark.slow
 def test_orientations_and_help(tmp_path, capsys):
     out = tmp_path / "o"
     code, _, err = _run(["place", "racket", *FAST, "--orientations", "3", "--out", str(out)], capsys)
@@ -244,6 +260,7 @@ def test_orientations_and_help(tmp_path, capsys):
     assert code == 0 and "score" in stdout
 
 
+@pytest.mark.slow
 def test_hammer_is_the_default_prop_and_custom_rigs(tmp_path, capsys):
     out = tmp_path / "o"
     code, _, err = _run(["place", *FAST, "--rig", "small4", "--out", str(out)], capsys)
@@ -270,6 +287,7 @@ def test_hammer_is_the_default_prop_and_custom_rigs(tmp_path, capsys):
     assert doc["rig"]["pairs"] == [[0, 1]] and doc["rig"]["cameras"][0]["fov_deg"] == 50
 
 
+@pytest.mark.slow
 def test_pictures_drawn_in_a_child_process_are_identical(tmp_path, capsys):
     from starforge.props.files import write_outputs
     from starforge.props.mesh import load_prop
@@ -316,6 +334,7 @@ def test_guide_pdf_in_standard_fonts_unless_a_text_needs_more(tmp_path):
     assert b"/Helvetica" not in pdf and b"DejaVu" in pdf
 
 
+@pytest.mark.slow
 def test_grip_no_hand_and_bases_stl(tmp_path, capsys):
     """--grip places the hand where asked, --no-hand removes it, --bases-stl writes a watertight
     prop with one pad per marker, and the guide names every marker."""
@@ -530,15 +549,14 @@ def test_quick_exit_runs_the_atexit_handlers_and_only_when_allowed_and_safe(monk
         _quick_exit[0] = before
 
 
-def test_the_guide_has_landmarks_calipers_and_no_overlapping_text(tmp_path, capsys):
+def test_the_guide_has_landmarks_calipers_and_no_overlapping_text(hammer_run):
     """Every marker in placement.json has a face, landmarks and caliper distances (re-measured
     from the ball centres); the guide's pages, drawn, have no two text boxes overlapping and
     every text inside the page; the template page's scale bar is 50 mm of the prop at its scale."""
     from starforge.props.placement import run_placement
     from starforge.render.guide import guide_pages, overlapping_texts, text_boxes
 
-    out = tmp_path / "o"
-    assert _run(["place", "hammer", *FAST, "--out", str(out)], capsys)[0] == 0
+    out, _ = hammer_run
     doc = json.loads((out / "placement.json").read_text())
     names = {f["name"] for f in doc["guide"]["landmarks"]}
     for m in doc["markers"]:
@@ -563,12 +581,10 @@ def test_the_guide_has_landmarks_calipers_and_no_overlapping_text(tmp_path, caps
         assert f"{i:>2}. on " in text
 
 
-def test_the_run_prints_its_grips_and_pins_one_by_number(tmp_path, capsys):
+def test_the_run_prints_its_grips_and_pins_one_by_number(hammer_run, tmp_path, capsys):
     """Every run lists the grips it assumed (numbered as --grip takes them) and placement.json
     holds them; --grip N scores the layout under that grip alone, and out of range is refused."""
-    out = tmp_path / "o"
-    code, stdout, err = _run(["place", "hammer", *FAST, "--out", str(out)], capsys)
-    assert code == 0, err
+    out, stdout = hammer_run
     doc = json.loads((out / "placement.json").read_text())
     grips = doc["grips"]["grips"]
     assert len(grips) > 1 and {g["hand"] for g in grips} == {"left", "right"}

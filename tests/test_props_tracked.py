@@ -110,7 +110,7 @@ def test_cost_with_a_bound_and_the_margin_cache_agree_with_the_full_terms():
 
 @pytest.mark.parametrize(
     "props",
-    [("hammer", "box"), pytest.param(("racket", "sword", "bottle", "shield", "umbrella"), marks=pytest.mark.slow)],
+    [("hammer",), pytest.param(("box", "racket", "sword", "bottle", "shield", "umbrella"), marks=pytest.mark.slow)],
 )
 def test_the_default_beats_or_ties_both_baselines_on_every_builtin_prop(props):
     from starforge.props.distinct import subset_margin
@@ -203,6 +203,7 @@ def test_orientations_spread_over_the_rotation_group():
     assert worst[2] < np.radians(50)  # measured 46 deg (an unscrambled Sobol set: 52 deg)
 
 
+@pytest.mark.slow
 def test_visibility_is_tested_at_the_ball_centre(tmp_path):
     """An independent re-check with trimesh's own ray tracer (not embree) on the hammer, the
     hand's capsule tested by points every 0.5 mm along each sight line."""
@@ -257,6 +258,7 @@ def test_visibility_is_tested_at_the_ball_centre(tmp_path):
     assert doc["tracked"]["tracked_fraction"] >= 0.9
 
 
+@pytest.mark.slow
 def test_avoid_keeps_a_new_prop_apart_from_one_in_the_room(tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     assert run_cli(["place", "racket", *FAST, "--out", a, "-q"]) == 0

@@ -189,6 +189,7 @@ def _face_conflicts(L: np.ndarray, tol: float) -> list[tuple[int, int]]:
     return out
 
 
+@pytest.mark.slow
 def test_small_case_is_the_proven_maximum_by_an_independent_formulation(small, tmp_path):
     """Maximum family by a MILP over pairwise conflicts found by brute force (no key windows)."""
     import scipy.sparse as sp
@@ -235,6 +236,7 @@ def test_bounds_are_certified_and_depth_is_kept(finger_face):
         assert (q.max(axis=0) - q.min(axis=0)).min() >= s["depth_mm"] - 1e-9
 
 
+@pytest.mark.slow
 def test_flat_stars_come_back_with_min_depth_0(small_family, tmp_path):
     _, da = small_family  # --box 16 12 24 --delta 2, the default depth
     b = tmp_path / "b"

@@ -45,6 +45,7 @@ def test_the_solver_gets_the_specs_node_budget_and_no_time_limit(monkeypatch):
     assert sel.node_budget(1000, 80_000_000) == 10 * sel.node_budget(1000, 8_000_000)
 
 
+@pytest.mark.slow
 def test_a_slow_clock_changes_nothing(monkeypatch):
     """The same family when every clock reading jumps by 1000 s (a machine at any load)."""
     spec = StarSpec(**SPEC, work=200_000)  # a few dozen nodes: fast, and cut before the proof

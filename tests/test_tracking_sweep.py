@@ -209,6 +209,7 @@ def test_exhaustive_auto_follows_a_workers_memory(monkeypatch):
     assert [r["method"] for r in rows] == ["interval", "interval"]
 
 
+@pytest.mark.slow
 def test_exhaustive_cells_ignore_the_wall_clock(monkeypatch):
     """The exact path of an exhaustive cell is stopped by its node budget alone: a wall-clock
     limit that would cut the solver is never passed (same stars, bound and proof on any
@@ -289,6 +290,7 @@ def test_only_no_star_is_a_zero_row(monkeypatch):
     assert row["stars"] == 0 and row["method"] == "exhaustive"
 
 
+@pytest.mark.slow
 def test_an_exhaustive_cells_memory_estimate_covers_its_selection():
     """The estimate holds the numpy memory an exhaustive cell really allocates (tracemalloc sees
     numpy's buffers), enumeration and both rules' selections included."""
