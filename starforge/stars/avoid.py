@@ -11,7 +11,6 @@ import functools
 import itertools
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from starforge.geometry.tetra import face_sides
 from starforge.tol import tol
@@ -44,6 +43,10 @@ def avoid_mask(
     triangle (k, 3): the face rule against bodies a lab already owns.  (n,) bool."""
     if avoid_faces_mm is None or not len(avoid_faces_mm) or not len(index):
         return np.ones(len(index), dtype=bool)
+    # scipy loads here, not with the module: the kernels' wheel build imports the props' kernels
+    # (which take body_triangles from here) where only numba and numpy are installed
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(np.sort(np.asarray(avoid_faces_mm, dtype=float), axis=1))
     F = np.sort(face_sides(pool[index]), axis=2).reshape(-1, 3)
     # Chebyshev distance < tol  <=>  every sorted side within the tolerance: indistinguishable
