@@ -21,7 +21,8 @@ CSV_HEADER = "job,prop,rig,markers,total_cost,tracked,self_margin_mm,closest,clo
     "without pictures), in parallel on the engine: in process for a single job, else a local dask "
     "cluster, or the one at --scheduler; then every layout that a tracker seeing 3 markers could mistake "
     "for another is placed again avoiding the others.  --copies N puts N such layouts on each prop.  "
-    "Writes OUT/<prop>[-<rig>][-<copy>]/ per layout and OUT/batch.csv (each layout's closest other layout "
+    "Writes OUT/<prop>/ per layout (its name followed by -<rig> and -<copy> where given) and OUT/batch.csv "
+    "(each layout's closest other layout "
     "and its wrong body + wrong pose rate with exactly 3 markers seen).",
 )
 def place_batch_cmd(
