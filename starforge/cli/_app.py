@@ -60,6 +60,14 @@ def use_scheduler(scheduler: str | None, probe: bool = True) -> None:
 _probed: set = set()
 
 
+#: ``--mount`` of the commands that write a family.json of a lab's bodies (convert, measure)
+FAMILY_MOUNT = typer.Option(
+    "flat",
+    "--mount",
+    help="Mount the family.json's bodies are printed with (`starforge mounts`); its room is added to the "
+    "family's size limit so `starforge export` builds them.",
+)
+
 SCHEDULER_HELP = (
     "Run parallel work (enumeration chunks, sweep cells, placements) on the dask scheduler at this "
     "address: tcp://HOST:PORT, HOST:PORT or HOST (default: $STARFORGE_SCHEDULER; unset: this machine)."

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from starforge.cli._app import app
+from starforge.cli._app import FAMILY_MOUNT, app
 from starforge.words import counted
 
 _FILES = typer.Argument(
@@ -30,12 +30,7 @@ def convert_cmd(
         0.2, "--noise", help="Marker noise, mm per axis, for tolerances the sources do not state (> 0)."
     ),
     id_start: int = typer.Option(1, "--id-start", help="First numeric id for bodies the sources give none."),
-    mount: str = typer.Option(
-        "flat",
-        "--mount",
-        help="Mount the family.json's bodies are printed with (`starforge mounts`); its room is added to the "
-        "family's size limit so `starforge export` builds them.",
-    ),
+    mount: str = FAMILY_MOUNT,
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:

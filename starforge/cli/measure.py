@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from starforge.cli._app import app
+from starforge.cli._app import FAMILY_MOUNT, app
 from starforge.words import counted
 
 
@@ -29,12 +29,7 @@ def measure_cmd(
     noise: float = typer.Option(
         0.2, "--noise", help="Marker noise the family's accuracy is predicted for, mm."
     ),
-    mount: str = typer.Option(
-        "flat",
-        "--mount",
-        help="Mount the family.json's bodies are printed with (`starforge mounts`); its room is added to the "
-        "family's size limit so `starforge export` builds them.",
-    ),
+    mount: str = FAMILY_MOUNT,
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
