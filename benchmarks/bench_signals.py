@@ -15,8 +15,13 @@ sends SIGTERM or SIGINT (alternately per round).  A trial is clean when the comm
 
 A command that had already ended when its signal was due counts as ``ended_first`` (clean when
 it exited 0 with nothing left behind) and is not a signal trial.  A signal that arrives while the
-interpreter itself starts, before any of starforge runs, ends the process by the signal's
-default action (no line; counted clean when nothing is left, and counted in ``default_action``).
+interpreter itself starts, before the first line of starforge runs (``import starforge`` sets the
+command's handlers first), meets Python's own handling: SIGTERM or an early SIGINT ends the
+process by the signal's default action (no line); a SIGINT while Python imports its ``site``
+module or the launcher reaches ``import starforge`` ends in CPython's own ``KeyboardInterrupt``
+report, with no frame of starforge in it.  Those trials are counted in ``before_starforge`` (with
+their outcomes) and are clean when the process exits within 2 s and leaves nothing: no program
+can handle a signal before its first line runs.
 
 Prints JSON: signal trials clean / total, the slowest exit after a signal, the not-clean trials
 (command, signal, delay, what was wrong), the CPU seconds of all trials and the load average.
@@ -97,7 +102,8 @@ def main() -> None:
         "signal_trials": len(signalled),
         "ended_first": len(rows) - len(signalled),
         "ended_first_clean": sum(r["clean"] for r in rows if r["ended_first"]),
-        "default_action": sum(r["code"] is not None and r["code"] < 0 and r["clean"] for r in signalled),
+        "before_starforge": sum(r["before_starforge"] for r in signalled),
+        "before_starforge_outcomes": sorted({r["outcome"] for r in signalled if r["before_starforge"]}),
         "worst_exit_s": round(slowest["exit_s"], 2) if slowest else None,
         "worst_exit_case": {k: slowest[k] for k in ("command", "signal", "delay_s")} if slowest else None,
         "not_clean": [{k: r[k] for k in ("trial", "command", "signal", "delay_s", "problems")}
@@ -190,7 +196,8 @@ def _trial(work: Path, argv: list[str], sig: signal.Signals, delay: float) -> di
                 pass
     err = "".join(said)
     lines = [line for line in err.splitlines() if not PROGRESS.match(line)]
-    if "Traceback" in err or "Warning" in err:
+    early = not ended_first and _before_starforge(proc.returncode, sig, err, lines)
+    if "Warning" in err or ("Traceback" in err and not early):
         problems.append("traceback or warning: " + " | ".join(lines[-3:])[:300])
     stages = [str(p.relative_to(work)) for p in work.rglob("*.staging")]
     if stages:
@@ -198,8 +205,9 @@ def _trial(work: Path, argv: list[str], sig: signal.Signals, delay: float) -> di
     if ended_first:
         if proc.returncode != 0:
             problems.append(f"ended before the signal with exit {proc.returncode}: {lines[-1:]}")
-    elif proc.returncode == -sig and not lines:
-        pass  # ended by the signal's default action: it came before Python ran any of starforge
+    elif early:
+        if snapshot(work) != before:
+            problems.append("the working folder changed")
     else:
         word = "terminated" if sig == signal.SIGTERM else "interrupted"
         if proc.returncode != 128 + sig:
@@ -208,8 +216,20 @@ def _trial(work: Path, argv: list[str], sig: signal.Signals, delay: float) -> di
             problems.append(f"stderr {lines[:3]}"[:300])
         if snapshot(work) != before:
             problems.append("the working folder changed")
+    outcome = f"exit {proc.returncode}: " + (lines[-1][:60] if lines else "no line")
     return {"clean": not problems, "ended_first": ended_first, "exit_s": round(exit_s, 3), "code": proc.returncode,
-            "problems": problems}
+            "before_starforge": early, "outcome": outcome, "problems": problems}
+
+
+def _before_starforge(code: int, sig: signal.Signals, err: str, lines: list[str]) -> bool:
+    """Whether the signal ended the process before the first line of starforge ran: the signal's
+    default action with nothing said, or CPython's own report of a KeyboardInterrupt (while it
+    imports ``site``, or before the launcher's ``import starforge`` ran) without a starforge frame."""
+    if code == -sig and not lines:
+        return True
+    frames = re.findall(r'File "([^"]+)"', err)
+    return (sig == signal.SIGINT and code in (1, -sig) and lines[-1:] == ["KeyboardInterrupt"]
+            and not any("/starforge/" in f for f in frames))
 
 
 if __name__ == "__main__":

@@ -7,12 +7,17 @@ placement and tracker files.  ``import starforge`` stays light: heavy libraries
 
 from __future__ import annotations
 
+# first: when this process is the starforge command, a signal from here on ends it with one line
+from starforge.runtime.stop import stop_early_in_command
+
+stop_early_in_command()
+
 __version__ = "0.1.0"
 
 __all__ = ["__version__", "cache_dir", "load_family", "StarforgeError"]
 
-from starforge.errors import StarforgeError
-from starforge.runtime.cache import cache_dir, point_numba_cache
+from starforge.errors import StarforgeError  # noqa: E402
+from starforge.runtime.cache import cache_dir, point_numba_cache  # noqa: E402
 
 point_numba_cache()
 

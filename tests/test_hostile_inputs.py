@@ -30,7 +30,10 @@ from tests.conftest import run_cli
 
 CHILD = textwrap.dedent(
     """
-    import atexit, os, resource, signal, sys
+    import sys
+    sys.argv[0] = "starforge"  # as the console script: its file's name, seen from the first import on
+    import starforge  # its signal handlers first, as the console script has them
+    import atexit, os, resource, signal
     cap = 2 * 1024 ** 3
     resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
     if os.environ.get("HOSTILE_FILE_BYTES"):  # a full disk: writes past this size fail (EFBIG)
@@ -45,7 +48,6 @@ CHILD = textwrap.dedent(
     if os.environ.get("HOSTILE_RSS_FILE"):
         atexit.register(peak)
     from starforge.__main__ import run
-    sys.argv[0] = "starforge"
     run()  # as the console script: it ends the process the way a user's run ends
     """
 )

@@ -404,7 +404,7 @@ def test_a_signal_before_the_command_starts_is_one_line(signame, code, word):
     CLI's imports take a large share of a second) ends the process with the one line."""
     script = (
         "import os, signal, time\n"
-        "from starforge.runtime.procs import stop_early\n"
+        "from starforge.runtime.stop import stop_early\n"
         "stop_early()\n"
         f"os.kill(os.getpid(), signal.{signame})\n"
         "time.sleep(30)\n"
@@ -422,3 +422,46 @@ def test_the_console_script_sets_its_handlers_before_the_cli_loads():
 
     src = Path(entry.__file__).read_text()
     assert src.index("stop_early()") < src.index("from starforge.cli import main")
+
+
+@pytest.mark.parametrize(
+    "argv0, orig, expected",
+    [
+        ("/venv/bin/starforge", ["/venv/bin/python", "/venv/bin/starforge", "stars"], True),
+        ("C:/venv/Scripts/starforge.exe", ["python.exe", "C:/venv/Scripts/starforge.exe"], True),
+        ("-m", ["python", "-m", "starforge", "stars"], True),
+        ("-m", ["python", "-X", "importtime", "-u", "-m", "starforge"], True),
+        ("-m", ["python", "-mstarforge"], True),
+        ("-m", ["python", "-m", "starforge.cli"], False),
+        ("-m", ["python", "-m", "ipykernel_launcher", "-f", "k.json"], False),
+        ("-c", ["python", "-c", "import starforge"], False),
+        ("/home/u/analysis.py", ["python", "/home/u/analysis.py", "starforge"], False),
+        ("/venv/bin/pytest", ["python", "/venv/bin/pytest", "-m", "starforge"], False),
+    ],
+)
+def test_only_the_starforge_command_sets_handlers_on_import(argv0, orig, expected, monkeypatch):
+    from starforge.runtime.stop import launched_as_command
+
+    monkeypatch.setattr(sys, "argv", [argv0])
+    monkeypatch.setattr(sys, "orig_argv", orig)
+    assert launched_as_command() is expected
+
+
+def test_a_program_importing_starforge_keeps_its_signal_handlers():
+    script = ("import signal, starforge\n"
+              "print(signal.getsignal(signal.SIGINT) is signal.default_int_handler,"
+              " signal.getsignal(signal.SIGTERM) is signal.SIG_DFL)\n")
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=30)
+    assert res.stdout.split() == ["True", "True"], res.stderr
+
+
+@pytest.mark.parametrize("signame, code, word", [("SIGINT", 130, "interrupted"), ("SIGTERM", 143, "terminated")])
+def test_a_signal_while_the_package_loads_in_the_command_is_one_line(signame, code, word, tmp_path):
+    """A script named as the console script: ``import starforge`` alone (before the CLI, before
+    ``__main__``) has set the handlers, so a signal right after it ends in the one line."""
+    script = tmp_path / "starforge"
+    script.write_text(f"import os, signal, time\nimport starforge\nos.kill(os.getpid(), signal.{signame})\n"
+                      "time.sleep(30)\n")
+    res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=30)
+    assert res.returncode == code
+    assert res.stderr.splitlines() == [f"{word}; no output was changed"]

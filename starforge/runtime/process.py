@@ -17,7 +17,8 @@ import threading
 
 from starforge.io import discard_stages, interrupted, note_interrupt, reset_interrupt
 from starforge.runtime.engine import ENV_SCHEDULER, silence_dask
-from starforge.runtime.procs import end_children, report_stop
+from starforge.runtime.procs import end_children
+from starforge.runtime.stop import report_stop
 
 __all__ = ["STOP_DEADLINE_S", "Command", "allow_quick_exit", "command", "end_process", "pause_gc"]
 

@@ -1,6 +1,5 @@
 """Forked helper processes: when this process may fork, and what a forked child gives up of its
-parent's signal handling; and the one line a command stopped by a signal ends with, with the
-handlers the console script sets before anything else is imported (:func:`stop_early`).
+parent's signal handling.
 
 A forked child starts with everything the parent has imported (no interpreter start-up, no
 second import of numpy or of starforge), which is why the placement pictures
@@ -134,27 +133,3 @@ def _die_with_parent() -> None:
             os._exit(1)
     except (OSError, AttributeError):
         pass
-
-
-def report_stop(signum: int) -> None:
-    """The one line of a command stopped by SIGTERM or Ctrl-C (nothing was published)."""
-    word = "terminated" if signum == signal.SIGTERM else "interrupted"
-    try:
-        sys.stderr.write(f"{word}; no output was changed\n")
-        sys.stderr.flush()
-    except (OSError, ValueError):
-        pass
-
-
-def stop_early() -> None:
-    """Until :mod:`starforge.runtime.process` installs a command's own handlers: Ctrl-C or SIGTERM
-    while the CLI's modules are still being imported ends the process at once with the one line.
-    Nothing has started then (no output, no stage, no helper); without this, an import would end
-    in a KeyboardInterrupt traceback, or SIGTERM silently.  For the console script only (it sets
-    the process's handlers); this module imports nothing else, so they are set within milliseconds."""
-    def early(signum, frame):
-        report_stop(signum)
-        os._exit(128 + signum)
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, early)
