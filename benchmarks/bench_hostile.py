@@ -1,8 +1,8 @@
-"""The hostile suite as one figure: every case of tests/test_hostile_inputs.py and
-tests/test_hostile_readers.py (each the real CLI in a child process with a capped address space,
+"""The hostile suite as one figure: every case of tests/test_hostile_inputs.py,
+tests/test_hostile_readers.py and tests/test_hostile_matrix.py (each the real CLI in a child process with a capped address space,
 a CPU budget and a wall-clock limit; a full disk; concurrent runs on one folder), counted.
 
-Prints JSON: cases clean / total (one line, exit 2 or a correct result, nothing left behind, no
+Prints JSON: cases clean / total and per kind of case (one line, exit 2 or a correct result, nothing left behind, no
 process left, no traceback or warning on stderr, at most 10 CPU s and 2 GB), the slowest case in
 CPU and in wall-clock seconds (the machine's load average is printed beside them), and the
 largest peak memory of a command (the child's own maximum resident set).  With ``--all`` the
@@ -35,7 +35,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="bench-hostile-") as d:
         report = Path(d) / "cases.jsonl"
         junit = Path(d) / "junit.xml"
-        files = ["tests/test_hostile_inputs.py", "tests/test_hostile_readers.py"]
+        files = ["tests/test_hostile_inputs.py", "tests/test_hostile_readers.py", "tests/test_hostile_matrix.py"]
         files += ["tests/test_hostile_runtime.py"] if opts.all else []
         cmd = [sys.executable, "-m", "pytest", *files, "-q", "-p", "no:cacheprovider", "-m", "",
                f"--junitxml={junit}",
@@ -55,7 +55,10 @@ def main() -> None:
     print(json.dumps({
         "cases_clean": sum(r["clean"] for r in rows),
         "cases_total": len(rows),
-        "not_clean": [r["case"] for r in rows if not r["clean"]],
+        "per_kind": {k: f"{sum(r['clean'] for r in rows if r.get('kind') == k)}/"
+                        f"{sum(1 for r in rows if r.get('kind') == k)}"
+                     for k in sorted({r.get("kind") or "" for r in rows})},
+        "not_clean": [{k: r.get(k) for k in ("case", "code", "said", "why")} for r in rows if not r["clean"]],
         "worst_seconds": round(slowest["seconds"], 2) if slowest else None,
         "worst_seconds_case": slowest["case"] if slowest else None,
         "worst_cpu_seconds": round(busiest["cpu_seconds"], 2) if busiest else None,

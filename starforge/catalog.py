@@ -6,6 +6,8 @@ resolve the same after an editable or a plain ``pip install .``.
 
 from __future__ import annotations
 
+import contextlib
+import re
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -40,13 +42,35 @@ def read_toml(path: str | Path) -> dict:
         raise StarforgeError(f"spec file {path} is not valid TOML: {exc}") from None
 
 
+def is_path(name_or_path: str | Path) -> bool:
+    """Whether a template argument names a file (``x.toml``, ``dir/x``) rather than a template."""
+    text = str(name_or_path)
+    return text.endswith(".toml") or "/" in text or "\\" in text
+
+
+@contextlib.contextmanager
+def values_from(name_or_path: str | Path, given=()):
+    """A StarforgeError raised in the block (a value out of range, a key missing) names the TOML
+    file the values came from, when ``name_or_path`` is a file and the line does not name it yet;
+    not an error about one of the ``given`` keys (values an option set in place of the file's)."""
+    try:
+        yield
+    except StarforgeError as exc:
+        said = str(exc)
+        key = re.match(r"\w+", said)
+        ours = key is None or key.group(0) not in given
+        if is_path(name_or_path) and ours and str(name_or_path) not in said:
+            raise StarforgeError(f"{name_or_path}: {said}") from None
+        raise
+
+
 def load_template(kind: str, name_or_path: str | Path) -> tuple[str, dict]:
     """Resolve a template name (``finger``) or a TOML path; return ``(name, data)``.
 
     An unknown name raises StarforgeError listing the known ones.
     """
     text = str(name_or_path)
-    if text.endswith(".toml") or "/" in text or "\\" in text:
+    if is_path(text):
         path = Path(text)
         return path.stem, read_toml(path)
     known = list_templates(kind)

@@ -81,7 +81,8 @@ def _convert(name: str, tp: Any, value: Any) -> Any:
     if tp is float:
         return _as_float(name, value)
     if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int | float) or int(value) != value:
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) \
+                or int(value) != value:
             raise StarforgeError(f"{name} must be an integer, got {value!r}")
         return int(value)
     if tp is bool:

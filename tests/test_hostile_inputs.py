@@ -34,6 +34,15 @@ CHILD = textwrap.dedent(
     sys.argv[0] = "starforge"  # as the console script: its file's name, seen from the first import on
     import starforge  # its signal handlers first, as the console script has them
     import atexit, os, resource, signal
+    if os.environ.get("HOSTILE_AS_USER") and os.geteuid() == 0:  # file permissions hold, as for a user
+        import ctypes
+        caps = (ctypes.c_uint32 * 6)()  # effective, permitted, inheritable; twice (capabilities 0-63)
+        head = (ctypes.c_uint32 * 2)(0x20080522, 0)
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.capget(head, caps)
+        for i in range(3):
+            caps[i] &= ~0b110  # CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH
+        assert libc.capset(head, caps) == 0
     cap = 2 * 1024 ** 3
     resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
     if os.environ.get("HOSTILE_FILE_BYTES"):  # a full disk: writes past this size fail (EFBIG)
@@ -70,6 +79,11 @@ class Case:
     budget_s: float = LIMIT_S
     #: for a correct result (code 0): ``verify(out folder, stderr)`` checks what was written
     verify: object = None
+    #: ``setup(work folder)``: what the user had made there before the run (old outputs, a file
+    #: where a folder is expected...), part of what must be as it was afterwards
+    setup: object = None
+    #: what sort of case it is, for the benchmark's counts per kind
+    kind: str = "input"
 
 
 def left_in_session(sid: int) -> list[int]:
@@ -352,7 +366,7 @@ def _cases(f) -> list[Case]:
         Case("place-5m-faces-64-orientations", ("place", "run", str(f["mesh_5m"]), "--orientations", "64"),
              r"prop mesh .*faces5m.stl \(250 MB\) needs about .* memory"),
         Case("sweep-cube-nan", ("sweep", "--cube", "nan:40:5"), r"cube must hold finite numbers, got 'nan'"),
-    ] + [replace(c, budget_s=BUDGET_S) for c in _bounded_cases(f)]
+    ] + [replace(c, budget_s=BUDGET_S, kind="bounded") for c in _bounded_cases(f)]
 
 
 def _bounded_cases(f) -> list[Case]:
@@ -419,14 +433,17 @@ _FILE_KEYS = (
 PROGRESS = r"^starforge [a-z]+: \d+ s, "
 
 
-def user_folder(tmp_path: Path) -> tuple[Path, Path, dict]:
-    """A working folder whose output folder already holds the user's files: (work, out, snapshot)."""
+def user_folder(tmp_path: Path, setup=None) -> tuple[Path, Path, dict]:
+    """A working folder whose output folder already holds the user's files (and what ``setup``
+    makes in it): (work, out, snapshot)."""
     work = tmp_path / "work"
     out = work / "out"
     out.mkdir(parents=True)
     (out / "keep.txt").write_text("a file the user had")
     (out / "mine").mkdir()
     (out / "mine" / "notes.txt").write_text("more of the user's files")
+    if setup is not None:
+        setup(work)
     return work, out, snapshot(work)
 
 
@@ -462,7 +479,7 @@ def run_case_in_child(case: Case, tmp_path: Path) -> None:
     """A case as a user meets it: its own process, address space capped at 2 GiB, at most
     :data:`CPU_BUDGET_S` CPU seconds and ``case.budget_s`` wall seconds, no process left, no
     traceback or warning; its figures go to the benchmark's report (``REPORT``)."""
-    work, out, before = user_folder(tmp_path)
+    work, out, before = user_folder(tmp_path, case.setup)
     args = list(case.args)
     if case.uses_out:
         args += ["--out", str(out)]
@@ -473,7 +490,7 @@ def run_case_in_child(case: Case, tmp_path: Path) -> None:
         "OMP_NUM_THREADS": "1",
         **case.env,
     }
-    clean, run = False, None
+    clean, run, why = False, None, ""
     try:
         run = run_child(args, work, env, case.budget_s)
         assert "Warning" not in run.res.stderr, run.res.stderr
@@ -481,10 +498,16 @@ def run_case_in_child(case: Case, tmp_path: Path) -> None:
         assert not run.left, f"processes left running: {run.left}"
         assert run.cpu_seconds <= CPU_BUDGET_S, f"{run.cpu_seconds:.1f} CPU s"
         clean = True
+    except AssertionError as exc:
+        why = str(exc).splitlines()[0][:300] if str(exc) else "assertion"
+        raise
     finally:
         if REPORT:
-            row = {"case": case.id, "clean": clean, "seconds": run and run.seconds,
-                   "cpu_seconds": run and run.cpu_seconds, "peak_kb": run and run.peak_kb}
+            row = {"case": case.id, "kind": case.kind, "clean": clean, "seconds": run and run.seconds,
+                   "cpu_seconds": run and run.cpu_seconds, "peak_kb": run and run.peak_kb,
+                   "code": run and run.res.returncode,
+                   "said": run and run.res.stderr.strip().splitlines()[-1:][0][:300] if run and run.res.stderr.strip()
+                   else "", "why": why}
             with open(REPORT, "a") as fh:
                 fh.write(json.dumps(row) + "\n")
 
@@ -494,7 +517,7 @@ def run_case_in_process(case: Case, tmp_path: Path, monkeypatch, capsys) -> None
     checks (the process and its address-space cap are what :func:`run_case_in_child` adds)."""
     from starforge.runtime import budget
 
-    work, out, before = user_folder(tmp_path)
+    work, out, before = user_folder(tmp_path, case.setup)
     args = list(case.args)
     if case.uses_out:
         args += ["--out", str(out)]

@@ -161,16 +161,19 @@ def _cases(f) -> list[Case]:
     cases = []
     for name, pattern in TRACKER_CASES.items():
         for cmd, args in TRACKER_COMMANDS.items():
-            cases.append(Case(f"{cmd}-{name}", tuple(a.format(file=f[name]) for a in args), pattern, budget_s=BUDGET_S))
+            cases.append(Case(f"{cmd}-{name}", tuple(a.format(file=f[name]) for a in args), pattern, budget_s=BUDGET_S,
+                              kind="tracker-file"))
     for cmd, before, option in NUMERIC_OPTIONS:
         stem = option.lstrip("-").removesuffix("-mm").replace("-", "[ _-]")
         for v in BAD_NUMBERS:
             args = (cmd, *(a.format(family=f["family"]) for a in before), option, v)
-            cases.append(Case(f"{cmd}{option}={v}", args, rf"(?i){stem}", uses_out=cmd != "mounts", budget_s=BUDGET_S))
+            cases.append(Case(f"{cmd}{option}={v}", args, rf"(?i){stem}", uses_out=cmd != "mounts", budget_s=BUDGET_S,
+                              kind="number"))
     cases += [
-        Case("drawing-cjk-names", ("drawing", str(f["把手.csv"])), "", code=0, verify=_drawn("把手"), budget_s=BUDGET_S),
+        Case("drawing-cjk-names", ("drawing", str(f["把手.csv"])), "", code=0, verify=_drawn("把手"), budget_s=BUDGET_S,
+             kind="name"),
         Case("convert-cjk-names", ("convert", str(f["把手.csv"]), "--format", "motive"), "", code=0,
-             verify=_converted("把手"), budget_s=BUDGET_S),
+             verify=_converted("把手"), budget_s=BUDGET_S, kind="name"),
     ]
     return cases
 
@@ -230,7 +233,7 @@ FULL_DISK = {
 def test_a_full_disk_is_one_line_and_leaves_nothing(command, tracker_files, tmp_path):
     args = tuple(a.format(family=tracker_files["family"]) for a in FULL_DISK[command])
     case = Case(f"full-disk-{command}", args, r"cannot write the outputs for .*out: File too large",
-                env={"HOSTILE_FILE_BYTES": "256"})  # the CPU budget counts; the wall clock guards a hang
+                env={"HOSTILE_FILE_BYTES": "256"}, kind="full-disk")  # the CPU budget counts; the wall clock guards a hang
     run_case_in_child(case, tmp_path)
 
 
@@ -266,7 +269,7 @@ def test_concurrent_runs_on_one_out_leave_one_whole_result(small_family, tmp_pat
     finally:
         if REPORT:
             with open(REPORT, "a") as fh:
-                fh.write(json.dumps({"case": "concurrent-8-stars-one-out", "clean": clean, "seconds": None,
+                fh.write(json.dumps({"case": "concurrent-8-stars-one-out", "kind": "concurrent", "clean": clean, "seconds": None,
                                      "cpu_seconds": None, "peak_kb": None}) + "\n")
 
 

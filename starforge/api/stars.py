@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from starforge.catalog import load_template
+from starforge.catalog import load_template, values_from
 from starforge.errors import StarforgeError
 from starforge.io import atomic_write_json, check_name, check_writable, staged_output
 from starforge.markers import marker_diameter_mm
@@ -151,7 +151,9 @@ def plan_family(
             return bodies_fit(V, _d, _box, _m, _b)
     elif seat is not None:
         raise StarforgeError("--seat shapes the printed body: give --mount too (see `starforge mounts`)")
-    s = spec_from_mapping(data)
+    # a bad value the spec file gave (and no option replaced) names the file
+    with values_from(spec or "", given={k for k, v in given.items() if v is not None}):
+        s = spec_from_mapping(data)
     check_name(s.name, "--name")
     return StarPlan(s, star_filter)
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.cad.primitives import Box, Cylinder, Revolved
-from starforge.catalog import list_templates, load_template
+from starforge.catalog import list_templates, load_template, values_from
 from starforge.spec import in_range, require
 
 COMMON = ("thickness_mm", "margin_mm")
@@ -99,7 +99,14 @@ def mount_from_mapping(name: str, data: dict, overrides: dict | None = None) -> 
     require(not missing, f"{where}: parameter(s) {', '.join(missing)} need a value and a range")
     clean = {}
     for n in names:
-        lo, hi = (float(x) for x in ranges[n])
+        pair = ranges[n]
+        require(
+            isinstance(pair, list | tuple) and len(pair) == 2
+            and all(isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) for x in pair)
+            and pair[0] <= pair[1],
+            f"{where}: ranges.{n} must be [low, high], two finite numbers, got {pair!r}",
+        )
+        lo, hi = float(pair[0]), float(pair[1])
         v = in_range(n, params[n], lo, hi)
         if n in _INTS:
             require(v == int(v), f"{n} must be an integer, got {params[n]}")
@@ -114,7 +121,8 @@ def mount_from_mapping(name: str, data: dict, overrides: dict | None = None) -> 
 def load_mount(name_or_path: str | Path, overrides: dict | None = None) -> Mount:
     """A mount by template name (``flat``) or TOML path; unknown names list the known ones."""
     name, data = load_template("mounts", name_or_path)
-    return mount_from_mapping(name, data, overrides)
+    with values_from(name_or_path, given=set(overrides or ())):
+        return mount_from_mapping(name, data, overrides)
 
 
 def list_mounts() -> list[Mount]:

@@ -140,13 +140,14 @@ def auto_pairs(cameras) -> tuple[tuple[int, int], ...]:
 
 def load_rig(name_or_path: str = "default") -> Rig:
     """A rig from a shipped template name (``default``) or a TOML file."""
-    from starforge.catalog import load_template
+    from starforge.catalog import load_template, values_from
     from starforge.spec import from_mapping
 
     name, data = load_template("rigs", name_or_path)
     data = dict(data)
     data.setdefault("name", name)
-    return from_mapping(Rig, data, where=f"rig {name}")
+    with values_from(name_or_path):
+        return from_mapping(Rig, data, where=f"rig {name}")
 
 
 @dataclass(frozen=True)

@@ -85,13 +85,14 @@ class PlaceSpec:
 
 def load_spec(name_or_path: str = "default") -> PlaceSpec:
     """A placement spec from a shipped template (``default``, ``long``, ``paper``) or a TOML file."""
-    from starforge.catalog import load_template
+    from starforge.catalog import load_template, values_from
     from starforge.spec import from_mapping
 
     name, data = load_template("place", name_or_path)
     data = dict(data)
     data.setdefault("name", name)
-    return from_mapping(PlaceSpec, data, where=f"place spec {name}")
+    with values_from(name_or_path):
+        return from_mapping(PlaceSpec, data, where=f"place spec {name}")
 
 
 def with_overrides(

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from starforge.catalog import list_templates, load_template
+from starforge.catalog import list_templates, load_template, values_from
 from starforge.errors import StarforgeError
 from starforge.spec import from_mapping, positive, require
 from starforge.tol import tol
@@ -131,7 +131,8 @@ def load_preset(name_or_path: str) -> Preset:
     name, data = load_template("presets", name_or_path)
     data = dict(data)
     data.setdefault("name", name)
-    p = from_mapping(Preset, data, where=f"preset {name}")
+    with values_from(name_or_path):
+        p = from_mapping(Preset, data, where=f"preset {name}")
     from starforge.stars.spec import StarSpec
 
     known = {f.name for f in dataclasses.fields(StarSpec)}
