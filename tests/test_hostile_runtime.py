@@ -465,3 +465,23 @@ def test_a_signal_while_the_package_loads_in_the_command_is_one_line(signame, co
     res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=30)
     assert res.returncode == code
     assert res.stderr.splitlines() == [f"{word}; no output was changed"]
+
+
+def test_a_finalizer_failing_while_the_command_stops_says_nothing(monkeypatch):
+    """An object a signal left half-built fails in its ``__del__`` while the command unwinds
+    (llvmlite's ObjectRef): not reported once the command is stopping; reported otherwise."""
+    from starforge.io import note_interrupt
+    from starforge.runtime.process import command
+
+    class HalfBuilt:
+        def __del__(self):
+            raise AttributeError("'ValueRef' object has no attribute '_as_parameter_'")
+
+    reported = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: reported.append(u.exc_type))
+    with command():
+        HalfBuilt()
+        assert reported == [AttributeError]  # an ordinary run: Python's report
+        note_interrupt()
+        HalfBuilt()
+        assert reported == [AttributeError]

@@ -143,10 +143,15 @@ def _install_signals():
 def _quiet_interrupts(previous):
     """An unraisable-exception hook: a Ctrl-C that lands inside a callback Python cannot raise
     from (numba compiles inside llvmlite's ctypes callbacks) is recorded as an interrupt, without
-    the 'Exception ignored in ... Traceback' print; anything else goes to ``previous``."""
+    the 'Exception ignored in ... Traceback' print; so is whatever a finalizer raises once the
+    command is stopping (an object the signal left half-built, such as llvmlite's ``ObjectRef``,
+    fails in its ``__del__``; the command's one line says what happened); anything else goes to
+    ``previous``."""
     def hook(unraisable) -> None:
         if unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt):
             note_interrupt()
+            return
+        if interrupted():
             return
         previous(unraisable)
 
