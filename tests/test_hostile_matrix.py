@@ -290,7 +290,7 @@ NUMBERS = [
     (("export", FAM, OVERSIZE), "--nozzle-mm", ("-1", "0")), (("export", FAM, OVERSIZE), "--coating-mm", ("-1",)),
     (("export", FAM, OVERSIZE), "--stem-mm", ("-1", "0")), (("export", FAM, OVERSIZE), "--min-stem-mm", ("-1", "0")),
     (("export", FAM, OVERSIZE), "--post-mm", ("-1", "0")), (("export", FAM, OVERSIZE), "--gap", ("-1",)),
-    (("export", FAM, "--format", "qtm"), "--noise", ("-1", "0")), (("export", FAM, "--format", "atracsys"), "--id-start", ("-1", "1e9")),
+    (("export", FAM, "--format", "qtm"), "--noise", ("-1",)), (("export", FAM, "--format", "atracsys"), "--id-start", ("-1", "1e9")),
     (("preview", FAM, OVERSIZE), "--nozzle-mm", ("-1", "0")), (("preview", FAM, OVERSIZE), "--coating-mm", ("-1",)),
     (("preview", FAM, OVERSIZE), "--stem-mm", ("-1", "0")), (("preview", FAM, OVERSIZE), "--min-stem-mm", ("-1", "0")),
     (("preview", FAM, OVERSIZE), "--post-mm", ("-1", "0")),
