@@ -301,7 +301,7 @@ NUMBERS = [
     (("check", FAM), "--seed", ("-1",)), (("check", FAM), "--curve", ("-1", "1000000")),
     (("convert", FAM, "--format", "qtm"), "--noise", ("-1", "0")), (("convert", FAM, "--format", "qtm"), "--id-start", ("-1",)),
     (("place", "run", "hammer"), "--base-mm", ("-1",)), (("place", "run", "hammer"), "--placement-error", ("-1",)),
-    (("place", "run", "hammer"), "--cameras-lost", ("-1", "1.5")), (("place", "run", "hammer"), "--noise", ("-1", "0")),
+    (("place", "run", "hammer"), "--cameras-lost", ("-1", "1.5")), (("place", "run", "hammer"), "--noise", ("-1",)),
     (("place", "run", "hammer"), "--markers", ("-1", "3", "13")), (("place", "run", "hammer"), "--resolution", ("-1", "0")),
     (("place", "run", "hammer"), "--orientations", ("-1", "0")), (("place", "run", "hammer"), "--sites", ("-1", "0", "3")),
     (("place", "run", "hammer"), "--restarts", ("-1", "1000000")), (("place", "run", "hammer"), "--seed", ("-1",)),
@@ -320,7 +320,7 @@ LISTS = [
     (("stars",), "--tip", ("0,0", "nan,0,0", "a,b,c", "1e308,0,0")),
     (("stars",), "--reserve", ("1,2", "nan,0,0", "-1,0,0", "a,b,c", "1e308,0,0")),
     (("check", FAM), "--tip", ("0,0", "a,b,c", "0,0,0,0")),
-    (("place", "run", "hammer"), "--grip", ("1,2", "nan,0,0,0.1,0,0", "0,0,0,0,0,0", "99", "-1", "a,b,c,d,e,f")),
+    (("place", "run", "hammer"), "--grip", ("1,2", "nan,0,0,0.1,0,0", "0,0,0,0,0,0.1,-1", "99", "-1", "a,b,c,d,e,f")),
     (("export", FAM, OVERSIZE), "--bed", ("0x200", "-5x200", "nanx200", "200", "axb", "1e308x1e308")),
     (("export", FAM, OVERSIZE), "--ids", ("0", "a-b", "5-1", "1,,2", "-3")),
     (("preview", FAM, OVERSIZE), "--ids", ("0", "a-b", "5-1")),
@@ -335,7 +335,7 @@ CHOICES = [
     (("stars",), "--box-method", ("obb", "")), (("stars",), "--seat", ("nail", "")),
     (("stars",), "--mount", ("", "把手")), (("stars",), "--preset", ("", "motionanalysis")),
     (("stars",), "--spec", ("", "fingers")), (("stars",), "--marker", ("", "3mm-m2")),
-    (("export", FAM, OVERSIZE), "--format", ("", "stl,,qtm", "STEP;stl")), (("export", FAM, OVERSIZE), "--seat", ("nail", "")),
+    (("export", FAM, OVERSIZE), "--format", ("", "stl,dwg", "STEP;stl")), (("export", FAM, OVERSIZE), "--seat", ("nail", "")),
     (("export", FAM, OVERSIZE), "--mount", ("",)), (("export", FAM, OVERSIZE), "--marker", ("", "3mm-m2")),
     (("preview", FAM, OVERSIZE), "--seat", ("nail",)), (("preview", FAM, OVERSIZE), "--mount", ("", "velcro")),
     (("check", FAM), "--world", ("half", "")), (("check", FAM), "--choose", ("best", "")),
@@ -366,9 +366,10 @@ def value_cases(f: dict) -> list[Case]:
             cmd = " ".join(before[:2]) if before[0] in ("place", "templates") else before[0]
             args = (*(a.format(fam=f["family.json"], markers=f["markers.csv"], recording=f["recording.csv"])
                       for a in before), option, v)
-            # the line names the option (or the field the option sets)
+            # the line names the option, the field it sets, the key of KEY=VALUE, or quotes the value
+            named = [stem, re.escape(option), re.escape(repr(v))] + ([re.escape(v.split("=")[0])] if "=" in v else [])
             where = "-".join(a for a in before if not a.startswith("{") and a != OVERSIZE)
-            cases.append(Case(f"{where}{option}={_slug(v)}", args, rf"(?i)({stem}|{re.escape(option)})",
+            cases.append(Case(f"{where}{option}={_slug(v)}", args, rf"(?i)({'|'.join(named)})",
                               uses_out=cmd not in NO_OUT and cmd != "templates", budget_s=BUDGET_S, kind=kind))
     return cases
 
@@ -510,3 +511,15 @@ def test_a_bad_value_names_the_file_it_came_from_not_an_option_that_replaced_it(
     for v in (float("nan"), float("inf"), -float("inf")):  # an integer field: one line, not int()'s error
         with pytest.raises(StarforgeError, match=r"rules.min_markers must be an integer"):
             from_mapping(Preset, {"name": "p", "rules": {"min_markers": v}})
+
+
+def test_convert_and_export_take_the_same_id_range(small_family, tmp_path):
+    """Numeric ids a tracker file holds: from 0 up to a signed 32-bit integer, the same for
+    ``convert`` and ``export``; a negative first id is refused by both in one line."""
+    fam = small_family[0] / "family.json"
+    n = len(small_family[1]["stars"])
+    for cmd in (["convert", fam, "--format", "atracsys"], ["export", fam, "--format", "atracsys"]):
+        for first, code in ((-1, 2), (2**31 - n, 2), (2**31 - 1 - n, 0), (0, 0)):
+            out = tmp_path / f"{cmd[0]}{first}"
+            assert run_cli([*cmd, "--id-start", first, "--out", out, "-q"]) == code, (cmd[0], first)
+            assert len(list(out.rglob("*.ini"))) == (n if code == 0 else 0)  # a geometry per body, or nothing

@@ -25,7 +25,7 @@ import numpy as np
 from starforge.errors import StarforgeError
 from starforge.stars.spec import MAX_NOISE_MM
 from starforge.tracking.bodies import check_body, load_bodies, safe_name
-from starforge.tracking.formats import FORMATS, Record, WriteContext, get_format, sniff_format
+from starforge.tracking.formats import FORMATS, Record, WriteContext, check_id_start, get_format, sniff_format
 
 #: the words a user reads for each carried field
 FIELD_WORDS = {
@@ -186,6 +186,7 @@ def convert_records(source: Source, fmt: str, noise_mm: float = 0.2, id_start: i
 
     f = get_format(fmt)
     recs = source.records
+    check_id_start(id_start, len(recs))
     if f.max_markers is not None:
         big = [r for r in recs if len(r.points_mm) > f.max_markers]
         if big:

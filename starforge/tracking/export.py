@@ -8,15 +8,13 @@ from __future__ import annotations
 from pathlib import Path
 
 from starforge.errors import StarforgeError
-from starforge.tracking.formats import FORMATS, WriteContext, parse_formats
+from starforge.tracking.formats import FORMATS, WriteContext, check_id_start, parse_formats
 
 
 def check_exportable(bodyset, formats, id_start: int = 1) -> None:
     """Refuse, before anything is written, what a format cannot hold (an Atracsys geometry: at
     most 6 fiducials and a 32-bit id; an NDI tool definition: at most 20 markers)."""
-    n = len(bodyset.bodies)
-    if not (isinstance(id_start, int) and 0 <= id_start <= 2**31 - 1 - n):
-        raise StarforgeError(f"id_start must be an integer in [0, {2**31 - 1 - n}], got {id_start!r}")
+    check_id_start(id_start, len(bodyset.bodies))
     for fmt in formats:
         f = FORMATS[fmt]
         if f.max_markers is None:
