@@ -340,7 +340,7 @@ CHOICES = [
     (("preview", FAM, OVERSIZE), "--seat", ("nail",)), (("preview", FAM, OVERSIZE), "--mount", ("", "velcro")),
     (("check", FAM), "--world", ("half", "")), (("check", FAM), "--choose", ("best", "")),
     (("check", FAM), "--preset", ("", "motionanalysis")),
-    (("convert", FAM), "--format", ("", "fbx")), (("convert", FAM, "--format", "family"), "--mount", ("", "velcro")),
+    (("convert", FAM), "--format", ("", "fbx")), (("convert", FAM, "--format", "family"), "--mount", ("velcro",)),
     (("place", "run", "hammer"), "--mesh-format", ("obj", "")), (("place", "run", "hammer"), "--units", ("", "inch")),
     (("place", "run", "hammer"), "--preset", ("", "motionanalysis")), (("place", "run", "hammer"), "--rig", ("", "huge")),
     (("place", "run", "hammer"), "--spec", ("", "fast")), (("place", "run", "hammer"), "--marker", ("", "3mm-m2")),
@@ -370,7 +370,7 @@ def value_cases(f: dict) -> list[Case]:
             named = [stem, re.escape(option), re.escape(repr(v))] + ([re.escape(v.split("=")[0])] if "=" in v else [])
             where = "-".join(a for a in before if not a.startswith("{") and a != OVERSIZE)
             cases.append(Case(f"{where}{option}={_slug(v)}", args, rf"(?i)({'|'.join(named)})",
-                              uses_out=cmd not in NO_OUT and cmd != "templates", budget_s=BUDGET_S, kind=kind))
+                              uses_out=cmd not in NO_OUT and before[0] != "templates", budget_s=BUDGET_S, kind=kind))
     return cases
 
 

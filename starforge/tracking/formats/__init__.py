@@ -81,10 +81,10 @@ ATRACSYS_MAX_FIDUCIALS = atracsys.MAX_FIDUCIALS
 
 def check_id_start(id_start, n_bodies: int) -> None:
     """Numeric body ids ``id_start`` .. ``id_start + n_bodies - 1`` fit every format's id field
-    (a signed 32-bit integer, never negative); StarforgeError naming ``--id-start`` otherwise."""
+    (a signed 32-bit integer, never negative); StarforgeError naming ``id_start`` otherwise."""
     top = 2**31 - 1 - n_bodies
     if not (isinstance(id_start, int) and not isinstance(id_start, bool) and 0 <= id_start <= top):
-        raise StarforgeError(f"--id-start must be an integer in [0, {top}], got {id_start!r}")
+        raise StarforgeError(f"id_start must be an integer in [0, {top}], got {id_start!r}")
 
 
 def get_format(name: str) -> Format:
