@@ -336,8 +336,8 @@ CHOICES = [
     (("stars",), "--mount", ("", "把手")), (("stars",), "--preset", ("", "motionanalysis")),
     (("stars",), "--spec", ("", "fingers")), (("stars",), "--marker", ("", "3mm-m2")),
     (("export", FAM, OVERSIZE), "--format", ("", "stl,dwg", "STEP;stl")), (("export", FAM, OVERSIZE), "--seat", ("nail", "")),
-    (("export", FAM, OVERSIZE), "--mount", ("",)), (("export", FAM, OVERSIZE), "--marker", ("", "3mm-m2")),
-    (("preview", FAM, OVERSIZE), "--seat", ("nail",)), (("preview", FAM, OVERSIZE), "--mount", ("", "velcro")),
+    (("export", FAM, OVERSIZE), "--mount", ("Flat",)), (("export", FAM, OVERSIZE), "--marker", ("", "3mm-m2")),
+    (("preview", FAM, OVERSIZE), "--seat", ("nail",)), (("preview", FAM, OVERSIZE), "--mount", ("magnets",)),
     (("check", FAM), "--world", ("half", "")), (("check", FAM), "--choose", ("best", "")),
     (("check", FAM), "--preset", ("", "motionanalysis")),
     (("convert", FAM), "--format", ("", "fbx")), (("convert", FAM, "--format", "family"), "--mount", ("velcro",)),
@@ -347,7 +347,7 @@ CHOICES = [
     (("place-batch", "hammer"), "--units", ("inch",)), (("place-batch", "hammer"), "--rig", ("huge",)),
     (("place-batch", "hammer"), "--preset", ("motionanalysis",)), (("place-batch", "hammer"), "--spec", ("fast",)),
     (("sweep",), "--rule", ("", "face,tri")), (("sweep",), "--exhaustive", ("some", "-1")),
-    (("templates",), "--show", ("nope",)), (("templates", "stars"), "--show", ("nope", "")),
+    (("templates",), "--show", ("nope",)), (("templates", "stars"), "--show", ("nope",)),
 ]
 
 
@@ -523,3 +523,14 @@ def test_convert_and_export_take_the_same_id_range(small_family, tmp_path):
             out = tmp_path / f"{cmd[0]}{first}"
             assert run_cli([*cmd, "--id-start", first, "--out", out, "-q"]) == code, (cmd[0], first)
             assert len(list(out.rglob("*.ini"))) == (n if code == 0 else 0)  # a geometry per body, or nothing
+
+
+def test_a_print_bed_is_two_finite_sizes_within_bounds():
+    from starforge.api.bodies import MAX_BED_MM, parse_bed
+    from starforge.errors import StarforgeError
+
+    assert parse_bed("200x250") == (200.0, 250.0)
+    assert parse_bed(f"{MAX_BED_MM:g}x1") == (MAX_BED_MM, 1.0)
+    for bad in ("nanx200", "infx200", "1e308x1e308", "0x200", f"{MAX_BED_MM * 1.01:g}x200", "200", "200x200x200"):
+        with pytest.raises(StarforgeError, match=r"--bed must be WIDTHxDEPTH in mm"):
+            parse_bed(bad)

@@ -103,6 +103,10 @@ def split_formats(text: str) -> tuple[list[str], list[str]]:
     return cad, trk
 
 
+#: the widest print bed a plate is laid out for, mm (far beyond any printer's)
+MAX_BED_MM = 10_000.0
+
+
 def parse_bed(text: str) -> tuple[float, float]:
     """``"200x250"`` -> (200.0, 250.0) mm.
 
@@ -116,8 +120,10 @@ def parse_bed(text: str) -> tuple[float, float]:
         vals = tuple(float(p) for p in parts)
     except ValueError:
         vals = ()
-    if len(vals) != 2 or min(vals) <= 0:
-        raise StarforgeError(f"--bed must be WIDTHxDEPTH in mm, e.g. 200x250, got {text!r}")
+    if len(vals) != 2 or not all(0 < v <= MAX_BED_MM for v in vals):  # also refuses nan
+        raise StarforgeError(
+            f"--bed must be WIDTHxDEPTH in mm, each in (0, {MAX_BED_MM:,.0f}], e.g. 200x250, got {text!r}"
+        )
     return vals
 
 

@@ -35,9 +35,12 @@ def measure_cmd(
 ) -> None:
     from starforge.cad.reserve import mount_reserve_mm
     from starforge.io import check_writable, staged_output
+    from starforge.spec import in_range
+    from starforge.stars.spec import MAX_NOISE_MM
     from starforge.tracking.measure import measure_bodies, measure_outputs, parse_body_option
     from starforge.tracking.recording import read_recording
 
+    in_range("--noise", noise, 0.0, MAX_NOISE_MM)  # before the recording is read
     named = [parse_body_option(b) for b in body] if body else None
     check_writable(out, ["bodies.csv", "family.json", "measure.json"], force)
     traj = read_recording(recording)
