@@ -485,3 +485,21 @@ def test_a_finalizer_failing_while_the_command_stops_says_nothing(monkeypatch):
         note_interrupt()
         HalfBuilt()
         assert reported == [AttributeError]
+
+
+def test_a_signal_before_the_command_starts_ends_its_early_helpers(tmp_path):
+    """A helper registered before the CLI loads (as the export's STEP worker is) ends with the
+    early handler's one line: no process is left in the command's session."""
+    script = tmp_path / "starforge"
+    script.write_text(
+        "import os, signal, subprocess, sys, time\nimport starforge\nfrom starforge.runtime import procs\n"
+        "child = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'])\n"
+        "procs.adopt(child.pid)\nos.kill(os.getpid(), signal.SIGTERM)\ntime.sleep(30)\n"
+    )
+    proc = subprocess.Popen([sys.executable, str(script)], stderr=subprocess.PIPE, text=True, start_new_session=True)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 143 and err.splitlines() == ["terminated; no output was changed"]
+    deadline = time.monotonic() + 5
+    while left_in_session(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert left_in_session(proc.pid) == []

@@ -51,11 +51,16 @@ def launched_as_command() -> bool:
 
 def stop_early() -> None:
     """Until :mod:`starforge.runtime.process` installs a command's own handlers: Ctrl-C or SIGTERM
-    ends the process at once with the one line.  Nothing has started then (no output, no stage,
-    no helper); without this, an import would end in a KeyboardInterrupt traceback, or SIGTERM
+    ends the process at once with the one line.  Nothing has started then (no output, no stage)
+    but perhaps a helper, which is ended with it; without this, an import would end in a KeyboardInterrupt traceback, or SIGTERM
     silently.  For the command only: it sets the process's handlers."""
 
     def early(signum, frame):
+        # a helper started before the CLI loaded (the export's STEP worker) ends with the command;
+        # none is registered unless starforge.runtime.procs is loaded, so nothing is imported here
+        procs = sys.modules.get("starforge.runtime.procs")
+        if procs is not None and hasattr(procs, "end_children"):
+            procs.end_children()
         report_stop(signum)
         os._exit(128 + signum)
 
