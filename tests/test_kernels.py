@@ -182,3 +182,28 @@ def test_starforge_kernels_are_cached_under_the_digest_folder_only():
     assert path.parent.name == f"starforge-{kernels.digest()}"
     # a function outside the package is left to numba's own locators
     assert kernels._Locator.from_function(test_digest_follows_the_code_not_its_place, __file__) is None
+
+
+def test_a_cache_entry_that_cannot_be_written_leaves_the_kernel_uncached():
+    """A full disk or a read-only cache folder while a kernel's entry is saved: the command goes
+    on (the kernel stays compiled in memory); any other error still ends it."""
+    import contextlib
+    import errno
+
+    import starforge.runtime.kernels  # noqa: F401  (puts the guard in place)
+    from numba.core import caching
+
+    class Saving:
+        def __init__(self, err):
+            self.err = err
+
+        def _guard_against_spurious_io_errors(self):
+            return contextlib.nullcontext()
+
+        def _save_overload(self, sig, data):
+            raise self.err
+
+    for code in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EROFS, errno.EACCES):
+        caching.Cache.save_overload(Saving(OSError(code, "cannot write")), None, None)
+    with pytest.raises(OSError, match="input/output"):
+        caching.Cache.save_overload(Saving(OSError(errno.EIO, "input/output error")), None, None)

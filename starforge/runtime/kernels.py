@@ -36,6 +36,7 @@ a build product shipped like a compiled extension; nothing is ever written into 
 
 from __future__ import annotations
 
+import errno
 import functools
 import hashlib
 import json
@@ -175,7 +176,35 @@ def _install() -> bool:
     return True
 
 
+#: errors of a cache entry that cannot be written for lack of room or of permission
+_CANNOT_WRITE = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM)
+
+
+def _guard_saves() -> bool:
+    """A kernel whose cache entry cannot be written (a full disk, a quota, a read-only cache
+    folder) stays compiled in this process and uncached, as where numba finds no writable cache
+    folder; the command goes on (numba itself lets the error end it).  Wraps numba's
+    ``Cache.save_overload``; True when the wrapper is in place."""
+    cls = getattr(caching, "Cache", None)
+    save = getattr(cls, "save_overload", None)
+    if save is None or getattr(save, "starforge_guard", False):
+        return False
+
+    @functools.wraps(save)
+    def guarded(self, sig, data):
+        try:
+            save(self, sig, data)
+        except OSError as exc:
+            if exc.errno not in _CANNOT_WRITE:
+                raise
+
+    guarded.starforge_guard = True
+    cls.save_overload = guarded
+    return True
+
+
 _install()
+_guard_saves()
 
 
 # -- building ahead of time -------------------------------------------------------------------
