@@ -190,8 +190,9 @@ def test_a_cache_entry_that_cannot_be_written_leaves_the_kernel_uncached():
     import contextlib
     import errno
 
-    import starforge.runtime.kernels  # noqa: F401  (puts the guard in place)
     from numba.core import caching
+
+    import starforge.runtime.kernels  # noqa: F401  (puts the guard in place)
 
     class Saving:
         def __init__(self, err):
