@@ -139,6 +139,7 @@ def test_same_seed_same_bytes(tmp_path, capsys):
     _assert_same_outputs(*outs)
 
 
+@pytest.mark.slow  # a placement run, then two scorings through the CLI
 def test_score_subcommand_rescores_a_layout(tmp_path, capsys):
     out = tmp_path / "o"
     assert _run(["place", "box", *FAST, "--out", str(out)], capsys)[0] == 0
@@ -230,6 +231,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case):
     assert not list(tmp_path.glob(".o.*"))  # no staging folder left behind
 
 
+@pytest.mark.slow  # a placement run through the CLI
 def test_constraints_from_the_cli(tmp_path, capsys):
     import trimesh
 
