@@ -443,7 +443,7 @@ def export_speed(repeat: int = 3) -> dict:
 
 def write_speed_docs(speed: dict) -> None:
     """The export-speed figures as the results page's section."""
-    from _results import table, write_section
+    from _results import table, write_section, write_speed_row
 
     rows = [[r["load_1min_before"], r["command_s"], r["command_cpu_s"], round(r["seconds"], 2)] for r in speed["runs"]]
     body = (
@@ -455,6 +455,8 @@ def write_speed_docs(speed: dict) -> None:
         + table(["load before", "command, s", "command CPU s (with its STEP worker)", "in process, s"], rows)
     )
     write_section("cad-speed", "Printable bodies: export speed", body)
+    write_speed_row("`starforge export` (25 bodies + plate: STEP, STL, 3MF)", speed["export_command_s_median"],
+                    "bench_cad.py --speed-only")
 
 
 def main() -> None:
