@@ -2,7 +2,7 @@
 
 Each call takes plain values (names of shipped templates, paths, numbers in the units their
 names give) and returns a typed result: a :class:`~starforge.stars.model.Family`, a
-:class:`~starforge.props.placement.PlacementResult`, an :class:`ExportResult`, a
+:class:`~starforge.props.result.PlacementResult`, an :class:`ExportResult`, a
 :class:`CheckResult`.  Files are written only by the ``write_*``, ``export_*`` and ``run_*``
 calls, into a staging folder published at once (nothing half-written is left behind), and
 never over existing files without ``force=True``.  Each ``run_*`` call is one command

@@ -330,7 +330,7 @@ def score_cmd(
     from starforge.runtime.process import allow_quick_exit
 
     allow_quick_exit()  # writes nothing but stdout
-    from starforge.props.placement import score_layout
+    from starforge.props.score import score_layout
 
     p, s = _prop_and_spec(
         prop, units, spec, rig, None, resolution, orientations, None, None, None, None, None
