@@ -27,7 +27,7 @@ def test_every_docstring_example_runs(monkeypatch, tmp_path):
     import importlib
 
     tried = 0
-    for name in ("", ".stars", ".bodies", ".check", ".place", ".sweep"):
+    for name in ("", ".stars", ".bodies", ".check", ".place", ".place_batch", ".sweep"):
         result = doctest.testmod(importlib.import_module("starforge.api" + name), optionflags=doctest.ELLIPSIS)
         assert result.failed == 0, name
         tried += result.attempted
