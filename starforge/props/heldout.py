@@ -82,7 +82,6 @@ class HeldOut:
 def validator(sample: HeldOut, spec, centres, prob):
     """``validate(layouts) -> [{"untracked", "cost"}]``: each layout's untracked fraction and cost
     on the ranking sample (``sample``, :data:`VALIDATION_SEED_OFFSET`)."""
-
     def validate(layouts):
         union = sorted({int(x) for lay in layouts for x in lay})
         seen, _ = sample.seen(union)
@@ -110,7 +109,6 @@ def polisher(prop, spec, seed, prep, centres, prob):
     poses of a tuning sample of its own (:data:`TUNING_SEED_OFFSET`: neither the ranking sample
     nor the evaluation), the poses in which ``sites`` leave fewer than ``spare_markers`` seen in
     some scenario; the sites near the winner's and the other candidates' take part."""
-
     ts = spec.track
     sample = HeldOut(prop, spec, seed, prep, TUNING_SEED_OFFSET)  # one for every polish: rows shared
 
@@ -141,7 +139,6 @@ def explain_shortfall(sample: HeldOut, spec, prep, prob, chosen, removed, fit) -
     """Why the chosen layout is tracked in fewer held-out scenarios than ``track.target_tracked``:
     the same scenarios re-scored with every camera and without the hand, the untracked ones split
     into too few markers seen and markers in a line, and the sites the layout had to work with."""
-
     ts, idx = spec.track, list(chosen)
     seen, masks = sample.seen(idx)  # the ranking sample
     held = Problem(prob.points[idx], seen, seen.mean(axis=1), ts, prob.spacing, prob.spread_target)

@@ -101,7 +101,6 @@ def held_out_polish(tuning: Problem, searched: Problem, start: list[int], pool: 
     without adding close pairs or conflicts with other props; a tie goes to the lower cost on the
     searched scenarios.  Returns ``tuning`` indices.  The tracked counts of every swap are
     screened at once (compiled), then the ``top`` best checked exactly."""
-
     eps = 0.5 / max(1, tuning.poses)
 
     def cheap(lay):  # close pairs + conflicts on the searched sites, untracked on the tuning ones

@@ -30,7 +30,7 @@ from starforge.props.rig import load_rig
 from starforge.props.scenarios import LOSS_SEED_OFFSET, loss_scenarios
 from starforge.props.spacing import spaced_capacity, spacing_m
 from starforge.props.spec import PlaceSpec, load_spec, with_overrides
-from starforge.props.tracked import Problem
+from starforge.props.tracked import Problem, TrackSettings
 from starforge.props.tracked_optimizer import optimize
 from starforge.runtime.progress import report as progress_report
 from starforge.spec import require
@@ -67,7 +67,6 @@ def run_placement(
     **overrides
         :func:`starforge.props.spec.with_overrides` keywords (``markers``, ``marker_mm``, ...).
     """
-
     s = spec if isinstance(spec, PlaceSpec) else load_spec(spec)
     cap = None
     if grip is not None and str(grip).strip().lower() == "none":
@@ -194,7 +193,6 @@ def _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress) -> Pl
 def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress, on_layout=None) -> PlacementResult:
     """The tracked objective (:mod:`starforge.props.tracked`) over camera-loss scenarios, then
     the chosen layout and both baselines checked on fresh poses (:mod:`starforge.props.evaluate`)."""
-
     t = time.perf_counter()
     ts, table, sites, rig = spec.track, prep.table, prep.sites, prep.rig
     centres = sites.points + prep.seat.centre_height_m * sites.normals
@@ -237,27 +235,8 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         shortfall = explain_shortfall(ranking, spec, prep, prob, chosen, prep.removed, fit)
         warnings.append(shortfall_warning(shortfall, prob.spacing, bool(prep.capsules)))
         t = tick(timings, "shortfall_s", t)
-    runs = tuple(
-        ChainResult(c.sites, c.cost, c.iterations, c.history, c.history, np.full(len(c.history), len(c.sites), np.int16), {}, {"all": c.accepted})
-        for c in opt.runs
-    ) or (
-        ChainResult(chosen, terms["total"], 0, np.array([terms["total"]]), np.array([terms["total"]]), np.array([len(chosen)], np.int16)),
-    )  # fmt: skip
-    ann = AnnealResult(min(runs, key=lambda c: c.cost), runs)
-    cost = CostBreakdown(
-        total=terms["total"],
-        visibility=1.0 - terms["mean_visibility"],
-        count=0.0,
-        overlap=float(terms["close_pairs"]),
-        symmetry=0.0,
-        near_symmetry=0.0,
-        mean_visibility=terms["mean_visibility"],
-        overlapping_pairs=terms["close_pairs"],
-        symmetric=terms["near_symmetry_margin_m"] == 0.0,
-        margin_m=terms["near_symmetry_margin_m"],
-        markers=terms["markers"],
-        coverage=terms["untracked"],
-    )
+    ann = _as_anneal(opt)
+    cost = _tracked_cost(terms)
     res = PlacementResult(
         prop, spec, seed, rig, prep.poses, sites, prep.removed["constrained"], prob.visibility, chosen, cost, ann,
         seen[list(chosen)], timings, table.rays, opt, (), prob.spacing, seat=prep.seat,
@@ -282,15 +261,55 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         spec.grazing_limit_deg,
     )
     t = tick(timings, "evaluate_s", t)
-    lost = int(round(ts.cameras_lost * len(rig.cameras)))
+    warnings += _layout_warnings(terms, ts, seen.shape[1], len(prep.poses), len(rig.cameras), prob.spacing)
+    warnings += _baselines_ahead(ev)
+    return replace(res, warnings=tuple(warnings), evaluation=ev)
+
+
+def _as_anneal(opt) -> AnnealResult:
+    """The tracked optimizer's chains as the paper's optimizer reports them (what the convergence
+    picture and placement.json read); one chain of the chosen layout when none ran."""
+    chosen, terms = opt.sites, opt.terms
+    runs = tuple(
+        ChainResult(c.sites, c.cost, c.iterations, c.history, c.history, np.full(len(c.history), len(c.sites), np.int16), {}, {"all": c.accepted})
+        for c in opt.runs
+    ) or (
+        ChainResult(chosen, terms["total"], 0, np.array([terms["total"]]), np.array([terms["total"]]), np.array([len(chosen)], np.int16)),
+    )  # fmt: skip
+    return AnnealResult(min(runs, key=lambda c: c.cost), runs)
+
+
+def _tracked_cost(terms: dict) -> CostBreakdown:
+    """The tracked objective's terms in the paper's breakdown (placement.json's ``cost``)."""
+    return CostBreakdown(
+        total=terms["total"],
+        visibility=1.0 - terms["mean_visibility"],
+        count=0.0,
+        overlap=float(terms["close_pairs"]),
+        symmetry=0.0,
+        near_symmetry=0.0,
+        mean_visibility=terms["mean_visibility"],
+        overlapping_pairs=terms["close_pairs"],
+        symmetric=terms["near_symmetry_margin_m"] == 0.0,
+        margin_m=terms["near_symmetry_margin_m"],
+        markers=terms["markers"],
+        coverage=terms["untracked"],
+    )
+
+
+def _layout_warnings(terms: dict, ts: TrackSettings, scenarios: int, poses: int, cameras: int, spacing: float) -> list[str]:
+    """What the chosen layout leaves short on the searched scenarios: untracked ones, close pairs,
+    triangles a tracker may mistake for another prop's or its own."""
+    warnings = []
+    lost = int(round(ts.cameras_lost * cameras))
     if terms["untracked"] > 0:
         warnings.append(
-            f"{100 * terms['untracked']:.1f} % of the scenarios ({round(terms['untracked'] * seen.shape[1])} of "
-            f"{seen.shape[1]}: {len(prep.poses)} poses, {lost} of {len(rig.cameras)} cameras lost at random) "
+            f"{100 * terms['untracked']:.1f} % of the scenarios ({round(terms['untracked'] * scenarios)} of "
+            f"{scenarios}: {poses} poses, {lost} of {cameras} cameras lost at random) "
             "are not tracked (fewer than 3 markers seen, or in a line)"
         )
     if terms["close_pairs"]:
-        warnings.append(f"{terms['close_pairs']} marker pair(s) closer than the spacing {prob.spacing * 1000:.1f} mm")
+        warnings.append(f"{terms['close_pairs']} marker pair(s) closer than the spacing {spacing * 1000:.1f} mm")
     if terms["avoid_conflicts"]:
         warnings.append(
             f"{terms['avoid_conflicts']} marker triangle(s) within {ts.avoid_tolerance_mm:g} mm of another prop's"
@@ -301,6 +320,11 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
             f"of them or of themselves relabelled (self-margin {terms['self_margin_m'] * 1000:.2f} mm): a tracker that "
             "sees only those three markers may report a wrong pose; try more --sites or fewer --markers"
         )
+    return warnings
+
+
+def _baselines_ahead(ev: dict) -> list[str]:
+    """A warning when a baseline layout tracked more fresh evaluation poses than the chosen one."""
     ahead = [
         f"{k.replace('_', ' ')} ({v['poses_only_it_tracks']} poses only it tracks, {v['poses_only_default_tracks']} "
         f"only the chosen one; paired exact test p = {v['paired_p_value']:.2g}"
@@ -308,9 +332,9 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         for k, v in ev.items()
         if not k.startswith("_") and k != "default" and ev.get("default") and v["tracked"] > ev["default"]["tracked"]
     ]
-    if ahead:
-        warnings.append(
-            f"on the {ev['_poses']} fresh evaluation poses a baseline layout tracked more poses than the chosen one: "
-            + "; ".join(ahead)
-        )
-    return replace(res, warnings=tuple(warnings), evaluation=ev)
+    if not ahead:
+        return []
+    return [
+        f"on the {ev['_poses']} fresh evaluation poses a baseline layout tracked more poses than the chosen one: "
+        + "; ".join(ahead)
+    ]

@@ -16,6 +16,7 @@ from starforge.props.grips import (
     FEW_SITES,
     GRIP_SEED_OFFSET,
     Grip,
+    HeldPart,
     assign_grips,
     grip_arrays,
     grip_distribution,
@@ -26,13 +27,13 @@ from starforge.props.grips import (
 from starforge.props.hand import GRIPS, Capsule
 from starforge.props.mesh import units_hint
 from starforge.props.result import tick
-from starforge.props.rig import load_rig, make_poses
-from starforge.props.seat import seat_report
+from starforge.props.rig import Poses, Rig, load_rig, make_poses
+from starforge.props.seat import Seat, SeatReport, seat_report
 from starforge.props.sites import Sites, forbidden_sites, sample_sites
 from starforge.props.spacing import line_reach, spaced_triple, spacing_m
 from starforge.props.spec import PlaceSpec
 from starforge.props.tracked import TRIANGLE_SPREAD
-from starforge.props.visibility import compute_table
+from starforge.props.visibility import VisibilityTable, compute_table
 from starforge.runtime.budget import require_memory, require_time
 
 
@@ -41,24 +42,23 @@ class Prepared:
     """The optimizer's input: seated sites, the rig, the poses and the visibility table."""
 
     sites: Sites
-    removed: dict
-    rig: object
-    poses: object
-    table: object
-    seat: object
-    seat_report: object
-    capsules: tuple  # every grip's capsules together (what the pictures outline)
-    grips: tuple = ()  # starforge.props.grips.Grip: the distribution the layout is scored under
+    removed: dict  # sampled sites removed, by reason
+    rig: Rig
+    poses: Poses
+    table: VisibilityTable
+    seat: Seat
+    seat_report: SeatReport
+    capsules: tuple[Capsule, ...]  # every grip's capsules together (what the pictures outline)
+    grips: tuple[Grip, ...] = ()  # the distribution the layout is scored under
     pose_grip: np.ndarray = field(default=None, repr=False)  # (poses,) the grip of each pose
-    part: object = None  # starforge.props.grips.HeldPart
-    notes: tuple = ()  # warnings about the preparation
+    part: HeldPart | None = None
+    notes: tuple[str, ...] = ()  # warnings about the preparation
 
 
 def hand_grips(prop, spec: PlaceSpec, grip=None) -> tuple:
     """``(held part, grips)``: the grips of :func:`starforge.props.grips.grip_distribution`, or
     only ``grip`` when given (a :class:`~starforge.props.grips.Grip`, a Capsule, or ``--grip``
     text: ``N`` or ``x0,y0,z0,x1,y1,z1[,r]``); ``(None, ())`` when the spec has no hand."""
-
     if not spec.hand:
         return None, ()
     own = GRIPS.get(prop.name) if prop.source == "builtin" else None
@@ -74,7 +74,6 @@ def hand_grips(prop, spec: PlaceSpec, grip=None) -> tuple:
 
 def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timings=None, grip=None, seed: int = 0) -> Prepared:
     """Sites that seat the marker (constrained areas and the hand removed), rig, poses, table."""
-
     timings = {} if timings is None else timings
     t = time.perf_counter()
     notes: list[str] = []
@@ -147,7 +146,6 @@ def check_trackable(centres: np.ndarray, spec: PlaceSpec, rig, seat, removed: di
     ball centre lies so near one line that no markers on them span the tracker's triangle
     (:func:`starforge.props.spacing.line_reach`, an upper bound: never a false alarm).  Both are
     proofs about every layout, not a search that failed."""
-
     ts = spec.track
     hand = f"; {removed['under_hand']} sites under the hand (another --grip or --no-hand frees them)" if removed["under_hand"] else ""
     advice = (
@@ -175,7 +173,6 @@ def check_trackable(centres: np.ndarray, spec: PlaceSpec, rig, seat, removed: di
 
 def check_cost(prop, spec: PlaceSpec, rig, sites: int, poses: int) -> None:
     """Refuse, before the visibility table, work past the memory or time limit (one line)."""
-
     cams = len(rig.cameras)
     patterns = spec.track.loss_patterns if spec.objective == "tracked" else 1
     what = f"a visibility table of {sites:,} sites x {poses:,} poses x {cams} cameras"
@@ -223,7 +220,6 @@ def check_scale(prop, rig, marker_m: float) -> list[str]:
 
 def prop_name_warnings(prop) -> list[str]:
     """Say which prop was used when a built-in name is also a path here."""
-
     if prop.source == "builtin" and Path(prop.name).exists():
         return [f"a path named {prop.name!r} exists here; the built-in {prop.name} was used (./{prop.name} names the path)"]
     if prop.source != "builtin" and Path(prop.source).name in BUILTIN and Path(prop.source).stem == prop.source.removeprefix("./"):

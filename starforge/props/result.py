@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -12,16 +13,24 @@ from starforge.props.optimizer import AnnealResult
 from starforge.props.sites import Sites
 from starforge.props.spec import PlaceSpec
 
+if TYPE_CHECKING:
+    from starforge.props.grips import Grip, HeldPart
+    from starforge.props.hand import Capsule
+    from starforge.props.mesh import PropMesh
+    from starforge.props.rig import Poses, Rig
+    from starforge.props.seat import Seat, SeatReport
+    from starforge.props.tracked_optimizer import Optimized
+
 
 @dataclass(frozen=True)
 class PlacementResult:
     """One optimized placement with everything needed to re-check it."""
 
-    prop: object  # PropMesh
+    prop: PropMesh
     spec: PlaceSpec
     seed: int
-    rig: object  # Rig
-    poses: object  # Poses
+    rig: Rig
+    poses: Poses
     sites: Sites
     forbidden: int
     site_visibility: np.ndarray = field(repr=False)
@@ -31,18 +40,18 @@ class PlacementResult:
     marker_pose_seen: np.ndarray = field(default=None, repr=False)  # (m, scenarios) seen
     timings: dict = field(default_factory=dict)
     rays: int = 0
-    tracked: object = None  # starforge.props.tracked_optimizer.Optimized for the tracked objective
+    tracked: Optimized | None = None  # the tracked objective's optimizer: every candidate and baseline
     warnings: tuple[str, ...] = ()
     spacing_m: float = 0.0
-    seat: object = None  # starforge.props.seat.Seat
-    seat_report: object = None  # starforge.props.seat.SeatReport over ``sites``
-    capsules: tuple = ()  # the hand (starforge.props.hand.Capsule)
+    seat: Seat | None = None
+    seat_report: SeatReport | None = None  # over ``sites``
+    capsules: tuple[Capsule, ...] = ()  # the hand: every grip's capsules
     removed: dict = field(default_factory=dict)  # sampled sites removed, by reason
     evaluation: dict = field(default_factory=dict)  # starforge.props.evaluate on fresh poses
     marker_masks: np.ndarray = field(default=None, repr=False)  # (m, poses) uint64 camera bits
     shortfall: dict = field(default_factory=dict)  # below track.target_tracked on the held-out sample: why
-    grips: tuple = ()  # starforge.props.grips.Grip: the hand's distribution the layout was scored under
-    part: object = None  # starforge.props.grips.HeldPart: where they hold it
+    grips: tuple[Grip, ...] = ()  # the hand's distribution the layout was scored under
+    part: HeldPart | None = None  # where they hold it
 
     @property
     def marker_points(self) -> np.ndarray:
