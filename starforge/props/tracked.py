@@ -49,6 +49,7 @@ from starforge.geometry.sym3 import (
     moments,
 )
 from starforge.props.distinct import added_conflicts, clashes, face_tree, own_triangles
+from starforge.props.symmetry import near_symmetry_margin
 from starforge.runtime.kernels import numba
 from starforge.spec import in_range, non_negative, positive
 
@@ -259,8 +260,6 @@ class Problem:
 
     def _margin(self, idx: np.ndarray) -> float:
         """The near-symmetry margin of a site set (cached: chains revisit layouts)."""
-        from starforge.props.symmetry import near_symmetry_margin
-
         s = self.settings
         if len(idx) < 3 or s.w_near_symmetry <= 0:
             return math.inf
