@@ -298,8 +298,7 @@ def test_pictures_drawn_in_a_child_process_are_identical(tmp_path, capsys):
 
     out = tmp_path / "cli"
     assert _run(["place", "shield", *FAST, "--seed", "6", "--out", str(out)], capsys)[0] == 0
-    from starforge.api.place import distinct_tolerance_mm
-    from starforge.cli.place import NOISE_MM
+    from starforge.api.place import NOISE_MM, distinct_tolerance_mm
 
     spec = with_overrides(load_spec("default"), sites=250, resolution=2, restarts=2)
     spec = with_overrides(spec, distinct_mm=distinct_tolerance_mm(spec, None, NOISE_MM))  # as the CLI designs it
