@@ -253,3 +253,59 @@ def test_the_worker_kernel_is_build123d_without_its_package_init():
     same, kind, length, real = rest.split()
     assert (same, kind, real) == ("True", "SimpleNamespace", "True")
     assert math.isclose(float(length), 2 * math.pi + 10, rel_tol=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["export", "fam"], True),
+        (["-q", "export", "fam", "--out", "o"], True),
+        (["export", "fam", "--format", "stl,STEP"], True),
+        (["export", "fam", "--format=step"], True),
+        (["export", "fam", "--format", "step", "--format", "stl,3mf"], False),  # the last one counts
+        (["export", "fam", "--format", "stl,3mf,qtm"], False),
+        (["export", "--help"], False),
+        (["export", "fam", "-h"], False),
+        (["stars", "--count", "25"], False),
+        (["--scheduler", "host", "export", "fam"], False),  # a root option's value: judged no
+        ([], False),
+    ],
+)
+def test_the_console_script_starts_a_step_worker_only_for_step_exports(argv, expected):
+    from starforge.__main__ import exports_step
+
+    assert exports_step(argv) is expected
+
+
+EARLY = """
+import sys
+from pathlib import Path
+from starforge.cad import step_worker
+step_worker.start_early()
+step_worker.start_early()  # one early worker, however often asked
+early = step_worker._early[0]
+first, second = step_worker.launch(), step_worker.launch()
+print(first is early, second is not early, first.forked)
+from starforge import load_family
+from starforge.cad.body import BodySpec
+from starforge.cad.export import export_family
+from starforge.cad.mounts import load_mount
+second.kill()
+rep = export_family(load_family(sys.argv[1]), Path(sys.argv[2]), load_mount("flat"), BodySpec(), ids=[1],
+                    plate=False, step_worker=first)
+print(sorted(rep.files))
+"""
+
+
+def test_the_early_worker_is_handed_out_once_and_builds_the_export(tmp_path):
+    """start_early() launches one worker, the first launch() hands it out (a later one launches a
+    new worker), and the early worker writes the export's STEP file."""
+    import subprocess
+    import sys
+
+    res = subprocess.run(
+        [sys.executable, "-c", EARLY, str(DATA), str(tmp_path)], check=True, capture_output=True, text=True
+    )
+    flags, files = res.stdout.strip().splitlines()[-2:]
+    assert flags == "True True True"
+    assert files == str(["bodies.json", "star_001.3mf", "star_001.step", "star_001.stl"])
