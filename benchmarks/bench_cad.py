@@ -325,9 +325,11 @@ IN_PROCESS = (
 #: what the STEP files are made with
 OUTPUT_CHANGES = (
     "STEP: build123d's direct API (Solid.make_*, revolve, extrude, fuse/cut, clean, Compound, export_step) "
-    "loaded as its modules without its package's __init__, each body's printing transform baked into its "
-    "geometry (the one OCP call), no parameter-space curves, the id's pixel boxes cut as one prism; "
-    "STL/3MF: manifold3d, unchanged"
+    "loaded as its modules without its package's __init__ and with the modules they import for calls the "
+    "bodies never make (scipy.optimize/spatial, IPython, threejs_materials, requests) deferred to first use, "
+    "in a worker the console script launches before the CLI's modules load; each body's printing transform "
+    "baked into its geometry (the one OCP call), no parameter-space curves, the id's pixel boxes cut as one "
+    "prism; STL/3MF: manifold3d, unchanged"
 )
 
 
