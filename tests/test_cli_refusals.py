@@ -57,6 +57,7 @@ _IDS = [c.id for c in inputs._cases({k: Path(k) for k in inputs._FILE_KEYS}) if 
 ]
 
 
+@pytest.mark.slow  # every hostile case once more (the suite runs each in process already)
 @pytest.mark.parametrize("case_id", _IDS)
 def test_a_refusal_names_the_option_and_the_way_out(case_id, files, tracker_files, tmp_path, monkeypatch, capsys):  # noqa: F811
     from starforge.runtime import budget
@@ -78,3 +79,25 @@ def test_a_refusal_names_the_option_and_the_way_out(case_id, files, tracker_file
     line = lines[0]
     assert named(case.args, case.env, line), f"names nothing the user typed: {line}"
     assert REMEDY.search(line), f"no way out: {line}"
+
+
+def test_another_marker_than_the_familys_suggests_a_family_for_it(small_family, tmp_path, capsys):
+    """Export with a bought marker of another size: the refusal says which and gives the stars
+    command for that marker, with the family's own options, the mount and the seat kept."""
+    from starforge.markers import load_marker
+
+    fam, doc = small_family
+    marker = "14mm-m4"
+    assert abs(load_marker(marker).diameter_mm - doc["spec"]["marker_mm"]) > 1  # the case: another size
+    args = ["export", fam, "--marker", marker, "--seat", "screw", "--mount", "flat", "--out", tmp_path / "o"]
+    assert run_cli(args) == 2
+    line = capsys.readouterr().err.strip()
+    said, command = line.split("; make a family for it: ")
+    assert f"marker {marker} is 14 mm" in said and "designed for 4 mm" in said
+    words = command.split()
+    assert words[:2] == ["starforge", "stars"]
+    box = [f"{x:g}" for x in doc["spec"]["box_mm"]]
+    assert words[words.index("--box") + 1 : words.index("--box") + 4] == box
+    for flag, value in (("--marker", marker), ("--mount", "flat"), ("--seat", "screw")):
+        assert words[words.index(flag) + 1] == value
+    assert not (tmp_path / "o").exists()
