@@ -207,6 +207,7 @@ SIGNATURES = (
         "int16[:, ::1], int64[:, ::1], int64, int64, int64, int64, int64, boolean[::1]",
     ),
     ("starforge.stars.rules:_window_codes", "int32[:, ::1], int64[:, ::1], int64, int64"),
+    ("starforge.stars.rules:_counted_entries", "int64[:, ::1], int64[::1]"),
     ("starforge.stars.rules:_dense_rows", "int64[::1], int64"),
 )
 
