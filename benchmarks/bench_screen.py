@@ -10,8 +10,9 @@ a private tmux server, its pane captured every ``--every`` seconds (``tmux captu
 while it runs, and JSON per command is printed:
 
 - ``longest_still_s``: the longest time the screen did not change (target: at most 2 s);
-- ``captures_naming_a_stage``: the share of the captures, from the command's first screen on,
-  that show the name of a stage (target: 1.0), and the stages seen;
+- ``captures_naming_a_stage``: the share of the captures, from the command's first screen to
+  the last that shows a stage (after it the command prints its result), that show the name of a
+  stage (target: 1.0), and the stages seen; ``result_after_last_stage_s``: the time after it;
 - ``first_screen_s``: when the pane first showed anything; ``total_s``: the command's time.
 
     python benchmarks/bench_screen.py [--only stars,export,place,check] [--delta 1.0] [--no-quiet]
@@ -113,13 +114,17 @@ def screen_figures(captures: list[tuple[float, str]], total_s: float) -> dict:
     if total_s - since > still:
         still, worst_at = total_s - since, since
     named = [_STAGE_LINE.findall(s) for _, s in shown]
-    blank = [round(t, 1) for (t, _), n in zip(shown, named, strict=True) if not n]
+    # after the last bar the command prints its result: the work is over
+    last = max((k for k, n in enumerate(named) if n), default=len(named) - 1)
+    working = named[: last + 1]
+    blank = [round(t, 1) for (t, _), n in zip(shown[: last + 1], working, strict=True) if not n]
     return {
         "first_screen_s": round(shown[0][0], 2),
         "longest_still_s": round(still, 2),
         "longest_still_from_s": round(worst_at, 1),
         "captures": len(shown),
-        "captures_naming_a_stage": round(sum(bool(n) for n in named) / len(shown), 3),
+        "captures_naming_a_stage": round(sum(bool(n) for n in working) / len(working), 3),
+        "result_after_last_stage_s": round(total_s - shown[last][0], 2),
         "captures_without_a_stage_at_s": blank[:12],
         "stages_seen": sorted({x for n in named for x in n}, key=STAGES.index),
     }

@@ -261,3 +261,29 @@ def test_export_stages_and_quiet(small_family, tmp_path, capsys, no_hold):
     assert capsys.readouterr() == ("", "")
     assert run_cli([*args, "--out", tmp_path / "v"]) == 0
     assert _stages(capsys.readouterr().err) == ["load", "mesh", "plate", "preview", "sheet"]
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_a_first_placement_says_once_that_it_compiles(compiled, monkeypatch):
+    """A placement whose kernels are not in this machine's cache says so in a note before its
+    first stage; one that loads them says nothing."""
+    from starforge.props import placement, tracked
+    from starforge.runtime.kernels import FIRST_RUN_NOTE, compiled_here
+
+    class Stop(Exception):
+        pass
+
+    def stop(*a, **k):
+        raise Stop
+
+    assert compiled_here(object())  # not a kernel: in doubt, nothing is said
+    monkeypatch.setattr(tracked, "kernels_compiled", lambda: compiled)
+    monkeypatch.setattr(placement, "prepare", stop)  # the work itself is not needed
+    rec = Record()
+    with progress.reporting(rec, Clock()), pytest.raises(Stop):
+        placement.run_placement("hammer")
+    notes = [c for c in rec.calls if c[0] == "note"]
+    assert notes == ([] if compiled else [("note", FIRST_RUN_NOTE)])
+    assert ("started", "sites") in rec.calls
+    if notes:
+        assert rec.calls.index(notes[0]) < rec.calls.index(("started", "sites"))

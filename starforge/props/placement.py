@@ -19,6 +19,7 @@ from starforge.props.costs import CostBreakdown, evaluate
 from starforge.props.optimizer import AnnealResult, anneal
 from starforge.props.sites import Sites
 from starforge.props.spec import PlaceSpec
+from starforge.runtime.progress import note as progress_note
 from starforge.runtime.progress import report as progress_report
 from starforge.spec import require
 from starforge.stars.avoid import body_triangles
@@ -365,6 +366,11 @@ def _prepared(prop, spec: PlaceSpec, seed: int, progress, grip):
             f"a {seat.ball_mm:g} mm marker is not in the catalogue: a generic ball on a {seat.base_mm:g} mm base with its "
             f"centre {seat.centre_height_mm:g} mm above it is assumed (--marker NAME for a catalogue marker, --base-mm for the base)"
         )
+    from starforge.props.tracked import kernels_compiled
+    from starforge.runtime.kernels import FIRST_RUN_NOTE
+
+    if not kernels_compiled():
+        progress_note(FIRST_RUN_NOTE)
     progress("sites", 0, None)
     prep = prepare(prop, spec, rng, lambda d, n: progress("rays", d, n), timings, grip, seed)
     return rng, timings, progress, warnings + list(prep.notes), prep
