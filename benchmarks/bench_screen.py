@@ -166,10 +166,11 @@ def main() -> None:
     out: dict = {"pane": f"{WIDTH}x{HEIGHT}", "every_s": args.every}
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
-        subprocess.run(
-            [sys.executable, "-m", "starforge", "-q", "stars", "--count", "25", "--mount", "flat", "--out", str(tmp / "fam25")],
-            check=True,
-        )
+        if {"export", "check"} & set(args.only.split(",")):
+            subprocess.run(
+                [sys.executable, "-m", "starforge", "-q", "stars", "--count", "25", "--mount", "flat", "--out", str(tmp / "fam25")],
+                check=True,
+            )
         cmds = commands(tmp, args.delta)
         try:
             for name in args.only.split(","):
