@@ -69,3 +69,36 @@ def write_section(key: str, title: str, body: str, command: str | None = None, p
         fh.write(text if text.endswith("\n") else text + "\n")
     os.replace(tmp, path)
     return path
+
+
+README = RESULTS.parents[1] / "README.md"
+SPEED_HEADER = ["command", "seconds", "benchmark", "measured"]
+
+
+def write_speed_row(command: str, seconds: float, benchmark: str, path: Path = README) -> Path:
+    """Put ``command``'s row (``seconds``, the ``benchmark`` command that measured it, today's
+    date) into the README's speed table, between ``<!-- begin speed-table -->`` and
+    ``<!-- end speed-table -->``: the row whose command cell is ``command`` is replaced, a new
+    command is appended; the other rows keep their own figures and dates.  Written atomically."""
+    text = path.read_text(encoding="utf-8")
+    pattern = re.compile(r"(<!-- begin speed-table -->\n)(.*?)(<!-- end speed-table -->)", re.S)
+    found = pattern.search(text)
+    if not found:
+        raise SystemExit(f"{path} has no speed table (<!-- begin speed-table --> ... <!-- end speed-table -->)")
+    rows = [
+        [c.strip() for c in line.strip().strip("|").split(" | ")]
+        for line in found.group(2).splitlines()[2:]
+        if line.startswith("|")
+    ]
+    row = [command, f"{seconds:.2f}", f"`{benchmark}`", time.strftime("%Y-%m-%d", time.gmtime())]
+    rows = [row if r[0] == command else r for r in rows]
+    if row not in rows:
+        rows.append(row)
+    lines = ["| " + " | ".join(SPEED_HEADER) + " |", "| " + " | ".join("---" for _ in SPEED_HEADER) + " |"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    text = text[: found.start(2)] + "\n".join(lines) + "\n" + text[found.end(2):]
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".readme-", suffix=".md")
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        fh.write(text)
+    os.replace(tmp, path)
+    return path

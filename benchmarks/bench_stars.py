@@ -274,7 +274,7 @@ CASE_TITLES = {
 
 def write_docs(res: dict) -> None:
     """The figures of ``res`` as the results page's star sections (those it has)."""
-    from _results import table, write_section
+    from _results import table, write_section, write_speed_row
 
     speed = res.get("stars_first_run_vs_warm")
     if speed:
@@ -295,6 +295,10 @@ def write_docs(res: dict) -> None:
             "without the kernels).\n\n" + table(["run", "seconds", "CPU seconds"], rows)
         )
         write_section("stars-speed", "Star families: speed", body)
+        bench = "bench_stars.py --start-only"
+        write_speed_row("`starforge stars` (the finger box's family), warm", speed["warm_s_median"], bench)
+        write_speed_row("`starforge stars`, the first run after `pip install .`", speed["first_run_s_median"], bench)
+        write_speed_row("`starforge place` (the built-in hammer), warm", h["warm_s_median"], bench)
     cases = [k for k in CASE_TITLES if k in res]
     if cases:
         rows = []

@@ -8,6 +8,7 @@ import functools
 import json
 import os
 import re
+import secrets
 import shutil
 import signal
 import stat
@@ -234,10 +235,7 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
     if os.path.lexists(out_dir) and not out_dir.is_dir():
         raise StarforgeError(f"output path {out_dir} exists and is not a folder")
     # stage in the nearest folder that exists, so a failure creates no folder either
-    stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=_STAGE_SUFFIX,
-                                  dir=_nearest_existing(out_dir.parent)))
-    _stages.add(stage)
-    try:
+    with _kept_folder(_nearest_existing(out_dir.parent), f".{out_dir.name}.", _STAGE_SUFFIX) as stage:
         try:
             yield stage
         except Exception as exc:
@@ -255,9 +253,6 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
             p.chmod(0o777 & ~_umask() if p.is_dir() else _file_mode())
         with _publishing:
             publish(stage, out_dir, force)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
-        _stages.discard(stage)
 
 
 def _full_disk_error(exc: BaseException) -> OSError | None:
@@ -275,13 +270,32 @@ def _full_disk_error(exc: BaseException) -> OSError | None:
 def scratch_folder(prefix: str, where: str | Path | None = None) -> Iterator[Path]:
     """A temporary working folder (in ``where``, default the system's temporary folder), removed
     afterwards, also by the CLI's last-resort exit after a signal (it is kept with the stages)."""
-    folder = Path(tempfile.mkdtemp(prefix=prefix, dir=where))
-    _stages.add(folder)
+    with _kept_folder(Path(where or tempfile.gettempdir()), prefix) as folder:
+        yield folder
+
+
+@contextmanager
+def _kept_folder(parent: Path, prefix: str, suffix: str = "") -> Iterator[Path]:
+    """A new private folder in ``parent`` (``prefix`` + random + ``suffix``), removed with all it
+    holds on leaving.  Its name joins the stages before the folder exists, and the removal covers
+    every name tried, so a signal at any moment (in the middle of creating it included) leaves
+    no folder behind: the exception's unwinding removes it, or the CLI's last-resort exit does."""
+    tried: list[Path] = []
     try:
+        while True:
+            folder = parent / f"{prefix}{secrets.token_hex(5)}{suffix}"
+            tried.append(folder)
+            _stages.add(folder)
+            try:
+                folder.mkdir(mode=0o700)
+                break
+            except FileExistsError:
+                continue
         yield folder
     finally:
-        shutil.rmtree(folder, ignore_errors=True)
-        _stages.discard(folder)
+        for f in tried:
+            shutil.rmtree(f, ignore_errors=True)
+            _stages.discard(f)
 
 
 #: the name ending of every stage folder (never created by :func:`atomic_write_bytes`)

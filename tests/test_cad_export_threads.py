@@ -223,19 +223,89 @@ KERNEL = """
 import sys
 from starforge.cad.brep import kernel
 bd = kernel()
-slim = sorted(m for m in ("build123d", "sklearn", "ezdxf") if m in sys.modules)
+heavy = ("build123d", "sklearn", "ezdxf", "scipy.optimize", "scipy.spatial", "IPython", "requests", "threejs_materials")
+slim = sorted(m for m in heavy if m in sys.modules)
+# deferred names work at their first use: a convex hull (scipy.spatial) of two circles
+circles = [bd.Edge.make_circle(1.0), bd.Edge.make_circle(1.0).moved(bd.Location((5.0, 0.0, 0.0)))]
+hull = bd.Wire.make_convex_hull(circles)
+import scipy.optimize
+real = callable(scipy.optimize.minimize_scalar) and type(scipy.optimize).__name__ == "module"
 import build123d
 same = all(getattr(build123d, n) is getattr(bd, n) for n in ("Solid", "Compound", "Location", "export_step"))
-print(slim, same, type(bd).__name__)
+print(slim, same, type(bd).__name__, round(hull.length, 6), real)
 """
 
 
 def test_the_worker_kernel_is_build123d_without_its_package_init():
     """kernel() in a fresh interpreter loads the build123d modules the bodies use and not the
-    package's other importers (scikit-learn, ezdxf); a later ``import build123d`` gives the very
-    same classes."""
+    package's other importers (scikit-learn, ezdxf) nor the modules its kernel modules import
+    for calls the bodies never make (scipy's optimiser and hulls, IPython, requests); a deferred
+    name still works when used (a convex hull: two circles of radius 1, centres 5 apart, wrapped
+    by two half circles and two segments), a later ``import scipy.optimize`` is the real module,
+    and a later ``import build123d`` gives the very same classes."""
+    import math
     import subprocess
     import sys
 
     res = subprocess.run([sys.executable, "-c", KERNEL], check=True, capture_output=True, text=True)
-    assert res.stdout.strip().splitlines()[-1] == "[] True SimpleNamespace"
+    slim, rest = res.stdout.strip().splitlines()[-1].split("] ")
+    assert slim == "["
+    same, kind, length, real = rest.split()
+    assert (same, kind, real) == ("True", "SimpleNamespace", "True")
+    assert math.isclose(float(length), 2 * math.pi + 10, rel_tol=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["export", "fam"], True),
+        (["-q", "export", "fam", "--out", "o"], True),
+        (["export", "fam", "--format", "stl,STEP"], True),
+        (["export", "fam", "--format=step"], True),
+        (["export", "fam", "--format", "step", "--format", "stl,3mf"], False),  # the last one counts
+        (["export", "fam", "--format", "stl,3mf,qtm"], False),
+        (["export", "--help"], False),
+        (["export", "fam", "-h"], False),
+        (["stars", "--count", "25"], False),
+        (["--scheduler", "host", "export", "fam"], False),  # a root option's value: judged no
+        ([], False),
+    ],
+)
+def test_the_console_script_starts_a_step_worker_only_for_step_exports(argv, expected):
+    from starforge.__main__ import exports_step
+
+    assert exports_step(argv) is expected
+
+
+EARLY = """
+import sys
+from pathlib import Path
+from starforge.cad import step_worker
+step_worker.start_early()
+step_worker.start_early()  # one early worker, however often asked
+early = step_worker._early[0]
+first, second = step_worker.launch(), step_worker.launch()
+print(first is early, second is not early, first.forked)
+from starforge import load_family
+from starforge.cad.body import BodySpec
+from starforge.cad.export import export_family
+from starforge.cad.mounts import load_mount
+second.kill()
+rep = export_family(load_family(sys.argv[1]), Path(sys.argv[2]), load_mount("flat"), BodySpec(), ids=[1],
+                    plate=False, step_worker=first)
+print(sorted(rep.files))
+"""
+
+
+def test_the_early_worker_is_handed_out_once_and_builds_the_export(tmp_path):
+    """start_early() launches one worker, the first launch() hands it out (a later one launches a
+    new worker), and the early worker writes the export's STEP file."""
+    import subprocess
+    import sys
+
+    res = subprocess.run(
+        [sys.executable, "-c", EARLY, str(DATA), str(tmp_path)], check=True, capture_output=True, text=True
+    )
+    flags, files = res.stdout.strip().splitlines()[-2:]
+    assert flags == "True True True"
+    assert files == str(["bodies.json", "star_001.3mf", "star_001.step", "star_001.stl"])

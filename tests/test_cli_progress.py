@@ -267,7 +267,7 @@ def test_export_stages_and_quiet(small_family, tmp_path, capsys, no_hold):
 def test_a_first_placement_says_once_that_it_compiles(compiled, monkeypatch):
     """A placement whose kernels are not in this machine's cache says so in a note before its
     first stage; one that loads them says nothing."""
-    from starforge.props import placement, tracked
+    from starforge.props import placement
     from starforge.runtime.kernels import FIRST_RUN_NOTE, compiled_here
 
     class Stop(Exception):
@@ -277,7 +277,7 @@ def test_a_first_placement_says_once_that_it_compiles(compiled, monkeypatch):
         raise Stop
 
     assert compiled_here(object())  # not a kernel: in doubt, nothing is said
-    monkeypatch.setattr(tracked, "kernels_compiled", lambda: compiled)
+    monkeypatch.setattr(placement, "kernels_compiled", lambda: compiled)
     monkeypatch.setattr(placement, "prepare", stop)  # the work itself is not needed
     rec = Record()
     with progress.reporting(rec, Clock()), pytest.raises(Stop):

@@ -414,6 +414,29 @@ def test_a_signal_before_the_command_starts_is_one_line(signame, code, word):
     assert res.stderr.splitlines() == [f"{word}; no output was changed"]
 
 
+def test_a_signal_before_the_command_starts_ends_the_early_step_worker():
+    """The STEP worker the console script launches before the CLI loads ends with a signal that
+    comes then: the one line, the signal's code, and no worker left running."""
+    script = (
+        "import os, signal, sys, time\n"
+        "from starforge.runtime.procs import stop_early\n"
+        "stop_early()\n"
+        "from starforge.cad import step_worker\n"
+        "step_worker.start_early()\n"
+        "print(step_worker._early[0].proc.pid, flush=True)\n"
+        "os.kill(os.getpid(), signal.SIGTERM)\n"
+        "time.sleep(30)\n"
+    )
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 143
+    assert res.stderr.splitlines() == ["terminated; no output was changed"]
+    status = Path(f"/proc/{int(res.stdout.split()[0])}/status")
+    deadline = time.monotonic() + 10
+    while status.exists() and "zombie" not in status.read_text() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not status.exists() or "zombie" in status.read_text()
+
+
 def test_the_console_script_sets_its_handlers_before_the_cli_loads():
     script = "import sys\nimport starforge.__main__\nprint('starforge.cli' in sys.modules)\n"
     res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=30)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 
@@ -142,3 +143,24 @@ def test_limits_come_from_the_environment(monkeypatch):
     assert 0 < budget.memory_limit_bytes() <= budget.machine_memory_bytes()
     with pytest.raises(StarforgeError, match="ghosts must be at most"):
         budget.require_count("ghosts", 1e6, 50)
+
+
+@pytest.mark.parametrize("make", ["stage", "scratch"])
+def test_an_interrupt_while_the_folder_is_made_leaves_no_folder(tmp_path, monkeypatch, make):
+    """A Ctrl-C that lands just after the folder exists, before the code that owns it has its
+    name, still removes it."""
+    from starforge.io import scratch_folder, staged_output
+
+    real_mkdir = Path.mkdir
+
+    def mkdir_then_interrupt(self, *args, **kwargs):
+        real_mkdir(self, *args, **kwargs)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Path, "mkdir", mkdir_then_interrupt)
+    folder = staged_output(tmp_path / "o") if make == "stage" else scratch_folder("scratch-", tmp_path)
+    with pytest.raises(KeyboardInterrupt):
+        with folder:
+            pass
+    monkeypatch.undo()
+    assert list(tmp_path.iterdir()) == []

@@ -36,7 +36,7 @@ def _markers(folder):
 @pytest.mark.parametrize(
     "props, workers",
     [
-        (("hammer",), "1"),  # in this process
+        pytest.param(("hammer",), "1", marks=pytest.mark.slow),  # in this process
         pytest.param(("hammer", "sword"), "2", marks=pytest.mark.slow),  # on a 2-worker local cluster
     ],
 )

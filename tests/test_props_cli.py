@@ -139,6 +139,7 @@ def test_same_seed_same_bytes(tmp_path, capsys):
     _assert_same_outputs(*outs)
 
 
+@pytest.mark.slow  # a placement run, then two scorings through the CLI
 def test_score_subcommand_rescores_a_layout(tmp_path, capsys):
     out = tmp_path / "o"
     assert _run(["place", "box", *FAST, "--out", str(out)], capsys)[0] == 0
@@ -230,6 +231,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case):
     assert not list(tmp_path.glob(".o.*"))  # no staging folder left behind
 
 
+@pytest.mark.slow  # a placement run through the CLI
 def test_constraints_from_the_cli(tmp_path, capsys):
     import trimesh
 
@@ -296,8 +298,7 @@ def test_pictures_drawn_in_a_child_process_are_identical(tmp_path, capsys):
 
     out = tmp_path / "cli"
     assert _run(["place", "shield", *FAST, "--seed", "6", "--out", str(out)], capsys)[0] == 0
-    from starforge.api.place import distinct_tolerance_mm
-    from starforge.cli.place import NOISE_MM
+    from starforge.api.place import NOISE_MM, distinct_tolerance_mm
 
     spec = with_overrides(load_spec("default"), sites=250, resolution=2, restarts=2)
     spec = with_overrides(spec, distinct_mm=distinct_tolerance_mm(spec, None, NOISE_MM))  # as the CLI designs it

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from starforge.props.distinct import clashes, face_tree, own_triangles, subset_margin
-from starforge.props.tracked import Problem, TrackSettings, untangle
+from starforge.props.layout_search import untangle
+from starforge.props.tracked import Problem, TrackSettings
 from tests.conftest import run_cli
 
 

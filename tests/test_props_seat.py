@@ -213,7 +213,7 @@ def test_the_hand_hides_what_lies_behind_it():
 
 
 def test_loss_scenarios_count_two_surviving_cameras():
-    from starforge.props.tracked import alive_masks, loss_scenarios
+    from starforge.props.scenarios import alive_masks, loss_scenarios
 
     rng = np.random.default_rng(0)
     alive = alive_masks(8, 0.5, 500, rng)
@@ -312,7 +312,7 @@ def test_bases_mesh_adds_a_pad_per_marker():
 
 def test_builtin_prefix_and_a_folder_of_that_name(tmp_path, monkeypatch):
     from starforge.props.mesh import load_prop
-    from starforge.props.placement import prop_name_warnings
+    from starforge.props.prepare import prop_name_warnings
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "hammer").mkdir()
@@ -326,7 +326,7 @@ def test_builtin_prefix_and_a_folder_of_that_name(tmp_path, monkeypatch):
 
 def test_turned_extent_warning():
     from starforge.props.mesh import PropMesh
-    from starforge.props.placement import check_scale
+    from starforge.props.prepare import check_scale
     from starforge.props.rig import load_rig
 
     rig = load_rig("default")  # 2 x 2 x 2 m

@@ -10,14 +10,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from starforge.props.tracked import (
-    TRIANGLE_SPREAD,
-    Problem,
-    TrackSettings,
-    local_search,
-    random_layouts,
-    spacing_m,
-)
+from starforge.props.layout_search import local_search, random_layouts
+from starforge.props.spacing import spacing_m
+from starforge.props.tracked import TRIANGLE_SPREAD, Problem, TrackSettings
 from tests.conftest import run_cli
 
 FAST = ["--sites", "250", "--resolution", "2", "--orientations", "12"]
@@ -149,8 +144,9 @@ def test_the_held_out_ranking_recounted_with_the_evaluations_own_geometry():
     same poses and camera losses."""
     from starforge.props.evaluate import camera_hits, random_poses, tracked_poses
     from starforge.props.grips import GRIP_SEED_OFFSET, assign_grips
-    from starforge.props.placement import VALIDATION_SEED_OFFSET, run_placement
-    from starforge.props.tracked import alive_masks
+    from starforge.props.heldout import VALIDATION_SEED_OFFSET
+    from starforge.props.placement import run_placement
+    from starforge.props.scenarios import alive_masks
 
     res = run_placement("bottle", sites=250, resolution=2, orientations=6, seed=3)
     ts = res.spec.track
@@ -353,7 +349,7 @@ def test_below_target_names_the_exact_ceiling_when_layouts_are_few(tmp_path):
 def test_spaced_capacity_is_a_lower_bound_and_exact_on_a_line():
     import itertools
 
-    from starforge.props.tracked import spaced_capacity
+    from starforge.props.spacing import spaced_capacity
 
     line = np.column_stack([np.arange(0, 0.0841, 0.001), np.zeros(85), np.zeros(85)])
     assert spaced_capacity(line, 0.02, 7) == 5  # 0, 20, 40, 60, 80 mm: no sixth fits
@@ -371,7 +367,7 @@ def test_spaced_capacity_is_a_lower_bound_and_exact_on_a_line():
 
 
 def test_line_reach_bounds_the_spread_of_every_subset():
-    from starforge.props.tracked import line_reach
+    from starforge.props.spacing import line_reach
 
     rng = np.random.default_rng(4)
     for scale in ((0.1, 0.01, 0.004), (0.1, 0.1, 0.1), (0.2, 0.002, 0.0)):
@@ -392,7 +388,7 @@ def test_line_reach_refined_is_tighter_and_still_a_bound():
     """A comb's spine: two rows of ball centres 13.4 mm apart (a 3 mm part, 5.2 mm posts), each
     4 mm wide, turned off the axes and with one end missing (the hand): the refined line proves
     that no subset spans a 15 mm triangle, which the principal axis alone does not."""
-    from starforge.props.tracked import line_reach
+    from starforge.props.spacing import line_reach
 
     rng = np.random.default_rng(7)
     x = rng.uniform(0, 0.1, 60)
@@ -414,7 +410,7 @@ def test_line_reach_refined_is_tighter_and_still_a_bound():
 def test_spaced_triple_matches_a_brute_force_search():
     import itertools
 
-    from starforge.props.tracked import spaced_triple
+    from starforge.props.spacing import spaced_triple
 
     rng = np.random.default_rng(5)
     for n in (0, 2, 3, 5, 8, 12):
@@ -446,7 +442,7 @@ def test_held_out_polish_never_loses_and_ends_where_no_swap_helps():
     never tracks fewer of the tuning scenarios than its start, and (screening every site) stops
     only where a brute force over every single swap finds none that tracks more without a close
     pair or conflict, or ties and costs less on the searched scenarios."""
-    from starforge.props.tracked import held_out_polish
+    from starforge.props.layout_search import held_out_polish
 
     moved = 0
     for seed in range(4):
@@ -489,7 +485,7 @@ def test_crowding_and_untracked_are_the_terms_they_stand_for():
 def test_the_polish_is_skipped_only_when_the_leader_tracks_everything_and_costs_least(case):
     """The held-out polish runs unless the ranking leader tracks every held-out scenario and is
     the cheapest candidate; skipping it leaves the winner the ranking alone picks."""
-    from starforge.props.tracked import optimize
+    from starforge.props.tracked_optimizer import optimize
 
     base = _problem(5, sites=40, poses=30)
     prob = Problem(base.points, base.pose_seen, base.visibility, TrackSettings(restarts=0, random_layouts=30), 0.02, 0.03)

@@ -292,6 +292,7 @@ def test_accuracy_is_reported_and_count_takes_the_most_accurate(tmp_path):
     assert min(picked) <= best["accuracy"]["rotation_hidden_deg"] + 1e-9
 
 
+@pytest.mark.slow  # two stars runs through the CLI
 def test_avoid_keeps_new_stars_apart_from_bodies_a_lab_owns(tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 1, "--count", 12, "--out", a, "-q"]) == 0

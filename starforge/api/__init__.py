@@ -2,11 +2,11 @@
 
 Each call takes plain values (names of shipped templates, paths, numbers in the units their
 names give) and returns a typed result: a :class:`~starforge.stars.model.Family`, a
-:class:`~starforge.props.placement.PlacementResult`, an :class:`ExportResult`, a
+:class:`~starforge.props.result.PlacementResult`, an :class:`ExportResult`, a
 :class:`CheckResult`.  Files are written only by the ``write_*``, ``export_*`` and ``run_*``
 calls, into a staging folder published at once (nothing half-written is left behind), and
 never over existing files without ``force=True``.  Each ``run_*`` call is one command
-(``starforge stars``, ``export``, ``check``, ``sweep``) with its options as keywords, and each
+(``starforge stars``, ``export``, ``check``, ``sweep``, ``place``, ``place-batch``) with its options as keywords, and each
 ``describe_*`` call says its result in the words the command prints.
 
 >>> import starforge.api as sf
@@ -27,7 +27,27 @@ from starforge.api.bodies import (
     write_tracker_files,
 )
 from starforge.api.check import CheckResult, CheckRun, CheckSummary, check, describe_check, run_check
-from starforge.api.place import distinct_tolerance_mm, place_markers, write_placement
+from starforge.api.place import (
+    PlacePlan,
+    PlaceRun,
+    ScoreResult,
+    describe_placement,
+    describe_score,
+    distinct_tolerance_mm,
+    place_markers,
+    placement_files,
+    plan_placement,
+    run_place,
+    score_markers,
+    write_placement,
+)
+from starforge.api.place_batch import (
+    PlaceBatchPlan,
+    PlaceBatchRun,
+    describe_place_batch,
+    plan_place_batch,
+    run_place_batch,
+)
 from starforge.api.stars import (
     FAMILY_FILES,
     StarPlan,
@@ -59,8 +79,22 @@ __all__ = [
     "run_export",
     "describe_export",
     "distinct_tolerance_mm",
+    "PlacePlan",
+    "PlaceRun",
+    "ScoreResult",
+    "plan_placement",
     "place_markers",
+    "placement_files",
     "write_placement",
+    "run_place",
+    "describe_placement",
+    "score_markers",
+    "describe_score",
+    "PlaceBatchPlan",
+    "PlaceBatchRun",
+    "plan_place_batch",
+    "run_place_batch",
+    "describe_place_batch",
     "check",
     "run_check",
     "describe_check",

@@ -232,9 +232,9 @@ def run_export(
         family = None
         if cad:
             if "step" in cad:  # its worker loads the CAD kernel while the family is read and checked
-                from starforge.cad.step_worker import StepProcess
+                from starforge.cad.step_worker import launch
 
-                worker = StepProcess()
+                worker = launch()
             family = load_printable(src, body_options.get("marker"))
             from starforge.cad.export import expected_files, export_family, print_layout
 

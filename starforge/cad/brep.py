@@ -43,39 +43,85 @@ PRINT_ROTATION = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 #: the build123d modules the bodies use; its package's ``__init__`` imports every builder,
 #: importer and exporter too (scikit-learn, ezdxf, SVG and font readers), which a STEP worker
 #: would wait for (``benchmarks/bench_cad.py --speed-only`` prints both imports' CPU seconds)
-KERNEL_MODULES = ("build123d.build_enums", "build123d.geometry", "build123d.topology", "build123d.exporters3d",
-                  "build123d.importers")
+KERNEL_MODULES = ("build123d.build_enums", "build123d.geometry", "build123d.topology", "build123d.exporters3d")
+#: modules that :data:`KERNEL_MODULES` import at their top for calls the bodies never make: a
+#: curve optimiser and convex hulls (scipy), a pretty-printer for notebooks (IPython), glTF
+#: materials and a web upload (threejs_materials, requests).  While the kernel loads, each is a
+#: :class:`_Deferred` module: a name taken from it imports the real module at its first use
+DEFERRED_MODULES = ("scipy.optimize", "scipy.spatial", "IPython.lib.pretty", "threejs_materials", "requests")
 _kernel = None
 
 
 def kernel():
     """build123d's direct API: a namespace of the modules in :data:`KERNEL_MODULES` (imported
-    on the first call), or the package itself once something has imported it whole.
-
-    Python runs a package's ``__init__`` before any of its modules; :func:`_import_modules`
-    imports the modules under a package object whose ``__init__`` has not run, then removes it,
-    so a later ``import build123d`` runs the real one, which finds these modules loaded and uses
-    them (the classes are the same objects either way).
-    """
+    on the first call), or the package itself once something has imported it whole."""
     global _kernel
     if _kernel is None:
         if "build123d" in sys.modules:
             return sys.modules["build123d"]
-        mods = _import_modules()
+        mods = _import_modules(KERNEL_MODULES)
         _kernel = types.SimpleNamespace(**{k: v for m in mods for k, v in vars(m).items() if not k.startswith("_")})
     return _kernel
 
 
-def _import_modules() -> list:
-    """The modules of :data:`KERNEL_MODULES`, imported without build123d's ``__init__``; the
-    whole package if that fails (a build123d whose modules need its ``__init__``)."""
+class _Deferred(types.ModuleType):
+    """Stands in for a module while the kernel loads: ``from name import x`` binds a forwarder
+    to ``name.x``, which imports the real module when it is called, read or checked against."""
+
+    def __getattr__(self, attr: str):
+        if attr.startswith("__"):
+            raise AttributeError(attr)
+        return _Forward(self.__name__, attr)
+
+
+class _Forward:
+    """``module.attr``, imported at its first use (a call, an attribute, an ``isinstance``)."""
+
+    def __init__(self, module: str, attr: str) -> None:
+        self._where = (module, attr)
+
+    def _real(self):
+        module, attr = self._where
+        return getattr(importlib.import_module(module), attr)
+
+    def __call__(self, *args, **kwargs):
+        return self._real()(*args, **kwargs)
+
+    def __getattr__(self, attr: str):
+        if attr == "_where":
+            raise AttributeError(attr)
+        return getattr(self._real(), attr)
+
+    def __instancecheck__(self, obj) -> bool:
+        return isinstance(obj, self._real())
+
+
+def _import_modules(names, defer: bool = True) -> list:
+    """The build123d modules ``names``, imported without build123d's ``__init__`` (with
+    ``defer``, the modules of :data:`DEFERRED_MODULES` not loaded yet deferred); the whole
+    package if that fails (a build123d whose modules need its ``__init__``).
+
+    Python runs a package's ``__init__`` before any of its modules; the modules are imported
+    under a package object whose ``__init__`` has not run, which is then removed, so a later
+    ``import build123d`` runs the real one, which finds these modules loaded and uses them (the
+    classes are the same objects either way).
+    """
+    if "build123d" in sys.modules:
+        return [importlib.import_module(m) for m in names]
     spec = importlib.util.find_spec("build123d")
+    stand_ins = {m: _Deferred(m) for m in DEFERRED_MODULES if defer and m not in sys.modules}
+    sys.modules.update(stand_ins)
     sys.modules["build123d"] = importlib.util.module_from_spec(spec)  # its __init__ not run
     try:
-        mods = [importlib.import_module(m) for m in KERNEL_MODULES]
-    except (ImportError, AttributeError):
+        mods = [importlib.import_module(m) for m in names]
+    except (ImportError, AttributeError, TypeError):
         for m in [m for m in sys.modules if m == "build123d" or m.startswith("build123d.")]:
             del sys.modules[m]
+        mods = None
+    finally:
+        for m in stand_ins:
+            del sys.modules[m]
+    if mods is None:
         return [importlib.import_module("build123d")]
     del sys.modules["build123d"]
     return mods
@@ -258,4 +304,6 @@ def write_step(shape, path) -> None:
 
 def read_step(path) -> list:
     """The solids of a STEP file (build123d Solids)."""
-    return kernel().import_step(str(path)).solids()
+    kernel()
+    (importers,) = _import_modules(["build123d.importers"], defer=False)
+    return importers.import_step(str(path)).solids()

@@ -294,6 +294,24 @@ class StepProcess:
                 f.close()
 
 
+#: the worker :func:`start_early` launched, until :func:`launch` hands it out
+_early: list[StepProcess] = []
+
+
+def start_early() -> None:
+    """Launch a worker now for the next :func:`launch` to hand out: the console script calls
+    this before it loads the command line's modules when the command asks for STEP files, so
+    that the worker's kernel loads meanwhile.  A worker nobody takes ends with the command
+    (:func:`starforge.runtime.procs.end_children`)."""
+    if not _early:
+        _early.append(StepProcess())
+
+
+def launch() -> StepProcess:
+    """The worker :func:`start_early` launched, else a new one."""
+    return _early.pop() if _early else StepProcess()
+
+
 def job_for(bodies, transforms, colours, stage, plates=()) -> dict:
     """The worker's job: ``bodies`` (:class:`~starforge.cad.body.Body`), their printing
     ``transforms`` (4, 4), ``colours`` ((r, g, b) 0..255), the ``stage`` folder to write into,

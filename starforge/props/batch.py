@@ -105,7 +105,7 @@ def fleet(todo, results, distinct_mm: float, avoid=None) -> tuple[list, list[int
 
 def job_bytes(spec: str, rig: str | None) -> float:
     """Rough peak memory of one placement, bytes: the visibility table's estimate of
-    :func:`starforge.props.placement.check_cost` (sites x poses x (camera pairs + 8 + 3 loss
+    :func:`starforge.props.prepare.check_cost` (sites x poses x (camera pairs + 8 + 3 loss
     patterns + 16)) plus the process's libraries (about 400 MB measured for ``place hammer``)."""
     from starforge.props.rig import load_rig
     from starforge.props.spec import load_spec, with_overrides

@@ -22,7 +22,8 @@ import math
 import numpy as np
 
 from starforge.props.grips import GRIP_SEED_OFFSET, assign_grips
-from starforge.props.tracked import TRIANGLE_SPREAD, alive_masks
+from starforge.props.scenarios import alive_masks
+from starforge.props.tracked import TRIANGLE_SPREAD
 
 
 def random_poses(volume, count: int, pivot, rng: np.random.Generator):

@@ -20,7 +20,7 @@ from starforge.errors import StarforgeError
 from starforge.props.distinct import subset_margin
 
 if TYPE_CHECKING:
-    from starforge.props.placement import PlacementResult
+    from starforge.props.result import PlacementResult
 
 FORMAT = "starforge.placement"
 VERSION = 1

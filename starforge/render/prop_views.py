@@ -50,7 +50,7 @@ MAX_FACES = 20000
 
 
 def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
-    """:class:`PlotData` from a :class:`starforge.props.placement.PlacementResult`.
+    """:class:`PlotData` from a :class:`starforge.props.result.PlacementResult`.
 
     Meshes with more than ``max_faces`` faces are drawn from an evenly spaced subset of faces.
     """

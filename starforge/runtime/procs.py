@@ -149,10 +149,12 @@ def report_stop(signum: int) -> None:
 def stop_early() -> None:
     """Until :mod:`starforge.runtime.process` installs a command's own handlers: Ctrl-C or SIGTERM
     while the CLI's modules are still being imported ends the process at once with the one line.
-    Nothing has started then (no output, no stage, no helper); without this, an import would end
-    in a KeyboardInterrupt traceback, or SIGTERM silently.  For the console script only (it sets
-    the process's handlers); this module imports nothing else, so they are set within milliseconds."""
+    Nothing has started then (no output, no stage) but perhaps the export's STEP worker, which is
+    ended with it; without this, an import would end in a KeyboardInterrupt traceback, or SIGTERM
+    silently.  For the console script only (it sets the process's handlers); this module imports
+    nothing else, so they are set within milliseconds."""
     def early(signum, frame):
+        end_children()
         report_stop(signum)
         os._exit(128 + signum)
 

@@ -1,0 +1,198 @@
+"""Held-out samples of the tracked objective: fresh random poses with their own camera losses
+that rank the candidate layouts, tune the held-out polish, and explain a layout tracked below the
+target (never the samples the layouts were searched on, nor the fresh-pose evaluation)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from starforge.props.ceiling import tracked_ceiling
+from starforge.props.evaluate import random_poses
+from starforge.props.grips import GRIP_SEED_OFFSET, assign_grips, grip_arrays
+from starforge.props.layout_search import held_out_polish
+from starforge.props.rig import Poses
+from starforge.props.scenarios import alive_masks
+from starforge.props.tracked import Problem
+from starforge.props.visibility import compute_table
+
+#: the held-out sample's generator is seeded with seed + this (the evaluation's differs again)
+VALIDATION_SEED_OFFSET = 2_000_029
+#: the tuning sample that the held-out polish searches (never the ranking's or the evaluation's)
+TUNING_SEED_OFFSET = 4_000_037
+
+
+class HeldOut:
+    """A held-out sample: ``track.validation_poses`` fresh random poses (generator ``seed +
+    offset``), each met ``track.loss_patterns`` times with its own random camera losses, drawn
+    as :func:`starforge.props.scenarios.loss_scenarios` draws them; tables are built on demand
+    for the sites (and poses) asked.  A site's row of camera masks depends on that site alone,
+    so the rows over every pose are kept (with and without the hand) and a later call computes
+    only the sites it has not met: the ranking scores the polished layouts on the rows of the
+    candidates they share sites with, and the tuning polish reuses its start's rows."""
+
+    def __init__(self, prop, spec, seed: int, prep, offset: int):
+
+        ts, rig = spec.track, prep.rig
+        rng = np.random.default_rng(seed + offset)
+        self.poses = random_poses(rig.volume, ts.validation_poses, prep.poses.pivot, rng)
+        self.patterns = ts.loss_patterns if int(round(ts.cameras_lost * len(rig.cameras))) > 0 else 1
+        self.alive = alive_masks(len(rig.cameras), ts.cameras_lost, len(self.poses) * self.patterns, rng)
+        self.grip = assign_grips(len(self.poses), len(prep.grips), np.random.default_rng(seed + offset + GRIP_SEED_OFFSET))
+        self.prop, self.spec, self.prep = prop, spec, prep
+        self._rows: dict = {}  # (site, hand) -> (poses,) uint64 masks over every pose
+
+    def _table(self, sites, k, hand: bool) -> np.ndarray:
+
+        prep, spec = self.prep, self.spec
+        sub = Poses(self.poses.rotations[k], self.poses.translations[k], self.poses.pivot)
+        occ, starts = grip_arrays(prep.grips if hand else ())
+        return compute_table(
+            self.prop.mesh, prep.sites.points[sites], prep.sites.normals[sites], prep.rig, sub,
+            spec.grazing_limit_deg, radius_m=prep.seat.ball_radius_m, centre_m=prep.seat.centre_height_m,
+            occlusion=spec.occlusion, occluders=occ, occluder_starts=starts,
+            pose_grip=self.grip[k] if hand and prep.grips else None,
+        ).masks  # fmt: skip
+
+    def seen(self, sites, poses=None, hand: bool = True):
+        """(seen (len(sites), scenarios) bool, masks (len(sites), poses) uint64): the scenarios
+        of ``poses`` (indices, default all), without the hand when ``hand`` is false."""
+        sites = [int(x) for x in sites]
+        every = np.arange(len(self.poses))
+        k = every if poses is None else np.asarray(poses, dtype=np.int64)
+        masks = np.zeros((len(sites), len(k)), dtype=np.uint64)
+        kept = [i for i, s in enumerate(sites) if (s, hand) in self._rows]
+        for i in kept:
+            masks[i] = self._rows[(sites[i], hand)][k]
+        new = [i for i, s in enumerate(sites) if (s, hand) not in self._rows]
+        if new:
+            idx = [sites[i] for i in new]
+            if poses is None:  # rows over every pose: kept for later calls
+                rows = self._table(idx, every, hand)
+                for s, row in zip(idx, rows, strict=True):
+                    self._rows[(s, hand)] = row
+            else:
+                rows = self._table(idx, k, hand)
+            masks[new] = rows
+        L = self.patterns
+        scen = (k[:, None] * L + np.arange(L)[None]).ravel()  # scenario j of pose k: k * L + j
+        seen = np.bitwise_count(masks[:, np.repeat(np.arange(len(k)), L)] & self.alive[scen][None]) >= 2
+        return seen, masks
+
+
+def validator(sample: HeldOut, spec, centres, prob):
+    """``validate(layouts) -> [{"untracked", "cost"}]``: each layout's untracked fraction and cost
+    on the ranking sample (``sample``, :data:`VALIDATION_SEED_OFFSET`)."""
+    def validate(layouts):
+        union = sorted({int(x) for lay in layouts for x in lay})
+        seen, _ = sample.seen(union)
+        held = Problem(
+            centres[union], seen, seen.mean(axis=1), spec.track, prob.spacing, prob.spread_target, prob.avoid_faces,
+            None if prob.margin is None else prob.margin[union], prob.margin_target,
+        )  # fmt: skip
+        at = {s: i for i, s in enumerate(union)}
+        out = []
+        for lay in layouts:
+            t = held.terms([at[int(x)] for x in lay])
+            out.append({"untracked": t["untracked"], "cost": t["total"]})
+        return out
+
+    return validate
+
+
+#: at most this many sites take part in the held-out polish (the winner's, every candidate's,
+#: then the winner's nearest neighbours)
+POLISH_SITES = 120
+
+
+def polisher(prop, spec, seed, prep, centres, prob):
+    """``polish(sites) -> sites``: :func:`starforge.props.layout_search.held_out_polish` on the hard
+    poses of a tuning sample of its own (:data:`TUNING_SEED_OFFSET`: neither the ranking sample
+    nor the evaluation), the poses in which ``sites`` leave fewer than ``spare_markers`` seen in
+    some scenario; the sites near the winner's and the other candidates' take part."""
+    ts = spec.track
+    sample = HeldOut(prop, spec, seed, prep, TUNING_SEED_OFFSET)  # one for every polish: rows shared
+
+    def polish(sites, others=()):
+        sites = [int(x) for x in sites]
+        seen, _ = sample.seen(sites)
+        L = sample.patterns
+        few = (seen.sum(axis=0) < max(3, ts.spare_markers)).reshape(-1, L).any(axis=1)
+        hard = np.flatnonzero(few)
+        if not len(hard):
+            return tuple(sites)
+        pool = list(dict.fromkeys(sites + sorted({int(x) for o in others for x in o})))
+        near = range(len(prob.points)) if len(prob.points) <= POLISH_SITES else prob.knn[sites].T.ravel().tolist()
+        for i in near:  # nearest neighbours of every marker first, then the next nearest
+            if len(pool) >= POLISH_SITES:
+                break
+            if int(i) not in pool:
+                pool.append(int(i))
+        hseen, _ = sample.seen(pool, hard)
+        tuning = Problem(centres[pool], hseen, hseen.mean(axis=1), ts, prob.spacing, prob.spread_target, prob.avoid_faces)
+        found = held_out_polish(tuning, prob, list(range(len(sites))), np.asarray(pool))
+        return tuple(pool[i] for i in found)
+
+    return polish
+
+
+def explain_shortfall(sample: HeldOut, spec, prep, prob, chosen, removed, fit) -> dict:
+    """Why the chosen layout is tracked in fewer held-out scenarios than ``track.target_tracked``:
+    the same scenarios re-scored with every camera and without the hand, the untracked ones split
+    into too few markers seen and markers in a line, and the sites the layout had to work with."""
+    ts, idx = spec.track, list(chosen)
+    seen, masks = sample.seen(idx)  # the ranking sample
+    held = Problem(prob.points[idx], seen, seen.mean(axis=1), ts, prob.spacing, prob.spread_target)
+    everything = np.repeat(np.bitwise_count(masks) >= 2, seen.shape[1] // masks.shape[1], axis=1)
+    seen_nh, _ = sample.seen(idx, hand=False) if prep.capsules else (seen, None)
+    marks = list(range(len(idx)))
+    tracked = 1.0 - held.terms(marks)["untracked"]
+    few = float(((seen.sum(axis=0) < 3)).mean())
+    out = {
+        "target": ts.target_tracked,
+        "validation_tracked": tracked,
+        "scenarios": int(seen.shape[1]),
+        "untracked_too_few_seen": few,
+        "untracked_in_a_line": max(0.0, 1.0 - tracked - few),
+        "tracked_with_every_camera": 1.0 - Problem(prob.points[idx], everything, everything.mean(axis=1), ts, prob.spacing, prob.spread_target).terms(marks)["untracked"],
+        "tracked_without_the_hand": 1.0 - Problem(prob.points[idx], seen_nh, seen_nh.mean(axis=1), ts, prob.spacing, prob.spread_target).terms(marks)["untracked"],
+        "markers": len(idx),
+        "markers_asked": spec.track.target_markers,
+        "markers_that_fit_at_the_spacing": fit,
+        "usable_sites": len(prep.sites),
+        "sites_under_the_hand": removed["under_hand"],
+    }
+
+    every = np.arange(len(prob.points))
+    out["ceiling"] = tracked_ceiling(
+        prob.points, lambda: sample.seen(every)[0], prob.spacing, held.min_spread2, ts.target_markers
+    )
+    return out
+
+
+def shortfall_warning(sf: dict, spacing_m: float, hand: bool) -> str:
+    """One line: how far below the target the layout is on the held-out scenarios, the cause the
+    numbers point to, and what to change."""
+    cause = []
+    if sf["markers_that_fit_at_the_spacing"] < sf["markers_asked"]:
+        cause.append(
+            f"only {sf['markers_that_fit_at_the_spacing']} markers fit {spacing_m * 1000:.1f} mm apart on its "
+            f"{sf['usable_sites']} usable sites" + (f" ({sf['sites_under_the_hand']} sites under the hand)" if hand else "")
+        )
+    share = sf["untracked_too_few_seen"] / max(1e-12, 1.0 - sf["validation_tracked"])
+    cause.append(f"{100 * share:.0f} % of the untracked scenarios see fewer than 3 markers, the rest see them in a line")
+    c = sf.get("ceiling")
+    if c is not None:
+        cause.append(
+            f"no layout of markers {spacing_m * 1000:.1f} mm apart on these sites does better than "
+            f"{100 * c['ceiling']:.2f} % of these scenarios (all {c['layouts']:,} such layouts scored)"
+        )
+    helps = [f"with every camera {100 * sf['tracked_with_every_camera']:.1f} %"]
+    if hand:
+        helps.append(f"without the hand {100 * sf['tracked_without_the_hand']:.1f} %")
+    advice = "a smaller --marker or --base-mm (more markers fit, more sites seat)"
+    if hand:
+        advice += ", another --grip or --no-hand"
+    return (
+        f"the layout is tracked in {100 * sf['validation_tracked']:.1f} % of {sf['scenarios']} held-out scenarios, "
+        f"below the {100 * sf['target']:g} % target ({', '.join(helps)}): {'; '.join(cause)}; try {advice}"
+    )

@@ -1,0 +1,77 @@
+"""The result of a placement: the chosen markers with everything needed to re-check them."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from starforge.props.costs import CostBreakdown
+from starforge.props.optimizer import AnnealResult
+from starforge.props.sites import Sites
+from starforge.props.spec import PlaceSpec
+
+if TYPE_CHECKING:
+    from starforge.props.grips import Grip, HeldPart
+    from starforge.props.hand import Capsule
+    from starforge.props.mesh import PropMesh
+    from starforge.props.rig import Poses, Rig
+    from starforge.props.seat import Seat, SeatReport
+    from starforge.props.tracked_optimizer import Optimized
+
+
+@dataclass(frozen=True)
+class PlacementResult:
+    """One optimized placement with everything needed to re-check it."""
+
+    prop: PropMesh
+    spec: PlaceSpec
+    seed: int
+    rig: Rig
+    poses: Poses
+    sites: Sites
+    forbidden: int
+    site_visibility: np.ndarray = field(repr=False)
+    marker_sites: tuple[int, ...] = ()
+    cost: CostBreakdown | None = None
+    anneal: AnnealResult | None = None
+    marker_pose_seen: np.ndarray = field(default=None, repr=False)  # (m, scenarios) seen
+    timings: dict = field(default_factory=dict)
+    rays: int = 0
+    tracked: Optimized | None = None  # the tracked objective's optimizer: every candidate and baseline
+    warnings: tuple[str, ...] = ()
+    spacing_m: float = 0.0
+    seat: Seat | None = None
+    seat_report: SeatReport | None = None  # over ``sites``
+    capsules: tuple[Capsule, ...] = ()  # the hand: every grip's capsules
+    removed: dict = field(default_factory=dict)  # sampled sites removed, by reason
+    evaluation: dict = field(default_factory=dict)  # starforge.props.evaluate on fresh poses
+    marker_masks: np.ndarray = field(default=None, repr=False)  # (m, poses) uint64 camera bits
+    shortfall: dict = field(default_factory=dict)  # below track.target_tracked on the held-out sample: why
+    grips: tuple[Grip, ...] = ()  # the hand's distribution the layout was scored under
+    part: HeldPart | None = None  # where they hold it
+
+    @property
+    def marker_points(self) -> np.ndarray:
+        return self.sites.points[list(self.marker_sites)]
+
+    @property
+    def marker_normals(self) -> np.ndarray:
+        return self.sites.normals[list(self.marker_sites)]
+
+    @property
+    def marker_visibility(self) -> np.ndarray:
+        return self.site_visibility[list(self.marker_sites)]
+
+    def centres(self, sites=None) -> np.ndarray:
+        """(m, 3) ball centres of ``sites`` (default: the markers), m: on the seat's axis."""
+        idx = list(self.marker_sites if sites is None else sites)
+        return self.sites.points[idx] + self.seat.centre_height_m * self.sites.normals[idx]
+
+
+def tick(timings: dict, key: str, t0: float) -> float:
+    now = time.perf_counter()
+    timings[key] = round(now - t0, 4)
+    return now
