@@ -56,7 +56,7 @@ def load(path) -> list[Record]:
     except StarforgeError:  # a value that is not a number: named as it is
         raise
     except (KeyError, ValueError, TypeError, UnicodeDecodeError, csv.Error) as exc:
-        why = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        why = exc.args[0] if isinstance(exc, KeyError) and exc.args else f"{exc.__class__.__name__}: {exc}"
         raise StarforgeError(
             f"{path} is not a body,marker,x_mm,y_mm,z_mm table ({why}); give a CSV with those columns "
             "(`starforge convert FILE --format csv` writes one)"
