@@ -39,7 +39,7 @@ def read_toml(path: str | Path) -> dict:
     try:
         return tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark (Windows editors) is fine
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise StarforgeError(f"spec file {path} is not valid TOML: {exc}") from None
+        raise StarforgeError(f"spec file {path} is not valid TOML ({exc}); fix that line") from None
 
 
 def is_path(name_or_path: str | Path) -> bool:

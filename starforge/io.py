@@ -351,31 +351,31 @@ def check_input_file(path: str | Path, what: str = "file", kind: str = "file") -
     empty, unreadable, too large for its kind)."""
     path = Path(path)
     if not os.path.lexists(path):
-        raise StarforgeError(f"{what} not found: {path}")
+        raise StarforgeError(f"{what} not found: {path}; check the path")
     try:
         st = os.stat(path)
     except OSError as exc:
         if exc.errno == errno.ELOOP:
-            raise StarforgeError(f"{what} {path} is a symbolic link that loops back on itself") from None
+            raise StarforgeError(f"{what} {path} is a symbolic link that loops back on itself; give the file it should point to") from None
         if exc.errno == errno.ENOENT:
-            raise StarforgeError(f"{what} {path} is a symbolic link to a missing file") from None
+            raise StarforgeError(f"{what} {path} is a symbolic link to a missing file; give the file itself") from None
         raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
     if stat.S_ISDIR(st.st_mode):
         raise StarforgeError(f"{what} {path} is a folder, expected a file")
     if not stat.S_ISREG(st.st_mode):
-        raise StarforgeError(f"{what} {path} is not a regular file")
+        raise StarforgeError(f"{what} {path} is not a regular file; give a file, not a device or a pipe")
     try:
         with open(path, "rb"):
             pass
     except OSError as exc:
         raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
     if st.st_size == 0:
-        raise StarforgeError(f"{what} {path} is empty")
+        raise StarforgeError(f"{what} {path} is empty (0 bytes); give the saved file")
     limit = INPUT_LIMITS[kind]
     if st.st_size > limit:
         raise StarforgeError(
             f"{what} {path} is {_mb(st.st_size)}, above the {_mb(limit)} a {kind} input may be; "
-            f"is it the right file?"
+            "give the file you meant"
         )
     return path
 
@@ -390,7 +390,7 @@ def read_json(path: str | Path, what: str = "file") -> dict:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise StarforgeError(f"{what} {path} is not valid JSON ({exc.__class__.__name__}: {exc})") from None
+        raise StarforgeError(f"{what} {path} is not valid JSON ({exc}); save it again from the program that wrote it") from None
     except RecursionError:
         raise StarforgeError(f"{what} {path} is nested too deeply to be a starforge file") from None
     if not isinstance(data, dict):

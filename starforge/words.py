@@ -43,3 +43,15 @@ def counted(n: int, noun: str, form: str = "{n}") -> str:
     ('1 picture', '3 bodies', '12,000 candidates')
     """
     return f"{form.format(n=n)} {noun if n == 1 else plural(noun)}"
+
+
+def one_of(names) -> str:
+    """Names as a person lists them: ``"a, b or c"``.
+
+    Examples
+    --------
+    >>> one_of(["art", "ndi", "vicon"]), one_of(["glb"])
+    ('art, ndi or vicon', 'glb')
+    """
+    names = list(names)
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} or {names[-1]}"

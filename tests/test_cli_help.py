@@ -180,3 +180,161 @@ def test_global_options_after_the_command(root):
     assert meta.get("starforge.quiet")
     assert normalise(root, ["-q", "check", "f.json"], {})[-1] == "f.json"
     assert "-q" in normalise(root, ["-q", "check", "f.json"], {})[2:]  # the command's own -q too
+
+
+def _default_clauses(help_text: str) -> list[str]:
+    """What a help text says an option is when not given: each clause after the word "default"
+    (not the template name `default`), up to a ';', a ')' or a full stop."""
+    return re.findall(r"(?<![`\w])default:? (.*?)(?=;|\)|\.(?!\d)|$)", help_text or "", flags=re.I)
+
+
+def _numbers(text: str) -> list[float]:
+    return [float(x) for x in re.findall(r"(?<![\w$<.-])-?\d+(?:\.\d+)?", text)]
+
+
+def _body_spec():
+    from starforge.cad.describe import body_spec_from_options
+
+    return body_spec_from_options()
+
+
+def _stars_spec():
+    from starforge.stars.spec import spec_from_mapping
+
+    return spec_from_mapping({"box_mm": [20.8, 12.6, 48.3]})
+
+
+def _stem_rule() -> list[float]:
+    """The stem's default as a rule: its factor on a marker large enough to be scaled, and its
+    floor on one small enough to be held there."""
+    spec = _body_spec()
+    factor = spec.stem_for(5.0) / 5.0
+    assert spec.stem_for(0.1) == spec.min_stem_mm
+    return [factor, spec.min_stem_mm]
+
+
+def _coating() -> list[float]:
+    c, m = _body_spec().coating_mm, _stars_spec().marker_mm
+    return [c, m - c, m]
+
+
+def _tip() -> list[float]:
+    from starforge.geometry.rigid import default_tip_mm
+
+    tip = default_tip_mm([1.0, 2.0, 3.0])
+    assert tip[2] == -3.0  # "-longest side"
+    return [float(tip[0]), float(tip[1])]
+
+
+def _memory_percent() -> list[float]:
+    from starforge.runtime.budget import MEMORY_FRACTION
+
+    return [100 * MEMORY_FRACTION]
+
+
+def _seconds() -> list[float]:
+    from starforge.runtime.budget import DEFAULT_SECONDS
+
+    return [DEFAULT_SECONDS]
+
+
+def _ambiguity() -> list[float]:
+    from starforge.tracking.identify import AMBIGUITY
+
+    return [AMBIGUITY]
+
+
+def _placement_error() -> list[float]:
+    from starforge.props.spec import load_spec
+
+    return [load_spec("default").seat.placement_error_mm]
+
+
+_BODY_NUMBERS = {
+    "--nozzle-mm": lambda: [_body_spec().nozzle_mm],
+    "--coating-mm": _coating,
+    "--stem-mm": _stem_rule,
+    "--min-stem-mm": lambda: [_body_spec().min_stem_mm],
+    "--post-mm": lambda: [_body_spec().post_mm],
+}
+
+#: every number a help text states as an option's default, as the code computes it when the
+#: option is not given (the walk below fails on a stated number that is not listed here)
+USED_NUMBERS = {
+    ("starforge", "--max-memory"): _memory_percent,
+    ("starforge", "--max-seconds"): _seconds,
+    ("starforge check", "--ambiguity"): _ambiguity,
+    **{("starforge export", k): f for k, f in _BODY_NUMBERS.items()},
+    **{("starforge preview", k): f for k, f in _BODY_NUMBERS.items()},
+    ("starforge stars", "--marker"): lambda: [_stars_spec().marker_mm],
+    ("starforge stars", "--delta"): lambda: [_stars_spec().delta_mm],
+    ("starforge stars", "--gap"): lambda: [_stars_spec().gap_mm],
+    ("starforge stars", "--noise"): lambda: [_stars_spec().noise_mm],
+    ("starforge stars", "--work"): lambda: [_stars_spec().work],
+    ("starforge stars", "--tip"): _tip,
+    ("starforge stars", "--reserve"): lambda: list(_stars_spec().reserve_mm),
+    ("starforge place run", "--placement-error"): _placement_error,
+}
+
+
+def test_every_number_stated_as_a_default_is_the_one_the_code_uses(root):
+    """Walks every option of every command: each number in what its help says it is when not
+    given is the number the code uses then (click's own [default: X] is the value click passes,
+    so a number stated in words beside it must be that value too)."""
+    seen = set()
+    for where, p in _options(root):
+        stated = [x for clause in _default_clauses(p.help) for x in _numbers(clause)]
+        if not stated:
+            continue
+        key = (where, p.opts[0])
+        seen.add(key)
+        if p.default is not None and not isinstance(p.default, (bool, str)):
+            assert stated == [float(p.default)], key
+            continue
+        assert key in USED_NUMBERS, f"{key}: its help states {stated}; add how the code gets them"
+        assert stated == pytest.approx(USED_NUMBERS[key]()), key
+    assert set(USED_NUMBERS) <= seen  # no entry outlives its help text
+
+
+def _listed(help_text: str) -> set[str]:
+    """The names a help text lists, its longest list: 'a, b (note), c or d' -> {a, b, c, d}."""
+    item = r"(?!(?:a|an|the|or|and)\b)[a-z0-9]+(?: \([^()]*\))?"
+    runs = [m.group(0) for m in re.finditer(rf"{item}(?:(?:, or |, | and | or ){item})+", help_text)]
+    assert runs, help_text
+    longest = re.sub(r" \([^()]*\)", "", max(runs, key=lambda r: r.count(" ")))
+    return set(re.split(r", or |, | and | or ", longest))
+
+
+def _choices():
+    from starforge.cad.body import SEATS
+    from starforge.cad.export import CAD_FORMATS
+    from starforge.catalog import list_templates
+    from starforge.props.mesh import UNITS_TO_M
+    from starforge.tracking.formats import TRACKER_FORMATS
+    from starforge.tracking.identify import CHOOSE
+
+    presets = set(list_templates("presets"))
+    units = set(UNITS_TO_M)
+    return {
+        ("starforge check", "--preset"): presets,
+        ("starforge stars", "--preset"): presets,
+        ("starforge check", "--choose"): set(CHOOSE),
+        ("starforge check", "--world"): {"open", "closed"},
+        ("starforge export", "--format"): {*CAD_FORMATS, *TRACKER_FORMATS},
+        ("starforge convert", "--format"): {*TRACKER_FORMATS, "family"},
+        ("starforge export", "--seat"): set(SEATS),
+        ("starforge preview", "--seat"): set(SEATS),
+        ("starforge stars", "--seat"): set(SEATS),
+        ("starforge place run", "--units"): units,
+        ("starforge place score", "--units"): units,
+        ("starforge place-batch", "--units"): units,
+        ("starforge place run", "--spec"): set(list_templates("place")),
+        ("starforge place run", "--mesh-format"): {"glb", "stl"},
+        ("starforge sweep", "--rule"): {"face", "pair"},
+    }
+
+
+def test_the_choices_a_help_lists_are_the_ones_the_code_knows(root):
+    opts = {(where, p.opts[0]): p for where, p in _options(root)}
+    for key, known in _choices().items():
+        assert _listed(opts[key].help) == known, key

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from starforge.cli._progress import count_text, eta_text, stage_text
+from starforge.cli._progress import Bars, clock_text, count_text, eta_text, stage_text
 from starforge.runtime import progress
 
 
@@ -81,6 +81,39 @@ def test_eta_counts_down_between_counts_and_is_unknown_without_a_rate():
     u = progress.Stage(None, "select", None, "", clock)
     u.update(5)
     assert u.eta_s() is None
+
+
+def test_a_counted_out_stage_keeps_its_clock_and_promises_no_time():
+    """Past its total a stage wraps up: no "about 1 s left" that never comes, and its clock
+    still moves (the screen shows the command is alive)."""
+    clock = Clock()
+    s = progress.Stage(None, "STEP", 25, "bodies", clock)
+    for k, t in ((1, 1.0), (2, 2.0), (25, 25.0)):
+        clock.t = t
+        s.update(k)
+    shown = []
+    for t in (25.0, 26.0, 27.5, 3725.0):
+        clock.t = t
+        shown.append(clock_text(s))
+        assert eta_text(s) == ""
+    assert shown == ["0:25", "0:26", "0:27", "1:02:05"]
+
+
+def test_the_bars_go_with_the_last_open_stage():
+    bars = Bars()
+    with progress.reporting(bars, Clock()):
+        a = progress.stage("mesh", 3)
+        b = progress.stage("STEP", 3, parallel=True)
+        zero = progress.stage("plate", 0)  # ends mesh; a total of 0 is drawn as no total
+        assert bars.live is not None and len(bars.tasks) == 2 and a.ended
+        assert bars.live.tasks[-1].total is None
+        zero.end()
+        assert bars.live is not None
+        b.end()
+        assert bars.live is None and not bars.tasks
+        progress.stage("preview", 1)
+        assert bars.live is not None
+    assert bars.live is None
 
 
 def test_counts_read_with_separators_and_never_none():
@@ -194,7 +227,7 @@ def test_quiet_prints_nothing_and_otherwise_stages_come_in_order(tmp_path, capsy
     assert out == "" and err == ""
     assert run_cli([*args[:-1], tmp_path / "v"]) == 0
     out, err = capsys.readouterr()
-    assert _stages(err) == ["enumerate", "select", "verify"]
+    assert _stages(err) == ["load", "enumerate", "select", "verify"]
     assert "None" not in err
     assert "wrote" in out
 
@@ -216,7 +249,7 @@ def test_check_stages_and_quiet(small_family, tmp_path, capsys, no_hold):
     assert run_cli([*args, "--quiet"]) == 0
     assert capsys.readouterr() == ("", "")
     assert run_cli([*args, "--out", tmp_path / "d"]) == 0
-    assert _stages(capsys.readouterr().err) == ["simulate", "curve", "render"]
+    assert _stages(capsys.readouterr().err) == ["load", "simulate", "curve", "render"]
 
 
 def test_export_stages_and_quiet(small_family, tmp_path, capsys, no_hold):
@@ -227,4 +260,30 @@ def test_export_stages_and_quiet(small_family, tmp_path, capsys, no_hold):
     assert run_cli([*args, "-q", "--out", tmp_path / "q"]) == 0
     assert capsys.readouterr() == ("", "")
     assert run_cli([*args, "--out", tmp_path / "v"]) == 0
-    assert _stages(capsys.readouterr().err) == ["mesh", "plate", "preview", "sheet"]
+    assert _stages(capsys.readouterr().err) == ["load", "mesh", "plate", "preview", "sheet"]
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_a_first_placement_says_once_that_it_compiles(compiled, monkeypatch):
+    """A placement whose kernels are not in this machine's cache says so in a note before its
+    first stage; one that loads them says nothing."""
+    from starforge.props import placement
+    from starforge.runtime.kernels import FIRST_RUN_NOTE, compiled_here
+
+    class Stop(Exception):
+        pass
+
+    def stop(*a, **k):
+        raise Stop
+
+    assert compiled_here(object())  # not a kernel: in doubt, nothing is said
+    monkeypatch.setattr(placement, "kernels_compiled", lambda: compiled)
+    monkeypatch.setattr(placement, "prepare", stop)  # the work itself is not needed
+    rec = Record()
+    with progress.reporting(rec, Clock()), pytest.raises(Stop):
+        placement.run_placement("hammer")
+    notes = [c for c in rec.calls if c[0] == "note"]
+    assert notes == ([] if compiled else [("note", FIRST_RUN_NOTE)])
+    assert ("started", "sites") in rec.calls
+    if notes:
+        assert rec.calls.index(notes[0]) < rec.calls.index(("started", "sites"))

@@ -406,8 +406,12 @@ def _plan_or_hint(spec, options: dict, retype: Callable[[dict], str]) -> StarPla
     try:
         return plan_family(spec, **options)
     except StarforgeError as exc:
+        written = load_template("stars", spec or "finger")[1]
+        key = re.match(r"unknown keys? '(\w+)'|(\w+) must", str(exc))
+        if spec is not None and key and (key[1] or key[2]) in {*written, key[1]} and options.get(key[2]) is None:
+            raise StarforgeError(f"spec file {spec}: {exc}") from None  # the file's own key, as written there
         message = as_options(str(exc))
-        box = options.get("box_mm") or load_template("stars", spec or "finger")[1].get("box_mm")
+        box = options.get("box_mm") or written.get("box_mm")
         for k in range(1, 17) if box is not None else ():
             bigger = [round(float(x) * 1.25**k, 1) for x in box]
             try:

@@ -64,7 +64,14 @@ def describe_bodies(family, mount, sets, ids, allow_oversize, **body_options):
         body_options["seat"] = getattr(family.spec, "seat", None)
     spec = body_spec_from_options(**body_options)
 
-    seat_kind(spec, family.spec.marker_mm)  # the seat suits the marker, before any star is built
+    try:
+        seat_kind(spec, family.spec.marker_mm)  # the seat suits the marker, before any star is built
+    except StarforgeError as exc:
+        if spec.marker is None or spec.marker == family.spec.marker:
+            raise
+        # another bought marker than the family's: a family designed for it is the way out
+        command = stars_command_for(family.spec, m.name, spec.marker, spec.seat)
+        raise StarforgeError(f"{exc}; make a family for it: {command}") from None
     id_list = parse_ids(ids)
     bodies = family_bodies(family, id_list, m, spec)
     try:

@@ -66,7 +66,7 @@ def layout_plates(bounds, bed_mm=(200.0, 200.0), gap_mm: float = 5.0) -> list[Pl
         if size[i, 0] + 2 * gap > bx + 1e-9 or size[i, 1] + 2 * gap > by + 1e-9:
             raise StarforgeError(
                 f"plate: body {i + 1} is {size[i, 0]:.1f} x {size[i, 1]:.1f} mm, larger than the {bx:g} x {by:g} mm "
-                f"bed with {gap:g} mm gaps; pass a larger --bed"
+                f"bed with {gap:g} mm gaps; pass a larger --bed or a smaller --gap"
             )
     order = sorted(range(len(b)), key=lambda i: (-size[i, 1], -size[i, 0], i))
     beds: list[dict] = []

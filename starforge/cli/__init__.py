@@ -63,14 +63,16 @@ def _run(argv: list[str] | None) -> int:
         code = 2
     except Exception as exc:
         if not interrupted():
-            return _error_code(exc)
+            return _error_code(exc, sys.argv[1:] if argv is None else [str(a) for a in argv])
         # a library turned the Ctrl-C into its own error (OCP's import: "initialization failed")
         code = 130
     return code
 
 
-def _error_code(exc: Exception) -> int:
-    """The exit code of an exception that is not a Ctrl-C, after printing its one line."""
+def _error_code(exc: Exception, argv: list[str]) -> int:
+    """The exit code of an exception that is not a Ctrl-C, after printing its one line (a
+    parameter it starts with named by the option the user typed: ``argv``)."""
+    from starforge.cli._args import as_typed
     from starforge.io import note_interrupt
 
     try:
@@ -79,6 +81,7 @@ def _error_code(exc: Exception) -> int:
         msg = str(exc) or exc.__class__.__name__
         if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
             msg = f"{msg}: {exc.filename}"
+        msg = as_typed(msg, click_command(), argv)
         print(f"error: {msg}", file=sys.stderr)
         code = 2
     except Exception as exc:

@@ -113,15 +113,21 @@ def _root(
     _show_progress(ctx, quiet or bool(ctx.meta.get(QUIET)))
 
 
+#: the stage a command is in from its start to its first own stage
+LOAD_STAGE = "load"
+
+
 def _show_progress(ctx: typer.Context, quiet: bool) -> None:
     """Install the listener of the library's progress (:mod:`starforge.cli._progress`) until the
-    command ends."""
+    command ends, with stage ``load`` open (the command's libraries and inputs) until the
+    command's first stage starts."""
     from starforge.cli._progress import listener_for
-    from starforge.runtime.progress import reporting
+    from starforge.runtime.progress import reporting, stage
 
     listener = listener_for(ctx.invoked_subcommand, quiet)
     installed = reporting(listener)
     installed.__enter__()
+    stage(LOAD_STAGE)
 
     def close() -> None:
         installed.__exit__(None, None, None)

@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+import re
+
 from typer.core import TyperGroup
 
 from starforge.errors import StarforgeError
@@ -189,3 +191,25 @@ def retyped(meta: dict, changes: dict) -> str:
 
 #: options that take several values after one flag
 _MANY = {"--box", "--tip", "--reserve", "--avoid"}
+
+
+#: a library message that starts with a parameter's name: ``noise must be >= 0``,
+#: ``body options.stem_mm must be finite``, ``cube has 1991 values``, ``marker diameter must ...``
+_LEADING_NAME = re.compile(r"(?:[a-z ]+\.)?([a-z_]+)(?=(?: diameter)? (?:must|has|is)\b)")
+
+
+def as_typed(message: str, group, argv: list[str]) -> str:
+    """``message`` with a leading parameter name replaced by the option the user typed for it
+    (``noise must be >= 0`` -> ``--noise must be >= 0``); unchanged when it starts otherwise or
+    the user typed no such option (the value then came from a file, which the message names)."""
+    m = _LEADING_NAME.match(message)
+    if m is None:
+        return message
+    cmd, _ = leaf_command(group, argv)
+    typed = {a.split("=", 1)[0] for a in argv if a.startswith("--")}
+    for p in cmd.params if cmd is not None else ():
+        flag = next((o for o in p.opts if o in typed), None)
+        names = {p.name, f"{p.name}_mm", *(o.lstrip("-").replace("-", "_") for o in p.opts)}
+        if _is_option(p) and flag is not None and m.group(1) in names:
+            return flag + message[m.end() :]
+    return message

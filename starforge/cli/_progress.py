@@ -41,13 +41,20 @@ def count_text(st) -> str:
 def eta_text(st) -> str:
     """``"about 24 s left"`` (rounded to what a person reads), or ``""`` when not known."""
     left = st.eta_s()
-    if left is None or st.done == 0:
+    if left is None or st.done == 0 or st.done >= st.total:  # counted out: the stage's wrap-up
         return ""
     if left < 60:
         return f"about {max(round(left), 1)} s left"
     if left < 3600:
         return f"about {round(left / 60)} min left"
     return f"about {left / 3600:.1f} h left"
+
+
+def clock_text(st) -> str:
+    """The time in the stage, ``"0:07"`` or ``"1:02:07"``: it moves every second while the
+    stage runs, whether or not its count moves."""
+    m, sec = divmod(int(st.elapsed_s()), 60)
+    return f"{m // 60}:{m % 60:02d}:{sec:02d}" if m >= 60 else f"{m}:{sec:02d}"
 
 
 def stage_text(st) -> str:
@@ -159,7 +166,8 @@ class Plain:
 
 
 class Bars:
-    """Rich bars on stderr's terminal, one per open stage; a stage's bar goes when it ends."""
+    """Rich bars on stderr's terminal, one per open stage; a stage's bar goes when it ends, and
+    the display with the last one (what the command prints next starts on a clean line)."""
 
     def __init__(self) -> None:
         self.live = None
@@ -167,12 +175,16 @@ class Bars:
 
     def _start(self):
         from rich.console import Console
-        from rich.progress import BarColumn, Progress, ProgressColumn, TextColumn, TimeElapsedColumn
+        from rich.progress import BarColumn, Progress, ProgressColumn, TextColumn
         from rich.text import Text
 
         class _Count(ProgressColumn):
             def render(self, task) -> Text:
                 return Text(count_text(task.fields["stage"]))
+
+        class _Clock(ProgressColumn):  # rich's own stops when the count reaches the total
+            def render(self, task) -> Text:
+                return Text(clock_text(task.fields["stage"]))
 
         class _Eta(ProgressColumn):
             def render(self, task) -> Text:
@@ -182,7 +194,7 @@ class Bars:
             TextColumn("[bold]{task.description}"),
             BarColumn(),
             _Count(),
-            TimeElapsedColumn(),
+            _Clock(),
             _Eta(),
             console=Console(stderr=True, highlight=False),
             transient=True,
@@ -192,17 +204,19 @@ class Bars:
     def started(self, st) -> None:
         if self.live is None:
             self._start()
-        self.tasks[id(st)] = self.live.add_task(st.name, total=st.total, completed=st.done, stage=st)
+        self.tasks[id(st)] = self.live.add_task(st.name, total=st.total or None, completed=st.done, stage=st)
 
     def changed(self, st) -> None:
         task = self.tasks.get(id(st))
-        if task is not None:
-            self.live.update(task, total=st.total, completed=st.done)
+        if task is not None:  # no total (or 0): a moving bar, not a full one
+            self.live.update(task, total=st.total or None, completed=st.done)
 
     def ended(self, st) -> None:
         task = self.tasks.pop(id(st), None)
         if task is not None:
             self.live.remove_task(task)
+        if not self.tasks:  # no stage open: the bars go before the command prints its result
+            self.close()
 
     def note(self, text: str) -> None:
         if self.live is not None:

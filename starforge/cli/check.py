@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import typer
 
+from starforge.catalog import list_templates
 from starforge.cli._app import app, console
+from starforge.words import one_of
 
 _FILES = typer.Argument(
     ...,
@@ -22,7 +24,7 @@ FRAMES = typer.Option(10000, "--frames", help="Simulated frames.")
 WORLD = typer.Option(
     "open",
     "--world",
-    help="open: each point cluster identified on its own, as a tracker must when bodies come and go; "
+    help="open or closed. open: each point cluster identified on its own, as a tracker must when bodies come and go; "
     "closed: each label once per frame (assumes every body is in every frame).",
 )
 PRESENCE = typer.Option(
@@ -34,7 +36,7 @@ CHOOSE = typer.Option(
     None,
     "--choose",
     help="Simulate one rule only: fit (gate every distance by the window, then the best rigid fit), sides "
-    "(then the smallest sorted-distance difference) or the stress model window (one match inside the "
+    "(then the smallest sorted-distance difference) or window (the stress model: one match inside the "
     "window at random). Default: all on the same frames, headlined by the worst of fit and sides.",
 )
 AMBIGUITY = typer.Option(
@@ -47,14 +49,20 @@ SEED = typer.Option(0, "--seed", help="Random seed (same seed, same result).")
 PRESET = typer.Option(
     None,
     "--preset",
-    help="Vendor rules and tracker windows: art, ndi, qualisys, optitrack (or a TOML file; default: none).",
+    help=f"Vendor rules and tracker windows: {one_of(list_templates('presets'))} (or a TOML file; default: none).",
 )
 MATCH = typer.Option(
     None,
     "--match",
-    help="Distance matching window, mm (default: the preset's, else the family tolerance, else 2).",
+    help="Distance matching window, mm (default: a fixed-window preset's, else the bone-length tolerance "
+    "starforge writes into vendor files for these bodies at --noise).",
 )
-RESIDUAL = typer.Option(None, "--residual", help="Rigid-fit RMS limit, mm (default: match / 2).")
+RESIDUAL = typer.Option(
+    None,
+    "--residual",
+    help="Rigid-fit RMS limit, mm (default: a fixed-window preset's, else the maximum residual starforge "
+    "writes into vendor files for these bodies at --noise).",
+)
 TIP = typer.Option(
     None,
     "--tip",

@@ -6,11 +6,12 @@ from pathlib import Path
 
 import typer
 
+from starforge.catalog import list_templates
 from starforge.cli._app import SCHEDULER_HELP, app, console, use_scheduler
 from starforge.cli._args import retyped
 from starforge.cli._multi import MULTI, more_values
 from starforge.stars.spec import STAR_CHOICES, STAR_DEFAULTS
-from starforge.words import counted
+from starforge.words import counted, one_of
 
 _D, _C = STAR_DEFAULTS, STAR_CHOICES
 
@@ -100,7 +101,7 @@ RESERVE = typer.Option(
 PRESET = typer.Option(
     None,
     "--preset",
-    help="Design for a tracker (art, ndi, qualisys, optitrack, vicon, atracsys, or a TOML file): its rules, "
+    help=f"Design for a tracker ({one_of(list_templates('presets'))}, or a TOML file): its rules, "
     "and faces apart by twice its window at --noise (`starforge templates presets`; default: none).",
 )
 MOUNT = typer.Option(

@@ -100,7 +100,7 @@ def load_mesh_file(path: str | Path, units: str = "m", what: str = "prop mesh"):
     except Exception as exc:  # trimesh raises many types for corrupt files
         raise StarforgeError(f"cannot read {what} {path}: {exc.__class__.__name__}: {exc}") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise StarforgeError(f"{what} {path} holds no triangles")
+        raise StarforgeError(f"{what} {path} holds no triangles; give a mesh (STL, OBJ, PLY, GLB, OFF) with faces")
     vertices = np.asarray(loaded.vertices, dtype=float) * scale
     faces = np.asarray(loaded.faces, dtype=np.int64)
     if not np.all(np.isfinite(vertices)):

@@ -30,8 +30,10 @@ from starforge.props.rig import load_rig
 from starforge.props.scenarios import LOSS_SEED_OFFSET, loss_scenarios
 from starforge.props.spacing import spaced_capacity, spacing_m
 from starforge.props.spec import PlaceSpec, load_spec, with_overrides
-from starforge.props.tracked import Problem, TrackSettings
+from starforge.props.tracked import Problem, TrackSettings, kernels_compiled
 from starforge.props.tracked_optimizer import optimize
+from starforge.runtime.kernels import FIRST_RUN_NOTE
+from starforge.runtime.progress import note as progress_note
 from starforge.runtime.progress import report as progress_report
 from starforge.spec import require
 from starforge.stars.avoid import body_triangles
@@ -105,6 +107,8 @@ def _prepared(prop, spec: PlaceSpec, seed: int, progress, grip):
             f"a {seat.ball_mm:g} mm marker is not in the catalogue: a generic ball on a {seat.base_mm:g} mm base with its "
             f"centre {seat.centre_height_mm:g} mm above it is assumed (--marker NAME for a catalogue marker, --base-mm for the base)"
         )
+    if not kernels_compiled():
+        progress_note(FIRST_RUN_NOTE)
     progress("sites", 0, None)
     prep = prepare(prop, spec, rng, lambda d, n: progress("rays", d, n), timings, grip, seed)
     return rng, timings, progress, warnings + list(prep.notes), prep

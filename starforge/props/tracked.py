@@ -50,7 +50,7 @@ from starforge.geometry.sym3 import (
 )
 from starforge.props.distinct import added_conflicts, clashes, face_tree, own_triangles
 from starforge.props.symmetry import near_symmetry_margin
-from starforge.runtime.kernels import numba
+from starforge.runtime.kernels import compiled_here, numba
 from starforge.spec import in_range, non_negative, positive
 
 TRIANGLE_SPREAD = math.sqrt(2.0) / 3.0  # RMS distance from the base line of a triangle of height 1
@@ -116,6 +116,12 @@ class TrackSettings:
 
 #: relative margin of the skip in :func:`_screen_tracked` (far above the closed form's rounding)
 _SAFE_MARGIN = 1e-3
+
+
+def kernels_compiled() -> bool:
+    """Whether this machine's cache holds the placement's screening kernel (false on a first run,
+    which compiles it: :func:`starforge.runtime.kernels.compiled_here`)."""
+    return compiled_here(_screen_tracked)
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)

@@ -236,8 +236,25 @@ SIGNATURES = (
         "int16[:, ::1], int64[:, ::1], int64, int64, int64, int64, int64, boolean[::1]",
     ),
     ("starforge.stars.rules:_window_codes", "int32[:, ::1], int64[:, ::1], int64, int64"),
+    ("starforge.stars.rules:_counted_entries", "int64[:, ::1], int64[::1]"),
     ("starforge.stars.rules:_dense_rows", "int64[::1], int64"),
 )
+
+
+def compiled_here(kernel) -> bool:
+    """Whether numba's cache holds an entry of ``kernel`` (a cached ``numba.njit`` function) for
+    this machine: false on a first run (and for a cache built on another CPU, whose entries numba
+    does not load).  It reads numba's cache index, keyed by signature and the target's triple,
+    CPU and features; any doubt counts as compiled, so that nothing is said or started for it."""
+    try:
+        here = kernel.targetctx.codegen().magic_tuple()
+        return any(key[1] == here for key in kernel._cache._cache_file._load_index())
+    except Exception:  # noqa: BLE001  (a private numba API: never fail a command over it)
+        return True
+
+
+#: what a command says once when it compiles its kernels (:func:`compiled_here` false)
+FIRST_RUN_NOTE = "a first run compiles the kernels once (tens of seconds); later runs load them from the cache"
 
 
 def compile_signatures() -> None:

@@ -220,7 +220,7 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
             if len(sel.chosen) < spec.count:
                 raise StarforgeError(
                     f"count {spec.count} is not achievable: the largest family found has {len(sel.chosen)} stars "
-                    f"(certified upper bound {sel.upper_bound})"
+                    f"(certified upper bound {sel.upper_bound}); ask for --count {len(sel.chosen)} or fewer, or raise --work"
                 )
             keep = np.isin(order, sel.chosen)
             chosen = order[keep][: spec.count]
@@ -302,7 +302,7 @@ def make_family(
     if spec.count is not None and spec.count > bound:
         raise StarforgeError(
             f"count {spec.count} is not achievable: no family of this spec can hold more than {bound} stars "
-            f"(certified upper bound)"
+            f"(certified upper bound); ask for --count {bound} or fewer, or a larger --box"
         )
     t1 = time.perf_counter()
     from starforge.runtime import progress as runtime_progress

@@ -155,7 +155,7 @@ class Family:
         if missing:
             shown = ", ".join(map(str, missing[:5])) + (f" and {len(missing) - 5:,} more" if len(missing) > 5 else "")
             raise StarforgeError(
-                f"star id{'s' if len(missing) > 1 else ''} {shown} not in the family (ids {min(table)}..{max(table)})"
+                f"star id{'s' if len(missing) > 1 else ''} {shown} not in the family; --ids takes ids in {min(table)}..{max(table)}"
             )
         return [table[i] for i in ids]
 
@@ -209,7 +209,7 @@ def family_from_json(data: dict, where: str = "family.json", verify: bool = True
         )
     if data.get("units") != "mm":
         raise StarforgeError(
-            f'{where} gives units {data.get("units")!r}; family files are in millimetres ("units": "mm")'
+            f'{where} gives units {data.get("units")!r}; family files are in millimetres: convert its numbers to mm and write "units": "mm"'
         )
     if "spec" not in data:
         raise StarforgeError(f"{where} has no spec")
@@ -226,7 +226,7 @@ def family_from_json(data: dict, where: str = "family.json", verify: bool = True
         )
     stars = [_star_from_json(s, k, where) for k, s in enumerate(raw)]
     if not stars:
-        raise StarforgeError(f"{where} holds no stars")
+        raise StarforgeError(f"{where} holds no stars; make a family with `starforge stars`")
     ids = [s.id for s in stars]
     if len(set(ids)) != len(ids):
         raise StarforgeError(f"{where} has duplicate star ids")
@@ -242,7 +242,7 @@ def family_from_json(data: dict, where: str = "family.json", verify: bool = True
         problems = check_family({**data, "spec": to_mapping(spec)})  # defaults filled in
         if problems:
             more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
-            raise StarforgeError(f"{where} fails verification: {problems[0]}{more}; was it edited by hand?")
+            raise StarforgeError(f"{where} fails verification: {problems[0]}{more}; was it edited by hand? make it again with `starforge stars`")
     return Family(spec=spec, stars=tuple(stars), summary=dict(data.get("summary", {})))
 
 

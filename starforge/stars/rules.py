@@ -187,7 +187,7 @@ def _window_rows_compiled(index: np.ndarray, rule: str, m: int, pool_size: int):
     base = pool_size + m  # room for negative anchors shifted by m
     edges = np.concatenate([FACE_EDGES] if rule == "face" else [FACE_EDGES, VERTEX_EDGES]).astype(np.int64)
     code, count = _window_codes(index.astype(np.int32), edges, int(m), int(base))
-    star, code = _entries(code, np.arange(code.shape[1])[None, :] < count[:, None])
+    star, code = _counted_entries(code, count)
     span = 2 * base**3
     if span <= 1 << 24:
         row, n_rows = _dense_rows(code, span)
@@ -239,6 +239,25 @@ def _window_codes(index, edges, m, base):
                 d += 1
         count[i] = d
     return code, count
+
+
+@numba.njit(cache=True, nogil=True)
+def _counted_entries(code, count):
+    """The (star, code) entries of ``code[i, :count[i]]`` for each star ``i``, in row-major
+    order (what :func:`_entries` gives for that mask), without holding Python's lock: the
+    progress display keeps drawing while millions of entries are gathered."""
+    total = 0
+    for i in range(len(count)):
+        total += count[i]
+    star = np.empty(total, dtype=np.intp)
+    flat = np.empty(total, dtype=code.dtype)
+    q = 0
+    for i in range(len(count)):
+        for j in range(count[i]):
+            star[q] = i
+            flat[q] = code[i, j]
+            q += 1
+    return star, flat
 
 
 @numba.njit(cache=True, nogil=True)

@@ -26,6 +26,7 @@ import subprocess
 import sys
 import threading
 
+from starforge.runtime.kernels import FIRST_RUN_NOTE, compiled_here
 from starforge.runtime.procs import adopt, release
 
 #: seconds this process waits at most for the helper's report of a group of kernels (a first
@@ -88,16 +89,10 @@ def ready(group: str, timeout_s: float = WAIT_S) -> None:
 
 def cache_is_cold() -> bool:
     """True when the numba cache holds no entry of the enumeration's compiled kernel for this
-    machine (a first run; also one whose cache came from a wheel built on another CPU, whose
-    entries numba will not load).  (Reads numba's cache index, keyed by signature and the
-    target's triple, CPU and features; any doubt counts as warm, so nothing is started.)"""
-    try:
-        from starforge.stars.classify import classify_range
+    machine (:func:`starforge.runtime.kernels.compiled_here`)."""
+    from starforge.stars.classify import classify_range
 
-        here = classify_range.targetctx.codegen().magic_tuple()
-        return not any(key[1] == here for key in classify_range._cache._cache_file._load_index())
-    except Exception:  # noqa: BLE001  (a private numba API: never fail a command over it)
-        return False
+    return not compiled_here(classify_range)
 
 
 def start() -> Helper | None:
@@ -107,7 +102,7 @@ def start() -> Helper | None:
         return None
     from starforge.runtime.progress import note
 
-    note("a first run compiles the kernels once (tens of seconds); later runs load them from the cache")
+    note(FIRST_RUN_NOTE)
     if (os.cpu_count() or 1) < 2:
         return None
     try:

@@ -157,11 +157,11 @@ def check_body(where, name: str, P: np.ndarray) -> None:
     if len(P) > MAX_MARKERS:
         raise StarforgeError(f"{where}: body {name} has {len(P)} markers; at most {MAX_MARKERS} per body")
     if not np.isfinite(P).all():
-        raise StarforgeError(f"{where}: body {name} has coordinates that are not finite numbers")
+        raise StarforgeError(f"{where}: body {name} has coordinates that are not finite numbers; fix them in the file")
     if np.abs(P).max() > MAX_COORDINATE_MM:
         raise StarforgeError(
             f"{where}: body {name} has markers beyond {MAX_COORDINATE_MM / 1000:g} m of its origin "
-            f"(is the file in other units?)"
+            "; save the file in millimetres (a file in other units reads 1000 times too large)"
         )
     spread = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
     if not SPREAD_MM[0] <= spread <= SPREAD_MM[1]:

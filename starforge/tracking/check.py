@@ -56,8 +56,10 @@ class CheckSettings:
     ghosts : random extra points near each body per frame
     frames : simulated frames
     seed : random seed
-    match_mm : distance matching window (None: the preset's, else the family tolerance, else 2 mm)
-    residual_mm : rigid-fit RMS limit (None: the preset's, else match_mm / 2)
+    match_mm : distance matching window (None: a fixed-window preset's, else the bone-length
+        tolerance written into vendor files: :func:`resolve_windows`)
+    residual_mm : rigid-fit RMS limit (None: a fixed-window preset's, else the maximum residual
+        written into vendor files)
     tip_mm : (3,) target point in each body's frame for the TRE, mm (None: the family's default
         tip, :func:`starforge.geometry.rigid.default_tip_mm`; the prop's origin for placements)
     preset : vendor preset name or None

@@ -118,17 +118,23 @@ def check_size(path) -> None:
         )
 
 
+#: the way out of a tracker file that cannot be read as written
+RESAVE = "save the body again from the tracker's software"
+#: the way out of one value in a tracker file that is not a plain decimal number
+FIX_VALUE = "write it as a decimal number such as 12.5, or " + RESAVE
+
+
 def parse_xml(path) -> ET.Element:
     """The root of an XML tracker file; refuses files over :data:`MAX_FILE_BYTES` and any entity
     declaration (no tracker file has one; an entity bomb is made of them)."""
     check_size(path)
     data = Path(path).read_bytes()
     if b"<!ENTITY" in data:
-        raise StarforgeError(f"{path} declares XML entities, which no tracker file does; refused")
+        raise StarforgeError(f"{path} declares XML entities, which no tracker file does; {RESAVE}")
     try:
         return ET.fromstring(data)
     except ET.ParseError as exc:
-        raise StarforgeError(f"{path} is not valid XML ({exc})") from None
+        raise StarforgeError(f"{path} is not valid XML ({exc}); {RESAVE}") from None
 
 
 #: a decimal number as tracker files write them: Python's float() also takes "1_0" (as 10),
@@ -140,10 +146,10 @@ def num(path, what: str, text) -> float:
     """``text`` as a finite float written as a plain decimal number, else one-line
     StarforgeError naming ``path`` and ``what``."""
     if isinstance(text, str) and text.strip().lstrip("+-").lower() in ("nan", "inf", "infinity"):
-        raise StarforgeError(f"{path}: {what} is not finite ({text!r})")
+        raise StarforgeError(f"{path}: {what} is not finite ({text!r}); {FIX_VALUE}")
     if not isinstance(text, str) or not _NUMBER.fullmatch(text) or not text.isascii():
-        raise StarforgeError(f"{path}: {what} is not a number ({text!r})")
+        raise StarforgeError(f"{path}: {what} is not a number ({text!r}); {FIX_VALUE}")
     v = float(text)
     if not np.isfinite(v):
-        raise StarforgeError(f"{path}: {what} is not finite ({text!r})")
+        raise StarforgeError(f"{path}: {what} is not finite ({text!r}); {FIX_VALUE}")
     return v

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.tracking.formats._common import Record, WriteContext, check_size, f2s, num, points_of
+from starforge.tracking.formats._common import RESAVE, Record, WriteContext, check_size, f2s, num, points_of
 
 SUFFIX = ".ini"
 #: what a geometry file carries besides its points (:data:`~starforge.tracking.formats._common.FIELDS`)
@@ -58,7 +58,7 @@ def load(path) -> list[Record]:
     except (configparser.Error, ValueError, UnicodeDecodeError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else ""
         raise StarforgeError(
-            f"{path} is not an Atracsys geometry file ({exc.__class__.__name__}: {msg})"
+            f"{path} is not an Atracsys geometry file ({msg}); {RESAVE}"
         ) from None
     pts = [[num(path, f"fiducial{i} {c}", v) for c, v in zip("xyz", row, strict=True)] for i, row in enumerate(raw)]
     P = np.array(pts, dtype=float).reshape(-1, 3)

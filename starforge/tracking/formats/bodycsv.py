@@ -53,9 +53,13 @@ def load(path) -> list[Record]:
                 rows.setdefault(r["body"], []).append(
                     (int(r["marker"]), [num(path, f"{r['body']} {c}", r[c]) * _UNITS[cols] for c in cols])
                 )
+    except StarforgeError:  # a value that is not a number: named as it is
+        raise
     except (KeyError, ValueError, TypeError, UnicodeDecodeError, csv.Error) as exc:
+        why = exc.args[0] if isinstance(exc, KeyError) and exc.args else f"{exc.__class__.__name__}: {exc}"
         raise StarforgeError(
-            f"{path} is not a body,marker,x_mm,y_mm,z_mm table ({exc.__class__.__name__}: {exc})"
+            f"{path} is not a body,marker,x_mm,y_mm,z_mm table ({why}); give a CSV with those columns "
+            "(`starforge convert FILE --format csv` writes one)"
         ) from None
     if not rows:
         raise StarforgeError(f"{path} holds no body rows")

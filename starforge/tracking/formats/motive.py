@@ -31,6 +31,8 @@ import numpy as np
 from starforge.colours import body_colour
 from starforge.errors import StarforgeError
 from starforge.tracking.formats._common import (
+    FIX_VALUE,
+    RESAVE,
     Record,
     WriteContext,
     f2s,
@@ -121,7 +123,7 @@ def _xyz(path, what: str, text) -> list[float]:
         try:
             out.append(float(Decimal(v.strip()).scaleb(3)))
         except InvalidOperation:
-            raise StarforgeError(f"{path}: {what} is not a number ({v!r})") from None
+            raise StarforgeError(f"{path}: {what} is not a number ({v!r}); {FIX_VALUE}") from None
     return out
 
 
@@ -158,7 +160,7 @@ def load(path) -> list[Record]:
         if not pts:
             pts = locs
         elif locs and (len(locs) != len(pts) or not np.allclose(locs, pts, atol=1e-6)):
-            raise StarforgeError(f"{path}: {name}'s marker positions and MarkerLocation properties disagree")
+            raise StarforgeError(f"{path}: {name}'s marker positions and MarkerLocation properties disagree; {RESAVE}")
         if name in out:
             raise StarforgeError(f"{path}: two rigid bodies are named {name!r}")
         sizes = {m.findtext("size") for m in rb.iter("marker")}

@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.tracking.formats._common import Record, WriteContext, check_size, points_of
+from starforge.tracking.formats._common import RESAVE, Record, WriteContext, check_size, points_of
 
 SUFFIX = ".rom"
 #: what a tool definition carries besides its points (:data:`~starforge.tracking.formats._common.FIELDS`)
@@ -187,13 +187,13 @@ def read_tool(path) -> RomTool:
     if len(d) < SIZE or d[:3] != b"NDI":
         raise StarforgeError(
             f"{path} is not an NDI tool definition (.rom: {SIZE} bytes starting with 'NDI'; got {len(d)} "
-            f"bytes starting with {d[:3]!r})"
+            f"bytes starting with {d[:3]!r}); {RESAVE}"
         )
     (stored,) = struct.unpack_from("<H", d, 4)
     total = sum(d[6:SIZE]) & 0xFFFF
     if stored != total:
         raise StarforgeError(
-            f"{path}: NDI checksum {stored} does not match the content ({total}): corrupt file"
+            f"{path}: NDI checksum {stored} does not match the content ({total}): corrupt file; {RESAVE}"
         )
     n = d[28]
     if not 1 <= n <= MAX_MARKERS:
@@ -201,7 +201,7 @@ def read_tool(path) -> RomTool:
     P = np.array(struct.unpack_from(f"<{3 * n}f", d, _POS), dtype=float).reshape(n, 3)
     N = np.array(struct.unpack_from(f"<{3 * n}f", d, _NRM), dtype=float).reshape(n, 3)
     if not (np.isfinite(P).all() and np.isfinite(N).all()):
-        raise StarforgeError(f"{path}: NDI marker positions or normals are not finite numbers")
+        raise StarforgeError(f"{path}: NDI marker positions or normals are not finite numbers; {RESAVE}")
     return RomTool(
         points_mm=P,
         normals=N,
