@@ -203,7 +203,9 @@ def _provide(command: str, folder: Path) -> None:
         assert maker is not None, (
             f"`{command}` reads {word}, which no earlier command on its page writes and the test cannot "
             f"make: add a maker for it to MAKERS in {Path(__file__).name}")
+        t0 = time.perf_counter()
         maker(folder)
+        print(f"{time.perf_counter() - t0:7.1f} s wall (made {word})", flush=True)
         assert glob.glob(str(folder / word)), f"the maker for {word} did not write it"
 
 
@@ -267,21 +269,20 @@ def test_every_command_of_the_page_runs(page, tmp_path):
     edits = _edits(text)
     port = _free_port()
     background: list[subprocess.Popen] = []
-    times = []
     try:
         for command in commands:
             typed = _typed(command, port)
             if typed.startswith(BACKGROUND):
-                proc = subprocess.Popen(["bash", "-c", PRELUDE + typed], cwd=tmp_path, env=_env(),
-                                        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                                        start_new_session=True)
+                with open(tmp_path / f"background-{len(background)}.log", "wb") as log:
+                    proc = subprocess.Popen(["bash", "-c", PRELUDE + typed], cwd=tmp_path, env=_env(),
+                                            stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
                 background.append(proc)
                 if typed.startswith("dask scheduler"):
                     _wait_for_port(port, proc)
                 continue
             _provide(typed, tmp_path)
             wall, cpu = _run(typed, tmp_path)
-            times.append((wall, cpu, command))
+            print(f"{wall:7.1f} s wall {cpu:7.1f} s CPU  {page.relative_to(DOCS)}: {command}", flush=True)
             for written, changes in edits.items():
                 if written in _file_arguments(command)[1]:
                     _apply_edits(tmp_path / written, changes)
@@ -296,8 +297,6 @@ def test_every_command_of_the_page_runs(page, tmp_path):
             except subprocess.TimeoutExpired:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
-    for wall, cpu, command in times:
-        print(f"{wall:7.1f} s wall {cpu:7.1f} s CPU  {page.relative_to(DOCS)}: {command}")
 
 
 def test_the_install_commands_the_pages_leave_out_are_the_readmes():
