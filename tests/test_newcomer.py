@@ -33,6 +33,15 @@ def test_comment_stripping_keeps_quoted_hashes():
     assert rc.readme_commands("\n".join(lines), "tour") == ["starforge a --b 1", "starforge d"]
 
 
+
+def test_docs_page_commands_come_from_every_shell_block_only():
+    rc = _readme_commands()
+    page = ["# t", "```bash", "# only a comment", "starforge a \\", "    --b 1  # c", "```", "text",
+            "```python", "print(1)", "```", "```sh", "starforge x > y.toml", "#   k = 2", "```",
+            "```text", "starforge not-run", "```", "```", "starforge unlabelled", "```"]
+    assert rc.page_commands("\n".join(page)) == [["starforge a --b 1"], ["starforge x > y.toml"]]
+    assert [lang for lang, _ in rc.fenced_blocks(page)] == ["bash", "python", "sh", "text", ""]
+
 def test_readme_opens_with_the_two_commands_and_a_tour_that_parses():
     """Every tour command names a real command and real options with valid values (parsed by the
     CLI itself, not run), and reads only families that the README's earlier commands write."""
