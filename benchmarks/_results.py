@@ -13,9 +13,10 @@ import os
 import platform
 import re
 import sys
-import tempfile
 import time
 from pathlib import Path
+
+from starforge.io import atomic_write_text
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results.md"
 
@@ -64,11 +65,7 @@ def write_section(key: str, title: str, body: str, command: str | None = None, p
         text = pattern.sub(lambda _: block, text, count=1)
     else:
         text = text.rstrip("\n") + "\n\n" + block + "\n"
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".results-", suffix=".md")
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        fh.write(text if text.endswith("\n") else text + "\n")
-    os.replace(tmp, path)
-    return path
+    return atomic_write_text(path, text if text.endswith("\n") else text + "\n")
 
 
 README = RESULTS.parents[1] / "README.md"
@@ -97,8 +94,4 @@ def write_speed_row(command: str, seconds: float, benchmark: str, path: Path = R
     lines = ["| " + " | ".join(SPEED_HEADER) + " |", "| " + " | ".join("---" for _ in SPEED_HEADER) + " |"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     text = text[: found.start(2)] + "\n".join(lines) + "\n" + text[found.end(2):]
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".readme-", suffix=".md")
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
-    return path
+    return atomic_write_text(path, text)
