@@ -13,6 +13,11 @@ sends SIGTERM or SIGINT (alternately per round).  A trial is clean when the comm
 * leaves no staging folder and the working folder byte for byte as it was (after a 1 s grace, in
   which a helper that outlived the command would have written).
 
+The commands run as the hostile suite's cases do (``tests.test_hostile_inputs.CHILD``), with an
+address-space cap of :data:`ADDRESS_SPACE_BYTES` instead of the cases' 2 GiB: ``stars --delta 1.0``
+plans more memory than 2 GiB leave, which the budget refuses up front there (a hostile case of its
+own), and a trial measures the signal, not that refusal.
+
 A command that had already ended when its signal was due counts as ``ended_first`` (clean when
 it exited 0 with nothing left behind) and is not a signal trial.  A signal that arrives while the
 interpreter itself starts, before the first line of starforge runs (``import starforge`` sets the
@@ -61,6 +66,8 @@ COMMANDS = {
     "sweep-local-cluster": (
         ("sweep", "--delta", "1:3:0.5", "--cube", "18:30:3", "--samples", "20000", "--workers", "2"), 16.0),
 }
+#: the address space each command may map (``ulimit -v``), bytes
+ADDRESS_SPACE_BYTES = 8 * 1024**3
 EXIT_WITHIN_S = 2.0
 GRACE_S = 1.0
 #: what a command says while it works (progress, where it runs): not the line about the signal
@@ -158,7 +165,8 @@ def _trial(work: Path, argv: list[str], sig: signal.Signals, delay: float) -> di
     out.mkdir(parents=True)
     (out / "keep.txt").write_text("a file the user had")
     before = snapshot(work)
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "OPENBLAS_NUM_THREADS": "1"}
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OPENBLAS_NUM_THREADS": "1",
+           "HOSTILE_AS_BYTES": str(ADDRESS_SPACE_BYTES)}
     proc = subprocess.Popen([sys.executable, "-c", CHILD, *argv, "--out", str(out), "--force"], cwd=work,
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)

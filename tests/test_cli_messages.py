@@ -49,6 +49,12 @@ def test_a_box_too_small_names_box_and_a_box_that_fits(tmp_path, capsys):
     assert run_cli(args) == 0 and (tmp_path / "a" / "family.json").is_file()  # it works
 
 
+def test_a_suggested_command_keeps_a_quiet_flag_once_where_it_was_typed(tmp_path, capsys):
+    line = _error(["-q", "stars", "--box", "5", "5", "5", "--out", tmp_path / "a"], capsys)
+    args = _suggested(line)
+    assert args[:2] == ["-q", "stars"] and args.count("-q") == 1, args
+
+
 def test_a_box_too_small_for_a_catalogue_marker_keeps_the_marker(tmp_path, capsys):
     line = _error(["stars", "--box", "5,5,5", "--marker", "14mm-m4", "--out", tmp_path / "b"], capsys)
     assert "--box" in line and "--marker" in line and not _KEYS.search(line)

@@ -43,7 +43,7 @@ CHILD = textwrap.dedent(
         for i in range(3):
             caps[i] &= ~0b110  # CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH
         assert libc.capset(head, caps) == 0
-    cap = 2 * 1024 ** 3
+    cap = int(os.environ.get("HOSTILE_AS_BYTES", 2 * 1024 ** 3))  # the address space a case may map
     resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
     if os.environ.get("HOSTILE_FILE_BYTES"):  # a full disk: writes past this size fail (EFBIG)
         n = int(os.environ["HOSTILE_FILE_BYTES"])

@@ -22,6 +22,8 @@ GLOBAL_FLAGS = ("-q", "--quiet")
 
 #: the key in click's ``ctx.meta`` that says the command was asked to be quiet
 QUIET = "starforge.quiet"
+#: the key in click's ``ctx.meta`` that holds the arguments as normalised (:func:`retyped`)
+ARGV = "starforge.argv"
 
 
 def _number(text: str) -> bool:
@@ -71,7 +73,8 @@ def triples(cmd) -> set[str]:
 
 def normalise(group, args: list[str], meta: dict) -> list[str]:
     """``args`` in the order and form click parses (see the module docstring); ``meta[QUIET]`` set
-    when ``-q``/``--quiet`` is given anywhere."""
+    when ``-q``/``--quiet`` is given anywhere, ``meta[ARGV]`` the arguments as the user ordered them
+    (for :func:`retyped`, without the command's own ``-q`` added here)."""
     cmd, start = leaf_command(group, args)
     own, three = option_names(cmd), triples(cmd)
     head, tail = list(args[:start]), []
@@ -96,6 +99,7 @@ def normalise(group, args: list[str], meta: dict) -> list[str]:
             continue
         tail.append(a)
         i += 1
+    meta[ARGV] = head + tail
     if any(a in GLOBAL_FLAGS for a in head):
         meta[QUIET] = True
         if "-q" in own and not any(a in GLOBAL_FLAGS for a in tail):
@@ -152,12 +156,8 @@ class RootGroup(TyperGroup):
 
     def parse_args(self, ctx, args: list[str]) -> list[str]:
         args = normalise(self, list(args), ctx.meta)
-        ctx.meta[ARGV] = list(args)  # click consumes the list it parses
         return super().parse_args(ctx, args)
 
-
-#: the key in click's ``ctx.meta`` that holds the arguments as normalised (:func:`retyped`)
-ARGV = "starforge.argv"
 
 
 def _takes_value(token: str) -> bool:
