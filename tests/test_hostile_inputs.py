@@ -285,7 +285,7 @@ def _cases(f) -> list[Case]:
         Case("stars-spec-wrong-type", ("stars", "--spec", str(f["wrongtype_toml"])), r"count"),
         Case("stars-spec-unknown-key", ("stars", "--spec", str(f["unknownkey_toml"])), r"size"),
         Case("stars-rule-unknown", ("stars", "--rule", "triangle"), r"rule"),
-        Case("stars-unknown-template", ("stars", "--spec", "thumb"), r"unknown stars template"),
+        Case("stars-unknown-template", ("stars", "--spec", "thumb"), r"--spec must be a template name"),
         Case("stars-count-not-int", ("stars", "--count", "lots"), r"count"),
         # the tolerance in pool steps cubes the selection's windows: refused from a pilot sample
         Case("stars-tolerance-windows", ("stars", "--delta", "0.5", "--tolerance", "6", "--min-depth", "0"),
