@@ -370,6 +370,10 @@ INPUT_LIMITS = {
 }
 
 
+#: the way out of a file that cannot be opened
+_UNREADABLE = "make it readable (chmod u+r) or give a copy you can read"
+
+
 def check_input_file(path: str | Path, what: str = "file", kind: str = "file") -> Path:
     """A readable regular file no larger than ``INPUT_LIMITS[kind]``, or StarforgeError saying
     what is wrong with it (missing, a folder, a device such as /dev/null, a symlink loop,
@@ -384,7 +388,7 @@ def check_input_file(path: str | Path, what: str = "file", kind: str = "file") -
             raise StarforgeError(f"{what} {path} is a symbolic link that loops back on itself; give the file it should point to") from None
         if exc.errno == errno.ENOENT:
             raise StarforgeError(f"{what} {path} is a symbolic link to a missing file; give the file itself") from None
-        raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+        raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}; {_UNREADABLE}") from None
     if stat.S_ISDIR(st.st_mode):
         raise StarforgeError(f"{what} {path} is a folder, expected a file")
     if not stat.S_ISREG(st.st_mode):
@@ -393,7 +397,7 @@ def check_input_file(path: str | Path, what: str = "file", kind: str = "file") -
         with open(path, "rb"):
             pass
     except OSError as exc:
-        raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+        raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}; {_UNREADABLE}") from None
     if st.st_size == 0:
         raise StarforgeError(f"{what} {path} is empty (0 bytes); give the saved file")
     limit = INPUT_LIMITS[kind]
