@@ -213,7 +213,7 @@ def read_face_mask(path: str | Path, n_faces: int) -> np.ndarray:
     if len(values) != n_faces:
         raise StarforgeError(f"face mask {path} has {len(values):,} values, the prop has {n_faces:,} faces; {_MASK_FORM}")
     if not np.all(np.isfinite(values)):
-        raise StarforgeError(f"face mask {path} has a value that is not a number; {_MASK_FORM}")
+        raise StarforgeError(f"face mask {path} has a value that is not a finite number; {_MASK_FORM}")
     return np.asarray(values != 0, dtype=bool)
 
 
