@@ -15,6 +15,9 @@ from pathlib import Path
 from starforge.errors import StarforgeError
 
 KINDS = ("stars", "mounts", "rigs", "place", "presets", "markers")
+#: the parameter (and the command line's option) that names a template of each kind
+PARAMETERS = {"stars": "spec", "mounts": "mount", "rigs": "rig", "place": "spec", "presets": "preset",
+              "markers": "marker"}
 
 
 def _kind_dir(kind: str):
@@ -64,10 +67,20 @@ def values_from(name_or_path: str | Path, given=()):
         raise
 
 
-def load_template(kind: str, name_or_path: str | Path) -> tuple[str, dict]:
+def unknown_name(parameter: str, kind: str, text: str, what: str = "a template name") -> StarforgeError:
+    """The error for a name that is no template of ``kind``, led by the ``parameter`` that took it:
+    an empty name said as such, the known names listed with the command that lists them."""
+    known = f"known (starforge templates {kind}): {', '.join(list_templates(kind)) or '(none)'}"
+    if not text.strip():
+        return StarforgeError(f"{parameter} is empty: give {what} or a TOML file; {known}")
+    return StarforgeError(f"{parameter} must be {what} or a TOML file, got {text!r}; {known}")
+
+
+def load_template(kind: str, name_or_path: str | Path, parameter: str | None = None) -> tuple[str, dict]:
     """Resolve a template name (``finger``) or a TOML path; return ``(name, data)``.
 
-    An unknown name raises StarforgeError listing the known ones.
+    An unknown name raises StarforgeError led by ``parameter`` (default: the one that names a
+    template of ``kind``, :data:`PARAMETERS`), listing the known names.
     """
     text = str(name_or_path)
     if is_path(text):
@@ -75,7 +88,7 @@ def load_template(kind: str, name_or_path: str | Path) -> tuple[str, dict]:
         return path.stem, read_toml(path)
     known = list_templates(kind)
     if text not in known:
-        raise StarforgeError(f"unknown {kind} template {text!r}; known: {', '.join(known) or '(none)'}")
+        raise unknown_name(parameter or PARAMETERS[kind], kind, text)
     res = _kind_dir(kind).joinpath(f"{text}.toml")
     try:
         return text, tomllib.loads(res.read_text(encoding="utf-8"))

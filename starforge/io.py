@@ -94,6 +94,33 @@ def _nearest_existing(path: Path) -> Path:
     return path
 
 
+def _what_it_is(path: Path) -> tuple[str, str]:
+    """What ``path`` (something that exists and is no folder) is, and what to call it in a remedy."""
+    if path.is_symlink() and not path.exists():
+        return "a symbolic link that loops or leads nowhere", "the link"
+    if path.is_file():
+        return "a file, not a folder", "the file"
+    mode = os.stat(path).st_mode
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device, not a folder", "the device"
+    return "not a folder", "it"
+
+
+def _output_base(out_dir: Path) -> Path:
+    """The nearest existing folder of ``out_dir`` (``out_dir`` itself when it exists); a
+    StarforgeError naming ``--out`` and what to do when ``out_dir`` or the path on its way is
+    something else than a folder (a file, a link that loops, a device such as /dev/null)."""
+    if os.path.lexists(out_dir) and not out_dir.is_dir():
+        what, thing = _what_it_is(out_dir)
+        raise StarforgeError(f"output folder {out_dir} is {what}: give --out a folder path (or move {thing} away)")
+    base = _nearest_existing(out_dir)
+    if not base.is_dir():
+        raise StarforgeError(
+            f"output folder {out_dir} cannot be made: {base} is {_what_it_is(base)[0]}; give --out a folder path"
+        )
+    return base
+
+
 def check_writable(out_dir: str | Path, names: Iterable[str], force: bool) -> None:
     """Before the work starts: refuse (StarforgeError) when ``out_dir`` cannot be written or when
     any of ``names`` already exists there and not ``force``.
@@ -103,17 +130,15 @@ def check_writable(out_dir: str | Path, names: Iterable[str], force: bool) -> No
     are caught even for root).  Nothing is left behind by the check.
     """
     out_dir = Path(out_dir)
-    if os.path.lexists(out_dir) and not out_dir.is_dir():
-        raise StarforgeError(f"output path {out_dir} exists and is not a folder")
-    base = _nearest_existing(out_dir)
-    if not base.is_dir():
-        raise StarforgeError(f"cannot create output folder {out_dir}: {base} is not a folder")
+    base = _output_base(out_dir)
     try:
         fd, probe = tempfile.mkstemp(prefix=".starforge-probe.", dir=base)
         os.close(fd)
         os.unlink(probe)
     except OSError as exc:
-        raise StarforgeError(f"cannot write to {out_dir}: {exc.strerror or exc} ({base})") from None
+        raise StarforgeError(
+            f"cannot write to {out_dir}: {exc.strerror or exc} ({base}); choose another --out"
+        ) from None
     names = list(names)
     for n in names:
         dst = out_dir / n
@@ -232,8 +257,7 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
     refused unless ``force``; other files in ``out_dir`` are left alone.
     """
     out_dir = Path(out_dir)
-    if os.path.lexists(out_dir) and not out_dir.is_dir():
-        raise StarforgeError(f"output path {out_dir} exists and is not a folder")
+    _output_base(out_dir)
     # stage in the nearest folder that exists, so a failure creates no folder either
     with _kept_folder(_nearest_existing(out_dir.parent), f".{out_dir.name}.", _STAGE_SUFFIX) as stage:
         try:
@@ -244,7 +268,8 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
             full = _full_disk_error(exc)
             if full is not None:  # say where: the message alone names no path
                 raise StarforgeError(
-                    f"cannot write the outputs for {out_dir}: {full.strerror or full} (staging in {stage.parent})"
+                    f"cannot write the outputs for {out_dir}: {full.strerror or full} (staging in {stage.parent}); "
+                    "free some space or choose another --out"
                 ) from None
             raise
         if _interrupted:  # a Ctrl-C somebody swallowed: publish nothing
@@ -345,6 +370,10 @@ INPUT_LIMITS = {
 }
 
 
+#: the way out of a file that cannot be opened
+_UNREADABLE = "make it readable (chmod u+r) or give a copy you can read"
+
+
 def check_input_file(path: str | Path, what: str = "file", kind: str = "file") -> Path:
     """A readable regular file no larger than ``INPUT_LIMITS[kind]``, or StarforgeError saying
     what is wrong with it (missing, a folder, a device such as /dev/null, a symlink loop,
@@ -359,7 +388,7 @@ def check_input_file(path: str | Path, what: str = "file", kind: str = "file") -
             raise StarforgeError(f"{what} {path} is a symbolic link that loops back on itself; give the file it should point to") from None
         if exc.errno == errno.ENOENT:
             raise StarforgeError(f"{what} {path} is a symbolic link to a missing file; give the file itself") from None
-        raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+        raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}; {_UNREADABLE}") from None
     if stat.S_ISDIR(st.st_mode):
         raise StarforgeError(f"{what} {path} is a folder, expected a file")
     if not stat.S_ISREG(st.st_mode):
@@ -368,7 +397,7 @@ def check_input_file(path: str | Path, what: str = "file", kind: str = "file") -
         with open(path, "rb"):
             pass
     except OSError as exc:
-        raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+        raise StarforgeError(f"cannot read {what} {path}: {exc.strerror or exc}; {_UNREADABLE}") from None
     if st.st_size == 0:
         raise StarforgeError(f"{what} {path} is empty (0 bytes); give the saved file")
     limit = INPUT_LIMITS[kind]

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from starforge.catalog import list_templates, load_template, values_from
+from starforge.catalog import list_templates, load_template, unknown_name, values_from
 from starforge.errors import StarforgeError
 from starforge.spec import from_mapping, in_range, require
 
@@ -141,7 +141,7 @@ def load_marker(name_or_path: str | Path) -> MarkerType:
     """A catalogue entry by name (``9.5mm-m3``) or TOML path; an unknown name lists the known."""
     text = str(name_or_path)
     if not (text.endswith(".toml") or "/" in text or "\\" in text) and text not in marker_names():
-        raise StarforgeError(f"unknown marker {text!r}; known: {', '.join(marker_names())} (or a TOML file)")
+        raise unknown_name("marker", "markers", text, "a catalogue marker")
     name, data = load_template("markers", name_or_path)
     with values_from(name_or_path):
         return from_mapping(MarkerType, {"name": name, **data}, where=f"marker {name}")

@@ -233,8 +233,8 @@ def _bad_family(path: Path, kind: str) -> Path:
         (["other"], "print a family.json or a tracker file"),
         (["ok", "--stem-mm", "0.5"], "printable minimum"),
         (["ok", "--mount", "strap"], r"mount strap does not fit: .* by \d+\.\d\d mm; pass --allow-oversize"),
-        (["ok", "--mount", "bogus"], "known: adhesive, flat, magnet, saddle, strap"),
-        (["ok", "--format", "step,obj"], "unknown format 'obj'; known: step, stl, 3mf"),
+        (["ok", "--mount", "bogus"], r"--mount must be .*got 'bogus'; known .*: adhesive, flat, magnet, saddle, strap"),
+        (["ok", "--format", "step,obj"], r"--format must be one or more of step, stl, 3mf \(CAD\), .*got 'obj'"),
         (["ok", "--ids", "1,77"], "77 not in the family"),
         (["ok", "--set", "hole_mm=99"], r"hole_mm must be in \[1.0, 4.5\]"),
         (["ok", "--bed", "20x20"], "larger than the 20 x 20 mm bed"),
@@ -287,7 +287,7 @@ def test_mounts_lists_and_details(capsys):
     code, out, _ = _run(["mounts", "saddle"], capsys)
     assert code == 0 and "segment_mm" in out and "range" in out
     code, _, err = _run(["mounts", "nope"], capsys)
-    assert code == 2 and "known: adhesive, flat, magnet, saddle, strap" in err
+    assert code == 2 and "got 'nope'; known (starforge templates mounts): adhesive, flat, magnet, saddle, strap" in err
 
 
 @pytest.mark.parametrize("marker", [4.0, 6.4])

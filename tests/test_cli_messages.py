@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import re
 import shlex
+from pathlib import Path
 
 import pytest
 from conftest import run_cli
@@ -204,3 +205,39 @@ def test_star_table_cells_are_whole_on_a_narrow_terminal(small_family):
     for st in family.stars:
         for x in st.lengths:
             assert f"{x:.2f}" in text
+
+
+@pytest.mark.parametrize("kind", ["stars", "mounts", "rigs", "place", "presets", "markers"])
+def test_an_empty_or_unknown_template_name_leads_with_its_parameter_and_lists_the_known(kind):
+    """The refusal starts with the parameter (the CLI puts the option the user typed there), says
+    an empty name is empty, and lists every shipped template of the kind (read from the folder
+    here) with the command that lists them."""
+    import templates
+    from starforge.catalog import PARAMETERS, load_template
+    from starforge.errors import StarforgeError
+
+    shipped = sorted(p.stem for p in (Path(templates.__file__).parent / kind).glob("*.toml"))
+    assert shipped
+    for name, says in (("", f"{PARAMETERS[kind]} is empty: give"), (" ", "is empty"), ("nosuch", "got 'nosuch'")):
+        with pytest.raises(StarforgeError) as err:
+            load_template(kind, name)
+        line = str(err.value)
+        assert line.startswith(f"{PARAMETERS[kind]} ") and says in line, line
+        assert line.endswith(f"known (starforge templates {kind}): {', '.join(shipped)}"), line
+
+
+def test_a_set_value_out_of_its_range_names_set_and_the_templates_range(small_family, tmp_path, capsys):
+    import tomllib
+
+    import templates
+
+    ranges = tomllib.loads((Path(templates.__file__).parent / "mounts" / "flat.toml").read_text())["ranges"]
+    lo, hi = ranges["holes"]
+    fam = small_family[0] / "family.json"
+    for value, says in ((hi + 97, rf"must be in \[{float(lo)}, {float(hi)}\], got {float(hi + 97)}"),
+                        ("nan", "must be finite")):
+        line = _error(["export", fam, "--mount", "flat", "--set", f"holes={value}", "--format", "stl",
+                       "--allow-oversize", "--out", tmp_path / "o"], capsys)
+        assert re.match(rf"error: --set holes {says}", line), line
+        assert "starforge mounts flat" in line
+    assert not (tmp_path / "o").exists()

@@ -43,6 +43,13 @@ def named(args: tuple, env: dict, line: str) -> bool:
     )
 
 
+def says_the_way_out(case, line: str) -> None:
+    """The refusal ``line`` of ``case`` names what the user typed (:func:`named`) and a way out
+    (:data:`REMEDY`); the hostile-input matrix checks each of its refusals with this too."""
+    assert named(case.args, case.env, line), f"names nothing the user typed: {line}"
+    assert REMEDY.search(line), f"no way out: {line}"
+
+
 _COMMANDS = {"stars", "export", "check", "place", "run", "score", "sweep", "templates", "mounts", "preview",
              "convert", "drawing", "place-batch", "measure"}
 
@@ -76,9 +83,7 @@ def test_a_refusal_names_the_option_and_the_way_out(case_id, files, tracker_file
     assert run_cli(args) == 2
     lines = [ln for ln in capsys.readouterr().err.splitlines() if not re.match(inputs.PROGRESS, ln)]
     assert len(lines) == 1, lines
-    line = lines[0]
-    assert named(case.args, case.env, line), f"names nothing the user typed: {line}"
-    assert REMEDY.search(line), f"no way out: {line}"
+    says_the_way_out(case, lines[0])
 
 
 def test_another_marker_than_the_familys_suggests_a_family_for_it(small_family, tmp_path, capsys):

@@ -285,7 +285,7 @@ def _cases(f) -> list[Case]:
         Case("stars-spec-wrong-type", ("stars", "--spec", str(f["wrongtype_toml"])), r"count"),
         Case("stars-spec-unknown-key", ("stars", "--spec", str(f["unknownkey_toml"])), r"size"),
         Case("stars-rule-unknown", ("stars", "--rule", "triangle"), r"rule"),
-        Case("stars-unknown-template", ("stars", "--spec", "thumb"), r"unknown stars template"),
+        Case("stars-unknown-template", ("stars", "--spec", "thumb"), r"--spec must be a template name"),
         Case("stars-count-not-int", ("stars", "--count", "lots"), r"count"),
         # the tolerance in pool steps cubes the selection's windows: refused from a pilot sample
         Case("stars-tolerance-windows", ("stars", "--delta", "0.5", "--tolerance", "6", "--min-depth", "0"),
@@ -447,10 +447,11 @@ def user_folder(tmp_path: Path, setup=None) -> tuple[Path, Path, dict]:
     return work, out, snapshot(work)
 
 
-def check_refusal(case: Case, code: int, err: str, work: Path, before: dict) -> None:
+def check_refusal(case: Case, code: int, err: str, work: Path, before: dict) -> str | None:
     """The case's exit code; for a refusal one ``error: ...`` line matching its pattern and the
-    working folder byte-for-byte as it was; for a correct result (exit 0) the user's files as
-    they were, no stage left and the case's own check of what was written; never a traceback."""
+    working folder byte-for-byte as it was (returns the line); for a correct result (exit 0) the
+    user's files as they were, no stage left and the case's own check of what was written (returns
+    None); never a traceback."""
     import re
 
     assert "Traceback" not in err, err
@@ -462,12 +463,13 @@ def check_refusal(case: Case, code: int, err: str, work: Path, before: dict) -> 
         said = lines[0].split("e.g. starforge ")[0]  # a command to copy may be long: the words may not
         assert len(said) < 400, f"a long error line ({len(said)} characters)"
         assert snapshot(work) == before
-        return
+        return lines[0]
     after = snapshot(work)
     assert {k: after.get(k) for k in before} == before, "the user's files changed"
     assert not [k for k in after if ".staging" in k or ".tmp" in k], after.keys()
     if case.verify is not None:
         case.verify(work / "out", err)
+    return None
 
 
 #: CPU seconds a case may take (the command and the helpers it waited for): the issue's 10 s,
@@ -475,10 +477,11 @@ def check_refusal(case: Case, code: int, err: str, work: Path, before: dict) -> 
 CPU_BUDGET_S = 10.0
 
 
-def run_case_in_child(case: Case, tmp_path: Path) -> None:
+def run_case_in_child(case: Case, tmp_path: Path) -> str | None:
     """A case as a user meets it: its own process, address space capped at 2 GiB, at most
     :data:`CPU_BUDGET_S` CPU seconds and ``case.budget_s`` wall seconds, no process left, no
-    traceback or warning; its figures go to the benchmark's report (``REPORT``)."""
+    traceback or warning; its figures go to the benchmark's report (``REPORT``).  Returns the
+    refusal's line (None for a correct result)."""
     work, out, before = user_folder(tmp_path, case.setup)
     args = list(case.args)
     if case.uses_out:
@@ -490,11 +493,11 @@ def run_case_in_child(case: Case, tmp_path: Path) -> None:
         "OMP_NUM_THREADS": "1",
         **case.env,
     }
-    clean, run, why = False, None, ""
+    clean, run, why, line = False, None, "", None
     try:
         run = run_child(args, work, env, case.budget_s)
         assert "Warning" not in run.res.stderr, run.res.stderr
-        check_refusal(case, run.res.returncode, run.res.stderr.strip(), work, before)
+        line = check_refusal(case, run.res.returncode, run.res.stderr.strip(), work, before)
         assert not run.left, f"processes left running: {run.left}"
         assert run.cpu_seconds <= CPU_BUDGET_S, f"{run.cpu_seconds:.1f} CPU s"
         clean = True
@@ -510,11 +513,13 @@ def run_case_in_child(case: Case, tmp_path: Path) -> None:
                    else "", "why": why}
             with open(REPORT, "a") as fh:
                 fh.write(json.dumps(row) + "\n")
+    return line
 
 
-def run_case_in_process(case: Case, tmp_path: Path, monkeypatch, capsys) -> None:
+def run_case_in_process(case: Case, tmp_path: Path, monkeypatch, capsys) -> str | None:
     """A case through the in-process entry point, with the same memory limit and the same
-    checks (the process and its address-space cap are what :func:`run_case_in_child` adds)."""
+    checks (the process and its address-space cap are what :func:`run_case_in_child` adds).
+    Returns the refusal's line (None for a correct result)."""
     from starforge.runtime import budget
 
     work, out, before = user_folder(tmp_path, case.setup)
@@ -528,7 +533,7 @@ def run_case_in_process(case: Case, tmp_path: Path, monkeypatch, capsys) -> None
         monkeypatch.setenv(k, v)
     monkeypatch.chdir(work)
     code = run_cli(args)
-    check_refusal(case, code, capsys.readouterr().err.strip(), work, before)
+    return check_refusal(case, code, capsys.readouterr().err.strip(), work, before)
 
 
 @pytest.mark.slow

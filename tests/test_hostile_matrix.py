@@ -7,7 +7,8 @@ Each case is one command a user or a broken disk could produce; its id says what
 cases: in a child of its own session (address space capped at 2 GiB, a CPU budget, no process
 left; ``-m slow`` and ``benchmarks/bench_hostile.py``), and a sample of them in process in the
 default run.  A refusal is one ``error:`` line naming the file or the option, exit 2, and the
-working folder byte for byte as it was.
+working folder byte for byte as it was; the line names what the user typed and a way out, as
+:func:`tests.test_cli_refusals.says_the_way_out` checks every refusal of the hostile suites.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import pytest
 import templates
 from starforge.io import INPUT_LIMITS
 from tests.conftest import run_cli
+from tests.test_cli_refusals import says_the_way_out
 from tests.test_hostile_inputs import BUDGET_S, Case, run_case_in_child, run_case_in_process
 
 TEMPLATES = Path(templates.__file__).parent
@@ -480,13 +482,17 @@ def matrix(matrix_files) -> dict:
 # file permissions do not hold for root in process: those cases run in the child, as a user
 @pytest.mark.parametrize("case_id", [i for i in _sample_ids() if "unreadable" not in i and "read-only" not in i])
 def test_hostile_matrix_in_process(case_id, matrix, tmp_path, monkeypatch, capsys):
-    run_case_in_process(matrix[case_id], tmp_path, monkeypatch, capsys)
+    line = run_case_in_process(matrix[case_id], tmp_path, monkeypatch, capsys)
+    if line is not None:
+        says_the_way_out(matrix[case_id], line)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("case_id", _case_ids())
 def test_hostile_matrix(case_id, matrix, tmp_path):
-    run_case_in_child(matrix[case_id], tmp_path)
+    line = run_case_in_child(matrix[case_id], tmp_path)
+    if line is not None:
+        says_the_way_out(matrix[case_id], line)
 
 
 # --- the pieces the matrix leans on ------------------------------------------------------------

@@ -101,6 +101,34 @@ def test_unwritable_place_is_found_before_the_work(tmp_path):
             check_writable("/proc/self/starforge-out", ["a"], False)
 
 
+def _in_the_way(tmp_path: Path, fault: str) -> tuple[Path, str]:
+    """An output folder path with ``fault`` in its way, and what the refusal calls the obstacle."""
+    (tmp_path / "file").write_text("the user's")
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    return {
+        "is-a-file": (tmp_path / "file", "is a file, not a folder"),
+        "under-a-file": (tmp_path / "file" / "sub" / "out", "file is a file, not a folder"),
+        "a-looping-link": (tmp_path / "loop", "is a symbolic link that loops or leads nowhere"),
+        "under-a-looping-link": (tmp_path / "loop" / "out", "loop is a symbolic link"),
+        "under-a-device": (Path("/dev/null/out"), "/dev/null is a device, not a folder"),
+    }[fault]
+
+
+@pytest.mark.parametrize("fault", ["is-a-file", "under-a-file", "a-looping-link", "under-a-looping-link",
+                                   "under-a-device"])
+def test_an_output_folder_in_the_way_is_one_line_naming_out(tmp_path, fault):
+    """The check before the work and the stage itself refuse alike: the path, what is in its
+    way, and ``--out`` to give a folder; nothing is created anywhere."""
+    out, says = _in_the_way(tmp_path, fault)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    for attempt in (lambda: check_writable(out, ["a"], False), lambda: staged_output(out).__enter__()):
+        with pytest.raises(StarforgeError, match=r"give --out a folder path") as err:
+            attempt()
+        assert str(out) in str(err.value) and says in str(err.value)
+        assert "\n" not in str(err.value)
+        assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
 @pytest.mark.parametrize("bad", ["../x", "a/b", ".hidden", "", "-x", "x" * 101, "a\\b", "a b"])
 def test_names_cannot_leave_the_output_folder(bad):
     with pytest.raises(StarforgeError, match="must be 1-100 letters"):

@@ -134,6 +134,10 @@ def test_constrained_areas(tmp_path):
     (tmp_path / "short.txt").write_text("1 0 1")
     with pytest.raises(StarforgeError, match="has 3 values, the prop has 12 faces"):
         forbidden_sites(s, Constraints(mask=str(tmp_path / "short.txt")), np.arange(12), 12)
+    for bad in ("nan", "inf"):  # a mask of the right length with a value that is no 0 or 1
+        (tmp_path / "bad.txt").write_text("\n".join([bad, *map(str, mask[1:])]))
+        with pytest.raises(StarforgeError, match=r"bad.txt has a value that is not a finite number; give --mask"):
+            forbidden_sites(s, Constraints(mask=str(tmp_path / "bad.txt")), np.arange(12), 12)
 
 
 def test_open_shell_with_inward_normals_is_turned_outward():

@@ -25,7 +25,7 @@ def test_seat_from_the_catalogue_and_from_a_diameter():
     assert odd.base_mm == pytest.approx(6.0) and odd.centre_height_mm == pytest.approx(4.4)
     pad = seat_for("14mm-m4", base_mm=20)
     assert pad.base_mm == 20 and pad.ball_mm == 14.0
-    with pytest.raises(StarforgeError, match="unknown marker"):
+    with pytest.raises(StarforgeError, match="marker must be a catalogue marker"):
         seat_for("nope")
 
 

@@ -124,7 +124,7 @@ def test_template_spec_and_toml_path(tmp_path):
         (["--box", 20, 20, 20, "--delta", 8], "--delta 8.0 is too large"),
         (["--box", 20, 20, 20, "--delta", -1.5], "--delta must be > 0"),
         (["--box", 20, 20, 20, "--rule", "edge"], "rule must be one of face, pair"),
-        (["--spec", "nosuchspec"], "unknown stars template 'nosuchspec'; known: finger"),
+        (["--spec", "nosuchspec"], "--spec must be a template name or a TOML file, got 'nosuchspec'; known"),
         (["--box", 60, 60, 60, "--delta", 0.5], "1,489,131,909,720 labelled candidates"),
         (["--delta", "1e-310"], "--delta must be >= 0.001"),
         (["--tolerance", 1000], "--tolerance 1000 is too large"),

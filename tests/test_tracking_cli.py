@@ -127,7 +127,7 @@ def test_check_refuses_to_overwrite(checked, capsys):
     [
         (["--noise", "-0.5"], "noise must be >= 0"),
         (["--drop", "2"], "drop must be <= markers - 3"),
-        (["--preset", "nosuch"], "unknown presets template 'nosuch'"),
+        (["--preset", "nosuch"], "--preset must be a template name or a TOML file, got 'nosuch'"),
         (["--frames", "0"], "frames must be >= 1"),
         (["--tip", "1,2"], "tip must be three numbers"),
         (["--ghosts", "200", "--frames", "1"], "ghosts must be at most 20"),

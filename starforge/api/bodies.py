@@ -83,6 +83,7 @@ def split_formats(text: str) -> tuple[list[str], list[str]]:
     from starforge.cad.export import CAD_FORMATS
     from starforge.tracking.formats import TRACKER_FORMATS
 
+    known = f"{', '.join(CAD_FORMATS)} (CAD), {', '.join(TRACKER_FORMATS)} (tracker)"
     cad, trk = [], []
     for f in str(text).split(","):
         f = f.strip().lower()
@@ -95,11 +96,9 @@ def split_formats(text: str) -> tuple[list[str], list[str]]:
             if f not in trk:
                 trk.append(f)
         else:
-            raise StarforgeError(
-                f"unknown format {f!r}; known: {', '.join(CAD_FORMATS)} (CAD), {', '.join(TRACKER_FORMATS)} (tracker)"
-            )
+            raise StarforgeError(f"format must be one or more of {known}, comma-separated, got {f!r}")
     if not cad and not trk:
-        raise StarforgeError(f"no format given; known: {', '.join(CAD_FORMATS + tuple(TRACKER_FORMATS))}")
+        raise StarforgeError(f"format is empty: give one or more of {known}, comma-separated")
     return cad, trk
 
 

@@ -54,7 +54,14 @@ def describe_bodies(family, mount, sets, ids, allow_oversize, **body_options):
     every body against the family's size limit (unless ``allow_oversize``).
     """
     name = mount or family.spec.mount or "flat"
-    m = load_mount(name, parse_sets(sets, name))
+    overrides = parse_sets(sets, name)
+    try:
+        m = load_mount(name, overrides)
+    except StarforgeError as exc:  # a value --set gave out of its range: name the option
+        key = str(exc).split(" ", 1)[0]
+        if key not in overrides:
+            raise
+        raise StarforgeError(f"--set {exc} (see `starforge mounts {name}`)") from None
     # the marker and seat the family was designed for, unless told otherwise
     if body_options.get("marker") is None and getattr(family.spec, "marker", None) is not None:
         body_options["marker"] = family.spec.marker

@@ -21,7 +21,7 @@ def templates_cmd(
     if show:
         if not kind:
             raise ValueError("--show needs KIND, e.g. starforge templates stars --show finger")
-        load_template(kind, show)  # validates the name, lists known ones if unknown
+        load_template(kind, show, "--show")  # validates the name, lists known ones if unknown
         print(resources.files("starforge.templates").joinpath(kind, f"{show}.toml").read_text(), end="")
         return
     for k in [kind] if kind else KINDS:

@@ -293,7 +293,10 @@ def read_markers_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     try:
         rows = list(csv.DictReader(path.read_text(encoding="utf-8").splitlines()))
     except (UnicodeDecodeError, csv.Error) as exc:
-        raise StarforgeError(f"markers file {path} is not a readable CSV: {exc}") from None
+        raise StarforgeError(
+            f"markers file {path} is not a readable CSV ({exc}); save it as UTF-8 CSV with the header "
+            f"{','.join(CSV_HEADER)}"
+        ) from None
     if not rows:
         raise StarforgeError(f"markers file {path} has no markers")
     fields = set(rows[0])
@@ -307,7 +310,9 @@ def read_markers_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     except (TypeError, ValueError) as exc:
         raise StarforgeError(f"markers file {path} has a non-numeric value: {exc}") from None
     if not np.all(np.isfinite(pts)):
-        raise StarforgeError(f"markers file {path} has non-finite coordinates")
+        raise StarforgeError(
+            f"markers file {path} has non-finite coordinates (nan or inf); fix x_m,y_m,z_m (metres) of every marker"
+        )
     return pts, nrm
 
 

@@ -104,7 +104,9 @@ def load_mesh_file(path: str | Path, units: str = "m", what: str = "prop mesh"):
     vertices = np.asarray(loaded.vertices, dtype=float) * scale
     faces = np.asarray(loaded.faces, dtype=np.int64)
     if not np.all(np.isfinite(vertices)):
-        raise StarforgeError(f"{what} {path} has non-finite vertex coordinates")
+        raise StarforgeError(
+            f"{what} {path} has non-finite vertex coordinates (nan or inf); fix the mesh in its editor and export it again"
+        )
     size = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 0.0
     if size > MAX_SIZE_M:  # beyond this, float arithmetic in the repair overflows
         raise StarforgeError(

@@ -195,6 +195,10 @@ class Constraints:
         return not (self.boxes or self.spheres or self.mesh or self.mask)
 
 
+#: what a face mask file holds, said with every refusal of one
+_MASK_FORM = "give --mask a UTF-8 text file of one 0 or 1 per face of the prop (1: no marker), or a .npy array"
+
+
 def read_face_mask(path: str | Path, n_faces: int) -> np.ndarray:
     """(n_faces,) bool from a mask file; StarforgeError when missing, corrupt or of the wrong length."""
     path = check_input_file(Path(path), "face mask", "mask")
@@ -205,9 +209,11 @@ def read_face_mask(path: str | Path, n_faces: int) -> np.ndarray:
             text = path.read_text(encoding="utf-8").replace(",", " ")
             values = np.array([float(v) for v in text.split()])
     except (ValueError, OSError, UnicodeDecodeError) as exc:
-        raise StarforgeError(f"face mask {path} is not readable: {exc}") from None
+        raise StarforgeError(f"face mask {path} is not readable ({exc}); {_MASK_FORM}") from None
     if len(values) != n_faces:
-        raise StarforgeError(f"face mask {path} has {len(values)} values, the prop has {n_faces} faces")
+        raise StarforgeError(f"face mask {path} has {len(values):,} values, the prop has {n_faces:,} faces; {_MASK_FORM}")
+    if not np.all(np.isfinite(values)):
+        raise StarforgeError(f"face mask {path} has a value that is not a finite number; {_MASK_FORM}")
     return np.asarray(values != 0, dtype=bool)
 
 

@@ -177,7 +177,7 @@ def with_overrides(
     }
     if "mesh_format" in kw:
         require(
-            kw["mesh_format"] in ("glb", "stl"), f"mesh format must be glb or stl, got {kw['mesh_format']!r}"
+            kw["mesh_format"] in ("glb", "stl"), f"mesh_format must be glb or stl, got {kw['mesh_format']!r}"
         )
     return replace(spec, **kw) if kw else spec
 

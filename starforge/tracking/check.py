@@ -100,7 +100,10 @@ class CheckSettings:
             require(self.choose in CHOOSE, f"choose must be one of {', '.join(CHOOSE)}, got {self.choose!r}")
         require(self.world in ("open", "closed"), f"world must be open or closed, got {self.world!r}")
         require(0 < self.presence <= 1, f"presence must be in (0, 1], got {self.presence}")
-        require(self.curve_points <= 50, f"curve must be at most 50 noise levels, got {self.curve_points}")
+        require(
+            0 <= self.curve_points <= 50,
+            f"curve must be in [0, 50] noise levels (0: no curve), got {self.curve_points}",
+        )
         non_negative("noise", self.noise_mm)
         require(
             self.noise_mm <= MAX_NOISE_MM,
@@ -109,7 +112,6 @@ class CheckSettings:
         require(self.drop >= 0, f"drop must be >= 0, got {self.drop}")
         require(self.ghosts >= 0, f"ghosts must be >= 0, got {self.ghosts}")
         require(self.frames >= 1, f"frames must be >= 1, got {self.frames}")
-        require(self.curve_points >= 0, f"curve_points must be >= 0, got {self.curve_points}")
         if self.ambiguity is not None:
             require(
                 1.0 <= self.ambiguity <= 100.0,

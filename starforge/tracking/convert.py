@@ -103,7 +103,8 @@ def expand_inputs(paths) -> list[Path]:
             found = [f for f in files if f.stat().st_size > 0 and sniff_format(f) is not None]
             if not found:
                 raise StarforgeError(
-                    f"{p} holds no tracker file ({', '.join(FORMATS)}), family.json or placement.json"
+                    f"{p} holds no tracker file ({', '.join(FORMATS)}), family.json or placement.json; "
+                    "give a family.json, a placement.json or a tracker file (or a folder that holds one)"
                 )
             out.extend(found)
     if not out:

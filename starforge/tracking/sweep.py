@@ -398,10 +398,9 @@ def sweep(
     for name, values in (("delta", deltas), ("cube", cubes)):
         require(max(values) <= MAX_SIDE_MM, f"{name} must be at most {MAX_SIDE_MM:g} mm, got {max(values):g}")
     if exhaustive_labelled is not None:
-        require(exhaustive_labelled >= 0, f"exhaustive_labelled must be >= 0, got {exhaustive_labelled}")
         require(
-            exhaustive_labelled <= MAX_EXHAUSTIVE,
-            f"exhaustive_labelled must be <= {MAX_EXHAUSTIVE:,}, got {exhaustive_labelled:,}",
+            0 <= exhaustive_labelled <= MAX_EXHAUSTIVE,
+            f"exhaustive must be from 0 to {MAX_EXHAUSTIVE:,} labelled candidates (or auto), got {exhaustive_labelled:,}",
         )
     require(100 <= samples <= 10_000_000, f"samples must be in [100, 10000000], got {samples}")
     for r in rules:
