@@ -45,7 +45,7 @@ def test_art_published_numbers():
 
 
 def test_unknown_preset_lists_known():
-    with pytest.raises(StarforgeError, match="known: art, atracsys, ndi, optitrack, qualisys, vicon"):
+    with pytest.raises(StarforgeError, match=r"known \(starforge templates presets\): art, atracsys, ndi, optitrack, qualisys, vicon"):
         load_preset("vicon-magic")
 
 
