@@ -1,6 +1,7 @@
 """The README and the docs site say what the code does: the generated command pages cover every
 command and option of the CLI, the file-format page names every key a written family.json and
-placement.json hold, the README stays short and its links resolve."""
+placement.json hold, the README stays short and its links resolve, and no command a reader types
+sits in a block that CI does not run."""
 
 from __future__ import annotations
 
@@ -126,3 +127,31 @@ def test_results_page_sections_are_balanced():
     begins = re.findall(r"<!-- begin (\S+) -->", text)
     ends = re.findall(r"<!-- end (\S+) -->", text)
     assert begins and begins == ends and len(set(begins)) == len(begins)
+
+
+#: a line of a fenced block that is a command a reader types
+COMMAND_LINE = re.compile(r"^\s*(starforge(\s|$)|\$ )")
+
+
+def test_no_command_hides_in_an_unlabelled_block():
+    """Every fenced block of the README and the docs pages that holds a command (a line starting
+    ``starforge`` or ``$ ``) is labelled (```bash: CI runs it; ```text: output or a usage synopsis),
+    so no command escapes tests/test_docs_commands.py by a missing label."""
+    rc = _load(ROOT / ".ci" / "readme_commands.py", "readme_commands_for_docs")
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    hidden = [f"{page.relative_to(ROOT)}: {line.strip()}"
+              for page in pages
+              for language, body in rc.fenced_blocks(page.read_text(encoding="utf-8").splitlines())
+              if not language
+              for line in body if COMMAND_LINE.match(line)]
+    assert len(pages) > 10
+    assert not hidden, "commands in a fenced block with no language (label it ```bash):\n" + "\n".join(hidden)
+
+
+def test_the_unlabelled_block_check_sees_commands():
+    """The check above finds a command in an unlabelled block and leaves labelled ones alone."""
+    rc = _load(ROOT / ".ci" / "readme_commands.py", "readme_commands_for_docs")
+    page = "```\nstarforge place\n```\n```text\nstarforge stars [--count N]\n```\n```\n$ ls\nC = 1\n```\n"
+    found = [line for language, body in rc.fenced_blocks(page.splitlines()) if not language
+             for line in body if COMMAND_LINE.match(line)]
+    assert found == ["starforge place", "$ ls"]
