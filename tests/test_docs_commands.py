@@ -39,7 +39,7 @@ _spec.loader.exec_module(readme_commands)
 
 #: the README's set-up commands (pip install ...), which CI runs first in a fresh venv
 INSTALLS = readme_commands.readme_commands((ROOT / "README.md").read_text(encoding="utf-8"), "setup")
-#: the contributor's page: its commands run in the clone and are CI's own steps
+#: the contributor's page: .ci/run runs its commands in the clone (this test among them)
 DEVELOPMENT = DOCS / "development.md"
 #: what a file argument ends with
 FILE_SUFFIXES = (".stl", ".obj", ".ply", ".glb", ".off", ".rom", ".xml", ".vsk", ".ini", ".motive", ".csv",
