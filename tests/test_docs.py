@@ -1,12 +1,14 @@
 """The README and the docs site say what the code does: the generated command pages cover every
 command and option of the CLI, the file-format page names every key a written family.json and
-placement.json hold, the README stays short and its links resolve."""
+placement.json hold, the README stays short and its links resolve, and no command a reader types
+sits in a block that CI does not run."""
 
 from __future__ import annotations
 
 import importlib.util
 import re
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -126,3 +128,47 @@ def test_results_page_sections_are_balanced():
     begins = re.findall(r"<!-- begin (\S+) -->", text)
     ends = re.findall(r"<!-- end (\S+) -->", text)
     assert begins and begins == ends and len(set(begins)) == len(begins)
+
+
+#: a line of a fenced block that is a command a reader types
+COMMAND_LINE = re.compile(r"^\s*(starforge(\s|$)|\$ )")
+
+
+def _unlabelled_commands(text: str) -> list[str]:
+    """The command lines of the fenced blocks of ``text`` that have no language."""
+    rc = _load(ROOT / ".ci" / "readme_commands.py", "readme_commands_for_docs")
+    return [line.strip() for language, body in rc.fenced_blocks(text.splitlines()) if not language
+            for line in body if COMMAND_LINE.match(line)]
+
+
+def test_no_command_hides_in_an_unlabelled_block():
+    """Every fenced block of the README and the docs pages that holds a command (a line starting
+    ``starforge`` or ``$ ``) is labelled (```bash: CI runs it; ```text: output or a usage synopsis),
+    so no command escapes tests/test_docs_commands.py by a missing label."""
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    hidden = [f"{page.relative_to(ROOT)}: {line}"
+              for page in pages for line in _unlabelled_commands(page.read_text(encoding="utf-8"))]
+    assert len(pages) > 10
+    assert not hidden, "commands in a fenced block with no language (label it ```bash):\n" + "\n".join(hidden)
+
+
+def test_the_unlabelled_block_check_sees_commands():
+    """The check above finds a command in an unlabelled block and leaves labelled ones alone."""
+    page = "```\nstarforge place\n```\n```text\nstarforge stars [--count N]\n```\n```\n$ ls\nC = 1\n```\n"
+    assert _unlabelled_commands(page) == ["starforge place", "$ ls"]
+
+
+def test_ci_runs_the_development_pages_commands():
+    """.ci/run runs the commands of docs/development.md as written: they install the dev extra
+    (the test extra and ruff), lint with ruff, check the layer contracts, build the site
+    strictly and run the slow tests; none of them is .ci/run itself."""
+    rc = _load(ROOT / ".ci" / "readme_commands.py", "readme_commands_for_docs")
+    page = (ROOT / "docs" / "development.md").read_text(encoding="utf-8")
+    commands = [c for block in rc.page_commands(page) for c in block]
+    for needed in ('pip install -e ".[dev]"', "ruff check", "lint-imports", "mkdocs build --strict",
+                   "pytest -m slow"):
+        assert any(needed in c for c in commands), needed
+    assert not any(".ci/run" in c for c in commands)
+    assert "readme_commands.py docs docs/development.md" in (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]["optional-dependencies"]
+    assert set(extras["test"]) <= set(extras["dev"]) and any(d.startswith("ruff") for d in extras["dev"])

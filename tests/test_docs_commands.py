@@ -39,7 +39,7 @@ _spec.loader.exec_module(readme_commands)
 
 #: the README's set-up commands (pip install ...), which CI runs first in a fresh venv
 INSTALLS = readme_commands.readme_commands((ROOT / "README.md").read_text(encoding="utf-8"), "setup")
-#: the contributor's page: its commands run in the clone and are CI's own steps
+#: the contributor's page: .ci/run runs its commands in the clone (this test among them)
 DEVELOPMENT = DOCS / "development.md"
 #: what a file argument ends with
 FILE_SUFFIXES = (".stl", ".obj", ".ply", ".glb", ".off", ".rom", ".xml", ".vsk", ".ini", ".motive", ".csv",
@@ -117,16 +117,18 @@ def _starforge(args: str, folder: Path) -> None:
 
 
 def _lab(folder: Path) -> None:
-    """A lab's tracker files: three NDI tools (lab/probe.rom, frame.rom, pointer.rom), QTM files in
-    lab/tools/, and a five-marker wand (lab/wand.xml), written by starforge's own writers."""
+    """A lab's tracker files: three NDI tools (lab/probe.rom, frame.rom, pointer.rom), two more as
+    QTM files in lab/tools/, the last of them also as a Vicon object (lab/tools.vsk), and a
+    five-marker wand (lab/wand.xml), written by starforge's own writers."""
     _starforge("stars --box 60 40 90 --marker 9.5 --delta 6 --count 5 --name labfamily --out made -q", folder)
-    _starforge("export made/family.json --format rom,qtm --noise 0.25 --out made/files -q", folder)
+    _starforge("export made/family.json --format rom,qtm,vsk --noise 0.25 --out made/files -q", folder)
     (folder / "lab" / "tools").mkdir(parents=True)
     roms = sorted((folder / "made" / "files" / "rom").glob("*.rom"))
     for src, name in zip(roms, ("probe", "frame", "pointer"), strict=False):
         src.rename(folder / "lab" / f"{name}.rom")
     for src in sorted((folder / "made" / "files" / "qtm").glob("*.xml"))[3:]:
         src.rename(folder / "lab" / "tools" / src.name)
+    sorted((folder / "made" / "files" / "vsk").glob("*.vsk"))[-1].rename(folder / "lab" / "tools.vsk")
     (folder / "made" / "wand.csv").write_text(plain_csv([("wand", _wand_mm())]), encoding="utf-8")
     _starforge("convert made/wand.csv --format qtm --out made/wand -q", folder)
     (folder / "made" / "wand" / "wand.xml").rename(folder / "lab" / "wand.xml")
@@ -146,9 +148,34 @@ def _finger(folder: Path) -> None:
     _starforge("stars -q", folder)
 
 
+def _finger25(folder: Path) -> None:
+    """out/finger25/: the family the README's tour makes (its first command, without pictures)."""
+    _starforge("stars --count 25 --name finger25 --mount flat -q", folder)
+
+
+def _hammer(folder: Path) -> None:
+    """out/hammer/: a placement on the built-in hammer."""
+    _starforge("place --out out/hammer -q", folder)
+
+
+def _expert(folder: Path) -> None:
+    """A hand-made layout on the built-in umbrella (expert.csv, metres, prop frame): six markers
+    on its canopy, a sphere of radius 0.6 m about (0, 0, 0.3) m, at uneven polar and azimuth
+    angles so that no two markers mirror each other, with the canopy's outward normals."""
+    polar = np.radians([12.0, 24.0, 33.0, 41.0, 47.0, 52.0])
+    azimuth = np.radians([0.0, 95.0, 160.0, 230.0, 290.0, 335.0])
+    n = np.column_stack([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
+    p = np.array([0.0, 0.0, 0.30]) + 0.60 * n
+    rows = ["id,x_m,y_m,z_m,nx,ny,nz"] + [
+        ",".join([str(i + 1), *(f"{v:.6f}" for v in (*pi, *ni))]) for i, (pi, ni) in enumerate(zip(p, n, strict=True))]
+    (folder / "expert.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+
+
 #: a file a page assumes -> its maker (a path under lab/ is made with the whole lab)
 MAKERS = {"quad.stl": _quad, "scan.obj": _mallet, "grip.stl": _grip_area, "drill.stl": _drill,
-          "lab": _lab, "session.c3d": _session, "out/finger/family.json": _finger}
+          "lab": _lab, "session.c3d": _session, "out/finger/family.json": _finger,
+          "out/finger25/family.json": _finger25, "out/hammer/placement.json": _hammer,
+          "expert.csv": _expert}
 
 
 # --- running a page --------------------------------------------------------------------------------
