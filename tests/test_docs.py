@@ -172,3 +172,23 @@ def test_ci_runs_the_development_pages_commands():
     assert "readme_commands.py docs docs/development.md" in (ROOT / ".ci" / "run").read_text(encoding="utf-8")
     extras = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]["optional-dependencies"]
     assert set(extras["test"]) <= set(extras["dev"]) and any(d.startswith("ruff") for d in extras["dev"])
+
+
+#: README commands no CI step runs as such: the docs server, which the slow test
+#: ``test_the_readmes_docs_server_serves`` starts and fetches from
+SERVED = ("mkdocs serve",)
+
+
+def test_every_readme_command_is_one_ci_runs():
+    """Every command of the README's ```bash blocks is one CI runs: a set-up or tour command, a
+    command of docs/development.md, a part of one of those joined by ``&&``, or the docs server."""
+    rc = _load(ROOT / ".ci" / "readme_commands.py", "readme_commands_for_readme")
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    development = (ROOT / "docs" / "development.md").read_text(encoding="utf-8")
+    run = [*rc.readme_commands(readme, "setup"), *rc.readme_commands(readme, "tour"),
+           *(c for block in rc.page_commands(development) for c in block)]
+    parts = {part.strip() for c in run for part in c.split("&&")}
+    commands = [c for block in rc.page_commands(readme) for c in block]
+    assert len(commands) > len(rc.readme_commands(readme, "tour"))
+    not_run = [c for c in commands if c not in run and c not in parts and c not in SERVED]
+    assert not not_run, f"README commands CI does not run: {not_run}"

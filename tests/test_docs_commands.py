@@ -333,3 +333,34 @@ def test_the_install_commands_the_pages_leave_out_are_the_readmes():
             for command in block:
                 assert "pip install" not in command or command in INSTALLS, (page.name, command)
 
+
+
+@pytest.mark.slow
+def test_the_readmes_docs_server_serves(tmp_path):
+    """The README's ``mkdocs serve`` (after ``pip install -e ".[docs]"``, which CI's development
+    step has run) builds the site and answers its home page."""
+    import urllib.request
+
+    pytest.importorskip("mkdocs", reason="the docs extra is not installed")
+    port = _free_port()
+    with open(tmp_path / "serve.log", "wb") as log:
+        proc = subprocess.Popen(["mkdocs", "serve", "--dev-addr", f"127.0.0.1:{port}"], cwd=ROOT, stdout=log,
+                                stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        t0, page = time.monotonic(), b""
+        while time.monotonic() - t0 < COMMAND_TIMEOUT_S and proc.poll() is None and not page:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=5) as res:
+                    page = res.read() if res.status == 200 else b""
+            except OSError:
+                time.sleep(0.5)
+        said = (tmp_path / "serve.log").read_text(errors="replace")[-2000:]
+        assert b"starforge" in page.lower(), f"mkdocs serve gave no home page (exit {proc.poll()}): {said}"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
