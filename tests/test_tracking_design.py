@@ -84,3 +84,20 @@ def test_a_family_made_for_a_preset_is_safe_under_it(preset, tmp_path):
         assert r["identification_rate"] >= 0.999
     assert set(chk["safe_under"]) == set(ident.HEADLINE_RULES)
     assert np.isclose(chk["settings"]["match_mm"], t["bone_length_tolerance_mm"])
+
+
+def test_a_family_closer_than_the_tracker_needs_is_warned_of():
+    """A face-rule spec whose faces are closer than the design margin at its noise gets a warning
+    naming the margin and the options that design for a tracker; a designed one and the paper's
+    pair rule get none."""
+    from starforge.api import plan_family
+    from starforge.api.stars import tolerance_warning
+
+    close = plan_family(box_mm=(18, 14, 28)).spec
+    text = tolerance_warning(close)
+    assert close.tol_mm < design_margin_mm(0.2)
+    assert f"{design_margin_mm(0.2):.2f} mm" in text and "--noise" in text and "--preset" in text
+    assert tolerance_warning(plan_family(box_mm=(18, 14, 28), noise_mm=0.2).spec) is None
+    assert tolerance_warning(plan_family("finger").spec) is None
+    assert tolerance_warning(plan_family("paper").spec) is None
+    assert tolerance_warning(plan_family(box_mm=(18, 14, 28), tolerance_mm=design_margin_mm(0.2)).spec) is None

@@ -22,6 +22,7 @@ from starforge.markers import marker_diameter_mm
 from starforge.runtime import progress as runtime_progress
 from starforge.stars.model import Family, family_csv
 from starforge.stars.spec import MAX_NOISE_MM, StarSpec, spec_from_mapping
+from starforge.tol import tol
 from starforge.tracking.presets import design_tolerance_mm, star_spec_overrides
 from starforge.words import counted
 
@@ -180,8 +181,9 @@ def make_family(
     on_stage : callable, optional
         ``on_stage(name)`` as each stage starts (``"select"``).
     warn : callable, optional
-        ``warn(text)`` for each warning about the ``avoid`` files (bodies left out), as soon as
-        they are read, before the enumeration.
+        ``warn(text)`` for each warning, before the enumeration: a face-rule tolerance under what
+        the default tracker needs at the spec's noise (:func:`tolerance_warning`), and the
+        ``avoid`` files' (bodies left out) as soon as they are read.
 
     Raises
     ------
@@ -205,6 +207,8 @@ def make_family(
     s = plan.spec
     check_memory(s, allow_stream=True)
     check_size(s, allow_stream=True)
+    if warn is not None and (text := tolerance_warning(s)):
+        warn(text)
     avoid_faces = avoid_sources = None
     if avoid:
         from starforge.tracking.avoid import faces_to_avoid
@@ -226,6 +230,23 @@ def make_family(
     if problems:  # the generator and the independent checker disagree: a bug, never a user error
         raise RuntimeError(f"internal error: the family failed its independent check: {problems[0]}")
     return family
+
+
+def tolerance_warning(s: StarSpec) -> str | None:
+    """What to say when a face-rule family keeps its faces closer than the default tracker's
+    design margin at the spec's noise (twice its window), or None.  Such a family is the paper's
+    (faces one pool step apart): more stars, and frames where a tracker may take one star, or
+    one face relabelled, for another."""
+    if s.rule != "face":
+        return None
+    needed = design_tolerance_mm(None, s.noise_mm)
+    if s.tol_mm >= needed - tol.compare_mm:  # a designed tolerance is stored to 1e-6 mm
+        return None
+    return (
+        f"faces are {s.tol_mm:.2f} mm apart, under the {needed:.2f} mm the default tracker needs at "
+        f"{s.noise_mm:g} mm noise to tell every star and face apart; give --noise (your tracker's) or --preset to design "
+        f"for it, or --tolerance {needed:.2f}"
+    )
 
 
 def write_family(
