@@ -56,6 +56,7 @@ from starforge.api.stars import (
     make_family,
     plan_family,
     run_stars,
+    tolerance_warning,
     write_family,
 )
 from starforge.api.sweep import SweepPlan, SweepRun, describe_sweep, plan_sweep, run_sweep
@@ -73,6 +74,7 @@ __all__ = [
     "write_family",
     "run_stars",
     "describe_family",
+    "tolerance_warning",
     "export_bodies",
     "load_printable",
     "write_tracker_files",

@@ -181,9 +181,8 @@ def make_family(
     on_stage : callable, optional
         ``on_stage(name)`` as each stage starts (``"select"``).
     warn : callable, optional
-        ``warn(text)`` for each warning, before the enumeration: a face-rule tolerance under what
-        the default tracker needs at the spec's noise (:func:`tolerance_warning`), and the
-        ``avoid`` files' (bodies left out) as soon as they are read.
+        ``warn(text)`` for each warning about the ``avoid`` files (bodies left out), as soon as
+        they are read, before the enumeration.
 
     Raises
     ------
@@ -207,8 +206,6 @@ def make_family(
     s = plan.spec
     check_memory(s, allow_stream=True)
     check_size(s, allow_stream=True)
-    if warn is not None and (text := tolerance_warning(s)):
-        warn(text)
     avoid_faces = avoid_sources = None
     if avoid:
         from starforge.tracking.avoid import faces_to_avoid

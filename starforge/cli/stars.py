@@ -180,7 +180,7 @@ def _warn(text: str) -> None:
 
 
 def _report(family, out_dir: Path, seconds: float, quiet: bool) -> None:
-    from starforge.api import describe_family
+    from starforge.api import describe_family, tolerance_warning
 
     if quiet:
         return
@@ -188,6 +188,8 @@ def _report(family, out_dir: Path, seconds: float, quiet: bool) -> None:
     _star_table(family, c)
     c.print(describe_family(family, seconds))
     c.print(f"wrote {out_dir / 'family.json'}, family.csv and run.json (timings)")
+    if text := tolerance_warning(family.spec):  # said once the family is written: a refusal stays one line
+        _warn(text)
 
 
 def _star_table(family, c) -> None:
