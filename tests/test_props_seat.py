@@ -8,7 +8,15 @@ import numpy as np
 import pytest
 
 from starforge.errors import StarforgeError
-from starforge.props.seat import Seat, SeatRules, disc_offsets, seat_for, seat_report, sharp_edge_points
+from starforge.props.seat import (
+    Seat,
+    SeatRules,
+    disc_offsets,
+    seat_for,
+    seat_report,
+    sharp_edge_points,
+    tilt_distance,
+)
 
 
 def _box(ext=(0.1, 0.06, 0.04)):
@@ -80,6 +88,23 @@ def test_seat_report_on_a_box_against_brute_force():
         exact = ((X[inside] * 0.0035) <= di).mean()
         assert abs(c - exact) < 0.08
     assert np.allclose(rep.clearance_m, 0.0052)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_tilt_distance_on_a_box_against_the_exact_distance_to_its_sides(seed):
+    """Sites on a box's top face: the nearest surface tilted past 30 degrees is a side face, whose
+    nearest point is on the top's rim (the bottom, turned away and below, does not count), so
+    the distance is the site's distance to the rim, capped at the reach; every site is looked up,
+    those far inside get the reach."""
+    box = _box()
+    rng = np.random.default_rng(seed)
+    reach = 0.012
+    pts = np.column_stack([rng.uniform(-0.05, 0.05, 400), rng.uniform(-0.03, 0.03, 400), np.full(400, 0.02)])
+    nrm = np.tile([0.0, 0.0, 1.0], (400, 1))
+    got = tilt_distance(box, pts, nrm, 30.0, reach)
+    rim = np.min(np.column_stack([0.05 - np.abs(pts[:, 0]), 0.03 - np.abs(pts[:, 1])]), axis=1)
+    assert np.allclose(got, np.minimum(rim, reach), atol=1e-12)
+    assert (got == reach).any() and (got < reach).any()
 
 
 def test_seat_rejects_a_tight_curve_and_accepts_a_gentle_one():

@@ -521,6 +521,30 @@ def test_the_polish_is_skipped_only_when_the_leader_tracks_everything_and_costs_
         assert opt.sites == alone.sites
 
 
+def test_the_screen_is_the_same_on_one_thread_and_on_every_thread(monkeypatch):
+    """Small screens run on the calling thread (runtime.threads.threads_for_work), large ones on
+    every core: each candidate's fraction is its own, so both give the same numbers, and the
+    thread count is restored after the block."""
+    import numba
+
+    from starforge.runtime import threads
+
+    prob = _problem(seed=3, sites=80, poses=200)
+    sites, cands = [0, 5, 9, 17], np.arange(20, 80)
+    before = numba.get_num_threads()
+    with threads.threads_for_work(1) as n:
+        assert n == 1 and numba.get_num_threads() == 1
+    assert numba.get_num_threads() == before
+    one = prob.tracked_additions(sites, cands)
+    monkeypatch.setattr(threads, "PARALLEL_MIN_WORK", 0)
+    with threads.threads_for_work(1) as n:
+        assert n == threads.kernel_threads()
+    every = prob.tracked_additions(sites, cands)
+    assert np.array_equal(one, every)
+    for c, frac in zip(cands.tolist(), one, strict=True):
+        assert round(frac * prob.poses) == round((1.0 - prob.untracked([*sites, c])) * prob.poses)
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_tracked_additions_match_a_recount_of_every_layout(seed):
     """The compiled screen (which skips the poses a point cannot untrack) against the exact

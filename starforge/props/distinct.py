@@ -47,7 +47,7 @@ def own_triangles(points: np.ndarray, tol: float) -> tuple[int, float]:
     conflicts = int((gaps < tol).sum())
     margin = float(gaps.min())
     if len(F) > 1:
-        iu = np.triu_indices(len(F), 1)
+        iu = _upper(len(F))
         d = np.abs(F[iu[0]] - F[iu[1]]).max(axis=1)
         conflicts += int((d < tol).sum())
         margin = min(margin, float(d.min()))
@@ -77,6 +77,15 @@ def clashes(points: np.ndarray, tree, tol: float) -> int:
 
 
 @functools.lru_cache(maxsize=64)
+def _upper(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.triu_indices(n, 1)``, read-only (asked for once per layout the optimizers score)."""
+    iu = np.triu_indices(n, 1)
+    for a in iu:
+        a.setflags(write=False)
+    return iu
+
+
+@functools.lru_cache(maxsize=64)
 def _pairs(n: int) -> np.ndarray:
     """(C(n, 2), 2) every marker pair of n markers (read-only)."""
     ij = np.array(list(itertools.combinations(range(n), 2)), dtype=np.intp).reshape(-1, 2)
@@ -100,7 +109,7 @@ def added_conflicts(
     ij = _pairs(len(P))
     base = np.linalg.norm(P[ij[:, 0]] - P[ij[:, 1]], axis=1)
     old = body_triangles(P)
-    iu = np.triu_indices(len(ij), 1)
+    iu = _upper(len(ij))
     for a in range(0, len(C), chunk):
         Q = C[a : a + chunk]
         b = np.linalg.norm(Q[:, None] - P[None, ij[:, 0]], axis=2)

@@ -287,12 +287,13 @@ def tilt_distance(mesh, points: np.ndarray, normals: np.ndarray, tilt_deg: float
     sample, face = trimesh.sample.sample_surface(mesh, n, seed=np.random.default_rng(0))
     sample = np.asarray(sample, float)
     fn = np.asarray(mesh.face_normals)[face]
-    near = cKDTree(pts).query_ball_point(sample, reach_m + step, return_sorted=False)  # sites per sample
-    cnt = np.fromiter((len(x) for x in near), np.int64, len(near))
+    # samples per site: one look-up per site, not one per sample (the same pairs; sorted below)
+    near = cKDTree(sample).query_ball_point(pts, reach_m + step, return_sorted=False)
+    cnt = np.fromiter(map(len, near), np.int64, len(near))
     if not cnt.sum():
         return out
-    site = np.concatenate([np.asarray(x, np.int64) for x in near if x])
-    smp = np.repeat(np.arange(len(sample)), cnt)
+    smp = np.concatenate([np.asarray(x, np.int64) for x in near if x])
+    site = np.repeat(np.arange(len(pts)), cnt)
     c = np.einsum("ij,ij->i", fn[smp], nrm[site])
     below = np.einsum("ij,ij->i", sample[smp] - pts[site], nrm[site]) < 0
     keep = (c < math.cos(math.radians(tilt_deg))) & ~((c < 0) & below)

@@ -51,6 +51,7 @@ from starforge.geometry.sym3 import (
 from starforge.props.distinct import added_conflicts, clashes, face_tree, own_triangles
 from starforge.props.symmetry import near_symmetry_margin
 from starforge.runtime.kernels import compiled_here, numba
+from starforge.runtime.threads import threads_for_work
 from starforge.spec import in_range, non_negative, positive
 
 TRIANGLE_SPREAD = math.sqrt(2.0) / 3.0  # RMS distance from the base line of a triangle of height 1
@@ -320,7 +321,10 @@ class Problem:
         s10 = base_seen.T @ self.points[idx] if len(idx) else np.zeros((self.poses, 3))
         s20 = base_seen.T @ self.moments[idx] if len(idx) else np.zeros((self.poses, 6))
         cand = np.asarray(candidates, dtype=np.int64)
-        return _screen_tracked(cnt0, s10, s20, self.pose_seen[cand], self.points[cand], self.moments[cand], self.min_spread2)
+        with threads_for_work(len(cand) * self.poses):
+            return _screen_tracked(
+                cnt0, s10, s20, self.pose_seen[cand], self.points[cand], self.moments[cand], self.min_spread2
+            )
 
     def _added(self, idx: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For each candidate c: the close pairs c makes with ``idx``, and the triangle conflicts

@@ -22,6 +22,7 @@ from numba.extending import intrinsic
 
 from starforge.errors import StarforgeError
 from starforge.runtime.kernels import numba
+from starforge.runtime.threads import threads_for_work
 from starforge.spec import in_range
 
 # rays start this far (fraction of the prop's bounding-box diagonal, clipped) above the surface
@@ -339,10 +340,11 @@ def compute_table(
     grip = np.zeros(len(R), np.int64) if pose_grip is None else np.ascontiguousarray(pose_grip, dtype=np.int64)
     if len(grip) != len(R) or (len(grip) and (grip.min() < 0 or grip.max() >= len(starts) - 1)):
         raise StarforgeError(f"pose_grip must give each of the {len(R)} poses a grip in [0, {len(starts) - 2}]")
-    masks = _view_masks(
-        centres, nrm, np.ascontiguousarray(q), np.ascontiguousarray(axes), tans, cos_lim, np.ascontiguousarray(caps, dtype=float),
-        starts, grip, 2,
-    )  # fmt: skip
+    with threads_for_work(len(centres) * len(R) * len(cam_pos)):
+        masks = _view_masks(
+            centres, nrm, np.ascontiguousarray(q), np.ascontiguousarray(axes), tans, cos_lim,
+            np.ascontiguousarray(caps, dtype=float), starts, grip, 2,
+        )  # fmt: skip
     rays = 0
     if occlusion and masks.any():
         si, ki = np.nonzero(masks)

@@ -5,7 +5,8 @@ caller's own work.  Tasks across processes and machines are :mod:`starforge.runt
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 
@@ -35,6 +36,30 @@ def kernel_threads(threads: int | None = None) -> int:
     if threads is None:
         return max(1, min(os.cpu_count() or 1, cap))
     return max(1, min(int(threads), cap))
+
+
+#: work items (index triples of a kernel's loops) below which a ``parallel=True`` kernel runs on
+#: the calling thread alone: waking the OpenMP team costs more than it saves there, its threads
+#: spin on the cores the render processes draw on, and a region whose threads wait for a busy
+#: core stalls for a scheduler tick
+PARALLEL_MIN_WORK = 4_000_000
+
+
+@contextmanager
+def threads_for_work(work: int, threads: int | None = None) -> Iterator[int]:
+    """Within the block, ``parallel=True`` kernels called from this thread run on one thread
+    when ``work`` (their loops' item count) is below :data:`PARALLEL_MIN_WORK`, else on
+    :func:`kernel_threads` threads; yields that count.  For kernels whose every index writes its
+    own result, so the result does not depend on it."""
+    import numba
+
+    n = 1 if work < PARALLEL_MIN_WORK else kernel_threads(threads)
+    old = numba.get_num_threads()
+    numba.set_num_threads(n)
+    try:
+        yield n
+    finally:
+        numba.set_num_threads(old)
 
 
 def over_ranges(kernel: Callable[[int, int], Any], n: int, chunk: int, threads: int | None = None) -> None:
