@@ -73,6 +73,8 @@ class Packing:
             # family) + 3 changes; a family holds at most one star per row, plus stars without rows
             np.empty(3 * min(n, self.n_rows + int((np.diff(ptr) == 0).sum())) + 8, dtype=np.int64),
             np.zeros(self.n_rows, dtype=np.bool_),  # mark: a False per row between calls
+            np.zeros(n, dtype=np.int64),  # ver: per star t, bumped whenever a candidate's tight turns t or stops being t
+            np.full(n, -1, dtype=np.int64),  # tried: ver[t] when t last had no swap pair (-1: not since)
         )
         chosen = np.asarray(chosen, dtype=np.int64)
         _search(self.arrays, 0, chosen.reshape(1, -1), _NO_CTR, len(chosen), -1)
@@ -162,15 +164,18 @@ FREE = -2
 
 
 @_inner
-def _neighbours(t, want, ptr, rows, rptr, cands, tight, rank, seen, lst):
+def _neighbours(t, want, most, ptr, rows, rptr, cands, tight, rank, seen, lst):
     """The candidates sharing a row with star t whose ``tight`` is ``want`` (-2: free; t:
-    1-tight with t), each once, most compact first, in ``lst[:m]``; returns m.  ``seen`` (all
-    False) is left so.  The sort by rank (a permutation: no ties, so an unstable sort does) is
+    1-tight with t), each once, most compact first, in ``lst[:m]``; returns m.  The scan of
+    t's rows stops once ``most`` are found (``ntight[t]`` when ``want`` is t: there are no
+    more).  ``seen`` (all False) is left so.  The sort by rank (a permutation: no ties, so an unstable sort does) is
     Shell's sort, gaps ~m/2.2^k ending in 1 (insertion sort for short lists), written here, its
     one caller: no numpy sort in the kernels (each costs seconds of compilation on a first run),
     and as a kernel of its own it was compiled twice (``m`` typed once as the literal 0)."""
     m = 0
     for j in range(ptr[t], ptr[t + 1]):
+        if m >= most:
+            break
         r = rows[j]
         for q in range(rptr[r], rptr[r + 1]):
             c = cands[q]
@@ -202,33 +207,40 @@ _MINUS = np.int64(-1)
 @numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _set(s, sign, P):
     """Star s enters (sign +1) or leaves (-1) the family: its rows' owner and membership, then
-    per candidate sharing rows with s (``buf``: once per shared row) the count, sum and sum of
-    squares of the family stars holding its rows (``tally``), ``tight`` (-2 when no family star
+    per candidate sharing rows with s (once per shared row) the count, sum and sum of squares of
+    the family stars holding its rows (``tally``); then per distinct such candidate (``buf``,
+    in the order first met; ``seen`` marks them meanwhile) ``tight`` (-2 when no family star
     holds a row of c, t when c is outside the family and all its held rows belong to t, else
-    -1; s's own too) and ``ntight`` (per family star, the candidates 1-tight with it).  The
-    candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow; -1: it
+    -1; s's own too), ``ntight`` (per family star, the candidates 1-tight with it) and ``ver``.
+    The candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow; -1: it
     overflowed).  (No kernel calls in here: a call per candidate costs more than the
     arithmetic, and each callee is compiled again into every caller on a first run.)"""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     v = s if sign > 0 else np.int64(-1)
+    in_fam[s] = sign > 0
+    s1s = sign * s
+    s2s = sign * s * s
     k = 0
     for j in range(ptr[s], ptr[s + 1]):
         r = rows[j]
         owner[r] = v
         for q in range(rptr[r], rptr[r + 1]):
-            buf[k] = cands[q]
-            k += 1
-    in_fam[s] = sign > 0
-    ss = s * s
-    for i in range(k):
-        c = buf[i]
-        tally[c, 0] += sign
-        tally[c, 1] += sign * s
-        tally[c, 2] += sign * ss
+            c = cands[q]
+            tally[c, 0] += sign
+            tally[c, 1] += s1s
+            tally[c, 2] += s2s
+            if not seen[c]:
+                seen[c] = True
+                buf[k] = c
+                k += 1
     h = hits[0]
     for i in range(k + 1):
         # s last too: a star without rows is not among its own neighbours
-        c = s if i == k else buf[i]
+        if i == k:
+            c = s
+        else:
+            c = buf[i]
+            seen[c] = False
         n, s1 = tally[c, 0], tally[c, 1]
         if n > 0 and n * tally[c, 2] == s1 * s1 and not in_fam[c]:
             new = s1 // n
@@ -240,8 +252,10 @@ def _set(s, sign, P):
         if new != old:
             if old >= 0:
                 ntight[old] -= 1
+                ver[old] += 1
             if new >= 0:
                 ntight[new] += 1
+                ver[new] += 1
             tight[c] = new
         if new >= 0 and h >= 0 and i < k:
             if h + 1 < len(hits):
@@ -273,8 +287,8 @@ def _fill(t, P, k):
     holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
     insertions happen here, so a candidate free now was free when the fill began.)
     Returns the next free place in ``ops``."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
-    m = _neighbours(t, np.int64(-2), ptr, rows, rptr, cands, tight, rank, seen, lst)
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    m = _neighbours(t, np.int64(-2), np.int64(len(tight)), ptr, rows, rptr, cands, tight, rank, seen, lst)
     for i in range(m):
         c = lst[i]
         if tight[c] == -2:
@@ -304,7 +318,7 @@ def _enqueue(P, k0, k1, hn):
     candidates are the ones found 1-tight since ``hits`` was reset before ``ops[k0]`` (their
     ``tight`` was last set by these changes), looked at again now; when ``hits`` overflowed,
     every candidate sharing rows with the stars of ``ops[k0:k1]``."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     if hits[0] >= 0:
         for i in range(1, hits[0] + 1):
             x = tight[hits[i]]
@@ -332,7 +346,7 @@ def _descend(P, hn, k):
     returns the next free place in ``ops``.  (The heap's pop and the search for a pair are
     written in here, their one caller: as kernels of their own each was compiled, optimised and
     turned into machine code once more on a first run.)"""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     while hn > 0:
         # pop the heap's minimum rank
         r = heap[0]
@@ -351,29 +365,34 @@ def _descend(P, hn, k):
             i = ch
         t = order[r]
         queued[t] = False
-        if not in_fam[t] or ntight[t] < 2:
+        if not in_fam[t] or ntight[t] < 2 or tried[t] == ver[t]:
+            # (tried == ver: the candidates 1-tight with t are those that held no pair last time)
             continue
         # the first pair, in rank order (most compact first), of distinct candidates 1-tight
-        # with t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint
-        m = _neighbours(t, t, ptr, rows, rptr, cands, tight, rank, seen, lst)
+        # with t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint; the rows of
+        # the first of a pair are marked, the second's looked up
+        m = _neighbours(t, t, np.int64(ntight[t]), ptr, rows, rptr, cands, tight, rank, seen, lst)
         a = np.int64(-1)
         b = np.int64(-1)
         for i in range(m - 1):
-            for j in range(i + 1, m):
+            x = lst[i]
+            for j in range(ptr[x], ptr[x + 1]):
+                mark[rows[j]] = True
+            for y in range(i + 1, m):
                 apart = True
-                for x in range(ptr[lst[i]], ptr[lst[i] + 1]):
-                    for y in range(ptr[lst[j]], ptr[lst[j] + 1]):
-                        if rows[x] == rows[y]:
-                            apart = False
-                            break
-                    if not apart:
+                for j in range(ptr[lst[y]], ptr[lst[y] + 1]):
+                    if mark[rows[j]]:
+                        apart = False
                         break
                 if apart:
-                    a, b = lst[i], lst[j]
+                    a, b = x, lst[y]
                     break
+            for j in range(ptr[x], ptr[x + 1]):
+                mark[rows[j]] = False
             if a >= 0:
                 break
         if a < 0:
+            tried[t] = ver[t]
             continue
         k0 = k
         hits[0] = 0
@@ -418,7 +437,7 @@ def _search(P, task, batches, ctr, limit, bound):
     belong to one or two family stars.  Returns when done (``ctr[4] = 1``) or when it needs a
     batch past ``batches`` (``ctr[4] = 0``: call again with the next ones).
     """
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     if task == 0:
         for i in range(limit):
             _set(batches[0, i], _ONE, P)
