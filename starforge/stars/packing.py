@@ -30,27 +30,39 @@ def rank_of(order: np.ndarray) -> np.ndarray:
 class Packing:
     """Incremental set-packing state for the local and iterated local searches, as arrays its compiled kernels share.
 
-    ``owner[r]`` is the family star holding row r (-1 free).  Per candidate c, over its rows held
-    by family stars: ``cnt`` (how many), ``s1`` (sum of owner ids) and ``s2`` (sum of squares).
+    ``owner[r]`` is the family star holding row r (-1 free).  Per candidate c, over its meetings
+    with family stars (a row held, or with ``points`` a pair of keys that share a window):
+    ``cnt`` (how many), ``s1`` (sum of owner ids) and ``s2`` (sum of squares).
     c is free iff ``cnt == 0``; its held rows all belong to ONE star t iff
     ``cnt * s2 == s1**2`` (zero variance), and then ``t = s1 // cnt``.  ``tight[c]`` says which:
     -2 free, t when c is outside the family and 1-tight with t, else -1 (a small array of its
     own, int32: the searches read only it, and it stays in the CPU cache).  Inserting or removing
-    a star only updates the candidates sharing a row with it (row -> candidates index, CSC).
+    a star only updates the candidates sharing a row with it, found through ``points`` (see
+    :func:`starforge.stars.rules.key_points`): each star's keys as codes of grid points
+    (``(n, k)``), the ``table`` from code to point id (-1: no key there) and the code offsets
+    of the points whose keys share a window with a key at offset 0; the point -> candidates
+    index (CSC) lists the candidates with a key there.  A candidate near several keys of a star
+    is met once per key pair, not once per shared window.  Without ``points``, each row is a
+    point of its own (offset 0 only).
     ``arrays`` is the tuple every kernel takes (:func:`_set`, :func:`_fill`, :func:`_descend`,
     :func:`_search`).
     """
 
-    def __init__(self, chosen, ptr, rows, n_rows, rank):
+    def __init__(self, chosen, ptr, rows, n_rows, rank, points=None):
         ptr = np.asarray(ptr, dtype=np.int64)
         rows = np.asarray(rows, dtype=np.int64)
         rank = np.asarray(rank, dtype=np.int64)
         self.rank = rank
         n = len(ptr) - 1
         self.n, self.n_rows = n, int(n_rows)
-        rptr, cands = _csc(ptr, rows, self.n_rows)  # row -> candidates, ascending within a row
-        # the candidates sharing rows with one star: at most (its rows) x (the most on a row)
-        most = int(np.diff(ptr).max()) * int(np.diff(rptr).max()) if n and n_rows else 0
+        if points is None:  # each row a point
+            sptr, spts, table, offs = ptr, rows, np.arange(self.n_rows, dtype=np.int64), np.zeros(1, np.int64)
+        else:
+            codes, table, offs = (np.asarray(a, dtype=np.int64) for a in points)
+            sptr = np.arange(0, codes.size + 1, max(1, codes.shape[1]), dtype=np.int64)
+            spts = codes.ravel()
+        # point -> candidates, ascending within a point
+        rptr, cands = _csc(sptr, table[spts], int(table.max()) + 1 if len(table) else 0)
         order = np.empty(n, dtype=np.int64)
         order[rank] = np.arange(n)
         # cnt, s1, s2 side by side: an update touches all three of a candidate
@@ -61,19 +73,19 @@ class Packing:
         self.in_fam = np.zeros(n, dtype=np.bool_)
         self.owner = np.full(self.n_rows, -1, dtype=np.int64)
         self.arrays = (
-            ptr, rows, rptr, cands, rank, order, self.tally, self.tight, self.ntight, self.in_fam, self.owner,
-            np.empty(max(most, 1), dtype=np.int64),  # buf: touched candidates
-            np.empty(max(most, 1), dtype=np.int64),  # lst: a star's free or 1-tight neighbours
+            ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, self.tally, self.tight, self.ntight, self.in_fam, self.owner,
+            np.empty(n + 1, dtype=np.int64),  # buf: touched candidates
+            np.empty(n + 1, dtype=np.int64),  # lst: a star's free or 1-tight neighbours
             np.zeros(n, dtype=np.bool_),  # seen (all False between calls)
             np.empty(n + 1, dtype=np.int64),  # heap of queued ranks
             np.zeros(n, dtype=np.bool_),  # queued
-            np.zeros(4 * max(most, 1) + 1, dtype=np.int64),  # hits: the 1-tight found since a reset
+            np.zeros(4 * n + 1, dtype=np.int64),  # hits: the 1-tight found since a reset
             # ops: the changes of one ILS step (s + 1: s inserted, -(s + 1): removed).  Each swap
             # and each fill grows the family by one, so a step makes at most 3 x (the largest
             # family) + 3 changes; a family holds at most one star per row, plus stars without rows
             np.empty(3 * min(n, self.n_rows + int((np.diff(ptr) == 0).sum())) + 8, dtype=np.int64),
             np.zeros(self.n_rows, dtype=np.bool_),  # mark: a False per row between calls
-            np.zeros(n, dtype=np.int64),  # ver: per star t, bumped whenever a candidate's tight turns t or stops being t
+            np.zeros(n, dtype=np.int64),  # ver: per star t, bumped as a candidate's tight turns t or leaves t
             np.full(n, -1, dtype=np.int64),  # tried: ver[t] when t last had no swap pair (-1: not since)
         )
         chosen = np.asarray(chosen, dtype=np.int64)
@@ -164,25 +176,28 @@ FREE = -2
 
 
 @_inner
-def _neighbours(t, want, most, ptr, rows, rptr, cands, tight, rank, seen, lst):
+def _neighbours(t, want, most, sptr, spts, table, offs, rptr, cands, tight, rank, seen, lst):
     """The candidates sharing a row with star t whose ``tight`` is ``want`` (-2: free; t:
-    1-tight with t), each once, most compact first, in ``lst[:m]``; returns m.  The scan of
+    1-tight with t; -3: 1-tight with any star), each once, most compact first, in ``lst[:m]``; returns m.  The scan of
     t's rows stops once ``most`` are found (``ntight[t]`` when ``want`` is t: there are no
     more).  ``seen`` (all False) is left so.  The sort by rank (a permutation: no ties, so an unstable sort does) is
     Shell's sort, gaps ~m/2.2^k ending in 1 (insertion sort for short lists), written here, its
     one caller: no numpy sort in the kernels (each costs seconds of compilation on a first run),
     and as a kernel of its own it was compiled twice (``m`` typed once as the literal 0)."""
     m = 0
-    for j in range(ptr[t], ptr[t + 1]):
-        if m >= most:
-            break
-        r = rows[j]
-        for q in range(rptr[r], rptr[r + 1]):
-            c = cands[q]
-            if tight[c] == want and not seen[c]:
-                seen[c] = True
-                lst[m] = c
-                m += 1
+    for j in range(sptr[t], sptr[t + 1]):
+        for o in offs:
+            if m >= most:
+                break
+            g = table[spts[j] + o]
+            if g < 0:
+                continue
+            for q in range(rptr[g], rptr[g + 1]):
+                c = cands[q]
+                if (tight[c] == want or (want == -3 and tight[c] >= 0)) and not seen[c]:
+                    seen[c] = True
+                    lst[m] = c
+                    m += 1
     for i in range(m):
         seen[lst[i]] = False
     gap = m // 2
@@ -215,24 +230,28 @@ def _set(s, sign, P):
     The candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow; -1: it
     overflowed).  (No kernel calls in here: a call per candidate costs more than the
     arithmetic, and each callee is compiled again into every caller on a first run.)"""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     v = s if sign > 0 else np.int64(-1)
     in_fam[s] = sign > 0
     s1s = sign * s
     s2s = sign * s * s
-    k = 0
     for j in range(ptr[s], ptr[s + 1]):
-        r = rows[j]
-        owner[r] = v
-        for q in range(rptr[r], rptr[r + 1]):
-            c = cands[q]
-            tally[c, 0] += sign
-            tally[c, 1] += s1s
-            tally[c, 2] += s2s
-            if not seen[c]:
-                seen[c] = True
-                buf[k] = c
-                k += 1
+        owner[rows[j]] = v
+    k = 0
+    for j in range(sptr[s], sptr[s + 1]):
+        for o in offs:
+            g = table[spts[j] + o]
+            if g < 0:
+                continue
+            for q in range(rptr[g], rptr[g + 1]):
+                c = cands[q]
+                tally[c, 0] += sign
+                tally[c, 1] += s1s
+                tally[c, 2] += s2s
+                if not seen[c]:
+                    seen[c] = True
+                    buf[k] = c
+                    k += 1
     h = hits[0]
     for i in range(k + 1):
         # s last too: a star without rows is not among its own neighbours
@@ -287,8 +306,8 @@ def _fill(t, P, k):
     holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
     insertions happen here, so a candidate free now was free when the fill began.)
     Returns the next free place in ``ops``."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
-    m = _neighbours(t, np.int64(-2), np.int64(len(tight)), ptr, rows, rptr, cands, tight, rank, seen, lst)
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    m = _neighbours(t, np.int64(-2), np.int64(len(tight)), sptr, spts, table, offs, rptr, cands, tight, rank, seen, lst)
     for i in range(m):
         c = lst[i]
         if tight[c] == -2:
@@ -318,7 +337,7 @@ def _enqueue(P, k0, k1, hn):
     candidates are the ones found 1-tight since ``hits`` was reset before ``ops[k0]`` (their
     ``tight`` was last set by these changes), looked at again now; when ``hits`` overflowed,
     every candidate sharing rows with the stars of ``ops[k0:k1]``."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     if hits[0] >= 0:
         for i in range(1, hits[0] + 1):
             x = tight[hits[i]]
@@ -328,13 +347,12 @@ def _enqueue(P, k0, k1, hn):
         return hn
     for i in range(k0, k1):
         s = abs(ops[i]) - 1
-        for j in range(ptr[s], ptr[s + 1]):
-            r = rows[j]
-            for q in range(rptr[r], rptr[r + 1]):
-                x = tight[cands[q]]
-                if x >= 0 and not queued[x]:
-                    queued[x] = True
-                    hn = _push(heap, hn, rank[x])
+        m = _neighbours(s, np.int64(-3), np.int64(len(tight)), sptr, spts, table, offs, rptr, cands, tight, rank, seen, lst)
+        for j in range(m):
+            x = tight[lst[j]]
+            if not queued[x]:
+                queued[x] = True
+                hn = _push(heap, hn, rank[x])
     return hn
 
 
@@ -346,7 +364,7 @@ def _descend(P, hn, k):
     returns the next free place in ``ops``.  (The heap's pop and the search for a pair are
     written in here, their one caller: as kernels of their own each was compiled, optimised and
     turned into machine code once more on a first run.)"""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     while hn > 0:
         # pop the heap's minimum rank
         r = heap[0]
@@ -371,7 +389,7 @@ def _descend(P, hn, k):
         # the first pair, in rank order (most compact first), of distinct candidates 1-tight
         # with t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint; the rows of
         # the first of a pair are marked, the second's looked up
-        m = _neighbours(t, t, np.int64(ntight[t]), ptr, rows, rptr, cands, tight, rank, seen, lst)
+        m = _neighbours(t, t, np.int64(ntight[t]), sptr, spts, table, offs, rptr, cands, tight, rank, seen, lst)
         a = np.int64(-1)
         b = np.int64(-1)
         for i in range(m - 1):
@@ -437,7 +455,7 @@ def _search(P, task, batches, ctr, limit, bound):
     belong to one or two family stars.  Returns when done (``ctr[4] = 1``) or when it needs a
     batch past ``batches`` (``ctr[4] = 0``: call again with the next ones).
     """
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     if task == 0:
         for i in range(limit):
             _set(batches[0, i], _ONE, P)
