@@ -74,7 +74,6 @@ class Packing:
         self.owner = np.full(self.n_rows, -1, dtype=np.int64)
         self.arrays = (
             ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, self.tally, self.tight, self.ntight, self.in_fam, self.owner,
-            np.empty(n + 1, dtype=np.int64),  # buf: touched candidates
             np.empty(n + 1, dtype=np.int64),  # lst: a star's free or 1-tight neighbours
             np.zeros(n, dtype=np.bool_),  # seen (all False between calls)
             np.empty(n + 1, dtype=np.int64),  # heap of queued ranks
@@ -222,66 +221,68 @@ _MINUS = np.int64(-1)
 @numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _set(s, sign, P):
     """Star s enters (sign +1) or leaves (-1) the family: its rows' owner and membership, then
-    per candidate sharing rows with s (once per shared row) the count, sum and sum of squares of
-    the family stars holding its rows (``tally``); then per distinct such candidate (``buf``,
-    in the order first met; ``seen`` marks them meanwhile) ``tight`` (-2 when no family star
-    holds a row of c, t when c is outside the family and all its held rows belong to t, else
-    -1; s's own too), ``ntight`` (per family star, the candidates 1-tight with it) and ``ver``.
-    The candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow; -1: it
-    overflowed).  (No kernel calls in here: a call per candidate costs more than the
-    arithmetic, and each callee is compiled again into every caller on a first run.)"""
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    per meeting of a candidate c with s (see :class:`Packing`) c's count, sum and sum of
+    squares (``tally``), and from them ``tight`` (-2 when no family star holds a row of c, t
+    when c is outside the family and all its held rows belong to t, else -1), ``ntight`` (per
+    family star, the candidates 1-tight with it) and ``ver``; then s's own ``tight`` (a star
+    without rows meets nothing).  A candidate met more than once passes through states that
+    its last meeting corrects: ``ntight`` ends the same, and ``ver`` only counts up.  The
+    candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow; -1: it
+    overflowed; a candidate may be there more than once).  (No kernel calls in here: a call
+    per candidate costs more than the arithmetic, and each callee is compiled again into every
+    caller on a first run.)"""
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     v = s if sign > 0 else np.int64(-1)
     in_fam[s] = sign > 0
     s1s = sign * s
     s2s = sign * s * s
     for j in range(ptr[s], ptr[s + 1]):
         owner[rows[j]] = v
-    k = 0
-    for j in range(sptr[s], sptr[s + 1]):
-        for o in offs:
-            g = table[spts[j] + o]
-            if g < 0:
-                continue
-            for q in range(rptr[g], rptr[g + 1]):
-                c = cands[q]
-                tally[c, 0] += sign
-                tally[c, 1] += s1s
-                tally[c, 2] += s2s
-                if not seen[c]:
-                    seen[c] = True
-                    buf[k] = c
-                    k += 1
     h = hits[0]
-    for i in range(k + 1):
-        # s last too: a star without rows is not among its own neighbours
-        if i == k:
-            c = s
-        else:
-            c = buf[i]
-            seen[c] = False
-        n, s1 = tally[c, 0], tally[c, 1]
-        if n > 0 and n * tally[c, 2] == s1 * s1 and not in_fam[c]:
-            new = s1 // n
-        elif n == 0 and not in_fam[c]:
-            new = -2
-        else:
-            new = -1
-        old = tight[c]
-        if new != old:
-            if old >= 0:
-                ntight[old] -= 1
-                ver[old] += 1
-            if new >= 0:
-                ntight[new] += 1
-                ver[new] += 1
-            tight[c] = new
-        if new >= 0 and h >= 0 and i < k:
-            if h + 1 < len(hits):
-                h += 1
-                hits[h] = c
+    end = sptr[s + 1]
+    for j in range(sptr[s], end + 1):
+        for o in offs:
+            if j == end:  # s itself, once, after its meetings
+                q0, q1 = np.int64(-1), np.int64(0)
             else:
-                h = -1
+                g = table[spts[j] + o]
+                if g < 0:
+                    continue
+                q0, q1 = rptr[g], rptr[g + 1]
+            for q in range(q0, q1):
+                if q < 0:
+                    c = s
+                else:
+                    c = cands[q]
+                    tally[c, 0] += sign
+                    tally[c, 1] += s1s
+                    tally[c, 2] += s2s
+                n, s1 = tally[c, 0], tally[c, 1]
+                if in_fam[c]:
+                    new = -1
+                elif n == 0:
+                    new = -2
+                elif n * tally[c, 2] == s1 * s1:
+                    new = s1 // n
+                else:
+                    new = -1
+                old = tight[c]
+                if new != old:
+                    if old >= 0:
+                        ntight[old] -= 1
+                        ver[old] += 1
+                    if new >= 0:
+                        ntight[new] += 1
+                        ver[new] += 1
+                    tight[c] = new
+                if new >= 0 and h >= 0 and q >= 0:
+                    if h + 1 < len(hits):
+                        h += 1
+                        hits[h] = c
+                    else:
+                        h = -1
+            if j == end:
+                break
     hits[0] = h
 
 
@@ -306,7 +307,7 @@ def _fill(t, P, k):
     holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
     insertions happen here, so a candidate free now was free when the fill began.)
     Returns the next free place in ``ops``."""
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     m = _neighbours(t, np.int64(-2), np.int64(len(tight)), sptr, spts, table, offs, rptr, cands, tight, rank, seen, lst)
     for i in range(m):
         c = lst[i]
@@ -337,7 +338,7 @@ def _enqueue(P, k0, k1, hn):
     candidates are the ones found 1-tight since ``hits`` was reset before ``ops[k0]`` (their
     ``tight`` was last set by these changes), looked at again now; when ``hits`` overflowed,
     every candidate sharing rows with the stars of ``ops[k0:k1]``."""
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     if hits[0] >= 0:
         for i in range(1, hits[0] + 1):
             x = tight[hits[i]]
@@ -364,7 +365,7 @@ def _descend(P, hn, k):
     returns the next free place in ``ops``.  (The heap's pop and the search for a pair are
     written in here, their one caller: as kernels of their own each was compiled, optimised and
     turned into machine code once more on a first run.)"""
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     while hn > 0:
         # pop the heap's minimum rank
         r = heap[0]
@@ -455,7 +456,7 @@ def _search(P, task, batches, ctr, limit, bound):
     belong to one or two family stars.  Returns when done (``ctr[4] = 1``) or when it needs a
     batch past ``batches`` (``ctr[4] = 0``: call again with the next ones).
     """
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     if task == 0:
         for i in range(limit):
             _set(batches[0, i], _ONE, P)
