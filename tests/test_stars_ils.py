@@ -10,7 +10,7 @@ import starforge.stars.select as sel
 from starforge.stars.bounds import block_bound
 from starforge.stars.enumerate import enumerate_candidates
 from starforge.stars.packing import Packing
-from starforge.stars.rules import grid_steps, internal_ok, window_rows
+from starforge.stars.rules import grid_steps, internal_ok, key_points, window_rows
 from starforge.stars.select import (
     compactness_order,
     csr_rows,
@@ -109,13 +109,16 @@ def test_ils_stops_at_bound(cands):
     assert used == 0 and len(out) >= len(g)
 
 
-def test_packing_bookkeeping_matches_recount(cands):
-    """After random inserts/removes (and an undo), the incremental tallies equal a full recount."""
-    _, _, _, _, n_rows, ptr, rows, order = instance(cands, "pair", 2)
+@pytest.mark.parametrize("by_keys", [False, True])
+def test_packing_bookkeeping_matches_recount(cands, by_keys):
+    """After random inserts/removes (and an undo), the incremental tallies equal a full recount
+    (by rows; with neighbours found by key points, the 1-tight and free states do)."""
+    index, _, _, _, n_rows, ptr, rows, order = instance(cands, "pair", 2)
     n = len(ptr) - 1
     rank = np.empty(n, dtype=np.int64)
     rank[order] = np.arange(n)
-    P = Packing(greedy(order, ptr, rows, n_rows), ptr, rows, n_rows, rank)
+    points = key_points(index, "pair", 2, len(cands.pool_mm)) if by_keys else None
+    P = Packing(greedy(order, ptr, rows, n_rows), ptr, rows, n_rows, rank, points)
     rng = np.random.default_rng(1)
 
     def check():
@@ -129,8 +132,9 @@ def test_packing_bookkeeping_matches_recount(cands):
         for c in range(n):
             own = owner[rows[ptr[c] : ptr[c + 1]]]
             own = own[own >= 0]
-            assert P.cnt[c] == len(own)
-            assert P.s1[c] == own.sum() and P.s2[c] == (own * own).sum()
+            if not by_keys:
+                assert P.cnt[c] == len(own)
+                assert P.s1[c] == own.sum() and P.s2[c] == (own * own).sum()
             one = len(own) > 0 and len(np.unique(own)) == 1 and not P.in_fam[c]
             tight[c] = own[0] if one else (-2 if not len(own) and not P.in_fam[c] else -1)
         assert np.array_equal(P.tight, tight)

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from starforge.stars.enumerate import enumerate_candidates
-from starforge.stars.rules import internal_ok, window_rows
+from starforge.stars.packing import Packing, rank_of
+from starforge.stars.rules import internal_ok, key_points, window_rows
 from starforge.stars.select import compactness_order, csr_rows, greedy, ils, local_search
 from starforge.stars.spec import StarSpec
 
@@ -467,3 +468,55 @@ def test_compiled_window_rows_are_numpys(small, rule, m, which):
     assert got[2] == want[2]
     for a, b in zip(got[:2], want[:2], strict=True):
         assert a.dtype == b.dtype and np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("which,rule,m", [(0, "face", 1), (0, "pair", 2), (1, "face", 2), (1, "pair", 1), (0, "face", 3)])
+def test_search_by_key_points_is_the_reference(small, which, rule, m):
+    """Neighbours found through the keys' grid points (what ``select_family`` uses) give the
+    reference's families and counts: the same stars share a window either way."""
+    cands = small[which]
+    index = cands.index[internal_ok(cands.index, rule, m)]
+    ptr, rows, n_rows, order = instance(cands, rule, m)
+    points = key_points(index, rule, m, len(cands.pool_mm))
+    assert points is not None
+    g = greedy(order, ptr, rows, n_rows)
+    P = Packing(g, ptr, rows, n_rows, rank_of(order), points)
+    swaps = P.local_search(200)
+    ref_ls, ref_swaps = ref_local_search(g, order, ptr, rows, n_rows)
+    assert swaps == ref_swaps and np.array_equal(P.family, ref_ls)
+    for seed, iterations in [(0, 300), (4, 257)]:
+        P = Packing(ref_ls, ptr, rows, n_rows, rank_of(order), points)
+        used = P.ils(iterations, None, seed)
+        want, ref_used = ref_ils(ref_ls, order, ptr, rows, n_rows, iterations=iterations, seed=seed)
+        assert used == ref_used and np.array_equal(P.family, want), (seed, iterations)
+    # a record of the 1-tight found that overflows at once: the full rescan queues the same stars
+    P = Packing(ref_ls, ptr, rows, n_rows, rank_of(order), points)
+    hits = next(i for i, a in enumerate(P.arrays) if len(a) == 4 * P.n + 1)
+    P.arrays = (*P.arrays[:hits], np.zeros(2, dtype=np.int64), *P.arrays[hits + 1 :])
+    used = P.ils(300, None, 0)
+    want, ref_used = ref_ils(ref_ls, order, ptr, rows, n_rows, iterations=300, seed=0)
+    assert used == ref_used and np.array_equal(P.family, want)
+
+
+def test_key_points_neighbours_are_window_neighbours(small):
+    """Two stars share a key window iff one of the other's keys is at one of a key's point
+    offsets: checked pair by pair on a sample against the window rows."""
+    cands = small[1]
+    for rule, m in [("face", 2), ("pair", 2), ("face", 1)]:
+        index = cands.index[internal_ok(cands.index, rule, m)]
+        ptr, rows, _, _ = instance(cands, rule, m)
+        codes, table, offsets = key_points(index, rule, m, len(cands.pool_mm))
+        assert (table[codes] >= 0).all() and len(offsets) == (2 * m - 1) ** 3
+        rng = np.random.default_rng(5)
+        star_of = np.repeat(np.arange(len(index)), np.diff(ptr))
+        pairs = rng.integers(0, len(index), size=(300, 2)).tolist()
+        for a in rng.integers(0, len(index), size=300).tolist():  # and pairs that share a row
+            on_row = np.flatnonzero(rows == rows[ptr[a] + rng.integers(ptr[a + 1] - ptr[a])])
+            pairs.append([a, int(star_of[on_row[rng.integers(len(on_row))]])])
+        shared = 0
+        for a, b in pairs:
+            by_rows = bool(np.intersect1d(rows[ptr[a] : ptr[a + 1]], rows[ptr[b] : ptr[b + 1]]).size)
+            by_keys = bool(np.isin(codes[b], (codes[a][:, None] + offsets[None, :]).ravel()).any())
+            assert by_rows == by_keys, (rule, m, a, b)
+            shared += by_rows
+        assert 300 <= shared < len(pairs)

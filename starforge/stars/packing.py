@@ -30,27 +30,39 @@ def rank_of(order: np.ndarray) -> np.ndarray:
 class Packing:
     """Incremental set-packing state for the local and iterated local searches, as arrays its compiled kernels share.
 
-    ``owner[r]`` is the family star holding row r (-1 free).  Per candidate c, over its rows held
-    by family stars: ``cnt`` (how many), ``s1`` (sum of owner ids) and ``s2`` (sum of squares).
+    ``owner[r]`` is the family star holding row r (-1 free).  Per candidate c, over its meetings
+    with family stars (a row held, or with ``points`` a pair of keys that share a window):
+    ``cnt`` (how many), ``s1`` (sum of owner ids) and ``s2`` (sum of squares).
     c is free iff ``cnt == 0``; its held rows all belong to ONE star t iff
     ``cnt * s2 == s1**2`` (zero variance), and then ``t = s1 // cnt``.  ``tight[c]`` says which:
     -2 free, t when c is outside the family and 1-tight with t, else -1 (a small array of its
     own, int32: the searches read only it, and it stays in the CPU cache).  Inserting or removing
-    a star only updates the candidates sharing a row with it (row -> candidates index, CSC).
+    a star only updates the candidates sharing a row with it, found through ``points`` (see
+    :func:`starforge.stars.rules.key_points`): each star's keys as codes of grid points
+    (``(n, k)``), the ``table`` from code to point id (-1: no key there) and the code offsets
+    of the points whose keys share a window with a key at offset 0; the point -> candidates
+    index (CSC) lists the candidates with a key there.  A candidate near several keys of a star
+    is met once per key pair, not once per shared window.  Without ``points``, each row is a
+    point of its own (offset 0 only).
     ``arrays`` is the tuple every kernel takes (:func:`_set`, :func:`_fill`, :func:`_descend`,
     :func:`_search`).
     """
 
-    def __init__(self, chosen, ptr, rows, n_rows, rank):
+    def __init__(self, chosen, ptr, rows, n_rows, rank, points=None):
         ptr = np.asarray(ptr, dtype=np.int64)
         rows = np.asarray(rows, dtype=np.int64)
         rank = np.asarray(rank, dtype=np.int64)
         self.rank = rank
         n = len(ptr) - 1
         self.n, self.n_rows = n, int(n_rows)
-        rptr, cands = _csc(ptr, rows, self.n_rows)  # row -> candidates, ascending within a row
-        # the candidates sharing rows with one star: at most (its rows) x (the most on a row)
-        most = int(np.diff(ptr).max()) * int(np.diff(rptr).max()) if n and n_rows else 0
+        if points is None:  # each row a point
+            sptr, spts, table, offs = ptr, rows, np.arange(self.n_rows, dtype=np.int64), np.zeros(1, np.int64)
+        else:
+            codes, table, offs = (np.asarray(a, dtype=np.int64) for a in points)
+            sptr = np.arange(0, codes.size + 1, max(1, codes.shape[1]), dtype=np.int64)
+            spts = codes.ravel()
+        # point -> candidates, ascending within a point
+        rptr, cands = _csc(sptr, table[spts], int(table.max()) + 1 if len(table) else 0)
         order = np.empty(n, dtype=np.int64)
         order[rank] = np.arange(n)
         # cnt, s1, s2 side by side: an update touches all three of a candidate
@@ -61,18 +73,19 @@ class Packing:
         self.in_fam = np.zeros(n, dtype=np.bool_)
         self.owner = np.full(self.n_rows, -1, dtype=np.int64)
         self.arrays = (
-            ptr, rows, rptr, cands, rank, order, self.tally, self.tight, self.ntight, self.in_fam, self.owner,
-            np.empty(max(most, 1), dtype=np.int64),  # buf: touched candidates
-            np.empty(max(most, 1), dtype=np.int64),  # lst: a star's free or 1-tight neighbours
+            ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, self.tally, self.tight, self.ntight, self.in_fam, self.owner,
+            np.empty(n + 1, dtype=np.int64),  # lst: a star's free or 1-tight neighbours
             np.zeros(n, dtype=np.bool_),  # seen (all False between calls)
             np.empty(n + 1, dtype=np.int64),  # heap of queued ranks
             np.zeros(n, dtype=np.bool_),  # queued
-            np.zeros(4 * max(most, 1) + 1, dtype=np.int64),  # hits: the 1-tight found since a reset
+            np.zeros(4 * n + 1, dtype=np.int64),  # hits: the 1-tight found since a reset
             # ops: the changes of one ILS step (s + 1: s inserted, -(s + 1): removed).  Each swap
             # and each fill grows the family by one, so a step makes at most 3 x (the largest
             # family) + 3 changes; a family holds at most one star per row, plus stars without rows
             np.empty(3 * min(n, self.n_rows + int((np.diff(ptr) == 0).sum())) + 8, dtype=np.int64),
             np.zeros(self.n_rows, dtype=np.bool_),  # mark: a False per row between calls
+            np.zeros(n, dtype=np.int64),  # ver: per star t, bumped as a candidate's tight turns t or leaves t
+            np.full(n, -1, dtype=np.int64),  # tried: ver[t] when t last had no swap pair (-1: not since)
         )
         chosen = np.asarray(chosen, dtype=np.int64)
         _search(self.arrays, 0, chosen.reshape(1, -1), _NO_CTR, len(chosen), -1)
@@ -162,22 +175,28 @@ FREE = -2
 
 
 @_inner
-def _neighbours(t, want, ptr, rows, rptr, cands, tight, rank, seen, lst):
+def _neighbours(t, want, most, sptr, spts, table, offs, rptr, cands, tight, rank, seen, lst):
     """The candidates sharing a row with star t whose ``tight`` is ``want`` (-2: free; t:
-    1-tight with t), each once, most compact first, in ``lst[:m]``; returns m.  ``seen`` (all
-    False) is left so.  The sort by rank (a permutation: no ties, so an unstable sort does) is
+    1-tight with t; -3: 1-tight with any star), each once, most compact first, in ``lst[:m]``; returns m.  The scan of
+    t's rows stops once ``most`` are found (``ntight[t]`` when ``want`` is t: there are no
+    more).  ``seen`` (all False) is left so.  The sort by rank (a permutation: no ties, so an unstable sort does) is
     Shell's sort, gaps ~m/2.2^k ending in 1 (insertion sort for short lists), written here, its
     one caller: no numpy sort in the kernels (each costs seconds of compilation on a first run),
     and as a kernel of its own it was compiled twice (``m`` typed once as the literal 0)."""
     m = 0
-    for j in range(ptr[t], ptr[t + 1]):
-        r = rows[j]
-        for q in range(rptr[r], rptr[r + 1]):
-            c = cands[q]
-            if tight[c] == want and not seen[c]:
-                seen[c] = True
-                lst[m] = c
-                m += 1
+    for j in range(sptr[t], sptr[t + 1]):
+        for o in offs:
+            if m >= most:
+                break
+            g = table[spts[j] + o]
+            if g < 0:
+                continue
+            for q in range(rptr[g], rptr[g + 1]):
+                c = cands[q]
+                if (tight[c] == want or (want == -3 and tight[c] >= 0)) and not seen[c]:
+                    seen[c] = True
+                    lst[m] = c
+                    m += 1
     for i in range(m):
         seen[lst[i]] = False
     gap = m // 2
@@ -202,53 +221,68 @@ _MINUS = np.int64(-1)
 @numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
 def _set(s, sign, P):
     """Star s enters (sign +1) or leaves (-1) the family: its rows' owner and membership, then
-    per candidate sharing rows with s (``buf``: once per shared row) the count, sum and sum of
-    squares of the family stars holding its rows (``tally``), ``tight`` (-2 when no family star
-    holds a row of c, t when c is outside the family and all its held rows belong to t, else
-    -1; s's own too) and ``ntight`` (per family star, the candidates 1-tight with it).  The
+    per meeting of a candidate c with s (see :class:`Packing`) c's count, sum and sum of
+    squares (``tally``), and from them ``tight`` (-2 when no family star holds a row of c, t
+    when c is outside the family and all its held rows belong to t, else -1), ``ntight`` (per
+    family star, the candidates 1-tight with it) and ``ver``; then s's own ``tight`` (a star
+    without rows meets nothing).  A candidate met more than once passes through states that
+    its last meeting corrects: ``ntight`` ends the same, and ``ver`` only counts up.  The
     candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow; -1: it
-    overflowed).  (No kernel calls in here: a call per candidate costs more than the
-    arithmetic, and each callee is compiled again into every caller on a first run.)"""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    overflowed; a candidate may be there more than once).  (No kernel calls in here: a call
+    per candidate costs more than the arithmetic, and each callee is compiled again into every
+    caller on a first run.)"""
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     v = s if sign > 0 else np.int64(-1)
-    k = 0
-    for j in range(ptr[s], ptr[s + 1]):
-        r = rows[j]
-        owner[r] = v
-        for q in range(rptr[r], rptr[r + 1]):
-            buf[k] = cands[q]
-            k += 1
     in_fam[s] = sign > 0
-    ss = s * s
-    for i in range(k):
-        c = buf[i]
-        tally[c, 0] += sign
-        tally[c, 1] += sign * s
-        tally[c, 2] += sign * ss
+    s1s = sign * s
+    s2s = sign * s * s
+    for j in range(ptr[s], ptr[s + 1]):
+        owner[rows[j]] = v
     h = hits[0]
-    for i in range(k + 1):
-        # s last too: a star without rows is not among its own neighbours
-        c = s if i == k else buf[i]
-        n, s1 = tally[c, 0], tally[c, 1]
-        if n > 0 and n * tally[c, 2] == s1 * s1 and not in_fam[c]:
-            new = s1 // n
-        elif n == 0 and not in_fam[c]:
-            new = -2
-        else:
-            new = -1
-        old = tight[c]
-        if new != old:
-            if old >= 0:
-                ntight[old] -= 1
-            if new >= 0:
-                ntight[new] += 1
-            tight[c] = new
-        if new >= 0 and h >= 0 and i < k:
-            if h + 1 < len(hits):
-                h += 1
-                hits[h] = c
+    end = sptr[s + 1]
+    for j in range(sptr[s], end + 1):
+        for o in offs:
+            if j == end:  # s itself, once, after its meetings
+                q0, q1 = np.int64(-1), np.int64(0)
             else:
-                h = -1
+                g = table[spts[j] + o]
+                if g < 0:
+                    continue
+                q0, q1 = rptr[g], rptr[g + 1]
+            for q in range(q0, q1):
+                if q < 0:
+                    c = s
+                else:
+                    c = cands[q]
+                    tally[c, 0] += sign
+                    tally[c, 1] += s1s
+                    tally[c, 2] += s2s
+                n, s1 = tally[c, 0], tally[c, 1]
+                if in_fam[c]:
+                    new = -1
+                elif n == 0:
+                    new = -2
+                elif n * tally[c, 2] == s1 * s1:
+                    new = s1 // n
+                else:
+                    new = -1
+                old = tight[c]
+                if new != old:
+                    if old >= 0:
+                        ntight[old] -= 1
+                        ver[old] += 1
+                    if new >= 0:
+                        ntight[new] += 1
+                        ver[new] += 1
+                    tight[c] = new
+                if new >= 0 and h >= 0 and q >= 0:
+                    if h + 1 < len(hits):
+                        h += 1
+                        hits[h] = c
+                    else:
+                        h = -1
+            if j == end:
+                break
     hits[0] = h
 
 
@@ -273,8 +307,8 @@ def _fill(t, P, k):
     holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
     insertions happen here, so a candidate free now was free when the fill began.)
     Returns the next free place in ``ops``."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
-    m = _neighbours(t, np.int64(-2), ptr, rows, rptr, cands, tight, rank, seen, lst)
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    m = _neighbours(t, np.int64(-2), np.int64(len(tight)), sptr, spts, table, offs, rptr, cands, tight, rank, seen, lst)
     for i in range(m):
         c = lst[i]
         if tight[c] == -2:
@@ -304,7 +338,7 @@ def _enqueue(P, k0, k1, hn):
     candidates are the ones found 1-tight since ``hits`` was reset before ``ops[k0]`` (their
     ``tight`` was last set by these changes), looked at again now; when ``hits`` overflowed,
     every candidate sharing rows with the stars of ``ops[k0:k1]``."""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     if hits[0] >= 0:
         for i in range(1, hits[0] + 1):
             x = tight[hits[i]]
@@ -314,13 +348,12 @@ def _enqueue(P, k0, k1, hn):
         return hn
     for i in range(k0, k1):
         s = abs(ops[i]) - 1
-        for j in range(ptr[s], ptr[s + 1]):
-            r = rows[j]
-            for q in range(rptr[r], rptr[r + 1]):
-                x = tight[cands[q]]
-                if x >= 0 and not queued[x]:
-                    queued[x] = True
-                    hn = _push(heap, hn, rank[x])
+        m = _neighbours(s, np.int64(-3), np.int64(len(tight)), sptr, spts, table, offs, rptr, cands, tight, rank, seen, lst)
+        for j in range(m):
+            x = tight[lst[j]]
+            if not queued[x]:
+                queued[x] = True
+                hn = _push(heap, hn, rank[x])
     return hn
 
 
@@ -332,7 +365,7 @@ def _descend(P, hn, k):
     returns the next free place in ``ops``.  (The heap's pop and the search for a pair are
     written in here, their one caller: as kernels of their own each was compiled, optimised and
     turned into machine code once more on a first run.)"""
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     while hn > 0:
         # pop the heap's minimum rank
         r = heap[0]
@@ -351,29 +384,34 @@ def _descend(P, hn, k):
             i = ch
         t = order[r]
         queued[t] = False
-        if not in_fam[t] or ntight[t] < 2:
+        if not in_fam[t] or ntight[t] < 2 or tried[t] == ver[t]:
+            # (tried == ver: the candidates 1-tight with t are those that held no pair last time)
             continue
         # the first pair, in rank order (most compact first), of distinct candidates 1-tight
-        # with t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint
-        m = _neighbours(t, t, ptr, rows, rptr, cands, tight, rank, seen, lst)
+        # with t (``tight == t``; ``ntight[t]`` of them) whose rows are disjoint; the rows of
+        # the first of a pair are marked, the second's looked up
+        m = _neighbours(t, t, np.int64(ntight[t]), sptr, spts, table, offs, rptr, cands, tight, rank, seen, lst)
         a = np.int64(-1)
         b = np.int64(-1)
         for i in range(m - 1):
-            for j in range(i + 1, m):
+            x = lst[i]
+            for j in range(ptr[x], ptr[x + 1]):
+                mark[rows[j]] = True
+            for y in range(i + 1, m):
                 apart = True
-                for x in range(ptr[lst[i]], ptr[lst[i] + 1]):
-                    for y in range(ptr[lst[j]], ptr[lst[j] + 1]):
-                        if rows[x] == rows[y]:
-                            apart = False
-                            break
-                    if not apart:
+                for j in range(ptr[lst[y]], ptr[lst[y] + 1]):
+                    if mark[rows[j]]:
+                        apart = False
                         break
                 if apart:
-                    a, b = lst[i], lst[j]
+                    a, b = x, lst[y]
                     break
+            for j in range(ptr[x], ptr[x + 1]):
+                mark[rows[j]] = False
             if a >= 0:
                 break
         if a < 0:
+            tried[t] = ver[t]
             continue
         k0 = k
         hits[0] = 0
@@ -418,7 +456,7 @@ def _search(P, task, batches, ctr, limit, bound):
     belong to one or two family stars.  Returns when done (``ctr[4] = 1``) or when it needs a
     batch past ``batches`` (``ctr[4] = 0``: call again with the next ones).
     """
-    ptr, rows, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, buf, lst, seen, heap, queued, hits, ops, mark = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     if task == 0:
         for i in range(limit):
             _set(batches[0, i], _ONE, P)

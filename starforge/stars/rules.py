@@ -95,6 +95,40 @@ def internal_ok(index: np.ndarray, rule: str, m: int) -> np.ndarray:
 KEYS = {"face": 4, "pair": 8}
 
 
+#: largest code table of :func:`key_points` (entries, 8 bytes each)
+POINT_TABLE_MAX = 1 << 24
+
+
+def key_points(index: np.ndarray, rule: str, m: int, pool_size: int):
+    """Each star's keys as points of the grid of pool indices, for finding the stars that share
+    a window of :func:`window_rows` with a star through its keys' neighbourhoods: two keys share
+    a window iff they are of one type and within ``m - 1`` steps in every side.
+
+    Returns
+    -------
+    codes : (n, k) int64    the code of each key: type, then its three sides shifted by m - 1
+    table : (T,) int64      code -> point id (0.. in code order), -1 where no key is
+    offsets : ((2m-1)^3,) int64   the code offsets of the keys within m - 1 steps in every side
+
+    or None when the table would hold more than :data:`POINT_TABLE_MAX` entries.
+    """
+    keys = key_triples(index, rule).astype(np.int64)  # (n, k, 3)
+    k = keys.shape[1]
+    sh = m - 1
+    base = pool_size + 2 * sh
+    span = (k // 4) * base**3
+    if span > POINT_TABLE_MAX:
+        return None
+    tag = (np.arange(k) >= 4).astype(np.int64)  # 0 face, 1 vertex
+    codes = ((tag * base + keys[..., 0] + sh) * base + keys[..., 1] + sh) * base + keys[..., 2] + sh
+    used = np.zeros(span, dtype=bool)
+    used[codes] = True
+    table = np.where(used, np.cumsum(used) - 1, -1)
+    d = np.arange(-sh, sh + 1)
+    offsets = (d[:, None, None] * base**2 + d[None, :, None] * base + d[None, None, :]).ravel()
+    return codes, table, offsets
+
+
 def window_bytes(n_stars: float, rule: str, m: int) -> float:
     """Peak bytes of :func:`window_rows` for ``n_stars`` stars: per window entry the anchors
     (3 int64), the codes, the sort's copy, the keep mask and the star ids, plus a base."""

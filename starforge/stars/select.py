@@ -26,6 +26,7 @@ import numpy as np
 from starforge.runtime.kernels import numba
 from starforge.stars.bounds import block_bound
 from starforge.stars.packing import Packing, rank_of
+from starforge.stars.rules import key_points
 from starforge.stars.spec import WORK, StarSpec
 
 
@@ -287,8 +288,10 @@ def select_family(
     if spec.select == "greedy":
         return Selection(chosen, bound, info)
     t1 = time.perf_counter()
-    # local search and ILS on one packing state (local_search and ils, without building it twice)
-    packing = Packing(chosen, ptr, rows, n_rows, rank_of(order))
+    # local search and ILS on one packing state (local_search and ils, without building it twice);
+    # neighbours found by key (the same as by shared window, with fewer repeats)
+    points = key_points(index, spec.rule, spec.grid_steps, len(pool))
+    packing = Packing(chosen, ptr, rows, n_rows, rank_of(order), points)
     swaps = packing.local_search(200)
     chosen = packing.family
     info.update(local_search=int(len(chosen)), swaps=swaps, local_search_s=round(time.perf_counter() - t1, 3))
