@@ -60,8 +60,8 @@ from tests.test_hostile_inputs import CHILD, left_in_session, snapshot  # noqa: 
 COMMANDS = {
     "stars": (("stars", "--delta", "1.0"), 8.0),
     "export": (("export", "{family}", "--allow-oversize", "--preview", "--format", "step,stl,qtm"), 8.0),
-    "place": (("place", "run", "hammer"), 12.0),
-    "place-batch": (("place-batch", "hammer", "hammer", "--workers", "2"), 14.0),
+    "place": (("place", "run", "hammer"), 3.0),
+    "place-batch": (("place-batch", "hammer", "hammer", "--workers", "2"), 7.0),
     "check": (("check", "{family}", "--frames", "200000"), 8.0),
     "sweep-local-cluster": (
         ("sweep", "--delta", "1:3:0.5", "--cube", "18:30:3", "--samples", "20000", "--workers", "2"), 16.0),
