@@ -8,9 +8,7 @@ estimate, the limit and what to change, which the CLI prints as one line with ex
 The limits are the same for every command:
 
 * memory: ``STARFORGE_MAX_MEMORY`` (``"2G"``, ``"1500M"``, bytes) or ``starforge --max-memory``;
-  by default half of this machine's memory (the cgroup's limit where one is set); never more
-  than the process may still map under its address-space limit (``ulimit -v``), past which an
-  allocation fails however the work was planned;
+  by default half of this machine's memory (the cgroup's limit where one is set);
 * time: ``STARFORGE_MAX_SECONDS`` or ``starforge --max-seconds``; by default 2 hours.
   Work that may take longer than a few seconds also shows a progress bar.
 
@@ -24,11 +22,6 @@ import math
 import os
 import re
 from pathlib import Path
-
-try:
-    import resource
-except ImportError:  # pragma: no cover - not POSIX
-    resource = None
 
 from starforge.errors import StarforgeError
 
@@ -94,40 +87,12 @@ def machine_memory_bytes() -> int:
     return int(phys)
 
 
-def address_space_room() -> int | None:
-    """Bytes this process may still map under its address-space limit (``ulimit -v``,
-    ``RLIMIT_AS``), or None when it has none.  What is mapped already (the interpreter, the
-    libraries, the compiled kernels) is taken off: ``VmSize`` of ``/proc/self/status``."""
-    if resource is None:  # pragma: no cover - not POSIX
-        return None
-    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
-    if soft == resource.RLIM_INFINITY:
-        return None
-    mapped = 0
-    try:
-        with open("/proc/self/status", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("VmSize:"):
-                    mapped = int(line.split()[1]) * 1024
-                    break
-    except (OSError, ValueError, IndexError):  # pragma: no cover - no procfs: the whole limit
-        pass
-    return max(0, soft - mapped)
-
-
-def configured_memory_bytes() -> int:
-    """The memory limit as set (``STARFORGE_MAX_MEMORY``, ``--max-memory``) or by default, bytes,
-    before this process's address-space room is taken into account: the share a command splits
-    among its local worker processes, each of which has an address space of its own."""
-    env = os.environ.get(ENV_MEMORY)
-    return parse_bytes(env) if env else int(MEMORY_FRACTION * machine_memory_bytes())
-
-
 def memory_limit_bytes() -> int:
-    """The memory one command may plan to use in this process, bytes (see the module docstring)."""
-    limit = configured_memory_bytes()
-    room = address_space_room()
-    return limit if room is None else min(limit, room)
+    """The memory one command may plan to use, bytes (see the module docstring)."""
+    env = os.environ.get(ENV_MEMORY)
+    if env:
+        return parse_bytes(env)
+    return int(MEMORY_FRACTION * machine_memory_bytes())
 
 
 def time_limit_s() -> float:
@@ -154,13 +119,6 @@ def _limit_source(env: str, flag: str) -> str:
     return f"set by {env} or starforge {flag}" if os.environ.get(env) else f"raise it with starforge {flag}"
 
 
-def _memory_source(limit: int) -> str:
-    room = address_space_room()
-    if room is not None and room <= limit:
-        return "what this process may still map under its address-space limit: raise ulimit -v"
-    return _limit_source(ENV_MEMORY, "--max-memory")
-
-
 def require_memory(nbytes: float, what: str, advice: str) -> None:
     """Refuse when ``what`` is estimated to need more than the memory limit.
 
@@ -177,7 +135,7 @@ def require_memory(nbytes: float, what: str, advice: str) -> None:
     if not (nbytes <= limit):  # also catches nan
         raise StarforgeError(
             f"{what} needs about {format_bytes(nbytes)} of memory, above the limit of {format_bytes(limit)} "
-            f"({_memory_source(limit)}); {advice}"
+            f"({_limit_source(ENV_MEMORY, '--max-memory')}); {advice}"
         )
 
 

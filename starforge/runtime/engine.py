@@ -111,7 +111,7 @@ def plan(
 ) -> Plan:
     """Decide where ``n_tasks`` tasks of about ``seconds`` single-core seconds in all run (see
     the module docstring).  ``client``: a connected client, for a remote plan's capacity."""
-    from starforge.runtime.budget import configured_memory_bytes, memory_limit_bytes
+    from starforge.runtime.budget import memory_limit_bytes
 
     if threads_for_task() == 1:  # a task's own parallel work stays in its worker (never nested)
         return Plan("serial", 1, float(memory_limit_bytes()))
@@ -124,9 +124,7 @@ def plan(
     w = min(local_workers(workers), max(1, n_tasks))
     if w == 1 or seconds < LOCAL_CLUSTER_SECONDS:
         return Plan("serial", 1, float(memory_limit_bytes()))
-    # each worker is a process of its own: the limit is shared out, and no share is more than
-    # one process may map (the address-space limit a worker inherits)
-    return Plan("local", w, min(configured_memory_bytes() / w, memory_limit_bytes()))
+    return Plan("local", w, memory_limit_bytes() / w)
 
 
 @contextlib.contextmanager
