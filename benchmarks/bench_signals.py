@@ -15,8 +15,7 @@ sends SIGTERM or SIGINT (alternately per round).  A trial is clean when the comm
 
 The commands run as the hostile suite's cases do (``tests.test_hostile_inputs.CHILD``), with an
 address-space cap of :data:`ADDRESS_SPACE_BYTES` instead of the cases' 2 GiB: ``stars --delta 1.0``
-plans more memory than 2 GiB leave, which the budget refuses up front there (a hostile case of its
-own), and a trial measures the signal, not that refusal.
+needs more than 2 GiB of address space, and a trial measures the signal, not a run out of memory.
 
 A command that had already ended when its signal was due counts as ``ended_first`` (clean when
 it exited 0 with nothing left behind) and is not a signal trial.  A signal that arrives while the
