@@ -279,6 +279,17 @@ def _wait_for_port(port: int, proc: subprocess.Popen, timeout_s: float = 60.0) -
     raise AssertionError(f"the dask scheduler did not listen on port {port} in {timeout_s} s")
 
 
+def _stop(proc: subprocess.Popen) -> None:
+    """End a background command's session: SIGTERM, then SIGKILL after 30 s."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
 def _typed(command: str, port: int) -> str:
     """The command as the test types it: placeholders filled in, the free port for the docs' one."""
     for word, value in PLACEHOLDERS.items():
@@ -317,13 +328,7 @@ def test_every_command_of_the_page_runs(page, tmp_path):
             assert proc.poll() is None, f"a background command exited {proc.returncode}"
     finally:
         for proc in background:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGTERM)
-            try:
-                proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+            _stop(proc)
 
 
 def test_the_install_commands_the_pages_leave_out_are_the_readmes():
@@ -357,10 +362,4 @@ def test_the_readmes_docs_server_serves(tmp_path):
         said = (tmp_path / "serve.log").read_text(errors="replace")[-2000:]
         assert b"starforge" in page.lower(), f"mkdocs serve gave no home page (exit {proc.poll()}): {said}"
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        _stop(proc)
