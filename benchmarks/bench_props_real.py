@@ -251,9 +251,9 @@ def main(argv=None) -> int:
     ap.add_argument("--poses", type=int, default=POSES)
     ap.add_argument("--props", default="")
     args = ap.parse_args(argv)
-    from starforge.props.placement import run_placement
     from _pdftext import glyph_boxes, off_page, overlapping_glyphs
 
+    from starforge.props.placement import run_placement
     from starforge.render.guide import guide_files
 
     meshes = props()

@@ -565,3 +565,45 @@ def test_tracked_additions_match_a_recount_of_every_layout(seed):
         cnt, _ = prob._seen_counts(np.asarray(sites, dtype=np.int64))
         close_calls += int((cnt >= 3).sum())
     assert close_calls  # the skip was exercised
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_added_conflicts_match_a_recount_of_every_layout(seed):
+    """The compiled count of the conflicts a candidate adds against the definition: the own
+    conflicts and avoid clashes of the layout with the candidate, less those of the layout
+    alone, recounted for each candidate; on sides near one another, where many triangles sit
+    close to the tolerance."""
+    from starforge.props.distinct import added_conflicts, clashes, face_tree, own_triangles
+    from starforge.stars.avoid import body_triangles
+
+    rng = np.random.default_rng(seed)
+    tol = 4.0
+    for n in (2, 3, 6, 9):
+        P = rng.uniform(0, 40, (n, 3))
+        C = rng.uniform(0, 40, (30, 3))
+        other = body_triangles(rng.uniform(0, 40, (6, 3)))
+        for tree in (None, face_tree(other)):
+            got = added_conflicts(P, C, tree, tol)
+            base = own_triangles(P, tol)[0] + clashes(P, tree, tol)
+            want = [own_triangles(np.vstack([P, c]), tol)[0] + clashes(np.vstack([P, c]), tree, tol) - base for c in C]
+            assert got.tolist() == want
+            assert max(want) > 0
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_own_triangles_match_every_pair_compared(seed):
+    """The sweep's conflicts and self-margin against every pair of triangles compared, on
+    layouts whose triangles crowd together and on layouts with one triangle."""
+    from itertools import combinations
+
+    from starforge.props.distinct import own_triangles
+    from starforge.stars.avoid import body_triangles
+
+    rng = np.random.default_rng(seed)
+    for n, tol in ((3, 2.0), (4, 50.0), (7, 3.0), (10, 1.0)):
+        P = rng.uniform(0, 30, (n, 3))
+        F = body_triangles(P)
+        gaps = [min(f[1] - f[0], f[2] - f[1]) for f in F]
+        dists = [float(np.abs(a - b).max()) for a, b in combinations(F, 2)]
+        want = (sum(g < tol for g in gaps) + sum(d < tol for d in dists), min(gaps + dists))
+        assert own_triangles(P, tol) == want

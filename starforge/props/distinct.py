@@ -21,12 +21,12 @@ every one of the 24 correspondences).
 
 from __future__ import annotations
 
-import functools
 import itertools
 import math
 
 import numpy as np
 
+from starforge.runtime.kernels import numba
 from starforge.stars.avoid import body_triangles
 
 
@@ -43,15 +43,33 @@ def own_triangles(points: np.ndarray, tol: float) -> tuple[int, float]:
     F = body_triangles(np.asarray(points, dtype=float))
     if not len(F):
         return 0, math.inf
-    gaps = np.diff(F, axis=1).min(axis=1)
-    conflicts = int((gaps < tol).sum())
-    margin = float(gaps.min())
-    if len(F) > 1:
-        iu = _upper(len(F))
-        d = np.abs(F[iu[0]] - F[iu[1]]).max(axis=1)
-        conflicts += int((d < tol).sum())
-        margin = min(margin, float(d.min()))
-    return conflicts, margin
+    conflicts, margin = _own_counts(np.ascontiguousarray(F[np.argsort(F[:, 0], kind="stable")]), float(tol))
+    return int(conflicts), float(margin)
+
+
+@numba.njit(cache=True, nogil=True)
+def _own_counts(F, tol):
+    """:func:`own_triangles` on sorted sides ``F`` ordered by the shortest side: a sweep that
+    compares each triangle with those after it until the shortest sides alone differ by at least
+    both ``tol`` and the margin found so far (the Chebyshev distance is at least that gap)."""
+    T = F.shape[0]
+    cnt = 0
+    margin = np.inf
+    for t in range(T):
+        g = min(F[t, 1] - F[t, 0], F[t, 2] - F[t, 1])
+        if g < tol:
+            cnt += 1
+        margin = min(margin, g)
+    for t in range(T):
+        for u in range(t + 1, T):
+            d = F[u, 0] - F[t, 0]
+            if d >= tol and d >= margin:
+                break
+            d = max(d, abs(F[u, 1] - F[t, 1]), abs(F[u, 2] - F[t, 2]))
+            if d < tol:
+                cnt += 1
+            margin = min(margin, d)
+    return cnt, margin
 
 
 def face_tree(faces: np.ndarray | None):
@@ -76,54 +94,79 @@ def clashes(points: np.ndarray, tree, tol: float) -> int:
     return int((d < tol).sum())
 
 
-@functools.lru_cache(maxsize=64)
-def _upper(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """``np.triu_indices(n, 1)``, read-only (asked for once per layout the optimizers score)."""
-    iu = np.triu_indices(n, 1)
-    for a in iu:
-        a.setflags(write=False)
-    return iu
-
-
-@functools.lru_cache(maxsize=64)
-def _pairs(n: int) -> np.ndarray:
-    """(C(n, 2), 2) every marker pair of n markers (read-only)."""
-    ij = np.array(list(itertools.combinations(range(n), 2)), dtype=np.intp).reshape(-1, 2)
-    ij.setflags(write=False)
-    return ij
-
-
-def added_conflicts(
-    points: np.ndarray, candidates: np.ndarray, tree, tol: float, chunk: int = 64
-) -> np.ndarray:
+def added_conflicts(points: np.ndarray, candidates: np.ndarray, tree, tol: float) -> np.ndarray:
     """(k,) for each candidate point c: how many conflicts the layout ``points + [c]`` has beyond
     those of ``points`` alone: its new triangles (two markers and c) within ``tol`` of one of
     ``tree``'s (:func:`clashes`), of one of the layout's triangles or of each other, or with two
     sides within ``tol`` (:func:`own_triangles`).  So ``own_triangles(points + [c])[0] +
     clashes(points + [c])`` is that of ``points`` plus this, for every candidate at once."""
     P = np.asarray(points, dtype=float)
-    C = np.asarray(candidates, dtype=float).reshape(-1, 3)
-    out = np.zeros(len(C), dtype=np.int64)
+    C = np.ascontiguousarray(np.asarray(candidates, dtype=float).reshape(-1, 3))
     if len(P) < 2 or not len(C):
-        return out
-    ij = _pairs(len(P))
-    base = np.linalg.norm(P[ij[:, 0]] - P[ij[:, 1]], axis=1)
+        return np.zeros(len(C), dtype=np.int64)
     old = body_triangles(P)
-    iu = _upper(len(ij))
-    for a in range(0, len(C), chunk):
-        Q = C[a : a + chunk]
-        b = np.linalg.norm(Q[:, None] - P[None, ij[:, 0]], axis=2)
-        c = np.linalg.norm(Q[:, None] - P[None, ij[:, 1]], axis=2)
-        F = np.sort(np.stack([np.broadcast_to(base, b.shape), b, c], axis=2), axis=2)  # (q, m, 3)
-        n = (np.diff(F, axis=2).min(axis=2) < tol).sum(axis=1)
-        n += (np.abs(F[:, :, None] - F[:, None]).max(axis=3)[:, iu[0], iu[1]] < tol).sum(axis=1)
-        if len(old):
-            n += (np.abs(F[:, :, None] - old[None, None]).max(axis=3) < tol).sum(axis=(1, 2))
-        if tree is not None:
-            d, _ = tree.query(F.reshape(-1, 3), k=1, p=np.inf, distance_upper_bound=tol)
-            n += (d.reshape(F.shape[:2]) < tol).sum(axis=1)
-        out[a : a + len(Q)] = n
+    old = np.ascontiguousarray(old[np.argsort(old[:, 0], kind="stable")])
+    out, F = _added_own(np.ascontiguousarray(P), C, old, float(tol))
+    if tree is not None:
+        d, _ = tree.query(F.reshape(-1, 3), k=1, p=np.inf, distance_upper_bound=tol)
+        out += (d.reshape(F.shape[:2]) < tol).sum(axis=1)
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _added_own(P, C, old, tol):
+    """``(counts, F)``: for each candidate ``C[q]``, the conflicts among its new triangles (sorted
+    sides ``F[q]``, one per marker pair of ``P``) and with the layout's own ``old`` triangles
+    (sorted sides, ordered by the shortest): two sides of one triangle within ``tol``, two
+    triangles with every sorted side within ``tol``.  Old triangles are met through a window on
+    the shortest side, so each new triangle is compared with the few that can be within ``tol``."""
+    n = P.shape[0]
+    m = n * (n - 1) // 2
+    nq = C.shape[0]
+    out = np.zeros(nq, dtype=np.int64)
+    F = np.empty((nq, m, 3))
+    base = np.empty(m)
+    ij = np.empty((m, 2), dtype=np.int64)
+    k = 0
+    for a in range(n):
+        for b in range(a + 1, n):
+            ij[k, 0], ij[k, 1] = a, b
+            base[k] = math.sqrt((P[a, 0] - P[b, 0]) ** 2 + (P[a, 1] - P[b, 1]) ** 2 + (P[a, 2] - P[b, 2]) ** 2)
+            k += 1
+    first = old[:, 0]
+    for q in range(nq):
+        cnt = 0
+        for k in range(m):
+            a, b = ij[k, 0], ij[k, 1]
+            x = base[k]
+            y = math.sqrt((C[q, 0] - P[a, 0]) ** 2 + (C[q, 1] - P[a, 1]) ** 2 + (C[q, 2] - P[a, 2]) ** 2)
+            z = math.sqrt((C[q, 0] - P[b, 0]) ** 2 + (C[q, 1] - P[b, 1]) ** 2 + (C[q, 2] - P[b, 2]) ** 2)
+            if x > y:
+                x, y = y, x
+            if y > z:
+                y, z = z, y
+            if x > y:
+                x, y = y, x
+            F[q, k, 0], F[q, k, 1], F[q, k, 2] = x, y, z
+            if min(y - x, z - y) < tol:
+                cnt += 1
+            # the window is widened a little, the test inside is exact
+            lo = np.searchsorted(first, x - 2.0 * tol)
+            for t in range(lo, len(first)):
+                if first[t] > x + 2.0 * tol:
+                    break
+                if abs(old[t, 0] - x) < tol and abs(old[t, 1] - y) < tol and abs(old[t, 2] - z) < tol:
+                    cnt += 1
+        for k in range(m):
+            for u in range(k + 1, m):
+                if (
+                    abs(F[q, k, 0] - F[q, u, 0]) < tol
+                    and abs(F[q, k, 1] - F[q, u, 1]) < tol
+                    and abs(F[q, k, 2] - F[q, u, 2]) < tol
+                ):
+                    cnt += 1
+        out[q] = cnt
+    return out, F
 
 
 #: the 6 marker pairs of a 4-subset, in a fixed order

@@ -124,8 +124,8 @@ def with_overrides(
             cs.min_markers <= markers <= cs.max_markers,
             f"markers must be in [{cs.min_markers}, {cs.max_markers}], got {markers}",
         )
-        if spec.objective == "tracked":
-            spec = replace(spec, track=replace(spec.track, target_markers=int(markers)))
+        if spec.objective == "tracked":  # a count asked for is the count placed
+            spec = replace(spec, track=replace(spec.track, target_markers=int(markers), grow_markers=False))
         else:
             spec = replace(spec, costs=replace(spec.costs, target_markers=int(markers)))
     if marker_mm is not None:

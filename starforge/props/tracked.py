@@ -90,6 +90,7 @@ class TrackSettings:
     random_layouts: int = 1000
     validation_poses: int = 3000  # held-out random poses that rank the final candidates (0: none)
     target_tracked: float = 0.99  # below this tracked fraction on the held-out poses: a warning saying why
+    grow_markers: bool = True  # short of target_tracked held out: add markers, one at a time, up to max_markers
 
     def __post_init__(self):
         in_range("marker_mm", self.marker_mm, 1.0, 50.0)
