@@ -8,9 +8,13 @@ placement and tracker files.  ``import starforge`` stays light: heavy libraries
 from __future__ import annotations
 
 # first: when this process is the starforge command, a signal from here on ends it with one line
-from starforge.runtime.stop import stop_early_in_command
+from starforge.runtime.stop import launched_as_command, stop_early_in_command
 
 stop_early_in_command()
+if launched_as_command():
+    from starforge.runtime.threads import one_blas_thread
+
+    one_blas_thread()  # before numpy loads
 
 __version__ = "0.1.0"
 

@@ -10,6 +10,16 @@ from contextlib import contextmanager
 from typing import Any
 
 
+def one_blas_thread() -> None:
+    """In the ``starforge`` command, before numpy loads: numpy's and scipy's BLAS run on the
+    calling thread (``OPENBLAS_NUM_THREADS=1``, unless the user set it).  The commands' parallel
+    work is their compiled kernels' and the engine's; the BLAS calls are on small matrices
+    (3 x 3 fits, a few markers), which OpenBLAS runs on one thread anyway, while each copy of
+    it (numpy's, and scipy's that numba loads) starts a worker per extra core that spins on the
+    cores the kernels use before it sleeps.  Child processes inherit it."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
 def threads_for_task() -> int | None:
     """Compiled-kernel threads a task should use: 1 inside a dask worker (each worker thread
     is one core's share), None (every core) in process."""

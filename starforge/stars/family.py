@@ -24,7 +24,15 @@ from starforge.stars.classify import edge_pool
 from starforge.stars.enumerate import Candidates, enumerate_candidates
 from starforge.stars.model import Family, Star
 from starforge.stars.rules import internal_ok, window_bytes, window_rows
-from starforge.stars.select import compactness_order, greedy, select_family
+from starforge.stars.select import (
+    Selection,
+    compactness_order,
+    csr_rows,
+    greedy,
+    milp,
+    node_budget,
+    select_family,
+)
 from starforge.stars.spec import StarSpec
 
 
@@ -142,11 +150,22 @@ def accuracy(vertices: np.ndarray, tip_mm: np.ndarray, sigma_mm: float) -> list[
     ]
 
 
+#: candidates per block of the ``--count`` order's accuracy scores: each block's temporaries
+#: (points, inertia matrices and their inverses with each marker hidden, about 1 kB a star)
+#: are freed before the next, so the order needs its scores and indices (16 bytes a candidate)
+#: and one block, however many candidates there are
+COUNT_BLOCK = 1 << 15
+
+
 def _count_order(index: np.ndarray, pool: np.ndarray, sigma_mm: float) -> np.ndarray:
     """Candidates from most to least accurate: worst-case rotation error with one marker hidden
-    (frame-free; it drives the error at any tip away from the centroid), then pool indices."""
-    P = vertices_from_lengths(pool[index])
-    score = rotation_error_hidden_deg(P, sigma_mm).max(axis=1)
+    (frame-free; it drives the error at any tip away from the centroid), then pool indices.
+    Scored in blocks of :data:`COUNT_BLOCK` (each star's score is its own: the same floats in
+    any block)."""
+    score = np.empty(len(index))
+    for i0 in range(0, len(index), COUNT_BLOCK):
+        P = vertices_from_lengths(pool[index[i0 : i0 + COUNT_BLOCK]])
+        score[i0 : i0 + len(P)] = rotation_error_hidden_deg(P, sigma_mm).max(axis=1)
     keys = [index[:, k] for k in range(5, -1, -1)]
     return np.lexsort((*keys, np.round(score, 9)))
 
@@ -163,69 +182,75 @@ def _spread_count(index: np.ndarray, order: np.ndarray, spec: StarSpec, pool_siz
     :data:`COUNT_POOL` most accurate candidates, the face separation is raised one pool step at
     a time (up to twice the tolerance) while a greedy pick in accuracy order still reaches the
     count; the largest separation that does is used.  A separation whose key windows would take
-    more memory than the whole family's selection is skipped.  Returns (chosen, steps used).
+    more memory than the whole family's selection is skipped, and one set of windows is held at
+    a time (when the pool is every candidate, they are the candidates' own, walked in accuracy
+    order: no copy).  Returns (chosen, steps used).
     """
-    from starforge.stars.select import csr_rows
-
-    top = order[:COUNT_POOL]
     m = spec.grid_steps
-    best = None
+    every = len(order) <= COUNT_POOL
+    top = order[:COUNT_POOL]
+    sub, walk = (index, order) if every else (index[top], np.arange(len(top)))
     # never more memory than selecting among every candidate at the tolerance itself
     whole = window_bytes(len(index), spec.rule, m)
     for m2 in range(2 * m, m - 1, -1):
-        if m2 > m and window_bytes(len(top), spec.rule, m2) > whole:
+        if m2 > m and window_bytes(len(sub), spec.rule, m2) > whole:
             continue
-        s2, r2, n2 = window_rows(index[top], spec.rule, m2, pool_size)
-        ptr, rows = csr_rows(s2, r2, len(top))
-        got = top[greedy(np.arange(len(top)), ptr, rows, n2)]
+        ptr, rows, n2 = _window_csr(sub, spec.rule, m2, pool_size)
+        got = greedy(walk, ptr, rows, n2)
+        del ptr, rows
+        got = got if every else top[got]
         if len(got) >= spec.count or m2 == m:
-            best = (got, m2)
             break
-    if len(best[0]) < spec.count:  # even the tolerance itself is too tight among the top: use all
-        s2, r2, n2 = window_rows(index, spec.rule, m, pool_size)
-        ptr, rows = csr_rows(s2, r2, len(index))
-        best = (greedy(order, ptr, rows, n2), m)
-    return best
+    if len(got) < spec.count and not every:  # even the tolerance itself is too tight among the top: use all
+        ptr, rows, n2 = _window_csr(index, spec.rule, m, pool_size)
+        got = greedy(order, ptr, rows, n2)
+    return got, m2
+
+
+def _window_csr(index: np.ndarray, rule: str, m: int, pool_size: int):
+    """The key windows of ``index`` (:func:`window_rows`) as each star's rows: (ptr, rows, n_rows)."""
+    s2, r2, n2 = window_rows(index, rule, m, pool_size)
+    ptr, rows = csr_rows(s2, r2, len(index))
+    return ptr, rows, n2
+
+
+def _choose_count(index, volume, und, bound, spec: StarSpec, pool, work: int) -> Selection:
+    """The ``spec.count`` selection (see :func:`_spread_count`); when the most accurate greedy
+    family is too small, the largest family's stars, most accurate first.  Its memory stays
+    within the whole family's: the order is scored in blocks, the separations tried take no
+    more than the whole family's key windows, and the whole family's selection runs after the
+    order is dropped (its stars are put in order again by the same key)."""
+    order = _count_order(index, pool, spec.noise_mm)
+    chosen, m_used = _spread_count(index, order, spec, len(pool))
+    del order
+    info = {"greedy_by_accuracy": int(len(chosen)), "face_separation_mm": round(m_used * spec.delta_mm, 9)}
+    if len(chosen) >= spec.count:
+        return Selection(chosen[: spec.count], bound, info)
+    star_of, row, n_rows = window_rows(index, spec.rule, spec.grid_steps, len(pool))
+    sel = select_family(
+        index, pool, volume, star_of, row, n_rows, spec, bound=bound, n_undecided=len(und), milp_work=work
+    )
+    del star_of, row
+    info.update(sel.info)
+    if len(sel.chosen) < spec.count:
+        raise StarforgeError(
+            f"count {spec.count} is not achievable: the largest family found has {len(sel.chosen)} stars "
+            f"(certified upper bound {sel.upper_bound}); ask for --count {len(sel.chosen)} or fewer, or raise --work"
+        )
+    best = np.asarray(sel.chosen)
+    chosen = best[_count_order(index[best], pool, spec.noise_mm)][: spec.count]
+    return Selection(chosen, sel.upper_bound, info)
 
 
 def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
     """Select the family among ``index`` (see :func:`make_family`); returns (Selection, bound)."""
     m = spec.grid_steps
-    # the selection's order (numpy sorts) on a thread beside the key windows (compiled)
-    order_of = beside(compactness_order, index, pool, volume) if spec.count is None else None
-    star_of, row, n_rows = window_rows(index, spec.rule, m, len(pool))
     if spec.count is not None:
-        from starforge.stars.select import Selection, csr_rows
-
-        order = _count_order(index, pool, spec.noise_mm)
-        chosen, m_used = _spread_count(index, order, spec, len(pool))
-        info = {"greedy_by_accuracy": int(len(chosen)), "face_separation_mm": round(m_used * spec.delta_mm, 9)}
-        if len(chosen) >= spec.count:
-            chosen = chosen[: spec.count]
-            sel = Selection(chosen, bound, info)
-        else:  # the most accurate greedy family is too small: take the largest family instead
-            sel = select_family(
-                index,
-                pool,
-                volume,
-                star_of,
-                row,
-                n_rows,
-                spec,
-                bound=bound,
-                n_undecided=len(und),
-                milp_work=work,
-            )
-            info.update(sel.info)
-            if len(sel.chosen) < spec.count:
-                raise StarforgeError(
-                    f"count {spec.count} is not achievable: the largest family found has {len(sel.chosen)} stars "
-                    f"(certified upper bound {sel.upper_bound}); ask for --count {len(sel.chosen)} or fewer, or raise --work"
-                )
-            keep = np.isin(order, sel.chosen)
-            chosen = order[keep][: spec.count]
-            sel = Selection(chosen, sel.upper_bound, info)
+        sel = _choose_count(index, volume, und, bound, spec, pool, work)
     else:
+        # the selection's order (numpy sorts) on a thread beside the key windows (compiled)
+        order_of = beside(compactness_order, index, pool, volume)
+        star_of, row, n_rows = window_rows(index, spec.rule, m, len(pool))
         sel = select_family(
             index, pool, volume, star_of, row, n_rows, spec, bound=bound, n_undecided=len(und), milp_work=work,
             order=order_of(),
@@ -234,8 +259,6 @@ def _choose(index, volume, und, bound, spec: StarSpec, pool, work: int):
     if len(und) and sel.info.get("milp_status") == "optimal" and ub > len(sel.chosen):
         # the solver proved its optimum over the stars that fit; the undecided ones may fit too,
         # so solve once more with them for a bound that covers every star that really fits
-        from starforge.stars.select import csr_rows, milp, node_budget
-
         both = np.concatenate([index, und])
         s2, r2, n2 = window_rows(both, spec.rule, m, len(pool))
         p2, rows2 = csr_rows(s2, r2, len(both))

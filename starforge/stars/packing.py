@@ -36,7 +36,9 @@ class Packing:
     c is free iff ``cnt == 0``; its held rows all belong to ONE star t iff
     ``cnt * s2 == s1**2`` (zero variance), and then ``t = s1 // cnt``.  ``tight[c]`` says which:
     -2 free, t when c is outside the family and 1-tight with t, else -1 (a small array of its
-    own, int32: the searches read only it, and it stays in the CPU cache).  Inserting or removing
+    own, int32: the searches read only it, and it stays in the CPU cache).  ``tally[c, 3]``
+    holds the same state beside the counts (:data:`IN_FAMILY` for a family star), so that a
+    meeting in :func:`_set` reads and writes one 32-byte row.  Inserting or removing
     a star only updates the candidates sharing a row with it, found through ``points`` (see
     :func:`starforge.stars.rules.key_points`): each star's keys as codes of grid points
     (``(n, k)``), the ``table`` from code to point id (-1: no key there) and the code offsets
@@ -65,8 +67,9 @@ class Packing:
         rptr, cands = _csc(sptr, table[spts], int(table.max()) + 1 if len(table) else 0)
         order = np.empty(n, dtype=np.int64)
         order[rank] = np.arange(n)
-        # cnt, s1, s2 side by side: an update touches all three of a candidate
-        self.tally = np.zeros((n, 3), dtype=np.int64)
+        # cnt, s1, s2 and the state side by side: a meeting reads and writes one 32-byte row
+        self.tally = np.zeros((n, 4), dtype=np.int64)
+        self.tally[:, 3] = FREE
         self.cnt, self.s1, self.s2 = self.tally[:, 0], self.tally[:, 1], self.tally[:, 2]
         self.tight = np.full(n, FREE, dtype=np.int32)
         self.ntight = np.zeros(n, dtype=np.int32)
@@ -172,6 +175,8 @@ def _csc(ptr, rows, n_rows):
 
 #: ``Packing.tight`` of a free candidate (no row held by the family)
 FREE = -2
+#: ``tally[c, 3]`` of a family star (its ``tight`` is -1); of any other candidate, its ``tight``
+IN_FAMILY = -3
 
 
 @_inner
@@ -234,6 +239,8 @@ def _set(s, sign, P):
     ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
     v = s if sign > 0 else np.int64(-1)
     in_fam[s] = sign > 0
+    # s's own state is settled by the last pass (its meetings with itself skip it on entry)
+    tally[s, 3] = IN_FAMILY if sign > 0 else np.int64(-1)
     s1s = sign * s
     s2s = sign * s * s
     for j in range(ptr[s], ptr[s + 1]):
@@ -252,21 +259,25 @@ def _set(s, sign, P):
             for q in range(q0, q1):
                 if q < 0:
                     c = s
+                    old = np.int64(tight[s])
+                    if sign > 0:
+                        new = np.int64(-1)
                 else:
                     c = cands[q]
                     tally[c, 0] += sign
                     tally[c, 1] += s1s
                     tally[c, 2] += s2s
-                n, s1 = tally[c, 0], tally[c, 1]
-                if in_fam[c]:
-                    new = -1
-                elif n == 0:
-                    new = -2
-                elif n * tally[c, 2] == s1 * s1:
-                    new = s1 // n
-                else:
-                    new = -1
-                old = tight[c]
+                    old = tally[c, 3]
+                    if old == IN_FAMILY:  # a family star: its tight stays -1
+                        continue
+                if q >= 0 or sign < 0:
+                    n, s1 = tally[c, 0], tally[c, 1]
+                    if n == 0:
+                        new = np.int64(-2)
+                    elif n * tally[c, 2] == s1 * s1:
+                        new = s1 // n
+                    else:
+                        new = np.int64(-1)
                 if new != old:
                     if old >= 0:
                         ntight[old] -= 1
@@ -275,6 +286,7 @@ def _set(s, sign, P):
                         ntight[new] += 1
                         ver[new] += 1
                     tight[c] = new
+                    tally[c, 3] = new
                 if new >= 0 and h >= 0 and q >= 0:
                     if h + 1 < len(hits):
                         h += 1
@@ -283,6 +295,8 @@ def _set(s, sign, P):
                         h = -1
             if j == end:
                 break
+    if sign > 0:
+        tally[s, 3] = IN_FAMILY
     hits[0] = h
 
 
