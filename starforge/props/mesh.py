@@ -167,7 +167,7 @@ def repair_mesh(mesh, union_shells: bool = True):
     # consistent winding and outward normals, shell by shell
     before = m.faces.copy()
     trimesh.repair.fix_winding(m)
-    trimesh.repair.fix_inversion(m, multibody=True)
+    _fix_inversion(m)
     flipped = int(np.any(m.faces != before, axis=1).sum())
     if flipped:
         notes.append(f"flipped {flipped} faces so normals point outward")
@@ -187,10 +187,10 @@ def repair_mesh(mesh, union_shells: bool = True):
                 f"turned {n_open} open shell{'s' if n_open > 1 else ''} inside out (normals faced inward)"
             )
 
-    shells = m.split(only_watertight=False)
+    shells = m.split(only_watertight=False) if len(_shells(m)) > 1 else [m]
     if len(shells) > 1:
         notes.append(f"{len(shells)} separate shells")
-    tight = [s for s in shells if s.is_watertight and s.is_volume]
+    tight = [s for s in shells if s.is_watertight and s.is_volume] if len(shells) > 1 else []
     if union_shells and len(tight) >= 2 and _any_overlap(tight):
         merged = union_solids(tight)
         if merged is not None:
@@ -205,6 +205,28 @@ def repair_mesh(mesh, union_shells: bool = True):
     if len(m.faces) == 0 or m.area <= 0:
         raise StarforgeError("prop mesh has no usable surface after repair")
     return m, origin, notes
+
+
+def _shells(m) -> list:
+    """The face indices of each connected shell of ``m`` (a lone face is a shell of its own)."""
+    from trimesh.graph import connected_components
+
+    return connected_components(m.face_adjacency, nodes=np.arange(len(m.faces)), min_len=1)
+
+
+def _fix_inversion(m) -> None:
+    """Turn every closed, consistently wound shell of ``m`` with a negative volume inside out
+    (trimesh's ``fix_inversion(multibody=True)``; a mesh of one shell is checked whole, without
+    splitting it into submeshes first, which dominates on a fine mesh)."""
+    import trimesh
+
+    if len(_shells(m)) > 1:
+        trimesh.repair.fix_inversion(m, multibody=True)
+        return
+    if len(m.faces) < 4 or not all(trimesh.graph.is_watertight(m.edges)):
+        return
+    if trimesh.triangles.mass_properties(m.triangles, crosses=m.triangles_cross, skip_inertia=True).volume < 0.0:
+        m.faces = np.fliplr(m.faces)
 
 
 def _orient_open_shells(m, samples: int = 64) -> int:
