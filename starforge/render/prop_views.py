@@ -46,7 +46,9 @@ class PlotData:
     grip_lines: tuple = ()  # the grips, as the run prints them
 
 
+#: a mesh with more faces is drawn simplified (:func:`drawn_faces`), to at most DRAWN_FACES faces
 MAX_FACES = 20000
+DRAWN_FACES = 6000
 
 
 def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
@@ -65,7 +67,7 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         temps = ts.t0 * decay ** np.arange(n_hist) if ts.t0 > 0 else np.zeros(n_hist)
     else:
         temps = np.array([res.spec.chain.temperature(i) for i in range(n_hist)])
-    tris, normals = drawn_faces(np.asarray(res.prop.mesh.triangles), np.asarray(res.prop.mesh.face_normals), max_faces)
+    tris, normals = drawn_faces(res.prop.mesh, max_faces)
     from starforge.props.files import grip_lines
     from starforge.props.guide import caliper_pairs, landmarks, mesh_landmarks
     from starforge.props.hand import capsule_arrays
@@ -117,30 +119,31 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
     )
 
 
-def drawn_faces(triangles: np.ndarray, normals: np.ndarray, max_faces: int = MAX_FACES) -> tuple[np.ndarray, np.ndarray]:
-    """The faces a picture draws: ``triangles`` (f, 3, 3) m and their unit ``normals`` (f, 3) as
-    they are when ``f <= max_faces``; else the mesh simplified by vertex clustering (corners
-    snapped to the mean of their cell of a cubic grid, faces that collapse or repeat dropped,
-    normals recomputed from the kept winding), the grid coarsened until at most ``max_faces``
-    remain.  A picture a thousand pixels wide cannot show the detail lost, while the surface stays
-    closed (a subset of the faces would leave it full of holes) and drawing stays fast.
+def drawn_faces(mesh, max_faces: int = MAX_FACES) -> tuple[np.ndarray, np.ndarray]:
+    """The faces a picture draws: ``mesh``'s triangles (f, 3, 3) m and unit face normals (f, 3)
+    as they are when ``f <= max_faces``; else the mesh simplified by vertex clustering to at most
+    :data:`DRAWN_FACES` faces (vertices snapped to the mean of their cell of a cubic grid, faces
+    that collapse or repeat dropped, normals recomputed from the kept winding, the grid coarsened
+    until few enough remain).  A picture a thousand pixels wide cannot show the detail lost, while
+    the surface stays closed (a subset of the faces would leave it full of holes) and drawing and
+    the PDF stay small.
     """
-    tris = np.asarray(triangles, float)
-    if len(tris) <= max_faces:
-        return tris, np.asarray(normals, float)
-    pts = tris.reshape(-1, 3)
+    if len(mesh.faces) <= max_faces:
+        return np.asarray(mesh.triangles, float), np.asarray(mesh.face_normals, float)
+    pts = np.asarray(mesh.vertices, float)
+    faces = np.asarray(mesh.faces, np.int64)
     lo = pts.min(axis=0)
     span = float(np.ptp(pts, axis=0).max()) or 1.0
-    cells = max(8, int(np.sqrt(max_faces)))  # cells along the longest side
+    cells = max(8, int(np.sqrt(DRAWN_FACES)))  # cells along the longest side
     while True:
         key = np.floor((pts - lo) / (span / cells)).astype(np.int64).clip(0, cells)
         _, cell = np.unique(key[:, 0] * (cells + 1) ** 2 + key[:, 1] * (cells + 1) + key[:, 2], return_inverse=True)
-        f = cell.reshape(-1, 3)
+        f = cell[faces]
         f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
         f = f[np.sort(np.unique(np.sort(f, axis=1), axis=0, return_index=True)[1])]
-        if len(f) <= max_faces or cells <= 8:
+        if len(f) <= DRAWN_FACES or cells <= 8:
             break
-        cells = max(8, int(cells * 0.9 * np.sqrt(max_faces / len(f))))
+        cells = max(8, int(cells * 0.9 * np.sqrt(DRAWN_FACES / len(f))))
     centre = np.zeros((cell.max() + 1, 3))
     np.add.at(centre, cell, pts)
     centre /= np.bincount(cell)[:, None]
