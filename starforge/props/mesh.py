@@ -167,12 +167,14 @@ def repair_mesh(mesh, union_shells: bool = True):
     # consistent winding and outward normals, shell by shell
     before = m.faces.copy()
     trimesh.repair.fix_winding(m)
-    _fix_inversion(m)
+    n_shells = len(_shells(m))
+    _fix_inversion(m, n_shells)
     flipped = int(np.any(m.faces != before, axis=1).sum())
     if flipped:
         notes.append(f"flipped {flipped} faces so normals point outward")
 
     if not m.is_watertight:
+        n_shells = None  # filling holes and turning shells change the faces: counted again below
         nf = len(m.faces)
         trimesh.repair.fill_holes(m)
         added = len(m.faces) - nf
@@ -187,7 +189,9 @@ def repair_mesh(mesh, union_shells: bool = True):
                 f"turned {n_open} open shell{'s' if n_open > 1 else ''} inside out (normals faced inward)"
             )
 
-    shells = m.split(only_watertight=False) if len(_shells(m)) > 1 else [m]
+    if n_shells is None:
+        n_shells = len(_shells(m))
+    shells = m.split(only_watertight=False) if n_shells > 1 else [m]
     if len(shells) > 1:
         notes.append(f"{len(shells)} separate shells")
     tight = [s for s in shells if s.is_watertight and s.is_volume] if len(shells) > 1 else []
@@ -214,16 +218,16 @@ def _shells(m) -> list:
     return connected_components(m.face_adjacency, nodes=np.arange(len(m.faces)), min_len=1)
 
 
-def _fix_inversion(m) -> None:
+def _fix_inversion(m, n_shells: int) -> None:
     """Turn every closed, consistently wound shell of ``m`` with a negative volume inside out
-    (trimesh's ``fix_inversion(multibody=True)``; a mesh of one shell is checked whole, without
-    splitting it into submeshes first, which dominates on a fine mesh)."""
+    (trimesh's ``fix_inversion(multibody=True)``; a mesh of ``n_shells == 1`` is checked whole,
+    without splitting it into submeshes first, which dominates on a fine mesh)."""
     import trimesh
 
-    if len(_shells(m)) > 1:
+    if n_shells > 1:
         trimesh.repair.fix_inversion(m, multibody=True)
         return
-    if len(m.faces) < 4 or not all(trimesh.graph.is_watertight(m.edges)):
+    if len(m.faces) < 4 or not (m.is_watertight and m.is_winding_consistent):
         return
     if trimesh.triangles.mass_properties(m.triangles, crosses=m.triangles_cross, skip_inertia=True).volume < 0.0:
         m.faces = np.fliplr(m.faces)
