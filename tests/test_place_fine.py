@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from starforge.props.builtin import builtin_mesh
-from starforge.props.mesh import repair_mesh
+from starforge.props.mesh import repair_mesh, signed_volume
 from starforge.props.seat import surface_distance
 from starforge.render.prop_views import DRAWN_FACES, drawn_faces
 
@@ -51,6 +51,16 @@ def test_surface_distance_with_faces_of_very_different_sizes():
     mesh = trimesh.util.concatenate([ball, big])
     pts = np.random.default_rng(5).uniform(-0.05, 0.15, (80, 3))
     np.testing.assert_allclose(surface_distance(mesh, pts), _brute_distance(mesh, pts), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["hammer", "racket", "bottle"])
+def test_signed_volume_is_the_enclosed_volume(name):
+    mesh = builtin_mesh(name)
+    box = trimesh.creation.box(extents=(0.1, 0.2, 0.3))
+    assert signed_volume(box) == pytest.approx(0.1 * 0.2 * 0.3, rel=1e-12)
+    assert signed_volume(mesh) == pytest.approx(mesh.volume, rel=1e-9)  # trimesh's mass properties
+    flipped = trimesh.Trimesh(mesh.vertices, mesh.faces[:, ::-1], process=False)
+    assert signed_volume(flipped) == pytest.approx(-mesh.volume, rel=1e-9)
 
 
 def test_one_shell_repair_turns_an_inside_out_mesh_outward():

@@ -229,8 +229,16 @@ def _fix_inversion(m, n_shells: int) -> None:
         return
     if len(m.faces) < 4 or not (m.is_watertight and m.is_winding_consistent):
         return
-    if trimesh.triangles.mass_properties(m.triangles, crosses=m.triangles_cross, skip_inertia=True).volume < 0.0:
+    if signed_volume(m) < 0.0:
         m.faces = np.fliplr(m.faces)
+
+
+def signed_volume(m) -> float:
+    """The volume a closed mesh's faces enclose, m^3: positive when they wind outward (the sum of
+    the tetrahedra from the vertices' mean to every face)."""
+    tri = np.asarray(m.triangles, float) - np.asarray(m.vertices, float).mean(axis=0)
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    return float(np.einsum("ij,ij->", tri[:, 0], cross)) / 6.0
 
 
 def _orient_open_shells(m, samples: int = 64) -> int:
