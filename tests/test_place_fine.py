@@ -118,3 +118,29 @@ def test_placement_on_a_fine_mesh_sits_on_the_surface_on_valid_seats(tmp_path):
     assert _brute_distance(mesh, res.centres()).min() >= need - 1e-12
     normals = np.asarray(res.marker_normals)
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-9)
+
+
+def test_layouts_evaluated_together_score_as_each_alone():
+    # the evaluation looks at the layouts' shared markers once: every layout's figures are the
+    # ones it gets evaluated on its own, on the same poses and losses
+    from starforge.props.evaluate import camera_hits, evaluate_layouts, random_poses
+    from starforge.props.rig import load_rig
+    from starforge.props.spec import EvalSettings
+
+    mesh = builtin_mesh("hammer")
+    rng = np.random.default_rng(2)
+    faces = rng.choice(len(mesh.faces), 9, replace=False)
+    c, n = mesh.triangles_center[faces] + 0.005 * mesh.face_normals[faces], mesh.face_normals[faces]
+    layouts = {"a": (c[:5], n[:5]), "b": (c[3:8], n[3:8]), "c": (c[[0, 8, 4, 2]], n[[0, 8, 4, 2]])}
+    rig = load_rig("default")
+    pivot = mesh.bounds.mean(axis=0)
+    settings = EvalSettings(poses=60)
+    together = evaluate_layouts(mesh, layouts, rig, pivot, settings, 7, 15.0)
+    for name, lay in layouts.items():
+        alone = evaluate_layouts(mesh, {name: lay}, rig, pivot, settings, 7, 15.0)
+        assert alone[name] == {k: v for k, v in together[name].items() if k in alone[name]}
+    # and each marker's hits are its own, whatever else is looked at with it
+    poses = random_poses(rig.volume, 20, pivot, np.random.default_rng(1))
+    both = camera_hits(mesh, c, n, rig, poses)
+    for i in (0, 4, 8):
+        np.testing.assert_array_equal(both[:, i], camera_hits(mesh, c[i : i + 1], n[i : i + 1], rig, poses)[:, 0])
