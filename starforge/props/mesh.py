@@ -7,6 +7,7 @@ list of plain-language notes saying what was repaired.
 
 from __future__ import annotations
 
+import gc
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -336,8 +337,18 @@ def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
         mesh, origin, notes = repair_mesh(raw)
     except StarforgeError as exc:
         raise StarforgeError(f"{path}: {exc}") from None
+    n_raw = len(raw.faces)
+    if n_raw > COLLECT_FACES:
+        # the loader's and the repair's meshes hold reference cycles (a mesh and its caches),
+        # hundreds of MB on a fine mesh, which a command running with the collector paused keeps
+        del raw
+        gc.collect()
     timings["repair_s"] = round(time.perf_counter() - t1, 4)
-    return PropMesh(path.stem, text, units, mesh, origin, tuple(notes), len(raw.faces), timings)
+    return PropMesh(path.stem, text, units, mesh, origin, tuple(notes), n_raw, timings)
+
+
+#: a mesh file with more faces is followed by a garbage collection once it is repaired
+COLLECT_FACES = 100_000
 
 
 #: faces a prop mesh may have (a 5 M-face mesh takes about 2 GB while it is repaired)
