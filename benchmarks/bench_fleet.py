@@ -44,7 +44,7 @@ def check_fleet(folder: Path, frames: int, seed: int) -> dict:
     from starforge.props.distinct import subset_margin
     from starforge.tracking.bodies import Body, BodySet, load_bodies
     from starforge.tracking.check import CheckSettings, run_check
-    from starforge.tracking.identify import build_library, drop1_margin_mm
+    from starforge.tracking.library import build_library, drop1_margin_mm
 
     rows = list(csv.DictReader((folder / "batch.csv").read_text().splitlines()))
     bodies = []

@@ -26,8 +26,8 @@ of markers on the same usable sites (markers at least the run's spacing apart) p
 poses (``best_random_same_poses``, an upward-biased maximum) and re-measured on fresh poses
 (``best_random_fresh_poses``, beside ``chosen_fresh_poses``); the markers with less than the
 placement error of room, recomputed by brute force over every face and sharp edge of the mesh
-(``markers_below_margin``); the overlapping text boxes of the guide's pages as matplotlib lays
-them out (``guide_text_overlaps``).
+(``markers_below_margin``); the overlapping glyphs of the written guide.pdf as pdfminer.six reads
+the file (``guide_text_overlaps``, :mod:`_pdftext`) and the glyphs off the page.
 
 Run: ``python benchmarks/bench_props_real.py [--poses 600] [--props bottle,torch]``.
 """
@@ -252,7 +252,9 @@ def main(argv=None) -> int:
     ap.add_argument("--props", default="")
     args = ap.parse_args(argv)
     from starforge.props.placement import run_placement
-    from starforge.render.guide import guide_pages, overlapping_texts
+    from _pdftext import glyph_boxes, off_page, overlapping_glyphs
+
+    from starforge.render.guide import guide_files
 
     meshes = props()
     wanted = [p for p in args.props.split(",") if p] or list(meshes)
@@ -288,12 +290,12 @@ def main(argv=None) -> int:
                     best, best_f = lay, f
             err = res.spec.seat.placement_error_mm / 1000.0
             below, rooms = margin_shortfall(mesh, res.marker_points, res.marker_normals, res.seat.base_radius_m, err)
-            pages = guide_pages(res)
-            overlaps = sum(len(overlapping_texts(p)) for p in pages)
-            import matplotlib.pyplot as plt
-
-            for p in pages:
-                plt.close(p)
+            folder = Path(tmp) / name
+            folder.mkdir()
+            guide_files(res, folder)
+            pages = glyph_boxes(folder / "guide.pdf")
+            overlaps = sum(len(overlapping_glyphs([b for _, b in g])) for _, g in pages)
+            off = sum(len(off_page(p)) for p in pages)
             rows[name] = {
                 "faces": len(mesh.faces),
                 "extents_mm": [round(1000 * e, 1) for e in mesh.extents],
@@ -309,6 +311,7 @@ def main(argv=None) -> int:
                 "markers_below_margin": below,
                 "min_margin_mm": round(1000 * min(rooms), 2),
                 "guide_text_overlaps": overlaps,
+                "guide_glyphs_off_page": off,
                 "guide_pages": len(pages),
                 "seconds": round(sec, 1),
             }
@@ -326,6 +329,7 @@ def main(argv=None) -> int:
             ),
             "markers_below_margin": sum(v["markers_below_margin"] for v in vals),
             "guide_text_overlaps": sum(v["guide_text_overlaps"] for v in vals),
+            "guide_glyphs_off_page": sum(v["guide_glyphs_off_page"] for v in vals),
         },
     }
     sys.stdout.write(json.dumps(out, indent=1) + "\n")

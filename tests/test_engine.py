@@ -6,6 +6,7 @@ an unreachable scheduler (one line, exit 2, nothing published), and the plan / m
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import signal
@@ -324,6 +325,32 @@ def test_streamed_selection_on_the_cluster_is_the_serial_one(cluster, serial):
     ptr, rows = csr_rows(star_of, row, len(index))
     want = index[greedy(compactness_order(index, serial.pool_mm, volume), ptr, rows, n_rows)]
     assert here["index"].tobytes() == want[np.lexsort(want.T[::-1])].astype(np.int16).tobytes()
+
+
+@pytest.mark.slow  # starts dask processes
+def test_the_default_family_on_a_cluster_is_the_one_made_here(cluster, tmp_path, monkeypatch):
+    """``starforge --scheduler ADDRESS stars`` writes the same family, byte for byte outside its
+    timings, as ``starforge stars`` in one process."""
+    monkeypatch.delenv(engine.ENV_SCHEDULER, raising=False)
+
+    def family(args, name):
+        out = tmp_path / name
+        assert main([*args, "stars", "--out", str(out), "-q"]) == 0
+        doc = json.loads((out / "family.json").read_text())
+        doc.pop("timings", None)
+        sel = doc["summary"]["selection"]
+        doc["summary"]["selection"] = {k: v for k, v in sel.items() if not k.endswith("_s")}
+        return json.dumps(doc, sort_keys=True), sorted(p.name for p in out.iterdir())
+
+    here = family([], "here")
+    before = cluster.scheduler.transition_counter
+    try:
+        there = family(["--scheduler", cluster.scheduler_address], "there")
+    finally:
+        monkeypatch.delenv(engine.ENV_SCHEDULER, raising=False)
+    assert cluster.scheduler.transition_counter > before  # the work ran on the cluster
+    assert here == there
+    assert len(json.loads(here[0])["stars"]) > 0
 
 
 @pytest.mark.slow  # starts dask processes

@@ -582,6 +582,34 @@ def test_the_guide_has_landmarks_calipers_and_no_overlapping_text(hammer_run):
         assert f"{i:>2}. on " in text
 
 
+def test_the_written_guide_pdf_has_no_overlapping_text(hammer_run, tmp_path):
+    """guide.pdf as a reader sees it (pdfminer.six parses the file, :mod:`benchmarks._pdftext`):
+    no glyph overlaps another and every glyph lies on its page.  The reader is checked on a PDF
+    with two strings drawn over each other."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from benchmarks._pdftext import glyph_boxes, off_page, overlapping_glyphs
+
+    fig = plt.figure(figsize=(4, 3))
+    fig.text(0.1, 0.5, "Hello world")
+    fig.text(0.15, 0.505, "overlap text")
+    fig.savefig(tmp_path / "clash.pdf")
+    plt.close(fig)
+    ((_, clash),) = glyph_boxes(tmp_path / "clash.pdf")
+    assert overlapping_glyphs([b for _, b in clash])
+
+    out, _ = hammer_run
+    pages = glyph_boxes(out / "guide.pdf")
+    assert len(pages) == 2
+    for page in pages:
+        assert len(page[1]) > 100
+        assert overlapping_glyphs([b for _, b in page[1]]) == []
+        assert off_page(page) == []
+
+
 def test_the_run_prints_its_grips_and_pins_one_by_number(hammer_run, tmp_path, capsys):
     """Every run lists the grips it assumed (numbered as --grip takes them) and placement.json
     holds them; --grip N scores the layout under that grip alone, and out of range is refused."""

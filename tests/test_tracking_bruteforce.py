@@ -134,7 +134,8 @@ def test_the_best_hypothesis_is_the_brute_forces_under_both_headline_rules(hide,
 
 def test_ambiguous_matches_are_withheld_exactly_when_a_rival_fits_alike():
     """unambiguous() against the definition, pair by pair: a chosen match is dropped iff another
-    hypothesis with as many markers shares an observed point and fits within the ratio."""
+    hypothesis with as many markers shares an observed point and its misfit (negative
+    log-likelihood) is within the margin of the chosen one's."""
     rng = np.random.default_rng(3)
     bodies = _bodies(rng)
     lib = ident.build_library(bodies)
@@ -142,8 +143,11 @@ def test_ambiguous_matches_are_withheld_exactly_when_a_rival_fits_alike():
     pts = np.stack(scenes)
     h = ident.hypotheses(lib, pts, MATCH, RESIDUAL)
     chosen = ident.resolve(h, np.arange(len(pts)), pts.shape[1], len(bodies))
-    for ratio in (1.0, 1.5, 3.0):
-        kept = set(ident.unambiguous(h, chosen, pts.shape[1], h.rms, ratio).tolist())
+    nll = ident.misfit(h, h.rms, "fit", 0.1)
+    # the fit misfit is the sum of squared residuals over twice the variance
+    assert np.allclose(nll, h.n * h.rms**2 / (2 * 0.1**2))
+    for margin in (0.0, 0.5, 3.0):
+        kept = set(ident.unambiguous(h, chosen, pts.shape[1], nll, margin).tolist())
         for i in chosen.tolist():
             mine = {(h.scene[i], p) for p in h.assign[i] if p >= 0}
             rivals = [
@@ -151,6 +155,6 @@ def test_ambiguous_matches_are_withheld_exactly_when_a_rival_fits_alike():
                 for j in range(len(h.scene))
                 if j != i and h.n[j] == h.n[i] and mine & {(h.scene[j], p) for p in h.assign[j] if p >= 0}
             ]
-            alike = ratio > 1 and any(h.rms[j] <= ratio * h.rms[i] for j in rivals)
+            alike = margin > 0 and any(nll[j] <= nll[i] + margin for j in rivals)
             assert (i in kept) == (not alike)
-    assert len(ident.unambiguous(h, chosen, pts.shape[1], h.rms, 3.0)) < len(chosen)  # some are withheld
+    assert len(ident.unambiguous(h, chosen, pts.shape[1], nll, 3.0)) < len(chosen)  # some are withheld

@@ -49,6 +49,29 @@ def test_noise_free_full_view_is_perfect(family_lib):
     assert t.correct == t.instances
 
 
+def test_withholding_ambiguous_matches_cuts_ghost_confusions(family_lib):
+    """One marker hidden and 2 ghosts inside every body's sphere: a ghost and two real markers
+    can form another star's face.  The default tracker reports a match only when it is
+    AMBIGUITY times as likely as every rival; on the same frames it makes at most a quarter of
+    the wrong bodies and poses of a tracker that always reports the best match, and everything
+    it withholds is a missed frame, never a different label."""
+    bs, lib = family_lib
+    tol = bs.tolerance_mm
+    noise = 0.2 * tol / 1.5
+    runs = {}
+    for amb in (1.0, ident.AMBIGUITY):
+        runs[amb] = ident.run(
+            lib, 300, noise, 1, 2, np.random.default_rng(11), tol / 2, tol / 3, drop_exact=True, ambiguity=amb
+        )
+    best, safe = runs[1.0], runs[ident.AMBIGUITY]
+    assert best.withheld == 0 and safe.withheld > 0
+    wrong = {k: t.mislabels + int(t.flips.sum()) for k, t in runs.items()}
+    assert wrong[1.0] > 0  # the ghosts do make confusions for a best-match tracker
+    assert 4 * wrong[ident.AMBIGUITY] <= wrong[1.0]
+    # withholding only turns reports into misses: no frame gains a report
+    assert safe.correct + wrong[ident.AMBIGUITY] + int(safe.missed.sum()) == safe.instances
+
+
 def test_symmetric_body_is_reported_as_flipping():
     # the symmetry is real: a half turn about z maps the body onto itself, permuted
     Rz = Rotation.from_euler("z", 180, degrees=True).as_matrix()

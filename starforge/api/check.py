@@ -237,12 +237,12 @@ def _headline(doc: dict) -> str:
         else "wrong bodies or poses under every headline rule"
     )
     w = doc.get("withheld_rate", 0.0)
-    withheld = f" ({100 * w:.3f} % withheld: a rival explanation fit alike)" if w > 0 else ""
+    withheld = f" ({100 * w:.3f} % withheld: a rival explanation nearly as likely)" if w > 0 else ""
     return (
         f"identified {100 * doc['identification_rate']:.3f} %, wrong body {100 * doc['wrong_body_rate']:.3f} %, "
         f"wrong pose {100 * doc['flip_rate']:.3f} %, missed {100 * doc['missed_rate']:.3f} %{withheld} under rule {head}, "
         f"{worst}; {verdict}\n  rule {head}: {doc['headline_means']}; window {s['match_mm']:.3g} mm, "
-        f"residual {s['residual_mm']:.3g} mm; a match is withheld when a rival fits within x{s['ambiguity_ratio']:g}"
+        f"residual {s['residual_mm']:.3g} mm; a match is withheld unless {s['ambiguity_likelihood_ratio']:g} times as likely as any rival"
     )
 
 

@@ -42,8 +42,8 @@ CHOOSE = typer.Option(
 AMBIGUITY = typer.Option(
     None,
     "--ambiguity",
-    help="Report a match only when every rival explanation of its points fits this many times worse "
-    "(default 2: a missed frame rather than a wrong body or pose; 1: always the best match).",
+    help="Report a match only when it is this many times as likely as every rival explanation of its points "
+    "under --noise (default 20: a missed frame rather than a wrong body or pose; 1: always the best match).",
 )
 SEED = typer.Option(0, "--seed", help="Random seed (same seed, same result).")
 PRESET = typer.Option(

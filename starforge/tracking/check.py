@@ -68,9 +68,10 @@ class CheckSettings:
     world : "open" (each cluster identified on its own; default) or "closed" (each label once
         per frame: assumes every body is in every frame)
     presence : probability that a body is in a frame (bodies come and go)
-    ambiguity : a headline rule reports a match only when every rival explanation of its points
-        with as many markers fits this many times worse (:func:`starforge.tracking.identify.
-        unambiguous`; 1: never withheld); None: :data:`starforge.tracking.identify.AMBIGUITY`
+    ambiguity : a headline rule reports a match only when it is this many times as likely as
+        every rival explanation of its points with as many markers, under Gaussian noise of
+        ``noise_mm`` (:func:`starforge.tracking.identify.unambiguous`; 1: never withheld); None:
+        :data:`starforge.tracking.identify.AMBIGUITY`
     choose : simulate one ranking rule only (:data:`starforge.tracking.identify.CHOOSE`: ``fit``,
         ``sides`` or the stress model ``window``); None: every rule, headlined by the worst
         headline rule
@@ -114,8 +115,9 @@ class CheckSettings:
         require(self.frames >= 1, f"frames must be >= 1, got {self.frames}")
         if self.ambiguity is not None:
             require(
-                1.0 <= self.ambiguity <= 100.0,
-                f"ambiguity must be in [1, 100] (1: report the best match however close a rival), got {self.ambiguity}",
+                1.0 <= self.ambiguity <= 1e6,
+                f"ambiguity must be in [1, 1000000] (1: report the best match however close a rival), "
+                f"got {self.ambiguity}",
             )
         if self.match_mm is not None:
             require(0 < self.match_mm <= MAX_WINDOW_MM, f"match must be in (0, {MAX_WINDOW_MM:g}] mm, got {self.match_mm:g}")
@@ -326,6 +328,7 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
         "reflect": tr["reflect"],
         "rules": rules,
         "ambiguity": ident.AMBIGUITY if s.ambiguity is None else s.ambiguity,
+        "assumed_noise_mm": s.noise_mm,
     }
     tallies = ident.run_rules(lib, s.frames, s.noise_mm, s.drop, s.ghosts, rng, match, res, progress=cb, **kw)
     by_rule = {r: t.rates() for r, t in tallies.items()}
@@ -385,7 +388,7 @@ def run_check(bodyset, s: CheckSettings, progress=None) -> dict:
             "identify_from_markers": tr["min_markers"],
             "choose": tr["choose"],
             "choose_means": ident.CHOOSE[tr["choose"]],
-            "ambiguity_ratio": ident.AMBIGUITY if s.ambiguity is None else s.ambiguity,
+            "ambiguity_likelihood_ratio": ident.AMBIGUITY if s.ambiguity is None else s.ambiguity,
             "rules": list(rules),
             "tip_mm": acc["tip_mm"],
         },

@@ -3,7 +3,7 @@ fewest markers it identifies from.
 
 :func:`closest_pairs` finds, for every body, the other body whose marker triangles come closest
 (the bottleneck distance of sorted sides, :func:`starforge.tracking.identify.close_triangle_pairs`);
-:func:`fleet_report` adds each body's own margin (:func:`starforge.tracking.identify.drop1_margin_mm`
+:func:`fleet_report` adds each body's own margin (:func:`starforge.tracking.library.drop1_margin_mm`
 of the body alone: its triangles against each other and relabelled) and the ``starforge check``
 simulation (:func:`starforge.tracking.check.run_check`) with exactly three markers of every body
 seen, under every headline rule, at the tracker's window for the noise (or the preset's).

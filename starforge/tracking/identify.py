@@ -259,16 +259,17 @@ def resolve(
 
 
 def unambiguous(
-    h: Hypotheses, chosen: np.ndarray, n_points: int, value: np.ndarray, ratio: float
+    h: Hypotheses, chosen: np.ndarray, n_points: int, nll: np.ndarray, margin: float
 ) -> np.ndarray:
     """The hypotheses of ``chosen`` that no rival makes ambiguous: a rival is another hypothesis
     with as many markers that shares an observed point with it; a chosen match is kept only
-    when every rival's ``value`` (its residual, or its sorted-distance difference) exceeds
-    ``ratio`` times its own.  A tracker that cannot tell two explanations of the same points
-    apart reports neither: a missed frame instead of a wrong body or a wrong pose (the ghost
-    that completes a wrong triangle from two real markers fits about as well as the right one).
-    ``ratio`` <= 1 keeps every chosen one."""
-    if ratio <= 1.0 or len(chosen) == 0:
+    when every rival's ``nll`` (its misfit as a negative log-likelihood, :func:`misfit`)
+    exceeds its own by more than ``margin`` (the log of the likelihood ratio the tracker
+    demands).  A tracker that cannot tell two explanations of the same points apart reports
+    neither: a missed frame instead of a wrong body or a wrong pose (the ghost that completes a
+    wrong triangle from two real markers fits about as well as the right one).  ``margin`` <= 0
+    keeps every chosen one."""
+    if margin <= 0.0 or len(chosen) == 0:
         return chosen
     H = len(h.scene)
     pt = np.where(h.assign >= 0, h.scene[:, None] * n_points + h.assign, -1)
@@ -280,7 +281,7 @@ def unambiguous(
         valid = rows >= 0
         ids = np.broadcast_to(members[:, None], rows.shape)[valid]
         res = rows[valid]
-        vals = value[ids]
+        vals = nll[ids]
         # the two smallest values per observed point, and who holds the smallest
         order = np.lexsort((vals, res))
         res_s, vals_s, ids_s = res[order], vals[order], ids[order]
@@ -299,7 +300,7 @@ def unambiguous(
         v = r >= 0
         rc = np.where(v, r, 0)
         rival = np.where(v, np.where(who1[rc] == mine[:, None], best2[rc], best1[rc]), np.inf).min(axis=1)
-        ok[mine] = rival > ratio * value[mine]
+        ok[mine] = rival > nll[mine] + margin
     return chosen[ok[chosen]]
 
 
@@ -403,10 +404,27 @@ def sides_key(lib: Library, pts: np.ndarray, h: Hypotheses, chunk: int = 20000) 
     return out
 
 
-#: ``check``'s ambiguity ratio for the headline rules (:func:`unambiguous`): a chosen match is
-#: reported only when every rival explanation of its points with as many markers fits at least this
-#: many times worse (:func:`run_rules` withholds nothing unless asked)
-AMBIGUITY = 2.0
+#: ``check``'s ambiguity for the headline rules (:func:`unambiguous`): a chosen match is reported
+#: only when it is at least this many times as likely as every rival explanation of its points with
+#: as many markers, under Gaussian noise of the tracker's assumed size (:func:`misfit`;
+#: :func:`run_rules` withholds nothing unless asked).  A likelihood ratio rather than a ratio of
+#: residuals: two fits that both lie well inside the noise are not told apart by which is smaller.
+AMBIGUITY = 20.0
+
+#: the smallest noise (mm) the ambiguity test assumes: a noise-free simulation still ranks fits
+NOISE_FLOOR_MM = 1e-3
+
+
+def misfit(h: Hypotheses, value: np.ndarray, rule: str, noise_mm: float) -> np.ndarray:
+    """Each hypothesis' misfit as a negative log-likelihood under Gaussian noise of ``noise_mm``
+    per axis, up to a constant shared by rivals with as many markers: for ``fit`` the squared
+    residuals of the rigid fit, ``n rms^2 / (2 sigma^2)``; for ``sides`` the largest sorted-
+    distance difference ``value`` (a distance carries the noise of two points, variance
+    ``2 sigma^2``), ``value^2 / (4 sigma^2)``."""
+    var = max(float(noise_mm), NOISE_FLOOR_MM) ** 2
+    if rule == "sides":
+        return value**2 / (4.0 * var)
+    return h.n * h.rms**2 / (2.0 * var)
 
 #: caps on what ``check`` simulates, whatever the machine
 MAX_GHOSTS = 20
@@ -488,16 +506,19 @@ def run_rules(
     min_markers: int = 3,
     rules=RULES,
     ambiguity: float | None = None,
+    assumed_noise_mm: float | None = None,
 ) -> dict[str, Tally]:
     """As :func:`run`, identifying the same simulated frames under each ranking rule of
     ``rules`` (:data:`CHOOSE`): {rule: Tally}.  The frames and hypotheses are shared, only the
-    choice among a cluster's accepted matches differs."""
+    choice among a cluster's accepted matches differs.  ``assumed_noise_mm``: the noise the
+    tracker's ambiguity test assumes (:func:`misfit`; None: ``noise_mm``)."""
     check_settings(lib, noise_mm, drop, ghosts, n_frames, match_mm, residual_mm)
     require(world in ("open", "closed"), f"world must be open or closed, got {world!r}")
     require(0.0 < presence <= 1.0, f"presence must be in (0, 1], got {presence}")
     require(3 <= min_markers, f"min_markers must be >= 3, got {min_markers}")
     rules = tuple(rules)
-    ambiguity = 1.0 if ambiguity is None else float(ambiguity)
+    margin = 0.0 if ambiguity is None else math.log(float(ambiguity))
+    assumed = noise_mm if assumed_noise_mm is None else assumed_noise_mm
     for choose in rules:
         require(choose in CHOOSE, f"choose must be one of {', '.join(CHOOSE)}, got {choose!r}")
     B = lib.n_bodies
@@ -528,7 +549,7 @@ def run_rules(
                 key = None
             chosen = resolve(h, group, sc.pts.shape[1], B, key)
             if choose != "window":
-                kept = unambiguous(h, chosen, sc.pts.shape[1], value, ambiguity)
+                kept = unambiguous(h, chosen, sc.pts.shape[1], misfit(h, value, choose, assumed), margin)
                 tallies[choose].withheld += len(chosen) - len(kept)
                 chosen = kept
             score(sc, h, chosen, tallies[choose])
