@@ -117,13 +117,19 @@ def evaluate_layouts(mesh, layouts: dict, rig, pivot, settings, seed: int, min_h
     every = np.full(len(poses), np.uint64((1 << C) - 1) if C < 64 else np.uint64(2**64 - 1))
     out = {"_poses": len(poses), "_cameras_lost": int(round(settings.cameras_lost * C))}
     per_pose = {}
-    for name, (c, n) in layouts.items():
+    # a marker's hits depend on that marker alone: the layouts' markers (they share most) are
+    # looked at once, each distinct (centre, normal) row one column of the table
+    rows = [np.hstack([np.asarray(c, float).reshape(-1, 3), np.asarray(n, float).reshape(-1, 3)]) for c, n in layouts.values()]
+    union, at = np.unique(np.vstack(rows), axis=0, return_inverse=True) if rows else (np.zeros((0, 6)), None)
+    table = camera_hits(mesh, union[:, :3], union[:, 3:], rig, poses, held, grazing_limit_deg, pose_grip) if len(poses) and len(union) else None
+    start = np.cumsum([0] + [len(r) for r in rows])
+    for k, (name, (c, n)) in enumerate(layouts.items()):
         c, n = np.asarray(c, float), np.asarray(n, float)
         if not len(poses) or not len(c):
             out[name] = {"tracked": 0.0, "tracked_all_cameras": 0.0, "markers_reconstructed": 0.0}
             per_pose[name] = np.zeros(len(poses), bool)
             continue
-        hits = camera_hits(mesh, c, n, rig, poses, held, grazing_limit_deg, pose_grip)
+        hits = table[:, np.ravel(at)[start[k] : start[k + 1]]]
         per_pose[name] = tracked_poses(hits, alive, c, min_height_mm)
         out[name] = {
             "tracked": float(per_pose[name].mean()),

@@ -85,27 +85,29 @@ def mesh_landmarks(mesh) -> list[dict]:
     return out
 
 
-def _flat_faces(mesh) -> dict[int, dict]:
-    """Face index -> its flat face (a facet of coplanar faces, or one triangle, of at least
-    :data:`FLAT_MIN_MM2`; numbered F1, F2, ... largest first): ``{"id", "facing", "area_mm2"}``."""
+def _flat_faces(mesh, faces) -> dict[int, dict]:
+    """Face index (of ``faces``) -> its flat face (a facet of coplanar faces, or one triangle, of
+    at least :data:`FLAT_MIN_MM2`; numbered F1, F2, ... largest first): ``{"id", "facing",
+    "area_mm2"}``; faces on no flat face are left out."""
     tri_area = np.asarray(mesh.area_faces) * 1e6
     fn = np.asarray(mesh.face_normals)
-    groups = [np.asarray(f, int) for f in mesh.facets]
-    in_facet = np.zeros(len(tri_area), bool)
-    for g in groups:
-        in_facet[g] = True
-    groups += [np.array([f]) for f in np.flatnonzero(~in_facet & (tri_area >= FLAT_MIN_MM2))]
-    areas = np.array([tri_area[g].sum() for g in groups])
+    facets = [np.asarray(f, int) for f in mesh.facets]
+    group = np.full(len(tri_area), -1, np.int64)  # face -> its group: the facets, then lone triangles
+    for k, g in enumerate(facets):
+        group[g] = k
+    lone = np.flatnonzero((group < 0) & (tri_area >= FLAT_MIN_MM2))
+    group[lone] = len(facets) + np.arange(len(lone))
+    first = np.array([g[0] for g in facets] + lone.tolist(), np.int64)  # a face of each group
+    areas = np.array([tri_area[g].sum() for g in facets] + tri_area[lone].tolist())
+    order = np.argsort(-areas, kind="stable")
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(1, len(order) + 1)
     out = {}
-    rank = 0
-    for k in np.argsort(-areas, kind="stable"):
-        if areas[k] < FLAT_MIN_MM2:
-            break
-        rank += 1
-        g = groups[k]
-        info = {"id": f"F{rank}", "facing": _direction(fn[g[0]], 1.0), "area_mm2": round(float(areas[k]), 0)}
-        for f in g:
-            out[int(f)] = info
+    for f in {int(x) for x in np.asarray(faces).ravel()}:
+        k = group[f]
+        if k < 0 or areas[k] < FLAT_MIN_MM2:
+            continue
+        out[f] = {"id": f"F{rank[k]}", "facing": _direction(fn[first[k]], 1.0), "area_mm2": round(float(areas[k]), 0)}
     return out
 
 
@@ -130,7 +132,7 @@ def landmarks(mesh, points: np.ndarray, normals: np.ndarray, faces=None, marks=N
     lo, hi = np.asarray(mesh.bounds, float)
     marks = mesh_landmarks(mesh) if marks is None else marks
     lp = np.array([m["point"] for m in marks], float).reshape(-1, 3)
-    flat = _flat_faces(mesh) if faces is not None else {}
+    flat = _flat_faces(mesh, faces) if faces is not None else {}
     out = []
     for i, (p, n) in enumerate(zip(np.asarray(points, float), np.asarray(normals, float), strict=True)):
         side, dist = {}, []

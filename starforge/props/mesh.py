@@ -7,6 +7,7 @@ list of plain-language notes saying what was repaired.
 
 from __future__ import annotations
 
+import gc
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -167,12 +168,14 @@ def repair_mesh(mesh, union_shells: bool = True):
     # consistent winding and outward normals, shell by shell
     before = m.faces.copy()
     trimesh.repair.fix_winding(m)
-    trimesh.repair.fix_inversion(m, multibody=True)
+    n_shells = len(_shells(m))
+    _fix_inversion(m, n_shells)
     flipped = int(np.any(m.faces != before, axis=1).sum())
     if flipped:
         notes.append(f"flipped {flipped} faces so normals point outward")
 
     if not m.is_watertight:
+        n_shells = None  # filling holes and turning shells change the faces: counted again below
         nf = len(m.faces)
         trimesh.repair.fill_holes(m)
         added = len(m.faces) - nf
@@ -187,10 +190,12 @@ def repair_mesh(mesh, union_shells: bool = True):
                 f"turned {n_open} open shell{'s' if n_open > 1 else ''} inside out (normals faced inward)"
             )
 
-    shells = m.split(only_watertight=False)
+    if n_shells is None:
+        n_shells = len(_shells(m))
+    shells = m.split(only_watertight=False) if n_shells > 1 else [m]
     if len(shells) > 1:
         notes.append(f"{len(shells)} separate shells")
-    tight = [s for s in shells if s.is_watertight and s.is_volume]
+    tight = [s for s in shells if s.is_watertight and s.is_volume] if len(shells) > 1 else []
     if union_shells and len(tight) >= 2 and _any_overlap(tight):
         merged = union_solids(tight)
         if merged is not None:
@@ -205,6 +210,36 @@ def repair_mesh(mesh, union_shells: bool = True):
     if len(m.faces) == 0 or m.area <= 0:
         raise StarforgeError("prop mesh has no usable surface after repair")
     return m, origin, notes
+
+
+def _shells(m) -> list:
+    """The face indices of each connected shell of ``m`` (a lone face is a shell of its own)."""
+    from trimesh.graph import connected_components
+
+    return connected_components(m.face_adjacency, nodes=np.arange(len(m.faces)), min_len=1)
+
+
+def _fix_inversion(m, n_shells: int) -> None:
+    """Turn every closed, consistently wound shell of ``m`` with a negative volume inside out
+    (trimesh's ``fix_inversion(multibody=True)``; a mesh of ``n_shells == 1`` is checked whole,
+    without splitting it into submeshes first, which dominates on a fine mesh)."""
+    import trimesh
+
+    if n_shells > 1:
+        trimesh.repair.fix_inversion(m, multibody=True)
+        return
+    if len(m.faces) < 4 or not (m.is_watertight and m.is_winding_consistent):
+        return
+    if signed_volume(m) < 0.0:
+        m.faces = np.fliplr(m.faces)
+
+
+def signed_volume(m) -> float:
+    """The volume a closed mesh's faces enclose, m^3: positive when they wind outward (the sum of
+    the tetrahedra from the vertices' mean to every face)."""
+    tri = np.asarray(m.triangles, float) - np.asarray(m.vertices, float).mean(axis=0)
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    return float(np.einsum("ij,ij->", tri[:, 0], cross)) / 6.0
 
 
 def _orient_open_shells(m, samples: int = 64) -> int:
@@ -302,8 +337,18 @@ def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
         mesh, origin, notes = repair_mesh(raw)
     except StarforgeError as exc:
         raise StarforgeError(f"{path}: {exc}") from None
+    n_raw = len(raw.faces)
+    if n_raw > COLLECT_FACES:
+        # the loader's and the repair's meshes hold reference cycles (a mesh and its caches),
+        # hundreds of MB on a fine mesh, which a command running with the collector paused keeps
+        del raw
+        gc.collect()
     timings["repair_s"] = round(time.perf_counter() - t1, 4)
-    return PropMesh(path.stem, text, units, mesh, origin, tuple(notes), len(raw.faces), timings)
+    return PropMesh(path.stem, text, units, mesh, origin, tuple(notes), n_raw, timings)
+
+
+#: a mesh file with more faces is followed by a garbage collection once it is repaired
+COLLECT_FACES = 100_000
 
 
 #: faces a prop mesh may have (a 5 M-face mesh takes about 2 GB while it is repaired)

@@ -46,13 +46,15 @@ class PlotData:
     grip_lines: tuple = ()  # the grips, as the run prints them
 
 
+#: a mesh with more faces is drawn simplified (:func:`drawn_faces`), to at most DRAWN_FACES faces
 MAX_FACES = 20000
+DRAWN_FACES = 6000
 
 
 def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
     """:class:`PlotData` from a :class:`starforge.props.result.PlacementResult`.
 
-    Meshes with more than ``max_faces`` faces are drawn from an evenly spaced subset of faces.
+    Meshes with more than ``max_faces`` faces are drawn simplified (:func:`drawn_faces`).
     """
     if isinstance(res, PlotData):
         return res
@@ -65,8 +67,7 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         temps = ts.t0 * decay ** np.arange(n_hist) if ts.t0 > 0 else np.zeros(n_hist)
     else:
         temps = np.array([res.spec.chain.temperature(i) for i in range(n_hist)])
-    nf = len(res.prop.mesh.faces)
-    keep = np.linspace(0, nf - 1, max_faces).astype(int) if nf > max_faces else np.arange(nf)
+    tris, normals = drawn_faces(res.prop.mesh, max_faces)
     from starforge.props.files import grip_lines
     from starforge.props.guide import caliper_pairs, landmarks, mesh_landmarks
     from starforge.props.hand import capsule_arrays
@@ -86,8 +87,8 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         best=best,
         run_costs=tuple((r.history_cost, r.history_best, r.history_n) for r in runs),
         temperatures=temps,
-        triangles=np.asarray(res.prop.mesh.triangles)[keep],
-        face_normals=np.asarray(res.prop.mesh.face_normals)[keep],
+        triangles=tris,
+        face_normals=normals,
         marker_points=res.marker_points,
         marker_normals=res.marker_normals,
         marker_visibility=res.marker_visibility,
@@ -116,6 +117,41 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         placement_error_mm=err,
         grip_lines=tuple(grip_lines(getattr(res, "part", None), grips)) if grips else (),
     )
+
+
+def drawn_faces(mesh, max_faces: int = MAX_FACES) -> tuple[np.ndarray, np.ndarray]:
+    """The faces a picture draws: ``mesh``'s triangles (f, 3, 3) m and unit face normals (f, 3)
+    as they are when ``f <= max_faces``; else the mesh simplified by vertex clustering to at most
+    :data:`DRAWN_FACES` faces (vertices snapped to the mean of their cell of a cubic grid, faces
+    that collapse or repeat dropped, normals recomputed from the kept winding, the grid coarsened
+    until few enough remain).  A picture a thousand pixels wide cannot show the detail lost, while
+    the surface stays closed (a subset of the faces would leave it full of holes) and drawing and
+    the PDF stay small.
+    """
+    if len(mesh.faces) <= max_faces:
+        return np.asarray(mesh.triangles, float), np.asarray(mesh.face_normals, float)
+    pts = np.asarray(mesh.vertices, float)
+    faces = np.asarray(mesh.faces, np.int64)
+    lo = pts.min(axis=0)
+    span = float(np.ptp(pts, axis=0).max()) or 1.0
+    cells = max(8, int(np.sqrt(DRAWN_FACES)))  # cells along the longest side
+    while True:
+        key = np.floor((pts - lo) / (span / cells)).astype(np.int64).clip(0, cells)
+        _, cell = np.unique(key[:, 0] * (cells + 1) ** 2 + key[:, 1] * (cells + 1) + key[:, 2], return_inverse=True)
+        f = cell[faces]
+        f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+        f = f[np.sort(np.unique(np.sort(f, axis=1), axis=0, return_index=True)[1])]
+        if len(f) <= DRAWN_FACES or cells <= 8:
+            break
+        cells = max(8, int(cells * 0.9 * np.sqrt(DRAWN_FACES / len(f))))
+    centre = np.zeros((cell.max() + 1, 3))
+    np.add.at(centre, cell, pts)
+    centre /= np.bincount(cell)[:, None]
+    out = centre[f]
+    n = np.cross(out[:, 1] - out[:, 0], out[:, 2] - out[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    ok = length > 0
+    return out[ok], n[ok] / length[ok, None]
 
 
 def view_basis(elev_deg: float, azim_deg: float) -> np.ndarray:
