@@ -290,8 +290,8 @@ def _cases(f) -> list[Case]:
         # the tolerance in pool steps cubes the selection's windows: refused from a pilot sample
         Case("stars-tolerance-windows", ("stars", "--delta", "0.5", "--tolerance", "6", "--min-depth", "0"),
              r"selecting among about .* fitting stars .* memory"),
-        # the time estimate comes from a pilot sample of the spec's own stars (well above the 10 s given here)
-        Case("stars-pilot-time", ("--max-seconds", "10", "stars", "--delta", "1.0"), r"would take about",
+        # the time estimate comes from a pilot sample of the spec's own stars (several times the 3 s given here)
+        Case("stars-pilot-time", ("--max-seconds", "3", "stars", "--delta", "1.0"), r"would take about",
              env={"STARFORGE_MAX_MEMORY": "8G"}),
         # a tolerance of 8 pool steps: the pilot's fitting share times 512 windows per face
         Case("stars-tolerance-8-steps", ("stars", "--delta", "0.5", "--tolerance", "4", "--min-depth", "0"),
