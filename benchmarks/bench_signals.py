@@ -5,13 +5,15 @@ runs it), waits a seeded random delay drawn from the command's window (start-up 
 sends SIGTERM or SIGINT (alternately per round).  A trial is clean when the command
 
 * exits within 2 s of the signal with the signal's code (128 + signal) and the one line
-  ``terminated; no output was changed`` / ``interrupted; ...`` (progress lines aside), no
-  traceback and no warning on stderr,
+  ``terminated; no output was changed`` / ``interrupted; ...`` (progress lines aside), or, for
+  a signal that came while the outputs were renamed into place, ``terminated after its outputs
+  were written to OUT`` with the outputs there; no traceback and no warning on stderr,
 * leaves no process behind: none in its session, and none anywhere that descends from it (this
   script makes itself the child subreaper, so an orphan that left the session is reparented
   here and found),
-* leaves no staging folder and the working folder byte for byte as it was (after a 1 s grace, in
-  which a helper that outlived the command would have written).
+* leaves no staging folder and the working folder byte for byte as it was, or with only the new
+  outputs added when its line says so (after a 1 s grace, in which a helper that outlived the
+  command would have written).
 
 The commands run as the hostile suite's cases do (``tests.test_hostile_inputs.CHILD``), with an
 address-space cap of :data:`ADDRESS_SPACE_BYTES` instead of the cases' 2 GiB: ``stars --delta 1.0``
@@ -219,9 +221,13 @@ def _trial(work: Path, argv: list[str], sig: signal.Signals, delay: float) -> di
         word = "terminated" if sig == signal.SIGTERM else "interrupted"
         if proc.returncode != 128 + sig:
             problems.append(f"exit {proc.returncode}, not {128 + sig}")
-        if lines != [f"{word}; no output was changed"]:
+        after = snapshot(work)
+        if lines == [f"{word} after its outputs were written to {out}"]:  # signalled while publishing
+            if {k: after.get(k) for k in before} != before or len(after) == len(before):
+                problems.append("said the outputs were written, but the working folder says otherwise")
+        elif lines != [f"{word}; no output was changed"]:
             problems.append(f"stderr {lines[:3]}"[:300])
-        if snapshot(work) != before:
+        elif after != before:
             problems.append("the working folder changed")
     outcome = f"exit {proc.returncode}: " + (lines[-1][:60] if lines else "no line")
     return {"clean": not problems, "ended_first": ended_first, "exit_s": round(exit_s, 3), "code": proc.returncode,

@@ -164,7 +164,9 @@ def check_writable(out_dir: str | Path, names: Iterable[str], force: bool) -> No
 
 @contextmanager
 def _sigint_blocked():
-    """Hold Ctrl-C (delivered afterwards) while a few renames run, so they finish or roll back."""
+    """Hold Ctrl-C and SIGTERM back from this thread (delivered afterwards) while a few renames
+    run, so they finish or roll back; the starforge command's handler also waits for them
+    (:func:`renaming`), since a signal another thread receives is not held back."""
     blockable = threading.current_thread() is threading.main_thread() and hasattr(signal, "pthread_sigmask")
     if blockable:
         old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
@@ -186,40 +188,72 @@ def publish(stage: Path, out_dir: Path, force: bool) -> list[Path]:
     produced = sorted(p.relative_to(stage) for p in stage.rglob("*") if p.is_file())
     check_writable(out_dir, [str(p) for p in produced], force)
     with _sigint_blocked():
-        if not os.path.lexists(out_dir):
-            out_dir.parent.mkdir(parents=True, exist_ok=True)
-            os.rename(stage, out_dir)
-            return produced
-        backup = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".old", dir=out_dir.parent))
-        saved: list[Path] = []
-        moved: list[Path] = []
-        made: list[Path] = []
+        _renaming[0] = True
         try:
-            for rel in produced:
-                dst = out_dir / rel
-                if os.path.lexists(dst):
-                    (backup / rel).parent.mkdir(parents=True, exist_ok=True)
-                    os.replace(dst, backup / rel)
-                    saved.append(rel)
-                for anc in reversed(rel.parents):
-                    d = out_dir / anc
-                    if not d.exists():
-                        d.mkdir()
-                        made.append(d)
-                os.replace(stage / rel, dst)
-                moved.append(rel)
-        except BaseException:
-            for rel in reversed(moved):
-                os.replace(out_dir / rel, stage / rel)
-            for rel in reversed(saved):
-                os.replace(backup / rel, out_dir / rel)
-            for d in reversed(made):
-                with contextlib.suppress(OSError):
-                    d.rmdir()
-            raise
+            if not os.path.lexists(out_dir):
+                out_dir.parent.mkdir(parents=True, exist_ok=True)
+                os.rename(stage, out_dir)
+            else:
+                _replace_files(stage, out_dir, produced)
+            # recorded before a signal held back during the renames is acted on: a stop from here
+            # on says the outputs were written (runtime.stop.report_stop)
+            _published.append(out_dir)
         finally:
-            shutil.rmtree(backup, ignore_errors=True)
+            _renaming[0] = False
     return produced
+
+
+def _replace_files(stage: Path, out_dir: Path, produced: list[Path]) -> None:
+    """Move ``produced`` from ``stage`` into the existing ``out_dir``: old files of the same names
+    aside first, then the new ones in; on any failure every move is undone."""
+    backup = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".old", dir=out_dir.parent))
+    saved: list[Path] = []
+    moved: list[Path] = []
+    made: list[Path] = []
+    try:
+        for rel in produced:
+            dst = out_dir / rel
+            if os.path.lexists(dst):
+                (backup / rel).parent.mkdir(parents=True, exist_ok=True)
+                os.replace(dst, backup / rel)
+                saved.append(rel)
+            for anc in reversed(rel.parents):
+                d = out_dir / anc
+                if not d.exists():
+                    d.mkdir()
+                    made.append(d)
+            os.replace(stage / rel, dst)
+            moved.append(rel)
+    except BaseException:
+        for rel in reversed(moved):
+            os.replace(out_dir / rel, stage / rel)
+        for rel in reversed(saved):
+            os.replace(backup / rel, out_dir / rel)
+        for d in reversed(made):
+            with contextlib.suppress(OSError):
+                d.rmdir()
+        raise
+    finally:
+        shutil.rmtree(backup, ignore_errors=True)
+
+
+#: the output folders this command has published, in order: a signal after a publish cannot
+#: undo it, so the command's last line names them (runtime.stop.report_stop)
+_published: list[Path] = []
+#: True while a publish renames files: the mask of :func:`_sigint_blocked` holds a signal back
+#: only from the thread that sets it, and a signal delivered to any other thread still runs the
+#: Python handler in the main thread at once, so the command's handler asks :func:`renaming`
+_renaming = [False]
+
+
+def renaming() -> bool:
+    """Whether a publish is renaming files now (a signal handler then lets it finish first)."""
+    return _renaming[0]
+
+
+def published() -> list[Path]:
+    """The output folders published since the command began (:func:`reset_interrupt`)."""
+    return list(_published)
 
 
 #: set by the CLI's SIGINT handler: a Ctrl-C that a library swallowed (numba's compiler runs
@@ -239,8 +273,10 @@ def interrupted() -> bool:
 
 
 def reset_interrupt() -> None:
+    """Forget a Ctrl-C and the folders published: a new command begins."""
     global _interrupted
     _interrupted = False
+    _published.clear()
 
 
 @contextmanager
@@ -278,6 +314,8 @@ def staged_output(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
             p.chmod(0o777 & ~_umask() if p.is_dir() else _file_mode())
         with _publishing:
             publish(stage, out_dir, force)
+        if _interrupted:  # a signal that came while the files were renamed: stop now
+            raise KeyboardInterrupt
 
 
 def _full_disk_error(exc: BaseException) -> OSError | None:

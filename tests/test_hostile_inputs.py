@@ -662,6 +662,43 @@ def test_a_swallowed_ctrl_c_still_changes_nothing(tmp_path, monkeypatch):
     assert signal.getsignal(signal.SIGINT) is handler  # restored after the run
 
 
+@pytest.mark.parametrize("existing", [False, True], ids=["new-folder", "into-a-folder"])
+def test_a_signal_during_the_publish_says_the_outputs_were_written(existing, tmp_path, monkeypatch, capsys):
+    """SIGTERM while the outputs are renamed into place (the new folder renamed, or the first file
+    moved into an existing one) waits for the renames: the outputs are then whole, the user's
+    other files as they were, and the one line says where the outputs were written."""
+    import signal
+
+    import starforge.runtime.process
+
+    monkeypatch.setattr(starforge.runtime.process, "STOP_DEADLINE_S", 60.0)
+    out = tmp_path / "out"
+    if existing:
+        out.mkdir()
+        (out / "keep.txt").write_text("a file the user had")
+        (out / "family.json").write_text("an old family")
+    name = "replace" if existing else "rename"
+    real = getattr(os, name)
+    sent = []
+
+    def move_then_signal(src, dst, *args, **kwargs):
+        real(src, dst, *args, **kwargs)
+        if not sent and (Path(dst) == out or Path(dst).parent == out):
+            sent.append(dst)
+            os.kill(os.getpid(), signal.SIGTERM)  # the publish is mid-way: it finishes first
+
+    monkeypatch.setattr(os, name, move_then_signal)
+    capsys.readouterr()
+    args = ["stars", "--box", "16", "12", "24", "--delta", "2", "--out", out, *(["--force"] if existing else [])]
+    assert run_cli(args) == 128 + signal.SIGTERM
+    said = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("starforge ")]
+    assert sent and said == [f"terminated after its outputs were written to {out}"]
+    doc = json.loads((out / "family.json").read_text())  # the new family, whole
+    assert len((out / "family.csv").read_text().strip().splitlines()) > len(doc["stars"]) > 0
+    assert not existing or (out / "keep.txt").read_text() == "a file the user had"
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith((".staging", ".old"))]
+
+
 def test_force_does_not_replace_a_read_only_file(files, tmp_path):
     """--force over a read-only output refuses in one line (a read-only file means "keep this")."""
     out = tmp_path / "out"

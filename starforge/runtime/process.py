@@ -15,7 +15,7 @@ import signal
 import sys
 import threading
 
-from starforge.io import discard_stages, interrupted, note_interrupt, reset_interrupt
+from starforge.io import discard_stages, interrupted, note_interrupt, published, renaming, reset_interrupt
 from starforge.runtime.engine import ENV_SCHEDULER, silence_dask
 from starforge.runtime.procs import end_children
 from starforge.runtime.stop import report_stop
@@ -53,8 +53,11 @@ _stopped_by: list = [None]
 def _on_signal(signum, frame):
     """Ctrl-C and SIGTERM alike, in the main thread: remember it (even where a library swallows
     the exception below) and unwind; nothing staged is published (starforge.io.staged_output
-    checks the flag)."""
+    checks the flag).  During a publish's renames it only remembers: they finish (or roll back)
+    first, and the publish stops the command right after."""
     _noted(signum)
+    if renaming():
+        return
     raise KeyboardInterrupt
 
 
@@ -73,14 +76,14 @@ STOP_DEADLINE_S = 1.0
 _reported = threading.Lock()  # held by whoever reports the stop (the command, or the last resort)
 
 
-def _watch_signals(read_fd: int, done: threading.Event, discard_stages, end_children) -> None:
+def _watch_signals(read_fd: int, done: threading.Event, discard_stages, end_children, published) -> None:
     """The last resort, in a thread: Python runs a signal handler only between bytecodes of the
     main thread, and a compiled kernel (numba, HiGHS) does not return to Python until it is done.
     The signal's number also arrives on ``read_fd`` (signal.set_wakeup_fd) while such a kernel
     runs without the GIL; if the command has not ended STOP_DEADLINE_S later, remove its stage
     folders (never in the middle of a publish), end the command's helper processes, print the
-    one line and exit at once.  It imports nothing itself (``discard_stages`` and
-    ``end_children`` come in): a module lock it held while the process forks would stay taken
+    one line and exit at once.  It imports nothing itself (``discard_stages``, ``end_children``
+    and ``published`` come in): a module lock it held while the process forks would stay taken
     in the child forever."""
     while True:
         try:
@@ -99,7 +102,7 @@ def _watch_signals(read_fd: int, done: threading.Event, discard_stages, end_chil
             if done.is_set() or not discard_stages():
                 return  # ended meanwhile, or a publish that would not finish: let it end on its own
             end_children()
-            report_stop(_stopped_by[0] or signum)
+            report_stop(_stopped_by[0] or signum, published())
             os._exit(128 + (_stopped_by[0] or signum))
 
 
@@ -117,7 +120,7 @@ def _install_signals():
     except (ValueError, OSError):
         old_fd = None
     watcher = threading.Thread(
-        target=_watch_signals, args=(read_fd, done, discard_stages, end_children), name="starforge-signals",
+        target=_watch_signals, args=(read_fd, done, discard_stages, end_children, published), name="starforge-signals",
         daemon=True,
     )
     # safe to fork beside (starforge.render.props forks render processes, starforge.cad.step_worker
@@ -167,14 +170,15 @@ class Command:
 
     def finish(self, code: int) -> int:
         """The exit code: a Ctrl-C or SIGTERM, raised, turned into click's Abort or swallowed by
-        a library, ends as 128 + the signal with its one line (nothing was published:
-        ``starforge.io.staged_output`` checks the flag)."""
+        a library, ends as 128 + the signal with its one line: nothing was published
+        (``starforge.io.staged_output`` checks the flag), or the line names the folders a publish
+        finished before the signal was delivered."""
         with _reported:  # if the last resort holds it, it is exiting the process
             self._done.set()
             if interrupted() and code in (0, 130):
                 signum = _stopped_by[0] or signal.SIGINT
                 code = 128 + signum
-                report_stop(signum)
+                report_stop(signum, published())
         return code
 
 
@@ -229,7 +233,7 @@ def end_process(code: int) -> None:
         # gone) takes seconds to tear down, and dask reports on it after our one line
         _flush_and_exit(code)
     if _stopped_by[0] is not None and not traced:
-        # stopped by a signal: nothing was published and the stages are gone; a compiled kernel
+        # stopped by a signal: the stages are gone (what was published is whole); a compiled kernel
         # may still run on a worker thread, which the interpreter's exit would wait for
         import atexit
 

@@ -21,11 +21,17 @@ import sys
 _COMMAND_NAMES = ("starforge", "starforge.exe", "starforge-script.py")
 
 
-def report_stop(signum: int) -> None:
-    """The one line of a command stopped by SIGTERM or Ctrl-C (nothing was published)."""
+def report_stop(signum: int, written=()) -> None:
+    """The one line of a command stopped by SIGTERM or Ctrl-C: nothing was published, or (a signal
+    that came during or after a publish, which it cannot undo) the folders in ``written`` hold the
+    command's complete outputs."""
     word = "terminated" if signum == _signal.SIGTERM else "interrupted"
+    if written:
+        line = f"{word} after its outputs were written to {', '.join(str(w) for w in written)}\n"
+    else:
+        line = f"{word}; no output was changed\n"
     try:
-        sys.stderr.write(f"{word}; no output was changed\n")
+        sys.stderr.write(line)
         sys.stderr.flush()
     except (OSError, ValueError, AttributeError):  # no stderr (closed, or not yet made)
         pass
