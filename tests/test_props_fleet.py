@@ -314,3 +314,76 @@ def test_distinct_tolerance_follows_the_tracker():
         2 * max(2.0, bone_tolerance_noise_mm(0.2, n))
     )
     assert distinct_tolerance_mm(s, None, 0.0) == s.track.avoid_tolerance_mm  # the spec's floor
+
+
+def _window_mm(noise_mm, n):
+    """The default tracker's window for ``n`` markers from its definition (every one of the
+    C(n, 2) distances within it but for a tenth of 0.1 % of frames, a union bound), computed
+    here with scipy.stats."""
+    from scipy.stats import norm
+
+    return noise_mm * math.sqrt(2.0) * norm.isf(0.001 * 0.1 / math.comb(n, 2) / 2.0)
+
+
+def test_distinct_tolerances_follow_the_marker_count():
+    from starforge.api.place import distinct_tolerance_mm, distinct_tolerances_mm
+    from starforge.props.spec import load_spec
+
+    s = load_spec("default")
+    for noise in (0.2, 0.5):
+        table = distinct_tolerances_mm(s, None, noise)
+        assert len(table) == max(s.track.max_markers, s.costs.max_markers) + 1
+        for n in range(3, len(table)):
+            assert table[n] == pytest.approx(max(s.track.avoid_tolerance_mm, 2 * _window_mm(noise, n)), rel=1e-9)
+        assert all(a <= b for a, b in itertools.pairwise(table))  # more markers, a wider window
+        assert distinct_tolerance_mm(s, None, noise) == table[s.track.target_markers]
+    table = distinct_tolerances_mm(s, None, 0.2)
+    assert table[7] == s.track.avoid_tolerance_mm < table[11]  # the spec's floor at 7, not at 11
+
+
+def test_a_room_keeps_the_tolerance_of_its_largest_layout():
+    from starforge.props.batch import make_distinct, room_tolerance_mm
+
+    table = (2.0,) * 6 + (2.5, 3.0, 3.5)
+    assert room_tolerance_mm([4, 5], 2.2, table) == 2.2  # the floor
+    assert room_tolerance_mm([5, 8, 7], 2.2, table) == 3.5
+    assert room_tolerance_mm([5, 20], 2.2, table) == 3.5  # past the table: its last entry
+    assert room_tolerance_mm([5, 8], 2.2, None) == 2.2
+    rng = np.random.default_rng(3)
+    layouts = [rng.uniform(0, 0.1, (5, 3)) for _ in range(2)]
+    gap = _between(layouts[0] * 1000, layouts[1] * 1000) / 1000  # m
+    far = layouts[0] * 20.0  # triangles 20 times larger than any of layout 1's
+    assert _between(far * 1000, layouts[1] * 1000) > 2 * gap * 1000
+    for tol, redo in ((0.5 * gap, []), (1.5 * gap, [0])):
+        asked = []
+
+        def replace(i, faces, asked=asked):
+            asked.append(i)
+            return far
+
+        got = make_distinct([x.copy() for x in layouts], replace, lambda i, tol=tol: tol)
+        assert got == asked == redo
+
+
+@pytest.mark.slow  # several optimizations
+def test_a_grown_layout_keeps_the_tolerance_of_its_own_marker_count():
+    """The hammer on the 4-camera rig (seed 2) grows past 7 markers; with a tolerance per marker count the
+    layout's triangles keep the entry of its final count: re-checked by brute force over every
+    pair of triangles and every relabelling, and the result says that tolerance."""
+    from starforge.api.place import distinct_tolerances_mm
+    from starforge.props.files import distinct_report
+    from starforge.props.placement import run_placement
+    from starforge.props.spec import load_spec
+
+    table = distinct_tolerances_mm(load_spec("default"), None, 0.2)
+    kw = {"rig": "small4", "sites": 250, "resolution": 2, "orientations": 6}
+    res = run_placement("hammer", seed=2, tolerances_mm=table, **kw)
+    P = res.centres() * 1000.0
+    m = len(P)
+    assert m > 7 and table[m] > table[7]
+    assert res.spec.track.avoid_tolerance_mm == table[m]
+    rep = distinct_report(res)
+    assert rep["distinct_mm"] == table[m]
+    assert _brute_conflicts(P, table[m]) == rep["own_conflicts"] == 0
+    assert _brute_margin(P, 3) == pytest.approx(rep["self_margin_mm"], abs=1e-5)
+    assert rep["self_margin_mm"] >= table[m]

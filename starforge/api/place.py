@@ -34,6 +34,7 @@ __all__ = [
     "describe_placement",
     "describe_score",
     "distinct_tolerance_mm",
+    "distinct_tolerances_mm",
     "place_markers",
     "placement_files",
     "plan_placement",
@@ -46,16 +47,34 @@ __all__ = [
 NOISE_MM = 0.2
 
 
-def distinct_tolerance_mm(spec: PlaceSpec, preset: str | None, noise_mm: float) -> float:
-    """How far (mm, every sorted side) the layout's triangles keep from each other and from
-    other bodies': twice the tracker's window at ``noise_mm``
-    (:func:`starforge.tracking.presets.design_tolerance_mm` for bodies of the spec's marker
-    count), or the spec's ``avoid_tolerance_mm`` when larger."""
+def distinct_tolerances_mm(spec: PlaceSpec, preset: str | None, noise_mm: float) -> tuple[float, ...]:
+    """How far (mm, every sorted side) a layout of ``n`` markers keeps its triangles from each
+    other and from other bodies', entry ``n`` for ``n`` in 0 .. the spec's ``max_markers``: twice
+    the tracker's window at ``noise_mm`` for bodies of ``n`` markers
+    (:func:`starforge.tracking.presets.design_tolerance_mm`; the window widens with the count, as
+    more distances must stay within it), or the spec's ``avoid_tolerance_mm`` when larger.  A
+    layout grown past its target (``track.grow_markers``) is designed with the entry of the
+    count it tries.
+
+    >>> from starforge.props.spec import load_spec
+    >>> table = distinct_tolerances_mm(load_spec("default"), None, 0.2)
+    >>> round(table[7], 3), round(table[11], 3)  # the spec's 2.6 mm floor; 11 markers need more
+    (2.6, 2.7)
+    """
     from starforge.tracking.presets import design_tolerance_mm
 
     in_range("noise", noise_mm, 0.0, 100.0)
+    top = max(spec.track.max_markers, spec.costs.max_markers)
+    return tuple(
+        max(spec.track.avoid_tolerance_mm, design_tolerance_mm(preset, noise_mm, n_markers=max(n, 2)))
+        for n in range(top + 1)
+    )
+
+
+def distinct_tolerance_mm(spec: PlaceSpec, preset: str | None, noise_mm: float) -> float:
+    """:func:`distinct_tolerances_mm`'s entry for the spec's target marker count, mm."""
     n = spec.track.target_markers if spec.objective == "tracked" else spec.costs.target_markers
-    return max(spec.track.avoid_tolerance_mm, design_tolerance_mm(preset, noise_mm, n_markers=n))
+    return distinct_tolerances_mm(spec, preset, noise_mm)[n]
 
 
 @dataclass(frozen=True)
@@ -74,12 +93,17 @@ class PlacePlan:
         the distribution (or no hand when ``spec.hand`` is false).
     avoid_m : (k, 3) float, m, or None
         Sorted side lengths of the marker triangles of the bodies to keep clear of.
+    tolerances_mm : tuple of float or None
+        The triangle tolerance for each marker count (:func:`distinct_tolerances_mm`), mm, that a
+        layout grown past its target is designed with; None: the spec's for every count (a
+        ``distinct_mm`` given).
     """
 
     prop: PropMesh
     spec: PlaceSpec
     grip: str | None = None
     avoid_m: np.ndarray | None = field(default=None, repr=False)
+    tolerances_mm: tuple[float, ...] | None = None
 
 
 def _prop_and_spec(prop: str, spec: str | PlaceSpec, units: str, forbid_mesh, mask, **overrides):
@@ -158,14 +182,16 @@ def plan_placement(
     if hand is False:
         grip = None
     loaded, s = _prop_and_spec(prop, spec, units, forbid_mesh, mask, hand=hand, **overrides)
+    table = None
     if overrides.get("distinct_mm") is None:
+        table = distinct_tolerances_mm(s, preset, noise_mm)
         s = with_overrides(s, distinct_mm=distinct_tolerance_mm(s, preset, noise_mm))
     faces = None
     if avoid:
         from starforge.tracking.avoid import faces_to_avoid
 
         faces = faces_to_avoid([Path(a) for a in avoid])[0] / 1000.0  # mm -> m
-    return PlacePlan(loaded, s, None if grip is None else str(grip), faces)
+    return PlacePlan(loaded, s, None if grip is None else str(grip), faces, table)
 
 
 def place_markers(
@@ -207,8 +233,9 @@ def place_markers(
 
     plan = prop if isinstance(prop, PlacePlan) else plan_placement(prop, **options)
     return place(
-        plan.prop, plan.spec, seed=seed, progress=progress, avoid=plan.avoid_m, grip=plan.grip, on_layout=on_layout
-    )
+        plan.prop, plan.spec, seed=seed, progress=progress, avoid=plan.avoid_m, grip=plan.grip, on_layout=on_layout,
+        tolerances_mm=plan.tolerances_mm,
+    )  # fmt: skip
 
 
 def placement_files(spec: PlaceSpec, *, bases_stl: bool = False) -> list[str]:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from starforge.api.place import NOISE_MM, distinct_tolerance_mm
+from starforge.api.place import NOISE_MM, distinct_tolerance_mm, distinct_tolerances_mm
 from starforge.errors import StarforgeError
 from starforge.io import atomic_write_bytes, atomic_write_text, check_writable, staged_output
 
@@ -48,7 +48,11 @@ class PlaceBatchPlan:
     avoid_m : (k, 3) float, m, or None
         Sorted side lengths of the marker triangles of the bodies already in the room.
     distinct_mm : float
-        How far every marker triangle keeps from every other layout's, mm.
+        How far every marker triangle keeps from every other layout's, mm (layouts of the spec's
+        target count).
+    tolerances_mm : tuple of float
+        The tolerance for each marker count (:func:`starforge.api.place.distinct_tolerances_mm`),
+        mm: a layout grown past the target, and the room it is in, keep the entry of its count.
     noise_mm, preset, frames : float, str or None, int
         The fleet check's marker noise (sigma per axis, mm), tracker and simulated frames.
     seed, workers : int
@@ -63,6 +67,7 @@ class PlaceBatchPlan:
     task_bytes: tuple[float, ...]
     avoid_m: np.ndarray | None = field(repr=False)
     distinct_mm: float
+    tolerances_mm: tuple[float, ...]
     noise_mm: float
     preset: str | None
     frames: int
@@ -123,14 +128,17 @@ def plan_place_batch(
             f"--copies needs the tracked objective; --spec {spec} uses {s.objective!r} (try --spec default)"
         )
     distinct = distinct_tolerance_mm(s, preset, noise_mm)
-    todo = jobs(props, list(rigs), units, spec, seed, copies, faces, distinct)
+    table = distinct_tolerances_mm(s, preset, noise_mm)
+    todo = jobs(props, list(rigs), units, spec, seed, copies, faces, distinct, table)
     folder = Path(out)
     # a layout's folder may be there from an earlier run: its placement.json is what force replaces
     check_writable(folder, [f"{f}/placement.json" for names, _ in todo for f in names] + ["batch.csv"], force)
     # every input read before a cluster starts: the spec and rigs (the estimates), then the props
     est = tuple(job_bytes(spec, job[3]) for _, job in todo)
     check_props(props, units)
-    return PlaceBatchPlan(tuple(todo), est, faces, distinct, noise_mm, preset, frames, seed, workers, folder, force)
+    return PlaceBatchPlan(
+        tuple(todo), est, faces, distinct, table, noise_mm, preset, frames, seed, workers, folder, force
+    )
 
 
 @dataclass(frozen=True)
@@ -187,7 +195,7 @@ def run_place_batch(
         advice="lower the spec's sites, resolution or orientations, or use workers with more memory",
         on_plan=on_plan,
     )
-    rows, redone = fleet(todo, results, plan.distinct_mm, plan.avoid_m)
+    rows, redone = fleet(todo, results, plan.distinct_mm, plan.avoid_m, plan.tolerances_mm)
     reports = {
         r: fleet_report(
             [x[0] for x in rows if x[1][3] == r],
@@ -227,14 +235,17 @@ def _csv_row(row, report: dict, again: bool) -> str:
 def describe_place_batch(run: PlaceBatchRun) -> list[str]:
     """The lines ``starforge place-batch`` prints: every ``batch.csv`` row, the layouts placed
     again, and each rig's fleet check."""
+    from starforge.props.batch import room_tolerance_mm
+
     p = run.plan
     lines = list(run.csv_lines[1:])
     if run.redone:
         lines.append(f"placed again to keep clear of the others: {', '.join(run.rows[i][0] for i in run.redone)}")
     for r, rep in run.reports.items():
         pair = rep["closest_pair"]
+        kept = room_tolerance_mm([len(x[3]) for x in run.rows if x[1][3] == r], p.distinct_mm, p.tolerances_mm)
         lines.append(
-            f"fleet{f' (rig {r})' if r else ''}: triangles kept {p.distinct_mm:.2f} mm apart; closest pair {pair['a']} / "
+            f"fleet{f' (rig {r})' if r else ''}: triangles kept {kept:.2f} mm apart; closest pair {pair['a']} / "
             f"{pair['b']} {pair['margin_mm']:.2f} mm; worst wrong body + wrong pose with 3 markers seen "
             f"{100 * rep['worst']['wrong_rate']:.3f} % ({rep['worst']['name']}, rule {rep['headline_rule']}, window "
             f"{rep['window_mm']:.2f} mm at {p.noise_mm:g} mm noise, {p.frames} frames)"

@@ -1,7 +1,7 @@
 """Batch placement: many props, one prop under many rigs, or copies of one prop, as tasks of
 :mod:`starforge.runtime.engine`, made into a fleet a tracker tells apart.
 
-Each job is ``(prop, units, spec, rig, seed, copies, avoid, distinct_mm)``; :func:`place_job`
+Each job is ``(prop, units, spec, rig, seed, copies, avoid, distinct_mm, tolerances_mm)``; :func:`place_job`
 runs the ordinary placement (:func:`starforge.props.placement.run_placement`, or
 :func:`starforge.props.placement.place_copies` for several copies of one prop on one visibility
 table) and returns each layout's files as bytes, so a worker writes nothing and the command
@@ -13,7 +13,9 @@ the fleet in job order: a layout whose triangles come within ``distinct_mm`` of 
 layout's (the earlier ones as repaired, the later ones as placed) is placed again avoiding all
 of them, so every later repair avoids it in turn and the fleet ends with no two layouts a
 tracker seeing three markers can mistake (when the re-placement finds such a layout; a
-remaining clash is reported).  Jobs that do not clash keep their parallel result; a sequential
+remaining clash is reported).  The layouts of one room keep the tolerance designed for the largest
+marker count among them (``tolerances_mm``, one per count: a tracker's window widens with the
+count, and the files of one room carry one window).  Jobs that do not clash keep their parallel result; a sequential
 placement (each prop avoiding all before it) would give up the parallelism for every prop
 instead of only for the few that clash.
 """
@@ -27,27 +29,32 @@ from pathlib import Path
 
 import numpy as np
 
-from starforge.props.distinct import clashes, face_tree
+from starforge.props.distinct import clashes, face_tree, tolerance_for
 from starforge.stars.avoid import body_triangles
 
 
 def place_job(args: tuple) -> list[dict[str, bytes]]:
-    """One job: ``args = (prop, units, spec, rig, seed, copies, avoid, distinct_mm)`` -> one
-    {file name: bytes} per layout (``copies`` of them); ``avoid``: (k, 3) sorted triangle sides
-    of other bodies, m, or None; ``distinct_mm``: the spec's ``avoid_tolerance_mm`` when given."""
+    """One job: ``args = (prop, units, spec, rig, seed, copies, avoid, distinct_mm[, tolerances_mm])``
+    -> one {file name: bytes} per layout (``copies`` of them); ``avoid``: (k, 3) sorted triangle
+    sides of other bodies, m, or None; ``distinct_mm``: the spec's ``avoid_tolerance_mm`` when
+    given; ``tolerances_mm``: the tolerance per marker count
+    (:func:`starforge.props.placement.place`), or None."""
     from starforge.props.files import write_outputs
     from starforge.props.mesh import load_prop
     from starforge.props.placement import place_copies, run_placement
     from starforge.props.spec import load_spec, with_overrides
 
-    prop, units, spec, rig, seed, copies, avoid, distinct = args
+    prop, units, spec, rig, seed, copies, avoid, distinct, *table = args
+    table = table[0] if table else None
     if copies == 1:
         results = [
-            run_placement(prop, spec, seed=int(seed), units=units, rig=rig, avoid=avoid, distinct_mm=distinct)
+            run_placement(
+                prop, spec, seed=int(seed), units=units, rig=rig, avoid=avoid, distinct_mm=distinct, tolerances_mm=table
+            )
         ]
     else:
         s = with_overrides(load_spec(spec), rig=rig, distinct_mm=distinct)
-        results = place_copies(load_prop(prop, units), s, int(copies), seed=int(seed), avoid=avoid)
+        results = place_copies(load_prop(prop, units), s, int(copies), seed=int(seed), avoid=avoid, tolerances_mm=table)
     out = []
     for res in results:
         with tempfile.TemporaryDirectory(prefix="starforge-place-") as d:
@@ -66,12 +73,13 @@ def layout_centres(files: dict[str, bytes]) -> np.ndarray:
     ).reshape(-1, 3)
 
 
-def make_distinct(layouts: list, replace, distinct_m: float, avoid=None, groups=None) -> list[int]:
+def make_distinct(layouts: list, replace, distinct_m, avoid=None, groups=None) -> list[int]:
     """Repair a fleet in place (see the module docstring): ``layouts`` is a list of (n_i, 3)
     marker centres, m; ``replace(i, faces)`` places layout ``i`` again avoiding ``faces`` ((k, 3)
     sorted sides, m) and returns its new centres; ``avoid`` holds other bodies' triangles;
     ``groups`` (one label per layout, default all one) keeps layouts of different groups (rigs:
-    different rooms) from constraining each other.  Returns the indices placed again."""
+    different rooms) from constraining each other; ``distinct_m``: the tolerance, m, or a callable
+    ``distinct_m(i)`` giving layout ``i``'s when it is checked.  Returns the indices placed again."""
     groups = [0] * len(layouts) if groups is None else list(groups)
     base = np.zeros((0, 3)) if avoid is None else np.asarray(avoid, float).reshape(-1, 3)
     redone = []
@@ -80,26 +88,45 @@ def make_distinct(layouts: list, replace, distinct_m: float, avoid=None, groups=
             body_triangles(layouts[j]) for j in range(len(layouts)) if j != i and groups[j] == groups[i]
         ]
         faces = np.concatenate([base, *others]) if others else base
-        if clashes(layouts[i], face_tree(faces), distinct_m):
+        if clashes(layouts[i], face_tree(faces), distinct_m(i) if callable(distinct_m) else distinct_m):
             layouts[i] = replace(i, faces)
             redone.append(i)
     return redone
 
 
-def fleet(todo, results, distinct_mm: float, avoid=None) -> tuple[list, list[int]]:
+def room_tolerance_mm(counts, distinct_mm: float, tolerances_mm=None) -> float:
+    """The tolerance (mm) the layouts of one room keep: the entry of ``tolerances_mm`` (one per
+    marker count) for the largest of their marker ``counts``, at least ``distinct_mm``.
+
+    >>> room_tolerance_mm([7, 11, 7], 2.6, (2.6,) * 8 + (2.62, 2.65, 2.68, 2.7, 2.72))
+    2.7
+    """
+    return max(float(distinct_mm), tolerance_for(tolerances_mm, max(counts, default=0), distinct_mm))
+
+
+def fleet(todo, results, distinct_mm: float, avoid=None, tolerances_mm=None) -> tuple[list, list[int]]:
     """The batch's layouts made distinct (:func:`make_distinct`, one fleet per rig): ``todo`` as
-    :func:`jobs` gives it and ``results`` the :func:`place_job` results in its order.  Returns
+    :func:`jobs` gives it and ``results`` the :func:`place_job` results in its order; with
+    ``tolerances_mm`` (one per marker count) each rig's layouts keep the entry of its largest
+    count (at least ``distinct_mm``), and a layout placed again is designed with it.  Returns
     ``(rows, redone)``: rows ``(folder name, job, files, centres m)`` one per layout, and the rows
     placed again (in this process)."""
     rows = [[name, job, files, layout_centres(files)] for (names, job), group in zip(todo, results, strict=True)
             for name, files in zip(names, group, strict=True)]  # fmt: skip
 
+    def room_mm(i):  # the tolerance of layout i's room: its largest marker count's
+        return room_tolerance_mm([len(r[3]) for r in rows if r[1][3] == rows[i][1][3]], distinct_mm, tolerances_mm)
+
     def again(i, faces):
-        files = place_job((*rows[i][1][:5], 1, faces, distinct_mm))[0]
+        floor = room_mm(i)
+        table = None if tolerances_mm is None else tuple(max(t, floor) for t in tolerances_mm)
+        files = place_job((*rows[i][1][:5], 1, faces, floor, table))[0]
         rows[i][2:] = [files, layout_centres(files)]
         return rows[i][3]
 
-    redone = make_distinct([r[3] for r in rows], again, distinct_mm / 1000.0, avoid, [r[1][3] for r in rows])
+    redone = make_distinct(
+        [r[3] for r in rows], again, lambda i: room_mm(i) / 1000.0, avoid, [r[1][3] for r in rows]
+    )
     return [tuple(r) for r in rows], redone
 
 
@@ -127,7 +154,7 @@ def job_name(prop: str, rig: str | None, many_rigs: bool) -> str:
 
 
 def jobs(
-    props, rigs, units: str, spec: str, seed: int, copies: int = 1, avoid=None, distinct_mm=None
+    props, rigs, units: str, spec: str, seed: int, copies: int = 1, avoid=None, distinct_mm=None, tolerances_mm=None
 ) -> list[tuple[list[str], tuple]]:
     """(folder names, job) for every prop x rig, in the order given: one folder per copy
     (``<name>-01``, ``-02``, ... when ``copies`` > 1).  A name is never reused, nor one that
@@ -148,7 +175,7 @@ def jobs(
                 name = f"{base[: room - len(str(k)) - 1]}-{k}"
             folders = [name] if copies == 1 else [f"{name}-{c:02d}" for c in range(1, copies + 1)]
             taken.update(f.casefold() for f in folders)
-            out.append((folders, (p, units, spec, r, seed, copies, avoid, distinct_mm)))
+            out.append((folders, (p, units, spec, r, seed, copies, avoid, distinct_mm, tolerances_mm)))
     return out
 
 

@@ -72,6 +72,19 @@ def _own_counts(F, tol):
     return cnt, margin
 
 
+def tolerance_for(tolerances, n: int, fallback: float) -> float:
+    """The triangle tolerance of a layout of ``n`` markers: entry ``n`` of ``tolerances`` (one per
+    marker count, the last for any count beyond; the caller's design, e.g.
+    :func:`starforge.api.place.distinct_tolerances_mm`), or ``fallback`` when there is none.
+
+    >>> tolerance_for((2.0, 2.0, 2.0, 2.1, 2.2), 3, 9.0), tolerance_for((2.0, 2.1), 7, 9.0), tolerance_for(None, 7, 9.0)
+    (2.1, 2.1, 9.0)
+    """
+    if tolerances is None or not len(tolerances):
+        return float(fallback)
+    return float(tolerances[min(int(n), len(tolerances) - 1)])
+
+
 def face_tree(faces: np.ndarray | None):
     """A look-up tree of other bodies' triangles ((k, 3) sides, sorted here) for :func:`clashes`;
     None when there are none."""

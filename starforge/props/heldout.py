@@ -4,6 +4,8 @@ target (never the samples the layouts were searched on, nor the fresh-pose evalu
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from starforge.props.ceiling import tracked_ceiling
@@ -108,11 +110,14 @@ def polisher(prop, spec, seed, prep, centres, prob):
     """``polish(sites) -> sites``: :func:`starforge.props.layout_search.held_out_polish` on the hard
     poses of a tuning sample of its own (:data:`TUNING_SEED_OFFSET`: neither the ranking sample
     nor the evaluation), the poses in which ``sites`` leave fewer than ``spare_markers`` seen in
-    some scenario; the sites near the winner's and the other candidates' take part."""
-    ts = spec.track
+    some scenario; the sites near the winner's and the other candidates' take part.  ``searched``:
+    the problem the layouts were searched in (default ``prob``; a layout grown past its target
+    keeps the triangle tolerance of its own count)."""
     sample = HeldOut(prop, spec, seed, prep, TUNING_SEED_OFFSET)  # one for every polish: rows shared
 
-    def polish(sites, others=()):
+    def polish(sites, others=(), searched=None):
+        searched = prob if searched is None else searched
+        ts = replace(spec.track, avoid_tolerance_mm=searched.settings.avoid_tolerance_mm)
         sites = [int(x) for x in sites]
         seen, _ = sample.seen(sites)
         L = sample.patterns
@@ -129,7 +134,7 @@ def polisher(prop, spec, seed, prep, centres, prob):
                 pool.append(int(i))
         hseen, _ = sample.seen(pool, hard)
         tuning = Problem(centres[pool], hseen, hseen.mean(axis=1), ts, prob.spacing, prob.spread_target, prob.avoid_faces)
-        found = held_out_polish(tuning, prob, list(range(len(sites))), np.asarray(pool))
+        found = held_out_polish(tuning, searched, list(range(len(sites))), np.asarray(pool))
         return tuple(pool[i] for i in found)
 
     return polish

@@ -27,10 +27,10 @@ def _screen_pool(prob: Problem, sites) -> np.ndarray:
     return np.unique(np.concatenate([spread, near]))
 
 
-def greedy_local_search(prob: Problem, candidates_top: int = 12) -> list[int]:
-    """Greedy: add the best site until ``target_markers``; then swaps (one marker for another
-    site) while they lower the exact cost."""
-    sites: list[int] = []
+def greedy_local_search(prob: Problem, candidates_top: int = 12, start=()) -> list[int]:
+    """Greedy: add the best site to ``start`` (default none) until ``target_markers``; then swaps
+    (one marker for another site) while they lower the exact cost."""
+    sites = [int(x) for x in start]
     while len(sites) < prob.settings.target_markers:
         free = np.setdiff1d(_screen_pool(prob, sites), sites)
         approx = prob.screen_additions(sites, free)

@@ -13,6 +13,7 @@ from dataclasses import replace
 import numpy as np
 
 from starforge.props.costs import CostBreakdown, evaluate
+from starforge.props.distinct import tolerance_for
 from starforge.props.evaluate import evaluate_layouts
 from starforge.props.heldout import (
     VALIDATION_SEED_OFFSET,
@@ -47,6 +48,7 @@ def run_placement(
     grip: str | None = None,
     avoid: np.ndarray | None = None,
     progress=None,
+    tolerances_mm=None,
     **overrides,
 ) -> PlacementResult:
     """One placement from plain arguments (the library entry point, e.g. for a batch).
@@ -66,6 +68,8 @@ def run_placement(
     avoid : (k, 3) float, m, optional
         Sorted side lengths of the marker triangles of bodies already in the room
         (:func:`starforge.tracking.avoid.faces_to_avoid` reads them from files, in mm).
+    tolerances_mm : sequence of float, optional
+        See :func:`place`.
     **overrides
         :func:`starforge.props.spec.with_overrides` keywords (``markers``, ``marker_mm``, ...).
     """
@@ -76,7 +80,7 @@ def run_placement(
     elif grip is not None:
         cap = str(grip)
     s = with_overrides(s, **overrides)
-    return place(load_prop(prop, units), s, seed=seed, progress=progress, avoid=avoid, grip=cap)
+    return place(load_prop(prop, units), s, seed=seed, progress=progress, avoid=avoid, grip=cap, tolerances_mm=tolerances_mm)
 
 
 def _stages(progress):
@@ -115,7 +119,7 @@ def _prepared(prop, spec: PlaceSpec, seed: int, progress, grip):
 
 
 def place(
-    prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None, grip=None, on_layout=None
+    prop, spec: PlaceSpec, seed: int = 0, progress=None, avoid=None, grip=None, on_layout=None, tolerances_mm=None
 ) -> PlacementResult:
     """Optimize a marker set on ``prop`` (a :class:`starforge.props.mesh.PropMesh`).
 
@@ -136,10 +140,15 @@ def place(
         ``on_layout(result)`` as soon as the layout is chosen, before the fresh-pose evaluation
         (the tracked objective): ``result`` then lacks only ``evaluation`` and that step's
         warnings (the CLI starts drawing the pictures, which need neither).
+    tolerances_mm : sequence of float, optional
+        The triangle tolerance (mm) for each marker count (tracked objective;
+        :func:`starforge.props.distinct.tolerance_for`): a layout of ``n`` markers is designed
+        and scored with entry ``n``, also when it is grown past its target, and the result's
+        spec carries the one of its final count.  None: ``avoid_tolerance_mm`` for every count.
     """
     rng, timings, progress, warnings, prep = _prepared(prop, spec, seed, progress, grip)
     if spec.objective == "tracked":
-        return _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress, on_layout)
+        return _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress, on_layout, tolerances_mm)
     res = _place_paper(prop, spec, seed, rng, prep, timings, warnings, progress)
     if on_layout is not None:
         on_layout(res)
@@ -147,7 +156,7 @@ def place(
 
 
 def place_copies(
-    prop, spec: PlaceSpec, copies: int, seed: int = 0, progress=None, avoid=None, grip=None
+    prop, spec: PlaceSpec, copies: int, seed: int = 0, progress=None, avoid=None, grip=None, tolerances_mm=None
 ) -> list[PlacementResult]:
     """``copies`` layouts on one prop (an airframe, a tool a lab owns several of) that a tracker
     tells apart: optimized one after the other on one visibility table, each avoiding the
@@ -155,7 +164,8 @@ def place_copies(
     ``track.avoid_tolerance_mm``, as well as its own (:mod:`starforge.props.distinct`).  The
     first equals :func:`place` with the same seed; each later one continues its random stream,
     so the set is deterministic.  Every copy is scored on the same scenarios (the hand, camera
-    loss) and checked on the same fresh poses.  Tracked objective only."""
+    loss) and checked on the same fresh poses.  Tracked objective only; ``tolerances_mm`` as
+    :func:`place` takes it."""
     require(isinstance(copies, int) and copies >= 1, f"copies must be an integer >= 1, got {copies}")
     require(
         spec.objective == "tracked",
@@ -165,7 +175,7 @@ def place_copies(
     faces = np.zeros((0, 3)) if avoid is None else np.asarray(avoid, float).reshape(-1, 3)
     out = []
     for _ in range(copies):
-        res = _place_tracked(prop, spec, seed, rng, prep, dict(timings), warnings, faces, progress)
+        res = _place_tracked(prop, spec, seed, rng, prep, dict(timings), warnings, faces, progress, None, tolerances_mm)
         out.append(res)
         faces = np.concatenate([faces, body_triangles(res.centres())])
     return out
@@ -200,32 +210,52 @@ def _held_out_tracked(opt) -> float:
     return float(sel["candidates"][sel["winner"]]["validation_tracked"])
 
 
-def _grown(opt, prob: Problem, centres, rng, run_cb, validate, polish):
-    """``(opt, notes)``: while the layout is tracked in fewer held-out scenarios than
+def _grown(opt, prob: Problem, centres, rng, run_cb, validate, polish, tolerances_mm):
+    """``(opt, prob, notes)``: while the layout is tracked in fewer held-out scenarios than
     ``target_tracked``, the optimization again with one marker more (up to ``max_markers``, and
-    while that many fit the spacing); the first that reaches the target, else the one tracked
-    most (a layout replaces the one kept only with more markers and more scenarios tracked).  The held-out sample ranks; the evaluation's fresh poses stay
-    unseen.  ``notes``: one line when markers were added."""
+    while that many fit the spacing), started also from the layout kept so far with markers added
+    to it, and its triangles kept the tolerance for that many markers
+    (:func:`starforge.props.distinct.tolerance_for`); the first that reaches the target, else the
+    one tracked most (a layout replaces the one kept only with more markers and more scenarios
+    tracked).  The held-out sample ranks; the evaluation's fresh poses stay unseen.  ``prob``:
+    the problem the kept layout was optimized in; ``notes``: one line when markers were added."""
     ts = prob.settings
     first = best = opt
+    kept = prob
     n = ts.target_markers
     while _held_out_tracked(best) < ts.target_tracked and n < ts.max_markers:
         if spaced_capacity(centres, prob.spacing, n + 1) <= n:
             break
         n += 1
-        grown = optimize(replace(prob, settings=replace(ts, target_markers=n)), rng, run_cb, validate, polish)
+        tol = tolerance_for(tolerances_mm, n, ts.avoid_tolerance_mm)
+        trial = replace(prob, settings=replace(ts, target_markers=n, avoid_tolerance_mm=tol))
+        tuned = None if polish is None else lambda sites, others=(), trial=trial: polish(sites, others, trial)
+        grown = optimize(trial, rng, run_cb, validate, tuned, start=best.sites)
         if len(grown.sites) > len(best.sites) and _held_out_tracked(grown) > _held_out_tracked(best):
-            best = grown
+            best, kept = grown, trial
     if best is first:
-        return first, []
-    return best, [
+        return first, prob, []
+    return best, kept, [
         f"{len(first.sites)} markers were tracked in {100 * _held_out_tracked(first):.1f} % of the held-out scenarios, "
         f"under the {100 * ts.target_tracked:g} % target: {len(best.sites)} placed, tracked in "
         f"{100 * _held_out_tracked(best):.1f} % (--markers N places exactly N)"
     ]
 
 
-def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progress, on_layout=None) -> PlacementResult:
+def _scored_at_count(opt, prob: Problem, tolerances_mm):
+    """``(opt, prob)`` with the layout's terms at the tolerance for its own marker count (a search
+    for ``n`` markers may keep fewer; the tolerance never grows as the count falls, so the
+    layout keeps it)."""
+    tol = tolerance_for(tolerances_mm, len(opt.sites), prob.settings.avoid_tolerance_mm)
+    if tol == prob.settings.avoid_tolerance_mm:
+        return opt, prob
+    prob = replace(prob, settings=replace(prob.settings, avoid_tolerance_mm=tol))
+    return replace(opt, terms=prob.terms(list(opt.sites))), prob
+
+
+def _place_tracked(
+    prop, spec, seed, rng, prep, timings, warnings, avoid, progress, on_layout=None, tolerances_mm=None
+) -> PlacementResult:
     """The tracked objective (:mod:`starforge.props.tracked`) over camera-loss scenarios, then
     the chosen layout and both baselines checked on fresh poses (:mod:`starforge.props.evaluate`)."""
     t = time.perf_counter()
@@ -243,6 +273,7 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
             f"not {ts.target_markers}" + (" (some closer than the spacing)" if n > fit else "")
         )
         ts = replace(ts, target_markers=n)
+    ts = replace(ts, avoid_tolerance_mm=tolerance_for(tolerances_mm, ts.target_markers, ts.avoid_tolerance_mm))
     prob = Problem(
         centres,
         seen,
@@ -263,8 +294,12 @@ def _place_tracked(prop, spec, seed, rng, prep, timings, warnings, avoid, progre
         polish = polisher(prop, spec, seed, prep, centres, prob)
     opt = optimize(prob, rng, run_cb, validate, polish)
     if ts.grow_markers and validate is not None:
-        opt, note = _grown(opt, prob, centres, rng, run_cb, validate, polish)
+        opt, prob, note = _grown(opt, prob, centres, rng, run_cb, validate, polish, tolerances_mm)
         warnings += note
+    opt, prob = _scored_at_count(opt, prob, tolerances_mm)
+    ts = prob.settings
+    if ts.avoid_tolerance_mm != spec.track.avoid_tolerance_mm:  # the result says what the layout keeps
+        spec = replace(spec, track=replace(spec.track, avoid_tolerance_mm=ts.avoid_tolerance_mm))
     t = tick(timings, "optimize_s", t)
     chosen, terms = opt.sites, opt.terms
     shortfall = {}

@@ -56,7 +56,9 @@ class Optimized:
     seconds: dict
 
 
-def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=None, polish=None) -> Optimized:
+def optimize(
+    prob: Problem, rng: np.random.Generator, progress=None, validate=None, polish=None, start=None
+) -> Optimized:
     """Baselines, chains from the best random layout, the best polished (see the module docstring).
 
     ``validate``: optional ``validate(list of site tuples) -> list of {"untracked", "cost"}`` on
@@ -64,8 +66,10 @@ def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=No
     then ranked by their tracked fraction on that sample first (what the independent evaluation
     measures; the searched scenarios cannot rank it: every candidate is tracked in nearly all of
     them, having been fitted to them), then by their cost on both samples together.  Without it,
-    by their cost on the searched scenarios.  ``baselines["selection"]`` names the winner and
-    gives every candidate's scores."""
+    by their cost on the searched scenarios.  ``start``: a layout to grow (fewer markers than
+    ``target_markers``): the greedy additions and swap search from it compete too
+    (``grown_from_start``), so a layout grown one marker at a time keeps the triangles it has.
+    ``baselines["selection"]`` names the winner and gives every candidate's scores."""
     s = prob.settings
     sec = {}
     t = time.perf_counter()
@@ -86,6 +90,8 @@ def optimize(prob: Problem, rng: np.random.Generator, progress=None, validate=No
     # the baselines themselves compete; every chain's best and the best random layout are
     # polished by the same swap search (the greedy layout already is)
     cands: dict[str, tuple[int, ...]] = {"greedy_local_search": tuple(greedy)}
+    if start is not None:
+        cands["grown_from_start"] = tuple(greedy_local_search(prob, start=start))
     if r_sites is not None:
         cands["best_of_random"] = tuple(r_sites)
         cands["best_of_random_polished"] = tuple(local_search(prob, list(r_sites)))
