@@ -89,6 +89,9 @@ class Packing:
             np.zeros(self.n_rows, dtype=np.bool_),  # mark: a False per row between calls
             np.zeros(n, dtype=np.int64),  # ver: per star t, bumped as a candidate's tight turns t or leaves t
             np.full(n, -1, dtype=np.int64),  # tried: ver[t] when t last had no swap pair (-1: not since)
+            # freed: the candidates turned free since a reset (see _set), each at most once per
+            # run of removals: n of them at most, plus the count in freed[0]
+            np.zeros(n + 2, dtype=np.int64),
         )
         chosen = np.asarray(chosen, dtype=np.int64)
         _search(self.arrays, 0, chosen.reshape(1, -1), _NO_CTR, len(chosen), -1)
@@ -184,10 +187,8 @@ def _neighbours(t, want, most, sptr, spts, table, offs, rptr, cands, tight, rank
     """The candidates sharing a row with star t whose ``tight`` is ``want`` (-2: free; t:
     1-tight with t; -3: 1-tight with any star), each once, most compact first, in ``lst[:m]``; returns m.  The scan of
     t's rows stops once ``most`` are found (``ntight[t]`` when ``want`` is t: there are no
-    more).  ``seen`` (all False) is left so.  The sort by rank (a permutation: no ties, so an unstable sort does) is
-    Shell's sort, gaps ~m/2.2^k ending in 1 (insertion sort for short lists), written here, its
-    one caller: no numpy sort in the kernels (each costs seconds of compilation on a first run),
-    and as a kernel of its own it was compiled twice (``m`` typed once as the literal 0)."""
+    more).  ``seen`` (all False) is left so.  Sorted by :func:`_by_rank` (``m`` passed as an
+    int64: typed as the literal 0 it would be compiled twice)."""
     m = 0
     for j in range(sptr[t], sptr[t + 1]):
         for o in offs:
@@ -204,6 +205,15 @@ def _neighbours(t, want, most, sptr, spts, table, offs, rptr, cands, tight, rank
                     m += 1
     for i in range(m):
         seen[lst[i]] = False
+    _by_rank(lst, np.int64(m), rank)
+    return m
+
+
+@_inner
+def _by_rank(lst, m, rank):
+    """Sort ``lst[:m]`` by rank, most compact first (ranks are a permutation: no ties, so an
+    unstable sort does): Shell's sort, gaps ~m/2.2^k ending in 1 (insertion sort for short
+    lists).  No numpy sort in the kernels: each costs seconds of compilation on a first run."""
     gap = m // 2
     while gap > 0:
         for i in range(gap, m):
@@ -215,7 +225,6 @@ def _neighbours(t, want, most, sptr, spts, table, offs, rptr, cands, tight, rank
                 j -= gap
             lst[j] = v
         gap = 0 if gap == 1 else max(1, int(gap / 2.2))
-    return m
 
 
 #: the signs :func:`_set` takes, as int64 (a literal argument would compile a kernel again)
@@ -233,10 +242,11 @@ def _set(s, sign, P):
     without rows meets nothing).  A candidate met more than once passes through states that
     its last meeting corrects: ``ntight`` ends the same, and ``ver`` only counts up.  The
     candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow; -1: it
-    overflowed; a candidate may be there more than once).  (No kernel calls in here: a call
+    overflowed; a candidate may be there more than once), those turned free to ``freed`` (the
+    same way).  (No kernel calls in here: a call
     per candidate costs more than the arithmetic, and each callee is compiled again into every
     caller on a first run.)"""
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried, freed = P
     v = s if sign > 0 else np.int64(-1)
     in_fam[s] = sign > 0
     # s's own state is settled by the last pass (its meetings with itself skip it on entry)
@@ -246,6 +256,7 @@ def _set(s, sign, P):
     for j in range(ptr[s], ptr[s + 1]):
         owner[rows[j]] = v
     h = hits[0]
+    f = freed[0]
     end = sptr[s + 1]
     for j in range(sptr[s], end + 1):
         for o in offs:
@@ -287,6 +298,12 @@ def _set(s, sign, P):
                         ver[new] += 1
                     tight[c] = new
                     tally[c, 3] = new
+                    if new == -2 and f >= 0:
+                        if f + 1 < len(freed):
+                            f += 1
+                            freed[f] = c
+                        else:
+                            f = -1
                 if new >= 0 and h >= 0 and q >= 0:
                     if h + 1 < len(hits):
                         h += 1
@@ -298,6 +315,7 @@ def _set(s, sign, P):
     if sign > 0:
         tally[s, 3] = IN_FAMILY
     hits[0] = h
+    freed[0] = f
 
 
 #: ``Packing.tight`` of a free candidate (no row held by the family)
@@ -320,9 +338,34 @@ def _fill(t, P, k):
     """Insert the candidates sharing a row with star t that are free (nothing of the family
     holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
     insertions happen here, so a candidate free now was free when the fill began.)
-    Returns the next free place in ``ops``."""
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
-    m = _neighbours(t, np.int64(-2), np.int64(len(tight)), sptr, spts, table, offs, rptr, cands, tight, rank, seen, lst)
+    Returns the next free place in ``ops``.
+
+    The callers reset ``freed`` before removing t: a candidate sharing a row with t held a row
+    of the family until then (t's), so it is free now only if it turned free since, and is in
+    ``freed``; those sharing a row with t are kept (t's rows marked, theirs looked up).  When
+    ``freed`` overflowed, t's neighbourhood is scanned (:func:`_neighbours`)."""
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried, freed = P
+    if freed[0] < 0:
+        m = _neighbours(t, np.int64(-2), np.int64(len(tight)), sptr, spts, table, offs, rptr, cands, tight, rank, seen, lst)
+    else:
+        for j in range(ptr[t], ptr[t + 1]):
+            mark[rows[j]] = True
+        m = 0
+        for i in range(1, freed[0] + 1):
+            c = freed[i]
+            if tight[c] != -2 or seen[c]:
+                continue
+            for j in range(ptr[c], ptr[c + 1]):
+                if mark[rows[j]]:
+                    seen[c] = True
+                    lst[m] = c
+                    m += 1
+                    break
+        for j in range(ptr[t], ptr[t + 1]):
+            mark[rows[j]] = False
+        for i in range(m):
+            seen[lst[i]] = False
+        _by_rank(lst, np.int64(m), rank)
     for i in range(m):
         c = lst[i]
         if tight[c] == -2:
@@ -352,7 +395,7 @@ def _enqueue(P, k0, k1, hn):
     candidates are the ones found 1-tight since ``hits`` was reset before ``ops[k0]`` (their
     ``tight`` was last set by these changes), looked at again now; when ``hits`` overflowed,
     every candidate sharing rows with the stars of ``ops[k0:k1]``."""
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried, freed = P
     if hits[0] >= 0:
         for i in range(1, hits[0] + 1):
             x = tight[hits[i]]
@@ -379,7 +422,7 @@ def _descend(P, hn, k):
     returns the next free place in ``ops``.  (The heap's pop and the search for a pair are
     written in here, their one caller: as kernels of their own each was compiled, optimised and
     turned into machine code once more on a first run.)"""
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried, freed = P
     while hn > 0:
         # pop the heap's minimum rank
         r = heap[0]
@@ -429,6 +472,7 @@ def _descend(P, hn, k):
             continue
         k0 = k
         hits[0] = 0
+        freed[0] = 0
         _set(np.int64(t), _MINUS, P)
         ops[k] = -(t + 1)
         _set(np.int64(a), _ONE, P)
@@ -470,7 +514,7 @@ def _search(P, task, batches, ctr, limit, bound):
     belong to one or two family stars.  Returns when done (``ctr[4] = 1``) or when it needs a
     batch past ``batches`` (``ctr[4] = 0``: call again with the next ones).
     """
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried, freed = P
     if task == 0:
         for i in range(limit):
             _set(batches[0, i], _ONE, P)
@@ -584,6 +628,7 @@ def _search(P, task, batches, ctr, limit, bound):
         # force s in (removing the one or two stars holding its rows, lowest id first), refill
         # around them, then (1,2)-swaps around every change
         hits[0] = 0
+        freed[0] = 0
         _set(np.int64(h1), _MINUS, P)
         ops[0] = -(h1 + 1)
         k = 1
