@@ -9,7 +9,7 @@ import pytest
 import starforge.stars.select as sel
 from starforge.stars.bounds import block_bound
 from starforge.stars.enumerate import enumerate_candidates
-from starforge.stars.packing import IN_FAMILY, Packing
+from starforge.stars.packing import FAMILY_BIT, Packing
 from starforge.stars.rules import grid_steps, internal_ok, key_points, window_rows
 from starforge.stars.select import (
     compactness_order,
@@ -139,8 +139,8 @@ def test_packing_bookkeeping_matches_recount(cands, by_keys):
             tight[c] = own[0] if one else (-2 if not len(own) and not P.in_fam[c] else -1)
         assert np.array_equal(P.tight, tight)
         assert np.array_equal(P.ntight, np.bincount(tight[tight >= 0], minlength=n))
-        # the state kept beside the counts: the same, and IN_FAMILY for a family star
-        assert np.array_equal(P.tally[:, 3], np.where(P.in_fam, IN_FAMILY, tight))
+        # the family flag kept beside the counts
+        assert np.array_equal(P.tally[:, 0] >> FAMILY_BIT, P.in_fam)
 
     check()
     ops = []

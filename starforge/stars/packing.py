@@ -36,9 +36,11 @@ class Packing:
     c is free iff ``cnt == 0``; its held rows all belong to ONE star t iff
     ``cnt * s2 == s1**2`` (zero variance), and then ``t = s1 // cnt``.  ``tight[c]`` says which:
     -2 free, t when c is outside the family and 1-tight with t, else -1 (a small array of its
-    own, int32: the searches read only it, and it stays in the CPU cache).  ``tally[c, 3]``
-    holds the same state beside the counts (:data:`IN_FAMILY` for a family star), so that a
-    meeting in :func:`_set` reads and writes one 32-byte row.  Inserting or removing
+    own, int32: the searches read only it, and it stays in the CPU cache).  The counts sit in
+    one 16-byte row per candidate, so that a meeting in :func:`_set` reads and writes one row
+    (half the memory of a row of four, which the meetings' scattered accesses mostly miss in
+    the CPU cache): ``tally[c, 0] = family << FAMILY_BIT | cnt << SUM_BITS | s1`` (``family``:
+    c is in the family) and ``tally[c, 1] = s2``.  Inserting or removing
     a star only updates the candidates sharing a row with it, found through ``points`` (see
     :func:`starforge.stars.rules.key_points`): each star's keys as codes of grid points
     (``(n, k)``), the ``table`` from code to point id (-1: no key there) and the code offsets
@@ -67,10 +69,8 @@ class Packing:
         rptr, cands = _csc(sptr, table[spts], int(table.max()) + 1 if len(table) else 0)
         order = np.empty(n, dtype=np.int64)
         order[rank] = np.arange(n)
-        # cnt, s1, s2 and the state side by side: a meeting reads and writes one 32-byte row
-        self.tally = np.zeros((n, 4), dtype=np.int64)
-        self.tally[:, 3] = FREE
-        self.cnt, self.s1, self.s2 = self.tally[:, 0], self.tally[:, 1], self.tally[:, 2]
+        _check_tally_room(n, ptr, 1 if points is None else codes.shape[1])
+        self.tally = np.zeros((n, 2), dtype=np.int64)
         self.tight = np.full(n, FREE, dtype=np.int32)
         self.ntight = np.zeros(n, dtype=np.int32)
         self.in_fam = np.zeros(n, dtype=np.bool_)
@@ -95,6 +95,21 @@ class Packing:
         )
         chosen = np.asarray(chosen, dtype=np.int64)
         _search(self.arrays, 0, chosen.reshape(1, -1), _NO_CTR, len(chosen), -1)
+
+    @property
+    def cnt(self) -> np.ndarray:
+        """Per candidate, its meetings with family stars (int64)."""
+        return (self.tally[:, 0] >> SUM_BITS) & _COUNT_MASK
+
+    @property
+    def s1(self) -> np.ndarray:
+        """Per candidate, the sum of the ids of the family stars it meets, once per meeting."""
+        return self.tally[:, 0] & _SUM_MASK
+
+    @property
+    def s2(self) -> np.ndarray:
+        """Per candidate, the sum of their squares."""
+        return self.tally[:, 1].copy()
 
     @property
     def size(self) -> int:
@@ -178,8 +193,31 @@ def _csc(ptr, rows, n_rows):
 
 #: ``Packing.tight`` of a free candidate (no row held by the family)
 FREE = -2
-#: ``tally[c, 3]`` of a family star (its ``tight`` is -1); of any other candidate, its ``tight``
-IN_FAMILY = -3
+#: ``Packing.tally[c, 0]``: the sum of ids in the bits below SUM_BITS, the count of meetings
+#: above them, and the family flag in bit FAMILY_BIT (see :func:`_check_tally_room`)
+SUM_BITS = 40
+FAMILY_BIT = 62
+_SUM_MASK = (1 << SUM_BITS) - 1
+_COUNT_MASK = (1 << (FAMILY_BIT - SUM_BITS)) - 1
+_FAMILY = np.int64(1 << FAMILY_BIT)
+_ONE_MEETING = np.int64(1 << SUM_BITS)
+
+
+def _check_tally_room(n: int, ptr: np.ndarray, keys: int) -> None:
+    """Raise ValueError unless the packed tallies of :class:`Packing` hold every count exactly.
+
+    The family is a packing, so the family stars meeting a candidate hold distinct rows of it,
+    and each meets it at most once per pair of keys (``keys`` per star; one, by rows): a
+    candidate meets at most ``keys**2 x`` (its rows) times.  The count must stay below
+    2**(FAMILY_BIT - SUM_BITS), the sum of ids below 2**SUM_BITS and the sum of squares below
+    2**63."""
+    most = keys * keys * int(np.diff(ptr).max(initial=0))
+    top = max(n - 1, 0)
+    if most > _COUNT_MASK or most * top > _SUM_MASK or most * top * top >= 1 << 63:
+        raise ValueError(
+            f"the packing's tallies cannot hold {n:,} candidates meeting up to {most:,} times; "
+            "raise delta_mm or lower tolerance_mm for fewer candidates"
+        )
 
 
 @_inner
@@ -249,9 +287,12 @@ def _set(s, sign, P):
     ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried, freed = P
     v = s if sign > 0 else np.int64(-1)
     in_fam[s] = sign > 0
-    # s's own state is settled by the last pass (its meetings with itself skip it on entry)
-    tally[s, 3] = IN_FAMILY if sign > 0 else np.int64(-1)
-    s1s = sign * s
+    # s's own state is settled by the last pass (its meetings with itself skip it once flagged)
+    if sign > 0:
+        tally[s, 0] += _FAMILY
+    else:
+        tally[s, 0] -= _FAMILY
+    d0 = sign * (_ONE_MEETING + s)
     s2s = sign * s * s
     for j in range(ptr[s], ptr[s + 1]):
         owner[rows[j]] = v
@@ -270,22 +311,23 @@ def _set(s, sign, P):
             for q in range(q0, q1):
                 if q < 0:
                     c = s
-                    old = np.int64(tight[s])
+                    w, s2 = tally[s, 0], tally[s, 1]
                     if sign > 0:
                         new = np.int64(-1)
                 else:
                     c = cands[q]
-                    tally[c, 0] += sign
-                    tally[c, 1] += s1s
-                    tally[c, 2] += s2s
-                    old = tally[c, 3]
-                    if old == IN_FAMILY:  # a family star: its tight stays -1
+                    w = tally[c, 0] + d0
+                    tally[c, 0] = w
+                    s2 = tally[c, 1] + s2s
+                    tally[c, 1] = s2
+                    if w >= _FAMILY:  # a family star: its tight stays -1
                         continue
+                old = np.int64(tight[c])
                 if q >= 0 or sign < 0:
-                    n, s1 = tally[c, 0], tally[c, 1]
+                    n, s1 = w >> SUM_BITS, w & _SUM_MASK
                     if n == 0:
                         new = np.int64(-2)
-                    elif n * tally[c, 2] == s1 * s1:
+                    elif n * s2 == s1 * s1:
                         new = s1 // n
                     else:
                         new = np.int64(-1)
@@ -297,7 +339,6 @@ def _set(s, sign, P):
                         ntight[new] += 1
                         ver[new] += 1
                     tight[c] = new
-                    tally[c, 3] = new
                     if new == -2 and f >= 0:
                         if f + 1 < len(freed):
                             f += 1
@@ -312,8 +353,6 @@ def _set(s, sign, P):
                         h = -1
             if j == end:
                 break
-    if sign > 0:
-        tally[s, 3] = IN_FAMILY
     hits[0] = h
     freed[0] = f
 
