@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from starforge.runtime.kernels import numba
+from starforge.runtime.kernels import numba, prefetch
 
 #: the kernels only ever called from other kernels: no Python or C-callback wrapper, and no
 #: cache entry of their own (each is compiled into its one caller, whose cache entry holds it;
@@ -265,6 +265,8 @@ def _by_rank(lst, m, rank):
         gap = 0 if gap == 1 else max(1, int(gap / 2.2))
 
 
+#: how many meetings ahead :func:`_set` prefetches a candidate's tallies
+_AHEAD = 16
 #: the signs :func:`_set` takes, as int64 (a literal argument would compile a kernel again)
 _ONE = np.int64(1)
 _MINUS = np.int64(-1)
@@ -309,6 +311,8 @@ def _set(s, sign, P):
                     continue
                 q0, q1 = rptr[g], rptr[g + 1]
             for q in range(q0, q1):
+                if q + _AHEAD < q1:
+                    prefetch(tally, cands[q + _AHEAD])
                 if q < 0:
                     c = s
                     w, s2 = tally[s, 0], tally[s, 1]
