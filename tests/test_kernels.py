@@ -217,12 +217,14 @@ def test_prefetch_is_a_hint_that_changes_no_value():
     import numpy as np
 
     @kernels.numba.njit
-    def bump(a, idx, ahead):
+    def bump(a, flat, idx, ahead):
         for k in range(len(idx)):
             if ahead and k + ahead < len(idx):
                 kernels.prefetch(a, idx[k + ahead])
+                kernels.prefetch(flat, idx[k + ahead])
             a[idx[k], 0] += 1
             a[idx[k], 1] += idx[k]
+            flat[idx[k]] += 1
 
     rng = np.random.default_rng(3)
     idx = rng.integers(0, 5000, 20000)
@@ -231,5 +233,6 @@ def test_prefetch_is_a_hint_that_changes_no_value():
     np.add.at(want[:, 1], idx, idx)
     for ahead in (0, 1, 16):
         got = np.zeros((5000, 2), dtype=np.int64)
-        bump(got, idx, ahead)
-        assert np.array_equal(got, want)
+        flat = np.zeros(5000, dtype=np.int32)
+        bump(got, flat, idx, ahead)
+        assert np.array_equal(got, want) and np.array_equal(flat, want[:, 0])

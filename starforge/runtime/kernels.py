@@ -211,11 +211,11 @@ _guard_saves()
 
 @intrinsic
 def prefetch(typingctx, array, i):
-    """In compiled code, ``prefetch(array, i)`` asks the CPU to bring row ``i`` of ``array``
-    (2-d, C-contiguous) into its cache for writing (LLVM's ``llvm.prefetch``); a hint only, it
-    changes no value.  A loop over scattered rows that prefetches the row it reaches some
-    steps ahead finds it cached instead of waiting for memory."""
-    if not (isinstance(array, types.Array) and array.ndim == 2 and isinstance(i, types.Integer)):
+    """In compiled code, ``prefetch(array, i)`` asks the CPU to bring ``array[i]`` (its row ``i``
+    when 2-d; C-contiguous) into its cache for writing (LLVM's ``llvm.prefetch``); a hint
+    only, it changes no value.  A loop over scattered rows that prefetches the row it reaches
+    some steps ahead finds it cached instead of waiting for memory."""
+    if not (isinstance(array, types.Array) and array.ndim in (1, 2) and isinstance(i, types.Integer)):
         return None
 
     def codegen(context, builder, signature, args):
@@ -223,7 +223,7 @@ def prefetch(typingctx, array, i):
         ary = context.make_array(aryty)(context, builder, args[0])
         zero = context.get_constant(types.intp, 0)
         row = context.cast(builder, args[1], signature.args[1], types.intp)
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [row, zero])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [row, zero][: aryty.ndim])
         i8p = ir.IntType(8).as_pointer()
         i32 = ir.IntType(32)
         fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])

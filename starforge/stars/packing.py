@@ -530,6 +530,9 @@ def _descend(P, hn, k):
 
 #: draws per batch of the ILS perturbation
 ILS_BATCH = 1024
+#: how many draws ahead the perturbation prefetches a draw's first rows (and twice as far, where
+#: they start)
+_DRAWS_AHEAD = 4
 
 
 @numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
@@ -643,7 +646,13 @@ def _search(P, task, batches, ctr, limit, bound):
             batch = batches[pos]
             pos += 1
             tries += 1
-            for i in range(len(batch)):
+            nb = len(batch)
+            for i in range(nb):
+                # the draws' rows lie anywhere in memory: ask for those of the draws ahead
+                if i + 2 * _DRAWS_AHEAD < nb:
+                    prefetch(ptr, batch[i + 2 * _DRAWS_AHEAD])
+                if i + _DRAWS_AHEAD < nb:
+                    prefetch(rows, ptr[batch[i + _DRAWS_AHEAD]])
                 c = batch[i]
                 if in_fam[c]:
                     continue
