@@ -185,3 +185,13 @@ def test_select_family_records_ils(cands, monkeypatch):
     none = select_family(index, cands.pool_mm, volume, star_of, row, n_rows, spec, ils_iterations=0)
     assert none.info["ils_iterations"] == 0 and none.info["ils"] == none.info["local_search"]
     assert grid_steps(spec.tol_mm, spec.delta_mm) == 1
+
+
+def test_packing_refuses_counts_its_tallies_cannot_hold():
+    """A candidate that may meet the family more often than the packed count holds: a clear
+    ValueError, before any search."""
+    many = (1 << 22) + 1  # one star on more rows than the count's bits hold
+    ptr = np.array([0, many, many + 1], dtype=np.int64)
+    rows = np.arange(many + 1, dtype=np.int64)
+    with pytest.raises(ValueError, match="tallies cannot hold"):
+        Packing(np.zeros(0, dtype=np.int64), ptr, rows, many + 1, np.arange(2))
