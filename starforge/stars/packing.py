@@ -266,7 +266,7 @@ def _by_rank(lst, m, rank):
 
 
 #: how many meetings ahead :func:`_set` prefetches a candidate's tallies
-_AHEAD = 16
+_AHEAD = 32
 #: the signs :func:`_set` takes, as int64 (a literal argument would compile a kernel again)
 _ONE = np.int64(1)
 _MINUS = np.int64(-1)
