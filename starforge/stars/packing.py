@@ -38,9 +38,9 @@ class Packing:
     -2 free, t when c is outside the family and 1-tight with t, else -1 (a small array of its
     own, int32: the searches read only it, and it stays in the CPU cache).  The counts sit in
     one 16-byte row per candidate, so that a meeting in :func:`_set` reads and writes one row
-    (half the memory of a row of four, which the meetings' scattered accesses mostly miss in
-    the CPU cache): ``tally[c, 0] = family << FAMILY_BIT | cnt << SUM_BITS | s1`` (``family``:
-    c is in the family) and ``tally[c, 1] = s2``.  Inserting or removing
+    and as many rows as possible stay in the CPU cache between the meetings' scattered
+    accesses: ``tally[c, 0] = family << FAMILY_BIT | cnt << SUM_BITS | s1`` (``family``: c is
+    in the family) and ``tally[c, 1] = s2``.  Inserting or removing
     a star only updates the candidates sharing a row with it, found through ``points`` (see
     :func:`starforge.stars.rules.key_points`): each star's keys as codes of grid points
     (``(n, k)``), the ``table`` from code to point id (-1: no key there) and the code offsets
@@ -208,7 +208,7 @@ def _check_tally_room(n: int, ptr: np.ndarray, keys: int) -> None:
 
     The family is a packing, so the family stars meeting a candidate hold distinct rows of it,
     and each meets it at most once per pair of keys (``keys`` per star; one, by rows): a
-    candidate meets at most ``keys**2 x`` (its rows) times.  The count must stay below
+    candidate meets the family at most ``keys**2`` times its number of rows.  The count must stay below
     2**(FAMILY_BIT - SUM_BITS), the sum of ids below 2**SUM_BITS and the sum of squares below
     2**63."""
     most = keys * keys * int(np.diff(ptr).max(initial=0))
@@ -283,9 +283,9 @@ def _set(s, sign, P):
     its last meeting corrects: ``ntight`` ends the same, and ``ver`` only counts up.  The
     candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow; -1: it
     overflowed; a candidate may be there more than once), those turned free to ``freed`` (the
-    same way).  (No kernel calls in here: a call
-    per candidate costs more than the arithmetic, and each callee is compiled again into every
-    caller on a first run.)"""
+    same way).  The tallies of the candidate met ``_AHEAD`` meetings later are prefetched.
+    (No kernel calls in here: a call per candidate costs more than the arithmetic, and each
+    callee is compiled again into every caller on a first run.)"""
     ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried, freed = P
     v = s if sign > 0 else np.int64(-1)
     in_fam[s] = sign > 0
@@ -359,10 +359,6 @@ def _set(s, sign, P):
                 break
     hits[0] = h
     freed[0] = f
-
-
-#: ``Packing.tight`` of a free candidate (no row held by the family)
-FREE = -2
 
 
 @numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
