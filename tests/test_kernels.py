@@ -208,3 +208,31 @@ def test_a_cache_entry_that_cannot_be_written_leaves_the_kernel_uncached():
         caching.Cache.save_overload(Saving(OSError(code, "cannot write")), None, None)
     with pytest.raises(OSError, match="input/output"):
         caching.Cache.save_overload(Saving(OSError(errno.EIO, "input/output error")), None, None)
+
+
+def test_prefetch_is_a_hint_that_changes_no_value():
+    """A compiled loop that prefetches the rows it reaches ahead reads and writes exactly what
+    the same loop does without it (numpy's sums as the independent check); rows past the end
+    are never asked for."""
+    import numpy as np
+
+    @kernels.numba.njit
+    def bump(a, flat, idx, ahead):
+        for k in range(len(idx)):
+            if ahead and k + ahead < len(idx):
+                kernels.prefetch(a, idx[k + ahead])
+                kernels.prefetch(flat, idx[k + ahead])
+            a[idx[k], 0] += 1
+            a[idx[k], 1] += idx[k]
+            flat[idx[k]] += 1
+
+    rng = np.random.default_rng(3)
+    idx = rng.integers(0, 5000, 20000)
+    want = np.zeros((5000, 2), dtype=np.int64)
+    np.add.at(want[:, 0], idx, 1)
+    np.add.at(want[:, 1], idx, idx)
+    for ahead in (0, 1, 16):
+        got = np.zeros((5000, 2), dtype=np.int64)
+        flat = np.zeros(5000, dtype=np.int32)
+        bump(got, flat, idx, ahead)
+        assert np.array_equal(got, want) and np.array_equal(flat, want[:, 0])

@@ -9,7 +9,7 @@ import pytest
 import starforge.stars.select as sel
 from starforge.stars.bounds import block_bound
 from starforge.stars.enumerate import enumerate_candidates
-from starforge.stars.packing import IN_FAMILY, Packing
+from starforge.stars.packing import FAMILY_BIT, Packing
 from starforge.stars.rules import grid_steps, internal_ok, key_points, window_rows
 from starforge.stars.select import (
     compactness_order,
@@ -139,8 +139,8 @@ def test_packing_bookkeeping_matches_recount(cands, by_keys):
             tight[c] = own[0] if one else (-2 if not len(own) and not P.in_fam[c] else -1)
         assert np.array_equal(P.tight, tight)
         assert np.array_equal(P.ntight, np.bincount(tight[tight >= 0], minlength=n))
-        # the state kept beside the counts: the same, and IN_FAMILY for a family star
-        assert np.array_equal(P.tally[:, 3], np.where(P.in_fam, IN_FAMILY, tight))
+        # the family flag kept beside the counts
+        assert np.array_equal(P.tally[:, 0] >> FAMILY_BIT, P.in_fam)
 
     check()
     ops = []
@@ -185,3 +185,13 @@ def test_select_family_records_ils(cands, monkeypatch):
     none = select_family(index, cands.pool_mm, volume, star_of, row, n_rows, spec, ils_iterations=0)
     assert none.info["ils_iterations"] == 0 and none.info["ils"] == none.info["local_search"]
     assert grid_steps(spec.tol_mm, spec.delta_mm) == 1
+
+
+def test_packing_refuses_counts_its_tallies_cannot_hold():
+    """A candidate that may meet the family more often than the packed count holds: a clear
+    ValueError, before any search."""
+    many = (1 << 22) + 1  # one star on more rows than the count's bits hold
+    ptr = np.array([0, many, many + 1], dtype=np.int64)
+    rows = np.arange(many + 1, dtype=np.int64)
+    with pytest.raises(ValueError, match="tallies cannot hold"):
+        Packing(np.zeros(0, dtype=np.int64), ptr, rows, many + 1, np.arange(2))

@@ -496,6 +496,12 @@ def test_search_by_key_points_is_the_reference(small, which, rule, m):
     used = P.ils(300, None, 0)
     want, ref_used = ref_ils(ref_ls, order, ptr, rows, n_rows, iterations=300, seed=0)
     assert used == ref_used and np.array_equal(P.family, want)
+    # a record of the candidates turned free that overflows at once: each fill scans the removed
+    # star's neighbourhood instead, and inserts the same stars
+    P = Packing(ref_ls, ptr, rows, n_rows, rank_of(order), points)
+    freed = next(i for i, a in enumerate(P.arrays) if len(a) == P.n + 2)
+    P.arrays = (*P.arrays[:freed], np.zeros(2, dtype=np.int64), *P.arrays[freed + 1 :])
+    assert P.ils(300, None, 0) == ref_used and np.array_equal(P.family, want)
 
 
 def test_key_points_neighbours_are_window_neighbours(small):

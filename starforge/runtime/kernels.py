@@ -47,11 +47,13 @@ import tempfile
 import zipfile
 
 import numba
-from numba.core import caching
+from llvmlite import ir
+from numba.core import caching, cgutils, types
+from numba.extending import intrinsic
 
 from starforge.runtime.cache import cache_dir
 
-__all__ = ["numba", "digest", "kernel_dir", "manifest", "prebuild"]
+__all__ = ["numba", "digest", "kernel_dir", "manifest", "prebuild", "prefetch"]
 
 #: the package folder, whose ``.py`` files the digest covers
 PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -205,6 +207,31 @@ def _guard_saves() -> bool:
 
 _install()
 _guard_saves()
+
+
+@intrinsic
+def prefetch(typingctx, array, i):
+    """In compiled code, ``prefetch(array, i)`` asks the CPU to bring ``array[i]`` (its row ``i``
+    when 2-d; C-contiguous) into its cache for writing (LLVM's ``llvm.prefetch``); a hint
+    only, it changes no value.  A loop over scattered rows that prefetches the row it reaches
+    some steps ahead finds it cached instead of waiting for memory."""
+    if not (isinstance(array, types.Array) and array.ndim in (1, 2) and isinstance(i, types.Integer)):
+        return None
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        zero = context.get_constant(types.intp, 0)
+        row = context.cast(builder, args[1], signature.args[1], types.intp)
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [row, zero][: aryty.ndim])
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0i8")
+        builder.call(fn, [builder.bitcast(ptr, i8p), i32(1), i32(3), i32(1)])  # write, keep, data
+        return context.get_dummy_value()
+
+    return types.void(array, i), codegen
 
 
 # -- building ahead of time -------------------------------------------------------------------

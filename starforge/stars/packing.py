@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from starforge.runtime.kernels import numba
+from starforge.runtime.kernels import numba, prefetch
 
 #: the kernels only ever called from other kernels: no Python or C-callback wrapper, and no
 #: cache entry of their own (each is compiled into its one caller, whose cache entry holds it;
@@ -36,9 +36,11 @@ class Packing:
     c is free iff ``cnt == 0``; its held rows all belong to ONE star t iff
     ``cnt * s2 == s1**2`` (zero variance), and then ``t = s1 // cnt``.  ``tight[c]`` says which:
     -2 free, t when c is outside the family and 1-tight with t, else -1 (a small array of its
-    own, int32: the searches read only it, and it stays in the CPU cache).  ``tally[c, 3]``
-    holds the same state beside the counts (:data:`IN_FAMILY` for a family star), so that a
-    meeting in :func:`_set` reads and writes one 32-byte row.  Inserting or removing
+    own, int32: the searches read only it, and it stays in the CPU cache).  The counts sit in
+    one 16-byte row per candidate, so that a meeting in :func:`_set` reads and writes one row
+    and as many rows as possible stay in the CPU cache between the meetings' scattered
+    accesses: ``tally[c, 0] = family << FAMILY_BIT | cnt << SUM_BITS | s1`` (``family``: c is
+    in the family) and ``tally[c, 1] = s2``.  Inserting or removing
     a star only updates the candidates sharing a row with it, found through ``points`` (see
     :func:`starforge.stars.rules.key_points`): each star's keys as codes of grid points
     (``(n, k)``), the ``table`` from code to point id (-1: no key there) and the code offsets
@@ -67,10 +69,8 @@ class Packing:
         rptr, cands = _csc(sptr, table[spts], int(table.max()) + 1 if len(table) else 0)
         order = np.empty(n, dtype=np.int64)
         order[rank] = np.arange(n)
-        # cnt, s1, s2 and the state side by side: a meeting reads and writes one 32-byte row
-        self.tally = np.zeros((n, 4), dtype=np.int64)
-        self.tally[:, 3] = FREE
-        self.cnt, self.s1, self.s2 = self.tally[:, 0], self.tally[:, 1], self.tally[:, 2]
+        _check_tally_room(n, ptr, 1 if points is None else codes.shape[1])
+        self.tally = np.zeros((n, 2), dtype=np.int64)
         self.tight = np.full(n, FREE, dtype=np.int32)
         self.ntight = np.zeros(n, dtype=np.int32)
         self.in_fam = np.zeros(n, dtype=np.bool_)
@@ -89,9 +89,27 @@ class Packing:
             np.zeros(self.n_rows, dtype=np.bool_),  # mark: a False per row between calls
             np.zeros(n, dtype=np.int64),  # ver: per star t, bumped as a candidate's tight turns t or leaves t
             np.full(n, -1, dtype=np.int64),  # tried: ver[t] when t last had no swap pair (-1: not since)
+            # freed: the candidates turned free since a reset (see _set), each at most once per
+            # run of removals: n of them at most, plus the count in freed[0]
+            np.zeros(n + 2, dtype=np.int64),
         )
         chosen = np.asarray(chosen, dtype=np.int64)
         _search(self.arrays, 0, chosen.reshape(1, -1), _NO_CTR, len(chosen), -1)
+
+    @property
+    def cnt(self) -> np.ndarray:
+        """Per candidate, its meetings with family stars (int64)."""
+        return (self.tally[:, 0] >> SUM_BITS) & _COUNT_MASK
+
+    @property
+    def s1(self) -> np.ndarray:
+        """Per candidate, the sum of the ids of the family stars it meets, once per meeting."""
+        return self.tally[:, 0] & _SUM_MASK
+
+    @property
+    def s2(self) -> np.ndarray:
+        """Per candidate, the sum of their squares."""
+        return self.tally[:, 1].copy()
 
     @property
     def size(self) -> int:
@@ -175,8 +193,31 @@ def _csc(ptr, rows, n_rows):
 
 #: ``Packing.tight`` of a free candidate (no row held by the family)
 FREE = -2
-#: ``tally[c, 3]`` of a family star (its ``tight`` is -1); of any other candidate, its ``tight``
-IN_FAMILY = -3
+#: ``Packing.tally[c, 0]``: the sum of ids in the bits below SUM_BITS, the count of meetings
+#: above them, and the family flag in bit FAMILY_BIT (see :func:`_check_tally_room`)
+SUM_BITS = 40
+FAMILY_BIT = 62
+_SUM_MASK = (1 << SUM_BITS) - 1
+_COUNT_MASK = (1 << (FAMILY_BIT - SUM_BITS)) - 1
+_FAMILY = np.int64(1 << FAMILY_BIT)
+_ONE_MEETING = np.int64(1 << SUM_BITS)
+
+
+def _check_tally_room(n: int, ptr: np.ndarray, keys: int) -> None:
+    """Raise ValueError unless the packed tallies of :class:`Packing` hold every count exactly.
+
+    The family is a packing, so the family stars meeting a candidate hold distinct rows of it,
+    and each meets it at most once per pair of keys (``keys`` per star; one, by rows): a
+    candidate meets the family at most ``keys**2`` times its number of rows.  The count must stay below
+    2**(FAMILY_BIT - SUM_BITS), the sum of ids below 2**SUM_BITS and the sum of squares below
+    2**63."""
+    most = keys * keys * int(np.diff(ptr).max(initial=0))
+    top = max(n - 1, 0)
+    if most > _COUNT_MASK or most * top > _SUM_MASK or most * top * top >= 1 << 63:
+        raise ValueError(
+            f"the packing's tallies cannot hold {n:,} candidates meeting up to {most:,} times; "
+            "raise delta_mm or lower tolerance_mm for fewer candidates"
+        )
 
 
 @_inner
@@ -184,10 +225,8 @@ def _neighbours(t, want, most, sptr, spts, table, offs, rptr, cands, tight, rank
     """The candidates sharing a row with star t whose ``tight`` is ``want`` (-2: free; t:
     1-tight with t; -3: 1-tight with any star), each once, most compact first, in ``lst[:m]``; returns m.  The scan of
     t's rows stops once ``most`` are found (``ntight[t]`` when ``want`` is t: there are no
-    more).  ``seen`` (all False) is left so.  The sort by rank (a permutation: no ties, so an unstable sort does) is
-    Shell's sort, gaps ~m/2.2^k ending in 1 (insertion sort for short lists), written here, its
-    one caller: no numpy sort in the kernels (each costs seconds of compilation on a first run),
-    and as a kernel of its own it was compiled twice (``m`` typed once as the literal 0)."""
+    more).  ``seen`` (all False) is left so.  Sorted by :func:`_by_rank` (``m`` passed as an
+    int64: typed as the literal 0 it would be compiled twice)."""
     m = 0
     for j in range(sptr[t], sptr[t + 1]):
         for o in offs:
@@ -204,6 +243,15 @@ def _neighbours(t, want, most, sptr, spts, table, offs, rptr, cands, tight, rank
                     m += 1
     for i in range(m):
         seen[lst[i]] = False
+    _by_rank(lst, np.int64(m), rank)
+    return m
+
+
+@_inner
+def _by_rank(lst, m, rank):
+    """Sort ``lst[:m]`` by rank, most compact first (ranks are a permutation: no ties, so an
+    unstable sort does): Shell's sort, gaps ~m/2.2^k ending in 1 (insertion sort for short
+    lists).  No numpy sort in the kernels: each costs seconds of compilation on a first run."""
     gap = m // 2
     while gap > 0:
         for i in range(gap, m):
@@ -215,9 +263,10 @@ def _neighbours(t, want, most, sptr, spts, table, offs, rptr, cands, tight, rank
                 j -= gap
             lst[j] = v
         gap = 0 if gap == 1 else max(1, int(gap / 2.2))
-    return m
 
 
+#: how many meetings ahead :func:`_set` prefetches a candidate's tallies
+_AHEAD = 32
 #: the signs :func:`_set` takes, as int64 (a literal argument would compile a kernel again)
 _ONE = np.int64(1)
 _MINUS = np.int64(-1)
@@ -233,19 +282,24 @@ def _set(s, sign, P):
     without rows meets nothing).  A candidate met more than once passes through states that
     its last meeting corrects: ``ntight`` ends the same, and ``ver`` only counts up.  The
     candidates found 1-tight are appended to ``hits`` (``hits[0]`` entries follow; -1: it
-    overflowed; a candidate may be there more than once).  (No kernel calls in here: a call
-    per candidate costs more than the arithmetic, and each callee is compiled again into every
-    caller on a first run.)"""
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    overflowed; a candidate may be there more than once), those turned free to ``freed`` (the
+    same way).  The tallies of the candidate met ``_AHEAD`` meetings later are prefetched.
+    (No kernel calls in here: a call per candidate costs more than the arithmetic, and each
+    callee is compiled again into every caller on a first run.)"""
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried, freed = P
     v = s if sign > 0 else np.int64(-1)
     in_fam[s] = sign > 0
-    # s's own state is settled by the last pass (its meetings with itself skip it on entry)
-    tally[s, 3] = IN_FAMILY if sign > 0 else np.int64(-1)
-    s1s = sign * s
+    # s's own state is settled by the last pass (its meetings with itself skip it once flagged)
+    if sign > 0:
+        tally[s, 0] += _FAMILY
+    else:
+        tally[s, 0] -= _FAMILY
+    d0 = sign * (_ONE_MEETING + s)
     s2s = sign * s * s
     for j in range(ptr[s], ptr[s + 1]):
         owner[rows[j]] = v
     h = hits[0]
+    f = freed[0]
     end = sptr[s + 1]
     for j in range(sptr[s], end + 1):
         for o in offs:
@@ -257,24 +311,27 @@ def _set(s, sign, P):
                     continue
                 q0, q1 = rptr[g], rptr[g + 1]
             for q in range(q0, q1):
+                if q + _AHEAD < q1:
+                    prefetch(tally, cands[q + _AHEAD])
                 if q < 0:
                     c = s
-                    old = np.int64(tight[s])
+                    w, s2 = tally[s, 0], tally[s, 1]
                     if sign > 0:
                         new = np.int64(-1)
                 else:
                     c = cands[q]
-                    tally[c, 0] += sign
-                    tally[c, 1] += s1s
-                    tally[c, 2] += s2s
-                    old = tally[c, 3]
-                    if old == IN_FAMILY:  # a family star: its tight stays -1
+                    w = tally[c, 0] + d0
+                    tally[c, 0] = w
+                    s2 = tally[c, 1] + s2s
+                    tally[c, 1] = s2
+                    if w >= _FAMILY:  # a family star: its tight stays -1
                         continue
+                old = np.int64(tight[c])
                 if q >= 0 or sign < 0:
-                    n, s1 = tally[c, 0], tally[c, 1]
+                    n, s1 = w >> SUM_BITS, w & _SUM_MASK
                     if n == 0:
                         new = np.int64(-2)
-                    elif n * tally[c, 2] == s1 * s1:
+                    elif n * s2 == s1 * s1:
                         new = s1 // n
                     else:
                         new = np.int64(-1)
@@ -286,7 +343,12 @@ def _set(s, sign, P):
                         ntight[new] += 1
                         ver[new] += 1
                     tight[c] = new
-                    tally[c, 3] = new
+                    if new == -2 and f >= 0:
+                        if f + 1 < len(freed):
+                            f += 1
+                            freed[f] = c
+                        else:
+                            f = -1
                 if new >= 0 and h >= 0 and q >= 0:
                     if h + 1 < len(hits):
                         h += 1
@@ -295,13 +357,8 @@ def _set(s, sign, P):
                         h = -1
             if j == end:
                 break
-    if sign > 0:
-        tally[s, 3] = IN_FAMILY
     hits[0] = h
-
-
-#: ``Packing.tight`` of a free candidate (no row held by the family)
-FREE = -2
+    freed[0] = f
 
 
 @numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
@@ -320,9 +377,34 @@ def _fill(t, P, k):
     """Insert the candidates sharing a row with star t that are free (nothing of the family
     holds their rows), most compact first; each is logged in ``ops`` from ``k`` on.  (Only
     insertions happen here, so a candidate free now was free when the fill began.)
-    Returns the next free place in ``ops``."""
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
-    m = _neighbours(t, np.int64(-2), np.int64(len(tight)), sptr, spts, table, offs, rptr, cands, tight, rank, seen, lst)
+    Returns the next free place in ``ops``.
+
+    The callers reset ``freed`` before removing t: a candidate sharing a row with t held a row
+    of the family until then (t's), so it is free now only if it turned free since, and is in
+    ``freed``; those sharing a row with t are kept (t's rows marked, theirs looked up).  When
+    ``freed`` overflowed, t's neighbourhood is scanned (:func:`_neighbours`)."""
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried, freed = P
+    if freed[0] < 0:
+        m = _neighbours(t, np.int64(-2), np.int64(len(tight)), sptr, spts, table, offs, rptr, cands, tight, rank, seen, lst)
+    else:
+        for j in range(ptr[t], ptr[t + 1]):
+            mark[rows[j]] = True
+        m = 0
+        for i in range(1, freed[0] + 1):
+            c = freed[i]
+            if tight[c] != -2 or seen[c]:
+                continue
+            for j in range(ptr[c], ptr[c + 1]):
+                if mark[rows[j]]:
+                    seen[c] = True
+                    lst[m] = c
+                    m += 1
+                    break
+        for j in range(ptr[t], ptr[t + 1]):
+            mark[rows[j]] = False
+        for i in range(m):
+            seen[lst[i]] = False
+        _by_rank(lst, np.int64(m), rank)
     for i in range(m):
         c = lst[i]
         if tight[c] == -2:
@@ -352,7 +434,7 @@ def _enqueue(P, k0, k1, hn):
     candidates are the ones found 1-tight since ``hits`` was reset before ``ops[k0]`` (their
     ``tight`` was last set by these changes), looked at again now; when ``hits`` overflowed,
     every candidate sharing rows with the stars of ``ops[k0:k1]``."""
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried, freed = P
     if hits[0] >= 0:
         for i in range(1, hits[0] + 1):
             x = tight[hits[i]]
@@ -379,7 +461,7 @@ def _descend(P, hn, k):
     returns the next free place in ``ops``.  (The heap's pop and the search for a pair are
     written in here, their one caller: as kernels of their own each was compiled, optimised and
     turned into machine code once more on a first run.)"""
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried, freed = P
     while hn > 0:
         # pop the heap's minimum rank
         r = heap[0]
@@ -429,6 +511,7 @@ def _descend(P, hn, k):
             continue
         k0 = k
         hits[0] = 0
+        freed[0] = 0
         _set(np.int64(t), _MINUS, P)
         ops[k] = -(t + 1)
         _set(np.int64(a), _ONE, P)
@@ -443,6 +526,9 @@ def _descend(P, hn, k):
 
 #: draws per batch of the ILS perturbation
 ILS_BATCH = 1024
+#: how many draws ahead the perturbation prefetches a draw's first rows (and twice as far, where
+#: they start)
+_DRAWS_AHEAD = 4
 
 
 @numba.njit(cache=True, nogil=True, no_cfunc_wrapper=True)
@@ -470,7 +556,7 @@ def _search(P, task, batches, ctr, limit, bound):
     belong to one or two family stars.  Returns when done (``ctr[4] = 1``) or when it needs a
     batch past ``batches`` (``ctr[4] = 0``: call again with the next ones).
     """
-    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried = P
+    ptr, rows, sptr, spts, table, offs, rptr, cands, rank, order, tally, tight, ntight, in_fam, owner, lst, seen, heap, queued, hits, ops, mark, ver, tried, freed = P
     if task == 0:
         for i in range(limit):
             _set(batches[0, i], _ONE, P)
@@ -556,7 +642,13 @@ def _search(P, task, batches, ctr, limit, bound):
             batch = batches[pos]
             pos += 1
             tries += 1
-            for i in range(len(batch)):
+            nb = len(batch)
+            for i in range(nb):
+                # the draws' rows lie anywhere in memory: ask for those of the draws ahead
+                if i + 2 * _DRAWS_AHEAD < nb:
+                    prefetch(ptr, batch[i + 2 * _DRAWS_AHEAD])
+                if i + _DRAWS_AHEAD < nb:
+                    prefetch(rows, ptr[batch[i + _DRAWS_AHEAD]])
                 c = batch[i]
                 if in_fam[c]:
                     continue
@@ -584,6 +676,7 @@ def _search(P, task, batches, ctr, limit, bound):
         # force s in (removing the one or two stars holding its rows, lowest id first), refill
         # around them, then (1,2)-swaps around every change
         hits[0] = 0
+        freed[0] = 0
         _set(np.int64(h1), _MINUS, P)
         ops[0] = -(h1 + 1)
         k = 1
