@@ -8,6 +8,8 @@ import trimesh
 
 from starforge.errors import StarforgeError
 from starforge.props.grips import (
+    POSITIONS,
+    STEP,
     WRAPS,
     assign_grips,
     grip_arrays,
@@ -57,17 +59,18 @@ def test_the_torch_is_held_by_its_body_whatever_its_orientation(tilt):
 
 def test_the_distribution_spans_hands_positions_and_wraps():
     part, grips = grip_distribution(_torch())
-    assert len(grips) == 3 * 2 * len(WRAPS)
+    positions = len({g.along for g in grips})
+    assert len(grips) == positions * 2 * len(WRAPS)
     assert {g.hand for g in grips} == {"left", "right"}
     # the reach: the body continued over the 70 mm head (a hand spans it), 250 mm in all
     a, b = part.reach
     assert np.allclose([a[:2], b[:2]], 0.0, atol=2e-3)
     assert min(a[2], b[2]) < 0.005 and max(a[2], b[2]) > 0.245
-    # three palms from one end of the reach to the other, neighbours overlapping (no gap)
+    # palms from one end of the reach to the other, neighbours at most STEP palms apart
     palm = 0.09
     centres = sorted({round(g.along * 0.25, 4) for g in grips})
     assert centres[0] == pytest.approx(palm / 2, abs=0.005) and centres[-1] == pytest.approx(0.25 - palm / 2, abs=0.005)
-    assert np.diff(centres).max() <= palm
+    assert np.diff(centres).max() <= STEP * palm + 1e-9 and positions <= POSITIONS
     # the fists of the grips cover the whole body and the head: a hand may hold it anywhere
     z = np.linspace(0.005, 0.245, 49)
     side = np.column_stack([np.where(z < 0.2, 0.0175, 0.035), np.zeros_like(z), z])
@@ -144,7 +147,7 @@ def test_the_table_holds_each_pose_in_its_own_grip():
     rig = load_rig("default")
     rng = np.random.default_rng(5)
     sites = sample_sites(mesh, 60, rng)
-    poses = random_poses(rig.volume, 36, mesh.bounds.mean(axis=0), rng)
+    poses = random_poses(rig.volume, 2 * len(grips), mesh.bounds.mean(axis=0), rng)
     pose_grip = assign_grips(len(poses), len(grips), np.random.default_rng(1))
     assert np.bincount(pose_grip).tolist() == [2] * len(grips)
     occ, starts = grip_arrays(grips)
@@ -175,8 +178,8 @@ def test_a_pinned_grip_by_number_or_by_segment():
     assert pinned_grip("4", grips) is grips[3]
     seg = pinned_grip("0,0,0.02,0,0,0.11,0.015", grips)
     assert inside_capsules(np.array([[0.0175, 0, 0.06]]), seg.capsules).all()
-    with pytest.raises(StarforgeError, match="numbered 1 to 18"):
-        pinned_grip("19", grips)
+    with pytest.raises(StarforgeError, match=f"numbered 1 to {len(grips)}"):
+        pinned_grip(str(len(grips) + 1), grips)
     with pytest.raises(StarforgeError, match="--grip"):
         pinned_grip("0,1", grips)
 

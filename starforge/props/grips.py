@@ -66,13 +66,15 @@ GRASP_RUN_M = 0.04
 #: sections along an axis are this far apart, m (at most :data:`MAX_SLICES` of them)
 SLICE_M = 0.004
 MAX_SLICES = 400
-#: at most this many palm positions along the held run (one when the run is hardly longer than the palm)
-POSITIONS = 5
+#: at most this many palm positions along the reach (one when the reach is hardly longer than the palm)
+POSITIONS = 7
+#: neighbouring palm positions are at most this many palm widths apart (a hand may hold anywhere between)
+STEP = 0.5
 #: angles around the part where the back of the hand and the wrist sit, degrees
 WRAPS = (0.0, 120.0, 240.0)
 #: the wrist and forearm: radius and length, m (a wrist is 50-65 mm across)
 WRIST_M = 0.03
-FOREARM_M = 0.15
+FOREARM_M = 0.25
 #: the wrist leaves the part turned this far (degrees) from the radial direction, towards the thumb
 THUMB_DEG = 20.0
 
@@ -278,7 +280,7 @@ def grip_distribution(mesh, positions: int = POSITIONS, wraps=WRAPS, fallback=No
     L = float(np.linalg.norm(b - a))
     u = (b - a) / max(L, 1e-12)
     palm = min(PALM_M, L)
-    k = 1 if L - palm < 0.02 or positions <= 1 else int(min(positions, max(2, math.ceil((L - palm) / palm - 1e-9) + 1)))
+    k = 1 if L - palm < 0.02 or positions <= 1 else int(min(positions, max(2, math.ceil((L - palm) / (STEP * palm) - 1e-9) + 1)))
     starts = [0.0] if k == 1 else list(np.linspace(0.0, L - palm, k))
     where = {0: "at one end", k - 1: "at the other end"} if k > 1 else {0: "over the part"}
     grips = []
