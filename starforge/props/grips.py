@@ -350,8 +350,11 @@ def grips_summary(part: HeldPart, grips) -> str:
         f"the {part.length_m * 1000:.0f} mm graspable part ({2000 * part.radius_m:.0f} mm across)"
         if part.found else f"its thinnest end ({2000 * part.radius_m:.0f} mm across; no part 20-55 mm across found)"
     )
+    a, b = part.reach
+    reach = float(np.linalg.norm(b - a))
+    where = f"on {what}" if reach <= part.length_m + 1e-3 else f"along {1000 * reach:.0f} mm of the prop: {what} and on past it"
     hands = sorted({g.hand for g in grips if g.hand})
-    return f"{len(grips)} grip(s) on {what}" + (f", {' and '.join(hands)} hand" if hands else "")
+    return f"{len(grips)} grip(s) {where}" + (f", {' and '.join(hands)} hand" if hands else "")
 
 
 #: a site is under the hand (no marker goes there) when more than this share of the grips' fists
