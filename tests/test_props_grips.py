@@ -117,6 +117,40 @@ def test_the_reach_runs_past_the_handle_over_what_a_hand_spans():
     assert max(a[2], b[2]) <= 0.12 + 0.005
 
 
+def _drill():
+    """A 100 mm handle 40 mm across under a 210 x 50 x 60 mm body, on a 80 x 70 x 40 mm battery."""
+    handle = trimesh.creation.cylinder(radius=0.02, height=0.12, sections=48)
+    handle.apply_translation([0, 0, 0.1])
+    body = trimesh.creation.box(extents=(0.21, 0.05, 0.06))
+    body.apply_translation([0.045, 0, 0.17])
+    battery = trimesh.creation.box(extents=(0.08, 0.07, 0.04))
+    battery.apply_translation([0, 0, 0.02])
+    return trimesh.util.concatenate([handle, body, battery])
+
+
+def test_a_body_beside_the_handle_gets_grips_of_its_own():
+    """The drill's handle is the held part; the stretch of its body clear of the handle (cut
+    across x, every section the 50 x 60 mm box) is another, with fists as thick as the body; the
+    torch, as thick as a hand across, has none."""
+    part, grips = grip_distribution(_drill())
+    assert part.found and part.radius_m == pytest.approx(0.02, abs=1.5e-3)
+    assert len(part.others) == 1
+    (body,) = part.others
+    ends = np.array([body.a, body.b])
+    # along x through the body's middle (a principal axis, a few degrees off x)
+    assert np.allclose(ends[:, 1:], [0.0, 0.17], atol=6e-3)
+    # the battery under the handle (x within 40 mm) makes the sections 200 mm tall: the stretch
+    # starts past it and runs to the body's front
+    assert ends[:, 0].min() >= 0.04 - 5e-3 and ends[:, 0].max() == pytest.approx(0.15, abs=5e-3)
+    half_diag = np.hypot(0.025, 0.03)
+    assert 0.03 - 1e-3 <= body.radius_m <= half_diag + 1e-3
+    on_body = [g for g in grips if "stretch 2" in g.label]
+    assert on_body and len(on_body) < len(grips)
+    pts = np.array([[0.09, 0.025, 0.17], [0.09, 0.0, 0.2]])  # on the body's side and top
+    assert under_hand(pts, pts, on_body).all()
+    assert held_part(_torch()).others == ()
+
+
 def test_a_grip_on_the_shaft_closes_round_the_shaft():
     """Each fist is the widest section under its palm plus the fingers (recomputed from the
     mesh's own dimensions), and the fists together cover handle and shaft."""

@@ -33,6 +33,9 @@ site is *under the hand*, and no marker goes there, when the fists (or the finge
 than :data:`HELD_SHARE` of the grips cover it (of the one grip, when only one is assumed): where
 people hold the prop most, a marker is knocked off or hidden.  A site fewer grips cover stays a
 candidate, and a layout is ranked by how it is tracked whichever of them holds the prop.
+Along the other directions the mesh is cut in, a stretch at least a palm long whose sections a
+hand spans (a drill's body beside its handle, where the other hand steadies it) gets grips of
+its own in the same way (:attr:`HeldPart.others`; of stretches along one place, the slimmest).
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from starforge.errors import StarforgeError
+from starforge.geometry.distance import point_segment_distance
 from starforge.props.hand import (
     PALM_M,
     PINCH_BELOW_M,
@@ -124,6 +128,8 @@ class HeldPart:
     every section up to :data:`BODY_WIDTH_M` wide (a torch's head, a screwdriver's shaft, a
     racket's throat; the run itself when none is found); ``reach_radii``: half the wider width
     of its sections, evenly spaced from ``reach_a`` to ``reach_b`` (empty: ``radius_m`` all along).
+    ``others``: the stretches along the other directions the mesh is cut in that a hand spans over
+    at least a palm (a drill's body beside its handle), each its own reach.
     """
 
     a: tuple[float, float, float]
@@ -133,6 +139,7 @@ class HeldPart:
     reach_a: tuple[float, float, float] | None = None
     reach_b: tuple[float, float, float] | None = None
     reach_radii: tuple[float, ...] = ()
+    others: tuple[HeldPart, ...] = ()
 
     @property
     def length_m(self) -> float:
@@ -166,6 +173,7 @@ class HeldPart:
             "reach_a": [round(float(x), 6) + 0.0 for x in a],
             "reach_b": [round(float(x), 6) + 0.0 for x in b],
             "reach_length_mm": round(1000 * float(np.linalg.norm(b - a)), 1),
+            **({"others": [o.to_json() for o in self.others]} if self.others else {}),
         }
 
 
@@ -231,10 +239,32 @@ def held_part(mesh, fallback=None) -> HeldPart:
         return tuple(c + np.array([t, *mid]) @ axes)
 
     i0, j0 = _reach(w, i, j)
+    main = HeldPart(at(h[i] - step / 2), at(h[j - 1] + step / 2), 0.0, True, at(h[i0] - step / 2), at(h[j0 - 1] + step / 2))
+    found = [p for p in (_other_part(c, s) for s in slices if s[0] is not axes) if p is not None]
+    others: list[HeldPart] = []
+    for p in sorted(found, key=lambda p: (p.radius_m, -p.length_m)):  # of those along one stretch, the slimmest
+        centre = (np.asarray(p.a) + np.asarray(p.b)) / 2
+        if all(point_segment_distance(centre[None], *q.reach)[0] > p.radius_m + q.radius_m for q in [main, *others]):
+            others.append(p)
     return HeldPart(
         at(h[i] - step / 2), at(h[j - 1] + step / 2), float(np.nanmax(w[i:j, 0]) / 2), True,
-        at(h[i0] - step / 2), at(h[j0 - 1] + step / 2), tuple(float(x) / 2 for x in w[i0:j0, 0]),
+        at(h[i0] - step / 2), at(h[j0 - 1] + step / 2), tuple(float(x) / 2 for x in w[i0:j0, 0]), tuple(others),
     )  # fmt: skip
+
+
+def _other_part(c: np.ndarray, sliced) -> HeldPart | None:
+    """The longest run, at least a palm long, of sections up to :data:`BODY_WIDTH_M` wide along one
+    more direction (``sliced``: its axes, heights, widths and step; ``c`` the frame's origin):
+    where a second hand, or the one hand, may also hold the prop; None when there is none."""
+    axes, h, w, step = sliced
+    ok = np.isfinite(w[:, 0]) & (w[:, 0] <= BODY_WIDTH_M)
+    runs = [(j - i, i, j) for i, j in _runs(ok) if (j - i) * step >= PALM_M - 1e-12]
+    if not runs:
+        return None
+    _, i, j = max(runs)
+    mid = np.nanmean(w[i:j, 2:], axis=0)
+    a, b = (tuple(c + np.array([t, *mid]) @ axes) for t in (h[i] - step / 2, h[j - 1] + step / 2))
+    return HeldPart(a, b, float(np.nanmax(w[i:j, 0]) / 2), True, a, b, tuple(float(x) / 2 for x in w[i:j, 0]))
 
 
 def _reach(w: np.ndarray, i: int, j: int) -> tuple[int, int]:
@@ -271,12 +301,21 @@ def hand_model(a, b, part_radius: float, wrap_deg: float, hand: str) -> tuple[Ca
 
 def grip_distribution(mesh, positions: int = POSITIONS, wraps=WRAPS, fallback=None) -> tuple[HeldPart, tuple[Grip, ...]]:
     """The held part (:func:`held_part`) and the grips (see the module docstring), in a fixed
-    order: position, then hand, then wrap."""
+    order: the held part's reach, then each of its ``others``; along each, position, then hand,
+    then wrap."""
     part = held_part(mesh, fallback)
-    a, b = part.reach
     if float(np.max(mesh.extents)) < PINCH_BELOW_M:
         caps = pinch(mesh, np.asarray(part.a), np.asarray(part.b), part.radius_m)
         return part, (Grip("pinched by the fingertips at its thinnest end", "", 0.0, 0.0, tuple(caps)),)
+    grips = []
+    for n, p in enumerate((part, *part.others)):
+        grips += _grips_along(p, positions, wraps, "" if n == 0 else f" of stretch {n + 1}")
+    return part, tuple(grips)
+
+
+def _grips_along(part: HeldPart, positions: int, wraps, name: str) -> list[Grip]:
+    """The grips along one reach (``name`` follows the place in each label)."""
+    a, b = part.reach
     L = float(np.linalg.norm(b - a))
     u = (b - a) / max(L, 1e-12)
     palm = min(PALM_M, L)
@@ -288,12 +327,12 @@ def grip_distribution(mesh, positions: int = POSITIONS, wraps=WRAPS, fallback=No
         g0, g1 = a + t * u, a + (t + palm) * u
         r = part.radius_between(t, t + palm)
         along = (t + palm / 2) / max(L, 1e-12)
-        pos = where.get(i, "in the middle" if k == 3 else f"at {100 * along:.0f} % of the reach")
+        pos = where.get(i, "in the middle" if k == 3 else f"at {100 * along:.0f} % of the reach") + name
         for hand in ("right", "left"):
             for wrap in wraps:
                 caps = hand_model(g0, g1, r, float(wrap), hand)
                 grips.append(Grip(f"{hand} hand {pos}, wrist at {wrap:g} deg", hand, along, float(wrap), caps))
-    return part, tuple(grips)
+    return grips
 
 
 def pinned_grip(text: str, grips: tuple[Grip, ...]) -> Grip:
@@ -353,6 +392,9 @@ def grips_summary(part: HeldPart, grips) -> str:
     a, b = part.reach
     reach = float(np.linalg.norm(b - a))
     where = f"on {what}" if reach <= part.length_m + 1e-3 else f"along {1000 * reach:.0f} mm of the prop: {what} and on past it"
+    if part.others:
+        where += ", and along " + ", ".join(f"{1000 * o.length_m:.0f} mm ({2000 * o.radius_m:.0f} mm across)" for o in part.others)
+        where += f" in another direction (stretch {', '.join(str(n + 2) for n in range(len(part.others)))})"
     hands = sorted({g.hand for g in grips if g.hand})
     return f"{len(grips)} grip(s) {where}" + (f", {' and '.join(hands)} hand" if hands else "")
 
