@@ -109,9 +109,18 @@ def test_placement_on_a_fine_mesh_sits_on_the_surface_on_valid_seats(tmp_path):
     mesh = res.prop.mesh
     pts = np.asarray(res.marker_points)
     assert len(pts) >= 4
-    # on the surface: an independent closest-point query (trimesh's own) puts them there
-    assert mesh.nearest.on_surface(pts)[1].max() < 1e-9
     idx = list(res.marker_sites)
+    # on the surface: each lies in the plane of the face it was drawn on and inside it (its
+    # barycentric coordinates there are >= 0), recomputed from the face's corners (trimesh's
+    # closest-point query misjudges faces a fraction of a millimetre across in metres)
+    tri = np.asarray(mesh.triangles)[np.asarray(res.sites.faces)[idx]]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    assert np.abs(np.einsum("ij,ij->i", pts - tri[:, 0], n)).max() < 1e-12
+    area = lambda a, b, c: np.einsum("ij,ij->i", np.cross(b - a, c - a), n)  # noqa: E731
+    whole = area(tri[:, 0], tri[:, 1], tri[:, 2])
+    parts = [area(pts, tri[:, 1], tri[:, 2]), area(tri[:, 0], pts, tri[:, 2]), area(tri[:, 0], tri[:, 1], pts)]
+    assert all((w / whole >= -1e-9).all() for w in parts)
     assert np.all(np.asarray(res.seat_report.ok)[idx])
     # the ball clears the surface: re-measured by brute force over every face
     need = min(res.seat.ball_radius_m, res.seat.centre_height_m) - res.spec.seat.clearance_tol_mm / 1000.0

@@ -13,22 +13,29 @@ A prop without one is held where :func:`starforge.props.hand.grip_segment` says 
 end), and a prop shorter than :data:`starforge.props.hand.PINCH_BELOW_M` is pinched there
 (:func:`starforge.props.hand.pinch`).
 
-The distribution (:func:`grip_distribution`): the palm (:data:`starforge.props.hand.PALM_M`
-long, or the run's length) at places spread evenly along the run, as many as leave no gap
-between neighbouring palms (at least two, at most :data:`POSITIONS`), by either
-hand, with the back of the hand and the wrist at :data:`WRAPS` angles around the part.  Each grip
-is a set of capsules that move with the prop (:func:`hand_model`): the fist around the part
-(:func:`starforge.props.hand.hand_capsule`) and the wrist, a capsule of :data:`WRIST_M` radius
-and :data:`FOREARM_M` length leaving the part's surface at the wrap angle, turned
-:data:`THUMB_DEG` towards the thumb's side (a left hand is the mirror image of a right one, so
-the turn changes sign).  Every pose of the optimizer's sample is held in one grip of the
-distribution, the same number of poses per grip in a random order drawn from the run's seed
-(:func:`assign_grips`): the tracked fraction then is the expectation over the grips.  A site is
-*under the hand*, and no marker goes there, when the fist (or the fingertips) of any grip covers
-it: a person may hold the prop there, and a marker under the palm is knocked off or hidden.  On
-a prop held almost everywhere (a plain rod) that leaves too few sites (fewer than
-:data:`FEW_SITES` per marker wanted); then only the sites more than half of the grips cover are
-left out, and the run says so.
+People do not only hold the part a shape suggests: they choke up on a handle onto the shaft
+or the throat beyond it, grab a torch by its head or a bottle by its body.  The *reach* is the
+held run continued along its axis over every section a hand spans (up to :data:`BODY_WIDTH_M`
+wide, however thin), and the distribution (:func:`grip_distribution`) spreads the palm
+(:data:`starforge.props.hand.PALM_M` long, or the reach's length) evenly along the reach, as
+many places as leave no gap between neighbouring palms (at least two, at most
+:data:`POSITIONS`), by either hand, with the back of the hand and the wrist at :data:`WRAPS`
+angles around the part.  Each grip is a set of capsules that move with the prop
+(:func:`hand_model`): the fist around the widest section under the palm
+(:func:`starforge.props.hand.hand_capsule`) and the wrist and forearm, a capsule of
+:data:`WRIST_M` radius and :data:`FOREARM_M` length leaving the part's surface at the wrap
+angle, turned :data:`THUMB_DEG` towards the thumb's side (a left hand is the mirror image of a
+right one, so the turn changes sign).  Every pose of the optimizer's sample is held in one grip
+of the distribution, the same number of poses per grip in a random order drawn from the run's
+seed (:func:`assign_grips`): the tracked fraction then is the expectation over the grips, and a
+marker inside a grip's fist is lost in that grip's poses (no sight line leaves a capsule).  A
+site is *under the hand*, and no marker goes there, when the fists (or the fingertips) of more
+than :data:`HELD_SHARE` of the grips cover it (of the one grip, when only one is assumed): where
+people hold the prop most, a marker is knocked off or hidden.  A site fewer grips cover stays a
+candidate, and a layout is ranked by how it is tracked whichever of them holds the prop.
+Along the other directions the mesh is cut in, a stretch at least a palm long whose sections a
+hand spans (a drill's body beside its handle, where the other hand steadies it) gets grips of
+its own in the same way (:attr:`HeldPart.others`; of stretches along one place, the slimmest).
 """
 
 from __future__ import annotations
@@ -39,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from starforge.errors import StarforgeError
+from starforge.geometry.distance import point_segment_distance
 from starforge.props.hand import (
     PALM_M,
     PINCH_BELOW_M,
@@ -62,13 +70,15 @@ GRASP_RUN_M = 0.04
 #: sections along an axis are this far apart, m (at most :data:`MAX_SLICES` of them)
 SLICE_M = 0.004
 MAX_SLICES = 400
-#: at most this many palm positions along the held run (one when the run is hardly longer than the palm)
-POSITIONS = 5
+#: at most this many palm positions along the reach (one when the reach is hardly longer than the palm)
+POSITIONS = 7
+#: neighbouring palm positions are at most this many palm widths apart (a hand may hold anywhere between)
+STEP = 0.5
 #: angles around the part where the back of the hand and the wrist sit, degrees
 WRAPS = (0.0, 120.0, 240.0)
-#: the wrist and forearm's start: radius and length, m (a wrist is 50-65 mm across)
+#: the wrist and forearm: radius and length, m (a wrist is 50-65 mm across)
 WRIST_M = 0.03
-FOREARM_M = 0.15
+FOREARM_M = 0.25
 #: the wrist leaves the part turned this far (degrees) from the radial direction, towards the thumb
 THUMB_DEG = 20.0
 
@@ -84,7 +94,7 @@ class Grip:
     hand : str
         ``"right"``, ``"left"``, or ``""`` for a pinch or a pinned grip.
     along : float
-        The palm's centre along the held run, 0 (one end) to 1 (the other).
+        The palm's centre along the reach (:attr:`HeldPart.reach`), 0 (one end) to 1 (the other).
     wrap_deg : float
         Angle around the part of the back of the hand, degrees.
     capsules : tuple of Capsule
@@ -114,24 +124,56 @@ class HeldPart:
 
     ``a``, ``b``: the run's ends on the axis through the sections' centres; ``radius_m``: half
     its widest section; ``found``: from the sections (False: the thinnest-end fallback).
+    ``reach_a``, ``reach_b``: the stretch of that axis a hand may hold, the run continued over
+    every section up to :data:`BODY_WIDTH_M` wide (a torch's head, a screwdriver's shaft, a
+    racket's throat; the run itself when none is found); ``reach_radii``: half the wider width
+    of its sections, evenly spaced from ``reach_a`` to ``reach_b`` (empty: ``radius_m`` all along).
+    ``others``: the stretches along the other directions the mesh is cut in that a hand spans over
+    at least a palm (a drill's body beside its handle), each its own reach.
     """
 
     a: tuple[float, float, float]
     b: tuple[float, float, float]
     radius_m: float
     found: bool
+    reach_a: tuple[float, float, float] | None = None
+    reach_b: tuple[float, float, float] | None = None
+    reach_radii: tuple[float, ...] = ()
+    others: tuple[HeldPart, ...] = ()
 
     @property
     def length_m(self) -> float:
         return float(np.linalg.norm(np.subtract(self.b, self.a)))
 
+    @property
+    def reach(self) -> tuple[np.ndarray, np.ndarray]:
+        """The ends of the stretch a hand may hold, (3,) each, m."""
+        if self.reach_a is None or self.reach_b is None:
+            return np.asarray(self.a, float), np.asarray(self.b, float)
+        return np.asarray(self.reach_a, float), np.asarray(self.reach_b, float)
+
+    def radius_between(self, t0: float, t1: float) -> float:
+        """Half the widest section between ``t0`` and ``t1`` (m from ``reach_a`` along the reach)."""
+        a, b = self.reach
+        r = np.asarray(self.reach_radii, float)
+        if not len(r):
+            return self.radius_m
+        t = np.linspace(0.0, float(np.linalg.norm(b - a)), len(r))
+        inside = r[(t >= t0 - 1e-9) & (t <= t1 + 1e-9)]
+        return float(inside.max()) if len(inside) else self.radius_m
+
     def to_json(self) -> dict:
+        a, b = self.reach
         return {
             "a": [round(float(x), 6) + 0.0 for x in self.a],
             "b": [round(float(x), 6) + 0.0 for x in self.b],
             "width_mm": round(2000 * self.radius_m, 1),
             "length_mm": round(1000 * self.length_m, 1),
             "from_sections": self.found,
+            "reach_a": [round(float(x), 6) + 0.0 for x in a],
+            "reach_b": [round(float(x), 6) + 0.0 for x in b],
+            "reach_length_mm": round(1000 * float(np.linalg.norm(b - a)), 1),
+            **({"others": [o.to_json() for o in self.others]} if self.others else {}),
         }
 
 
@@ -191,11 +233,49 @@ def held_part(mesh, fallback=None) -> HeldPart:
         a, b, r = grip_segment(mesh) if fallback is None else fallback
         return HeldPart(tuple(map(float, a)), tuple(map(float, b)), float(r), False)
     length, axes, i, j, h, w, step = best
-    ends = []
-    for t in (h[i] - step / 2, h[j - 1] + step / 2):
-        p = np.array([t, *np.nanmean(w[i:j, 2:], axis=0)])
-        ends.append(c + p @ axes)
-    return HeldPart(tuple(ends[0]), tuple(ends[1]), float(np.nanmax(w[i:j, 0]) / 2), True)
+    mid = np.nanmean(w[i:j, 2:], axis=0)
+
+    def at(t):
+        return tuple(c + np.array([t, *mid]) @ axes)
+
+    i0, j0 = _reach(w, i, j)
+    main = HeldPart(at(h[i] - step / 2), at(h[j - 1] + step / 2), 0.0, True, at(h[i0] - step / 2), at(h[j0 - 1] + step / 2))
+    found = [p for p in (_other_part(c, s) for s in slices if s[0] is not axes) if p is not None]
+    others: list[HeldPart] = []
+    for p in sorted(found, key=lambda p: (p.radius_m, -p.length_m)):  # of those along one stretch, the slimmest
+        centre = (np.asarray(p.a) + np.asarray(p.b)) / 2
+        if all(point_segment_distance(centre[None], *q.reach)[0] > p.radius_m + q.radius_m for q in [main, *others]):
+            others.append(p)
+    return HeldPart(
+        at(h[i] - step / 2), at(h[j - 1] + step / 2), float(np.nanmax(w[i:j, 0]) / 2), True,
+        at(h[i0] - step / 2), at(h[j0 - 1] + step / 2), tuple(float(x) / 2 for x in w[i0:j0, 0]), tuple(others),
+    )  # fmt: skip
+
+
+def _other_part(c: np.ndarray, sliced) -> HeldPart | None:
+    """The longest run, at least a palm long, of sections up to :data:`BODY_WIDTH_M` wide along one
+    more direction (``sliced``: its axes, heights, widths and step; ``c`` the frame's origin):
+    where a second hand, or the one hand, may also hold the prop; None when there is none."""
+    axes, h, w, step = sliced
+    ok = np.isfinite(w[:, 0]) & (w[:, 0] <= BODY_WIDTH_M)
+    runs = [(j - i, i, j) for i, j in _runs(ok) if (j - i) * step >= PALM_M - 1e-12]
+    if not runs:
+        return None
+    _, i, j = max(runs)
+    mid = np.nanmean(w[i:j, 2:], axis=0)
+    a, b = (tuple(c + np.array([t, *mid]) @ axes) for t in (h[i] - step / 2, h[j - 1] + step / 2))
+    return HeldPart(a, b, float(np.nanmax(w[i:j, 0]) / 2), True, a, b, tuple(float(x) / 2 for x in w[i:j, 0]))
+
+
+def _reach(w: np.ndarray, i: int, j: int) -> tuple[int, int]:
+    """The run ``i:j`` of sections (widths ``w``, :func:`section_widths_of`) continued both ways
+    over every section the plane cuts that is at most :data:`BODY_WIDTH_M` wide."""
+    ok = np.isfinite(w[:, 0]) & (w[:, 0] <= BODY_WIDTH_M)
+    while i > 0 and ok[i - 1]:
+        i -= 1
+    while j < len(w) and ok[j]:
+        j += 1
+    return i, j
 
 
 def hand_model(a, b, part_radius: float, wrap_deg: float, hand: str) -> tuple[Capsule, Capsule]:
@@ -221,28 +301,38 @@ def hand_model(a, b, part_radius: float, wrap_deg: float, hand: str) -> tuple[Ca
 
 def grip_distribution(mesh, positions: int = POSITIONS, wraps=WRAPS, fallback=None) -> tuple[HeldPart, tuple[Grip, ...]]:
     """The held part (:func:`held_part`) and the grips (see the module docstring), in a fixed
-    order: position, then hand, then wrap."""
+    order: the held part's reach, then each of its ``others``; along each, position, then hand,
+    then wrap."""
     part = held_part(mesh, fallback)
-    a, b = np.asarray(part.a), np.asarray(part.b)
     if float(np.max(mesh.extents)) < PINCH_BELOW_M:
-        caps = pinch(mesh, a, b, part.radius_m)
+        caps = pinch(mesh, np.asarray(part.a), np.asarray(part.b), part.radius_m)
         return part, (Grip("pinched by the fingertips at its thinnest end", "", 0.0, 0.0, tuple(caps)),)
-    L = part.length_m
+    grips = []
+    for n, p in enumerate((part, *part.others)):
+        grips += _grips_along(p, positions, wraps, "" if n == 0 else f" of stretch {n + 1}")
+    return part, tuple(grips)
+
+
+def _grips_along(part: HeldPart, positions: int, wraps, name: str) -> list[Grip]:
+    """The grips along one reach (``name`` follows the place in each label)."""
+    a, b = part.reach
+    L = float(np.linalg.norm(b - a))
     u = (b - a) / max(L, 1e-12)
     palm = min(PALM_M, L)
-    k = 1 if L - palm < 0.02 or positions <= 1 else int(min(positions, max(2, math.ceil((L - palm) / palm - 1e-9) + 1)))
+    k = 1 if L - palm < 0.02 or positions <= 1 else int(min(positions, max(2, math.ceil((L - palm) / (STEP * palm) - 1e-9) + 1)))
     starts = [0.0] if k == 1 else list(np.linspace(0.0, L - palm, k))
     where = {0: "at one end", k - 1: "at the other end"} if k > 1 else {0: "over the part"}
     grips = []
     for i, t in enumerate(starts):
         g0, g1 = a + t * u, a + (t + palm) * u
+        r = part.radius_between(t, t + palm)
         along = (t + palm / 2) / max(L, 1e-12)
-        pos = where.get(i, "in the middle" if k == 3 else f"at {100 * along:.0f} % of the part")
+        pos = where.get(i, "in the middle" if k == 3 else f"at {100 * along:.0f} % of the reach") + name
         for hand in ("right", "left"):
             for wrap in wraps:
-                caps = hand_model(g0, g1, part.radius_m, float(wrap), hand)
+                caps = hand_model(g0, g1, r, float(wrap), hand)
                 grips.append(Grip(f"{hand} hand {pos}, wrist at {wrap:g} deg", hand, along, float(wrap), caps))
-    return part, tuple(grips)
+    return grips
 
 
 def pinned_grip(text: str, grips: tuple[Grip, ...]) -> Grip:
@@ -299,12 +389,19 @@ def grips_summary(part: HeldPart, grips) -> str:
         f"the {part.length_m * 1000:.0f} mm graspable part ({2000 * part.radius_m:.0f} mm across)"
         if part.found else f"its thinnest end ({2000 * part.radius_m:.0f} mm across; no part 20-55 mm across found)"
     )
+    a, b = part.reach
+    reach = float(np.linalg.norm(b - a))
+    where = f"on {what}" if reach <= part.length_m + 1e-3 else f"along {1000 * reach:.0f} mm of the prop: {what} and on past it"
+    if part.others:
+        where += ", and along " + ", ".join(f"{1000 * o.length_m:.0f} mm ({2000 * o.radius_m:.0f} mm across)" for o in part.others)
+        where += f" in another direction (stretch {', '.join(str(n + 2) for n in range(len(part.others)))})"
     hands = sorted({g.hand for g in grips if g.hand})
-    return f"{len(grips)} grip(s) on {what}" + (f", {' and '.join(hands)} hand" if hands else "")
+    return f"{len(grips)} grip(s) {where}" + (f", {' and '.join(hands)} hand" if hands else "")
 
 
-#: usable sites per marker wanted below which only the sites most grips cover are left out
-FEW_SITES = 3
+#: a site is under the hand (no marker goes there) when more than this share of the grips' fists
+#: cover it: where people hold the prop most; a site fewer grips cover stays, lost in their poses
+HELD_SHARE = 0.5
 
 #: the grips' random order over the poses comes from the run's seed + this
 GRIP_SEED_OFFSET = 5_000_011

@@ -13,14 +13,13 @@ import numpy as np
 from starforge.errors import StarforgeError
 from starforge.props.builtin import BUILTIN
 from starforge.props.grips import (
-    FEW_SITES,
     GRIP_SEED_OFFSET,
+    HELD_SHARE,
     Grip,
     HeldPart,
     assign_grips,
     grip_arrays,
     grip_distribution,
-    grips_summary,
     pinned_grip,
     under_hand,
 )
@@ -87,14 +86,7 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
     part, grips = hand_grips(prop, spec, grip)
     caps = tuple(c for g in grips for c in g.capsules)
     centres = sites.points + seat.centre_height_m * sites.normals
-    hand = under_hand(sites.points, centres, grips) & ~bad
-    wanted = spec.track.target_markers if spec.objective == "tracked" else spec.costs.target_markers
-    if grips and int((~bad & ~hand).sum()) < FEW_SITES * wanted:  # held almost everywhere
-        hand = under_hand(sites.points, centres, grips, share=0.5) & ~bad
-        notes.append(
-            f"the prop can be held almost anywhere ({grips_summary(part, grips)}): markers keep off only where more "
-            "than half of the grips hold it (--grip N pins one grip)"
-        )
+    hand = under_hand(sites.points, centres, grips, share=HELD_SHARE if len(grips) > 1 else 0.0) & ~bad
     rest = ~bad & ~hand
     report = seat_report(prop.mesh, sites.points[rest], sites.normals[rest], seat, spec.seat)
     ok = np.zeros(len(sites), bool)
