@@ -34,7 +34,7 @@ from starforge.stars.avoid import body_triangles
 
 
 def place_job(args: tuple) -> list[dict[str, bytes]]:
-    """One job: ``args = (prop, units, spec, rig, seed, copies, avoid, distinct_mm[, tolerances_mm])``
+    """One job: ``args = (prop, units, spec, rig, seed, copies, avoid, distinct_mm, tolerances_mm)``
     -> one {file name: bytes} per layout (``copies`` of them); ``avoid``: (k, 3) sorted triangle
     sides of other bodies, m, or None; ``distinct_mm``: the spec's ``avoid_tolerance_mm`` when
     given; ``tolerances_mm``: the tolerance per marker count
@@ -44,8 +44,7 @@ def place_job(args: tuple) -> list[dict[str, bytes]]:
     from starforge.props.placement import place_copies, run_placement
     from starforge.props.spec import load_spec, with_overrides
 
-    prop, units, spec, rig, seed, copies, avoid, distinct, *table = args
-    table = table[0] if table else None
+    prop, units, spec, rig, seed, copies, avoid, distinct, table = args
     if copies == 1:
         results = [
             run_placement(
