@@ -239,17 +239,25 @@ def held_part(mesh, fallback=None) -> HeldPart:
         return tuple(c + np.array([t, *mid]) @ axes)
 
     i0, j0 = _reach(w, i, j)
-    main = HeldPart(at(h[i] - step / 2), at(h[j - 1] + step / 2), 0.0, True, at(h[i0] - step / 2), at(h[j0 - 1] + step / 2))
+    reach = (at(h[i0] - step / 2), at(h[j0 - 1] + step / 2))
     found = [p for p in (_other_part(c, s) for s in slices if s[0] is not axes) if p is not None]
     others: list[HeldPart] = []
+    kept = [(np.asarray(reach[0]), np.asarray(reach[1]), 0.0)]  # reaches taken: ends, and the part's half width
     for p in sorted(found, key=lambda p: (p.radius_m, -p.length_m)):  # of those along one stretch, the slimmest
         centre = (np.asarray(p.a) + np.asarray(p.b)) / 2
-        if all(point_segment_distance(centre[None], *q.reach)[0] > p.radius_m + q.radius_m for q in [main, *others]):
+        if all(point_segment_distance(centre[None], qa, qb)[0] > p.radius_m + qr for qa, qb, qr in kept):
             others.append(p)
+            kept.append((*p.reach, p.radius_m))
     return HeldPart(
         at(h[i] - step / 2), at(h[j - 1] + step / 2), float(np.nanmax(w[i:j, 0]) / 2), True,
-        at(h[i0] - step / 2), at(h[j0 - 1] + step / 2), tuple(float(x) / 2 for x in w[i0:j0, 0]), tuple(others),
+        *reach, tuple(float(x) / 2 for x in w[i0:j0, 0]), tuple(others),
     )  # fmt: skip
+
+
+def _spannable(w: np.ndarray) -> np.ndarray:
+    """Which sections (widths ``w``, :func:`section_widths_of`) the plane cuts and a hand spans
+    (at most :data:`BODY_WIDTH_M` wide)."""
+    return np.isfinite(w[:, 0]) & (w[:, 0] <= BODY_WIDTH_M)
 
 
 def _other_part(c: np.ndarray, sliced) -> HeldPart | None:
@@ -257,8 +265,7 @@ def _other_part(c: np.ndarray, sliced) -> HeldPart | None:
     more direction (``sliced``: its axes, heights, widths and step; ``c`` the frame's origin):
     where a second hand, or the one hand, may also hold the prop; None when there is none."""
     axes, h, w, step = sliced
-    ok = np.isfinite(w[:, 0]) & (w[:, 0] <= BODY_WIDTH_M)
-    runs = [(j - i, i, j) for i, j in _runs(ok) if (j - i) * step >= PALM_M - 1e-12]
+    runs = [(j - i, i, j) for i, j in _runs(_spannable(w)) if (j - i) * step >= PALM_M - 1e-12]
     if not runs:
         return None
     _, i, j = max(runs)
@@ -270,7 +277,7 @@ def _other_part(c: np.ndarray, sliced) -> HeldPart | None:
 def _reach(w: np.ndarray, i: int, j: int) -> tuple[int, int]:
     """The run ``i:j`` of sections (widths ``w``, :func:`section_widths_of`) continued both ways
     over every section the plane cuts that is at most :data:`BODY_WIDTH_M` wide."""
-    ok = np.isfinite(w[:, 0]) & (w[:, 0] <= BODY_WIDTH_M)
+    ok = _spannable(w)
     while i > 0 and ok[i - 1]:
         i -= 1
     while j < len(w) and ok[j]:
