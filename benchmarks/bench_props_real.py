@@ -11,12 +11,14 @@ but the prop's mesh and the layout:
   when 2 of the surviving cameras see its ball centre;
 * uniformly random rotations (normalised Gaussian quaternions) at uniform random positions,
   4 of the 8 cameras lost at random in each pose;
-* a hand at a random grip, its own model: along the prop's longest bounding-box axis, the palm
-  (90 mm) centred at a uniformly random place where every section under it is at most 70 mm
-  across (where any one is, when no palm fits; anywhere when none is), a fist (a capsule 25 mm
-  thicker than the section, ending at the palm's ends where it meets the surface) and a forearm
-  (a capsule of 35 mm radius, 220 mm long, leaving at a random angle around the axis); markers
-  inside the fist are lost, sight lines through either capsule are blocked;
+* a hand at a random grip, its own model: across any of the prop's three bounding-box axes,
+  the palm (90 mm) centred at a uniformly random place (cross-sections every 5 mm, cut exactly
+  from the mesh's edges) where every section under it fits in a circle at most 70 mm across
+  (where any one does, when no palm fits anywhere; where the palm lies on the prop across its
+  longest axis when none does); the fist is a band as long as the palm and 25 mm thicker than
+  that circle, and a forearm (a capsule of 35 mm radius, 220 mm long) leaves it at a random
+  angle around the axis; markers inside the fist are lost, sight lines through the fist or the
+  forearm are blocked;
 * sight lines to the prop: trimesh's ray queries from the ball centre to the camera.
 
 A pose is tracked when >= 3 markers are reconstructed and they span a triangle 15 mm high (RMS
@@ -110,6 +112,7 @@ def ring_cameras():
 
 
 HALF_FOV = math.radians(30.0)
+HAND_REACH = 1.2  # m: the hand lies within this of any marker (prop + forearm); sight lines are tested that far
 
 
 def random_world(n, rng):
@@ -124,52 +127,100 @@ def random_world(n, rng):
 
 def seg_dist(p, q, a, b):
     """Distance between segments p-q (n, 3) and the fixed segment a-b, sampled finely."""
-    s = np.linspace(0.0, 1.0, 64)
+    s = np.linspace(0.0, 1.0, 256)
     pts = p[:, None] + s[None, :, None] * (q - p)[:, None]
     ab = b - a
     t = np.clip(((pts - a) @ ab) / max(ab @ ab, 1e-18), 0, 1)
     return np.linalg.norm(pts - (a + t[..., None] * ab), axis=2).min(axis=1)
 
 
-def random_hands(mesh, n, rng):
-    """Per pose: [(a, b, radius), ...] capsules in the prop frame."""
+SECTION_STEP = 0.005  # m between the cross-sections a hand is placed on
+PALM = 0.09  # m
+GRASPABLE = 0.07  # m: the widest section a fist closes around
+
+
+def sections(mesh, ax):
+    """The cross-sections of ``mesh`` across bounding-box axis ``ax`` every ``SECTION_STEP``: their
+    heights, whether a fist closes around each (its points within a circle <= ``GRASPABLE``
+    across), that circle's radius and centre (the other two coordinates), and whether the plane
+    cuts the mesh at all.  A section's points are where the plane crosses the mesh's edges."""
     lo, hi = mesh.bounds
-    ax = int(np.argmax(hi - lo))
     others = [k for k in range(3) if k != ax]
+    hs = np.arange(lo[ax] + SECTION_STEP, hi[ax] - SECTION_STEP / 2, SECTION_STEP)
     v = mesh.vertices
-    hs = np.linspace(lo[ax] + 0.01, hi[ax] - 0.01, 40)
-    ok, rad, cen = [], [], []
+    e = mesh.edges_unique
+    v0, v1 = v[e[:, 0]], v[e[:, 1]]
+    ok, rad, cen, cut = [], [], [], []
     for h in hs:
-        sl = v[np.abs(v[:, ax] - h) < 0.006][:, others]
-        if len(sl) < 3:
-            ok.append(False), rad.append(0.0), cen.append(np.zeros(2))
+        d0, d1 = v0[:, ax] - h, v1[:, ax] - h
+        x = (d0 <= 0) != (d1 <= 0)
+        if not x.any():
+            ok.append(False), rad.append(0.0), cen.append(np.zeros(2)), cut.append(False)
             continue
+        t = d0[x] / (d0[x] - d1[x])
+        sl = (v0[x] + t[:, None] * (v1[x] - v0[x]))[:, others]
         c = (sl.max(0) + sl.min(0)) / 2
         r = float(np.linalg.norm(sl - c, axis=1).max())
-        ok.append(2 * r <= 0.07), rad.append(r), cen.append(c)
-    ok = np.array(ok)
-    # the palm (90 mm) lies on graspable sections: its centre 45 mm inside a graspable run
-    step = hs[1] - hs[0]
-    w = int(round(0.045 / step))
-    inside = np.array([ok[max(0, k - w) : k + w + 1].all() and w <= k < len(hs) - w for k in range(len(hs))])
-    choices = np.flatnonzero(inside) if inside.any() else np.flatnonzero(ok) if ok.any() else np.arange(len(hs))
+        ok.append(2 * r <= GRASPABLE), rad.append(r), cen.append(c), cut.append(True)
+    return hs, np.array(ok), np.array(rad), np.array(cen), np.array(cut)
+
+
+def grip_places(mesh):
+    """Where a hand may hold ``mesh``: (axis, height, section radius, section centre) for every
+    section of every bounding-box axis with a palm's length of graspable sections around it;
+    when there is none, every graspable section; when there is none of those either, every
+    section across the longest axis with the palm on the prop."""
+    palm, graspable, anywhere = [], [], []
+    longest = int(np.argmax(mesh.extents))
+    w = int(round(PALM / 2 / SECTION_STEP))
+    for ax in range(3):
+        hs, ok, rad, cen, cut = sections(mesh, ax)
+        for k in range(len(hs)):
+            place = (ax, float(hs[k]), float(rad[k]), cen[k])
+            fits = w <= k < len(hs) - w
+            if fits and ok[k - w : k + w + 1].all():
+                palm.append(place)
+            if ok[k]:
+                graspable.append(place)
+            if ax == longest and cut[k] and fits:
+                anywhere.append(place)
+    return palm or graspable or anywhere
+
+
+def random_hands(mesh, n, rng):
+    """Per pose: the fist, a band ``(centre, axis, radius, half length)``, and the forearm, a
+    capsule ``(a, b, radius)``, in the prop frame, at a grip drawn uniformly from
+    :func:`grip_places`."""
+    places = grip_places(mesh)
     out = []
     for _ in range(n):
-        k = int(rng.choice(choices))
+        ax, h, r, cen = places[int(rng.integers(len(places)))]
+        others = [k for k in range(3) if k != ax]
         c = np.zeros(3)
-        c[others] = cen[k]
-        c[ax] = hs[k]
+        c[others] = cen
+        c[ax] = h
         u = np.zeros(3)
         u[ax] = 1.0
-        R = rad[k] + 0.025
-        half = max(0.0, 0.045 - math.sqrt(max(R * R - rad[k] ** 2, 0.0)))  # the fist ends at the palm's ends
-        a, b = c - half * u, c + half * u
         phi = rng.random() * 2 * math.pi
         radial = np.zeros(3)
         radial[others[0]], radial[others[1]] = math.cos(phi), math.sin(phi)
-        w0 = c + (rad[k] + 0.035) * radial
-        out.append([(a, b, R), (w0, w0 + 0.22 * radial, 0.035)])
+        w0 = c + (r + 0.035) * radial
+        out.append(((c, u, r + 0.025, PALM / 2), (w0, w0 + 0.22 * radial, 0.035)))
     return out
+
+
+def in_band(points, band):
+    """Whether each of ``points`` (..., 3) lies inside the fist ``band``."""
+    c, u, radius, half = band
+    d = points - c
+    along = d @ u
+    return (np.abs(along) <= half) & (np.linalg.norm(d - along[..., None] * u, axis=-1) <= radius)
+
+
+def band_blocks(p, q, band):
+    """Whether the segment from each of ``p`` (n, 3) to ``q`` (n, 3) passes through ``band``, sampled finely."""
+    s = np.linspace(0.0, 1.0, 256)
+    return in_band(p[:, None] + s[None, :, None] * (q - p)[:, None], band).any(axis=1)
 
 
 def seen_table(mesh, centres, normals, R, t, hands, rng):
@@ -183,12 +234,8 @@ def seen_table(mesh, centres, normals, R, t, hands, rng):
     for k in range(P):
         w = centres @ R[k].T + t[k]
         qk = (cam - t[k]) @ R[k]  # cameras in the prop frame
-        caps = hands[k]
-        under = np.zeros(S, bool)
-        a, b, r = caps[0]
-        ab = b - a
-        s = np.clip(((centres - a) @ ab) / max(ab @ ab, 1e-18), 0, 1)
-        under = np.linalg.norm(centres - (a + s[:, None] * ab), axis=1) <= r
+        fist, (a, b, r) = hands[k]
+        under = in_band(centres, fist)
         for c in np.flatnonzero(alive[k]):
             d = w - cam[c]
             dist = np.linalg.norm(d, axis=1)
@@ -199,9 +246,8 @@ def seen_table(mesh, centres, normals, R, t, hands, rng):
             dirs = qk[c] - centres[idx]
             dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
             hit = mesh.ray.intersects_any(centres[idx] + 1e-5 * dirs, dirs)
-            free = ~hit
-            for a, b, r in caps:
-                free &= seg_dist(centres[idx], np.repeat(qk[c][None], len(idx), 0), a, b) > r
+            near = centres[idx] + HAND_REACH * dirs
+            free = ~hit & ~band_blocks(centres[idx], near, fist) & (seg_dist(centres[idx], near, a, b) > r)
             counts[k, idx[free]] += 1
     return counts
 
