@@ -124,7 +124,7 @@ description = "tiny and quick"
 objective = "tracked"
 sites = 160
 resolution = 1
-orientations = 36          # as many poses as the hammer has grips: each holds it in one
+orientations = 60          # as many poses as the hammer has grips: each holds it in one
 rig = "default"
 mesh_format = "stl"
 

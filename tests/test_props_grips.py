@@ -297,3 +297,29 @@ def test_a_marker_in_a_fist_is_lost_whenever_that_grip_holds_the_prop():
     # the same sites at poses where another grip holds the prop: seen at some
     some = np.flatnonzero(held.any(axis=1))
     assert (masks[some][~held[some]] != 0).any()
+
+
+def _fist_shares(mesh, points, monkeypatch, step=None, positions=POSITIONS):
+    """The share of the distribution's grips whose fist covers each point (palm places at most
+    ``step`` palms apart; the module's own when None)."""
+    import starforge.props.grips as grips
+
+    if step is not None:
+        monkeypatch.setattr(grips, "STEP", step)
+    _, dist = grip_distribution(mesh, positions=positions)
+    monkeypatch.undo()
+    return np.mean([inside_capsules(points, [g.capsules[0]]) for g in dist], axis=0)
+
+
+@pytest.mark.parametrize("make", [_torch, _screwdriver], ids=["torch", "screwdriver"])
+def test_the_grip_places_stand_for_a_hand_anywhere_along_the_reach(make, monkeypatch):
+    """Each surface point is covered by about the share of grips that a palm placed anywhere
+    along the reach covers it in (brute force: a palm every hundredth of a palm), and closer
+    than with places half a palm apart."""
+    mesh = make()
+    pts = trimesh.sample.sample_surface(mesh, 2000, seed=1)[0]
+    dense = _fist_shares(mesh, pts, monkeypatch, step=0.01, positions=400)
+    ours = np.abs(_fist_shares(mesh, pts, monkeypatch) - dense)
+    half = np.abs(_fist_shares(mesh, pts, monkeypatch, step=0.5, positions=7) - dense)
+    assert ours.max() <= 0.2 and ours.mean() <= 0.07
+    assert ours.max() < half.max() and ours.mean() < half.mean()

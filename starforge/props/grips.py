@@ -18,8 +18,8 @@ or the throat beyond it, grab a torch by its head or a bottle by its body.  The 
 held run continued along its axis over every section a hand spans (up to :data:`BODY_WIDTH_M`
 wide, however thin), and the distribution (:func:`grip_distribution`) spreads the palm
 (:data:`starforge.props.hand.PALM_M` long, or the reach's length) evenly along the reach, as
-many places as leave no gap between neighbouring palms (at least two, at most
-:data:`POSITIONS`), by either hand, with the back of the hand and the wrist at :data:`WRAPS`
+many places as keep neighbouring palms at most :data:`STEP` of a palm apart (at least two, at
+most :data:`POSITIONS`), by either hand, with the back of the hand and the wrist at :data:`WRAPS`
 angles around the part.  Each grip is a set of capsules that move with the prop
 (:func:`hand_model`): the fist around the widest section under the palm
 (:func:`starforge.props.hand.hand_capsule`) and the wrist and forearm, a capsule of
@@ -71,9 +71,12 @@ GRASP_RUN_M = 0.04
 SLICE_M = 0.004
 MAX_SLICES = 400
 #: at most this many palm positions along the reach (one when the reach is hardly longer than the palm)
-POSITIONS = 7
-#: neighbouring palm positions are at most this many palm widths apart (a hand may hold anywhere between)
-STEP = 0.5
+POSITIONS = 13
+#: neighbouring palm positions are at most this many palm widths apart: a hand may hold anywhere
+#: between, and a spot near a palm's end is then covered by about the share of the grips that a
+#: hand held uniformly along the reach would cover it in (at half a palm apart, a spot between two
+#: positions counts as covered by neither)
+STEP = 0.25
 #: angles around the part where the back of the hand and the wrist sit, degrees
 WRAPS = (0.0, 120.0, 240.0)
 #: the wrist and forearm: radius and length, m (a wrist is 50-65 mm across)
