@@ -39,7 +39,7 @@ class HeldOut:
         self.poses = random_poses(rig.volume, ts.validation_poses, prep.poses.pivot, rng)
         self.patterns = ts.loss_patterns if int(round(ts.cameras_lost * len(rig.cameras))) > 0 else 1
         self.alive = alive_masks(len(rig.cameras), ts.cameras_lost, len(self.poses) * self.patterns, rng)
-        self.grip = assign_grips(len(self.poses), len(prep.grips), np.random.default_rng(seed + offset + GRIP_SEED_OFFSET))
+        self.grip = assign_grips(len(self.poses), prep.grips, np.random.default_rng(seed + offset + GRIP_SEED_OFFSET))
         self.prop, self.spec, self.prep = prop, spec, prep
         self._rows: dict = {}  # (site, hand) -> (poses,) uint64 masks over every pose
 
