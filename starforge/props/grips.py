@@ -36,6 +36,13 @@ candidate, and a layout is ranked by how it is tracked whichever of them holds t
 Along the other directions the mesh is cut in, a stretch at least a palm long whose sections a
 hand spans (a drill's body beside its handle, where the other hand steadies it) gets grips of
 its own in the same way (:attr:`HeldPart.others`; of stretches along one place, the slimmest).
+
+A prop with a handle (a loop round a see-through opening, :func:`starforge.props.handle.find_handle`:
+a mug, a jug, a bucket) is held by the handle in :data:`HANDLE_SHARE` of the poses, a fist round
+its bar with the fingers through the opening, by either hand, the wrist at :data:`HANDLE_WRAPS`
+away from the body (:func:`handle_grips`), and wrapped round its body (the held part of the mesh
+without the handle, as above) in the others: each grip carries a weight (:attr:`Grip.weight`)
+that shares out the poses and counts in the under-the-hand rule.
 """
 
 from __future__ import annotations
@@ -84,7 +91,7 @@ FOREARM_M = 0.25
 THUMB_DEG = 20.0
 #: a prop with a handle (:mod:`starforge.props.handle`) is held by it in this share of the poses,
 #: by its body (wrapped round the rest of the prop) in the others
-HANDLE_SHARE = 0.9
+HANDLE_SHARE = 0.8
 #: angles around a handle's bar where the back of the hand and the wrist sit, degrees from the
 #: direction away from the body (the body blocks the other side)
 HANDLE_WRAPS = (-45.0, 0.0, 45.0)
