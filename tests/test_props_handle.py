@@ -18,7 +18,7 @@ from starforge.props.grips import (
     under_hand,
 )
 from starforge.props.hand import inside_capsules
-from starforge.props.handle import find_handle
+from starforge.props.handle import find_handle, has_tunnel
 
 T = trimesh.transformations
 
@@ -158,3 +158,15 @@ def test_sites_under_the_handle_are_weighed_by_how_often_it_is_held():
     body = [g for g in grips if g not in on]
     by_body = under_hand(bar, bar, body) & ~under_hand(bar, bar, on)
     assert by_body.any() and not under_hand(bar[by_body], bar[by_body], grips, share=0.5).any()
+
+
+def test_a_loop_is_looked_for_only_where_the_topology_allows_one():
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
+    ring = trimesh.creation.torus(major_radius=0.03, minor_radius=0.008)
+    assert not has_tunnel(sphere) and has_tunnel(ring)
+    two = trimesh.util.concatenate([sphere, ring.apply_translation([0.2, 0, 0])])  # 2 + 0 = 2, two bodies
+    assert int(two.euler_number) == 2 and has_tunnel(two)
+    assert not has_tunnel(trimesh.util.concatenate([sphere, sphere.copy().apply_translation([0.2, 0, 0])]))
+    tube = _cylinder(0.035, 0.2)
+    tube.update_faces(np.abs(tube.face_normals[:, 2]) < 0.5)  # open at both ends: searched, and none found
+    assert has_tunnel(tube) and find_handle(tube, cut_directions(np.asarray(tube.vertices))) is None

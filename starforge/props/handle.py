@@ -3,8 +3,9 @@
 A mug, a jug, a kettle or a bucket is held mostly by such a loop, not by its body.  The loop
 is found from the mesh's shape, not its name:
 
-* a watertight mesh whose Euler characteristic is 2 has no tunnel, so no loop (checked first:
-  it costs nothing); any other mesh is searched;
+* a watertight mesh whose Euler characteristic is twice its number of bodies (each a sphere's,
+  ``2 - 2 genus``) has no tunnel, so no loop (checked first: it costs next to nothing); any
+  other mesh is searched;
 * the mesh is cut by planes square to each direction it is sliced in (the caller's; see
   :func:`starforge.props.grips.held_part`) every :data:`SLICE_M`; an *opening* is a hole of a
   section (an interior ring of a section's polygon) between :data:`OPENING_M` wide across its
@@ -42,6 +43,8 @@ SLICE_M = 0.004
 MAX_PLANES = 40
 #: the rim of the opening is followed in steps this long, m
 RIM_STEP_M = 0.003
+#: the bar at a point of the rim is the material this far (m) off the rim, away from the opening
+PROBE_M = 0.001
 
 
 @dataclass(frozen=True)
@@ -87,8 +90,9 @@ class Handle:
 
 
 def has_tunnel(mesh) -> bool:
-    """False when the mesh is watertight with Euler characteristic 2 (a sphere's: no loop)."""
-    return not (mesh.is_watertight and int(mesh.euler_number) == 2)
+    """False when the mesh is watertight and each of its bodies has a sphere's Euler
+    characteristic, 2 (genus 0: no loop); True when it may have a loop."""
+    return not (mesh.is_watertight and int(mesh.euler_number) == 2 * int(mesh.body_count))
 
 
 def _sides(poly: Polygon) -> tuple[float, float]:
@@ -147,19 +151,18 @@ def _bar(mesh, ring: LinearRing, to_3d: np.ndarray):
     tangent = np.roll(pts, -1, axis=0) - np.roll(pts, 1, axis=0)
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
     normal = np.column_stack([tangent[:, 1], -tangent[:, 0]])
-    step = 10 * tol.grid  # a hair into the material
     out = []
     for p, tg, nm in zip(pts, tangent, normal, strict=True):
-        if hole.contains(Point(p + step * nm)):
+        if hole.contains(Point(p + PROBE_M * nm)):
             nm = -nm
         p3 = _to3(to_3d, p)[0]
-        inner = _to3(to_3d, p + 1e-3 * nm)[0]  # 1 mm into the bar
+        inner = _to3(to_3d, p + PROBE_M * nm)[0]
         t3 = to_3d[:3, :2] @ tg
         polys, t_3d = _sections(mesh, t3, p3)
         found = None
         for poly in polys:
             q = np.linalg.solve(t_3d[:3, :3], inner - t_3d[:3, 3])[:2]
-            if poly.buffer(10 * tol.grid).contains(Point(q)):
+            if poly.contains(Point(q)):
                 lo, hi = _sides(poly)
                 if BAR_M[0] <= lo and hi <= BAR_M[1]:
                     c = np.asarray(poly.centroid.coords[0])
