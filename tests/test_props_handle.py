@@ -19,6 +19,7 @@ from starforge.props.grips import (
 )
 from starforge.props.hand import inside_capsules
 from starforge.props.handle import find_handle, has_tunnel
+from starforge.props.heldout import hidden_share
 
 T = trimesh.transformations
 
@@ -170,3 +171,27 @@ def test_a_loop_is_looked_for_only_where_the_topology_allows_one():
     tube = _cylinder(0.035, 0.2)
     tube.update_faces(np.abs(tube.face_normals[:, 2]) < 0.5)  # open at both ends: searched, and none found
     assert has_tunnel(tube) and find_handle(tube, cut_directions(np.asarray(tube.vertices))) is None
+
+
+
+def _inside_brute(points, capsules, samples=4001):
+    """Each point within some capsule's radius of the closest of ``samples`` points on its core."""
+    out = np.zeros(len(points), bool)
+    for c in capsules:
+        core = np.linspace(c.a, c.b, samples)
+        d = np.array([np.linalg.norm(core - p, axis=1).min() for p in points])
+        out |= d <= c.radius
+    return out
+
+
+def test_the_share_of_poses_whose_hand_encloses_the_sites_is_weighed_by_the_grips():
+    mug, _ = _mug()
+    _, grips = grip_distribution(mug)
+    v = np.asarray(mug.vertices)
+    r = np.linalg.norm(v[:, :2], axis=1)
+    wall = v[(np.abs(r - 0.042) < 1e-4) & (v[:, 2] > 0.02) & (v[:, 2] < 0.08)]  # the cup's outer wall
+    sites = wall + 0.005 * np.column_stack([wall[:, :2] / 0.042, np.zeros(len(wall))])  # ball centres off it
+    want = sum(g.weight for g in grips if (~_inside_brute(sites, g.capsules)).sum() < 3) / sum(g.weight for g in grips)
+    assert hidden_share(sites, grips) == pytest.approx(want)
+    assert 0 < want < 1  # the body's grips enclose the cup, the handle's do not
+    assert hidden_share(sites, ()) == 0.0
