@@ -112,12 +112,14 @@ def _sections(mesh, normal: np.ndarray, origin: np.ndarray):
 
 
 def _to3(to_3d: np.ndarray, xy) -> np.ndarray:
+    """(k, 3) prop-frame points of the plane's 2D points ``xy`` (k, 2) (``to_3d`` from :func:`_sections`)."""
     xy = np.atleast_2d(np.asarray(xy, float))
     return xy @ to_3d[:3, :2].T + to_3d[:3, 3]
 
 
 def _opening(mesh, directions):
-    """The largest see-through opening: (area, normal, ring (2D), to_3d), or None."""
+    """The largest see-through opening: (area m^2, the plane's normal (3,), its rim (a 2D ring in
+    the plane), the plane's 2D-to-3D transform (4, 4), its narrower and wider sides m), or None."""
     v = np.asarray(mesh.vertices, float)
     best = None
     for d in directions:
