@@ -112,7 +112,7 @@ def evaluate_layouts(mesh, layouts: dict, rig, pivot, settings, seed: int, min_h
     poses = random_poses(rig.volume, settings.poses, pivot, rng)
     C = len(rig.cameras)
     alive = alive_masks(C, settings.cameras_lost, len(poses), rng)
-    pose_grip = assign_grips(len(poses), len(grips), np.random.default_rng(seed + settings.seed_offset + GRIP_SEED_OFFSET))
+    pose_grip = assign_grips(len(poses), grips, np.random.default_rng(seed + settings.seed_offset + GRIP_SEED_OFFSET))
     held = [g.capsules for g in grips]
     every = np.full(len(poses), np.uint64((1 << C) - 1) if C < 64 else np.uint64(2**64 - 1))
     out = {"_poses": len(poses), "_cameras_lost": int(round(settings.cameras_lost * C))}

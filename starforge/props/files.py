@@ -151,7 +151,9 @@ def placement_json(res: PlacementResult) -> dict:
         "grips": {
             "held_part": None if res.part is None else res.part.to_json(),
             "grips": [g.to_json() for g in res.grips],
-            "assignment": "every pose held in one grip, the same number of poses each, in a random order from the seed",
+            "assignment": "every pose held in one grip, "
+            + ("the poses shared in proportion to the grips' weights" if len({g.weight for g in res.grips}) > 1 else "the same number of poses each")
+            + ", in a random order from the seed",
         },
         "cost": {
             **{k: (_r(v) if isinstance(v, float) else v) for k, v in res.cost.to_json().items()},

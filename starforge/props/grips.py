@@ -36,12 +36,19 @@ candidate, and a layout is ranked by how it is tracked whichever of them holds t
 Along the other directions the mesh is cut in, a stretch at least a palm long whose sections a
 hand spans (a drill's body beside its handle, where the other hand steadies it) gets grips of
 its own in the same way (:attr:`HeldPart.others`; of stretches along one place, the slimmest).
+
+A prop with a handle (a loop round a see-through opening, :func:`starforge.props.handle.find_handle`:
+a mug, a jug, a bucket) is held by the handle in :data:`HANDLE_SHARE` of the poses, a fist round
+its bar with the fingers through the opening, by either hand, the wrist at :data:`HANDLE_WRAPS`
+away from the body (:func:`handle_grips`), and wrapped round its body (the held part of the mesh
+without the handle, as above) in the others: each grip carries a weight (:attr:`Grip.weight`)
+that shares out the poses and counts in the under-the-hand rule.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -57,6 +64,7 @@ from starforge.props.hand import (
     pinch,
     section_widths_of,
 )
+from starforge.props.handle import Handle, find_handle, without_handle
 
 #: a graspable section's wider principal width, m (a fist closes all round 20-55 mm)
 GRASP_WIDTH_M = (0.02, 0.055)
@@ -84,6 +92,12 @@ WRIST_M = 0.03
 FOREARM_M = 0.25
 #: the wrist leaves the part turned this far (degrees) from the radial direction, towards the thumb
 THUMB_DEG = 20.0
+#: a prop with a handle (:mod:`starforge.props.handle`) is held by it in this share of the poses,
+#: by its body (wrapped round the rest of the prop) in the others
+HANDLE_SHARE = 0.8
+#: angles around a handle's bar where the back of the hand and the wrist sit, degrees from the
+#: direction away from the body (the body blocks the other side)
+HANDLE_WRAPS = (-45.0, 0.0, 45.0)
 
 
 @dataclass(frozen=True)
@@ -103,6 +117,9 @@ class Grip:
     capsules : tuple of Capsule
         The hand in the prop frame, m; the first is the fist (or fingertips) on the surface, the
         others only hide what lies behind them.
+    weight : float
+        How often the prop is held so, relative to the other grips (the poses are shared out in
+        proportion, :func:`assign_grips`).
     """
 
     label: str
@@ -110,6 +127,7 @@ class Grip:
     along: float
     wrap_deg: float
     capsules: tuple[Capsule, ...]
+    weight: float = 1.0
 
     def to_json(self) -> dict:
         return {
@@ -118,6 +136,7 @@ class Grip:
             "along": round(float(self.along), 4),
             "wrap_deg": round(float(self.wrap_deg), 3),
             "capsules": [c.to_json() for c in self.capsules],
+            **({"weight": round(float(self.weight), 6)} if self.weight != 1.0 else {}),
         }
 
 
@@ -132,7 +151,9 @@ class HeldPart:
     racket's throat; the run itself when none is found); ``reach_radii``: half the wider width
     of its sections, evenly spaced from ``reach_a`` to ``reach_b`` (empty: ``radius_m`` all along).
     ``others``: the stretches along the other directions the mesh is cut in that a hand spans over
-    at least a palm (a drill's body beside its handle), each its own reach.
+    at least a palm (a drill's body beside its handle), each its own reach.  ``handle``: the
+    prop's handle (:func:`starforge.props.handle.find_handle`), when it has one; the rest of the
+    part is then its body without the handle.
     """
 
     a: tuple[float, float, float]
@@ -143,6 +164,7 @@ class HeldPart:
     reach_b: tuple[float, float, float] | None = None
     reach_radii: tuple[float, ...] = ()
     others: tuple[HeldPart, ...] = ()
+    handle: Handle | None = None
 
     @property
     def length_m(self) -> float:
@@ -177,6 +199,7 @@ class HeldPart:
             "reach_b": [round(float(x), 6) + 0.0 for x in b],
             "reach_length_mm": round(1000 * float(np.linalg.norm(b - a)), 1),
             **({"others": [o.to_json() for o in self.others]} if self.others else {}),
+            **({"handle": self.handle.to_json()} if self.handle is not None else {}),
         }
 
 
@@ -198,18 +221,25 @@ def _runs(ok: np.ndarray):
     return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
+def cut_directions(vertices: np.ndarray) -> list[np.ndarray]:
+    """The directions the mesh is cut square to: its principal axes, then the file's own axes
+    more than 10 degrees from those already taken, (3,) unit vectors."""
+    _, principal = principal_axes(vertices)
+    dirs: list[np.ndarray] = []
+    for d in [*principal, *np.eye(3)]:
+        if all(abs(float(d @ q)) < math.cos(math.radians(10.0)) for q in dirs):
+            dirs.append(d)
+    return dirs
+
+
 def held_part(mesh, fallback=None) -> HeldPart:
     """The longest graspable run of the mesh (see the module docstring); else ``fallback``
     (``(a, b, part_radius)``, a built-in prop's own grip) or the mesh's thinnest end."""
     v = np.asarray(mesh.vertices, float)
     e = np.asarray(mesh.edges_unique, int)
-    c, principal = principal_axes(v)
-    dirs = []
-    for d in [*principal, *np.eye(3)]:  # the principal axes, then the file's own axes
-        if all(abs(float(d @ q)) < math.cos(math.radians(10.0)) for q in dirs):
-            dirs.append(d)
+    c, _ = principal_axes(v)
     slices = []
-    for d in dirs:
+    for d in cut_directions(v):
         helper = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
         e1 = np.cross(d, helper)
         e1 /= np.linalg.norm(e1)
@@ -288,14 +318,15 @@ def _reach(w: np.ndarray, i: int, j: int) -> tuple[int, int]:
     return i, j
 
 
-def hand_model(a, b, part_radius: float, wrap_deg: float, hand: str) -> tuple[Capsule, Capsule]:
+def hand_model(a, b, part_radius: float, wrap_deg: float, hand: str, toward=None) -> tuple[Capsule, Capsule]:
     """A hand holding the part ``a``-``b`` (the stretch the palm covers, m) of ``part_radius``:
     the fist (:func:`starforge.props.hand.hand_capsule`) and the wrist leaving the part at
-    ``wrap_deg`` around it, turned :data:`THUMB_DEG` towards the thumb (``hand``: right or left)."""
+    ``wrap_deg`` around it, turned :data:`THUMB_DEG` towards the thumb (``hand``: right or left);
+    ``wrap_deg`` 0 is ``toward`` (a (3,) direction square to the part) when given."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     u = (b - a) / max(float(np.linalg.norm(b - a)), 1e-12)
     helper = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(u, helper)
+    e1 = np.cross(u, helper) if toward is None else np.cross(np.cross(u, np.asarray(toward, float)), u)
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(u, e1)
     phi = math.radians(wrap_deg)
@@ -311,16 +342,40 @@ def hand_model(a, b, part_radius: float, wrap_deg: float, hand: str) -> tuple[Ca
 
 def grip_distribution(mesh, positions: int = POSITIONS, wraps=WRAPS, fallback=None) -> tuple[HeldPart, tuple[Grip, ...]]:
     """The held part (:func:`held_part`) and the grips (see the module docstring), in a fixed
-    order: the held part's reach, then each of its ``others``; along each, position, then hand,
-    then wrap."""
-    part = held_part(mesh, fallback)
-    if float(np.max(mesh.extents)) < PINCH_BELOW_M:
+    order: a handle's grips (:func:`handle_grips`, :data:`HANDLE_SHARE` of the weight), then the
+    held part's reach, then each of its ``others``; along each, position, then hand, then wrap.
+    The held part of a prop with a handle is that of its body without the handle."""
+    handle = find_handle(mesh, cut_directions(np.asarray(mesh.vertices, float)))
+    if handle is not None:
+        part = replace(held_part(without_handle(mesh, handle), fallback), handle=handle)
+    else:
+        part = held_part(mesh, fallback)
+    if handle is None and float(np.max(mesh.extents)) < PINCH_BELOW_M:
         caps = pinch(mesh, np.asarray(part.a), np.asarray(part.b), part.radius_m)
         return part, (Grip("pinched by the fingertips at its thinnest end", "", 0.0, 0.0, tuple(caps)),)
     grips = []
     for n, p in enumerate((part, *part.others)):
         grips += _grips_along(p, positions, wraps, "" if n == 0 else f" of stretch {n + 1}")
-    return part, tuple(grips)
+    if handle is None:
+        return part, tuple(grips)
+    held = handle_grips(handle)
+    share = HANDLE_SHARE if grips else 1.0
+    return part, (
+        *(replace(g, weight=share / len(held)) for g in held),
+        *(replace(g, weight=(1.0 - share) / len(grips)) for g in grips),
+    )
+
+
+def handle_grips(handle: Handle) -> list[Grip]:
+    """A fist round the handle's bar, the fingers through its opening, by either hand, the wrist
+    at :data:`HANDLE_WRAPS` away from the body."""
+    grips = []
+    for hand in ("right", "left"):
+        for wrap in HANDLE_WRAPS:
+            caps = hand_model(handle.a, handle.b, handle.radius_m, wrap, hand, toward=handle.outward)
+            label = f"{hand} hand on the handle, fingers through it, wrist at {wrap:g} deg"
+            grips.append(Grip(label, hand, 0.5, float(wrap), caps))
+    return grips
 
 
 def _grips_along(part: HeldPart, positions: int, wraps, name: str) -> list[Grip]:
@@ -361,9 +416,18 @@ def pinned_grip(text: str, grips: tuple[Grip, ...]) -> Grip:
     return Grip(f"pinned: a fist around the segment {ends} mm", "", 0.5, 0.0, (cap,))
 
 
-def assign_grips(poses: int, grips: int, rng: np.random.Generator) -> np.ndarray:
-    """(poses,) int: the grip each pose is held in, every grip the same number of poses (to one),
-    in a random order from ``rng``."""
+def assign_grips(poses: int, grips, rng: np.random.Generator) -> np.ndarray:
+    """(poses,) int: the grip each pose is held in, in a random order from ``rng``.  ``grips``:
+    their number (each the same number of poses, to one) or the grips themselves (poses in
+    proportion to their weights, the remainders to the largest fractions)."""
+    if not isinstance(grips, int):
+        w = np.array([g.weight for g in grips], float)
+        if len(w) > 1 and np.ptp(w) > 0:
+            exact = poses * w / w.sum()
+            counts = np.floor(exact).astype(np.int64)
+            counts[np.argsort(-(exact - counts), kind="stable")[: poses - int(counts.sum())]] += 1
+            return rng.permutation(np.repeat(np.arange(len(w), dtype=np.int64), counts))
+        grips = len(w)
     if grips <= 1:
         return np.zeros(poses, np.int64)
     return rng.permutation(np.arange(poses, dtype=np.int64) % grips)
@@ -384,11 +448,11 @@ def grip_arrays(grips) -> tuple[np.ndarray, np.ndarray]:
 
 def under_hand(points: np.ndarray, centres: np.ndarray, grips, share: float = 0.0) -> np.ndarray:
     """(n,) bool: the site (surface ``points`` or ball ``centres``) lies inside the fist (the
-    first capsule) of more than ``share`` of the grips (0: of any)."""
+    first capsule) of more than ``share`` of the grips, by weight (0: of any)."""
     covered = np.zeros(len(points))
     for g in grips:
-        covered += inside_capsules(points, g.capsules[:1]) | inside_capsules(centres, g.capsules[:1])
-    return covered > share * len(grips) if grips else np.zeros(len(points), bool)
+        covered += g.weight * (inside_capsules(points, g.capsules[:1]) | inside_capsules(centres, g.capsules[:1]))
+    return covered > share * sum(g.weight for g in grips) if grips else np.zeros(len(points), bool)
 
 
 def grips_summary(part: HeldPart, grips) -> str:
@@ -406,6 +470,13 @@ def grips_summary(part: HeldPart, grips) -> str:
         where += ", and along " + ", ".join(f"{1000 * o.length_m:.0f} mm ({2000 * o.radius_m:.0f} mm across)" for o in part.others)
         where += f" in another direction (stretch {', '.join(str(n + 2) for n in range(len(part.others)))})"
     hands = sorted({g.hand for g in grips if g.hand})
+    h = part.handle
+    if h is not None:
+        on = sum(g.weight for g in grips if "on the handle" in g.label) / sum(g.weight for g in grips)
+        where = (
+            f"on a handle ({2000 * h.radius_m:.0f} mm thick, its opening {1000 * h.opening_m[0]:.0f} x "
+            f"{1000 * h.opening_m[1]:.0f} mm) in {100 * on:.0f} % of the poses, and {where} in the others"
+        )
     return f"{len(grips)} grip(s) {where}" + (f", {' and '.join(hands)} hand" if hands else "")
 
 

@@ -11,6 +11,7 @@ import numpy as np
 from starforge.props.ceiling import tracked_ceiling
 from starforge.props.evaluate import random_poses
 from starforge.props.grips import GRIP_SEED_OFFSET, assign_grips, grip_arrays
+from starforge.props.hand import inside_capsules
 from starforge.props.layout_search import held_out_polish
 from starforge.props.rig import Poses
 from starforge.props.scenarios import alive_masks
@@ -39,7 +40,7 @@ class HeldOut:
         self.poses = random_poses(rig.volume, ts.validation_poses, prep.poses.pivot, rng)
         self.patterns = ts.loss_patterns if int(round(ts.cameras_lost * len(rig.cameras))) > 0 else 1
         self.alive = alive_masks(len(rig.cameras), ts.cameras_lost, len(self.poses) * self.patterns, rng)
-        self.grip = assign_grips(len(self.poses), len(prep.grips), np.random.default_rng(seed + offset + GRIP_SEED_OFFSET))
+        self.grip = assign_grips(len(self.poses), prep.grips, np.random.default_rng(seed + offset + GRIP_SEED_OFFSET))
         self.prop, self.spec, self.prep = prop, spec, prep
         self._rows: dict = {}  # (site, hand) -> (poses,) uint64 masks over every pose
 
@@ -165,6 +166,7 @@ def explain_shortfall(sample: HeldOut, spec, prep, prob, chosen, removed, fit) -
         "markers_that_fit_at_the_spacing": fit,
         "usable_sites": len(prep.sites),
         "sites_under_the_hand": removed["under_hand"],
+        "hidden_by_the_hand": hidden_share(prep.sites.points + prep.seat.centre_height_m * prep.sites.normals, prep.grips),
     }
 
     every = np.arange(len(prob.points))
@@ -172,6 +174,17 @@ def explain_shortfall(sample: HeldOut, spec, prep, prob, chosen, removed, fit) -
         prob.points, lambda: sample.seen(every)[0], prob.spacing, held.min_spread2, ts.target_markers
     )
     return out
+
+
+def hidden_share(centres: np.ndarray, grips) -> float:
+    """The share of the poses (by the grips' weights) held in a grip whose capsules enclose all but
+    at most 2 of the markers' ball ``centres`` (n, 3), m: a marker inside the hand is lost, so no
+    3 markers are seen in those poses whatever the layout."""
+    total = sum(g.weight for g in grips)
+    if not total:
+        return 0.0
+    lost = sum(g.weight for g in grips if int((~inside_capsules(centres, g.capsules)).sum()) < 3)
+    return float(lost / total)
 
 
 def shortfall_warning(sf: dict, spacing_m: float, hand: bool) -> str:
@@ -182,6 +195,12 @@ def shortfall_warning(sf: dict, spacing_m: float, hand: bool) -> str:
         cause.append(
             f"only {sf['markers_that_fit_at_the_spacing']} markers fit {spacing_m * 1000:.1f} mm apart on its "
             f"{sf['usable_sites']} usable sites" + (f" ({sf['sites_under_the_hand']} sites under the hand)" if hand else "")
+        )
+    hidden = sf.get("hidden_by_the_hand", 0.0)
+    if hand and hidden > 0:
+        cause.append(
+            f"in {100 * hidden:.0f} % of the poses the hand encloses all but at most "
+            "2 of the usable sites, so no layout is tracked there"
         )
     share = sf["untracked_too_few_seen"] / max(1e-12, 1.0 - sf["validation_tracked"])
     cause.append(f"{100 * share:.0f} % of the untracked scenarios see fewer than 3 markers, the rest see them in a line")

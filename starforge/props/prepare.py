@@ -111,7 +111,7 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
     poses = make_poses(rig.volume, spec.resolution, spec.orientations, pivot, rng)
     if progress is not None:
         progress(0, None)  # the rays' stage starts with its work
-    pose_grip = assign_grips(len(poses), len(grips), np.random.default_rng(seed + GRIP_SEED_OFFSET))
+    pose_grip = assign_grips(len(poses), grips, np.random.default_rng(seed + GRIP_SEED_OFFSET))
     occ, starts = grip_arrays(grips)
     table = compute_table(
         prop.mesh,

@@ -42,7 +42,7 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
     seat = spec.marker_seat()
     _, grips = hand_grips(prop, spec, grip)
     occ, starts = grip_arrays(grips)
-    pose_grip = assign_grips(len(poses), len(grips), np.random.default_rng(seed + GRIP_SEED_OFFSET))
+    pose_grip = assign_grips(len(poses), grips, np.random.default_rng(seed + GRIP_SEED_OFFSET))
     table = compute_table(
         prop.mesh,
         pts,
