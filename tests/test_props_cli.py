@@ -656,3 +656,27 @@ def test_smaller_points_marker_names_sites_help_symmetry_line(capsys, monkeypatc
     assert "99.90 %" in ranking_note({"selection": {"winner": "winner", "candidates": cand}})
     cand["winner"]["cost"] = 0.1
     assert ranking_note({"selection": {"winner": "winner", "candidates": cand}}) == ""
+
+
+@pytest.mark.slow
+def test_the_guide_render_process_loads_every_font_the_guide_draws_in():
+    """Every visible text of the guide's pages is in one of the styles its render process loads
+    beforehand (:func:`starforge.render.guide.load_fonts`): size, weight and family."""
+    from matplotlib.text import Text
+
+    from starforge.props.placement import run_placement
+    from starforge.render.guide import TEXT_STYLES, guide_pages
+
+    def style(size, weight="normal", family="sans-serif"):
+        return float(size), str(weight), family
+
+    loaded = {style(kw["fontsize"], kw.get("weight", "normal"), kw.get("family", "sans-serif"))
+              for kw in TEXT_STYLES.values()}  # fmt: skip
+    res = run_placement("box", sites=150, resolution=1, orientations=6, seed=1)
+    drawn = {
+        style(t.get_fontsize(), t.get_weight(), t.get_family()[0])
+        for fig in guide_pages(res)
+        for t in fig.findobj(Text)
+        if t.get_visible() and t.get_text().strip()
+    }
+    assert drawn and drawn <= loaded, drawn - loaded

@@ -28,6 +28,19 @@ from starforge.render.prop_views import VIEWS, frame, hand_outlines, markers_in_
 GUIDE_VIEWS = ("front (from -y)", "side (from +x)", "top (from +z)", "back (from +y)")
 _PAGE = (11.69, 8.27)  # A4 landscape, inches
 _MM = 25.4  # mm per inch
+#: every text style the guide draws in (matplotlib text keywords); :func:`load_fonts` loads them
+TEXT_STYLES = {
+    "title": {"fontsize": 13, "weight": "bold"},
+    "heading": {"fontsize": 11, "weight": "bold"},
+    "view": {"fontsize": 9},
+    "caption": {"fontsize": 8},  # also the markers' numbers in the views (prop_views)
+    "body": {"fontsize": 7.5},
+    "number": {"fontsize": 7},
+    "landmark": {"fontsize": 6},
+    "table": {"fontsize": 6.8, "family": "monospace"},
+    "caliper": {"fontsize": 6.5, "family": "monospace"},
+}
+_DPI = 110  # guide.png
 
 
 def _overlap(a, b, pad: float = 0.5) -> bool:
@@ -139,8 +152,8 @@ def guide_pages(res) -> list:
     d = plot_data(res)
     plt = pyplot()
     fig = plt.figure(figsize=_PAGE)
-    fig.text(0.02, 0.975, f"Rigging guide: {d.name}, {len(d.marker_centres)} markers", fontsize=13,
-                     weight="bold", va="top")  # fmt: skip
+    fig.text(0.02, 0.975, f"Rigging guide: {d.name}, {len(d.marker_centres)} markers", va="top",
+             **TEXT_STYLES["title"])  # fmt: skip
     lo, hi = d.bounds
     for k, name in enumerate(GUIDE_VIEWS):
         B = VIEWS[name]
@@ -153,8 +166,10 @@ def guide_pages(res) -> list:
         for fname, p in d.features:
             q = p @ B.T
             ax.plot([q[0]], [q[1]], marker="^", color="C0", ms=4, zorder=5.5)
-            marks.append(ax.text(q[0], q[1] - 0.035 * span, fname, fontsize=6, color="C0", ha="center", va="center", zorder=6))
-        ax.set_title(name, fontsize=9)
+            label = ax.text(q[0], q[1] - 0.035 * span, fname, color="C0", ha="center", va="center", zorder=6,
+                            **TEXT_STYLES["landmark"])  # fmt: skip
+            marks.append(label)
+        ax.set_title(name, **TEXT_STYLES["view"])
         for sp in ax.spines.values():
             sp.set_visible(False)
         declutter(ax, [], labels, marks)
@@ -168,21 +183,21 @@ def guide_pages(res) -> list:
         f"(mm) a base may land off its mark before it overhangs an edge or a tilted\nsurface (each is at least the "
         f"{err:g} mm placement error).  Filled markers: in front in that view; hollow, grey: the prop hides them.  "
         "Orange: where the hand holds it.",
-        fontsize=7.5,
+        **TEXT_STYLES["body"],
     )
     cur.advance(head)
     margin = d.margin_mm if d.margin_mm is not None else np.full(len(d.landmarks), np.nan)
     lines = [f"{i + 1:>2}. {t}; margin {m:.1f} mm" for i, (t, m) in enumerate(zip(d.landmarks, margin, strict=True))]
-    cur.advance(cur.block("\n".join(lines), fontsize=6.8, family="monospace"))
+    cur.advance(cur.block("\n".join(lines), **TEXT_STYLES["table"]))
     if d.caliper:
         tol = d.caliper[0][4]
         cap = cur.block(
             f"Caliper check (ball centre to centre; across both balls' outsides, add one ball diameter), each within "
-            f"+-{tol:g} mm:", fontsize=7.5,
+            f"+-{tol:g} mm:", **TEXT_STYLES["body"],
         )  # fmt: skip
         cur.advance(cap)
         rows = [f"{a}-{b}: {c:6.1f} ({o:.1f} outside)" for a, b, c, o, _ in d.caliper]
-        cur.columns(rows, 0.16, fontsize=6.5, family="monospace")
+        cur.columns(rows, 0.16, **TEXT_STYLES["caliper"])
     return [fig, _template_page(d, plt)]
 
 
@@ -220,7 +235,8 @@ def _template_page(d, plt):
         r = 0.0015 * k  # 3 mm printed
         ax.plot([p[0] - r, p[0] + r], [p[1], p[1]], color=col, lw=0.6)
         ax.plot([p[0], p[0]], [p[1] - r, p[1] + r], color=col, lw=0.6)
-        labels.append(ax.text(p[0] + 1.2 * r, p[1] + 1.2 * r, str(i + 1), fontsize=7, color=col, ha="left", va="bottom"))
+        labels.append(ax.text(p[0] + 1.2 * r, p[1] + 1.2 * r, str(i + 1), color=col, ha="left", va="bottom",
+                              **TEXT_STYLES["number"]))  # fmt: skip
     declutter(ax, [], labels, [])
     # the scale bar: 50 mm on the prop (printed 50 / k mm), ticks every 10 mm
     bar = fig.add_axes([0.06, 0.08, (50.0 / k) / _MM / _PAGE[0], 0.02])
@@ -230,12 +246,13 @@ def _template_page(d, plt):
     for x in range(0, 51, 10):
         bar.plot([x, x], [0, 1], color="k", lw=0.8)
     bar.plot([0, 50], [0, 0], color="k", lw=1.2)
-    fig.text(0.06, 0.05, f"scale bar: 50 mm on the prop, ticks every 10 mm, printed at 1:{k}", fontsize=8, va="top")
+    fig.text(0.06, 0.05, f"scale bar: 50 mm on the prop, ticks every 10 mm, printed at 1:{k}", va="top",
+             **TEXT_STYLES["caption"])  # fmt: skip
     fig.text(0.02, 0.975, f"Template, {best}, scale 1:{k}: print at 100 % (no 'fit to page') and check the scale bar "
-             "with a ruler", fontsize=11, weight="bold", va="top")  # fmt: skip
+             "with a ruler", va="top", **TEXT_STYLES["heading"])  # fmt: skip
     fig.text(0.02, 0.94, "+ the base centre of each marker (grey: on the far side of the prop in this view)" + (
         "; cut the outline out to lay on the prop" if k == 1 else "; the prop is larger than the sheet at 1:1"),
-        fontsize=8, va="top")  # fmt: skip
+        va="top", **TEXT_STYLES["caption"])  # fmt: skip
     return fig
 
 
@@ -249,7 +266,7 @@ def guide_files(res, folder: str | Path) -> list[str]:
 
     plt = pyplot()
     pages = guide_pages(res)
-    save_png(pages[0], Path(folder) / "guide.png", dpi=110)
+    save_png(pages[0], Path(folder) / "guide.png", dpi=_DPI)
     buf = io.BytesIO()
     with _pdf_fonts(pages), PdfPages(buf, metadata={"Creator": None, "Producer": None, "CreationDate": None}) as pdf:
         for fig in pages:
@@ -258,6 +275,22 @@ def guide_files(res, folder: str | Path) -> list[str]:
     for fig in pages:
         plt.close(fig)
     return ["guide.png", "guide.pdf"]
+
+
+def load_fonts() -> None:
+    """Draw a line in every text style of the guide into a PNG and a PDF that are thrown away, so
+    that the fonts (and the PDF's standard-font metrics) are found and loaded before the guide is
+    drawn (its render process does this while the placement still runs; the guide is the same)."""
+    import io
+
+    plt = pyplot()
+    fig = plt.figure(figsize=(1, 1))
+    for kw in TEXT_STYLES.values():
+        fig.text(0.5, 0.5, "0123456789 mm", **kw)
+    fig.savefig(io.BytesIO(), format="png", dpi=_DPI)
+    with _pdf_fonts([fig]):
+        fig.savefig(io.BytesIO(), format="pdf")
+    plt.close(fig)
 
 
 def _pdf_fonts(figs):

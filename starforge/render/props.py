@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.render._mpl import pyplot, save_png
-from starforge.render.guide import guide_files
+from starforge.render.guide import guide_files, load_fonts
 from starforge.render.prop_views import (
     VIEWS,
     PlotData,
@@ -108,6 +108,11 @@ def layout_png(res, path: str | Path) -> Path:
 #: what each render process draws: the two placement pictures, and the rigging guide
 _ROLES = ("pictures", "guide")
 NAMES = {"pictures": ["convergence.png", "layout.png"], "guide": ["guide.png", "guide.pdf"]}
+#: how far each role's process lowers its own priority (``os.nice``) once it starts drawing: the
+#: guide takes about twice as long as the two pictures, so while the caller still works after
+#: :meth:`BackgroundRenderer.submit` (three processes on two cores) the pictures give way and the
+#: guide keeps a core; idle cores still draw them at once (the pictures are the same bytes)
+_NICE = {"pictures": 10, "guide": 0}
 
 
 def _draw(role: str, data: PlotData, folder: Path) -> None:
@@ -216,9 +221,10 @@ class BackgroundRenderer:
 
 
 def _warm(role: str) -> None:
-    """What a render process does while the placement is still running: import pyplot (and the
-    PDF backend for the guide) and draw a little text, so that the font files are loaded and
-    the glyph caches filled before the real pictures arrive (none of this changes them)."""
+    """What a render process does while the placement is still running: import pyplot and draw a
+    little text (for the guide: in each of its text styles, into a PNG and a PDF), so that the
+    font files are loaded and the font look-ups cached before the real pictures arrive (none of
+    this changes them)."""
     import io
 
     plt = pyplot()
@@ -226,9 +232,9 @@ def _warm(role: str) -> None:
     fig.text(0.5, 0.5, "0123456789 mm", fontsize=8)
     fig.text(0.5, 0.2, "0123456789 mm", fontsize=7.5, family="monospace")
     fig.savefig(io.BytesIO(), format="png", dpi=_DPI)
-    if role == "guide":
-        import matplotlib.backends.backend_pdf  # noqa: F401
     plt.close(fig)
+    if role == "guide":
+        load_fonts()
 
 
 def _serve(read_fd: int, role: str, warm: bool = True) -> int:
@@ -242,6 +248,8 @@ def _serve(read_fd: int, role: str, warm: bool = True) -> int:
         if message:
             job = Path(message.decode())
             data, folder = pickle.loads(job.read_bytes())
+            if _NICE[role]:
+                os.nice(_NICE[role])
             _draw(role, data, Path(folder))
         return 0
     except BaseException:  # reported by the parent through the exit status
