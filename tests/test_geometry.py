@@ -253,3 +253,43 @@ def test_line_spread_at_least_is_the_comparison_bit_for_bit():
         for lim in (np.full_like(d2, 1e-4), limit):
             got = np.array([line_spread2_at_least_many(cnt[i : i + 1], s1[i : i + 1], s2[i : i + 1], lim[i])[0] for i in range(len(d2))])
             assert np.array_equal(got, d2 >= lim)
+
+
+def _band_samples_hit(o, d, length, a, b, radius, grow):
+    """Brute force: 20,001 points along the ray's stretch, any inside the band grown by ``grow``
+    (radius and both ends), from the point's axial coordinate and its distance from the axis."""
+    s = np.linspace(0.0, length, 20_001)
+    p = o + s[:, None] * d
+    L = np.linalg.norm(b - a)
+    u = (b - a) / L
+    t = (p - a) @ u
+    r = np.linalg.norm(p - a - t[:, None] * u, axis=1)
+    return bool(((t >= -grow) & (t <= L + grow) & (r <= radius + grow)).any())
+
+
+@settings(max_examples=150, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_a_ray_enters_a_band_exactly_when_points_along_it_do(seed):
+    """:func:`ray_enters_band` against dense samples of the ray: a ray it says enters the band has
+    samples inside the band grown by a hair, and one it says misses has none inside the band shrunk
+    by a hair (rays through, past, along and inside bands of any size and direction)."""
+    from starforge.geometry.distance import in_band, ray_enters_band
+
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(-1, 1, 3)
+    b = a + rng.normal(size=3) * rng.uniform(0.05, 1.0)
+    radius = rng.uniform(0.02, 0.5)
+    o = rng.uniform(-1.5, 1.5, (8, 3))
+    o[0] = (a + b) / 2  # inside
+    d = rng.normal(size=(8, 3))
+    d[1] = b - a  # along the axis
+    d[2] = np.cross(b - a, rng.normal(size=3))  # square to it
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    length = 3.0
+    hit = ray_enters_band(o, d, a, b, radius, length)
+    assert hit[0] and in_band(o[:1], a, b, radius)[0]
+    for i in range(len(o)):
+        if hit[i]:
+            assert _band_samples_hit(o[i], d[i], length, a, b, radius, 1e-3)
+        else:
+            assert not _band_samples_hit(o[i], d[i], length, a, b, radius, -1e-3)

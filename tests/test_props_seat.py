@@ -368,7 +368,7 @@ def test_the_evaluation_agrees_with_the_compiled_table():
     compiled table) agree on random poses of the hammer held in its hand."""
     from starforge.props.builtin import builtin_mesh
     from starforge.props.evaluate import camera_hits, random_poses
-    from starforge.props.hand import GRIPS, capsule_arrays, hand_capsule
+    from starforge.props.hand import GRIPS, capsule_arrays, fist
     from starforge.props.rig import load_rig
     from starforge.props.sites import sample_sites
     from starforge.props.visibility import compute_table
@@ -377,7 +377,7 @@ def test_the_evaluation_agrees_with_the_compiled_table():
     rig = load_rig("default")
     rng = np.random.default_rng(11)
     sites = sample_sites(mesh, 40, rng)
-    caps = (hand_capsule(*GRIPS["hammer"]),)
+    caps = (fist(*GRIPS["hammer"]),)
     poses = random_poses(rig.volume, 60, mesh.bounds.mean(axis=0), rng)
     table = compute_table(mesh, sites.points, sites.normals, rig, poses, 180.0, radius_m=0.00475, centre_m=0.0052,
                           occluders=capsule_arrays(caps))  # fmt: skip

@@ -111,6 +111,49 @@ def ray_segment_distance(origins, dirs, a, b) -> np.ndarray:
     return dist[:, 0] if one else dist
 
 
+def in_band(points, a, b, radius: float) -> np.ndarray:
+    """(n,) bool: each point inside the band round the segment ``a``-``b`` (a finite cylinder of
+    ``radius`` whose flat ends are the planes square to the segment through ``a`` and ``b``)."""
+    p = np.atleast_2d(np.asarray(points, dtype=float))
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    L = float(np.linalg.norm(b - a))
+    u = (b - a) / L if L > 0 else np.zeros(3)
+    r = p - a
+    t = r @ u
+    radial = r - t[:, None] * u
+    return (t >= 0.0) & (t <= L) & (np.einsum("ij,ij->i", radial, radial) <= radius * radius)
+
+
+def ray_enters_band(origins, dirs, a, b, radius: float, length=np.inf) -> np.ndarray:
+    """(n,) bool: each ray ``origins[i] + s dirs[i]``, ``0 <= s <= length``, has a point inside
+    the band of :func:`in_band`.
+
+    Exact: the ray's stretch between the band's end planes (where its axial coordinate is in
+    ``[0, |b - a|]``) is an interval of ``s``, and on it the squared distance from the axis is a
+    convex quadratic in ``s``, least at its vertex clamped to the interval.
+    """
+    o = np.atleast_2d(np.asarray(origins, dtype=float))
+    d = np.atleast_2d(np.asarray(dirs, dtype=float))
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    L = float(np.linalg.norm(b - a))
+    u = (b - a) / L if L > 0 else np.zeros(3)
+    r0 = o - a
+    t0, du = r0 @ u, d @ u
+    flat = np.abs(du) <= tol.zero
+    safe = np.where(flat, 1.0, du)
+    s_a, s_b = -t0 / safe, (L - t0) / safe
+    lo = np.where(flat, np.where((t0 >= 0.0) & (t0 <= L), 0.0, np.inf), np.maximum(np.minimum(s_a, s_b), 0.0))
+    hi = np.where(flat, length, np.minimum(np.maximum(s_a, s_b), length))
+    w0 = r0 - t0[:, None] * u
+    wd = d - du[:, None] * u
+    ww = np.einsum("ij,ij->i", wd, wd)
+    s = np.where(ww > tol.zero, -np.einsum("ij,ij->i", w0, wd) / np.where(ww > tol.zero, ww, 1.0), 0.0)
+    s = np.clip(s, lo, np.maximum(lo, hi))
+    s = np.where(np.isfinite(s), s, 0.0)
+    w = w0 + s[:, None] * wd
+    return (lo <= hi) & (np.einsum("ij,ij->i", w, w) <= radius * radius)
+
+
 def hemisphere_directions(n: int, up=(0.0, 1.0, 0.0)) -> np.ndarray:
     """``n`` near-uniform unit directions on the hemisphere around ``up`` (Fibonacci lattice).
 

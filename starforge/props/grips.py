@@ -22,7 +22,7 @@ many places as keep neighbouring palms at most :data:`STEP` of a palm apart (at 
 most :data:`POSITIONS`), by either hand, with the back of the hand and the wrist at :data:`WRAPS`
 angles around the part.  Each grip is a set of capsules that move with the prop
 (:func:`hand_model`): the fist around the widest section under the palm
-(:func:`starforge.props.hand.hand_capsule`) and the wrist and forearm, a capsule of
+(:func:`starforge.props.hand.fist`) and the wrist and forearm, a capsule of
 :data:`WRIST_M` radius and :data:`FOREARM_M` length leaving the part's surface at the wrap
 angle, turned :data:`THUMB_DEG` towards the thumb's side (a left hand is the mirror image of a
 right one, so the turn changes sign).  Every pose of the optimizer's sample is held in one grip
@@ -55,12 +55,15 @@ import numpy as np
 from starforge.errors import StarforgeError
 from starforge.geometry.distance import point_segment_distance
 from starforge.props.hand import (
+    CAPSULE_COLUMNS,
     PALM_M,
     PINCH_BELOW_M,
     Capsule,
+    capsule_arrays,
+    fist,
     grip_segment,
-    hand_capsule,
     inside_capsules,
+    parse_grip,
     pinch,
     section_widths_of,
 )
@@ -320,7 +323,7 @@ def _reach(w: np.ndarray, i: int, j: int) -> tuple[int, int]:
 
 def hand_model(a, b, part_radius: float, wrap_deg: float, hand: str, toward=None) -> tuple[Capsule, Capsule]:
     """A hand holding the part ``a``-``b`` (the stretch the palm covers, m) of ``part_radius``:
-    the fist (:func:`starforge.props.hand.hand_capsule`) and the wrist leaving the part at
+    the fist (:func:`starforge.props.hand.fist`) and the wrist leaving the part at
     ``wrap_deg`` around it, turned :data:`THUMB_DEG` towards the thumb (``hand``: right or left);
     ``wrap_deg`` 0 is ``toward`` (a (3,) direction square to the part) when given."""
     a, b = np.asarray(a, float), np.asarray(b, float)
@@ -337,7 +340,7 @@ def hand_model(a, b, part_radius: float, wrap_deg: float, hand: str, toward=None
     d = math.cos(beta) * radial + s * math.sin(beta) * tangent
     start = (a + b) / 2 + (part_radius + WRIST_M) * radial
     wrist = Capsule(tuple(start), tuple(start + FOREARM_M * d), WRIST_M)
-    return hand_capsule(a, b, part_radius), wrist
+    return fist(a, b, part_radius), wrist
 
 
 def grip_distribution(mesh, positions: int = POSITIONS, wraps=WRAPS, fallback=None) -> tuple[HeldPart, tuple[Grip, ...]]:
@@ -403,7 +406,6 @@ def _grips_along(part: HeldPart, positions: int, wraps, name: str) -> list[Grip]
 def pinned_grip(text: str, grips: tuple[Grip, ...]) -> Grip:
     """``--grip``: ``N`` pins grip N (1-based) of the distribution; ``x0,y0,z0,x1,y1,z1[,r]``
     (prop frame, m) a fist around that segment (:func:`starforge.props.hand.parse_grip`)."""
-    from starforge.props.hand import parse_grip
 
     t = str(text).strip()
     if t.isdigit():
@@ -434,15 +436,13 @@ def assign_grips(poses: int, grips, rng: np.random.Generator) -> np.ndarray:
 
 
 def grip_arrays(grips) -> tuple[np.ndarray, np.ndarray]:
-    """The compiled kernel's input: capsules (h, 7) grouped by grip, and ``starts`` (g + 1,):
+    """The compiled kernel's input: capsules (h, 8, :func:`starforge.props.hand.capsule_arrays`) grouped by grip, and ``starts`` (g + 1,):
     grip g's capsules are rows ``starts[g]:starts[g + 1]``."""
-    from starforge.props.hand import capsule_arrays
-
     if not grips:  # one empty grip: nothing hides anything
-        return np.zeros((0, 7)), np.zeros(2, np.int64)
+        return np.zeros((0, CAPSULE_COLUMNS)), np.zeros(2, np.int64)
     rows = [capsule_arrays(g.capsules) for g in grips]
     counts = [len(r) for r in rows]
-    caps = np.concatenate(rows) if rows else np.zeros((0, 7))
+    caps = np.concatenate(rows)
     return np.ascontiguousarray(caps, dtype=float), np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
 
 

@@ -1,11 +1,13 @@
-"""The hand that holds the prop, as occluders that move with it: capsules in the prop frame.
+"""The hand that holds the prop, as occluders that move with it, in the prop frame.
 
 A fist is a segment (the stretch of the gripped part the palm covers, along the axis the
-fingers close around) and the part's radius; the hand is a capsule around it, reaching
-:data:`FINGERS_M` beyond the part and covering that stretch of its surface
-(:func:`hand_capsule`: palm and fingers wrapped round the grip), which hides whatever lies
-inside it from every camera and covers the surface it encloses (no marker can be stuck under
-the hand).  Where on a prop people hold it, by which hand and how, is
+fingers close around) and the part's radius; the hand is a band around it (:func:`fist`: a
+finite cylinder :data:`FINGERS_M` thicker than the part, cut square at the palm's edges, the
+palm and fingers wrapped round the grip), which hides whatever lies inside it from every camera
+and covers the surface it encloses (no marker can be stuck under the hand).  A band and not a
+capsule: round a part as wide as a bottle or a carton, a capsule that covers the palm's stretch
+of the surface swells into a ball reaching far past the palm's edges.  The wrist and forearm are
+capsules.  Where on a prop people hold it, by which hand and how, is
 :mod:`starforge.props.grips`; this module holds the pieces: the fist, the cross-sections a
 hand closes around (:func:`section_widths`), the fingertips of a pinch (:func:`pinch`) and the
 thinnest end of a prop without a graspable part (:func:`grip_segment`): of the ends of its
@@ -16,12 +18,12 @@ length) along that axis.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from starforge.errors import StarforgeError
+from starforge.geometry.distance import in_band, point_segment_distance
 
 #: a palm's width along the grip, m (an adult hand is 75-95 mm across the knuckles)
 PALM_M = 0.09
@@ -43,36 +45,42 @@ GRIPS = {
 
 @dataclass(frozen=True)
 class Capsule:
-    """All points within ``radius`` of the segment ``a``-``b`` (prop frame, m)."""
+    """All points within ``radius`` of the segment ``a``-``b`` (prop frame, m); when ``flat``,
+    only those between the planes square to the segment through ``a`` and ``b`` (a band: a
+    finite cylinder, :func:`starforge.geometry.distance.in_band`)."""
 
     a: tuple[float, float, float]
     b: tuple[float, float, float]
     radius: float
+    flat: bool = False
 
     def to_json(self) -> dict:
-        return {"a": [round(float(x), 9) + 0.0 for x in self.a], "b": [round(float(x), 9) + 0.0 for x in self.b], "radius": round(float(self.radius), 9)}
+        out = {"a": [round(float(x), 9) + 0.0 for x in self.a], "b": [round(float(x), 9) + 0.0 for x in self.b], "radius": round(float(self.radius), 9)}
+        return {**out, "flat": True} if self.flat else out
+
+    def contains(self, points) -> np.ndarray:
+        """(n,) bool: each point (n, 3) inside."""
+        pts = np.asarray(points, float).reshape(-1, 3)
+        if self.flat:
+            return in_band(pts, self.a, self.b, self.radius)
+        return point_segment_distance(pts, self.a, self.b) <= self.radius
 
 
-def hand_capsule(a, b, part_radius: float, fingers_m: float = FINGERS_M) -> Capsule:
+def fist(a, b, part_radius: float, fingers_m: float = FINGERS_M) -> Capsule:
     """The hand around the grip ``a``-``b`` (the stretch of the part the palm covers, m) of a part
-    ``part_radius`` thick: a capsule of radius ``part_radius + fingers_m`` whose core is shortened
-    so that where it meets the part's surface it covers ``a``-``b`` and no more (a capsule reaches
-    ``sqrt(R^2 - r^2)`` past its core's ends at distance ``r`` from the axis)."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    R = part_radius + fingers_m
-    reach = math.sqrt(max(R * R - part_radius * part_radius, 0.0))
-    L = float(np.linalg.norm(b - a))
-    u = (b - a) / L if L > 0 else np.zeros(3)
-    core = max(0.0, L - 2 * reach)
-    mid = (a + b) / 2
-    return Capsule(tuple(mid - u * core / 2), tuple(mid + u * core / 2), R)
+    ``part_radius`` thick: a band of radius ``part_radius + fingers_m`` from ``a`` to ``b``."""
+    return Capsule(tuple(float(x) for x in a), tuple(float(x) for x in b), part_radius + fingers_m, True)
+
+
+#: columns of :func:`capsule_arrays`: a (3), b (3), radius, flat (1.0 for a band)
+CAPSULE_COLUMNS = 8
 
 
 def capsule_arrays(caps) -> np.ndarray:
-    """(k, 7) float: a, b, radius of each capsule (the compiled kernels' input)."""
+    """(k, 8) float: a, b, radius and flat (1.0 or 0.0) of each capsule (the compiled kernels' input)."""
     if not caps:
-        return np.zeros((0, 7))
-    return np.array([[*c.a, *c.b, c.radius] for c in caps], dtype=float)
+        return np.zeros((0, CAPSULE_COLUMNS))
+    return np.array([[*c.a, *c.b, c.radius, float(c.flat)] for c in caps], dtype=float)
 
 
 def parse_grip(text: str) -> Capsule:
@@ -87,7 +95,7 @@ def parse_grip(text: str) -> Capsule:
     r = v[6] if len(v) == 7 else 0.015
     if not 0 <= r <= 0.5:
         raise StarforgeError(f"--grip radius must be in [0, 0.5] m, got {r}")
-    return hand_capsule(v[:3], v[3:6], r)
+    return fist(v[:3], v[3:6], r)
 
 
 def section_widths(mesh, axis: int, heights: np.ndarray) -> np.ndarray:
@@ -145,7 +153,7 @@ HAND_LENGTH_M = 0.08
 
 def pinch(mesh, a, b, part_radius: float) -> tuple[Capsule, Capsule]:
     """A small prop held by the fingertips at the grip ``a``-``b`` (the segment a fist would
-    cover, along one axis of the bounding box): the fingertips, a capsule :data:`FINGERTIP_M`
+    cover, along one axis of the bounding box): the fingertips, a band :data:`FINGERTIP_M`
     past the part over the :data:`PINCH_M` of the grip nearer the prop's end, and the rest of the
     hand beyond that end (a capsule of :data:`HAND_RADIUS_M` on the grip's axis, just clear of
     the prop: it hides what lies behind it but covers no surface).  A simplification, as the fist
@@ -166,7 +174,7 @@ def pinch(mesh, a, b, part_radius: float) -> tuple[Capsule, Capsule]:
         h1 = h0 + HAND_LENGTH_M
     ha, hb = a.copy(), a.copy()
     ha[ax], hb[ax] = h0, h1
-    return hand_capsule(tip0, tip1, part_radius, FINGERTIP_M), Capsule(tuple(ha), tuple(hb), HAND_RADIUS_M)
+    return fist(tip0, tip1, part_radius, FINGERTIP_M), Capsule(tuple(ha), tuple(hb), HAND_RADIUS_M)
 
 
 def grip_segment(mesh) -> tuple[np.ndarray, np.ndarray, float]:
@@ -201,11 +209,9 @@ def grip_segment(mesh) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def inside_capsules(points: np.ndarray, caps) -> np.ndarray:
-    """(n,) bool: each point inside some capsule."""
-    from starforge.geometry.distance import point_segment_distance
-
+    """(n,) bool: each point inside some capsule (or band)."""
     pts = np.asarray(points, float).reshape(-1, 3)
     out = np.zeros(len(pts), bool)
     for c in caps:
-        out |= point_segment_distance(pts, c.a, c.b) <= c.radius
+        out |= c.contains(pts)
     return out

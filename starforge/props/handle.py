@@ -16,7 +16,7 @@ is found from the mesh's shape, not its name:
   section square to the rim (the bar's own cross-section) is a hand's hold, its wider width
   within :data:`BAR_M`, and does not run into the body (whose section there is wider).
 
-The fist (:func:`starforge.props.hand.hand_capsule`) closes around the bar's core: the line
+The fist (:func:`starforge.props.hand.fist`) closes around the bar's core: the line
 along the bar's main direction (the principal direction of its cross-sections' centres) through
 its outermost cross-section, over the bar's length (at most a palm), the fingers through the
 opening; the wrist leaves the bar away from the body (:attr:`Handle.outward`).

@@ -21,6 +21,7 @@ from numba import types
 from numba.extending import intrinsic
 
 from starforge.errors import StarforgeError
+from starforge.props.hand import CAPSULE_COLUMNS
 from starforge.runtime.kernels import numba
 from starforge.runtime.threads import threads_for_work
 from starforge.spec import in_range
@@ -194,12 +195,44 @@ def _seg_seg_dist2(p0x, p0y, p0z, p1x, p1y, p1z, q0x, q0y, q0z, q1x, q1y, q1z):
     return _dot3(wx, wy, wz, wx, wy, wz)
 
 
+@numba.njit(cache=True, nogil=True)
+def _seg_band_hit(cx, cy, cz, dx, dy, dz, ax, ay, az, bx, by, bz, r):
+    """Whether the segment from ``c`` to ``c + d`` has a point inside the band round ``a``-``b``
+    of radius ``r`` (:func:`starforge.geometry.distance.ray_enters_band`, for one segment: the
+    stretch of the segment between the end planes, then the least distance from the axis on it)."""
+    ux, uy, uz = bx - ax, by - ay, bz - az
+    L = math.sqrt(ux * ux + uy * uy + uz * uz)
+    if L > 0.0:
+        ux, uy, uz = ux / L, uy / L, uz / L
+    rx, ry, rz = cx - ax, cy - ay, cz - az
+    t0 = rx * ux + ry * uy + rz * uz
+    du = dx * ux + dy * uy + dz * uz
+    lo, hi = 0.0, 1.0
+    if abs(du) <= 1e-300:
+        if t0 < 0.0 or t0 > L:
+            return False
+    else:
+        sa, sb = -t0 / du, (L - t0) / du
+        lo, hi = max(min(sa, sb), 0.0), min(max(sa, sb), 1.0)
+        if lo > hi:
+            return False
+    w0x, w0y, w0z = rx - t0 * ux, ry - t0 * uy, rz - t0 * uz
+    wdx, wdy, wdz = dx - du * ux, dy - du * uy, dz - du * uz
+    ww = wdx * wdx + wdy * wdy + wdz * wdz
+    s = lo
+    if ww > 1e-300:
+        s = min(max(-(w0x * wdx + w0y * wdy + w0z * wdz) / ww, lo), hi)
+    ex, ey, ez = w0x + s * wdx, w0y + s * wdy, w0z + s * wdz
+    return ex * ex + ey * ey + ez * ez <= r * r
+
+
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _view_masks(centres, normals, q, axes, tans, cos_lim, caps, cap_start, pose_grip, min_cams):
     """(s, P) uint64 camera bits: camera c (position ``q[k, c]`` and axes ``axes[k, c]`` in the
     prop frame at pose k) has site i's ball centre in its field of view, faces it within the
-    grazing limit, and the segment between them misses every capsule of the pose's grip: rows
-    ``cap_start[g]:cap_start[g + 1]`` of ``caps`` (h, 7) for ``g = pose_grip[k]``.  Masks
+    grazing limit, and the segment between them misses every capsule (or band) of the pose's
+    grip: rows ``cap_start[g]:cap_start[g + 1]`` of ``caps`` (h, 8,
+    :func:`starforge.props.hand.capsule_arrays`) for ``g = pose_grip[k]``.  Masks
     with fewer than ``min_cams`` bits are cleared.  The prop itself is tested afterwards.
 
     Scalar arithmetic throughout (no temporary arrays), with the dot products summed as BLAS
@@ -248,6 +281,13 @@ def _view_masks(centres, normals, q, axes, tans, cos_lim, caps, cap_start, pose_
                     t = min(max(t, 0.0), 1.0)
                     ex, ey, ez = mx + t * dx, my + t * dy, mz + t * dz
                     if ex * ex + ey * ey + ez * ez > reach2[h]:
+                        continue
+                    if caps[h, 7] != 0.0:
+                        if _seg_band_hit(
+                            cx, cy, cz, -dx, -dy, -dz, caps[h, 0], caps[h, 1], caps[h, 2], caps[h, 3], caps[h, 4], caps[h, 5], caps[h, 6]
+                        ):
+                            hidden = True
+                            break
                         continue
                     d2 = _seg_seg_dist2(
                         cx, cy, cz, qx, qy, qz, caps[h, 0], caps[h, 1], caps[h, 2], caps[h, 3], caps[h, 4], caps[h, 5]
@@ -305,8 +345,8 @@ def compute_table(
     centre_m : float, optional
         Height of the ball's centre above the site along the normal, m (default ``radius_m``: a
         ball resting on the surface; a marker on a base sits higher).
-    occluders : (k, 7) float, optional
-        Capsules that move with the prop (the hand, :func:`starforge.props.hand.capsule_arrays`),
+    occluders : (k, 8) float, optional
+        Capsules and bands that move with the prop (the hand, :func:`starforge.props.hand.capsule_arrays`),
         all of them at every pose unless grouped by grip.
     occluder_starts : (g + 1,) int, optional
         The capsules of grip g are rows ``occluder_starts[g]:occluder_starts[g + 1]``
@@ -335,7 +375,7 @@ def compute_table(
     # cameras in the prop frame: q = R^T (cam - t) + pivot; camera axes: rows of basis @ R
     q = np.einsum("kji,kcj->kci", R, cam_pos[None] - T[:, None]) + pivot
     axes = np.einsum("cij,kjl->kcil", basis, R)
-    caps = np.zeros((0, 7)) if occluders is None else np.asarray(occluders, float).reshape(-1, 7)
+    caps = np.zeros((0, CAPSULE_COLUMNS)) if occluders is None else np.asarray(occluders, float).reshape(-1, CAPSULE_COLUMNS)
     starts = np.array([0, len(caps)], np.int64) if occluder_starts is None else np.asarray(occluder_starts, np.int64)
     grip = np.zeros(len(R), np.int64) if pose_grip is None else np.ascontiguousarray(pose_grip, dtype=np.int64)
     if len(grip) != len(R) or (len(grip) and (grip.min() < 0 or grip.max() >= len(starts) - 1)):

@@ -35,9 +35,9 @@ class PlotData:
     edge_mm: np.ndarray = field(default=None, repr=False)
     bounds: np.ndarray = field(default=None, repr=False)  # (2, 3) m
     seat_text: str = ""
-    hand: np.ndarray = field(default=None, repr=False)  # (k, 7) the grips' fists
+    hand: np.ndarray = field(default=None, repr=False)  # (k, 8) the grips' fists (capsule_arrays)
     visibility_label: str = "visibility"
-    wrists: np.ndarray = field(default=None, repr=False)  # (k, 7) the grips' wrists
+    wrists: np.ndarray = field(default=None, repr=False)  # (k, 8) the grips' wrists
     hidden: dict = field(default_factory=dict)  # view name -> (m,) bool: the prop hides the marker there
     features: tuple = ()  # (name, (3,) point m) landmarks the guide names
     caliper: tuple = ()  # (a, b, centre_mm, outside_mm, tolerance_mm) per marker pair
@@ -180,18 +180,36 @@ def shaded(ax, tris, fn, B, light=None):
 
 
 def hand_outline(ax, hand, B, ls="--", lw=0.9, alpha=1.0):
-    """The hand's capsules as outlines (their silhouette: a stadium per capsule)."""
-    for c in np.asarray(hand).reshape(-1, 7):
-        a, b, r = c[:3] @ B.T, c[3:6] @ B.T, c[6]
-        d = b[:2] - a[:2]
-        L = float(np.hypot(*d))
-        ang = np.arctan2(d[1], d[0]) if L > 1e-12 else 0.0
-        t = np.linspace(-np.pi / 2, np.pi / 2, 24)
-        u = np.array([np.cos(ang), np.sin(ang)])
-        v = np.array([-u[1], u[0]])
-        cap1 = b[:2] + r * (np.cos(t)[:, None] * u + np.sin(t)[:, None] * v)
-        cap0 = a[:2] + r * (-np.cos(t)[:, None] * u - np.sin(t)[:, None] * v)
-        ring = np.vstack([cap1, cap0, cap1[:1]])
+    """The hand's capsules and bands (rows of :func:`starforge.props.hand.capsule_arrays`) as
+    outlines: a capsule's silhouette is a stadium, a band's the convex hull of its two end circles."""
+    from scipy.spatial import ConvexHull
+
+    from starforge.props.hand import CAPSULE_COLUMNS
+
+    for c in np.asarray(hand).reshape(-1, CAPSULE_COLUMNS):
+        r = c[6]
+        if c[7]:
+            u = c[3:6] - c[:3]
+            u = u / max(float(np.linalg.norm(u)), 1e-12)
+            e1 = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(u, e1)
+            t = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+            circle = r * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
+            pts = (np.vstack([c[:3] + circle, c[3:6] + circle]) @ B.T)[:, :2]
+            ring = pts[ConvexHull(pts).vertices]
+            ring = np.vstack([ring, ring[:1]])
+        else:
+            a, b = c[:3] @ B.T, c[3:6] @ B.T
+            d = b[:2] - a[:2]
+            L = float(np.hypot(*d))
+            ang = np.arctan2(d[1], d[0]) if L > 1e-12 else 0.0
+            t = np.linspace(-np.pi / 2, np.pi / 2, 24)
+            u = np.array([np.cos(ang), np.sin(ang)])
+            v = np.array([-u[1], u[0]])
+            cap1 = b[:2] + r * (np.cos(t)[:, None] * u + np.sin(t)[:, None] * v)
+            cap0 = a[:2] + r * (-np.cos(t)[:, None] * u - np.sin(t)[:, None] * v)
+            ring = np.vstack([cap1, cap0, cap1[:1]])
         ax.plot(ring[:, 0], ring[:, 1], color="C1", ls=ls, lw=lw, alpha=alpha, zorder=2)
 
 
