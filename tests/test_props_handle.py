@@ -71,7 +71,7 @@ def test_a_mug_gets_grips_on_its_handle_whatever_its_orientation(tilt):
     mug, handle = _mug(tilt)
     part, grips = grip_distribution(mug)
     assert part.handle is not None
-    on = [g for g in grips if "on the handle" in g.label]
+    on = [g for g in grips if g.on_handle]
     assert len(on) == 6 and {g.hand for g in on} == {"right", "left"}
     total = sum(g.weight for g in grips)
     assert sum(g.weight for g in on) / total == pytest.approx(HANDLE_SHARE)
@@ -102,7 +102,7 @@ def test_the_mugs_body_is_held_without_its_handle():
     part, grips = grip_distribution(mug)
     # the cup (and the stubs where the handle meets it), not the cup and the handle (over 90 mm across)
     assert part.found and part.radius_m == pytest.approx(0.042, abs=4e-3)
-    body = [g for g in grips if "on the handle" not in g.label]
+    body = [g for g in grips if not g.on_handle]
     assert body and all(abs(np.asarray(g.capsules[0].a)[:2]).max() < 3e-3 for g in body)  # round the cup's axis
     text = "\n".join(grip_lines(part, grips))
     assert "on the handle" in text and f"{100 * HANDLE_SHARE:.0f} % of the poses" in text
@@ -151,7 +151,7 @@ def test_sites_under_the_handle_are_weighed_by_how_often_it_is_held():
     mug, handle = _mug()
     part, grips = grip_distribution(mug)
     bar = np.asarray(part.handle.centres)  # inside the handle's bar
-    on = [g for g in grips if "on the handle" in g.label]
+    on = [g for g in grips if g.on_handle]
     fisted = inside_capsules(bar, [on[0].capsules[0]])
     assert fisted.any()  # the fist closes round the bar, and every handle grip's fist covers it there
     assert all(inside_capsules(bar[fisted], g.capsules[:1]).all() for g in on)

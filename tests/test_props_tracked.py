@@ -10,6 +10,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from starforge.props.layout_search import local_search, random_layouts
 from starforge.props.spacing import spacing_m
@@ -629,3 +631,18 @@ def test_markers_are_added_while_the_held_out_ranking_falls_short():
     # the first layout of the grown run is the pinned run's: its held-out figure is the note's
     assert f"{100 * pinned.shortfall['validation_tracked']:.1f}" == f"{before:.1f}"
     assert f"{100 * grown.shortfall['validation_tracked']:.1f}" == f"{after:.1f}"
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(poses=st.integers(1, 20_000), share=st.floats(0.0, 1.0))
+def test_a_layout_grows_until_the_held_out_sample_vouches_for_the_target(poses, share):
+    """The bound the growth rule asks of the held-out fraction is the lower end of the two-sided
+    90 % Wilson score interval (scipy's, an independent implementation), below the fraction."""
+    from scipy.stats import binomtest
+
+    from starforge.props.placement import confirmed_tracked
+
+    k = int(round(share * poses))
+    low = binomtest(k, poses).proportion_ci(confidence_level=0.90, method="wilson").low
+    assert confirmed_tracked(k / poses, poses) == pytest.approx(low, abs=2e-5)
+    assert confirmed_tracked(k / poses, poses) <= k / poses + 1e-12

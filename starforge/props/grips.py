@@ -123,6 +123,8 @@ class Grip:
     weight : float
         How often the prop is held so, relative to the other grips (the poses are shared out in
         proportion, :func:`assign_grips`).
+    on_handle : bool
+        The fist closes round a handle's bar (:func:`handle_grips`).
     """
 
     label: str
@@ -131,6 +133,7 @@ class Grip:
     wrap_deg: float
     capsules: tuple[Capsule, ...]
     weight: float = 1.0
+    on_handle: bool = False
 
     def to_json(self) -> dict:
         return {
@@ -140,6 +143,7 @@ class Grip:
             "wrap_deg": round(float(self.wrap_deg), 3),
             "capsules": [c.to_json() for c in self.capsules],
             **({"weight": round(float(self.weight), 6)} if self.weight != 1.0 else {}),
+            **({"on_handle": True} if self.on_handle else {}),
         }
 
 
@@ -377,7 +381,7 @@ def handle_grips(handle: Handle) -> list[Grip]:
         for wrap in HANDLE_WRAPS:
             caps = hand_model(handle.a, handle.b, handle.radius_m, wrap, hand, toward=handle.outward)
             label = f"{hand} hand on the handle, fingers through it, wrist at {wrap:g} deg"
-            grips.append(Grip(label, hand, 0.5, float(wrap), caps))
+            grips.append(Grip(label, hand, 0.5, float(wrap), caps, on_handle=True))
     return grips
 
 
@@ -472,7 +476,7 @@ def grips_summary(part: HeldPart, grips) -> str:
     hands = sorted({g.hand for g in grips if g.hand})
     h = part.handle
     if h is not None:
-        on = sum(g.weight for g in grips if "on the handle" in g.label) / sum(g.weight for g in grips)
+        on = sum(g.weight for g in grips if g.on_handle) / sum(g.weight for g in grips)
         where = (
             f"on a handle ({2000 * h.radius_m:.0f} mm thick, its opening {1000 * h.opening_m[0]:.0f} x "
             f"{1000 * h.opening_m[1]:.0f} mm) in {100 * on:.0f} % of the poses, and {where} in the others"
