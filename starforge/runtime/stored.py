@@ -1,6 +1,6 @@
 """Values kept in starforge's cache folder (:func:`starforge.runtime.cache.cache_dir`) by the
 content of everything they are computed from: a later run with the same inputs, the same
-starforge source and the same libraries reads the value back instead of computing it again.
+starforge code and the same libraries reads the value back instead of computing it again.
 
 Only for pure functions of their inputs whose value pickles; what is read back equals what the
 function returns, so every output computed from it is the same, byte for byte."""
@@ -20,6 +20,7 @@ import numpy as np
 
 from starforge.io import atomic_write_bytes
 from starforge.runtime.cache import cache_dir
+from starforge.runtime.kernels import digest
 
 T = TypeVar("T")
 
@@ -61,33 +62,17 @@ def _feed(h, obj) -> None:
         raise TypeError(f"no content key for a {type(obj).__name__}")
 
 
-_source: list[str] = []
-
-
-def source_digest() -> str:
-    """A digest of every ``.py`` file of the starforge package in use (path and bytes; its
-    ``__init__.py`` holds the version): a stored value is not read back by code that computes it
-    differently, whatever the version says."""
-    if not _source:
-        h = hashlib.blake2b(digest_size=16)
-        root = Path(__file__).resolve().parents[1]
-        for f in sorted(root.rglob("*.py")):
-            h.update(f"{f.relative_to(root).as_posix()};".encode())
-            h.update(f.read_bytes())
-        _source.append(h.hexdigest())
-    return _source[0]
-
-
 def content_key(*parts, libraries: tuple[str, ...] = ()) -> str:
     """The hex key of ``parts`` (numbers, strings, arrays, and tuples, lists, dicts and
-    dataclasses of them), starforge's source and version (:func:`source_digest`), Python's
-    version and the ``__version__`` of each module named in ``libraries``.
+    dataclasses of them), starforge's code (:func:`starforge.runtime.kernels.digest`: every
+    ``.py`` file, the version among them, so that code that computes a value differently never
+    reads it back), Python's version and the ``__version__`` of each module named in ``libraries``.
 
     >>> content_key(1, "a") == content_key(1, "a") != content_key(1, "b")
     True
     """
     h = hashlib.blake2b(digest_size=20)
-    env = [source_digest(), sys.version]
+    env = [digest(), sys.version]
     env += [f"{name}={getattr(importlib.import_module(name), '__version__', '?')}" for name in libraries]
     _feed(h, (tuple(env), parts))
     return h.hexdigest()
