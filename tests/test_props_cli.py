@@ -339,6 +339,39 @@ def test_guide_pdf_in_standard_fonts_unless_a_text_needs_more(tmp_path):
     assert b"/Helvetica" not in pdf and b"DejaVu" in pdf
 
 
+_SPLIT = """
+import sys
+from pathlib import Path
+
+import starforge.render.guide as guide
+from starforge.props.placement import run_placement
+from starforge.render.prop_views import plot_data
+
+forks = []
+fork = guide.fork_helper
+guide.fork_helper = lambda *a, **k: forks.append(1) or fork(*a, **k)
+data = plot_data(run_placement("box", sites=150, resolution=1, orientations=6))
+one, split = Path(sys.argv[1]) / "one", Path(sys.argv[1]) / "split"
+guide.guide_files(data, one)
+assert not forks
+guide.guide_files(data, split, split=True)
+assert len(forks) == 1, forks
+for name in ("guide.png", "guide.pdf"):
+    assert (one / name).read_bytes() == (split / name).read_bytes(), name
+"""
+
+
+def test_the_guide_split_over_two_processes_is_the_same_bytes(tmp_path):
+    """guide_files(split=True) writes the PDF from a forked copy while it writes the PNG: the same
+    files as one after the other (run in a process of its own, where forking is allowed)."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _SPLIT, str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert sorted(p.name for p in (tmp_path / "split").iterdir()) == ["guide.pdf", "guide.png"]
+
+
 @pytest.mark.slow
 def test_grip_no_hand_and_bases_stl(tmp_path, capsys):
     """--grip places the hand where asked, --no-hand removes it, --bases-stl writes a watertight

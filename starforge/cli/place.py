@@ -213,7 +213,8 @@ def run_cmd(
         resolution=resolution, orientations=orientations, sites=sites, restarts=restarts, marker_mm=marker_mm,
         base_mm=base_mm, hand=False if no_hand else None, grip=grip, placement_error_mm=placement_error,
         cameras_lost=cameras_lost, avoid=avoid or (), forbid_mesh=forbid_mesh, mask=mask, mesh_format=mesh_format,
-        preset=preset, noise_mm=noise, on_layout=lambda _: console(),  # rich imported while the pictures are drawn
+        preset=preset, noise_mm=noise,
+        on_layout=None if quiet else lambda _: console(),  # rich imported while the pictures are drawn, if it talks
     )  # fmt: skip
     if quiet:  # the warnings are in placement.json
         return

@@ -380,10 +380,12 @@ def write_outputs(res: PlacementResult, folder: Path, render: bool = True, rende
             bases_mesh(res.prop.mesh, res.marker_points, res.marker_normals, base).export(file_type="stl"),
         )
         names.append("prop_bases.stl")
+    # the document is made while the pictures are drawn; only its write time waits for them
+    res.timings["write_s"] = 0.0
+    doc = placement_json(res)
     if render:
         names += renderer.wait()
-    res.timings["write_s"] = round(time.perf_counter() - t, 4)
-    doc = placement_json(res)
+    res.timings["write_s"] = doc["timings"]["write_s"] = round(time.perf_counter() - t, 4)
     atomic_write_json(folder / "placement.json", doc)
     names.insert(0, "placement.json")
     return names

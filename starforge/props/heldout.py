@@ -17,6 +17,7 @@ from starforge.props.rig import Poses
 from starforge.props.scenarios import alive_masks
 from starforge.props.tracked import Problem
 from starforge.props.visibility import compute_table
+from starforge.runtime.stored import content_key, stored
 
 #: the held-out sample's generator is seeded with seed + this (the evaluation's differs again)
 VALIDATION_SEED_OFFSET = 2_000_029
@@ -31,7 +32,9 @@ class HeldOut:
     for the sites (and poses) asked.  A site's row of camera masks depends on that site alone,
     so the rows over every pose are kept (with and without the hand) and a later call computes
     only the sites it has not met: the ranking scores the polished layouts on the rows of the
-    candidates they share sites with, and the tuning polish reuses its start's rows."""
+    candidates they share sites with, and the tuning polish reuses its start's rows.  A table is a
+    pure function of the prepared inputs (kept under their key, :func:`starforge.props.prepare.prepare`),
+    the sample and the sites and poses asked: kept in the cache folder under those too."""
 
     def __init__(self, prop, spec, seed: int, prep, offset: int):
 
@@ -43,9 +46,15 @@ class HeldOut:
         self.grip = assign_grips(len(self.poses), prep.grips, np.random.default_rng(seed + offset + GRIP_SEED_OFFSET))
         self.prop, self.spec, self.prep = prop, spec, prep
         self._rows: dict = {}  # (site, hand) -> (poses,) uint64 masks over every pose
+        self._key = content_key("held-out", prep.key, spec, seed, offset) if prep.key else ""
 
     def _table(self, sites, k, hand: bool) -> np.ndarray:
+        if not self._key:
+            return self._computed(sites, k, hand)
+        key = content_key(self._key, [int(s) for s in sites], np.asarray(k, dtype=np.int64), bool(hand))
+        return stored("held-out", key, lambda: self._computed(sites, k, hand))[0]
 
+    def _computed(self, sites, k, hand: bool) -> np.ndarray:
         prep, spec = self.prep, self.spec
         sub = Poses(self.poses.rotations[k], self.poses.translations[k], self.poses.pivot)
         occ, starts = grip_arrays(prep.grips if hand else ())

@@ -5,7 +5,7 @@ before that work (a prop in other units, sites no layout can track, a table past
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +34,7 @@ from starforge.props.spec import PlaceSpec
 from starforge.props.tracked import TRIANGLE_SPREAD
 from starforge.props.visibility import VisibilityTable, compute_table
 from starforge.runtime.budget import require_memory, require_time
+from starforge.runtime.stored import content_key, stored
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,7 @@ class Prepared:
     pose_grip: np.ndarray = field(default=None, repr=False)  # (poses,) the grip of each pose
     part: HeldPart | None = None
     notes: tuple[str, ...] = ()  # warnings about the preparation
+    key: str = ""  # the content key it is kept under (:func:`prepare`); "" when it is not kept
 
 
 def hand_grips(prop, spec: PlaceSpec, grip=None) -> tuple:
@@ -72,11 +74,44 @@ def hand_grips(prop, spec: PlaceSpec, grip=None) -> tuple:
 
 
 def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timings=None, grip=None, seed: int = 0) -> Prepared:
-    """Sites that seat the marker (constrained areas and the hand removed), rig, poses, table."""
+    """Sites that seat the marker (constrained areas and the hand removed), rig, poses, table.
+
+    A pure function of the mesh, the spec, the grip, the seed and the generator's state (which it
+    advances): kept in the cache folder (:func:`starforge.runtime.stored.stored`) with the
+    generator's state after it, and read back by a later run with the same inputs, unless the
+    spec's constrained areas name files (whose content the key does not hold)."""
     timings = {} if timings is None else timings
     t = time.perf_counter()
-    notes: list[str] = []
     rig = load_rig(spec.rig)
+    if spec.constraints.mesh or spec.constraints.mask:
+        return _prepare(prop, spec, rig, rng, progress, timings, grip, seed)
+    mesh = prop.mesh
+    key = content_key(
+        "prepared", mesh.vertices, mesh.faces, mesh.face_normals, prop.name, prop.source, spec, spec.marker_seat(), rig,
+        grip, seed,
+        rng.bit_generator.state, libraries=("numpy", "trimesh", "embreex", "numba"),
+    )  # fmt: skip
+
+    def work():
+        prep = _prepare(prop, spec, rig, rng, progress, timings, grip, seed)
+        return replace(prep, key=key), rng.bit_generator.state
+
+    (prep, state), kept = stored("prepared", key, work)
+    if kept:
+        check_cost(prop, spec, rig, len(prep.sites), spec.resolution**3 * spec.orientations)
+        rng.bit_generator.state = state
+        if progress is not None:
+            progress(0, None)
+            progress(1, 1)
+        t = tick(timings, "sample_s", t)
+        tick(timings, "visibility_s", t)
+    return prep
+
+
+def _prepare(prop, spec, rig, rng, progress, timings, grip, seed) -> Prepared:
+    """:func:`prepare`'s work."""
+    t = time.perf_counter()
+    notes: list[str] = []
     sites = sample_sites(prop.mesh, spec.sites, rng)
     if spec.constraints.empty:
         bad = np.zeros(len(sites), dtype=bool)

@@ -16,6 +16,7 @@ disjoint (a landmark label that still collides is left out: the table names it).
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ import numpy as np
 from starforge.props.guide import template_scale
 from starforge.render._mpl import pyplot, save_png
 from starforge.render.prop_views import VIEWS, frame, hand_outlines, markers_in_view, plot_data, shaded
+from starforge.runtime.procs import can_fork, fork_helper, release
 
 #: the guide's four views (names in :data:`starforge.render.prop_views.VIEWS`)
 GUIDE_VIEWS = ("front (from -y)", "side (from +x)", "top (from +z)", "back (from +y)")
@@ -256,25 +258,47 @@ def _template_page(d, plt):
     return fig
 
 
-def guide_files(res, folder: str | Path) -> list[str]:
-    """Write ``guide.pdf`` (every page) and ``guide.png`` (page 1) into ``folder``."""
+def guide_files(res, folder: str | Path, split: bool = False) -> list[str]:
+    """Write ``guide.pdf`` (every page) and ``guide.png`` (page 1) into ``folder``.
+
+    ``split``: for a process of its own that draws only the guide (a render process): once the
+    pages are laid out, a forked copy of it writes the PDF while it writes the PNG, on another
+    core (the same bytes as one after the other; one after the other where it cannot fork)."""
+    plt = pyplot()
+    pages = guide_pages(res)
+    pid = fork_helper() if split and can_fork() else None
+    if pid == 0:  # the PDF's process: never returns
+        code = 1
+        try:
+            _write_pdf(pages, folder)
+            code = 0
+        finally:
+            os._exit(code)
+    save_png(pages[0], Path(folder) / "guide.png", dpi=_DPI)
+    if pid is None:
+        _write_pdf(pages, folder)
+    else:
+        status = os.waitpid(pid, 0)[1]
+        release(pid)
+        if status != 0:
+            raise RuntimeError("writing guide.pdf failed in its process")
+    for fig in pages:
+        plt.close(fig)
+    return ["guide.png", "guide.pdf"]
+
+
+def _write_pdf(pages, folder: str | Path) -> None:
     import io
 
     from matplotlib.backends.backend_pdf import PdfPages
 
     from starforge.io import atomic_write_bytes
 
-    plt = pyplot()
-    pages = guide_pages(res)
-    save_png(pages[0], Path(folder) / "guide.png", dpi=_DPI)
     buf = io.BytesIO()
     with _pdf_fonts(pages), PdfPages(buf, metadata={"Creator": None, "Producer": None, "CreationDate": None}) as pdf:
         for fig in pages:
             pdf.savefig(fig)
     atomic_write_bytes(Path(folder) / "guide.pdf", buf.getvalue())
-    for fig in pages:
-        plt.close(fig)
-    return ["guide.png", "guide.pdf"]
 
 
 def load_fonts() -> None:

@@ -115,12 +115,14 @@ NAMES = {"pictures": ["convergence.png", "layout.png"], "guide": ["guide.png", "
 _NICE = {"pictures": 10, "guide": 0}
 
 
-def _draw(role: str, data: PlotData, folder: Path) -> None:
+def _draw(role: str, data: PlotData, folder: Path, render_process: bool = False) -> None:
+    """Draw ``role``'s pictures; ``render_process``: in a render process of their own (the guide
+    then writes its PDF and PNG at once, :func:`starforge.render.guide.guide_files`)."""
     if role == "pictures":
         convergence_png(data, folder / "convergence.png")
         layout_png(data, folder / "layout.png")
     else:
-        guide_files(data, folder)
+        guide_files(data, folder, split=render_process)
 
 
 class BackgroundRenderer:
@@ -250,7 +252,7 @@ def _serve(read_fd: int, role: str, warm: bool = True) -> int:
             data, folder = pickle.loads(job.read_bytes())
             if _NICE[role]:
                 os.nice(_NICE[role])
-            _draw(role, data, Path(folder))
+            _draw(role, data, Path(folder), render_process=True)
         return 0
     except BaseException:  # reported by the parent through the exit status
         return 1

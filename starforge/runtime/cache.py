@@ -1,4 +1,5 @@
-"""starforge's cache folder, and numba's cache inside it."""
+"""starforge's cache folder, and numba's cache inside it (values kept there by content:
+:mod:`starforge.runtime.stored`)."""
 
 from __future__ import annotations
 
