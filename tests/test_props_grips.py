@@ -205,6 +205,9 @@ def test_grips_are_assigned_evenly_and_reproducibly():
     assert np.ptp(np.bincount(a, minlength=7)) <= 1
     assert not (a == np.arange(100) % 7).all()  # shuffled
     assert (assign_grips(10, 0, np.random.default_rng(0)) == 0).all()
+    # fewer poses than twice the grips: which grips hold two is drawn, so over seeds every grip does
+    twice = np.array([np.bincount(assign_grips(10, 7, np.random.default_rng(s)), minlength=7) == 2 for s in range(200)])
+    assert twice.sum(axis=1).tolist() == [3] * 200 and twice.any(axis=0).all()
 
 
 def test_a_pinned_grip_by_number_or_by_segment():

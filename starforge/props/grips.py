@@ -88,8 +88,9 @@ POSITIONS = 13
 #: hand held uniformly along the reach would cover it in (at half a palm apart, a spot between two
 #: positions counts as covered by neither)
 STEP = 0.25
-#: angles around the part where the back of the hand and the wrist sit, degrees
-WRAPS = (0.0, 120.0, 240.0)
+#: angles around the part where the back of the hand and the wrist sit, degrees: close enough
+#: that no gap between two forearms is left for a layout to hide markers in
+WRAPS = (0.0, 60.0, 120.0, 180.0, 240.0, 300.0)
 #: the wrist and forearm: radius and length, m (a wrist is 50-65 mm across)
 WRIST_M = 0.03
 FOREARM_M = 0.25
@@ -424,7 +425,8 @@ def pinned_grip(text: str, grips: tuple[Grip, ...]) -> Grip:
 
 def assign_grips(poses: int, grips, rng: np.random.Generator) -> np.ndarray:
     """(poses,) int: the grip each pose is held in, in a random order from ``rng``.  ``grips``:
-    their number (each the same number of poses, to one) or the grips themselves (poses in
+    their number (each the same number of poses, to one, the grips with one more drawn at
+    random) or the grips themselves (poses in
     proportion to their weights, the remainders to the largest fractions)."""
     if not isinstance(grips, int):
         w = np.array([g.weight for g in grips], float)
@@ -436,7 +438,10 @@ def assign_grips(poses: int, grips, rng: np.random.Generator) -> np.ndarray:
         grips = len(w)
     if grips <= 1:
         return np.zeros(poses, np.int64)
-    return rng.permutation(np.arange(poses, dtype=np.int64) % grips)
+    base, extra = divmod(poses, grips)
+    counts = np.full(grips, base, np.int64)
+    counts[rng.permutation(grips)[:extra]] += 1  # which grips get the spare poses: drawn, not the first ones
+    return rng.permutation(np.repeat(np.arange(grips, dtype=np.int64), counts))
 
 
 def grip_arrays(grips) -> tuple[np.ndarray, np.ndarray]:
