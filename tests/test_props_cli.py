@@ -386,7 +386,7 @@ def test_grip_no_hand_and_bases_stl(tmp_path, capsys):
     doc = json.loads((out / "placement.json").read_text())
     (hand,) = doc["hand"]
     assert hand["radius"] == pytest.approx(0.035) and hand["a"][2] == pytest.approx(0.25)
-    assert max(abs(hand["a"][0]), abs(hand["b"][0])) < 0.1  # the core is shortened by the reach
+    assert hand["flat"] and sorted([hand["a"][0], hand["b"][0]]) == pytest.approx([-0.1, 0.1])  # a band over the segment
     stl = trimesh.load(out / "prop_bases.stl")
     assert stl.is_watertight and stl.volume > 0.4 * 0.3 * 0.25
     assert (out / "guide.pdf").read_bytes()[:5] == b"%PDF-"

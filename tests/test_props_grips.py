@@ -247,9 +247,8 @@ def test_the_seat_margin_is_rewarded_by_the_tracked_cost():
 @pytest.mark.slow
 def test_a_prop_held_anywhere_keeps_markers_off_where_most_grips_hold_it(tmp_path):
     """A plain 40 mm rod: the grips cover it all together, so only the sites more than half of
-    the grips' fists cover are left out (recomputed here from the capsules, brute force); the
+    the grips' fists cover are left out (recomputed here from the bands, brute force); the
     markers lie where some grips hold it, and there they are lost in those grips' poses."""
-    from starforge.geometry.distance import point_segment_distance
     from starforge.props.placement import run_placement
 
     rod = trimesh.creation.cylinder(radius=0.02, height=0.25, sections=48)
@@ -260,18 +259,27 @@ def test_a_prop_held_anywhere_keeps_markers_off_where_most_grips_hold_it(tmp_pat
     covered = np.zeros((len(pts), len(res.grips)), bool)
     for j, g in enumerate(res.grips):
         f = g.capsules[0]
-        covered[:, j] = (point_segment_distance(pts, f.a, f.b) <= f.radius) | (
-            point_segment_distance(centres, f.a, f.b) <= f.radius
-        )
+        covered[:, j] = enclosed_by(pts, f.a, f.b, f.radius, f.flat) | enclosed_by(centres, f.a, f.b, f.radius, f.flat)
     assert (covered.mean(axis=1) <= 0.5).all()
     assert covered.any()  # some under a fist of some grip
+
+
+def enclosed_by(points, a, b, radius, flat) -> np.ndarray:
+    """Brute force, for the tests: each point within ``radius`` of the segment ``a``-``b`` (a
+    capsule) or, when ``flat``, of its line with the point's foot between ``a`` and ``b`` (a band)."""
+    p = np.atleast_2d(np.asarray(points, float))
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    ab = b - a
+    s = (p - a) @ ab / (ab @ ab)
+    foot = a + (s if flat else np.clip(s, 0, 1))[:, None] * ab
+    near = np.linalg.norm(p - foot, axis=1) <= radius
+    return near & (s >= 0) & (s <= 1) if flat else near
 
 
 def test_a_marker_in_a_fist_is_lost_whenever_that_grip_holds_the_prop():
     """Ball centres inside a grip's fist or forearm (distances to their segments, brute force) are
     seen by no camera at any pose held in that grip, in the optimizer's table and in the
     independent evaluation alike; held in another grip, some of them are seen."""
-    from starforge.geometry.distance import point_segment_distance
     from starforge.props.evaluate import camera_hits, random_poses
     from starforge.props.rig import load_rig
     from starforge.props.sites import sample_sites
@@ -289,15 +297,8 @@ def test_a_marker_in_a_fist_is_lost_whenever_that_grip_holds_the_prop():
     masks = compute_table(mesh, sites.points, sites.normals, rig, poses, 180.0, radius_m=0.005,
                           occluders=occ, occluder_starts=starts, pose_grip=pose_grip).masks  # fmt: skip
     hits = camera_hits(mesh, centres, sites.normals, rig, poses, [g.capsules for g in grips], 180.0, pose_grip)
-    def enclosed(p, c):  # brute force: a capsule's distance to its segment; a band's to its axis, between its ends
-        a, b = np.asarray(c.a), np.asarray(c.b)
-        if not c.flat:
-            return point_segment_distance(p[None], a, b)[0] <= c.radius
-        u = (b - a) / np.linalg.norm(b - a)
-        t = (p - a) @ u
-        return 0 <= t <= np.linalg.norm(b - a) and np.linalg.norm(p - a - t * u) <= c.radius
-
-    inside = np.array([[any(enclosed(centres[i], c) for c in g.capsules) for g in grips] for i in range(len(centres))])
+    inside = np.array([[any(enclosed_by(centres[i], c.a, c.b, c.radius, c.flat)[0] for c in g.capsules) for g in grips]
+                       for i in range(len(centres))])  # fmt: skip
     held = inside[:, pose_grip]  # (sites, poses): the site is inside the pose's hand
     assert held.any() and (~held).any()
     assert (masks[held] == 0).all()

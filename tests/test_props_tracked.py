@@ -205,11 +205,13 @@ def test_orientations_spread_over_the_rotation_group():
 @pytest.mark.slow
 def test_visibility_is_tested_at_the_ball_centre(tmp_path):
     """An independent re-check with trimesh's own ray tracer (not embree) on the hammer, the
-    hand's capsule tested by points every 0.5 mm along each sight line."""
+    hand (a band round the pinned segment) tested by points every 0.5 mm along each sight line."""
     from trimesh.ray.ray_triangle import RayMeshIntersector
 
+    from tests.test_props_grips import enclosed_by
+
     out = tmp_path / "o"
-    grip = ["--grip", "0,0,0.02,0,0,0.11,0.015"]  # one capsule at every pose
+    grip = ["--grip", "0,0,0.02,0,0,0.11,0.015"]  # one fist at every pose
     assert run_cli(["place", "hammer", *FAST, *grip, "--out", out, "-q"]) == 0
     doc = json.loads((out / "placement.json").read_text())
     from starforge.props.builtin import builtin_mesh
@@ -225,7 +227,7 @@ def test_visibility_is_tested_at_the_ball_centre(tmp_path):
     assert np.allclose(centres, pos + doc["seat"]["centre_height_mm"] / 1000 * nrm, atol=1e-8)
     hand = doc["hand"]
     assert len(hand) == 1
-    a, b, r = np.array(hand[0]["a"]), np.array(hand[0]["b"]), hand[0]["radius"]
+    a, b, r, flat = np.array(hand[0]["a"]), np.array(hand[0]["b"]), hand[0]["radius"], hand[0].get("flat", False)
     poses = np.array(doc["poses"]["matrices"])
     cams = np.array([c.position for c in rig.cameras])
     inter = RayMeshIntersector(mesh)
@@ -247,8 +249,7 @@ def test_visibility_is_tested_at_the_ball_centre(tmp_path):
                     blocked[rr] = True
             for j in range(len(cams)):
                 q = c + t * d[j]  # along the sight line, 2 m / 4000 = 0.5 mm apart
-                s = np.clip((q - a) @ (b - a) / ((b - a) @ (b - a)), 0, 1)
-                if (np.linalg.norm(q - (a + s[:, None] * (b - a)), axis=1) <= r).any():
+                if enclosed_by(q, a, b, r, flat).any():
                     blocked[j] = True
             ok[i] = fov[i] & ~blocked
         seen[:, k] = ok.sum(axis=1) >= 2
