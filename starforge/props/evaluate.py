@@ -56,8 +56,6 @@ def camera_hits(mesh, centres, normals, rig, poses, capsules=(), grazing_limit_d
     dist = np.linalg.norm(d, axis=-1)
     ok &= -np.einsum("kmcj,kmj->kmc", d, wn) >= math.cos(math.radians(grazing_limit_deg)) * dist
     if len(capsules):
-        from starforge.geometry.distance import ray_enters_band, ray_segment_distance
-
         # in the prop frame, where the hand is fixed: rays from the ball centres to the cameras
         # (the hand is within the prop's reach, the cameras metres away: a ray is the segment)
         qk = np.einsum("kji,kcj->kci", R, cam[None] - T[:, None]) + piv  # (P, C, 3)
@@ -71,11 +69,7 @@ def camera_hits(mesh, centres, normals, rig, poses, capsules=(), grazing_limit_d
             org = np.broadcast_to(centres[None, :, None, :], r.shape).reshape(-1, 3)
             dirs = (r / np.linalg.norm(r, axis=-1, keepdims=True)).reshape(-1, 3)
             for cap in caps:
-                if cap.flat:
-                    free = ~ray_enters_band(org, dirs, cap.a, cap.b, cap.radius)
-                else:
-                    free = ray_segment_distance(org, dirs, np.asarray(cap.a), np.asarray(cap.b)) > cap.radius
-                ok[rows] &= free.reshape(r.shape[:3])
+                ok[rows] &= ~cap.meets(org, dirs).reshape(r.shape[:3])
     kk, mm, cc = np.nonzero(ok)
     if len(kk):
         # the sight line in the prop frame: camera -> prop frame is R^T (x - t) + pivot

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.geometry.distance import in_band, point_segment_distance
+from starforge.geometry.distance import in_band, point_segment_distance, ray_enters_band, ray_segment_distance
 
 #: a palm's width along the grip, m (an adult hand is 75-95 mm across the knuckles)
 PALM_M = 0.09
@@ -64,6 +64,12 @@ class Capsule:
         if self.flat:
             return in_band(pts, self.a, self.b, self.radius)
         return point_segment_distance(pts, self.a, self.b) <= self.radius
+
+    def meets(self, origins, dirs) -> np.ndarray:
+        """(n,) bool: each ray ``origins[i] + t dirs[i]`` (t >= 0, unit ``dirs``) has a point inside."""
+        if self.flat:
+            return ray_enters_band(origins, dirs, self.a, self.b, self.radius)
+        return ray_segment_distance(origins, dirs, np.asarray(self.a), np.asarray(self.b)) <= self.radius
 
 
 def fist(a, b, part_radius: float, fingers_m: float = FINGERS_M) -> Capsule:
