@@ -28,7 +28,7 @@ angle, turned :data:`THUMB_DEG` towards the thumb's side (a left hand is the mir
 right one, so the turn changes sign).  Every pose of the optimizer's sample is held in one grip
 of the distribution, the same number of poses per grip in a random order drawn from the run's
 seed (:func:`assign_grips`): the tracked fraction then is the expectation over the grips, and a
-marker inside a grip's fist is lost in that grip's poses (no sight line leaves a capsule).  A
+marker inside a grip's fist is lost in that grip's poses (no sight line leaves the hand).  A
 site is *under the hand*, and no marker goes there, when the fists (or the fingertips) of more
 than :data:`HELD_SHARE` of the grips cover it (of the one grip, when only one is assumed): where
 people hold the prop most, a marker is knocked off or hidden.  A site fewer grips cover stays a
