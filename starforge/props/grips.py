@@ -3,8 +3,8 @@
 The graspable part is found from the prop's shape: along each of its principal axes (the
 eigenvectors of the covariance of its vertices, longest spread first) and each axis of its own
 frame (a handle set square to a tilted body, as on a drill) the mesh is cut every
-:data:`SLICE_M`; a section is *graspable* when a hand closes around it, its wider principal
-width within :data:`GRASP_WIDTH_M` (20-55 mm, what a fist closes round) and its narrower at least
+:data:`starforge.props.hand.SLICE_M`; a section is *graspable* when a hand closes around it,
+its wider principal width within :data:`GRASP_WIDTH_M` (20-55 mm, what a fist closes round) and its narrower at least
 :data:`GRASP_THICK_M` (a blade or a plate is none).  The longest run of consecutive graspable
 sections, at least :data:`GRASP_RUN_M` long, is the handle or the neck that is held; a prop
 with none is held by its body, the longest run of sections up to :data:`BODY_WIDTH_M` wide
@@ -58,6 +58,7 @@ from starforge.props.hand import (
     CAPSULE_COLUMNS,
     PALM_M,
     PINCH_BELOW_M,
+    SLICE_M,
     Capsule,
     capsule_arrays,
     fist,
@@ -78,8 +79,7 @@ BODY_WIDTH_M = 0.1
 GRASP_THICK_M = 0.012
 #: the held run is at least this long, m
 GRASP_RUN_M = 0.04
-#: sections along an axis are this far apart, m (at most :data:`MAX_SLICES` of them)
-SLICE_M = 0.004
+#: at most this many sections along an axis (:data:`starforge.props.hand.SLICE_M` apart)
 MAX_SLICES = 400
 #: at most this many palm positions along the reach (one when the reach is hardly longer than the palm)
 POSITIONS = 13

@@ -27,6 +27,9 @@ from starforge.geometry.distance import in_band, point_segment_distance, ray_ent
 
 #: a palm's width along the grip, m (an adult hand is 75-95 mm across the knuckles)
 PALM_M = 0.09
+#: the prop is cut into sections this far apart (m) to find where a hand closes round it
+#: (:mod:`starforge.props.grips`) and a handle's opening (:mod:`starforge.props.handle`)
+SLICE_M = 0.004
 #: what the hand adds around the gripped surface, m (fingers, about 20-25 mm thick)
 FINGERS_M = 0.025
 

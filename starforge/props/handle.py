@@ -7,8 +7,8 @@ is found from the mesh's shape, not its name:
   ``2 - 2 genus``) has no tunnel, so no loop (checked first: it costs next to nothing); any
   other mesh is searched;
 * the mesh is cut by planes square to each direction it is sliced in (the caller's; see
-  :func:`starforge.props.grips.held_part`) every :data:`SLICE_M`; an *opening* is a hole of a
-  section (an interior ring of a section's polygon) between :data:`OPENING_M` wide across its
+  :func:`starforge.props.grips.held_part`) every :data:`starforge.props.hand.SLICE_M`; an
+  *opening* is a hole of a section (an interior ring of a section's polygon) between :data:`OPENING_M` wide across its
   narrower and wider sides (at least a finger's width; at most what a hand still closes round)
   through which one sees along the plane's normal both ways (two rays from a point inside it
   leave the mesh without a hit): a blind pocket, like a cup's cavity cut across, is none;
@@ -30,7 +30,7 @@ import numpy as np
 from shapely.geometry import LinearRing, Point, Polygon
 
 from starforge.geometry.distance import point_segment_distance
-from starforge.props.hand import PALM_M
+from starforge.props.hand import PALM_M, SLICE_M
 from starforge.tol import tol
 
 #: an opening's narrower and wider sides, m (a finger is 15-20 mm thick; a hand spans ~120 mm)
@@ -38,8 +38,7 @@ OPENING_M = (0.015, 0.12)
 #: the bar's cross-section: its wider width, m (a mug's handle is 6-30 mm thick; a fist closes
 #: round at most 55 mm)
 BAR_M = (0.005, 0.055)
-#: planes cut the mesh this far apart (m), at most :data:`MAX_PLANES` along a direction
-SLICE_M = 0.004
+#: at most this many planes (:data:`starforge.props.hand.SLICE_M` apart) along a direction
 MAX_PLANES = 40
 #: the rim of the opening is followed in steps this long, m
 RIM_STEP_M = 0.003
