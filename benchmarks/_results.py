@@ -29,10 +29,11 @@ times depend on the machine and its load; CPU seconds depend far less on the loa
 
 
 def machine() -> str:
-    """One line describing this machine and its load: CPU count, architecture, Python, load."""
+    """One line describing this machine: CPU count, architecture, Python, and the load averages
+    when the line is written (the 5- and 15-minute ones cover a run that just ended)."""
     try:
         load = Path("/proc/loadavg").read_text().split()[:3]
-        load_text = f", load {'/'.join(load)} before"
+        load_text = f", load {'/'.join(load)} (1 / 5 / 15 min) when written"
     except OSError:
         load_text = ""
     return (
