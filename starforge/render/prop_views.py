@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from starforge.geometry.outline import sweep_outline
+
 
 @dataclass(frozen=True)
 class PlotData:
@@ -181,11 +183,13 @@ def shaded(ax, tris, fn, B, light=None):
 
 def hand_outline(ax, hand, B, ls="--", lw=0.9, alpha=1.0):
     """The hand's capsules and bands (rows of :func:`starforge.props.hand.capsule_arrays`) as
-    outlines: a capsule's silhouette is a stadium, a band's the convex hull of its two end circles."""
-    from scipy.spatial import ConvexHull
+    outlines, drawn as one collection: a capsule's silhouette is a stadium, a band's the convex
+    hull of its two end circles (:func:`sweep_outline`)."""
+    from matplotlib.collections import LineCollection
 
     from starforge.props.hand import CAPSULE_COLUMNS
 
+    rings = []
     for c in np.asarray(hand).reshape(-1, CAPSULE_COLUMNS):
         r = c[6]
         if c[7]:
@@ -195,10 +199,8 @@ def hand_outline(ax, hand, B, ls="--", lw=0.9, alpha=1.0):
             e1 /= np.linalg.norm(e1)
             e2 = np.cross(u, e1)
             t = np.linspace(0, 2 * np.pi, 48, endpoint=False)
-            circle = r * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
-            pts = (np.vstack([c[:3] + circle, c[3:6] + circle]) @ B.T)[:, :2]
-            ring = pts[ConvexHull(pts).vertices]
-            ring = np.vstack([ring, ring[:1]])
+            circle = ((c[:3] + r * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)) @ B.T)[:, :2]
+            rings.append(sweep_outline(circle, (c[3:6] - c[:3]) @ B[:2].T))
         else:
             a, b = c[:3] @ B.T, c[3:6] @ B.T
             d = b[:2] - a[:2]
@@ -209,8 +211,10 @@ def hand_outline(ax, hand, B, ls="--", lw=0.9, alpha=1.0):
             v = np.array([-u[1], u[0]])
             cap1 = b[:2] + r * (np.cos(t)[:, None] * u + np.sin(t)[:, None] * v)
             cap0 = a[:2] + r * (-np.cos(t)[:, None] * u - np.sin(t)[:, None] * v)
-            ring = np.vstack([cap1, cap0, cap1[:1]])
-        ax.plot(ring[:, 0], ring[:, 1], color="C1", ls=ls, lw=lw, alpha=alpha, zorder=2)
+            rings.append(np.vstack([cap1, cap0, cap1[:1]]))
+    if rings:
+        lines = LineCollection(rings, colors="C1", linestyles=ls, linewidths=lw, alpha=alpha, zorder=2)
+        ax.add_collection(lines, autolim=False)
 
 
 def spread_labels(points: np.ndarray, span: float, rounds: int = 200) -> np.ndarray:
