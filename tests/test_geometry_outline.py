@@ -93,3 +93,15 @@ def test_sweep_outline_is_the_hull_of_the_polygon_and_its_moved_copy(n, squash, 
     x, y = ring[:, 0], ring[:, 1]
     area = float((x[:-1] * y[1:] - x[1:] * y[:-1]).sum() / 2)
     assert area == pytest.approx(ConvexHull(pts).volume, rel=1e-9, abs=1e-12 * size**2)
+
+
+def test_sweep_outline_of_a_stack_is_each_polygons_outline():
+    """A stack of polygons (some clockwise) and sweeps gives, row by row, the single polygons' rings."""
+    rng = np.random.default_rng(3)
+    t = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    polys = np.stack([np.column_stack([np.cos(t), np.sin(t)]) @ rng.normal(size=(2, 2)) for _ in range(6)])
+    d = rng.normal(size=(6, 2))
+    rings = sweep_outline(polys, d)
+    assert rings.shape == (6, 25, 2)
+    for k in range(6):
+        assert np.array_equal(rings[k], sweep_outline(polys[k], d[k]))

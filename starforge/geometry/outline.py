@@ -98,26 +98,27 @@ def sweep_outline(polygon: np.ndarray, d: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    polygon : (n, 2) float
-        The corners of a convex polygon, in either turning direction.
-    d : (2,) float
-        The sweep.
+    polygon : (..., n, 2) float
+        The corners of a convex polygon (or of a stack of them), in either turning direction.
+    d : (..., 2) float
+        The sweep (of each polygon).
 
     Returns
     -------
-    (2 n + 1, 2) float, the first point repeated at the end.
+    (..., 2 n + 1, 2) float, the first point repeated at the end.
 
     >>> sweep_outline(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.array([2.0, 0.0])).tolist()
     [[0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [3.0, 0.0], [2.0, 1.0], [0.0, 1.0], [0.0, 0.0]]
     """
     p = np.asarray(polygon, float)
-    x, y = p[:, 0], p[:, 1]
-    if float((x * np.roll(y, -1) - np.roll(x, -1) * y).sum()) < 0:
-        p = p[::-1]  # counter-clockwise
-    e = np.roll(p, -1, axis=0) - p
-    ahead = (e[:, 1] * d[0] - e[:, 0] * d[1] > 0)[:, None]  # edge i's outward normal along d
-    ring = np.stack([p + np.roll(ahead, 1, axis=0) * d, p + ahead * d], axis=1).reshape(-1, 2)
-    return np.vstack([ring, ring[:1]])
+    d = np.asarray(d, float)[..., None, :]
+    x, y = p[..., 0], p[..., 1]
+    clockwise = (x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y).sum(axis=-1) < 0
+    p = np.where(clockwise[..., None, None], p[..., ::-1, :], p)
+    e = np.roll(p, -1, axis=-2) - p
+    ahead = (e[..., 1:] * d[..., :1] - e[..., :1] * d[..., 1:] > 0)  # edge i's outward normal along d
+    ring = np.stack([p + np.roll(ahead, 1, axis=-2) * d, p + ahead * d], axis=-2).reshape(*p.shape[:-2], -1, 2)
+    return np.concatenate([ring, ring[..., :1, :]], axis=-2)
 
 
 def _cross(a, b) -> float:
