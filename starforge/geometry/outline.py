@@ -117,7 +117,8 @@ def sweep_outline(polygon: np.ndarray, d: np.ndarray) -> np.ndarray:
     p = np.where(clockwise[..., None, None], p[..., ::-1, :], p)
     e = np.roll(p, -1, axis=-2) - p
     ahead = (e[..., 1:] * d[..., :1] - e[..., :1] * d[..., 1:] > 0)  # edge i's outward normal along d
-    ring = np.stack([p + np.roll(ahead, 1, axis=-2) * d, p + ahead * d], axis=-2).reshape(*p.shape[:-2], -1, 2)
+    ring = np.stack([p + np.roll(ahead, 1, axis=-2) * d, p + ahead * d], axis=-2)
+    ring = ring.reshape(*p.shape[:-2], -1, 2)
     return np.concatenate([ring, ring[..., :1, :]], axis=-2)
 
 

@@ -202,8 +202,10 @@ def hand_outline(ax, hand, B, ls="--", lw=0.9, alpha=1.0):
         e1 /= np.linalg.norm(e1, axis=1)[:, None]
         e2 = np.cross(u, e1)
         t = np.linspace(0, 2 * np.pi, 48, endpoint=False)[None, :, None]
-        circle = a[band][:, None] + r[band][:, None, None] * (np.cos(t) * e1[:, None] + np.sin(t) * e2[:, None])
-        for i, ring in zip(np.flatnonzero(band), sweep_outline(circle @ B[:2].T, (b[band] - a[band]) @ B[:2].T)):
+        rim = np.cos(t) * e1[:, None] + np.sin(t) * e2[:, None]
+        circle = a[band][:, None] + r[band][:, None, None] * rim
+        swept = sweep_outline(circle @ B[:2].T, (b[band] - a[band]) @ B[:2].T)
+        for i, ring in zip(np.flatnonzero(band), swept, strict=True):
             rings[i] = ring
     if (~band).any():  # a stadium: two half circles joined along the projected axis
         p0, p1 = a[~band] @ B[:2].T, b[~band] @ B[:2].T
@@ -215,7 +217,7 @@ def hand_outline(ax, hand, B, ls="--", lw=0.9, alpha=1.0):
         rr = r[~band][:, None, None]
         cap1 = p1[:, None] + rr * (np.cos(t) * u + np.sin(t) * v)
         cap0 = p0[:, None] + rr * (-np.cos(t) * u - np.sin(t) * v)
-        for i, ring in zip(np.flatnonzero(~band), np.concatenate([cap1, cap0, cap1[:, :1]], axis=1)):
+        for i, ring in zip(np.flatnonzero(~band), np.concatenate([cap1, cap0, cap1[:, :1]], axis=1), strict=True):
             rings[i] = ring
     lines = LineCollection(rings, colors="C1", linestyles=ls, linewidths=lw, alpha=alpha, zorder=2)
     ax.add_collection(lines, autolim=False)
