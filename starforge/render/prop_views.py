@@ -217,7 +217,8 @@ def hand_outline(ax, hand, B, ls="--", lw=0.9, alpha=1.0):
         rr = r[~band][:, None, None]
         cap1 = p1[:, None] + rr * (np.cos(t) * u + np.sin(t) * v)
         cap0 = p0[:, None] + rr * (-np.cos(t) * u - np.sin(t) * v)
-        for i, ring in zip(np.flatnonzero(~band), np.concatenate([cap1, cap0, cap1[:, :1]], axis=1), strict=True):
+        stadium = np.concatenate([cap1, cap0, cap1[:, :1]], axis=1)
+        for i, ring in zip(np.flatnonzero(~band), stadium, strict=True):
             rings[i] = ring
     lines = LineCollection(rings, colors="C1", linestyles=ls, linewidths=lw, alpha=alpha, zorder=2)
     ax.add_collection(lines, autolim=False)
