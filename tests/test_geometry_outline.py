@@ -1,4 +1,4 @@
-"""rect_union_outlines: the outline of a union of rectangles, checked against the pixels."""
+"""Outlines in the plane: rect_union_outlines checked against the pixels, sweep_outline against Qhull."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from starforge.geometry.outline import _area, _contains, rect_union_outlines
+from starforge.geometry.outline import _area, _contains, rect_union_outlines, sweep_outline
 
 
 def _covered(rects, p) -> bool:
@@ -59,3 +59,49 @@ def test_a_ring_has_one_hole_and_corner_contacts_stay_apart():
     pinch = [(0, 1, 0, 1), (1, 2, 1, 2)]  # touching at one corner only
     pieces = rect_union_outlines(pinch)
     assert len(pieces) == 2 and all(len(o) == 4 and not hs for o, hs in pieces)
+
+
+@given(
+    st.integers(3, 40),
+    st.floats(0.05, 5.0),
+    st.floats(-3.0, 3.0),
+    st.floats(0.0, 6.3),
+    st.floats(-4.0, 4.0),
+    st.floats(-4.0, 4.0),
+    st.booleans(),
+)
+def test_sweep_outline_is_the_hull_of_the_polygon_and_its_moved_copy(n, squash, shear, turn, dx, dy, flip):
+    """A regular polygon sheared into any convex one, swept along d: the ring's corners are input
+    points, it contains every input point, and it encloses exactly the convex hull's area
+    (scipy's Qhull, an independent check)."""
+    from scipy.spatial import ConvexHull
+
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False) + turn
+    poly = np.column_stack([np.cos(t), np.sin(t)]) @ np.array([[1.0, shear], [0.0, squash]]).T
+    if flip:  # clockwise
+        poly = poly[::-1]
+    d = np.array([dx, dy])
+    ring = sweep_outline(poly, d)
+    pts = np.vstack([poly, poly + d])
+    assert len(ring) == 2 * n + 1 and np.array_equal(ring[0], ring[-1])
+    assert all(np.abs(pts - q).max(axis=1).min() == 0 for q in ring)  # every corner is an input point
+    size = float(np.abs(pts).max())
+    for a, b in zip(ring[:-1], ring[1:], strict=True):  # every point on the inner side of every edge
+        if np.any(a != b):
+            e = b - a
+            assert ((e[0] * (pts[:, 1] - a[1]) - e[1] * (pts[:, 0] - a[0])) >= -1e-9 * size**2).all()
+    x, y = ring[:, 0], ring[:, 1]
+    area = float((x[:-1] * y[1:] - x[1:] * y[:-1]).sum() / 2)
+    assert area == pytest.approx(ConvexHull(pts).volume, rel=1e-9, abs=1e-12 * size**2)
+
+
+def test_sweep_outline_of_a_stack_is_each_polygons_outline():
+    """A stack of polygons (some clockwise) and sweeps gives, row by row, the single polygons' rings."""
+    rng = np.random.default_rng(3)
+    t = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    polys = np.stack([np.column_stack([np.cos(t), np.sin(t)]) @ rng.normal(size=(2, 2)) for _ in range(6)])
+    d = rng.normal(size=(6, 2))
+    rings = sweep_outline(polys, d)
+    assert rings.shape == (6, 25, 2)
+    for k in range(6):
+        assert np.array_equal(rings[k], sweep_outline(polys[k], d[k]))

@@ -1,6 +1,8 @@
-"""The outline of a union of axis-aligned rectangles, as closed polygons (pure numpy).
+"""Outlines in the plane (pure numpy): the union of axis-aligned rectangles as closed polygons,
+and a convex polygon swept along a segment.
 
-Used to cut an engraving made of many touching rectangles (the pixel-font id) as one prism:
+The rectangles' outline cuts an engraving made of many touching rectangles (the pixel-font id)
+as one prism:
 OpenCascade's boolean is several times slower with a stack of touching boxes (every shared face
 is a coplanar face pair it has to resolve) than with one solid of the same shape.
 
@@ -83,6 +85,41 @@ def rect_union_outlines(rects) -> list[tuple[np.ndarray, list[np.ndarray]]]:
         k = min(owners, key=lambda k: _area(outers[k]))
         out[k][1].append(h)
     return out
+
+
+def sweep_outline(polygon: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """The outline of a convex polygon swept along ``d``: the convex hull of ``polygon`` and of
+    ``polygon + d`` (their Minkowski sum with the segment from 0 to ``d``), as a closed ring.
+
+    Walking the polygon counter-clockwise, each edge whose outward normal points along ``d``
+    is taken from the moved copy; where that changes, the ring steps along ``d`` (the hull's two
+    straight sides).  Every corner appears twice (once as each of its edges takes it), which
+    draws the same outline.
+
+    Parameters
+    ----------
+    polygon : (..., n, 2) float
+        The corners of a convex polygon (or of a stack of them), in either turning direction.
+    d : (..., 2) float
+        The sweep (of each polygon).
+
+    Returns
+    -------
+    (..., 2 n + 1, 2) float, the first point repeated at the end.
+
+    >>> sweep_outline(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.array([2.0, 0.0])).tolist()
+    [[0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [3.0, 0.0], [2.0, 1.0], [0.0, 1.0], [0.0, 0.0]]
+    """
+    p = np.asarray(polygon, float)
+    d = np.asarray(d, float)[..., None, :]
+    x, y = p[..., 0], p[..., 1]
+    clockwise = (x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y).sum(axis=-1) < 0
+    p = np.where(clockwise[..., None, None], p[..., ::-1, :], p)
+    e = np.roll(p, -1, axis=-2) - p
+    ahead = (e[..., 1:] * d[..., :1] - e[..., :1] * d[..., 1:] > 0)  # edge i's outward normal along d
+    ring = np.stack([p + np.roll(ahead, 1, axis=-2) * d, p + ahead * d], axis=-2)
+    ring = ring.reshape(*p.shape[:-2], -1, 2)
+    return np.concatenate([ring, ring[..., :1, :]], axis=-2)
 
 
 def _cross(a, b) -> float:

@@ -22,12 +22,19 @@ def pyplot():
     return plt
 
 
+#: zlib level of the PNGs: on these flat-coloured pictures level 3 compresses several times faster
+#: than zlib's default (6) into files of about the same size (the pixels are the same either way)
+PNG_COMPRESS_LEVEL = 3
+
+
 def save_png(fig, path: str | Path, dpi: int = 100) -> Path:
     """Write ``fig`` as PNG atomically; no 'Software' metadata, so the same figure gives the same bytes."""
     from starforge.io import atomic_write_bytes
 
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
+    fig.savefig(
+        buf, format="png", dpi=dpi, metadata={"Software": None}, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL}
+    )
     return atomic_write_bytes(path, buf.getvalue())
 
 

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from starforge.geometry.outline import sweep_outline
+
 
 @dataclass(frozen=True)
 class PlotData:
@@ -181,36 +183,45 @@ def shaded(ax, tris, fn, B, light=None):
 
 def hand_outline(ax, hand, B, ls="--", lw=0.9, alpha=1.0):
     """The hand's capsules and bands (rows of :func:`starforge.props.hand.capsule_arrays`) as
-    outlines: a capsule's silhouette is a stadium, a band's the convex hull of its two end circles."""
-    from scipy.spatial import ConvexHull
+    outlines, drawn as one collection: a capsule's silhouette is a stadium, a band's the convex
+    hull of its two end circles (:func:`~starforge.geometry.outline.sweep_outline`)."""
+    from matplotlib.collections import LineCollection
 
     from starforge.props.hand import CAPSULE_COLUMNS
 
-    for c in np.asarray(hand).reshape(-1, CAPSULE_COLUMNS):
-        r = c[6]
-        if c[7]:
-            u = c[3:6] - c[:3]
-            u = u / max(float(np.linalg.norm(u)), 1e-12)
-            e1 = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
-            e1 /= np.linalg.norm(e1)
-            e2 = np.cross(u, e1)
-            t = np.linspace(0, 2 * np.pi, 48, endpoint=False)
-            circle = r * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
-            pts = (np.vstack([c[:3] + circle, c[3:6] + circle]) @ B.T)[:, :2]
-            ring = pts[ConvexHull(pts).vertices]
-            ring = np.vstack([ring, ring[:1]])
-        else:
-            a, b = c[:3] @ B.T, c[3:6] @ B.T
-            d = b[:2] - a[:2]
-            L = float(np.hypot(*d))
-            ang = np.arctan2(d[1], d[0]) if L > 1e-12 else 0.0
-            t = np.linspace(-np.pi / 2, np.pi / 2, 24)
-            u = np.array([np.cos(ang), np.sin(ang)])
-            v = np.array([-u[1], u[0]])
-            cap1 = b[:2] + r * (np.cos(t)[:, None] * u + np.sin(t)[:, None] * v)
-            cap0 = a[:2] + r * (-np.cos(t)[:, None] * u - np.sin(t)[:, None] * v)
-            ring = np.vstack([cap1, cap0, cap1[:1]])
-        ax.plot(ring[:, 0], ring[:, 1], color="C1", ls=ls, lw=lw, alpha=alpha, zorder=2)
+    c = np.asarray(hand, float).reshape(-1, CAPSULE_COLUMNS)
+    if not len(c):
+        return
+    a, b, r, band = c[:, :3], c[:, 3:6], c[:, 6], c[:, 7] != 0
+    rings: list = [None] * len(c)
+    if band.any():  # each end circle of the band, seen along B[2], swept to the other end
+        u = b[band] - a[band]
+        u /= np.maximum(np.linalg.norm(u, axis=1), 1e-12)[:, None]
+        ref = np.where((np.abs(u[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+        e1 = np.cross(u, ref)
+        e1 /= np.linalg.norm(e1, axis=1)[:, None]
+        e2 = np.cross(u, e1)
+        t = np.linspace(0, 2 * np.pi, 48, endpoint=False)[None, :, None]
+        rim = np.cos(t) * e1[:, None] + np.sin(t) * e2[:, None]
+        circle = a[band][:, None] + r[band][:, None, None] * rim
+        swept = sweep_outline(circle @ B[:2].T, (b[band] - a[band]) @ B[:2].T)
+        for i, ring in zip(np.flatnonzero(band), swept, strict=True):
+            rings[i] = ring
+    if (~band).any():  # a stadium: two half circles joined along the projected axis
+        p0, p1 = a[~band] @ B[:2].T, b[~band] @ B[:2].T
+        d = p1 - p0
+        ang = np.where(np.hypot(d[:, 0], d[:, 1]) > 1e-12, np.arctan2(d[:, 1], d[:, 0]), 0.0)
+        u = np.column_stack([np.cos(ang), np.sin(ang)])[:, None]
+        v = np.column_stack([-np.sin(ang), np.cos(ang)])[:, None]
+        t = np.linspace(-np.pi / 2, np.pi / 2, 24)[None, :, None]
+        rr = r[~band][:, None, None]
+        cap1 = p1[:, None] + rr * (np.cos(t) * u + np.sin(t) * v)
+        cap0 = p0[:, None] + rr * (-np.cos(t) * u - np.sin(t) * v)
+        stadium = np.concatenate([cap1, cap0, cap1[:, :1]], axis=1)
+        for i, ring in zip(np.flatnonzero(~band), stadium, strict=True):
+            rings[i] = ring
+    lines = LineCollection(rings, colors="C1", linestyles=ls, linewidths=lw, alpha=alpha, zorder=2)
+    ax.add_collection(lines, autolim=False)
 
 
 def spread_labels(points: np.ndarray, span: float, rounds: int = 200) -> np.ndarray:

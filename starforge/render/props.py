@@ -108,11 +108,6 @@ def layout_png(res, path: str | Path) -> Path:
 #: what each render process draws: the two placement pictures, and the rigging guide
 _ROLES = ("pictures", "guide")
 NAMES = {"pictures": ["convergence.png", "layout.png"], "guide": ["guide.png", "guide.pdf"]}
-#: how far each role's process lowers its own priority (``os.nice``) once it starts drawing: the
-#: guide takes about twice as long as the two pictures, so while the caller still works after
-#: :meth:`BackgroundRenderer.submit` (three processes on two cores) the pictures give way and the
-#: guide keeps a core; idle cores still draw them at once (the pictures are the same bytes)
-_NICE = {"pictures": 10, "guide": 0}
 
 
 def _draw(role: str, data: PlotData, folder: Path, render_process: bool = False) -> None:
@@ -250,8 +245,6 @@ def _serve(read_fd: int, role: str, warm: bool = True) -> int:
         if message:
             job = Path(message.decode())
             data, folder = pickle.loads(job.read_bytes())
-            if _NICE[role]:
-                os.nice(_NICE[role])
             _draw(role, data, Path(folder), render_process=True)
         return 0
     except BaseException:  # reported by the parent through the exit status
