@@ -11,6 +11,7 @@ from starforge.props.grips import (
     POSITIONS,
     STEP,
     WRAPS,
+    Grip,
     assign_grips,
     grip_arrays,
     grip_distribution,
@@ -208,6 +209,26 @@ def test_grips_are_assigned_evenly_and_reproducibly():
     # fewer poses than twice the grips: which grips hold two is drawn, so over seeds every grip does
     twice = np.array([np.bincount(assign_grips(10, 7, np.random.default_rng(s)), minlength=7) == 2 for s in range(200)])
     assert twice.sum(axis=1).tolist() == [3] * 200 and twice.any(axis=0).all()
+
+
+def test_weighted_grips_share_the_poses_by_largest_remainder_with_drawn_ties():
+    # a heavy grip and four light ones of equal weight: 10 poses leave 2 spare, for 2 of the 4 tied light grips
+    w = np.array([3.0, 1.0, 1.0, 1.0, 1.0])
+    grips = [Grip(f"g{i}", "", 0.5, 0.0, (), weight=float(x)) for i, x in enumerate(w)]
+    exact = 10 * w / w.sum()
+    spare = []
+    for seed in range(200):
+        counts = np.bincount(assign_grips(10, grips, np.random.default_rng(seed)), minlength=len(w))
+        assert counts.sum() == 10 and (np.abs(counts - exact) < 1).all()
+        frac = exact - np.floor(exact)
+        up = counts > np.floor(exact)
+        assert frac[up].min(initial=1.0) >= frac[~up].max(initial=0.0)  # largest remainders first
+        spare.append(np.flatnonzero(up & (w == 1.0)))
+    # the light grips tie: over seeds each of them gets a spare pose, not always the lowest-numbered
+    assert len({tuple(s) for s in spare}) > 1 and set(np.concatenate(spare)) == {1, 2, 3, 4}
+    # equal weights are the unweighted case, draw for draw
+    same = [Grip(f"g{i}", "", 0.5, 0.0, (), weight=0.3) for i in range(7)]
+    assert np.array_equal(assign_grips(31, same, np.random.default_rng(5)), assign_grips(31, 7, np.random.default_rng(5)))
 
 
 def test_a_pinned_grip_by_number_or_by_segment():

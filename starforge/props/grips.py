@@ -424,24 +424,21 @@ def pinned_grip(text: str, grips: tuple[Grip, ...]) -> Grip:
 
 
 def assign_grips(poses: int, grips, rng: np.random.Generator) -> np.ndarray:
-    """(poses,) int: the grip each pose is held in, in a random order from ``rng``.  ``grips``:
-    their number (each the same number of poses, to one, the grips with one more drawn at
-    random) or the grips themselves (poses in
-    proportion to their weights, the remainders to the largest fractions)."""
-    if not isinstance(grips, int):
-        w = np.array([g.weight for g in grips], float)
-        if len(w) > 1 and np.ptp(w) > 0:
-            exact = poses * w / w.sum()
-            counts = np.floor(exact).astype(np.int64)
-            counts[np.argsort(-(exact - counts), kind="stable")[: poses - int(counts.sum())]] += 1
-            return rng.permutation(np.repeat(np.arange(len(w), dtype=np.int64), counts))
-        grips = len(w)
-    if grips <= 1:
+    """(poses,) int: the grip each pose is held in, in a random order from ``rng``.
+
+    ``grips`` is their number (each weighs 1) or the grips themselves (each its
+    :attr:`Grip.weight`).  Grip g holds ``floor(poses * w_g / sum(w))`` poses, and the spare
+    poses go to the largest fractional parts; among equal fractions (equal weights) an order
+    drawn from ``rng`` decides, so no grip is favoured for being listed first."""
+    w = np.ones(grips) if isinstance(grips, int) else np.array([g.weight for g in grips], float)
+    if len(w) <= 1:
         return np.zeros(poses, np.int64)
-    base, extra = divmod(poses, grips)
-    counts = np.full(grips, base, np.int64)
-    counts[rng.permutation(grips)[:extra]] += 1  # which grips get the spare poses: drawn, not the first ones
-    return rng.permutation(np.repeat(np.arange(grips, dtype=np.int64), counts))
+    exact = poses * w / w.sum()
+    counts = np.floor(exact).astype(np.int64)
+    order = rng.permutation(len(w))  # breaks ties among equal fractions
+    spare = order[np.argsort(-(exact - counts)[order], kind="stable")][: poses - int(counts.sum())]
+    counts[spare] += 1
+    return rng.permutation(np.repeat(np.arange(len(w), dtype=np.int64), counts))
 
 
 def grip_arrays(grips) -> tuple[np.ndarray, np.ndarray]:
