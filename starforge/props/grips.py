@@ -20,7 +20,8 @@ wide, however thin), and the distribution (:func:`grip_distribution`) spreads th
 (:data:`starforge.props.hand.PALM_M` long, or the reach's length) evenly along the reach, as
 many places as keep neighbouring palms at most :data:`STEP` of a palm apart (at least two, at
 most :data:`POSITIONS`), by either hand, with the back of the hand and the wrist at :data:`WRAPS`
-angles around the part.  Each grip is a set of capsules that move with the prop
+angles around the part; the wraps take turns along a grid as many times finer, so the grips
+stand for a hand anywhere along the reach, not at a few places with every wrap at each.  Each grip is a set of capsules that move with the prop
 (:func:`hand_model`): the fist around the widest section under the palm
 (:func:`starforge.props.hand.fist`) and the wrist and forearm, a capsule of
 :data:`WRIST_M` radius and :data:`FOREARM_M` length leaving the part's surface at the wrap
@@ -351,7 +352,7 @@ def hand_model(a, b, part_radius: float, wrap_deg: float, hand: str, toward=None
 def grip_distribution(mesh, positions: int = POSITIONS, wraps=WRAPS, fallback=None) -> tuple[HeldPart, tuple[Grip, ...]]:
     """The held part (:func:`held_part`) and the grips (see the module docstring), in a fixed
     order: a handle's grips (:func:`handle_grips`, :data:`HANDLE_SHARE` of the weight), then the
-    held part's reach, then each of its ``others``; along each, position, then hand, then wrap.
+    held part's reach, then each of its ``others``; along each, group of places, hand, place (:func:`_grips_along`).
     The held part of a prop with a handle is that of its body without the handle."""
     handle = find_handle(mesh, cut_directions(np.asarray(mesh.vertices, float)))
     if handle is not None:
@@ -387,24 +388,31 @@ def handle_grips(handle: Handle) -> list[Grip]:
 
 
 def _grips_along(part: HeldPart, positions: int, wraps, name: str) -> list[Grip]:
-    """The grips along one reach (``name`` follows the place in each label)."""
+    """The grips along one reach (``name`` follows the place in each label): ``positions`` groups
+    of palm places or fewer (:data:`STEP`), each group holding every wrap of ``wraps`` once at
+    places of its own, so the wraps take turns along ``len(wraps)`` times as many evenly spread
+    places: a spot is covered by a share of the grips within one in ``len(wraps)`` of the places
+    rather than one in the groups (a grid with every wrap at each place covers a spot near a
+    palm's end in all its wraps or in none).  In a group, the right hand in every wrap, then the
+    left (the same places)."""
     a, b = part.reach
     L = float(np.linalg.norm(b - a))
     u = (b - a) / max(L, 1e-12)
     palm = min(PALM_M, L)
     k = 1 if L - palm < 0.02 or positions <= 1 else int(min(positions, max(2, math.ceil((L - palm) / (STEP * palm) - 1e-9) + 1)))
-    starts = [0.0] if k == 1 else list(np.linspace(0.0, L - palm, k))
-    where = {0: "at one end", k - 1: "at the other end"} if k > 1 else {0: "over the part"}
+    w = len(wraps)
+    starts = np.linspace(0.0, L - palm, k * w) if k > 1 else np.zeros(w)
+    along = (starts + palm / 2) / max(L, 1e-12)
     grips = []
-    for i, t in enumerate(starts):
-        g0, g1 = a + t * u, a + (t + palm) * u
-        r = part.radius_between(t, t + palm)
-        along = (t + palm / 2) / max(L, 1e-12)
-        pos = where.get(i, "in the middle" if k == 3 else f"at {100 * along:.0f} % of the reach") + name
+    for g in range(k):
+        places = range(g * w, (g + 1) * w)
+        pos = "over the part" if k == 1 else f"at {100 * along[places[0]]:.0f}-{100 * along[places[-1]]:.0f} % of the reach"
         for hand in ("right", "left"):
-            for wrap in wraps:
-                caps = hand_model(g0, g1, r, float(wrap), hand)
-                grips.append(Grip(f"{hand} hand {pos}, wrist at {wrap:g} deg", hand, along, float(wrap), caps))
+            for i in places:
+                wrap = float(wraps[i % w])
+                t = float(starts[i])
+                caps = hand_model(a + t * u, a + (t + palm) * u, part.radius_between(t, t + palm), wrap, hand)
+                grips.append(Grip(f"{hand} hand {pos}{name}, wrist at {wrap:g} deg", hand, float(along[i]), wrap, caps))
     return grips
 
 
@@ -424,24 +432,21 @@ def pinned_grip(text: str, grips: tuple[Grip, ...]) -> Grip:
 
 
 def assign_grips(poses: int, grips, rng: np.random.Generator) -> np.ndarray:
-    """(poses,) int: the grip each pose is held in, in a random order from ``rng``.  ``grips``:
-    their number (each the same number of poses, to one, the grips with one more drawn at
-    random) or the grips themselves (poses in
-    proportion to their weights, the remainders to the largest fractions)."""
-    if not isinstance(grips, int):
-        w = np.array([g.weight for g in grips], float)
-        if len(w) > 1 and np.ptp(w) > 0:
-            exact = poses * w / w.sum()
-            counts = np.floor(exact).astype(np.int64)
-            counts[np.argsort(-(exact - counts), kind="stable")[: poses - int(counts.sum())]] += 1
-            return rng.permutation(np.repeat(np.arange(len(w), dtype=np.int64), counts))
-        grips = len(w)
-    if grips <= 1:
+    """(poses,) int: the grip each pose is held in, in a random order from ``rng``.
+
+    ``grips`` is their number (each weighs 1) or the grips themselves (each its
+    :attr:`Grip.weight`).  Grip g holds ``floor(poses * w_g / sum(w))`` poses, and the spare
+    poses go to the largest fractional parts; among equal fractions (equal weights) an order
+    drawn from ``rng`` decides, so no grip is favoured for being listed first."""
+    w = np.ones(grips) if isinstance(grips, int) else np.array([g.weight for g in grips], float)
+    if len(w) <= 1:
         return np.zeros(poses, np.int64)
-    base, extra = divmod(poses, grips)
-    counts = np.full(grips, base, np.int64)
-    counts[rng.permutation(grips)[:extra]] += 1  # which grips get the spare poses: drawn, not the first ones
-    return rng.permutation(np.repeat(np.arange(grips, dtype=np.int64), counts))
+    exact = poses * w / w.sum()
+    counts = np.floor(exact).astype(np.int64)
+    order = rng.permutation(len(w))  # breaks ties among equal fractions
+    spare = order[np.argsort(-(exact - counts)[order], kind="stable")][: poses - int(counts.sum())]
+    counts[spare] += 1
+    return rng.permutation(np.repeat(np.arange(len(w), dtype=np.int64), counts))
 
 
 def grip_arrays(grips) -> tuple[np.ndarray, np.ndarray]:
