@@ -26,7 +26,10 @@ distance from their best-fit line >= sqrt(2)/3 x 15 mm).  Reported per prop: the
 layout's tracked fraction on ``POSES`` poses; the best of 200 random layouts of the same number
 of markers on the same usable sites (markers at least the run's spacing apart) picked on those
 poses (``best_random_same_poses``, an upward-biased maximum) and re-measured on fresh poses
-(``best_random_fresh_poses``, beside ``chosen_fresh_poses``); the markers with less than the
+(``best_random_fresh_poses``, beside ``chosen_fresh_poses``); how many of them a tracker
+cannot flip (no two of their marker triangles, nor one and itself relabelled, within the run's
+``avoid_tolerance_mm``: starforge's own rule, which its layouts keep) and the best of those on
+fresh poses (``random_flip_proof``, ``best_flip_proof_random_fresh_poses``); the markers with less than the
 placement error of room, recomputed by brute force over every face and sharp edge of the mesh
 (``markers_below_margin``); the overlapping glyphs of the written guide.pdf as pdfminer.six reads
 the file (``guide_text_overlaps``, :mod:`_pdftext`) and the glyphs off the page.
@@ -314,7 +317,7 @@ def write_docs(out: dict) -> None:
 
     rows = [
         [name, v["markers"], v["usable_sites"], v["grips"], v["chosen_fresh_poses"], v["best_random_fresh_poses"],
-         v["optimizer_own_evaluation"], v["min_margin_mm"], v["guide_text_overlaps"], v["seconds"]]
+         f'{v["best_flip_proof_random_fresh_poses"]} ({v["random_flip_proof"]})', v["optimizer_own_evaluation"], v["min_margin_mm"], v["guide_text_overlaps"], v["seconds"]]
         for name, v in out["props"].items()
     ]  # fmt: skip
     body = (
@@ -324,10 +327,12 @@ def write_docs(out: dict) -> None:
         "and its own hand, a palm-long fist at a uniformly random place where a palm fits around the prop's "
         f"cross-sections (see the script's docstring).  Tracked: the share of {out['poses']} fresh poses with >= 3 "
         "markers reconstructed spanning a 15 mm triangle; best random: the best of 200 random layouts of as many "
-        "markers on the same sites, picked on other poses and measured on these; own: starforge's own "
+        "markers on the same sites, picked on other poses and measured on these; flip-proof random: the best of "
+        "those a tracker cannot flip (starforge's rule for its own layouts; how many of the 200 in brackets); "
+        "own: starforge's own "
         "evaluation of its layout (its grips, its rig); margin: the least room, beyond the base, that any "
         "marker has to an edge or a surface tilted more than 30 degrees (brute force over the mesh).\n\n"
-        + table(["prop", "markers", "usable sites", "grips", "tracked", "best random", "own", "margin (mm)",
+        + table(["prop", "markers", "usable sites", "grips", "tracked", "best random", "flip-proof random", "own", "margin (mm)",
                  "guide text overlaps", "seconds"], rows)
     )  # fmt: skip
     if out.get("placed_for", "").startswith("this room"):
@@ -348,6 +353,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from _pdftext import glyph_boxes, off_page, overlapping_glyphs
 
+    from starforge.props.distinct import own_triangles
     from starforge.props.placement import run_placement
     from starforge.render.guide import guide_files
 
@@ -376,6 +382,9 @@ def main(argv=None) -> int:
             counts2 = seen_table(mesh, centres, normals, R2, t2, random_hands(mesh, args.poses, rng), rng)
             lay_rng = np.random.default_rng(7)
             best, best_f = None, -1.0
+            tol_mm = res.spec.track.avoid_tolerance_mm
+            proof, proof_f = [], -1.0  # the best random layout a tracker cannot flip (starforge's rule)
+            flip_proof = 0
             for _ in range(RANDOM_LAYOUTS):
                 order = lay_rng.permutation(len(every))
                 lay = []
@@ -387,6 +396,10 @@ def main(argv=None) -> int:
                 f = float(tracked(counts, centres, lay).mean())
                 if f > best_f:
                     best, best_f = lay, f
+                if own_triangles(1000.0 * centres[lay], tol_mm)[0] == 0:
+                    flip_proof += 1
+                    if f > proof_f:
+                        proof, proof_f = lay, f
             err = res.spec.seat.placement_error_mm / 1000.0
             below, rooms = margin_shortfall(mesh, res.marker_points, res.marker_normals, res.seat.base_radius_m, err)
             folder = Path(tmp) / name
@@ -406,6 +419,8 @@ def main(argv=None) -> int:
                 "best_random_same_poses": round(best_f, 4),
                 "chosen_fresh_poses": round(float(tracked(counts2, centres, chosen).mean()), 4),
                 "best_random_fresh_poses": round(float(tracked(counts2, centres, best).mean()), 4),
+                "random_flip_proof": flip_proof,
+                "best_flip_proof_random_fresh_poses": round(float(tracked(counts2, centres, proof).mean()), 4) if proof else None,
                 "optimizer_own_evaluation": round(res.evaluation.get("default", {}).get("tracked", float("nan")), 4),
                 "markers_below_margin": below,
                 "min_margin_mm": round(1000 * min(rooms), 2),
