@@ -4,8 +4,8 @@ The graspable part is found from the prop's shape: along each of its principal a
 eigenvectors of the covariance of its vertices, longest spread first) and each axis of its own
 frame (a handle set square to a tilted body, as on a drill) the mesh is cut every
 :data:`starforge.props.hand.SLICE_M`; a section is *graspable* when a hand closes around it,
-its wider principal width within :data:`GRASP_WIDTH_M` (20-55 mm, what a fist closes round) and its narrower at least
-:data:`GRASP_THICK_M` (a blade or a plate is none).  The longest run of consecutive graspable
+its wider principal width within :data:`GRASP_WIDTH_M` (20-55 mm, what a fist closes round)
+and its narrower at least :data:`GRASP_THICK_M` (a blade or a plate is none).  The longest run of consecutive graspable
 sections, at least :data:`GRASP_RUN_M` long, is the handle or the neck that is held; a prop
 with none is held by its body, the longest run of sections up to :data:`BODY_WIDTH_M` wide
 (the wider width of a square section lies between its side and its diagonal).
@@ -21,10 +21,10 @@ wide, however thin), and the distribution (:func:`grip_distribution`) spreads th
 many places as keep neighbouring palms at most :data:`STEP` of a palm apart (at least two, at
 most :data:`POSITIONS`), by either hand, with the back of the hand and the wrist at :data:`WRAPS`
 angles around the part; the wraps take turns along a grid as many times finer, so the grips
-stand for a hand anywhere along the reach, not at a few places with every wrap at each.  Each grip is a set of capsules that move with the prop
-(:func:`hand_model`): the fist around the widest section under the palm
-(:func:`starforge.props.hand.fist`) and the wrist and forearm, a capsule of
-:data:`WRIST_M` radius and :data:`FOREARM_M` length leaving the part's surface at the wrap
+stand for a hand anywhere along the reach, not at a few places with every wrap at each.  Each
+grip is a set of capsules that move with the prop (:func:`hand_model`): the fist around the
+widest section under the palm (:func:`starforge.props.hand.fist`) and the wrist and forearm, a
+capsule of :data:`WRIST_M` radius and :data:`FOREARM_M` length leaving the part's surface at the wrap
 angle, turned :data:`THUMB_DEG` towards the thumb's side (a left hand is the mirror image of a
 right one, so the turn changes sign).  Every pose of the optimizer's sample is held in one grip
 of the distribution, the same number of poses per grip in a random order drawn from the run's

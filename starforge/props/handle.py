@@ -8,8 +8,8 @@ is found from the mesh's shape, not its name:
   other mesh is searched;
 * the mesh is cut by planes square to each direction it is sliced in (the caller's; see
   :func:`starforge.props.grips.held_part`) every :data:`starforge.props.hand.SLICE_M`; an
-  *opening* is a hole of a section (an interior ring of a section's polygon) between :data:`OPENING_M` wide across its
-  narrower and wider sides (at least a finger's width; at most what a hand still closes round)
+  *opening* is a hole of a section (an interior ring of a section's polygon) between
+  :data:`OPENING_M` wide across its narrower and wider sides (at least a finger's width; at most what a hand still closes round)
   through which one sees along the plane's normal both ways (two rays from a point inside it
   leave the mesh without a hit): a blind pocket, like a cup's cavity cut across, is none;
 * the largest opening is the handle's; its bar is the stretch of the opening's rim where the
