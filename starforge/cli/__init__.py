@@ -57,6 +57,8 @@ def _run(argv: list[str] | None) -> int:
         note_interrupt()  # reported by main()
         code = 130
     except MemoryError:
+        if interrupted():  # an allocation cut short by the Ctrl-C: the stop, not a shortage
+            return 130
         # every large allocation is estimated first (starforge.runtime.budget); this is the last resort
         print("error: out of memory; lower the problem size or the memory others use (--max-memory)",
               file=sys.stderr)
