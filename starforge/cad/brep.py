@@ -28,6 +28,7 @@ import numpy as np
 from starforge.cad.body import Body
 from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere, merge_coaxial, plate_cuts
 from starforge.errors import StarforgeError
+from starforge.geometry.frames import perpendicular_basis
 from starforge.geometry.outline import rect_union_outlines
 
 #: the header's time stamp: fixed, so the same solid gives the same file
@@ -156,9 +157,7 @@ def _revolved_solid(p: Revolved):
     """The profile polygon (axis, polyline, axis) in a plane through the axis, turned 360 deg."""
     bd = kernel()
     u = np.asarray(p.axis, float)
-    helper = np.array([1.0, 0, 0]) if abs(u[0]) < 0.9 else np.array([0, 1.0, 0])
-    w = np.cross(u, helper)
-    w /= np.linalg.norm(w)
+    w, _ = perpendicular_basis(u)
     o = np.array(p.p0)
     pts = [o + p.profile[0][0] * u, *(o + t * u + r * w for t, r in p.profile), o + p.profile[-1][0] * u]
     face = bd.Face(bd.Wire.make_polygon([tuple(map(float, q)) for q in pts]))

@@ -18,6 +18,7 @@ import numpy as np
 from starforge.cad.body import Body
 from starforge.cad.primitives import Box, Cylinder, Revolved, Sphere, merge_coaxial, plate_cuts
 from starforge.errors import StarforgeError
+from starforge.geometry.frames import perpendicular_basis
 
 
 class MeshArrays(NamedTuple):
@@ -30,11 +31,7 @@ class MeshArrays(NamedTuple):
 def _frame(axis: np.ndarray) -> np.ndarray:
     """A rotation (3, 3) taking +z to the unit vector ``axis``."""
     z = axis / np.linalg.norm(axis)
-    helper = np.array([1.0, 0, 0]) if abs(z[0]) < 0.9 else np.array([0, 1.0, 0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return np.column_stack([x, y, z])
+    return np.column_stack([*perpendicular_basis(z), z])
 
 
 @lru_cache(maxsize=16)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from starforge.geometry.frames import perpendicular_basis
 from starforge.tol import tol
 
 
@@ -166,8 +167,5 @@ def hemisphere_directions(n: int, up=(0.0, 1.0, 0.0)) -> np.ndarray:
     phi = np.pi * (3.0 - np.sqrt(5.0)) * i
     local = np.column_stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t])  # around +z
     up = np.asarray(up, float) / np.linalg.norm(up)
-    helper = np.array([1.0, 0, 0]) if abs(up[0]) < 0.9 else np.array([0, 0, 1.0])
-    e1 = np.cross(up, helper)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(up, e1)
+    e1, e2 = perpendicular_basis(up)
     return local[:, :1] * e1 + local[:, 1:2] * e2 + local[:, 2:3] * up

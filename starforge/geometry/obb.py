@@ -22,6 +22,7 @@ import itertools
 
 import numpy as np
 
+from starforge.geometry.frames import perpendicular_basis
 from starforge.tol import tol
 
 _GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
@@ -87,13 +88,6 @@ def _hull_edges_faces(k: int):
     return edges, faces
 
 
-def _perp_basis(e1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """An orthonormal basis (p, q) of the plane perpendicular to each unit e1 (n, f, 3)."""
-    helper = np.where(np.abs(e1[..., :1]) < 0.9, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
-    p, _ = _normalize(np.cross(e1, helper))
-    return p, np.cross(e1, p)
-
-
 def _cross3(a, b) -> list:
     """Cross product of vectors given as three component arrays each (any broadcastable
     shapes), as ``np.cross`` takes it operation for operation (the same floats)."""
@@ -102,7 +96,7 @@ def _cross3(a, b) -> list:
 
 def _family_frames(p: np.ndarray, q: np.ndarray, e2: np.ndarray, theta: np.ndarray):
     """Frames with n1 perpendicular to e1 (angle theta about e1, from its basis p, q of
-    :func:`_perp_basis`) and n2 perpendicular to e2 and n1.
+    :func:`~starforge.geometry.frames.perpendicular_basis`) and n2 perpendicular to e2 and n1.
 
     p, q, e2 : (n, f, 3) unit; theta : (n, f, s).  Returns the three axes, each a list of its
     three components (n, f, s), and the ok mask (n, f, s).  Component arrays instead of
@@ -191,7 +185,7 @@ def min_volume_box(points: np.ndarray, samples: int = 24, refine: int = 40):
     # (b) two adjacent faces flush with edges e_i and e_j: sample theta, then golden-section refine
     pairs = np.array([(i, j) for i in range(ne) for j in range(i, ne)], dtype=np.intp)
     e1, e2 = E[:, pairs[:, 0]], E[:, pairs[:, 1]]
-    bp, bq = _perp_basis(e1)  # the same for every angle: computed once
+    bp, bq = perpendicular_basis(e1)  # the same for every angle: computed once
     X = _points_first(P)
     nfam = len(pairs)
     theta = np.broadcast_to(np.arange(samples) * (np.pi / samples), (n, nfam, samples))

@@ -55,6 +55,7 @@ import numpy as np
 
 from starforge.errors import StarforgeError
 from starforge.geometry.distance import point_segment_distance
+from starforge.geometry.frames import perpendicular_basis
 from starforge.props.hand import (
     CAPSULE_COLUMNS,
     PALM_M,
@@ -249,10 +250,7 @@ def held_part(mesh, fallback=None) -> HeldPart:
     c, _ = principal_axes(v)
     slices = []
     for d in cut_directions(v):
-        helper = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        e1 = np.cross(d, helper)
-        e1 /= np.linalg.norm(e1)
-        axes = np.array([d, e1, np.cross(d, e1)])
+        axes = np.array([d, *perpendicular_basis(d)])
         local = (v - c) @ axes.T  # along d first
         lo, hi = local[:, 0].min(), local[:, 0].max()
         if hi - lo < GRASP_RUN_M:
@@ -334,10 +332,12 @@ def hand_model(a, b, part_radius: float, wrap_deg: float, hand: str, toward=None
     ``wrap_deg`` 0 is ``toward`` (a (3,) direction square to the part) when given."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     u = (b - a) / max(float(np.linalg.norm(b - a)), 1e-12)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(u, helper) if toward is None else np.cross(np.cross(u, np.asarray(toward, float)), u)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(u, e1)
+    if toward is None:
+        e1, e2 = perpendicular_basis(u)
+    else:
+        e1 = np.cross(np.cross(u, np.asarray(toward, float)), u)
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(u, e1)
     phi = math.radians(wrap_deg)
     radial = math.cos(phi) * e1 + math.sin(phi) * e2
     tangent = np.cross(u, radial)

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from starforge.geometry.frames import perpendicular_basis
 from starforge.spec import in_range
 from starforge.tol import tol
 
@@ -157,11 +158,7 @@ def disc_offsets(count: int = DISC_SAMPLES) -> np.ndarray:
 
 def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit tangents (n, 3) each, orthogonal to each normal and to each other."""
-    n = np.asarray(normals, float)
-    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    u = np.cross(n, helper)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    return u, np.cross(n, u)
+    return perpendicular_basis(np.asarray(normals, float).reshape(-1, 3))
 
 
 def sharp_edge_points(mesh, sharp_deg: float = 30.0) -> np.ndarray:

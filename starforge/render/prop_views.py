@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from starforge.geometry.frames import perpendicular_basis
 from starforge.geometry.outline import sweep_outline
 
 
@@ -197,10 +198,7 @@ def hand_outline(ax, hand, B, ls="--", lw=0.9, alpha=1.0):
     if band.any():  # each end circle of the band, seen along B[2], swept to the other end
         u = b[band] - a[band]
         u /= np.maximum(np.linalg.norm(u, axis=1), 1e-12)[:, None]
-        ref = np.where((np.abs(u[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-        e1 = np.cross(u, ref)
-        e1 /= np.linalg.norm(e1, axis=1)[:, None]
-        e2 = np.cross(u, e1)
+        e1, e2 = perpendicular_basis(u)
         t = np.linspace(0, 2 * np.pi, 48, endpoint=False)[None, :, None]
         rim = np.cos(t) * e1[:, None] + np.sin(t) * e2[:, None]
         circle = a[band][:, None] + r[band][:, None, None] * rim
