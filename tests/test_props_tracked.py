@@ -336,6 +336,54 @@ def test_untracked_poses_are_warned_and_recorded(tmp_path, capsys):
     assert f"{100 * below['validation_tracked']:.1f} %" in lines[0]
     # 60 sites far apart: over 200,000 spaced layouts, too many to score, and nothing is claimed
     assert below["ceiling"] is None and "such layouts" not in lines[0]
+    # per grip: each grip's untracked share, averaged over the grips by the poses each holds in
+    # the held-out sample, is the layout's untracked share
+    from starforge.props.grips import GRIP_SEED_OFFSET, assign_grips
+    from starforge.props.heldout import VALIDATION_SEED_OFFSET
+
+    by_grip = below["untracked_by_grip"]
+    assert len(by_grip) == len(doc["grips"]["grips"]) >= 2
+    held = np.bincount(assign_grips(3000, [_Weighted(g.get("weight", 1.0)) for g in doc["grips"]["grips"]],
+                                    np.random.default_rng(doc["seed"] + VALIDATION_SEED_OFFSET + GRIP_SEED_OFFSET)),
+                       minlength=len(by_grip))  # fmt: skip
+    assert np.dot(by_grip, held) / held.sum() == pytest.approx(1 - below["validation_tracked"], abs=1e-5)
+
+
+def test_the_shortfall_line_names_the_grips_that_lose_the_prop():
+    """Untracked scenarios in some grips only: the line names those grips; in every grip: the
+    three tracked least, each with its tracked share."""
+    from starforge.props.heldout import shortfall_warning
+
+    sf = {"markers_that_fit_at_the_spacing": 7, "markers_asked": 7, "usable_sites": 300, "sites_under_the_hand": 10,
+          "untracked_too_few_seen": 0.05, "validation_tracked": 0.95, "target": 0.99, "scenarios": 6000,
+          "tracked_with_every_camera": 0.99, "tracked_without_the_hand": 1.0}  # fmt: skip
+    some = shortfall_warning({**sf, "untracked_by_grip": [0.0, 0.0, 0.1, 0.2, 0.3, 0.0]}, 0.02, True)
+    assert "all of them are held in grips 3-5 of the 6 listed" in some
+    one = shortfall_warning({**sf, "untracked_by_grip": [0.0, 0.25]}, 0.02, True)
+    assert "held in grip 2 of the 2 listed" in one
+    every = shortfall_warning({**sf, "untracked_by_grip": [0.1, 0.4, 0.05, 0.4]}, 0.02, True)
+    assert "the grips tracked least: 2 (60 %), 4 (60 %), 1 (90 %)" in every
+    assert "grip" not in shortfall_warning({**sf, "untracked_by_grip": [0.1, 0.2]}, 0.02, False).split("try")[0]
+
+
+class _Weighted:
+    """A grip as :func:`starforge.props.grips.assign_grips` reads it: its weight alone."""
+
+    def __init__(self, weight: float):
+        self.weight = weight
+
+
+@given(st.sets(st.integers(1, 40)))
+def test_numbers_as_ranges_reads_back(numbers):
+    from starforge.props.heldout import numbers_as_ranges
+
+    text = numbers_as_ranges(sorted(numbers))
+    back = set()
+    for part in filter(None, text.split(", ")):
+        lo, _, hi = part.partition("-")
+        back |= set(range(int(lo), int(hi or lo) + 1))
+        assert not hi or int(hi) > int(lo)  # a range of one is written as the number
+    assert back == numbers
 
 
 def test_below_target_names_the_exact_ceiling_when_layouts_are_few(tmp_path):

@@ -160,7 +160,8 @@ def explain_shortfall(sample: HeldOut, spec, prep, prob, chosen, removed, fit) -
     everything = np.repeat(np.bitwise_count(masks) >= 2, seen.shape[1] // masks.shape[1], axis=1)
     seen_nh, _ = sample.seen(idx, hand=False) if prep.capsules else (seen, None)
     marks = list(range(len(idx)))
-    tracked = 1.0 - held.terms(marks)["untracked"]
+    ok = held.tracked_scenarios(marks)
+    tracked = float(ok.mean())
     few = float(((seen.sum(axis=0) < 3)).mean())
     out = {
         "target": ts.target_tracked,
@@ -177,12 +178,41 @@ def explain_shortfall(sample: HeldOut, spec, prep, prob, chosen, removed, fit) -
         "sites_under_the_hand": removed["under_hand"],
         "hidden_by_the_hand": hidden_share(prep.sites.points + prep.seat.centre_height_m * prep.sites.normals, prep.grips),
     }
+    if prep.grips:
+        grip = np.repeat(sample.grip, sample.patterns)  # scenario k * patterns + j is pose k's
+        out["untracked_by_grip"] = untracked_by_grip(ok, grip, len(prep.grips))
 
     every = np.arange(len(prob.points))
     out["ceiling"] = tracked_ceiling(
         prob.points, lambda: sample.seen(every)[0], prob.spacing, held.min_spread2, ts.target_markers
     )
     return out
+
+
+def untracked_by_grip(ok: np.ndarray, grip: np.ndarray, grips: int) -> list[float]:
+    """Per grip (in the order ``place`` lists them): the share of the scenarios held in it that
+    the layout does not track (``ok`` (s,) bool per scenario, ``grip`` (s,) int its grip); empty
+    without a hand."""
+    if not grips:
+        return []
+    held = np.bincount(grip, minlength=grips)
+    lost = np.bincount(grip[~ok], minlength=grips)
+    return [round(float(lo / n), 6) if n else 0.0 for lo, n in zip(lost, held, strict=True)]
+
+
+def numbers_as_ranges(numbers: list[int]) -> str:
+    """``[7, 8, 9, 12]`` -> ``"7-9, 12"``."""
+    out, run = [], []
+    for n in sorted(numbers):
+        if run and n == run[-1] + 1:
+            run.append(n)
+            continue
+        if run:
+            out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else f"{run[0]}")
+        run = [n]
+    if run:
+        out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else f"{run[0]}")
+    return ", ".join(out)
 
 
 def hidden_share(centres: np.ndarray, grips) -> float:
@@ -213,6 +243,16 @@ def shortfall_warning(sf: dict, spacing_m: float, hand: bool) -> str:
         )
     share = sf["untracked_too_few_seen"] / max(1e-12, 1.0 - sf["validation_tracked"])
     cause.append(f"{100 * share:.0f} % of the untracked scenarios see fewer than 3 markers, the rest see them in a line")
+    by = sf.get("untracked_by_grip") or []
+    lost = [g + 1 for g, x in enumerate(by) if x > 0]
+    if hand and 0 < len(lost) < len(by):
+        cause.append(
+            f"all of them are held in grip{'s' if len(lost) > 1 else ''} {numbers_as_ranges(lost)} of the {len(by)} "
+            "listed (the others are tracked in every scenario)"
+        )
+    elif hand and lost:
+        worst = sorted(range(len(by)), key=lambda g: (-by[g], g))[:3]
+        cause.append("the grips tracked least: " + ", ".join(f"{g + 1} ({100 * (1 - by[g]):.0f} %)" for g in worst))
     c = sf.get("ceiling")
     if c is not None:
         cause.append(

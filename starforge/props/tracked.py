@@ -259,7 +259,11 @@ class Problem:
 
     def untracked(self, sites) -> float:
         """The ``untracked`` term of :meth:`terms` alone."""
-        return 1.0 - float(self._seen_counts(np.asarray(sites, dtype=np.int64))[1].mean())
+        return 1.0 - float(self.tracked_scenarios(sites).mean())
+
+    def tracked_scenarios(self, sites) -> np.ndarray:
+        """(scenarios,) bool: ``sites`` tracked in each scenario (>= 3 seen, not in a line)."""
+        return self._seen_counts(np.asarray(sites, dtype=np.int64))[1]
 
     def crowding(self, sites) -> int:
         """The ``close_pairs``, ``avoid_conflicts`` and ``own_conflicts`` terms of :meth:`terms` alone."""
