@@ -182,11 +182,13 @@ def shaded(ax, tris, fn, B, light=None):
     return proj
 
 
-def hand_outline(ax, hand, B, ls="--", lw=0.9, alpha=1.0):
+def hand_outline(ax, hand, B, deepest: float = 0.45):
     """The hand's capsules and bands (rows of :func:`starforge.props.hand.capsule_arrays`) as
-    outlines, drawn as one collection: a capsule's silhouette is a stadium, a band's the convex
-    hull of its two end circles (:func:`~starforge.geometry.outline.sweep_outline`)."""
-    from matplotlib.collections import LineCollection
+    one collection of translucent silhouettes that deepen where they overlap: a spot inside all
+    of them is ``deepest`` opaque, one inside a share s of them ``1 - (1 - deepest)**s``, so the
+    shade reads as how many of the grips cover it.  A capsule's silhouette is a stadium, a
+    band's the convex hull of its two end circles (:func:`~starforge.geometry.outline.sweep_outline`)."""
+    from matplotlib.collections import PolyCollection
 
     from starforge.props.hand import CAPSULE_COLUMNS
 
@@ -218,8 +220,9 @@ def hand_outline(ax, hand, B, ls="--", lw=0.9, alpha=1.0):
         stadium = np.concatenate([cap1, cap0, cap1[:, :1]], axis=1)
         for i, ring in zip(np.flatnonzero(~band), stadium, strict=True):
             rings[i] = ring
-    lines = LineCollection(rings, colors="C1", linestyles=ls, linewidths=lw, alpha=alpha, zorder=2)
-    ax.add_collection(lines, autolim=False)
+    each = 1.0 - (1.0 - deepest) ** (1.0 / len(c))
+    shade = PolyCollection(rings, facecolors="C1", edgecolors="none", alpha=each, zorder=2)
+    ax.add_collection(shade, autolim=False)
 
 
 def spread_labels(points: np.ndarray, span: float, rounds: int = 200) -> np.ndarray:
@@ -332,8 +335,9 @@ def hidden_in_views(mesh, centres: np.ndarray, views: dict) -> dict:
 
 
 def hand_outlines(ax, d: PlotData, B, wrists: bool = True) -> None:
-    """The grips: fists dashed, wrists dotted and fainter (unless ``wrists`` is false)."""
+    """The grips, shaded by how many cover each spot: the fists, then the wrists fainter
+    (unless ``wrists`` is false)."""
     if d.hand is not None and len(d.hand):
         hand_outline(ax, d.hand, B)
     if wrists and d.wrists is not None and len(d.wrists):
-        hand_outline(ax, d.wrists, B, ls=":", lw=0.6, alpha=0.6)
+        hand_outline(ax, d.wrists, B, deepest=0.2)

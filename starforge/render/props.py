@@ -97,7 +97,7 @@ def layout_png(res, path: str | Path) -> Path:
         fig.colorbar(sc, cax=cax).set_label(label, fontsize=8)
     fig.suptitle(
         f"{d.name}: {len(vis)} markers (numbered), mean {d.mean_visibility:.3f}; hollow: hidden by the prop"
-        + (f"\norange: the hand in its {len(d.hand)} grip(s), fists dashed, wrists dotted" if d.hand is not None and len(d.hand) else ""),
+        + (f"\norange: the hand in its {len(d.hand)} grip(s), deeper where more of them cover; wrists fainter" if d.hand is not None and len(d.hand) else ""),
         fontsize=9,
     )
     save_png(fig, path, dpi=_DPI)
