@@ -159,7 +159,8 @@ def test_min_volume_box_frames_and_volumes_are_the_numpy_floats_bit_for_bit():
     """The edge-pair family's frames and box volumes, built component by component for speed,
     are the floats np.cross, np.linalg.norm, einsum and np.prod give (the boxes, and so every
     family file, do not change with the speed-up)."""
-    from starforge.geometry.obb import _box_volumes, _family_frames, _perp_basis, _points_first, _stack_frames
+    from starforge.geometry.frames import perpendicular_basis
+    from starforge.geometry.obb import _box_volumes, _family_frames, _points_first, _stack_frames
 
     rng = np.random.default_rng(3)
     P = rng.normal(size=(40, 4, 3)) * np.array([1, 3, 8])
@@ -168,7 +169,7 @@ def test_min_volume_box_frames_and_volumes_are_the_numpy_floats_bit_for_bit():
     e2 = rng.normal(size=(40, 5, 3))
     e2 /= np.linalg.norm(e2, axis=-1, keepdims=True)
     theta = rng.uniform(0, np.pi, size=(40, 5, 7))
-    p, q = _perp_basis(e1)
+    p, q = perpendicular_basis(e1)
     axes, ok = _family_frames(p, q, e2, theta)
     A = _stack_frames(axes)
     # the same frames with numpy's vector functions
