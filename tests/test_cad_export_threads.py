@@ -77,6 +77,73 @@ def test_step_files_equal_a_serial_build(tmp_path):
         assert (tmp_path / "serial" / name).read_bytes() == (tmp_path / "launched" / name).read_bytes()
 
 
+PLATE = """
+import sys
+from pathlib import Path
+from starforge import load_family
+from starforge.cad.body import BodySpec
+from starforge.cad.export import export_family
+from starforge.cad.mounts import load_mount
+export_family(load_family(sys.argv[1]), Path(sys.argv[2]), load_mount("flat"), BodySpec(), formats=("step",),
+              ids=[1, 2, 3])
+"""
+
+
+@pytest.mark.slow
+def test_plate_step_files_are_the_same_from_run_to_run(tmp_path):
+    """A plate's assembly written twice, each in a fresh process, is the same bytes (OCCT's writer
+    lists the parts' colour styles in the order of their addresses; write_step puts them in the
+    assembly's), and still names and colours every body as the export gave them."""
+    import subprocess
+    import sys
+
+    import build123d
+
+    from starforge.colours import body_colour
+
+    for run in ("a", "b"):
+        (tmp_path / run).mkdir()
+        subprocess.run([sys.executable, "-c", PLATE, str(DATA), str(tmp_path / run)], check=True)
+    plate = (tmp_path / "a" / "plate.step").read_bytes()
+    assert plate == (tmp_path / "b" / "plate.step").read_bytes()
+    assembly = build123d.import_step(tmp_path / "a" / "plate.step")
+    got = {c.label: tuple(round(255 * x) for x in tuple(c.color)[:3]) for c in assembly.children}
+    assert got == {f"star_{k:03d}": body_colour(k - 1) for k in (1, 2, 3)}
+    assert plate.count(b"COLOUR_RGB") == 2 * 3  # a style per body and one per placed instance
+
+
+def test_a_plate_of_repeated_colours_is_the_same_from_run_to_run(tmp_path):
+    """Bodies of one colour share its colour entity in the writer's output: the order of the
+    styles still does not depend on the process, and every body keeps its name and colour."""
+    import subprocess
+    import sys
+
+    import build123d
+
+    for run in ("a", "b"):
+        subprocess.run([sys.executable, "-c", BOXES, str(tmp_path / f"{run}.step")], check=True)
+    assert (tmp_path / "a.step").read_bytes() == (tmp_path / "b.step").read_bytes()
+    assembly = build123d.import_step(tmp_path / "a.step")
+    got = [(c.label, tuple(round(255 * x) for x in tuple(c.color)[:3])) for c in assembly.children]
+    assert got == [(f"box_{i}", BOX_COLOURS[i]) for i in range(len(BOX_COLOURS))]
+
+
+BOX_COLOURS = [(0, 100, 200), (40, 100, 200), (0, 100, 200), (255, 0, 0), (40, 100, 200), (255, 0, 0)]
+BOXES = f"""
+import sys
+import numpy as np
+from starforge.cad.brep import PRINT_ROTATION, assembly, kernel, placed, write_step
+bd = kernel()
+T = np.eye(4)
+T[:3, :3] = PRINT_ROTATION
+boxes = [placed(bd.Solid.make_box(1.0 + i, 2.0, 3.0), T, f"box_{{i}}", c) for i, c in enumerate({BOX_COLOURS})]
+beds = [np.eye(4) for _ in boxes]
+for i, bed in enumerate(beds):
+    bed[0, 3] = 10.0 * i
+write_step(assembly(boxes, beds, "boxes"), sys.argv[1])
+"""
+
+
 def test_mesh_files_and_entries_do_not_depend_on_step(both):
     *_, full, mesh_only, _ = both
     for f in sorted(mesh_only.glob("*")):

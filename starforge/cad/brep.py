@@ -8,8 +8,9 @@ solid carries its STEP name and colour (``label``, ``color``); a plate is a ``Co
 children are its bodies' solids, each ``moved`` to its place on the bed; ``export_step`` writes
 both, ``import_step`` reads them back.
 
-OCP (the OpenCascade bindings under build123d) is called once, where build123d has no call:
-:func:`placed` bakes a rigid transform into a copy of the geometry.
+OCP (the OpenCascade bindings under build123d) is called where build123d has no call:
+:func:`placed` bakes a rigid transform into a copy of the geometry, and :func:`write_step` puts
+the colour styles in a fixed order between the STEP writer's transfer and its write.
 
 build123d loads in :func:`kernel` only, the modules the bodies use: its import takes seconds, so
 ``import starforge`` and the commands that build no solid stay fast.
@@ -291,14 +292,148 @@ def assembly(solids, transforms, name: str):
 
 def write_step(shape, path) -> None:
     """Write a named solid or an :func:`assembly` to a STEP file (AP214, mm, fixed header time
-    stamp).  The caller stages the path (atomic outputs)."""
-    bd = kernel()
+    stamp, the colour styles in a fixed order: :func:`_order_styles`).  The caller stages the
+    path (atomic outputs)."""
     try:
-        ok = bd.export_step(shape, str(path), bd.Unit.MM, write_pcurves=STEP_PCURVES, timestamp=STEP_TIMESTAMP)
+        ok = _write_step(shape, str(path))
     except RuntimeError as exc:
         raise StarforgeError(f"could not write STEP file {path}: {exc}") from None
     if not ok:
         raise StarforgeError(f"could not write STEP file {path}")
+
+
+def _write_step(shape, path: str) -> bool:
+    """build123d's ``export_step`` (its XCAF document, header and writer settings), with
+    :func:`_order_styles` between the transfer and the write."""
+    # OCP here: build123d's export_step transfers and writes in one call, and the writer lists
+    # the styles in an order that is not the same from process to process
+    from OCP.APIHeaderSection import APIHeaderSection_MakeHeader
+    from OCP.IFSelect import IFSelect_ReturnStatus
+    from OCP.IGESControl import IGESControl_Controller
+    from OCP.Interface import Interface_Static
+    from OCP.Message import Message, Message_Gravity
+    from OCP.STEPCAFControl import STEPCAFControl_Controller, STEPCAFControl_Writer
+    from OCP.STEPControl import STEPControl_Controller, STEPControl_StepModelType
+    from OCP.TCollection import TCollection_HAsciiString
+    from OCP.XSControl import XSControl_WorkSession
+
+    bd = kernel()
+    (exporters,) = _import_modules(["build123d.exporters3d"])
+    doc = exporters._create_xde(shape, bd.Unit.MM, auto_naming=True)
+    for printer in Message.DefaultMessenger_s().Printers():
+        printer.SetTraceLevel(Message_Gravity.Message_Fail)
+    writer = STEPCAFControl_Writer(XSControl_WorkSession(), False)
+    writer.SetColorMode(True)
+    writer.SetLayerMode(True)
+    writer.SetNameMode(True)
+    model = writer.Writer().Model()
+    header = APIHeaderSection_MakeHeader(model)
+    if not header.IsDone():
+        header = APIHeaderSection_MakeHeader(0)
+        header.Apply(model)
+    if shape.label:
+        header.SetName(TCollection_HAsciiString(shape.label))
+    header.SetTimeStamp(TCollection_HAsciiString(STEP_TIMESTAMP))
+    header.SetOriginatingSystem(TCollection_HAsciiString("build123d"))
+    STEPCAFControl_Controller.Init_s()
+    STEPControl_Controller.Init_s()
+    IGESControl_Controller.Init_s()
+    Interface_Static.SetIVal_s("write.surfacecurve.mode", int(STEP_PCURVES))
+    Interface_Static.SetIVal_s("write.precision.mode", bd.PrecisionMode.AVERAGE.value)
+    writer.Transfer(doc, STEPControl_StepModelType.STEPControl_AsIs)
+    _order_styles(writer.Writer().Model())
+    return writer.Write(path) == IFSelect_ReturnStatus.IFSelect_RetDone
+
+
+def _order_styles(model) -> None:
+    """Put the colour styles of a transferred STEP ``model`` in a fixed order.
+
+    OCCT's STEPCAFControl writer adds one presentation (MECHANICAL_DESIGN_GEOMETRIC_PRESENTATION_
+    REPRESENTATION) per coloured part last, each with the styles and colours it refers to, in
+    the order of a map hashed by the parts' addresses: an assembly of several coloured parts
+    comes out in an order that changes from process to process.  The presentations' blocks are
+    put in the order of their styled items' entity numbers (given before the styles, in the
+    assembly's order), each block's entities kept in the order the writer added them and a
+    colour entity that parts of one colour share put after the first entity that names it.  The
+    entities move within the model; their numbers are given when the file is written, so every
+    reference follows its entity.  A model of one presentation (a body's own file) is left as
+    the writer made it.
+    """
+    from OCP.StepVisual import StepVisual_Colour as Colour
+    from OCP.StepVisual import StepVisual_CurveStyle as Curve
+    from OCP.StepVisual import StepVisual_FillAreaStyleColour as FillColour
+    from OCP.StepVisual import StepVisual_MechanicalDesignGeometricPresentationRepresentation as Mdgpr
+
+    # the model's entities and their numbers, by the wrappers OCP keeps one of per entity (its
+    # Number() does not find an entity passed from Python)
+    ents = [model.Value(i) for i in range(1, model.NbEntities() + 1)]
+    number = {id(e): i for i, e in enumerate(ents, 1)}
+    heads = [e for e in ents if isinstance(e, Mdgpr)]
+    if len(heads) < 2:
+        return
+    start = min(number[id(h)] for h in heads)
+
+    def key(h):
+        items = h.Items()
+        targets = [number[id(items.Value(j).Item())] for j in range(items.Lower(), items.Upper() + 1)]
+        return (sorted(targets), number[id(h.ContextOfItems())])
+
+    # the writer adds each presentation with the entities it refers to that the model does not
+    # hold yet, the presentation first: a presentation's block runs up to the next one's.  Parts
+    # of one colour share its colour entity, which sits in the block the writer added first: a
+    # colour goes after the first entity that names it, in the blocks' new order
+    at = sorted(number[id(h)] for h in heads) + [len(ents) + 1]
+    blocks = {i: range(i, j) for i, j in zip(at[:-1], at[1:], strict=True)}
+    order, placed = [], set()
+    for h in sorted(heads, key=key):
+        for i in blocks[number[id(h)]]:
+            e = ents[i - 1]
+            if isinstance(e, Colour):
+                continue
+            order.append(e)
+            named = [e.FillColour()] if isinstance(e, FillColour) else [e.CurveColour()] if isinstance(e, Curve) else []
+            for c in named:
+                n = number.get(id(c), 0)
+                if n >= start and n not in placed:
+                    placed.add(n)
+                    order.append(c)
+    order += [e for e in ents[start - 1 :] if isinstance(e, Colour) and number[id(e)] not in placed]
+    _permute_tail(model, start, [number[id(e)] for e in ents[start - 1 :]], [number[id(e)] for e in order])
+    if [id(model.Value(i)) for i in range(start, len(ents) + 1)] != [id(e) for e in order]:
+        raise RuntimeError("the styles could not be put in order")
+
+
+def _permute_tail(model, start: int, cur: list, want: list) -> None:
+    """Reorder the entities from number ``start`` on, now ``cur`` (their labels, in order), into
+    ``want`` (the same labels) by reversing the model's tail (its one reordering that takes no
+    entity from Python): each run of ``want`` found together in ``cur`` moves in at most three
+    reversals."""
+    cur = list(cur)
+
+    def flip(at: int) -> None:  # reverse the entities after the first start + at - 1
+        model.ReverseOrders(start + at - 1)
+        cur[at:] = cur[at:][::-1]
+
+    p = 0
+    while p < len(want):
+        q = cur.index(want[p])
+        k = 1  # the run want[p : p + k] is at cur[q : q + k] (forward) or cur[q - k + 1 : q + 1] (reversed)
+        if q + 1 < len(cur) and p + 1 < len(want) and cur[q + 1] == want[p + 1]:
+            while p + k < len(want) and q + k < len(cur) and cur[q + k] == want[p + k]:
+                k += 1
+            forward, lo = True, q
+        else:
+            while p + k < len(want) and q - k >= p and cur[q - k] == want[p + k]:
+                k += 1
+            forward, lo = k == 1, q - k + 1
+        if lo == p and forward:
+            p += k
+            continue
+        flip(lo)  # the run at the end, its order reversed
+        if not forward:
+            flip(len(cur) - k)  # the run on its own: forward again
+        flip(p)  # the run at p, forward
+        p += k
 
 
 def read_step(path) -> list:
