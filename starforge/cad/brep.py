@@ -319,7 +319,10 @@ def _write_step(shape, path: str) -> bool:
 
     bd = kernel()
     (exporters,) = _import_modules(["build123d.exporters3d"])
-    doc = exporters._create_xde(shape, bd.Unit.MM, auto_naming=True)
+    create = getattr(exporters, "_create_xde", None)
+    if create is None:  # a build123d without it: its own export, the styles in the writer's order
+        return bd.export_step(shape, path, bd.Unit.MM, write_pcurves=STEP_PCURVES, timestamp=STEP_TIMESTAMP)
+    doc = create(shape, bd.Unit.MM, auto_naming=True)
     for printer in Message.DefaultMessenger_s().Printers():
         printer.SetTraceLevel(Message_Gravity.Message_Fail)
     writer = STEPCAFControl_Writer(XSControl_WorkSession(), False)
