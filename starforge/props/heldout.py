@@ -4,6 +4,7 @@ target (never the samples the layouts were searched on, nor the fresh-pose evalu
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import replace
 
 import numpy as np
@@ -169,8 +170,8 @@ def explain_shortfall(sample: HeldOut, spec, prep, prob, chosen, removed, fit) -
         "scenarios": int(seen.shape[1]),
         "untracked_too_few_seen": few,
         "untracked_in_a_line": max(0.0, 1.0 - tracked - few),
-        "tracked_with_every_camera": 1.0 - Problem(prob.points[idx], everything, everything.mean(axis=1), ts, prob.spacing, prob.spread_target).terms(marks)["untracked"],
-        "tracked_without_the_hand": 1.0 - Problem(prob.points[idx], seen_nh, seen_nh.mean(axis=1), ts, prob.spacing, prob.spread_target).terms(marks)["untracked"],
+        "tracked_with_every_camera": 1.0 - Problem(prob.points[idx], everything, everything.mean(axis=1), ts, prob.spacing, prob.spread_target).untracked(marks),
+        "tracked_without_the_hand": 1.0 - Problem(prob.points[idx], seen_nh, seen_nh.mean(axis=1), ts, prob.spacing, prob.spread_target).untracked(marks),
         "markers": len(idx),
         "markers_asked": spec.track.target_markers,
         "markers_that_fit_at_the_spacing": fit,
@@ -201,17 +202,11 @@ def untracked_by_grip(ok: np.ndarray, grip: np.ndarray, grips: int) -> list[floa
 
 
 def numbers_as_ranges(numbers: list[int]) -> str:
-    """``[7, 8, 9, 12]`` -> ``"7-9, 12"``."""
-    out, run = [], []
-    for n in sorted(numbers):
-        if run and n == run[-1] + 1:
-            run.append(n)
-            continue
-        if run:
-            out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else f"{run[0]}")
-        run = [n]
-    if run:
-        out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else f"{run[0]}")
+    """``[7, 8, 9, 12]`` -> ``"7-9, 12"``: consecutive numbers share ``n - position``."""
+    out = []
+    for _, run in itertools.groupby(enumerate(sorted(numbers)), key=lambda t: t[1] - t[0]):
+        r = [n for _, n in run]
+        out.append(f"{r[0]}-{r[-1]}" if len(r) > 1 else f"{r[0]}")
     return ", ".join(out)
 
 
