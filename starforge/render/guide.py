@@ -23,7 +23,7 @@ import numpy as np
 
 from starforge.props.guide import template_scale
 from starforge.render._mpl import pyplot, save_png
-from starforge.render.prop_views import VIEWS, frame, hand_outlines, markers_in_view, plot_data, shaded
+from starforge.render.prop_views import VIEWS, frame, markers_in_view, plot_data, shade_grips, shaded
 from starforge.runtime.procs import can_fork, fork_helper, release
 
 #: the guide's four views (names in :data:`starforge.render.prop_views.VIEWS`)
@@ -162,7 +162,7 @@ def guide_pages(res) -> list:
         ax = fig.add_axes([0.01 + 0.245 * k, 0.47, 0.235, 0.46])
         proj = shaded(ax, d.triangles, d.face_normals, B)
         span = frame(ax, proj, pad=1.3)
-        hand_outlines(ax, d, B, wrists=False)
+        shade_grips(ax, d, B, wrists=False)
         _, labels = markers_in_view(ax, d, B, span, size=40, view=name)
         marks = []
         for fname, p in d.features:

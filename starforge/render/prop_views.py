@@ -182,7 +182,7 @@ def shaded(ax, tris, fn, B, light=None):
     return proj
 
 
-def hand_outline(ax, hand, B, deepest: float = 0.45):
+def shade_hand(ax, hand, B, deepest: float = 0.45):
     """The hand's capsules and bands (rows of :func:`starforge.props.hand.capsule_arrays`) as
     one collection of translucent silhouettes that deepen where they overlap: a spot inside all
     of them is ``deepest`` opaque, one inside a share s of them ``1 - (1 - deepest)**s``, so the
@@ -334,10 +334,10 @@ def hidden_in_views(mesh, centres: np.ndarray, views: dict) -> dict:
     return out
 
 
-def hand_outlines(ax, d: PlotData, B, wrists: bool = True) -> None:
+def shade_grips(ax, d: PlotData, B, wrists: bool = True) -> None:
     """The grips, shaded by how many cover each spot: the fists, then the wrists fainter
     (unless ``wrists`` is false)."""
     if d.hand is not None and len(d.hand):
-        hand_outline(ax, d.hand, B)
+        shade_hand(ax, d.hand, B)
     if wrists and d.wrists is not None and len(d.wrists):
-        hand_outline(ax, d.wrists, B, deepest=0.2)
+        shade_hand(ax, d.wrists, B, deepest=0.2)

@@ -21,9 +21,9 @@ from starforge.render.prop_views import (
     VIEWS,
     PlotData,
     frame,
-    hand_outlines,
     markers_in_view,
     plot_data,
+    shade_grips,
     shaded,
 )
 from starforge.runtime.procs import fork_helper, release
@@ -87,7 +87,7 @@ def layout_png(res, path: str | Path) -> Path:
         B = VIEWS[f"layout {title}"]
         proj = shaded(ax, d.triangles, d.face_normals, B)
         span = frame(ax, proj)
-        hand_outlines(ax, d, B)
+        shade_grips(ax, d, B)
         sc = markers_in_view(ax, d, B, span, vis, norm, "plasma", view=f"layout {title}")[0] or sc
         ax.set_title(f"{title} (elevation {elev}, azimuth {azim} deg)", fontsize=8)
     cax = fig.add_axes([0.86, 0.15, 0.022, 0.62])
