@@ -592,7 +592,8 @@ def test_the_guide_has_landmarks_calipers_and_no_overlapping_text(hammer_run):
     from the ball centres); the guide's pages, drawn, have no two text boxes overlapping and
     every text inside the page; the template page's scale bar is 50 mm of the prop at its scale."""
     from starforge.props.placement import run_placement
-    from starforge.render.guide import guide_pages, overlapping_texts, text_boxes
+    from starforge.render._mpl import text_boxes
+    from starforge.render.guide import guide_pages, overlapping_texts
 
     out, _ = hammer_run
     doc = json.loads((out / "placement.json").read_text())
@@ -612,9 +613,9 @@ def test_the_guide_has_landmarks_calipers_and_no_overlapping_text(hammer_run):
     for fig in pages:
         assert overlapping_texts(fig) == []
         W, H = fig.bbox.width, fig.bbox.height
-        for t, b in text_boxes(fig):
-            assert b.x0 >= -0.5 and b.y0 >= -0.5 and b.x1 <= W + 0.5 and b.y1 <= H + 0.5, t.get_text()
-    text = " ".join(t.get_text() for t, _ in text_boxes(pages[0]))
+        for t, (x0, y0, x1, y1) in text_boxes(fig):
+            assert x0 >= -0.5 and y0 >= -0.5 and x1 <= W + 0.5 and y1 <= H + 0.5, t
+    text = " ".join(t for t, _ in text_boxes(pages[0]))
     for i in range(1, len(res.marker_sites) + 1):
         assert f"{i:>2}. on " in text
 

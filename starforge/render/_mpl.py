@@ -53,10 +53,25 @@ def wrap_to_width(fig, text_artist, fraction: float = 0.96) -> None:
         text_artist.set_text("\n".join(textwrap.wrap(full, width)))
 
 
+def label_box(t, renderer):
+    """A text's display box; for a text drawn in a frame (a marker's number in its circle), the
+    frame's box, which is larger than the text's: the frame's box style applied to the text's box
+    as matplotlib draws it for an unrotated text (without placing the patch, which is slow)."""
+    from matplotlib.transforms import Bbox
+
+    box = t.get_window_extent(renderer)
+    patch = t.get_bbox_patch()
+    if patch is None:
+        return box
+    path = patch.get_boxstyle()(box.x0, box.y0, box.width, box.height, renderer.points_to_pixels(t.get_size()))
+    v = path.vertices
+    return Bbox.from_extents(*v.min(axis=0), *v.max(axis=0))
+
+
 def text_boxes(fig) -> list[tuple[str, tuple[float, float, float, float]]]:
-    """Every text ``fig`` draws with its box in pixels (x0, y0, x1, y1): titles, labels, the tick
-    labels inside the axes' limits, legend entries, free text; for checking that none overlaps
-    another or leaves the figure."""
+    """Every text ``fig`` draws with its box in pixels (x0, y0, x1, y1), its frame's where it has
+    one (:func:`label_box`): titles, labels, the tick labels inside the axes' limits, legend
+    entries, free text; for checking that none overlaps another or leaves the figure."""
     from matplotlib.text import Text
 
     fig.draw_without_rendering()
@@ -75,6 +90,6 @@ def text_boxes(fig) -> list[tuple[str, tuple[float, float, float, float]]]:
             continue
         if t.axes is not None and not t.axes.get_visible():
             continue
-        b = t.get_window_extent(renderer)
+        b = label_box(t, renderer)
         out.append((t.get_text(), (float(b.x0), float(b.y0), float(b.x1), float(b.y1))))
     return out

@@ -10,8 +10,11 @@ printed scale of 1:1 where the prop fits an A4 sheet (else 1:2, 1:5, ...) with a
 check the print against, crosshairs at the markers' base centres.
 
 No two texts overlap: text blocks are stacked by their measured extents (:class:`_Cursor`),
-and the labels inside a view are pushed apart by :func:`declutter` until their boxes are
-disjoint (a landmark label that still collides is left out: the table names it).
+and the labels inside a view are placed by :func:`declutter` where they cover no other label, no
+marker and no landmark's triangle.  Landmarks that fall on one spot in a view share one triangle
+and one label ("T4/T5"); a landmark label with no free spot is left out, those already labelled
+in an earlier view giving way first (the tests check that every landmark the table names is
+labelled in some view).
 """
 
 from __future__ import annotations
@@ -22,8 +25,16 @@ from pathlib import Path
 import numpy as np
 
 from starforge.props.guide import template_scale
-from starforge.render._mpl import pyplot, save_png
-from starforge.render.prop_views import VIEWS, frame, markers_in_view, plot_data, shade_grips, shaded
+from starforge.render._mpl import label_box, pyplot, save_png, text_boxes
+from starforge.render.prop_views import (
+    VIEWS,
+    follow_labels,
+    frame,
+    markers_in_view,
+    plot_data,
+    shade_grips,
+    shaded,
+)
 from starforge.runtime.procs import can_fork, fork_helper, release
 
 #: the guide's four views (names in :data:`starforge.render.prop_views.VIEWS`)
@@ -43,6 +54,8 @@ TEXT_STYLES = {
     "caliper": {"fontsize": 6.5, "family": "monospace"},
 }
 _DPI = 110  # guide.png
+_DOT_AREA = 40  # a marker's dot in the views (scatter size: points squared)
+_TRIANGLE_PT = 4  # a landmark's triangle, points across
 
 
 def _overlap(a, b, pad: float = 0.5) -> bool:
@@ -50,75 +63,87 @@ def _overlap(a, b, pad: float = 0.5) -> bool:
     return min(a.x1, b.x1) - max(a.x0, b.x0) > pad and min(a.y1, b.y1) - max(a.y0, b.y0) > pad
 
 
-def text_boxes(fig) -> list:
-    """(text artist, display box) of every visible, non-empty text of ``fig`` (drawn first)."""
-    fig.canvas.draw()
-    r = fig.canvas.get_renderer()
-    out = []
-    for t in fig.findobj(lambda a: hasattr(a, "get_text") and hasattr(a, "get_window_extent")):
-        if t.get_visible() and t.get_text().strip() and t.figure is fig:
-            out.append((t, t.get_window_extent(r)))
-    return out
+def coincident_landmarks(features, B, tol: float) -> list[tuple[list[str], np.ndarray]]:
+    """The landmarks ``features`` ((name, point) pairs) as seen in view ``B``, those that fall
+    within ``tol`` of each other (in the view's plane) grouped under one symbol: (names, the first
+    one's 2D point) per group, in the order of ``features``."""
+    groups: list[tuple[list[str], np.ndarray]] = []
+    for fname, p in features:
+        q = np.asarray(p, float) @ B[:2].T
+        for names, g in groups:
+            if np.linalg.norm(q - g) <= tol:
+                names.append(fname)
+                break
+        else:
+            groups.append(([fname], q))
+    return groups
+
+
+def symbol_box(ax, xy, size_pt: float):
+    """The display box of a symbol ``size_pt`` points across, centred on data point ``xy`` (once
+    the axes' aspect is applied)."""
+    from matplotlib.transforms import Bbox
+
+    x, y = ax.transData.transform(xy)
+    h = size_pt / 2 * ax.figure.dpi / 72.0
+    return Bbox.from_extents(x - h, y - h, x + h, y + h)
 
 
 def overlapping_texts(fig) -> list[tuple[str, str]]:
-    """Every pair of visible texts of ``fig`` whose boxes overlap (the guide's check)."""
-    boxes = text_boxes(fig)
-    return [
-        (boxes[i][0].get_text(), boxes[j][0].get_text())
-        for i in range(len(boxes))
-        for j in range(i + 1, len(boxes))
-        if _overlap(boxes[i][1], boxes[j][1])
-    ]
+    """Every pair of visible texts of ``fig`` whose boxes (frames included) overlap (the guide's check)."""
+    from matplotlib.transforms import Bbox
+
+    boxes = [(t, Bbox.from_extents(*b)) for t, b in text_boxes(fig)]
+    return [(boxes[i][0], boxes[j][0]) for i in range(len(boxes)) for j in range(i + 1, len(boxes)) if _overlap(boxes[i][1], boxes[j][1])]
 
 
-def declutter(ax, fixed: list, movable: list, droppable: list, rounds: int = 60) -> None:
-    """Push the texts of ``movable`` and ``droppable`` (in ``ax``) apart from each other and from
-    ``fixed`` until no boxes overlap, keeping them inside the axes; a droppable text that still
-    overlaps after ``rounds`` is hidden."""
+#: how far (in label heights) and in how many directions :func:`declutter` looks for a free spot
+_REACH, _DIRECTIONS = 10, 24
+
+
+def declutter(ax, fixed: list, movable: list, droppable: list, obstacles: list = ()) -> None:
+    """Place the texts of ``movable`` and ``droppable`` (in ``ax``) where their boxes overlap no
+    other text, none of ``fixed`` and none of ``obstacles`` (symbols no text may cover: (data
+    point, size in points) pairs, :func:`symbol_box`), inside the axes.
+
+    Greedy label placement: the movable texts (which must all show), then the droppable ones from
+    the last listed to the first, each takes the free spot nearest its own position among rings
+    of spots round it (:data:`_REACH` label heights out, :data:`_DIRECTIONS` directions).  A
+    droppable text with no free spot is hidden; a movable one takes the spot it overlaps least.
+    Each text's box (its frame's, :func:`~starforge.render._mpl.label_box`) is measured once, as
+    an offset from its anchor, so the search is arithmetic on boxes."""
     fig = ax.figure
     r = fig.canvas.get_renderer()  # text extents need the renderer, not a drawing of the page
     ax.apply_aspect()
+    fb = ax.get_window_extent(r)
+    fixed = [t for t in fixed if t.get_visible()]
+    placed = [label_box(t, r).extents for t in fixed] + [symbol_box(ax, xy, size).extents for xy, size in obstacles]
+    placed = np.array(placed, float).reshape(-1, 4)
+    rings = np.arange(_REACH + 1, dtype=float)
+    ang = np.arange(_DIRECTIONS) * (2 * np.pi / _DIRECTIONS)
+    unit = np.column_stack([np.cos(ang), np.sin(ang)])
     inv = ax.transData.inverted()
-    frame_box = ax.get_window_extent(r)
-    texts = fixed + movable + droppable
-    n_fixed = len(fixed)
-
-    def box(t):
-        return t.get_window_extent(r)
-
-    for _ in range(rounds):
-        moved = False
-        boxes = [box(t) for t in texts]
-        for i in range(n_fixed, len(texts)):
-            if not texts[i].get_visible():
-                continue
-            for j in range(len(texts)):
-                if i == j or not texts[j].get_visible() or not _overlap(boxes[i], boxes[j]):
-                    continue
-                a, b = boxes[i], boxes[j]
-                dx = (a.x0 + a.x1 - b.x0 - b.x1) / 2
-                dy = (a.y0 + a.y1 - b.y0 - b.y1) / 2
-                if abs(dx) < 1e-6 and abs(dy) < 1e-6:
-                    dy = 1.0
-                # move along the axis of least overlap, just past the other box
-                need_x = (min(a.x1, b.x1) - max(a.x0, b.x0)) + 1.0
-                need_y = (min(a.y1, b.y1) - max(a.y0, b.y0)) + 1.0
-                step = np.array([np.sign(dx) * need_x, 0.0]) if need_x < need_y else np.array([0.0, np.sign(dy) * need_y])
-                x, y = ax.transData.transform(texts[i].get_position())
-                x, y = x + step[0], y + step[1]
-                w, h = a.width, a.height
-                x = float(np.clip(x, frame_box.x0 + w / 2 + 1, frame_box.x1 - w / 2 - 1))
-                y = float(np.clip(y, frame_box.y0 + h / 2 + 1, frame_box.y1 - h / 2 - 1))
-                texts[i].set_position(inv.transform((x, y)))
-                boxes[i] = box(texts[i])
-                moved = True
-        if not moved:
-            return
-    boxes = [box(t) for t in texts]
-    for i in range(len(texts) - len(droppable), len(texts)):
-        if any(j != i and texts[j].get_visible() and _overlap(boxes[i], boxes[j]) for j in range(len(texts))):
-            texts[i].set_visible(False)
+    todo = [(t, True) for t in movable if t.get_visible()] + [(t, False) for t in reversed(droppable) if t.get_visible()]
+    for t, must in todo:
+        anchor = ax.transData.transform(t.get_position())
+        off = np.asarray(label_box(t, r).extents) - np.tile(anchor, 2)
+        step = off[3] - off[1]  # one label height
+        cand = anchor + np.vstack([np.zeros((1, 2)), (rings[1:, None, None] * step * unit[None]).reshape(-1, 2)])
+        boxes = np.tile(cand, 2) + off
+        inside = (boxes[:, 0] >= fb.x0 + 1) & (boxes[:, 1] >= fb.y0 + 1) & (boxes[:, 2] <= fb.x1 - 1) & (boxes[:, 3] <= fb.y1 - 1)
+        ix = np.minimum(boxes[:, None, 2], placed[None, :, 2]) - np.maximum(boxes[:, None, 0], placed[None, :, 0])
+        iy = np.minimum(boxes[:, None, 3], placed[None, :, 3]) - np.maximum(boxes[:, None, 1], placed[None, :, 1])
+        clash = (np.clip(ix, 0, None) * np.clip(iy, 0, None) * ((ix > 0.5) & (iy > 0.5))).sum(axis=1)
+        free = np.flatnonzero(inside & (clash == 0))
+        if len(free):
+            k = int(free[0])
+        elif must:
+            k = int(np.argmin(np.where(inside, clash, np.inf))) if inside.any() else 0
+        else:
+            t.set_visible(False)
+            continue
+        t.set_position(inv.transform(cand[k]))
+        placed = np.vstack([placed, boxes[k]])
 
 
 class _Cursor:
@@ -157,24 +182,30 @@ def guide_pages(res) -> list:
     fig.text(0.02, 0.975, f"Rigging guide: {d.name}, {len(d.marker_centres)} markers", va="top",
              **TEXT_STYLES["title"])  # fmt: skip
     lo, hi = d.bounds
+    named: set[str] = set()  # landmarks already labelled in an earlier view
     for k, name in enumerate(GUIDE_VIEWS):
         B = VIEWS[name]
         ax = fig.add_axes([0.01 + 0.245 * k, 0.47, 0.235, 0.46])
         proj = shaded(ax, d.triangles, d.face_normals, B)
         span = frame(ax, proj, pad=1.3)
         shade_grips(ax, d, B, wrists=False)
-        _, labels = markers_in_view(ax, d, B, span, size=40, view=name)
+        _, labels, leaders = markers_in_view(ax, d, B, span, size=_DOT_AREA, view=name)
+        obstacles = [(p, _DOT_AREA**0.5 + 1) for p in d.marker_centres @ B[:2].T]
         marks = []
-        for fname, p in d.features:
-            q = p @ B.T
-            ax.plot([q[0]], [q[1]], marker="^", color="C0", ms=4, zorder=5.5)
-            label = ax.text(q[0], q[1] - 0.035 * span, fname, color="C0", ha="center", va="center", zorder=6,
+        for names, q in coincident_landmarks(d.features, B, 0.01 * span):
+            ax.plot([q[0]], [q[1]], marker="^", color="C0", ms=_TRIANGLE_PT, zorder=5.5)
+            obstacles.append((q, _TRIANGLE_PT + 1))
+            label = ax.text(q[0], q[1] - 0.035 * span, "/".join(names), color="C0", ha="center", va="center", zorder=6,
                             **TEXT_STYLES["landmark"])  # fmt: skip
-            marks.append(label)
+            marks.append((set(names) <= named, label))
         ax.set_title(name, **TEXT_STYLES["view"])
         for sp in ax.spines.values():
             sp.set_visible(False)
-        declutter(ax, [], labels, marks)
+        # landmarks labelled in an earlier view give way first (declutter hides the first listed first)
+        marks.sort(key=lambda m: not m[0])
+        declutter(ax, [], labels, [t for _, t in marks], obstacles)
+        follow_labels(leaders, labels)
+        named |= {n for _, t in marks if t.get_visible() for n in t.get_text().split("/")}
     cur = _Cursor(fig, top=0.46)
     size = " x ".join(f"{(hi - lo)[k] * 1000:.1f}" for k in range(3))
     err = d.placement_error_mm

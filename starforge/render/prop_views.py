@@ -267,7 +267,8 @@ def spread_labels(points: np.ndarray, span: float, rounds: int = 200) -> np.ndar
 def markers_in_view(ax, d: PlotData, B, span, colour=None, norm=None, cmap=None, size=60, view=None):
     """Numbered markers (1-based) with leader lines to labels that do not overlap; those the prop
     hides in this view (``d.hidden[view]``; without it, those whose base faces away) hollow and
-    grey.  Returns the scatter of the near markers (for a colour bar) and the label texts."""
+    grey.  Returns the scatter of the near markers (for a colour bar), the label texts and their
+    leader lines (marker first: :func:`follow_labels` re-aims them at labels moved later)."""
     mp = d.marker_centres @ B.T
     if view is not None and view in d.hidden:
         facing = ~np.asarray(d.hidden[view], bool)
@@ -279,10 +280,10 @@ def markers_in_view(ax, d: PlotData, B, span, colour=None, norm=None, cmap=None,
     lab[:, 0] = np.clip(lab[:, 0], x0 + m, x1 - m)
     lab[:, 1] = np.clip(lab[:, 1], y0 + m, y1 - m)
     sc = None
-    texts = []
+    texts, leaders = [], []
     for i in range(len(mp)):
         col = "k" if facing[i] else "0.55"
-        ax.plot([mp[i, 0], lab[i, 0]], [mp[i, 1], lab[i, 1]], color=col, lw=0.5, zorder=4)
+        leaders += ax.plot([mp[i, 0], lab[i, 0]], [mp[i, 1], lab[i, 1]], color=col, lw=0.5, zorder=4)
         texts.append(ax.text(lab[i, 0], lab[i, 1], str(i + 1), fontsize=8, ha="center", va="center", color=col, zorder=6,
                              bbox=dict(boxstyle="circle,pad=0.15", fc="white", ec=col, lw=0.6)))  # fmt: skip
     if colour is not None:
@@ -292,7 +293,15 @@ def markers_in_view(ax, d: PlotData, B, span, colour=None, norm=None, cmap=None,
         ax.scatter(mp[facing, 0], mp[facing, 1], c="C3", s=size, edgecolors="k", linewidths=0.7, zorder=5)
     ax.scatter(mp[~facing, 0], mp[~facing, 1], facecolors="none", edgecolors="0.45", s=size, lw=0.7,
                linestyle=":", zorder=5)  # fmt: skip
-    return sc, texts
+    return sc, texts, leaders
+
+
+def follow_labels(leaders: list, labels: list) -> None:
+    """Re-aim each leader line (marker first) at its label's current position."""
+    for line, t in zip(leaders, labels, strict=True):
+        xs, ys = line.get_data()
+        x, y = t.get_position()
+        line.set_data([xs[0], x], [ys[0], y])
 
 
 def frame(ax, proj, pad=1.25):

@@ -1,0 +1,124 @@
+"""The rigging guide's views read cleanly: no label (a marker's number in its circle, a
+landmark's name) covers another label, a marker's dot or a landmark's triangle, and every
+landmark the marker table names is labelled in at least one view.  The symbols are found in
+the drawn figure (the scatter's offsets, the triangles' line markers), not in the guide's own
+list of obstacles."""
+
+from __future__ import annotations
+
+import itertools
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import numpy as np
+import pytest
+from matplotlib.collections import PathCollection
+from matplotlib.transforms import Bbox
+
+from starforge.render._mpl import label_box
+from starforge.render.guide import GUIDE_VIEWS, declutter, guide_pages, symbol_box
+from starforge.render.prop_views import plot_data
+
+
+@pytest.fixture(scope="module", params=["hammer", "box"])
+def guide_data(request):
+    from starforge.props.placement import run_placement
+
+    res = run_placement(request.param, sites=250, resolution=2, orientations=6)
+    return plot_data(res)
+
+
+def _view_parts(ax):
+    """(label texts, symbol boxes) of one view as drawn: the visible texts, the scatter dots
+    (from their sizes) and the triangles (from their marker sizes), in display pixels."""
+    fig = ax.figure
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    labels = [t for t in ax.texts if t.get_visible() and t.get_text().strip()]
+    symbols = []
+    for c in ax.collections:
+        if isinstance(c, PathCollection) and len(c.get_offsets()):
+            d = np.sqrt(c.get_sizes()[0])
+            symbols += [symbol_box(ax, xy, d) for xy in np.asarray(c.get_offsets())]
+    for line in ax.lines:
+        if line.get_marker() == "^":
+            symbols += [symbol_box(ax, xy, line.get_markersize()) for xy in line.get_xydata()]
+    return [(t.get_text(), label_box(t, r)) for t in labels], symbols
+
+
+def _overlap(a: Bbox, b: Bbox, pad: float = 0.5) -> bool:
+    return min(a.x1, b.x1) - max(a.x0, b.x0) > pad and min(a.y1, b.y1) - max(a.y0, b.y0) > pad
+
+
+def test_no_label_covers_a_label_a_dot_or_a_triangle(guide_data):
+    page = guide_pages(guide_data)[0]
+    views = [ax for ax in page.axes if ax.get_title() in GUIDE_VIEWS]
+    assert len(views) == len(GUIDE_VIEWS)
+    for ax in views:
+        labels, symbols = _view_parts(ax)
+        assert symbols, ax.get_title()
+        for (a, p), (b, q) in itertools.combinations(labels, 2):
+            assert not _overlap(p, q), (ax.get_title(), a, b)
+        for a, p in labels:
+            assert not any(_overlap(p, s) for s in symbols), (ax.get_title(), a)
+
+
+def test_every_landmark_the_table_names_is_labelled_in_a_view(guide_data):
+    page = guide_pages(guide_data)[0]
+    shown = {
+        name
+        for ax in page.axes
+        if ax.get_title() in GUIDE_VIEWS
+        for t in ax.texts
+        if t.get_visible() and not t.get_text().isdigit()
+        for name in t.get_text().split("/")
+    }
+    named = {n for n, _ in guide_data.features}
+    assert named and named <= shown, named - shown
+    for text in guide_data.landmarks:  # each marker's line names landmarks that are drawn
+        assert any(n in text for n in shown)
+
+
+def test_a_framed_label_is_as_large_as_its_frame():
+    """label_box of a number in a circle is the circle's box as matplotlib places it."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots()
+    t = ax.text(0.5, 0.5, "12", fontsize=8, ha="center", va="center", bbox=dict(boxstyle="circle,pad=0.15"))
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    t.update_bbox_position_size(r)
+    drawn = t.get_bbox_patch().get_window_extent(r)
+    assert np.allclose(label_box(t, r).extents, drawn.extents, atol=1e-6)
+    assert label_box(t, r).width > t.get_window_extent(r).width
+    plt.close(fig)
+
+
+def test_declutter_clears_crowded_labels_off_symbols():
+    """Twelve labels and six symbols on one spot: afterwards no visible label overlaps another or
+    a symbol; the droppable ones that could not be placed are hidden, the others all shown."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(3, 3))
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1)
+    ax.set_aspect("equal")
+    rng = np.random.default_rng(0)
+    pts = 0.5 + 0.02 * rng.standard_normal((6, 2))
+    movable = [ax.text(*p, str(k), ha="center", va="center", bbox=dict(boxstyle="circle,pad=0.15")) for k, p in enumerate(pts)]
+    drop = [ax.text(*p, f"T{k}", ha="center", va="center", fontsize=6) for k, p in enumerate(pts)]
+    obstacles = [(p, 6.0) for p in pts]
+    declutter(ax, [], movable, drop, obstacles)
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    shown = [t for t in movable + drop if t.get_visible()]
+    assert all(t.get_visible() for t in movable)
+    boxes = [label_box(t, r) for t in shown]
+    symbols = [symbol_box(ax, p, s) for p, s in obstacles]
+    for p, q in itertools.combinations(boxes, 2):
+        assert not _overlap(p, q)
+    for p in boxes:
+        assert not any(_overlap(p, s) for s in symbols)
+    plt.close(fig)
