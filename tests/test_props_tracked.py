@@ -336,6 +336,10 @@ def test_untracked_poses_are_warned_and_recorded(tmp_path, capsys):
     assert f"{100 * below['validation_tracked']:.1f} %" in lines[0]
     # 60 sites far apart: over 200,000 spaced layouts, too many to score, and nothing is claimed
     assert below["ceiling"] is None and "such layouts" not in lines[0]
+    # the scenarios where fewer than 3 sites are seen at all bound every layout: the chosen one
+    # is untracked in at least those of the searched scenarios
+    assert below["searched_scenarios"] == sc["count"]
+    assert 0.0 <= below["under_three_sites_seen"] <= 1.0 - frac + 1e-12
     # per grip: each grip's untracked share, averaged over the grips by the poses each holds in
     # the held-out sample, is the layout's untracked share
     from starforge.props.grips import GRIP_SEED_OFFSET, assign_grips
@@ -364,6 +368,12 @@ def test_the_shortfall_line_names_the_grips_that_lose_the_prop():
     every = shortfall_warning({**sf, "untracked_by_grip": [0.1, 0.4, 0.05, 0.4]}, 0.02, True)
     assert "the grips tracked least: 2 (60 %), 4 (60 %), 1 (90 %)" in every
     assert "grip" not in shortfall_warning({**sf, "untracked_by_grip": [0.1, 0.2]}, 0.02, False).split("try")[0]
+    # where fewer than 3 sites are seen in more scenarios than the target allows, the line says
+    # that no layout on the surface reaches it; below that, it says nothing of it
+    bare = shortfall_warning({**sf, "under_three_sites_seen": 0.05, "searched_scenarios": 384}, 0.02, True)
+    assert "in 5.0 % of the 384 searched scenarios fewer than 3 of the 300 usable sites" in bare
+    assert "tracks more than 95.0 % of them" in bare and "marker tree" in bare
+    assert "marker tree" not in shortfall_warning({**sf, "under_three_sites_seen": 0.005, "searched_scenarios": 384}, 0.02, True)
 
 
 class _Weighted:

@@ -183,6 +183,11 @@ def explain_shortfall(sample: HeldOut, spec, prep, prob, chosen, removed, fit) -
         grip = np.repeat(sample.grip, sample.patterns)  # scenario k * patterns + j is pose k's
         out["untracked_by_grip"] = untracked_by_grip(ok, grip, len(prep.grips))
 
+    # no layout on these sites is tracked where fewer than 3 of them are seen at all (counted on
+    # the searched scenarios, whose table holds every site: the held-out one would cost a table
+    # of every site over every held-out pose)
+    out["under_three_sites_seen"] = float((prob.pose_seen.sum(axis=0) < 3).mean())
+    out["searched_scenarios"] = int(prob.poses)
     every = np.arange(len(prob.points))
     out["ceiling"] = tracked_ceiling(
         prob.points, lambda: sample.seen(every)[0], prob.spacing, held.min_spread2, ts.target_markers
@@ -253,6 +258,13 @@ def shortfall_warning(sf: dict, spacing_m: float, hand: bool) -> str:
         cause.append(
             f"no layout of markers {spacing_m * 1000:.1f} mm apart on these sites does better than "
             f"{100 * c['ceiling']:.2f} % of these scenarios (all {c['layouts']:,} such layouts scored)"
+        )
+    bare = sf.get("under_three_sites_seen", 0.0)
+    if 1.0 - bare < sf["target"]:
+        cause.append(
+            f"in {100 * bare:.1f} % of the {sf['searched_scenarios']} searched scenarios fewer than 3 of the "
+            f"{sf['usable_sites']} usable sites are seen at all, so no layout stuck on its surface tracks more "
+            f"than {100 * (1.0 - bare):.1f} % of them: markers held clear of the hand on a mount (a marker tree) can"
         )
     helps = [f"with every camera {100 * sf['tracked_with_every_camera']:.1f} %"]
     if hand:
