@@ -18,8 +18,8 @@ from matplotlib.collections import PathCollection
 from matplotlib.transforms import Bbox
 
 from starforge.render._mpl import label_box
-from starforge.render.guide import GUIDE_VIEWS, declutter, guide_pages, symbol_box
-from starforge.render.prop_views import plot_data
+from starforge.render.guide import GUIDE_VIEWS, guide_pages
+from starforge.render.prop_views import declutter, plot_data, symbol_box
 
 
 @pytest.fixture(scope="module", params=["hammer", "box"])
@@ -122,3 +122,22 @@ def test_declutter_clears_crowded_labels_off_symbols():
     for p in boxes:
         assert not any(_overlap(p, s) for s in symbols)
     plt.close(fig)
+
+
+def test_layout_png_labels_clear_of_each_other_and_the_dots(guide_data, monkeypatch, tmp_path):
+    """layout.png's two views: no number's circle covers another or a marker's dot."""
+    import starforge.render.props as pictures
+
+    found = []
+
+    def check(fig, path, dpi=100):
+        for ax in fig.axes[:2]:
+            labels, symbols = _view_parts(ax)
+            assert len(labels) == len(guide_data.marker_centres) and symbols
+            found.extend((a, b) for (a, p), (b, q) in itertools.combinations(labels, 2) if _overlap(p, q))
+            found.extend((a, "a dot") for a, p in labels if any(_overlap(p, s) for s in symbols))
+        return path
+
+    monkeypatch.setattr(pictures, "save_png", check)
+    pictures.layout_png(guide_data, tmp_path / "layout.png")
+    assert found == []

@@ -25,9 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from starforge.props.guide import template_scale
-from starforge.render._mpl import label_box, pyplot, save_png, text_boxes
+from starforge.render._mpl import pyplot, save_png, text_boxes
 from starforge.render.prop_views import (
     VIEWS,
+    declutter,
     follow_labels,
     frame,
     markers_in_view,
@@ -79,71 +80,12 @@ def coincident_landmarks(features, B, tol: float) -> list[tuple[list[str], np.nd
     return groups
 
 
-def symbol_box(ax, xy, size_pt: float):
-    """The display box of a symbol ``size_pt`` points across, centred on data point ``xy`` (once
-    the axes' aspect is applied)."""
-    from matplotlib.transforms import Bbox
-
-    x, y = ax.transData.transform(xy)
-    h = size_pt / 2 * ax.figure.dpi / 72.0
-    return Bbox.from_extents(x - h, y - h, x + h, y + h)
-
-
 def overlapping_texts(fig) -> list[tuple[str, str]]:
     """Every pair of visible texts of ``fig`` whose boxes (frames included) overlap (the guide's check)."""
     from matplotlib.transforms import Bbox
 
     boxes = [(t, Bbox.from_extents(*b)) for t, b in text_boxes(fig)]
     return [(boxes[i][0], boxes[j][0]) for i in range(len(boxes)) for j in range(i + 1, len(boxes)) if _overlap(boxes[i][1], boxes[j][1])]
-
-
-#: how far (in label heights) and in how many directions :func:`declutter` looks for a free spot
-_REACH, _DIRECTIONS = 10, 24
-
-
-def declutter(ax, fixed: list, movable: list, droppable: list, obstacles: list = ()) -> None:
-    """Place the texts of ``movable`` and ``droppable`` (in ``ax``) where their boxes overlap no
-    other text, none of ``fixed`` and none of ``obstacles`` (symbols no text may cover: (data
-    point, size in points) pairs, :func:`symbol_box`), inside the axes.
-
-    Greedy label placement: the movable texts (which must all show), then the droppable ones from
-    the last listed to the first, each takes the free spot nearest its own position among rings
-    of spots round it (:data:`_REACH` label heights out, :data:`_DIRECTIONS` directions).  A
-    droppable text with no free spot is hidden; a movable one takes the spot it overlaps least.
-    Each text's box (its frame's, :func:`~starforge.render._mpl.label_box`) is measured once, as
-    an offset from its anchor, so the search is arithmetic on boxes."""
-    fig = ax.figure
-    r = fig.canvas.get_renderer()  # text extents need the renderer, not a drawing of the page
-    ax.apply_aspect()
-    fb = ax.get_window_extent(r)
-    fixed = [t for t in fixed if t.get_visible()]
-    placed = [label_box(t, r).extents for t in fixed] + [symbol_box(ax, xy, size).extents for xy, size in obstacles]
-    placed = np.array(placed, float).reshape(-1, 4)
-    rings = np.arange(_REACH + 1, dtype=float)
-    ang = np.arange(_DIRECTIONS) * (2 * np.pi / _DIRECTIONS)
-    unit = np.column_stack([np.cos(ang), np.sin(ang)])
-    inv = ax.transData.inverted()
-    todo = [(t, True) for t in movable if t.get_visible()] + [(t, False) for t in reversed(droppable) if t.get_visible()]
-    for t, must in todo:
-        anchor = ax.transData.transform(t.get_position())
-        off = np.asarray(label_box(t, r).extents) - np.tile(anchor, 2)
-        step = off[3] - off[1]  # one label height
-        cand = anchor + np.vstack([np.zeros((1, 2)), (rings[1:, None, None] * step * unit[None]).reshape(-1, 2)])
-        boxes = np.tile(cand, 2) + off
-        inside = (boxes[:, 0] >= fb.x0 + 1) & (boxes[:, 1] >= fb.y0 + 1) & (boxes[:, 2] <= fb.x1 - 1) & (boxes[:, 3] <= fb.y1 - 1)
-        ix = np.minimum(boxes[:, None, 2], placed[None, :, 2]) - np.maximum(boxes[:, None, 0], placed[None, :, 0])
-        iy = np.minimum(boxes[:, None, 3], placed[None, :, 3]) - np.maximum(boxes[:, None, 1], placed[None, :, 1])
-        clash = (np.clip(ix, 0, None) * np.clip(iy, 0, None) * ((ix > 0.5) & (iy > 0.5))).sum(axis=1)
-        free = np.flatnonzero(inside & (clash == 0))
-        if len(free):
-            k = int(free[0])
-        elif must:
-            k = int(np.argmin(np.where(inside, clash, np.inf))) if inside.any() else 0
-        else:
-            t.set_visible(False)
-            continue
-        t.set_position(inv.transform(cand[k]))
-        placed = np.vstack([placed, boxes[k]])
 
 
 class _Cursor:
