@@ -34,7 +34,10 @@ cannot flip (no two of their marker triangles, nor one and itself relabelled, wi
 fresh poses (``random_flip_proof``, ``best_flip_proof_random_fresh_poses``); the markers with less than the
 placement error of room, recomputed by brute force over every face and sharp edge of the mesh
 (``markers_below_margin``); the overlapping glyphs of the written guide.pdf as pdfminer.six reads
-the file (``guide_text_overlaps``, :mod:`_pdftext`) and the glyphs off the page.
+the file (``guide_text_overlaps``, :mod:`_pdftext`) and the glyphs off the page; in the guide's
+views as drawn, the labels that cover another label or a marker's dot or a landmark's triangle
+(``guide_label_clashes``, :mod:`_views`) and the landmarks the marker table names that no view
+labels (``guide_landmarks_unlabelled``).
 
 Run: ``python benchmarks/bench_props_real.py [--poses 600] [--props bottle,torch] [--room] [--write-docs]``
 (``--room`` places each prop for this room, :func:`room_rig_toml`, instead of starforge's default
@@ -319,7 +322,7 @@ def write_docs(out: dict) -> None:
 
     rows = [
         [name, v["markers"], v["usable_sites"], v["grips"], v["chosen_fresh_poses"], v["best_random_fresh_poses"],
-         f'{v["best_flip_proof_random_fresh_poses"]} ({v["random_flip_proof"]})', v["every_site_fresh_poses"], v["optimizer_own_evaluation"], v["min_margin_mm"], v["guide_text_overlaps"], v["seconds"]]
+         f'{v["best_flip_proof_random_fresh_poses"]} ({v["random_flip_proof"]})', v["every_site_fresh_poses"], v["optimizer_own_evaluation"], v["min_margin_mm"], v["guide_text_overlaps"], v["guide_label_clashes"], v["seconds"]]
         for name, v in out["props"].items()
     ]  # fmt: skip
     body = (
@@ -336,7 +339,7 @@ def write_docs(out: dict) -> None:
         "evaluation of its layout (its grips, its rig); margin: the least room, beyond the base, that any "
         "marker has to an edge or a surface tilted more than 30 degrees (brute force over the mesh).\n\n"
         + table(["prop", "markers", "usable sites", "grips", "tracked", "best random", "flip-proof random", "every site", "own", "margin (mm)",
-                 "guide text overlaps", "seconds"], rows)
+                 "guide text overlaps", "guide label clashes", "seconds"], rows)
     )  # fmt: skip
     if out.get("placed_for", "").startswith("this room"):
         body = ("Placed for the evaluation's room instead (`--room`): its cameras as a rig file, the volume "
@@ -355,10 +358,12 @@ def main(argv=None) -> int:
     ap.add_argument("--write-docs", action="store_true", help="also write the table into docs/results.md")
     args = ap.parse_args(argv)
     from _pdftext import glyph_boxes, off_page, overlapping_glyphs
+    from _views import guide_view_report
 
     from starforge.props.distinct import own_triangles
     from starforge.props.placement import run_placement
-    from starforge.render.guide import guide_files
+    from starforge.render.guide import GUIDE_VIEWS, guide_files, guide_pages
+    from starforge.render.prop_views import plot_data
 
     meshes = props()
     wanted = [p for p in args.props.split(",") if p] or list(meshes)
@@ -408,6 +413,8 @@ def main(argv=None) -> int:
             folder = Path(tmp) / name
             folder.mkdir()
             guide_files(res, folder)
+            data = plot_data(res)
+            views = guide_view_report(guide_pages(data)[0], GUIDE_VIEWS, [n for n, _ in data.features])
             pages = glyph_boxes(folder / "guide.pdf")
             overlaps = sum(len(overlapping_glyphs([b for _, b in g])) for _, g in pages)
             off = sum(len(off_page(p)) for p in pages)
@@ -431,6 +438,8 @@ def main(argv=None) -> int:
                 "min_margin_mm": round(1000 * min(rooms), 2),
                 "guide_text_overlaps": overlaps,
                 "guide_glyphs_off_page": off,
+                "guide_label_clashes": len(views["clashes"]),
+                "guide_landmarks_unlabelled": len(views["unlabelled"]),
                 "guide_pages": len(pages),
                 "seconds": round(sec, 1),
             }
@@ -452,6 +461,8 @@ def main(argv=None) -> int:
             "markers_below_margin": sum(v["markers_below_margin"] for v in vals),
             "guide_text_overlaps": sum(v["guide_text_overlaps"] for v in vals),
             "guide_glyphs_off_page": sum(v["guide_glyphs_off_page"] for v in vals),
+            "guide_label_clashes": sum(v["guide_label_clashes"] for v in vals),
+            "guide_landmarks_unlabelled": sum(v["guide_landmarks_unlabelled"] for v in vals),
         },
     }
     sys.stdout.write(json.dumps(out, indent=1) + "\n")

@@ -14,9 +14,8 @@ matplotlib.use("Agg")
 
 import numpy as np
 import pytest
-from matplotlib.collections import PathCollection
-from matplotlib.transforms import Bbox
 
+from benchmarks._views import clashes, guide_view_report, overlap
 from starforge.render._mpl import label_box
 from starforge.render.guide import GUIDE_VIEWS, guide_pages
 from starforge.render.prop_views import declutter, plot_data, symbol_box
@@ -30,53 +29,18 @@ def guide_data(request):
     return plot_data(res)
 
 
-def _view_parts(ax):
-    """(label texts, symbol boxes) of one view as drawn: the visible texts, the scatter dots
-    (from their sizes) and the triangles (from their marker sizes), in display pixels."""
-    fig = ax.figure
-    fig.canvas.draw()
-    r = fig.canvas.get_renderer()
-    labels = [t for t in ax.texts if t.get_visible() and t.get_text().strip()]
-    symbols = []
-    for c in ax.collections:
-        if isinstance(c, PathCollection) and len(c.get_offsets()):
-            d = np.sqrt(c.get_sizes()[0])
-            symbols += [symbol_box(ax, xy, d) for xy in np.asarray(c.get_offsets())]
-    for line in ax.lines:
-        if line.get_marker() == "^":
-            symbols += [symbol_box(ax, xy, line.get_markersize()) for xy in line.get_xydata()]
-    return [(t.get_text(), label_box(t, r)) for t in labels], symbols
-
-
-def _overlap(a: Bbox, b: Bbox, pad: float = 0.5) -> bool:
-    return min(a.x1, b.x1) - max(a.x0, b.x0) > pad and min(a.y1, b.y1) - max(a.y0, b.y0) > pad
-
-
 def test_no_label_covers_a_label_a_dot_or_a_triangle(guide_data):
     page = guide_pages(guide_data)[0]
-    views = [ax for ax in page.axes if ax.get_title() in GUIDE_VIEWS]
-    assert len(views) == len(GUIDE_VIEWS)
-    for ax in views:
-        labels, symbols = _view_parts(ax)
-        assert symbols, ax.get_title()
-        for (a, p), (b, q) in itertools.combinations(labels, 2):
-            assert not _overlap(p, q), (ax.get_title(), a, b)
-        for a, p in labels:
-            assert not any(_overlap(p, s) for s in symbols), (ax.get_title(), a)
+    rep = guide_view_report(page, GUIDE_VIEWS, [n for n, _ in guide_data.features])
+    assert rep["views"] == len(GUIDE_VIEWS)
+    assert rep["clashes"] == []
 
 
 def test_every_landmark_the_table_names_is_labelled_in_a_view(guide_data):
     page = guide_pages(guide_data)[0]
-    shown = {
-        name
-        for ax in page.axes
-        if ax.get_title() in GUIDE_VIEWS
-        for t in ax.texts
-        if t.get_visible() and not t.get_text().isdigit()
-        for name in t.get_text().split("/")
-    }
-    named = {n for n, _ in guide_data.features}
-    assert named and named <= shown, named - shown
+    rep = guide_view_report(page, GUIDE_VIEWS, [n for n, _ in guide_data.features])
+    assert guide_data.features and rep["unlabelled"] == []
+    shown = {n for n, _ in guide_data.features}
     for text in guide_data.landmarks:  # each marker's line names landmarks that are drawn
         assert any(n in text for n in shown)
 
@@ -118,9 +82,9 @@ def test_declutter_clears_crowded_labels_off_symbols():
     boxes = [label_box(t, r) for t in shown]
     symbols = [symbol_box(ax, p, s) for p, s in obstacles]
     for p, q in itertools.combinations(boxes, 2):
-        assert not _overlap(p, q)
+        assert not overlap(p, q)
     for p in boxes:
-        assert not any(_overlap(p, s) for s in symbols)
+        assert not any(overlap(p, s) for s in symbols)
     plt.close(fig)
 
 
@@ -132,10 +96,8 @@ def test_layout_png_labels_clear_of_each_other_and_the_dots(guide_data, monkeypa
 
     def check(fig, path, dpi=100):
         for ax in fig.axes[:2]:
-            labels, symbols = _view_parts(ax)
-            assert len(labels) == len(guide_data.marker_centres) and symbols
-            found.extend((a, b) for (a, p), (b, q) in itertools.combinations(labels, 2) if _overlap(p, q))
-            found.extend((a, "a dot") for a, p in labels if any(_overlap(p, s) for s in symbols))
+            assert sum(t.get_visible() for t in ax.texts) == len(guide_data.marker_centres)
+            found.extend(clashes(ax))
         return path
 
     monkeypatch.setattr(pictures, "save_png", check)
