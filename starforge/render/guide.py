@@ -207,12 +207,13 @@ def _template_page(d, plt):
     labels = []
     for i, p in enumerate(pts):
         col = "k" if near[i] else "0.55"
-        r = 0.0015 * k  # 3 mm printed
+        r = 0.0015 * k  # 1.5 mm printed each way: a crosshair 3 mm across
         ax.plot([p[0] - r, p[0] + r], [p[1], p[1]], color=col, lw=0.6)
         ax.plot([p[0], p[0]], [p[1] - r, p[1] + r], color=col, lw=0.6)
         labels.append(ax.text(p[0] + 1.2 * r, p[1] + 1.2 * r, str(i + 1), color=col, ha="left", va="bottom",
                               **TEXT_STYLES["number"]))  # fmt: skip
-    declutter(ax, [], labels, [])
+    cross_pt = 3.0 / _MM * 72.0 + 1.0  # a crosshair, 3 mm across printed, in points (the page is drawn 1:1)
+    declutter(ax, [], labels, [], [(p[:2], cross_pt) for p in pts])
     # the scale bar: 50 mm on the prop (printed 50 / k mm), ticks every 10 mm
     bar = fig.add_axes([0.06, 0.08, (50.0 / k) / _MM / _PAGE[0], 0.02])
     bar.set_xlim(0, 50)
