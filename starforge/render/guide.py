@@ -29,7 +29,6 @@ from starforge.render._mpl import pyplot, save_png, text_boxes
 from starforge.render.prop_views import (
     VIEWS,
     declutter,
-    follow_labels,
     frame,
     markers_in_view,
     plot_data,
@@ -131,12 +130,11 @@ def guide_pages(res) -> list:
         proj = shaded(ax, d.triangles, d.face_normals, B)
         span = frame(ax, proj, pad=1.3)
         shade_grips(ax, d, B, wrists=False)
-        _, labels, leaders = markers_in_view(ax, d, B, span, size=_DOT_AREA, view=name)
-        obstacles = [(p, _DOT_AREA**0.5 + 1) for p in d.marker_centres @ B[:2].T]
-        marks = []
+        numbers = markers_in_view(ax, d, B, span, size=_DOT_AREA, view=name)
+        triangles, marks = [], []
         for names, q in coincident_landmarks(d.features, B, 0.01 * span):
             ax.plot([q[0]], [q[1]], marker="^", color="C0", ms=_TRIANGLE_PT, zorder=5.5)
-            obstacles.append((q, _TRIANGLE_PT + 1))
+            triangles.append((q, _TRIANGLE_PT + 1))
             label = ax.text(q[0], q[1] - 0.035 * span, "/".join(names), color="C0", ha="center", va="center", zorder=6,
                             **TEXT_STYLES["landmark"])  # fmt: skip
             marks.append((set(names) <= named, label))
@@ -145,8 +143,7 @@ def guide_pages(res) -> list:
             sp.set_visible(False)
         # landmarks labelled in an earlier view give way first (declutter hides the first listed first)
         marks.sort(key=lambda m: not m[0])
-        declutter(ax, [], labels, [t for _, t in marks], obstacles)
-        follow_labels(leaders, labels)
+        numbers.place(ax, [t for _, t in marks], triangles)
         named |= {n for _, t in marks if t.get_visible() for n in t.get_text().split("/")}
     cur = _Cursor(fig, top=0.46)
     size = " x ".join(f"{(hi - lo)[k] * 1000:.1f}" for k in range(3))

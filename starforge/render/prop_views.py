@@ -265,11 +265,31 @@ def spread_labels(points: np.ndarray, span: float, rounds: int = 200) -> np.ndar
     return lab
 
 
-def markers_in_view(ax, d: PlotData, B, span, colour=None, norm=None, cmap=None, size=60, view=None):
-    """Numbered markers (1-based) with leader lines to labels that do not overlap; those the prop
-    hides in this view (``d.hidden[view]``; without it, those whose base faces away) hollow and
-    grey.  Returns the scatter of the near markers (for a colour bar), the label texts and their
-    leader lines (marker first: :func:`follow_labels` re-aims them at labels moved later)."""
+@dataclass
+class MarkerLabels:
+    """What :func:`markers_in_view` drew: the near markers' scatter (for a colour bar; None when
+    none is near), the numbers, their leader lines (marker first) and the dots as symbols no
+    label may cover ((2D point, points across) pairs, :func:`declutter`'s obstacles)."""
+
+    scatter: object
+    texts: list
+    leaders: list
+    dots: list
+
+    def place(self, ax, droppable: list = (), obstacles: list = ()) -> None:
+        """Place the numbers (and the ``droppable`` texts) where they cover no other label, no
+        dot and none of ``obstacles`` (:func:`declutter`), and re-aim the leader lines at them."""
+        declutter(ax, [], self.texts, list(droppable), self.dots + list(obstacles))
+        for line, t in zip(self.leaders, self.texts, strict=True):
+            xs, ys = line.get_data()
+            x, y = t.get_position()
+            line.set_data([xs[0], x], [ys[0], y])
+
+
+def markers_in_view(ax, d: PlotData, B, span, colour=None, norm=None, cmap=None, size=60, view=None) -> MarkerLabels:
+    """Numbered markers (1-based) with leader lines to labels spread apart; those the prop hides
+    in this view (``d.hidden[view]``; without it, those whose base faces away) hollow and grey.
+    :meth:`MarkerLabels.place` then settles the labels clear of each other and of the dots."""
     mp = d.marker_centres @ B.T
     if view is not None and view in d.hidden:
         facing = ~np.asarray(d.hidden[view], bool)
@@ -294,15 +314,8 @@ def markers_in_view(ax, d: PlotData, B, span, colour=None, norm=None, cmap=None,
         ax.scatter(mp[facing, 0], mp[facing, 1], c="C3", s=size, edgecolors="k", linewidths=0.7, zorder=5)
     ax.scatter(mp[~facing, 0], mp[~facing, 1], facecolors="none", edgecolors="0.45", s=size, lw=0.7,
                linestyle=":", zorder=5)  # fmt: skip
-    return sc, texts, leaders
-
-
-def follow_labels(leaders: list, labels: list) -> None:
-    """Re-aim each leader line (marker first) at its label's current position."""
-    for line, t in zip(leaders, labels, strict=True):
-        xs, ys = line.get_data()
-        x, y = t.get_position()
-        line.set_data([xs[0], x], [ys[0], y])
+    dot = size**0.5 + 1  # a dot's diameter (the scatter's size is its area in points squared) and its edge
+    return MarkerLabels(sc, texts, leaders, [(p, dot) for p in mp[:, :2]])
 
 
 def symbol_box(ax, xy, size_pt: float):

@@ -20,8 +20,6 @@ from starforge.render.guide import guide_files, load_fonts
 from starforge.render.prop_views import (
     VIEWS,
     PlotData,
-    declutter,
-    follow_labels,
     frame,
     markers_in_view,
     plot_data,
@@ -31,7 +29,6 @@ from starforge.render.prop_views import (
 from starforge.runtime.procs import fork_helper, release
 
 _DPI = 100
-_DOT_AREA = 60  # a marker's dot in layout.png (scatter size: points squared)
 
 
 def convergence_png(res, path: str | Path) -> Path:
@@ -69,7 +66,8 @@ def convergence_png(res, path: str | Path) -> Path:
 
 def layout_png(res, path: str | Path) -> Path:
     """The prop (shaded, grey) in two orthographic views with its markers numbered (1-based,
-    each number where it covers no other and no marker's dot, :func:`declutter`) and coloured by visibility on the markers' own range, with a colour bar.
+    each number where it covers no other and no marker's dot) and coloured by visibility on the
+    markers' own range, with a colour bar.
 
     Drawn in 2D with the painter's algorithm (faces sorted by depth), which is much faster
     than matplotlib's 3D axes; markers on the far side are drawn hollow.
@@ -91,10 +89,9 @@ def layout_png(res, path: str | Path) -> Path:
         proj = shaded(ax, d.triangles, d.face_normals, B)
         span = frame(ax, proj)
         shade_grips(ax, d, B)
-        shown, labels, leaders = markers_in_view(ax, d, B, span, vis, norm, "plasma", size=_DOT_AREA, view=f"layout {title}")
-        sc = shown or sc
-        declutter(ax, [], labels, [], [(p, _DOT_AREA**0.5 + 1) for p in d.marker_centres @ B[:2].T])
-        follow_labels(leaders, labels)
+        marks = markers_in_view(ax, d, B, span, vis, norm, "plasma", view=f"layout {title}")
+        marks.place(ax)
+        sc = marks.scatter or sc
         ax.set_title(f"{title} (elevation {elev}, azimuth {azim} deg)", fontsize=8)
     cax = fig.add_axes([0.86, 0.15, 0.022, 0.62])
     if sc is not None:
