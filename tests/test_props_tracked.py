@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from starforge.props.layout_search import local_search, random_layouts
+from starforge.props.layout_search import greedy_local_search, local_search, random_layouts
 from starforge.props.spacing import spacing_m
 from starforge.props.tracked import TRIANGLE_SPREAD, Problem, TrackSettings
 from tests.conftest import run_cli
@@ -705,3 +705,41 @@ def test_a_layout_grows_until_the_held_out_sample_vouches_for_the_target(poses, 
     low = binomtest(k, poses).proportion_ci(confidence_level=0.90, method="wilson").low
     assert confirmed_tracked(k / poses, poses) == pytest.approx(low, abs=2e-5)
     assert confirmed_tracked(k / poses, poses) <= k / poses + 1e-12
+
+
+def test_the_greedy_trace_follows_the_search_to_its_layout():
+    prob = _problem(3)
+    trace: list[float] = []
+    sites = greedy_local_search(prob, trace=trace)
+    assert sites == greedy_local_search(prob)  # recording does not steer the search
+    n = prob.settings.target_markers
+    assert len(trace) >= n and trace[-1] == pytest.approx(prob.cost(sites))
+    swaps = np.asarray(trace[n - 1 :])
+    assert (np.diff(swaps) < 0).all()  # a swap is kept only when it lowers the cost
+
+
+def test_the_search_picture_draws_every_random_layout_and_candidate():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from starforge.props.placement import run_placement
+    from starforge.render.prop_views import plot_data
+    from starforge.render.props import search_figure
+
+    res = run_placement("box", sites=150, resolution=1, orientations=6)
+    d = plot_data(res)
+    s, opt = d.search, res.tracked
+    fig = search_figure(d)
+    top, hist = fig.axes[:2]
+    counts = np.concatenate([p.get_data().values for p in hist.patches])  # the histogram's steps
+    assert counts.sum() == len(opt.random_lower) == res.spec.track.random_layouts
+    lines = [ln for ln in hist.lines if ln.get_xdata()[0] == ln.get_xdata()[-1]]  # the vertical ones
+    cands = opt.baselines["selection"]["candidates"]
+    assert sorted(ln.get_xdata()[0] for ln in lines) == pytest.approx(sorted(c["cost"] for c in cands.values()))
+    drawn = np.concatenate([ln.get_ydata() for ln in top.lines if len(ln.get_ydata()) == len(s["greedy_trace"])])
+    assert drawn[: len(s["greedy_trace"])] == pytest.approx(s["greedy_trace"])
+    winner = cands[opt.baselines["selection"]["winner"]]["cost"]
+    costlier = sum(1 for x in opt.random_lower if x > winner)
+    assert f"{costlier} of {len(opt.random_lower)} random layouts cost more" in top.get_title()
+    assert s["greedy_additions"] == len(opt.baselines["greedy_local_search"]["sites"])
+    matplotlib.pyplot.close(fig)

@@ -242,6 +242,7 @@ def placement_json(res: PlacementResult) -> dict:
                 "median_random": None
                 if res.tracked.baselines["best_of_random"]["median_cost"] is None
                 else _r(res.tracked.baselines["best_of_random"]["median_cost"]),
+                **{k: _r(np.asarray(v)) if k == "greedy_trace" else v for k, v in res.tracked.search_summary().items()},
                 "chains": [
                     {k: (_r(v) if isinstance(v, float) else v) for k, v in c.items()}
                     for c in res.tracked.baselines["chains"]

@@ -27,17 +27,20 @@ def _screen_pool(prob: Problem, sites) -> np.ndarray:
     return np.unique(np.concatenate([spread, near]))
 
 
-def greedy_local_search(prob: Problem, candidates_top: int = 12, start=()) -> list[int]:
+def greedy_local_search(prob: Problem, candidates_top: int = 12, start=(), trace: list[float] | None = None) -> list[int]:
     """Greedy: add the best site to ``start`` (default none) until ``target_markers``; then swaps
-    (one marker for another site) while they lower the exact cost."""
+    (one marker for another site) while they lower the exact cost.  ``trace``: a list that gets
+    the cost after each addition, then after each swap (what ``convergence.png`` draws)."""
     sites = [int(x) for x in start]
     while len(sites) < prob.settings.target_markers:
         free = np.setdiff1d(_screen_pool(prob, sites), sites)
         approx = prob.screen_additions(sites, free)
         top = free[np.argsort(approx, kind="stable")[:candidates_top]]
-        best = min(top.tolist(), key=lambda c: (prob.cost([*sites, c]), c))
+        cost, best = min((prob.cost([*sites, c]), c) for c in top.tolist())
         sites.append(int(best))
-    return local_search(prob, sites)
+        if trace is not None:
+            trace.append(float(cost))
+    return local_search(prob, sites, trace=trace)
 
 
 def untangle(prob: Problem, sites: list[int], rounds: int = 20) -> list[int]:
@@ -72,8 +75,11 @@ def untangle(prob: Problem, sites: list[int], rounds: int = 20) -> list[int]:
     return sites
 
 
-def local_search(prob: Problem, sites: list[int], rounds: int = 20, candidates_top: int = 12) -> list[int]:
-    """Swap one marker for another site (screened, then exact) while it lowers the cost."""
+def local_search(
+    prob: Problem, sites: list[int], rounds: int = 20, candidates_top: int = 12, trace: list[float] | None = None
+) -> list[int]:
+    """Swap one marker for another site (screened, then exact) while it lowers the cost;
+    ``trace`` gets the cost after each swap."""
     sites = list(sites)
     cur = prob.cost(sites)
     for _ in range(rounds):
@@ -89,6 +95,8 @@ def local_search(prob: Problem, sites: list[int], rounds: int = 20, candidates_t
                 tc = prob.cost(trial, bound=cur)
                 if tc < cur - 1e-12:
                     sites, cur, improved = trial, tc, True
+                    if trace is not None:
+                        trace.append(float(tc))
                     break
         if not improved:
             break

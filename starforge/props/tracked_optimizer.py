@@ -54,6 +54,22 @@ class Optimized:
     baselines: dict
     runs: tuple[ChainRun, ...]
     seconds: dict
+    #: the greedy layout's search: its cost after each addition, then after each swap
+    greedy_trace: tuple[float, ...] = ()
+    #: the random layouts' costs without the near-symmetry term (lower bounds of their costs)
+    random_lower: np.ndarray | None = None
+
+    def search_summary(self) -> dict:
+        """What ``convergence.png`` draws of a run without annealing chains, for placement.json:
+        the greedy search's cost after each of its ``greedy_additions``, then after each swap,
+        and how many random layouts cost more than the chosen one even by their lower bound."""
+        lower, sel = self.random_lower, self.baselines["selection"]
+        cost = sel["candidates"][sel["winner"]]["cost"]  # on the scenarios the random layouts were scored on
+        return {
+            "greedy_trace": list(self.greedy_trace),
+            "greedy_additions": len(self.baselines["greedy_local_search"]["sites"]),
+            "random_costlier_than_chosen": None if lower is None else int((lower > cost).sum()),
+        }
 
 
 def optimize(
@@ -73,7 +89,8 @@ def optimize(
     s = prob.settings
     sec = {}
     t = time.perf_counter()
-    greedy = greedy_local_search(prob)
+    trace: list[float] = []
+    greedy = greedy_local_search(prob, trace=trace)
     g_cost = prob.cost(greedy)
     sec["greedy_local_search_s"] = round(time.perf_counter() - t, 3)
     t = time.perf_counter()
@@ -184,4 +201,7 @@ def optimize(
         "selection": selection,
         "chains": [{"cost": r.cost, "iterations": r.iterations, "accepted": r.accepted} for r in runs],
     }
-    return Optimized(tuple(int(x) for x in best), prob.terms(best), baselines, tuple(runs), sec)
+    return Optimized(
+        tuple(int(x) for x in best), prob.terms(best), baselines, tuple(runs), sec, tuple(trace),
+        np.asarray(r_costs, float) if r_costs else None,
+    )  # fmt: skip

@@ -48,6 +48,7 @@ class PlotData:
     margin_mm: np.ndarray = field(default=None, repr=False)  # (m,) seat margin
     placement_error_mm: float = 0.0
     grip_lines: tuple = ()  # the grips, as the run prints them
+    search: dict = field(default_factory=dict, repr=False)  # the tracked search without chains (search_data)
 
 
 #: a mesh with more faces is drawn simplified (:func:`drawn_faces`), to at most DRAWN_FACES faces
@@ -120,7 +121,22 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         margin_mm=None if res.seat_report.margin_m is None else np.asarray(res.seat_report.margin_m)[idx] * 1000.0,
         placement_error_mm=err,
         grip_lines=tuple(grip_lines(getattr(res, "part", None), grips)) if grips else (),
+        search=search_data(res.tracked) if tracked else {},
     )
+
+
+def search_data(opt) -> dict:
+    """What ``convergence.png`` draws of the tracked optimizer's search (a
+    :class:`starforge.props.tracked_optimizer.Optimized`): the greedy search's cost after each
+    addition and swap, the random layouts' lower-bound costs, and every candidate in ranked order
+    as ``(name, cost, held-out tracked fraction or None)`` with the winner first."""
+    sel = opt.baselines["selection"]
+    return {
+        **opt.search_summary(),
+        "random_lower": None if opt.random_lower is None else np.asarray(opt.random_lower, float),
+        "candidates": tuple((n, float(c["cost"]), c["validation_tracked"]) for n, c in sel["candidates"].items()),
+        "winner": sel["winner"],
+    }
 
 
 def drawn_faces(mesh, max_faces: int = MAX_FACES) -> tuple[np.ndarray, np.ndarray]:

@@ -31,9 +31,30 @@ from starforge.runtime.procs import fork_helper, release
 _DPI = 100
 
 
+#: the tracked optimizer's candidates (:func:`starforge.props.tracked_optimizer.optimize`) as pictures name them
+CANDIDATES = {
+    "greedy_local_search": "greedy + swaps",
+    "best_of_random": "best random layout",
+    "best_of_random_polished": "best random + swaps",
+    "held_out_polished": "leader, swapped on held-out poses",
+    "held_out_polished_cheapest": "cheapest, swapped on held-out poses",
+    "grown_from_start": "grown from fewer markers",
+}
+
+
+def candidate_label(name: str) -> str:
+    """A candidate's name as the pictures print it (``chain_2_polished``: "chain 2 + swaps")."""
+    if name.startswith("chain_"):
+        return f"chain {name.split('_')[1]} + swaps"
+    return CANDIDATES.get(name, name.replace("_", " "))
+
+
 def convergence_png(res, path: str | Path) -> Path:
-    """Total cost per iteration for every restart (best run highlighted), temperature and marker count."""
+    """Total cost per iteration for every restart (best run highlighted), temperature and marker
+    count; for the tracked search without annealing chains (the default), :func:`search_png`."""
     d = plot_data(res)
+    if d.search and all(len(c) <= 1 for c, _, _ in d.run_costs):
+        return search_png(d, path)
     plt = pyplot()
     fig, (ax, ax2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     for k, (cost, _, _) in enumerate(d.run_costs):
@@ -62,6 +83,75 @@ def convergence_png(res, path: str | Path) -> Path:
     save_png(fig, path, dpi=_DPI)
     plt.close(fig)
     return Path(path)
+
+
+def search_png(res, path: str | Path) -> Path:
+    """:func:`search_figure` as a PNG."""
+    fig = search_figure(res)
+    save_png(fig, path, dpi=_DPI)
+    pyplot().close(fig)
+    return Path(path)
+
+
+def search_figure(res):
+    """The tracked search without annealing chains: above, the greedy layout's cost after each
+    added marker (numbered by the markers it then has) and after each swap that lowered it
+    (log scale: a layout of one or two markers tracks nothing); below, the costs of the random
+    layouts (their lower bounds: without the near-symmetry term) with every candidate's cost and
+    held-out tracked fraction, the chosen one solid."""
+    d = plot_data(res)
+    srch = d.search
+    plt = pyplot()
+    from matplotlib.ticker import NullLocator
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(7.5, 6.6), gridspec_kw={"height_ratios": [3, 2]})
+    trace = np.asarray(srch["greedy_trace"], float)
+    n_add = min(srch["greedy_additions"], len(trace))
+    step = np.arange(1, len(trace) + 1)
+    ax.plot(step, trace, color="0.6", lw=0.8, zorder=1)
+    ax.plot(step[:n_add], trace[:n_add], "o", color="C0", ms=4, label="after adding a marker (label: markers)", zorder=2)
+    for k in range(n_add):
+        ax.annotate(str(k + 1), (step[k], trace[k]), xytext=(0, 5), textcoords="offset points", ha="center", fontsize=7)
+    if len(trace) > n_add:
+        ax.plot(step[n_add:], trace[n_add:], "s", color="C1", ms=3.5, label="after a swap that lowered it")
+    cands = {n: (c, h) for n, c, h in srch["candidates"]}
+    chosen = cands[srch["winner"]][0]
+    ax.axhline(chosen, color="C3", lw=1.0, ls="--", label=f"chosen ({candidate_label(srch['winner'])})")
+    if len(trace):
+        ax.set_yscale("log")
+        ax.yaxis.set_minor_locator(NullLocator())  # minor ticks cost a third of the drawing
+    ax.set_xlabel("greedy search step", fontsize=8)
+    ax.set_ylabel("total cost (lower is better)", fontsize=8)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", fontsize=7)
+    lower = srch["random_lower"]
+    title = f"{d.name}: greedy search, no annealing chain (--restarts 0); chosen cost {d.final_cost:.4f}"
+    if lower is not None and len(lower):
+        pos = lower[lower > 0]
+        lo = min(float(pos.min()) if len(pos) else chosen, *(c for c, _ in cands.values()))
+        hi = max(float(lower.max()), *(c for c, _ in cands.values()))
+        bins = np.geomspace(max(lo, 1e-6) * 0.9, hi * 1.1, 40) if hi > lo > 0 else 40
+        counts, edges = np.histogram(lower, bins=bins)
+        ax2.stairs(counts, edges, fill=True, color="0.75", label=f"{len(lower)} random layouts (lower bounds)")
+        if hi > lo > 0:
+            ax2.set_xscale("log")
+            ax2.xaxis.set_minor_locator(NullLocator())
+        title += f"\n{srch['random_costlier_than_chosen']} of {len(lower)} random layouts cost more, even by their lower bound"
+    for k, (name, (c, h)) in enumerate(cands.items()):
+        win = name == srch["winner"]
+        held = "" if h is None else f", held-out tracked {100 * h:.1f} %"
+        ax2.axvline(
+            c, color="C3" if win else f"C{(k % 6) + 4}", lw=1.6 if win else 1.0, ls="-" if win else "--",
+            label=f"{candidate_label(name)}{' (chosen)' if win else ''}: {c:.4f}{held}",
+        )  # fmt: skip
+    ax2.set_xlabel("total cost", fontsize=8)
+    ax2.set_ylabel("layouts", fontsize=8)
+    ax2.grid(alpha=0.3)
+    handles, labels = ax2.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower left", bbox_to_anchor=(0.1, 0.0), fontsize=7, frameon=False)
+    ax.set_title(title, fontsize=9)
+    rows = len(labels)
+    fig.subplots_adjust(left=0.1, right=0.97, top=0.9, bottom=0.08 + 0.03 * rows, hspace=0.35)
+    return fig
 
 
 def layout_png(res, path: str | Path) -> Path:
