@@ -6,6 +6,7 @@ import contextlib
 import csv
 import io
 import json
+import re
 import shutil
 
 import numpy as np
@@ -658,7 +659,15 @@ def test_the_run_prints_its_grips_and_pins_one_by_number(hammer_run, tmp_path, c
     flat = " ".join(stdout.split())
     from starforge.props.grips import WRAPS
 
-    assert f"hand: {len(grips)} grip(s)" in flat and f"grip 1-{len(WRAPS)}:" in flat
+    assert f"hand: {len(grips)} grip(s)" in flat
+    # every grip is listed once, numbered as --grip takes it, with its hand
+    listed = {}
+    for a, b, hand in re.findall(r"(\d+)(?:-(\d+))?:? (right|left) hand", flat.split("(--grip N pins grip N):")[1]):
+        for n in range(int(a), int(b or a) + 1):
+            assert n not in listed
+            listed[n] = hand
+    assert listed == {n + 1: g["hand"] for n, g in enumerate(grips)}
+    assert all(f"{w:g}" in flat for w in WRAPS)
     assert len(doc["hand"]) == sum(len(g["capsules"]) for g in grips)
     code, stdout, err = _run(["place", "hammer", *FAST, "--grip", "2", "--out", str(tmp_path / "p")], capsys)
     assert code == 0, err

@@ -569,20 +569,42 @@ def ranking_note(baselines: dict) -> str:
 
 
 def grip_lines(part, grips) -> list[str]:
-    """The grips the layout is scored under, grouped by hand and place (numbers as ``--grip N`` takes them)."""
+    """The grips the layout is scored under, grouped by hand and place (numbers as ``--grip N``
+    takes them); wrist turns that every group shares are said once, in the first line."""
     from starforge.props.grips import grips_summary
 
     if not grips:
         return ["hand: none (--no-hand)"]
-    out = [f"hand: {grips_summary(part, grips)}; each pose is held in one of them (--grip N pins grip N):"]
+    groups = []  # (first, last, what, wrist turns)
     k = 0
     while k < len(grips):
         j = k
         base = grips[k].label.split(", wrist at")[0]
         while j < len(grips) and grips[j].label.split(", wrist at")[0] == base:
             j += 1
-        wraps = ", ".join(f"{g.wrap_deg:g}" for g in grips[k:j])
-        nums = f"{k + 1}" if j == k + 1 else f"{k + 1}-{j}"
-        out.append(f"  grip {nums}: {base}" + (f", wrist at {wraps} deg around the part" if "wrist at" in grips[k].label else ""))
+        wraps = ", ".join(f"{g.wrap_deg:g}" for g in grips[k:j]) if "wrist at" in grips[k].label else ""
+        groups.append((k + 1, j, base, wraps))
         k = j
+    shared = {w for *_, w in groups}
+    common = shared.pop() if len(shared) == 1 and len(groups) > 1 else None
+    head = f"hand: {grips_summary(part, grips)}; each pose is held in one of them"
+    if common:
+        head += f", the wrist at {common} deg around the part"
+    out = [head + " (--grip N pins grip N):"]
+
+    def nums(a, b):
+        return f"{a}" if a == b else f"{a}-{b}"
+
+    i = 0
+    while i < len(groups):
+        a, b, base, wraps = groups[i]
+        turns = f", wrist at {wraps} deg around the part" if wraps and not common else ""
+        if i + 1 < len(groups) and base.startswith("right hand ") and groups[i + 1][2] == "left" + base[5:]:
+            c, d, _, wraps2 = groups[i + 1]
+            if wraps2 == wraps:  # the same place in either hand: one line
+                out.append(f"  grip {nums(a, b)} right hand, {nums(c, d)} left hand: {base[11:]}{turns}")
+                i += 2
+                continue
+        out.append(f"  grip {nums(a, b)}: {base}{turns}")
+        i += 1
     return out

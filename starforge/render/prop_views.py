@@ -47,7 +47,6 @@ class PlotData:
     caliper: tuple = ()  # (a, b, centre_mm, outside_mm, tolerance_mm) per marker pair
     margin_mm: np.ndarray = field(default=None, repr=False)  # (m,) seat margin
     placement_error_mm: float = 0.0
-    grip_lines: tuple = ()  # the grips, as the run prints them
     search: dict = field(default_factory=dict, repr=False)  # the tracked search without chains (search_data)
 
 
@@ -73,7 +72,6 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
     else:
         temps = np.array([res.spec.chain.temperature(i) for i in range(n_hist)])
     tris, normals = drawn_faces(res.prop.mesh, max_faces)
-    from starforge.props.files import grip_lines
     from starforge.props.guide import caliper_pairs, landmarks, mesh_landmarks
     from starforge.props.hand import capsule_arrays
 
@@ -120,7 +118,6 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         ),
         margin_mm=None if res.seat_report.margin_m is None else np.asarray(res.seat_report.margin_m)[idx] * 1000.0,
         placement_error_mm=err,
-        grip_lines=tuple(grip_lines(getattr(res, "part", None), grips)) if grips else (),
         search=search_data(res.tracked) if tracked else {},
     )
 
