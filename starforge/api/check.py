@@ -232,9 +232,9 @@ def _headline(doc: dict) -> str:
     worst = f"the worse of {' and '.join(rules)}" if len(rules) > 1 else "the rule simulated"
     safe = doc["safe_under"]
     verdict = (
-        f"no wrong body or pose under {', '.join(safe)}"
+        f"no frame gave a wrong body or pose under {', '.join(safe)}"
         if safe
-        else "wrong bodies or poses under every headline rule"
+        else "some frames gave a wrong body or pose under every headline rule"
     )
     w = doc.get("withheld_rate", 0.0)
     withheld = f" ({100 * w:.3f} % withheld: a rival explanation nearly as likely)" if w > 0 else ""
@@ -244,7 +244,6 @@ def _headline(doc: dict) -> str:
         f"{worst}; {verdict}\n  rule {head}: {doc['headline_means']}; window {s['match_mm']:.3g} mm, "
         f"residual {s['residual_mm']:.3g} mm; a match is withheld unless {s['ambiguity_likelihood_ratio']:g} times as likely as any rival"
     )
-
 
 
 def check(

@@ -402,8 +402,6 @@ def frame(ax, proj, pad=1.25):
     return 2 * h
 
 
-
-
 #: the views the pictures draw, by name: rows of (screen right, screen up, towards the viewer)
 VIEWS = {
     "layout front": view_basis(20, -60),
