@@ -18,7 +18,7 @@ import pytest
 from benchmarks._views import clashes, guide_view_report, overlap
 from starforge.render._mpl import label_box
 from starforge.render.guide import GUIDE_VIEWS, guide_pages
-from starforge.render.prop_views import declutter, plot_data, symbol_box
+from starforge.render.prop_views import VIEWS, declutter, plot_data, symbol_box
 
 
 @pytest.fixture(scope="module", params=["hammer", "box"])
@@ -103,3 +103,41 @@ def test_layout_png_labels_clear_of_each_other_and_the_dots(guide_data, monkeypa
     monkeypatch.setattr(pictures, "save_png", check)
     pictures.layout_png(guide_data, tmp_path / "layout.png")
     assert found == []
+
+
+@pytest.mark.parametrize("prop", ["small_box", "hammer", "sword"])
+def test_the_template_is_drawn_at_the_scale_its_bar_shows(prop, tmp_path):
+    """Page 2 as a technician measures it: the printed distance between two crosshairs is their
+    distance on the prop in the template's view over its scale, and so is the scale bar's 50 mm;
+    the drawing keeps clear of every text on the page."""
+    import trimesh
+
+    from starforge.props.placement import run_placement
+
+    if prop == "small_box":
+        path = tmp_path / "small_box.stl"
+        trimesh.creation.box(extents=(0.12, 0.06, 0.04)).export(path)
+        prop = str(path)
+    res = run_placement(prop, sites=150, resolution=1, orientations=6)
+    d = plot_data(res)
+    fig = guide_pages(d)[1]
+    fig.canvas.draw()
+    title = next(t.get_text() for t in fig.texts if t.get_text().startswith("Template"))
+    view, k = title.split(", ")[1], int(title.split("scale 1:")[1].split(":")[0])
+    ax, bar = fig.axes[:2]
+    mm = 25.4 / fig.dpi  # printed mm per pixel
+    # each crosshair is a horizontal and a vertical stroke; its centre is the stroke's middle
+    centres = [ax.transData.transform(line.get_xydata().mean(axis=0)) for line in ax.lines[0::2]]
+    assert len(centres) == len(d.marker_points)
+    on_prop = d.marker_points @ VIEWS[view][:2].T * 1000.0  # mm, in the view's plane (any turn in it keeps distances)
+    for i, j in itertools.combinations(range(len(centres)), 2):
+        printed = np.linalg.norm(centres[i] - centres[j]) * mm
+        assert printed == pytest.approx(np.linalg.norm(on_prop[i] - on_prop[j]) / k, rel=2e-3, abs=0.05)
+    ends = bar.transData.transform([[0.0, 0.0], [50.0, 0.0]])
+    assert (ends[1, 0] - ends[0, 0]) * mm == pytest.approx(50.0 / k, rel=1e-3)
+    drawing, r = ax.get_window_extent(), fig.canvas.get_renderer()
+    page_texts = [t for t in fig.texts if t.get_text().strip()]  # the heading, the note, the bar's caption
+    assert len(page_texts) == 3
+    for t in page_texts:
+        assert not overlap(drawing, t.get_window_extent(r)), t.get_text()
+    matplotlib.pyplot.close("all")

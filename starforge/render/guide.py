@@ -1,13 +1,14 @@
 """The rigging guide a technician sticks the markers on from: ``guide.pdf`` (and its first page
 as ``guide.png``).
 
-Page 1: four orthographic views with the numbered markers (filled where the prop does not hide
+Page 1: four orthographic views at one scale with the numbered markers (filled where the prop does not hide
 them from that side, hollow and grey where it does), the landmarks (tips T, corners C: blue
 triangles), the hand's grips; under them, per marker, the face it sits on, its distances from
 the nearest landmarks, its tilt and its seat margin; then the caliper table (every pair of ball
 centres, the reading across both balls' outsides, the tolerance).  Page 2: a template at a
 printed scale of 1:1 where the prop fits an A4 sheet (else 1:2, 1:5, ...) with a scale bar to
-check the print against, crosshairs at the markers' base centres.
+check the print against (drawing and bar at that one scale), crosshairs at the markers' base
+centres.
 
 No two texts overlap: text blocks are stacked by their measured extents (:class:`_Cursor`),
 and the labels inside a view are placed by :func:`declutter` where they cover no other label, no
@@ -34,6 +35,7 @@ from starforge.render.prop_views import (
     plot_data,
     shade_grips,
     shaded,
+    shared_half_width,
 )
 from starforge.runtime.procs import can_fork, fork_helper, release
 
@@ -54,6 +56,8 @@ TEXT_STYLES = {
     "caliper": {"fontsize": 6.5, "family": "monospace"},
 }
 _DPI = 110  # guide.png
+_VIEW_BOX = (0.235, 0.445)
+_TEMPLATE_BAND = (0.12, 0.915)  # the template's drawing: above its scale bar, below its heading (page fractions)  # each view's width and height on page 1, fractions of the page
 _DOT_AREA = 40  # a marker's dot in the views (scatter size: points squared)
 _TRIANGLE_PT = 4  # a landmark's triangle, points across
 
@@ -124,11 +128,14 @@ def guide_pages(res) -> list:
              **TEXT_STYLES["title"])  # fmt: skip
     lo, hi = d.bounds
     named: set[str] = set()  # landmarks already labelled in an earlier view
+    # one scale for every view, as large as the views' boxes (taller than wide) hold the prop
+    half = shared_half_width(d.triangles.reshape(-1, 3), [VIEWS[n] for n in GUIDE_VIEWS],
+                             _VIEW_BOX[1] * _PAGE[1] / (_VIEW_BOX[0] * _PAGE[0]), 1.3)  # fmt: skip
     for k, name in enumerate(GUIDE_VIEWS):
         B = VIEWS[name]
-        ax = fig.add_axes([0.01 + 0.245 * k, 0.47, 0.235, 0.46])
+        ax = fig.add_axes([0.01 + 0.245 * k, 0.47, *_VIEW_BOX])
         proj = shaded(ax, d.triangles, d.face_normals, B)
-        span = frame(ax, proj, pad=1.3)
+        span = frame(ax, proj, pad=1.3, half_width=half)
         shade_grips(ax, d, B, wrists=False)
         numbers = markers_in_view(ax, d, B, span, size=_DOT_AREA, view=name)
         triangles, marks = [], []
@@ -184,14 +191,17 @@ def _template_page(d, plt):
     proj = d.triangles.reshape(-1, 3) @ B.T
     lo2, hi2 = proj[:, :2].min(axis=0), proj[:, :2].max(axis=0)
     ext_mm = (hi2 - lo2) * 1000.0
-    k = template_scale((float(ext_mm[0]), float(ext_mm[1])))
+    lo_band, hi_band = (f * _PAGE[1] for f in _TEMPLATE_BAND)
+    k = template_scale((float(ext_mm[0]), float(ext_mm[1])), (_PAGE[0] * _MM - 40.0, (hi_band - lo_band) * _MM - 20.0))
     fig = plt.figure(figsize=_PAGE)
-    w_in, h_in = (ext_mm + 20.0) / k / _MM  # 10 mm (printed) round it
+    # the drawing's box: the view at 1:k and 10 mm (printed) round it, the same as its limits
+    # below, so that the drawing is at the scale the bar shows
+    w_in, h_in = (ext_mm / k + 20.0) / _MM
     left = (_PAGE[0] - w_in) / 2
-    ax = fig.add_axes([left / _PAGE[0], (0.62 * _PAGE[1] - h_in / 2) / _PAGE[1] if h_in < 0.9 * _PAGE[1] else 0.05,
-                       w_in / _PAGE[0], h_in / _PAGE[1]])  # fmt: skip
+    bottom = min(max(0.62 * _PAGE[1] - h_in / 2, lo_band), hi_band - h_in)  # between the scale bar and the heading
+    ax = fig.add_axes([left / _PAGE[0], bottom / _PAGE[1], w_in / _PAGE[0], h_in / _PAGE[1]])
     shaded(ax, d.triangles, d.face_normals, B)
-    pad = 0.010 * k
+    pad = 0.010 * k  # m on the prop: 10 mm printed
     ax.set_xlim(lo2[0] - pad, hi2[0] + pad)
     ax.set_ylim(lo2[1] - pad, hi2[1] + pad)
     ax.set_aspect("equal")

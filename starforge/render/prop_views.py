@@ -390,16 +390,42 @@ def declutter(ax, fixed: list, movable: list, droppable: list, obstacles: list =
         placed = np.vstack([placed, boxes[k]])
 
 
-def frame(ax, proj, pad=1.25):
+def frame(ax, proj, pad=1.25, half_width=None):
+    """Frame the projected points ``proj`` in ``ax`` at one scale on both axes and return the
+    frame's width (data units), to which the labels' offsets are scaled: a square ``pad`` times
+    their largest extent (the depth's included, so that views of one prop framed so share one
+    scale), or with ``half_width`` that half-width and the axes' own shape
+    (:func:`shared_half_width`)."""
     allp = proj.reshape(-1, 3)
     lo, hi = allp.min(axis=0), allp.max(axis=0)
-    c, h = (lo + hi) / 2, float(np.max(hi - lo)) / 2 * pad
-    ax.set_xlim(c[0] - h, c[0] + h)
-    ax.set_ylim(c[1] - h, c[1] + h)
+    c = (lo + hi) / 2
+    hx = hy = float(np.max(hi - lo)) / 2 * pad
+    if half_width is not None:
+        hx, hy = half_width, half_width * box_aspect(ax)
+    ax.set_xlim(c[0] - hx, c[0] + hx)
+    ax.set_ylim(c[1] - hy, c[1] + hy)
     ax.set_aspect("equal")
     ax.set_xticks([])
     ax.set_yticks([])
-    return 2 * h
+    return 2 * hx
+
+
+def box_aspect(ax) -> float:
+    """The height of ``ax`` on its figure over its width."""
+    pos = ax.get_position()
+    w, h = ax.figure.get_size_inches()
+    return (pos.height * h) / (pos.width * w)
+
+
+def shared_half_width(points: np.ndarray, bases, aspect: float, pad: float) -> float:
+    """The half-width (data units) of the frames that hold ``points`` (n, 3) seen in every view
+    of ``bases``, ``pad`` times their extent, in axes ``aspect`` (height over width) times as
+    tall as wide: one scale for all the views, as large as the tallest or widest of them allows."""
+    need = 1e-9
+    for B in bases:
+        ext = np.ptp(points @ np.asarray(B)[:2].T, axis=0) / 2 * pad
+        need = max(need, float(ext[0]), float(ext[1]) / aspect)
+    return need
 
 
 #: the views the pictures draw, by name: rows of (screen right, screen up, towards the viewer)
