@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import itertools
 import json
 import re
 import shutil
@@ -619,6 +620,36 @@ def test_the_guide_has_landmarks_calipers_and_no_overlapping_text(hammer_run):
     text = " ".join(t for t, _ in text_boxes(pages[0]))
     for i in range(1, len(res.marker_sites) + 1):
         assert f"{i:>2}. on " in text
+
+
+def test_the_printed_template_measures_the_prop_at_its_scale(hammer_run):
+    """guide.pdf's template page as a printer at 100 % lays it down (pdfminer.six reads the
+    file's strokes, 1 pt = 1/72 inch): its crosshairs, 3 mm strokes crossing at each marker's base
+    centre, lie as far apart as the markers on the prop in the view the heading names, over the
+    heading's scale; the scale bar is 50 mm of the prop at that scale."""
+    from pdfminer.high_level import extract_pages
+    from pdfminer.layout import LTLine, LTTextContainer
+
+    from starforge.render.prop_views import VIEWS
+
+    out, _ = hammer_run
+    page = list(extract_pages(out / "guide.pdf"))[1]
+    pt = 25.4 / 72.0  # mm per point
+    heading = next(t.get_text() for t in page if isinstance(t, LTTextContainer) and "Template" in t.get_text())
+    view, k = heading.split(", ")[1], int(heading.split("scale 1:")[1].split(":")[0])
+    lines = [(np.array([x.x0, x.y0]), np.array([x.x1, x.y1])) for x in page if isinstance(x, LTLine)]
+    strokes = [(a + b) / 2 for a, b in lines if abs(np.linalg.norm(b - a) * pt - 3.0) < 0.05]
+    centres = np.array([p for p in strokes if sum(np.linalg.norm(p - q) < 0.01 for q in strokes) == 2])[::2]
+    doc = json.loads((out / "placement.json").read_text())
+    on_prop = np.array([m["position"] for m in doc["markers"]]) @ VIEWS[view][:2].T * 1000.0
+    assert len(centres) == len(on_prop) >= 4
+
+    def spans(p):
+        return np.sort([np.linalg.norm(p[i] - p[j]) for i, j in itertools.combinations(range(len(p)), 2)])
+
+    assert spans(centres) * pt == pytest.approx(spans(on_prop) / k, abs=0.1)  # 0.1 mm printed
+    bar = max((np.linalg.norm(b - a) for a, b in lines if abs(a[1] - b[1]) < 1e-6), default=0.0)
+    assert bar * pt == pytest.approx(50.0 / k, abs=0.05)
 
 
 def test_the_written_guide_pdf_has_no_overlapping_text(hammer_run, tmp_path):
