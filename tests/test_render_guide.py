@@ -105,7 +105,7 @@ def test_layout_png_labels_clear_of_each_other_and_the_dots(guide_data, monkeypa
     assert found == []
 
 
-@pytest.mark.parametrize("prop", ["small_box", "hammer", "sword"])
+@pytest.mark.parametrize("prop", ["small_box", "hammer", pytest.param("sword", marks=pytest.mark.slow)])
 def test_the_template_is_drawn_at_the_scale_its_bar_shows(prop, tmp_path):
     """Page 2 as a technician measures it: the printed distance between two crosshairs is their
     distance on the prop in the template's view over its scale, and so is the scale bar's 50 mm;
@@ -140,4 +140,25 @@ def test_the_template_is_drawn_at_the_scale_its_bar_shows(prop, tmp_path):
     assert len(page_texts) == 3
     for t in page_texts:
         assert not overlap(drawing, t.get_window_extent(r)), t.get_text()
+    matplotlib.pyplot.close("all")
+
+
+@pytest.mark.slow
+def test_the_most_markers_keep_their_tables_on_the_page():
+    """12 markers (the most ``place`` puts): the marker table and the 66 caliper pairs stay on
+    the page, clear of each other and of the views, which give up height for them."""
+    from starforge.props.placement import run_placement
+    from starforge.render._mpl import text_boxes
+    from starforge.render.guide import overlapping_texts
+
+    res = run_placement("sword", markers=12, sites=300, resolution=1, orientations=12)
+    assert len(res.marker_sites) == 12
+    page = guide_pages(plot_data(res))[0]
+    W, H = page.bbox.width, page.bbox.height
+    for t, (x0, y0, x1, y1) in text_boxes(page):
+        assert x0 >= 0 and y0 >= 0 and x1 <= W and y1 <= H, t
+    assert overlapping_texts(page) == []
+    r = page.canvas.get_renderer()
+    lowest_view = min(ax.get_window_extent(r).y0 for ax in page.axes if ax.get_title() in GUIDE_VIEWS)
+    assert all(t.get_window_extent(r).y1 <= lowest_view for t in page.texts if t.get_position()[1] < 0.5)
     matplotlib.pyplot.close("all")

@@ -56,8 +56,11 @@ TEXT_STYLES = {
     "caliper": {"fontsize": 6.5, "family": "monospace"},
 }
 _DPI = 110  # guide.png
-_VIEW_BOX = (0.235, 0.445)
-_TEMPLATE_BAND = (0.12, 0.915)  # the template's drawing: above its scale bar, below its heading (page fractions)  # each view's width and height on page 1, fractions of the page
+_VIEW_BOX = (0.235, 0.445)  # each view's width and height, before the text's share of the page is known
+_VIEW_TOP = 0.915  # the views' top (page fraction), below the title
+_MIN_VIEW_HEIGHT = 0.3  # the views' least height (page fraction), when the text needs the room
+_BOTTOM = 0.03  # the page's bottom margin (page fraction)
+_TEMPLATE_BAND = (0.12, 0.915)  # the template's drawing: above its scale bar, below its heading (page fractions)
 _DOT_AREA = 40  # a marker's dot in the views (scatter size: points squared)
 _TRIANGLE_PT = 4  # a landmark's triangle, points across
 
@@ -96,10 +99,20 @@ class _Cursor:
 
     def __init__(self, fig, top: float, left: float = 0.02, gap: float = 0.008):
         self.fig, self.y, self.left, self.gap = fig, top, left, gap
+        self.texts: list = []  # every block placed, in order
 
     def block(self, text: str, x: float | None = None, **kw):
         """A text whose top is at the cursor (figure fractions)."""
-        return self.fig.text(self.left if x is None else x, self.y, text, va="top", ha="left", **kw)
+        t = self.fig.text(self.left if x is None else x, self.y, text, va="top", ha="left", **kw)
+        self.texts.append(t)
+        return t
+
+    def lower(self, by: float) -> None:
+        """Move every block placed, and the cursor, ``by`` (figure fraction) down the page."""
+        for t in self.texts:
+            x, y = t.get_position()
+            t.set_position((x, y - by))
+        self.y -= by
 
     def advance(self, *texts) -> None:
         """Move the cursor below the lowest of ``texts``."""
@@ -112,7 +125,7 @@ class _Cursor:
         """``lines`` in as many columns of figure width ``width`` as fit the page's width."""
         if not lines:
             return
-        ncol = max(1, int((1.0 - 2 * self.left) // width))
+        ncol = max(1, int((1.0 - 2 * self.left) / width + 1e-9))
         per = -(-len(lines) // ncol)
         ts = [self.block("\n".join(lines[c * per : (c + 1) * per]), x=self.left + c * width, **kw)
               for c in range(ncol) if lines[c * per : (c + 1) * per]]  # fmt: skip
@@ -127,31 +140,6 @@ def guide_pages(res) -> list:
     fig.text(0.02, 0.975, f"Rigging guide: {d.name}, {len(d.marker_centres)} markers", va="top",
              **TEXT_STYLES["title"])  # fmt: skip
     lo, hi = d.bounds
-    named: set[str] = set()  # landmarks already labelled in an earlier view
-    # one scale for every view, as large as the views' boxes (taller than wide) hold the prop
-    half = shared_half_width(d.triangles.reshape(-1, 3), [VIEWS[n] for n in GUIDE_VIEWS],
-                             _VIEW_BOX[1] * _PAGE[1] / (_VIEW_BOX[0] * _PAGE[0]), 1.3)  # fmt: skip
-    for k, name in enumerate(GUIDE_VIEWS):
-        B = VIEWS[name]
-        ax = fig.add_axes([0.01 + 0.245 * k, 0.47, *_VIEW_BOX])
-        proj = shaded(ax, d.triangles, d.face_normals, B)
-        span = frame(ax, proj, pad=1.3, half_width=half)
-        shade_grips(ax, d, B, wrists=False)
-        numbers = markers_in_view(ax, d, B, span, size=_DOT_AREA, view=name)
-        triangles, marks = [], []
-        for names, q in coincident_landmarks(d.features, B, 0.01 * span):
-            ax.plot([q[0]], [q[1]], marker="^", color="C0", ms=_TRIANGLE_PT, zorder=5.5)
-            triangles.append((q, _TRIANGLE_PT + 1))
-            label = ax.text(q[0], q[1] - 0.035 * span, "/".join(names), color="C0", ha="center", va="center", zorder=6,
-                            **TEXT_STYLES["landmark"])  # fmt: skip
-            marks.append((set(names) <= named, label))
-        ax.set_title(name, **TEXT_STYLES["view"])
-        for sp in ax.spines.values():
-            sp.set_visible(False)
-        # landmarks labelled in an earlier view give way first (declutter hides the first listed first)
-        marks.sort(key=lambda m: not m[0])
-        numbers.place(ax, [t for _, t in marks], triangles)
-        named |= {n for _, t in marks if t.get_visible() for n in t.get_text().split("/")}
     cur = _Cursor(fig, top=0.46)
     size = " x ".join(f"{(hi - lo)[k] * 1000:.1f}" for k in range(3))
     err = d.placement_error_mm
@@ -177,6 +165,36 @@ def guide_pages(res) -> list:
         cur.advance(cap)
         rows = [f"{a}-{b}: {c:6.1f} ({o:.1f} outside)" for a, b, c, o, _ in d.caliper]
         cur.columns(rows, 0.16, **TEXT_STYLES["caliper"])
+    # the views take what the text leaves of the page: the text moves down to the bottom margin
+    # (or up, when it runs past it: a long caliper table, the views then shorter)
+    spare = max(cur.y - _BOTTOM, _MIN_VIEW_HEIGHT - _VIEW_BOX[1])
+    cur.lower(spare)
+    height = _VIEW_BOX[1] + spare
+    named: set[str] = set()  # landmarks already labelled in an earlier view
+    # one scale for every view, as large as the views' boxes (taller than wide) hold the prop
+    half = shared_half_width(d.triangles.reshape(-1, 3), [VIEWS[n] for n in GUIDE_VIEWS],
+                             height * _PAGE[1] / (_VIEW_BOX[0] * _PAGE[0]), 1.3)  # fmt: skip
+    for k, name in enumerate(GUIDE_VIEWS):
+        B = VIEWS[name]
+        ax = fig.add_axes([0.01 + 0.245 * k, _VIEW_TOP - height, _VIEW_BOX[0], height])
+        proj = shaded(ax, d.triangles, d.face_normals, B)
+        span = frame(ax, proj, pad=1.3, half_width=half)
+        shade_grips(ax, d, B, wrists=False)
+        numbers = markers_in_view(ax, d, B, span, size=_DOT_AREA, view=name)
+        triangles, marks = [], []
+        for names, q in coincident_landmarks(d.features, B, 0.01 * span):
+            ax.plot([q[0]], [q[1]], marker="^", color="C0", ms=_TRIANGLE_PT, zorder=5.5)
+            triangles.append((q, _TRIANGLE_PT + 1))
+            label = ax.text(q[0], q[1] - 0.035 * span, "/".join(names), color="C0", ha="center", va="center", zorder=6,
+                            **TEXT_STYLES["landmark"])  # fmt: skip
+            marks.append((set(names) <= named, label))
+        ax.set_title(name, **TEXT_STYLES["view"])
+        for sp in ax.spines.values():
+            sp.set_visible(False)
+        # landmarks labelled in an earlier view give way first (declutter hides the first listed first)
+        marks.sort(key=lambda m: not m[0])
+        numbers.place(ax, [t for _, t in marks], triangles)
+        named |= {n for _, t in marks if t.get_visible() for n in t.get_text().split("/")}
     return [fig, _template_page(d, plt)]
 
 
