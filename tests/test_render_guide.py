@@ -162,3 +162,46 @@ def test_the_most_markers_keep_their_tables_on_the_page():
     lowest_view = min(ax.get_window_extent(r).y0 for ax in page.axes if ax.get_title() in GUIDE_VIEWS)
     assert all(t.get_window_extent(r).y1 <= lowest_view for t in page.texts if t.get_position()[1] < 0.5)
     matplotlib.pyplot.close("all")
+
+
+def _spread_reference(pts, span, rounds=200):
+    """spread_labels as array arithmetic, one label at a time against the round's start."""
+    n, gap = len(pts), 0.07 * span
+    d = pts - pts.mean(axis=0)
+    norm = np.linalg.norm(d, axis=1)
+    ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    u = np.where(norm[:, None] > 1e-9 * span, d / np.maximum(norm, 1e-300)[:, None], np.column_stack([np.cos(ang), np.sin(ang)]))
+    lab = pts + 1.2 * gap * u
+    for _ in range(rounds):
+        moved, others = False, np.vstack([lab, pts])
+        for i in range(n):
+            diff = lab[i] - others
+            dist = np.linalg.norm(diff, axis=1)
+            dist[i] = np.inf
+            close = dist < gap
+            if close.any():
+                push = (diff[close] / np.maximum(dist[close], 1e-9 * span)[:, None] * (gap - dist[close])[:, None]).sum(0)
+                lab[i] += 0.5 * (push if np.linalg.norm(push) >= 1e-12 * span else u[i] * gap * 0.1)
+                moved = True
+            pull = lab[i] - pts[i]
+            if np.linalg.norm(pull) > 3 * gap:
+                lab[i] = pts[i] + pull / np.linalg.norm(pull) * 3 * gap
+        if not moved:
+            break
+    return lab
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_spread_labels_is_the_array_arithmetic_and_keeps_its_promises(seed):
+    from starforge.render.prop_views import spread_labels
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 13))
+    pts = rng.uniform(-0.1, 0.1, (n, 2)) * rng.choice([0.05, 0.3, 1.0])
+    if seed % 4 == 0 and n > 2:
+        pts[1] = pts[0]  # two markers on one spot
+    span = float(rng.uniform(0.1, 0.5))
+    lab = spread_labels(pts, span)
+    assert lab == pytest.approx(_spread_reference(pts, span), abs=1e-12 * span)
+    gap = 0.07 * span
+    assert (np.linalg.norm(lab - pts, axis=1) <= 3 * gap * (1 + 1e-12)).all()

@@ -9,6 +9,7 @@ it is in front); that is computed once with the prop's mesh (:func:`hidden_in_vi
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -242,7 +243,12 @@ def shade_hand(ax, hand, B, deepest: float = 0.45):
 def spread_labels(points: np.ndarray, span: float, rounds: int = 200) -> np.ndarray:
     """(n, 2) label positions near ``points`` (n, 2) that keep apart from each other and from
     every point: each starts one step out from the points' centre and is pushed by the
-    others until no two are closer than ``0.07 * span`` (or ``rounds`` pass)."""
+    others until no two are closer than ``0.07 * span`` (or ``rounds`` pass), never more than
+    three steps from its point.
+
+    The labels move one at a time, each against the positions of the round's start, in plain
+    floats: a dozen labels make numpy's per-call cost most of the time, and scalar arithmetic
+    gives the same positions on every machine."""
     pts = np.asarray(points, float)
     n = len(pts)
     if n == 0:
@@ -253,29 +259,38 @@ def spread_labels(points: np.ndarray, span: float, rounds: int = 200) -> np.ndar
     norm = np.linalg.norm(d, axis=1)
     ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
     fallback = np.column_stack([np.cos(ang), np.sin(ang)])
-    u = np.where(norm[:, None] > 1e-9 * span, d / np.maximum(norm, 1e-300)[:, None], fallback)
-    lab = pts + 1.2 * gap * u
+    u = np.where(norm[:, None] > 1e-9 * span, d / np.maximum(norm, 1e-300)[:, None], fallback).tolist()
+    P = pts.tolist()
+    L = (pts + 1.2 * gap * np.asarray(u)).tolist()
+    tiny, still, reach = 1e-9 * span, 1e-12 * span, 3 * gap
     for _ in range(rounds):
         moved = False
-        others = np.vstack([lab, pts])
+        others = [tuple(q) for q in L] + [tuple(q) for q in P]
         for i in range(n):
-            diff = lab[i] - others
-            dist = np.linalg.norm(diff, axis=1)
-            dist[i] = np.inf
-            close = dist < gap
-            if close.any():
-                push = (diff[close] / np.maximum(dist[close], 1e-9 * span)[:, None] * (gap - dist[close])[:, None]).sum(0)
-                if np.linalg.norm(push) < 1e-12 * span:
-                    push = u[i] * gap * 0.1
-                lab[i] += 0.5 * push
+            lx, ly = L[i]
+            px = py = 0.0
+            hit = False
+            for j, (ox, oy) in enumerate(others):
+                dx, dy = lx - ox, ly - oy
+                dist = math.sqrt(dx * dx + dy * dy)
+                if j != i and dist < gap:  # pushed away by each one too close, the more the closer
+                    m = max(dist, tiny)
+                    px += dx / m * (gap - dist)
+                    py += dy / m * (gap - dist)
+                    hit = True
+            if hit:
+                if math.sqrt(px * px + py * py) < still:  # pushes that cancel: step outwards
+                    px, py = u[i][0] * gap * 0.1, u[i][1] * gap * 0.1
+                lx, ly = lx + 0.5 * px, ly + 0.5 * py
                 moved = True
-            pull = lab[i] - pts[i]
-            far = np.linalg.norm(pull)
-            if far > 3 * gap:
-                lab[i] = pts[i] + pull / far * 3 * gap
+            qx, qy = lx - P[i][0], ly - P[i][1]
+            far = math.sqrt(qx * qx + qy * qy)
+            if far > reach:
+                lx, ly = P[i][0] + qx / far * 3 * gap, P[i][1] + qy / far * 3 * gap
+            L[i] = [lx, ly]
         if not moved:
             break
-    return lab
+    return np.array(L, float).reshape(n, 2)
 
 
 @dataclass
