@@ -205,3 +205,29 @@ def test_spread_labels_is_the_array_arithmetic_and_keeps_its_promises(seed):
     assert lab == pytest.approx(_spread_reference(pts, span), abs=1e-12 * span)
     gap = 0.07 * span
     assert (np.linalg.norm(lab - pts, axis=1) <= 3 * gap * (1 + 1e-12)).all()
+
+
+@pytest.mark.parametrize(("fists", "covering"), [(120, 120), (120, 60), (18, 3)])
+def test_the_hands_shade_is_as_deep_and_as_orange_as_its_share_of_grips(fists, covering):
+    """A spot that ``covering`` of ``fists`` grips cover is drawn as the hand's colour laid over
+    white at opacity ``1 - (1 - 0.45) ** (covering / fists)``: read off the rendered pixels, so
+    the 8-bit blending of many faint layers cannot shift its depth or its hue."""
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import to_rgb
+
+    from starforge.render.prop_views import shade_hand
+
+    fig = plt.figure(figsize=(2, 2), dpi=100)
+    ax = fig.add_axes([0, 0, 1, 1])
+    ax.set_xlim(-1, 1)
+    ax.set_ylim(-1, 1)
+    ax.axis("off")
+    here = [0.0, 0.0, -0.3, 0.0, 0.0, 0.3, 0.2, 0.0]  # a fist round the middle, seen from the front
+    elsewhere = [0.7, 0.0, -0.9, 0.7, 0.0, -0.8, 0.05, 0.0]  # the others, away from the middle
+    rows = [here] * covering + [[*elsewhere[:1], 0.0, -0.9 + 0.001 * k, *elsewhere[3:]] for k in range(fists - covering)]
+    shade_hand(ax, np.array(rows), np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]))
+    fig.canvas.draw()
+    pixel = np.asarray(fig.canvas.buffer_rgba())[100, 100, :3] / 255.0
+    a = 1.0 - 0.55 ** (covering / fists)
+    assert pixel == pytest.approx(a * np.array(to_rgb("C1")) + (1 - a), abs=2.5 / 255)
+    plt.close(fig)

@@ -210,6 +210,10 @@ def shade_hand(ax, hand, B, deepest: float = 0.45):
     c = np.asarray(hand, float).reshape(-1, CAPSULE_COLUMNS)
     if not len(c):
         return
+    total = len(c)
+    # grips that differ only where the picture does not show (the same fist) draw as one
+    # silhouette as deep as that many layers: fewer, larger-alpha layers fill faster and round less
+    c, copies = np.unique(np.round(c, 9), axis=0, return_counts=True)
     a, b, r, band = c[:, :3], c[:, 3:6], c[:, 6], c[:, 7] != 0
     rings: list = [None] * len(c)
     if band.any():  # each end circle of the band, seen along B[2], swept to the other end
@@ -235,9 +239,11 @@ def shade_hand(ax, hand, B, deepest: float = 0.45):
         stadium = np.concatenate([cap1, cap0, cap1[:, :1]], axis=1)
         for i, ring in zip(np.flatnonzero(~band), stadium, strict=True):
             rings[i] = ring
-    each = 1.0 - (1.0 - deepest) ** (1.0 / len(c))
-    shade = PolyCollection(rings, facecolors="C1", edgecolors="none", alpha=each, zorder=2)
-    ax.add_collection(shade, autolim=False)
+    from matplotlib.colors import to_rgb
+
+    alpha = 1.0 - (1.0 - deepest) ** (copies / total)  # k layers of 1 - (1 - deepest)**(1 / total)
+    colours = [(*to_rgb("C1"), float(a)) for a in alpha]
+    ax.add_collection(PolyCollection(rings, facecolors=colours, edgecolors="none", zorder=2), autolim=False)
 
 
 def spread_labels(points: np.ndarray, span: float, rounds: int = 200) -> np.ndarray:
