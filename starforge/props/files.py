@@ -589,7 +589,7 @@ def grip_lines(part, grips) -> list[str]:
     common = shared.pop() if len(shared) == 1 and len(groups) > 1 else None
     head = f"hand: {grips_summary(part, grips)}; each pose is held in one of them"
     if common:
-        head += f", the wrist at {common} deg around the part"
+        head += f", the wrist at {common} deg around the part in turn"
     out = [head + " (--grip N pins grip N):"]
 
     def nums(a, b):
