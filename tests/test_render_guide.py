@@ -231,3 +231,21 @@ def test_the_hands_shade_is_as_deep_and_as_orange_as_its_share_of_grips(fists, c
     a = 1.0 - 0.55 ** (covering / fists)
     assert pixel == pytest.approx(a * np.array(to_rgb("C1")) + (1 - a), abs=2.5 / 255)
     plt.close(fig)
+
+
+def test_the_views_scale_bar_is_the_views_scale(guide_data):
+    """Page 1's bar is as long as the length it names at the scale the four views share."""
+    import re
+
+    page = guide_pages(guide_data)[0]
+    page.canvas.draw()
+    views = [ax for ax in page.axes if ax.get_title() in GUIDE_VIEWS]
+    px_per_mm = {round(float(np.diff(ax.transData.transform([[0, 0], [0.001, 0]])[:, 0])[0]), 6) for ax in views}
+    assert len(px_per_mm) == 1  # one scale
+    (text,) = [t.get_text() for t in page.texts if t.get_text().startswith("the views:")]
+    mm, k = float(re.search(r"(\d+) mm", text).group(1)), float(re.search(r"1:([\d.]+)", text).group(1))
+    bar = next(ax for ax in page.axes if ax not in views)
+    ends = bar.transData.transform([[0.0, 0.0], [mm, 0.0]])
+    assert ends[1, 0] - ends[0, 0] == pytest.approx(mm * px_per_mm.pop(), rel=1e-6)
+    assert k == pytest.approx(page.dpi / 25.4 / np.diff(views[0].transData.transform([[0, 0], [0.001, 0]])[:, 0])[0], rel=0.01)
+    matplotlib.pyplot.close("all")

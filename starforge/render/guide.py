@@ -1,7 +1,7 @@
 """The rigging guide a technician sticks the markers on from: ``guide.pdf`` (and its first page
 as ``guide.png``).
 
-Page 1: four orthographic views at one scale with the numbered markers (filled where the prop does not hide
+Page 1: four orthographic views at one scale (its bar at the top right) with the numbered markers (filled where the prop does not hide
 them from that side, hollow and grey where it does), the landmarks (tips T, corners C: blue
 triangles), the hand's grips; under them, per marker, the face it sits on, its distances from
 the nearest landmarks, its tilt and its seat margin; then the caliper table (every pair of ball
@@ -195,7 +195,30 @@ def guide_pages(res) -> list:
         marks.sort(key=lambda m: not m[0])
         numbers.place(ax, [t for _, t in marks], triangles)
         named |= {n for _, t in marks if t.get_visible() for n in t.get_text().split("/")}
+    _views_scale_bar(fig, _VIEW_BOX[0] * _PAGE[0] / (2 * half))
     return [fig, _template_page(d, plt)]
+
+
+#: the lengths (mm on the prop) a scale bar may show
+_BAR_MM = (5, 10, 20, 50, 100, 200, 500, 1000, 2000)
+
+
+def _views_scale_bar(fig, inch_per_m: float) -> None:
+    """A scale bar for the views (one scale for all four) at the top right of page 1: the
+    longest round length that prints at most an inch, and the printed scale it makes."""
+    mm = max((x for x in _BAR_MM if x * inch_per_m / 1000.0 <= 1.0), default=_BAR_MM[0])
+    w = mm * inch_per_m / 1000.0 / _PAGE[0]  # page fraction
+    right = 0.98
+    bar = fig.add_axes([right - w, 0.962, w, 0.01])
+    bar.set_xlim(0, mm)
+    bar.set_ylim(-0.2, 1)
+    bar.axis("off")
+    for x in (0, mm / 2, mm):
+        bar.plot([x, x], [0, 1], color="k", lw=0.8, clip_on=False)
+    bar.plot([0, mm], [0, 0], color="k", lw=1.2, clip_on=False)
+    k = 1000.0 / (25.4 * inch_per_m)  # prop mm per printed mm
+    fig.text(right - w - 0.006, 0.962, f"the views: {mm:g} mm on the prop (printed at about 1:{k:.1f})", ha="right",
+             va="bottom", **TEXT_STYLES["caption"])  # fmt: skip
 
 
 def _template_page(d, plt):
@@ -245,8 +268,8 @@ def _template_page(d, plt):
     bar.set_ylim(-0.2, 1)
     bar.axis("off")
     for x in range(0, 51, 10):
-        bar.plot([x, x], [0, 1], color="k", lw=0.8)
-    bar.plot([0, 50], [0, 0], color="k", lw=1.2)
+        bar.plot([x, x], [0, 1], color="k", lw=0.8, clip_on=False)
+    bar.plot([0, 50], [0, 0], color="k", lw=1.2, clip_on=False)
     fig.text(0.06, 0.05, f"scale bar: 50 mm on the prop, ticks every 10 mm, printed at 1:{k}", va="top",
              **TEXT_STYLES["caption"])  # fmt: skip
     fig.text(0.02, 0.975, f"Template, {best}, scale 1:{k}: print at 100 % (no 'fit to page') and check the scale bar "
