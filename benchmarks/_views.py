@@ -9,6 +9,8 @@ import itertools
 
 import numpy as np
 
+from starforge.render._mpl import boxes_overlap as overlap
+
 
 def view_parts(ax) -> tuple[list, list]:
     """(labels: [(text, display Bbox)], symbols: [display Bbox]) of the axes ``ax``, drawn."""
@@ -30,11 +32,6 @@ def view_parts(ax) -> tuple[list, list]:
         if line.get_marker() == "^":
             symbols += [symbol_box(ax, xy, line.get_markersize()) for xy in line.get_xydata()]
     return labels, symbols
-
-
-def overlap(a, b, pad: float = 0.5) -> bool:
-    """Two display boxes overlap by more than ``pad`` pixels both ways."""
-    return min(a.x1, b.x1) - max(a.x0, b.x0) > pad and min(a.y1, b.y1) - max(a.y0, b.y0) > pad
 
 
 def clashes(ax) -> list[tuple[str, str]]:

@@ -242,7 +242,7 @@ def placement_json(res: PlacementResult) -> dict:
                 "median_random": None
                 if res.tracked.baselines["best_of_random"]["median_cost"] is None
                 else _r(res.tracked.baselines["best_of_random"]["median_cost"]),
-                **{k: _r(np.asarray(v)) if k == "greedy_trace" else v for k, v in res.tracked.search_summary().items()},
+                **_search_summary(res.tracked),
                 "chains": [
                     {k: (_r(v) if isinstance(v, float) else v) for k, v in c.items()}
                     for c in res.tracked.baselines["chains"]
@@ -566,6 +566,12 @@ def ranking_note(baselines: dict) -> str:
         f"{100 * won['validation_tracked']:.2f} % of the held-out ones against {100 * greedy['validation_tracked']:.2f} % "
         "(layouts are ranked by held-out tracking first, then by cost)"
     )
+
+
+def _search_summary(opt) -> dict:
+    """:meth:`~starforge.props.tracked_optimizer.Optimized.search_summary` with its trace rounded for the JSON."""
+    s = opt.search_summary()
+    return {**s, "greedy_trace": _r(np.asarray(s["greedy_trace"], float))}
 
 
 def grip_lines(part, grips) -> list[str]:

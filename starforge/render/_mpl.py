@@ -53,6 +53,11 @@ def wrap_to_width(fig, text_artist, fraction: float = 0.96) -> None:
         text_artist.set_text("\n".join(textwrap.wrap(full, width)))
 
 
+def boxes_overlap(a, b, pad: float = 0.5) -> bool:
+    """Two display boxes (``Bbox``) overlap by more than ``pad`` pixels both ways."""
+    return min(a.x1, b.x1) - max(a.x0, b.x0) > pad and min(a.y1, b.y1) - max(a.y0, b.y0) > pad
+
+
 def label_box(t, renderer):
     """A text's display box; for a text drawn in a frame (a marker's number in its circle), the
     frame's box, which is larger than the text's: the frame's box style applied to the text's box

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.props.guide import template_scale
-from starforge.render._mpl import pyplot, save_png, text_boxes
+from starforge.render._mpl import boxes_overlap, pyplot, save_png, text_boxes
 from starforge.render.prop_views import (
     VIEWS,
     declutter,
@@ -65,11 +65,6 @@ _DOT_AREA = 40  # a marker's dot in the views (scatter size: points squared)
 _TRIANGLE_PT = 4  # a landmark's triangle, points across
 
 
-def _overlap(a, b, pad: float = 0.5) -> bool:
-    """Two display boxes (Bbox) overlap by more than ``pad`` pixels both ways."""
-    return min(a.x1, b.x1) - max(a.x0, b.x0) > pad and min(a.y1, b.y1) - max(a.y0, b.y0) > pad
-
-
 def coincident_landmarks(features, B, tol: float) -> list[tuple[list[str], np.ndarray]]:
     """The landmarks ``features`` ((name, point) pairs) as seen in view ``B``, those that fall
     within ``tol`` of each other (in the view's plane) grouped under one symbol: (names, the first
@@ -91,7 +86,7 @@ def overlapping_texts(fig) -> list[tuple[str, str]]:
     from matplotlib.transforms import Bbox
 
     boxes = [(t, Bbox.from_extents(*b)) for t, b in text_boxes(fig)]
-    return [(boxes[i][0], boxes[j][0]) for i in range(len(boxes)) for j in range(i + 1, len(boxes)) if _overlap(boxes[i][1], boxes[j][1])]
+    return [(boxes[i][0], boxes[j][0]) for i in range(len(boxes)) for j in range(i + 1, len(boxes)) if boxes_overlap(boxes[i][1], boxes[j][1])]
 
 
 class _Cursor:
@@ -209,16 +204,22 @@ def _views_scale_bar(fig, inch_per_m: float) -> None:
     mm = max((x for x in _BAR_MM if x * inch_per_m / 1000.0 <= 1.0), default=_BAR_MM[0])
     w = mm * inch_per_m / 1000.0 / _PAGE[0]  # page fraction
     right = 0.98
-    bar = fig.add_axes([right - w, 0.962, w, 0.01])
-    bar.set_xlim(0, mm)
-    bar.set_ylim(-0.2, 1)
-    bar.axis("off")
-    for x in (0, mm / 2, mm):
-        bar.plot([x, x], [0, 1], color="k", lw=0.8, clip_on=False)
-    bar.plot([0, mm], [0, 0], color="k", lw=1.2, clip_on=False)
+    _scale_bar(fig, [right - w, 0.962, w, 0.01], mm, (0, mm / 2, mm))
     k = 1000.0 / (25.4 * inch_per_m)  # prop mm per printed mm
     fig.text(right - w - 0.006, 0.962, f"the views: {mm:g} mm on the prop (printed at about 1:{k:.1f})", ha="right",
              va="bottom", **TEXT_STYLES["caption"])  # fmt: skip
+
+
+def _scale_bar(fig, rect, mm: float, ticks) -> None:
+    """A scale bar in its own axes at ``rect`` (page fractions) whose width is ``mm`` on the
+    prop: a baseline with a stroke at each of ``ticks`` (mm), none clipped at the axes' edge."""
+    bar = fig.add_axes(rect)
+    bar.set_xlim(0, mm)
+    bar.set_ylim(-0.2, 1)
+    bar.axis("off")
+    for x in ticks:
+        bar.plot([x, x], [0, 1], color="k", lw=0.8, clip_on=False)
+    bar.plot([0, mm], [0, 0], color="k", lw=1.2, clip_on=False)
 
 
 def _template_page(d, plt):
@@ -263,13 +264,7 @@ def _template_page(d, plt):
     cross_pt = 3.0 / _MM * 72.0 + 1.0  # a crosshair, 3 mm across printed, in points (the page is drawn 1:1)
     declutter(ax, [], labels, [], [(p[:2], cross_pt) for p in pts])
     # the scale bar: 50 mm on the prop (printed 50 / k mm), ticks every 10 mm
-    bar = fig.add_axes([0.06, 0.08, (50.0 / k) / _MM / _PAGE[0], 0.02])
-    bar.set_xlim(0, 50)
-    bar.set_ylim(-0.2, 1)
-    bar.axis("off")
-    for x in range(0, 51, 10):
-        bar.plot([x, x], [0, 1], color="k", lw=0.8, clip_on=False)
-    bar.plot([0, 50], [0, 0], color="k", lw=1.2, clip_on=False)
+    _scale_bar(fig, [0.06, 0.08, (50.0 / k) / _MM / _PAGE[0], 0.02], 50.0, range(0, 51, 10))
     fig.text(0.06, 0.05, f"scale bar: 50 mm on the prop, ticks every 10 mm, printed at 1:{k}", va="top",
              **TEXT_STYLES["caption"])  # fmt: skip
     fig.text(0.02, 0.975, f"Template, {best}, scale 1:{k}: print at 100 % (no 'fit to page') and check the scale bar "

@@ -291,7 +291,7 @@ def spread_labels(points: np.ndarray, span: float, rounds: int = 200) -> np.ndar
                 moved = True
             qx, qy = lx - P[i][0], ly - P[i][1]
             far = math.sqrt(qx * qx + qy * qy)
-            if far > reach:
+            if far > reach:  # back to its reach (q / far * 3 * gap rounds as the guides drawn so far did)
                 lx, ly = P[i][0] + qx / far * 3 * gap, P[i][1] + qy / far * 3 * gap
             L[i] = [lx, ly]
         if not moved:
