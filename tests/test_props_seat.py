@@ -308,10 +308,18 @@ def test_landmarks_from_the_bounding_box():
     assert m["from"] == {"x": "max", "y": "min", "z": "max"}
     assert m["distance_mm"] == [10.0, 10.0, 0.0]
     assert m["face"]["kind"] == "flat" and m["face"]["facing"] == "+z" and m["face"]["area_mm2"] == 6000
-    # the nearest landmark: the corner (50, -30, 20) mm, sqrt(10^2 + 10^2) away
-    assert m["nearest"][0]["distance_mm"] == pytest.approx(14.1, abs=0.05)
-    near = [f for f in feats if f["name"] == m["nearest"][0]["name"]][0]
-    assert np.allclose(near["point"], [0.05, -0.03, 0.02])
+    # three corners, nearest first, each at the distance the guide prints (brute force)
+    named = {f["name"]: np.array(f["point"]) for f in feats}
+    got = [x["distance_mm"] for x in m["measure_from"]]
+    assert len(got) == 3 and got == sorted(got)
+    for x in m["measure_from"]:
+        assert x["distance_mm"] == pytest.approx(np.linalg.norm(named[x["name"]] - p[0]) * 1000, abs=0.05)
+    # on a flat face, first order holds: the error is the ellipse's reach, sqrt(5.99 / lambda_min)
+    lp = np.array([named[x["name"]] for x in m["measure_from"]])
+    g = (p[0] - lp) / np.linalg.norm(p[0] - lp, axis=1)[:, None]
+    sig = 0.5 + 0.005 * np.linalg.norm(p[0] - lp, axis=1) * 1000
+    info = (g[:, :2] / sig[:, None]).T @ (g[:, :2] / sig[:, None])
+    assert m["locating_error_mm"] == pytest.approx(np.sqrt(-2 * np.log(0.05) / np.linalg.eigvalsh(info)[0]), abs=0.01)
     assert m["tilt_deg"] == 0 and tilt([1.0, 0, 1.0]) == (pytest.approx(45.0), "+x")
     # caliper pairs: every pair once, the centre distance by brute force, outside = + a diameter
     c = np.random.default_rng(2).random((5, 3)) * 0.1

@@ -79,11 +79,10 @@ def placement_json(res: PlacementResult) -> dict:
             }
         )
     seen3 = (res.marker_pose_seen.sum(axis=0) >= 3) if len(res.marker_sites) else np.zeros(0, bool)
-    from starforge.props.guide import caliper_pairs, landmarks, mesh_landmarks
+    from starforge.props.guide import caliper_pairs
 
     centres = res.centres()
-    features = mesh_landmarks(prop.mesh)
-    marks = landmarks(prop.mesh, res.marker_points, res.marker_normals, res.sites.faces[list(res.marker_sites)], features)
+    features, marks = res.rigging
     rep = res.seat_report
     markers = []
     for i, s in enumerate(res.marker_sites):

@@ -4,8 +4,11 @@ Every marker is located from features of the mesh a person finds by hand
 (:func:`mesh_landmarks`): the prop's *tips* (its farthest points both ways along each principal
 axis: the end of a handle, the top of a head) and its *corners* (vertices where three or more
 edges sharper than :data:`CORNER_DEG` meet).  Per marker (:func:`landmarks`): the straight
-distances (mm, a ruler or caliper from the point) to its :data:`NEAREST` nearest landmarks,
-the face it sits on (a flat face of the mesh at least :data:`FLAT_MIN_MM2`, named by the
+distances (mm, a ruler or caliper from the point) to the :data:`MEASURED` landmarks that locate
+it best (:func:`locating_errors`: under a model of a distance measured by hand, the three whose
+readings pin the mark down most tightly on the surface, which the nearest three need not do:
+at the end of a long prop they can lie nearly in one line with it), how tightly they do, the
+face it sits on (a flat face of the mesh at least :data:`FLAT_MIN_MM2`, named by the
 direction it faces, or the curved surface), its tilt (the angle of its normal from the prop's
 +z, and the direction it leans), and, as before, its distances from the sides of the
 axis-aligned bounding box.  The caliper check (:func:`caliper_pairs`): every pair of ball
@@ -17,6 +20,7 @@ merged by :func:`bases_mesh`.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -31,8 +35,24 @@ CORNER_DEG = 60.0
 MAX_CORNERS = 12
 #: landmarks closer than this (m) to one already named are the same landmark
 SAME_M = 0.005
-#: landmarks given per marker
-NEAREST = 3
+#: landmarks a marker is measured from (two locate a point on a surface up to a mirror image;
+#: the third tells the two apart and checks them)
+MEASURED = 3
+#: a distance measured by hand from a landmark to a mark is off by about TAPE_MM plus TAPE_REL
+#: of it (one standard deviation): reading a rule to half a millimetre, and holding a longer one
+#: straight between two points in the air
+TAPE_MM = 0.5
+TAPE_REL = 0.005
+#: the locating error bounds where 95 % of marks set from the readings land: the region whose
+#: readings differ from the mark's by at most this (a chi-square of 2 degrees of freedom at
+#: 0.95, -2 ln 0.05: the mark's two coordinates on the surface)
+LOCATE_CHI2 = -2.0 * math.log(0.05)
+#: a landmark nearer than this (mm) to the mark is not measured from (it gives no direction)
+MIN_MEASURE_MM = 5.0
+#: points sampled on the prop to look for those its readings cannot tell from a mark
+LOCATE_SAMPLES = 20_000
+#: a point facing more than this (degrees) away from the mark is told from it by the way it faces
+FACING_DEG = 45.0
 #: a flat face named as such covers at least this area (mm^2)
 FLAT_MIN_MM2 = 150.0
 
@@ -81,7 +101,14 @@ def mesh_landmarks(mesh) -> list[dict]:
         n[kind] += 1
         name = f"{'T' if kind == 'tip' else 'C'}{n[kind]}"
         where = ", ".join(f"{1000 * x:.0f}" for x in p)
-        out.append({"name": name, "kind": kind, "what": f"{what} ({where} mm)", "point": [round(float(x), 6) + 0.0 for x in p]})
+        out.append(
+            {
+                "name": name,
+                "kind": kind,
+                "what": f"{what} ({where} mm)",
+                "point": [round(float(x), 6) + 0.0 for x in p],
+            }
+        )
     return out
 
 
@@ -107,7 +134,11 @@ def _flat_faces(mesh, faces) -> dict[int, dict]:
         k = group[f]
         if k < 0 or areas[k] < FLAT_MIN_MM2:
             continue
-        out[f] = {"id": f"F{rank[k]}", "facing": _direction(fn[first[k]], 1.0), "area_mm2": round(float(areas[k]), 0)}
+        out[f] = {
+            "id": f"F{rank[k]}",
+            "facing": _direction(fn[first[k]], 1.0),
+            "area_mm2": round(float(areas[k]), 0),
+        }
     return out
 
 
@@ -123,16 +154,111 @@ def tilt(normal: np.ndarray) -> tuple[float, str]:
     return deg, f"{'+' if h[k] > 0 else '-'}{AXES[k]}"
 
 
-def landmarks(mesh, points: np.ndarray, normals: np.ndarray, faces=None, marks=None) -> list[dict]:
+def locating_errors(point, normal, landmark_points, triples, surface=None, surface_mm=None) -> np.ndarray:
+    """How tightly each triple of landmarks locates a mark at ``point`` (m) on a surface of
+    ``normal``: (t,) mm, for ``triples`` (t, 3) indices into ``landmark_points`` (k, 3) m.
+
+    Each distance is read with a standard deviation of :data:`TAPE_MM` + :data:`TAPE_REL` of it.
+    To first order a reading's error moves the mark along the distance's gradient projected
+    into the tangent plane, so the readings' weighted least squares has the information matrix
+    ``M = sum_j g_j g_j^T / sigma_j^2`` (2 x 2), and 95 % of marks land in the ellipse
+    ``delta^T M delta <= LOCATE_CHI2``, which reaches ``sqrt(LOCATE_CHI2 / lambda_min(M))`` from
+    the mark (inf where the triple's directions are parallel).  First order misses what the
+    surface does further off: on a round handle the readings change less and less as the mark
+    goes round it, and a mirror image of the mark can fit them as well.  With ``surface`` (a
+    :class:`SurfaceSample` of the prop), the error also reaches the farthest of its points inside
+    the same region measured on the surface, ``sum_j ((|q - L_j| - |p - L_j|) / sigma_j)^2 <=
+    LOCATE_CHI2``, among those facing within :data:`FACING_DEG` of the mark (the guide names the
+    way the mark faces, which tells it from the far side of a handle); ``surface_mm``: their
+    distances (q, k) to the landmarks in mm, when known."""
+    p = np.asarray(point, float)
+    n = np.asarray(normal, float) / max(float(np.linalg.norm(normal)), 1e-300)
+    t1 = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(n, t1)
+    lp = np.asarray(landmark_points, float).reshape(-1, 3)
+    triples = np.asarray(triples, np.int64).reshape(-1, MEASURED)
+    v = p - lp
+    d_mm = np.linalg.norm(v, axis=1) * 1000.0
+    u = v / np.maximum(d_mm[:, None] / 1000.0, 1e-300)
+    g = np.stack([u @ t1, u @ t2], axis=1)
+    sigma = TAPE_MM + TAPE_REL * d_mm
+    outer = np.stack([g[:, 0] ** 2, g[:, 0] * g[:, 1], g[:, 1] ** 2], axis=1) / sigma[:, None] ** 2
+    a, b, c = outer[triples].sum(axis=1).T
+    lam = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b**2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        err = np.where(lam > 1e-12 * np.maximum(a + c, 1e-300), np.sqrt(LOCATE_CHI2 / lam), np.inf)
+    if surface is None or not len(triples):
+        return err
+    q = surface.points
+    if surface_mm is None:
+        surface_mm = np.linalg.norm(q[:, None, :] - lp[None], axis=2) * 1000.0
+    z2 = ((surface_mm - d_mm) / sigma) ** 2  # (q, k)
+    facing = surface.normals @ n >= math.cos(math.radians(FACING_DEG))
+    rows = np.flatnonzero(facing & ((z2 <= LOCATE_CHI2).sum(axis=1) >= MEASURED))  # may fit some triple
+    far = np.linalg.norm(q[rows] - p, axis=1) * 1000.0
+    for lo in range(0, len(triples), 256):  # (rows, 256) at a time
+        t = triples[lo : lo + 256]
+        fits = z2[rows][:, t].sum(axis=2) <= LOCATE_CHI2  # (rows, t)
+        worst = np.where(fits, far[:, None], 0.0).max(axis=0, initial=0.0)
+        err[lo : lo + 256] = np.maximum(err[lo : lo + 256], worst)
+    return err
+
+
+class SurfaceSample(NamedTuple):
+    """Points sampled on a prop (:func:`surface_sample`): where :func:`locating_errors` looks for
+    points the readings cannot tell from a mark."""
+
+    points: np.ndarray  # (q, 3) m
+    normals: np.ndarray  # (q, 3) the outward normal of each point's face
+
+
+def surface_sample(mesh) -> SurfaceSample:
+    """:data:`LOCATE_SAMPLES` points on ``mesh``, uniform by area, the same on every run."""
+    import trimesh
+
+    pts, face = trimesh.sample.sample_surface(mesh, LOCATE_SAMPLES, seed=np.random.default_rng(0))
+    return SurfaceSample(np.asarray(pts, float), np.asarray(mesh.face_normals, float)[face])
+
+
+def _measured_from(p: np.ndarray, n: np.ndarray, lp: np.ndarray, surface, surface_mm) -> tuple[np.ndarray, float]:
+    """The :data:`MEASURED` landmarks (indices into ``lp``, nearest first) that locate the mark
+    at ``p`` best, and their locating error (mm; inf when no three do)."""
+    from itertools import combinations
+
+    d = np.linalg.norm(lp - p, axis=1) * 1000.0
+    usable = np.flatnonzero(d >= MIN_MEASURE_MM)
+    if len(usable) < MEASURED:  # too few apart from the mark: the nearest, however poor
+        order = np.argsort(d, kind="stable")[:MEASURED]
+        if len(order) < MEASURED:
+            return order, math.inf
+        return order, float(locating_errors(p, n, lp, [order], surface, surface_mm)[0])
+    triples = np.array(list(combinations(usable.tolist(), MEASURED)), np.int64)
+    err = locating_errors(p, n, lp, triples, surface, surface_mm)
+    # the tightest; among those within a micrometre of it, the shortest readings
+    key = np.where(np.isfinite(err), np.round(err, 3), np.inf)
+    best = int(np.lexsort((d[triples].sum(axis=1), key))[0])
+    chosen = triples[best][np.argsort(d[triples[best]], kind="stable")]
+    return chosen, float(err[best])
+
+
+def landmarks(
+    mesh, points: np.ndarray, normals: np.ndarray, faces=None, marks=None, placement_error_mm: float = math.inf
+) -> list[dict]:
     """Per marker (surface ``points`` (m, 3) m, outward ``normals``, the mesh ``faces`` they lie
     on): ``{"from": {"x": "min"|"max", ...}, "distance_mm": [dx, dy, dz] (from the nearer side of
-    the bounding box on each axis), "face": {"kind": "flat" | "curved", ...}, "nearest":
-    [{"name", "distance_mm"}], "tilt_deg", "leans", "text"}``.  ``marks``: the mesh's landmarks
-    (:func:`mesh_landmarks`, computed when not given)."""
+    the bounding box on each axis), "face": {"kind": "flat" | "curved", ...}, "measure_from":
+    [{"name", "distance_mm"}] (:func:`_measured_from`), "locating_error_mm" (how tightly those
+    readings place the mark, :func:`locating_errors`; None when they cannot), "tilt_deg",
+    "leans", "text"}``.  ``marks``: the mesh's landmarks
+    (:func:`mesh_landmarks`, computed when not given); a mark the readings locate less tightly
+    than ``placement_error_mm`` is said to be placed by the drawings (the views, the template)."""
     lo, hi = np.asarray(mesh.bounds, float)
     marks = mesh_landmarks(mesh) if marks is None else marks
     lp = np.array([m["point"] for m in marks], float).reshape(-1, 3)
     flat = _flat_faces(mesh, faces) if faces is not None else {}
+    surface = surface_sample(mesh) if len(points) else None
+    surface_mm = None if surface is None else np.linalg.norm(surface.points[:, None, :] - lp[None], axis=2) * 1000.0
     out = []
     for i, (p, n) in enumerate(zip(np.asarray(points, float), np.asarray(normals, float), strict=True)):
         side, dist = {}, []
@@ -148,17 +274,22 @@ def landmarks(mesh, points: np.ndarray, normals: np.ndarray, faces=None, marks=N
             face = {"kind": "curved", "facing": _direction(n)}
             on = f"on the curved surface (facing {_direction(n)})"
         d = np.linalg.norm(lp - p, axis=1) * 1000.0
-        order = np.argsort(d, kind="stable")[:NEAREST]
+        order, err = _measured_from(p, n, lp, surface, surface_mm)
         near = [{"name": marks[j]["name"], "distance_mm": round(float(d[j]), 1) + 0.0} for j in order]
         deg, leans = tilt(n)
         lean = f", leaning {leans}" if leans and 1.0 <= deg <= 179.0 else ""
+        if err <= placement_error_mm:
+            located = f" (to {err:.1f} mm)"
+        else:  # the readings cannot place it within the margin: the drawings must
+            located = f" (to {err:.1f} mm only: place it by the drawings)" if math.isfinite(err) else " (place it by the drawings)"
         text = (
             f"{on}; "
             + ", ".join(f"{m['distance_mm']:.1f} mm from {m['name']}" for m in near)
-            + f"; tilt {deg:.0f} deg from +z{lean}"
+            + f"{located}; tilt {deg:.0f} deg from +z{lean}"
         )
-        out.append({"from": side, "distance_mm": dist, "face": face, "nearest": near, "tilt_deg": round(deg, 1),
-                    "leans": leans, "text": text})  # fmt: skip
+        out.append({"from": side, "distance_mm": dist, "face": face, "measure_from": near,
+                    "locating_error_mm": round(err, 2) if math.isfinite(err) else None,
+                    "tilt_deg": round(deg, 1), "leans": leans, "text": text})  # fmt: skip
     return out
 
 

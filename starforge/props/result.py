@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -64,6 +65,19 @@ class PlacementResult:
     @property
     def marker_visibility(self) -> np.ndarray:
         return self.site_visibility[list(self.marker_sites)]
+
+    @cached_property
+    def rigging(self) -> tuple[list[dict], list[dict]]:
+        """What the rigging guide says (computed once, for placement.json and the drawings): the
+        prop's landmarks (:func:`starforge.props.guide.mesh_landmarks`) and, per marker, where
+        it is measured from (:func:`starforge.props.guide.landmarks`)."""
+        from starforge.props.guide import landmarks, mesh_landmarks
+
+        features = mesh_landmarks(self.prop.mesh)
+        faces = self.sites.faces[list(self.marker_sites)]
+        marks = landmarks(self.prop.mesh, self.marker_points, self.marker_normals, faces, features,
+                          self.spec.seat.placement_error_mm)  # fmt: skip
+        return features, marks
 
     def centres(self, sites=None) -> np.ndarray:
         """(m, 3) ball centres of ``sites`` (default: the markers), m: on the seat's axis."""

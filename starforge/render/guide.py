@@ -4,7 +4,7 @@ as ``guide.png``).
 Page 1: four orthographic views at one scale (its bar at the top right) with the numbered markers (filled where the prop does not hide
 them from that side, hollow and grey where it does), the landmarks (tips T, corners C: blue
 triangles), the hand's grips; under them, per marker, the face it sits on, its distances from
-the nearest landmarks, its tilt and its seat margin; then the caliper table (every pair of ball
+the landmarks that locate it best and how tightly, its tilt and its seat margin; then the caliper table (every pair of ball
 centres, the reading across both balls' outsides, the tolerance).  Page 2: a template at a
 printed scale of 1:1 where the prop fits an A4 sheet (else 1:2, 1:5, ...) with a scale bar to
 check the print against (drawing and bar at that one scale), crosshairs at the markers' base
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from starforge.props.guide import template_scale
+from starforge.props.guide import TAPE_MM, TAPE_REL, template_scale
 from starforge.render._mpl import boxes_overlap, pyplot, save_png, text_boxes
 from starforge.render.prop_views import (
     VIEWS,
@@ -141,8 +141,10 @@ def guide_pages(res) -> list:
     head = cur.block(
         f"Marker: {d.seat_text}.  Prop {size} mm (x, y, z).\n"
         "Find each marker's base centre from the landmarks named (T: a tip, C: a corner; blue triangles) with a ruler "
-        "or caliper, on the face given;\nthe tilt is the angle of the marker's axis from the prop's +z.  Margin: how far "
-        f"(mm) a base may land off its mark before it overhangs an edge or a tilted\nsurface (each is at least the "
+        "or caliper, on the face given;\n'to 1.2 mm': 95 % of marks set from those readings (each read to "
+        f"{TAPE_MM:g} mm + {100 * TAPE_REL:g} %) land within it; where that is more than the placement error, place "
+        "the mark by the drawings.\nThe tilt is the angle of the marker's axis from the prop's +z.  Margin: how far "
+        "(mm) a base may land off its mark before it overhangs an edge or a tilted\nsurface (each is at least the "
         f"{err:g} mm placement error).  Filled markers: in front in that view; hollow, grey: the prop hides them.  "
         "Orange: where the hand holds it.",
         **TEXT_STYLES["body"],

@@ -73,15 +73,14 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
     else:
         temps = np.array([res.spec.chain.temperature(i) for i in range(n_hist)])
     tris, normals = drawn_faces(res.prop.mesh, max_faces)
-    from starforge.props.guide import caliper_pairs, landmarks, mesh_landmarks
+    from starforge.props.guide import caliper_pairs
     from starforge.props.hand import capsule_arrays
 
     idx = list(res.marker_sites)
     seat = res.seat
     tracked = res.tracked is not None
-    features = mesh_landmarks(res.prop.mesh)
-    marks = landmarks(res.prop.mesh, res.marker_points, res.marker_normals, res.sites.faces[idx], features)
-    used = {m["name"] for mk in marks for m in mk["nearest"]}
+    features, marks = res.rigging
+    used = {m["name"] for mk in marks for m in mk["measure_from"]}
     err = res.spec.seat.placement_error_mm
     grips = getattr(res, "grips", ()) or ()
     return PlotData(
