@@ -12,7 +12,8 @@ For the built-in hammer and the eight props of ``bench_props_real.py`` (placed b
   solutions land (``solved_p95_mm``) and the share within the stated error
   (``within_stated``);
 * how many markers the readings place within the seat's placement error (the rest the guide
-  sends to the drawings).
+  sends to the drawings), and how many are set off one landmark on their own face in a named
+  direction instead (``set_off_one``: judged by eye, so not solved here).
 
 Run: ``python benchmarks/bench_guide_locate.py [--props hammer,bottle] [--write-docs]``.
 """
@@ -53,14 +54,30 @@ def _marker_rows(res, rng) -> list[dict]:
     for p, n, m in zip(res.marker_points, res.marker_normals, marks, strict=True):
         chosen = [index[x["name"]] for x in m["measure_from"]]
         near = np.argsort(np.linalg.norm(lp - p, axis=1), kind="stable")[:3]
-        row = {"stated_mm": m["locating_error_mm"], "nearest_stated_mm": round(float(locating_errors(p, n, lp, [near], surface)[0]), 2)}
+        poor = float(locating_errors(p, n, lp, [near], surface)[0]) if len(near) == 3 else np.inf
+        row = {"stated_mm": m["locating_error_mm"], "nearest_stated_mm": round(poor, 2) if np.isfinite(poor) else None}
+        row["set_off_one"] = "towards" in m["measure_from"][0]  # the direction judged by eye: no readings to solve
         for key, which in (("chosen", chosen), ("nearest", near)):
+            if len(which) != 3:
+                row[f"{key}_solved_p95_mm"] = row[f"{key}_within_stated"] = None
+                continue
             off = solved_offsets(mesh, p, n, lp[which], rng, TRIALS)
             row[f"{key}_solved_p95_mm"] = round(float(np.percentile(off, 95)), 2)
             stated = row["stated_mm" if key == "chosen" else "nearest_stated_mm"]
             row[f"{key}_within_stated"] = None if stated is None else round(float(np.mean(off <= stated)), 3)
         rows.append(row)
     return rows
+
+
+def _mm(x) -> float | None:
+    """``x`` rounded to 0.01 mm; None (no figure: the readings cannot place it) when infinite."""
+    return round(float(x), 2) if np.isfinite(x) else None
+
+
+def _median(values) -> float | None:
+    """The median of the figures that are there (None: none is)."""
+    got = [v for v in values if v is not None]
+    return round(float(np.median(got)), 2) if got else None
 
 
 def main(argv=None) -> int:
@@ -85,17 +102,19 @@ def main(argv=None) -> int:
             rows = _marker_rows(res, np.random.default_rng(5))
             err = res.spec.seat.placement_error_mm
             stated = np.array([np.inf if r["stated_mm"] is None else r["stated_mm"] for r in rows])
-            nearest = np.array([r["nearest_stated_mm"] for r in rows])
+            nearest = np.array([np.inf if r["nearest_stated_mm"] is None else r["nearest_stated_mm"] for r in rows])
             out["props"][name] = {
                 "markers": len(rows),
                 "placement_error_mm": err,
                 "within_placement_error": int((stated <= err).sum()),
                 "nearest_within_placement_error": int((nearest <= err).sum()),
-                "median_stated_mm": round(float(np.median(stated)), 2),
-                "median_nearest_stated_mm": round(float(np.median(nearest)), 2),
-                "median_solved_p95_mm": round(float(np.median([r["chosen_solved_p95_mm"] for r in rows])), 2),
-                "median_nearest_solved_p95_mm": round(float(np.median([r["nearest_solved_p95_mm"] for r in rows])), 2),
-                "min_within_stated": min(r["chosen_within_stated"] for r in rows if r["chosen_within_stated"] is not None),
+                "median_stated_mm": _mm(np.median(stated)),
+                "median_nearest_stated_mm": _mm(np.median(nearest)),
+                "set_off_one": sum(r["set_off_one"] for r in rows),
+                "median_solved_p95_mm": _median(r["chosen_solved_p95_mm"] for r in rows),
+                "median_nearest_solved_p95_mm": _median(r["nearest_solved_p95_mm"] for r in rows),
+                "landmarks": len(res.rigging[0]),
+                "min_within_stated": min((r["chosen_within_stated"] for r in rows if r["chosen_within_stated"] is not None), default=None),
                 "seconds": round(time.perf_counter() - t0, 1),
                 "per_marker": rows,
             }
@@ -115,7 +134,7 @@ def write_docs(out: dict) -> None:
     from _results import table, write_section
 
     rows = [
-        [name, v["markers"], f'{v["within_placement_error"]} ({v["nearest_within_placement_error"]})',
+        [name, v["markers"], v["landmarks"], f'{v["within_placement_error"]} ({v["nearest_within_placement_error"]})', v["set_off_one"],
          f'{v["median_stated_mm"]} ({v["median_nearest_stated_mm"]})',
          f'{v["median_solved_p95_mm"]} ({v["median_nearest_solved_p95_mm"]})', v["min_within_stated"]]
         for name, v in out["props"].items()
@@ -133,7 +152,7 @@ def write_docs(out: dict) -> None:
         f"drawings.  In all, the readings place {out['within_placement_error']} of the {out['markers']} markers within "
         f"it ({out['nearest_within_placement_error']} from the nearest three): on round and large props a tape cannot "
         "keep to the margin the seats leave, and the template (at 1:1 where the prop fits the sheet) or a jig must.\n\n"
-        + table(["prop", "markers", "within placement error", "median stated (mm)", "median solved p95 (mm)",
+        + table(["prop", "markers", "landmarks", "within placement error", "set off one", "median stated (mm)", "median solved p95 (mm)",
                  "least within stated"], rows)
     )  # fmt: skip
     write_section("guide-locate", "The rigging guide's landmark readings", body)

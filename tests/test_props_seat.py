@@ -300,10 +300,15 @@ def test_landmarks_from_the_bounding_box():
     p = np.array([[0.04, -0.02, 0.02]])
     face = box.nearest.on_surface(p)[2]
     feats = mesh_landmarks(box)
-    # the eight corners of the box, every one a tip or a corner, none twice
+    # the middles of its six faces (its flat ends along each axis) and its eight corners, none twice
     pts = np.array([f["point"] for f in feats])
+    half = np.array([0.05, 0.03, 0.02])
+    middles = np.array([s * half[k] * np.eye(3)[k] for k in range(3) for s in (1, -1)])
     corners = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.03, 0.03) for z in (-0.02, 0.02)])
-    assert len(pts) == 8 and np.allclose(np.sort(np.linalg.norm(pts[:, None] - corners[None], axis=2).min(1)), 0)
+    want = np.vstack([middles, corners])
+    assert len(pts) == 14 and np.allclose(np.linalg.norm(pts[:, None] - want[None], axis=2).min(1), 0, atol=1e-9)
+    assert np.allclose(np.linalg.norm(want[:, None] - pts[None], axis=2).min(1), 0, atol=1e-9)
+    assert [f["kind"] for f in feats] == ["tip"] * 6 + ["corner"] * 8
     m = landmarks(box, p, np.array([[0.0, 0, 1]]), face, feats)[0]
     assert m["from"] == {"x": "max", "y": "min", "z": "max"}
     assert m["distance_mm"] == [10.0, 10.0, 0.0]
@@ -417,3 +422,23 @@ def test_a_mesh_is_held_by_its_handle_not_by_a_blade():
     box.apply_transform(trimesh.transformations.rotation_matrix(np.radians(30), [0, 0, 1]))
     w = section_widths(box, 2, np.linspace(-0.14, 0.14, 8))
     assert np.allclose(w[:, 0], 0.05) and np.allclose(w[:, 1], 0.02)
+
+
+def test_the_ends_named_are_points_a_person_finds():
+    import trimesh
+
+    from starforge.props.guide import mesh_landmarks
+
+    # a cylinder: the middles of its two flat caps; along its sides the end is a line, no point
+    cyl = trimesh.creation.cylinder(radius=0.03, height=0.2, sections=64)
+    tips = np.array([f["point"] for f in mesh_landmarks(cyl) if f["kind"] == "tip"])
+    assert len(tips) == 2 and np.allclose(np.sort(tips[:, 2]), [-0.1, 0.1]) and np.allclose(tips[:, :2], 0, atol=1e-9)
+    # a cone: its apex (a point), and the middle of its base
+    cone = trimesh.creation.cone(radius=0.03, height=0.1, sections=64)
+    feats = [f for f in mesh_landmarks(cone) if f["kind"] == "tip"]
+    got = {f["what"].split(" (")[0]: np.array(f["point"]) for f in feats}
+    assert len(feats) == 2
+    assert np.allclose(got["the end towards +z"], [0, 0, 0.1]) and np.allclose(got["the middle of the flat end towards -z"], 0)
+    # a disc 12 mm thick: the facets of its rim are slivers, not faces to measure across
+    slab = trimesh.creation.cylinder(radius=0.05, height=0.012, sections=64)
+    assert len([f for f in mesh_landmarks(slab) if f["kind"] == "tip"]) == 2  # the two faces only

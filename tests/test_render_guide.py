@@ -249,3 +249,29 @@ def test_the_views_scale_bar_is_the_views_scale(guide_data):
     assert ends[1, 0] - ends[0, 0] == pytest.approx(mm * px_per_mm.pop(), rel=1e-6)
     assert k == pytest.approx(page.dpi / 25.4 / np.diff(views[0].transData.transform([[0, 0], [0.001, 0]])[:, 0])[0], rel=0.01)
     matplotlib.pyplot.close("all")
+
+
+def test_a_marker_line_too_long_for_the_page_goes_on_under_its_number(guide_data):
+    """The longest line a marker's landmarks can make (three far readings, a slanted face, a
+    mark the readings cannot place) wraps under its number and stays on the drawn page (the
+    PDF's Courier is as wide a character; bench_props_real.py reads the written PDFs)."""
+    import dataclasses
+
+    from starforge.render._mpl import text_boxes
+    from starforge.render.guide import overlapping_texts
+
+    long = (
+        "on flat face F46 (facing (+0.32, +0.95, -0.00), 458 mm2); 1197.0 mm from C13, 1200.1 mm from C14, "
+        "1246.2 mm from T16 (to 112.5 mm only: place it by the drawings); tilt 90 deg from +z, leaning +y"
+    )
+    data = dataclasses.replace(guide_data, landmarks=tuple(long for _ in guide_data.landmarks))
+    page = guide_pages(data)[0]
+    W, H = page.bbox.width, page.bbox.height
+    for t, (x0, y0, x1, y1) in text_boxes(page):
+        assert x0 >= 0 and y0 >= 0 and x1 <= W and y1 <= H, t
+    assert overlapping_texts(page) == []
+    table = [t for t in page.texts if t.get_text().startswith(" 1. ")][0].get_text().split("\n")
+    assert len(table) == 2 * len(guide_data.landmarks) and all(line.startswith("    ") for line in table[1::2])
+    # wrapped at a space: the text reads the same joined up again
+    assert " ".join(x.strip() for x in table[:2]) == f" 1. {long}; margin {guide_data.margin_mm[0]:.1f} mm".strip()
+    matplotlib.pyplot.close("all")

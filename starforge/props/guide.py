@@ -1,9 +1,11 @@
 """What a prop team needs to stick the markers on and check them: landmarks, calipers, tilt.
 
 Every marker is located from features of the mesh a person finds by hand
-(:func:`mesh_landmarks`): the prop's *tips* (its farthest points both ways along each principal
-axis: the end of a handle, the top of a head) and its *corners* (vertices where three or more
-edges sharper than :data:`CORNER_DEG` meet).  Per marker (:func:`landmarks`): the straight
+(:func:`mesh_landmarks`): the prop's *ends* both ways along each principal axis where a person
+can find them (the middle of a flat end face, such as a handle's end or a box's side; a single
+farthest point, such as an apex or a rib's tip; none where the end is a line, as along the side
+of a cylinder) and its *corners* (vertices where three or more edges sharper than
+:data:`CORNER_DEG` meet).  Per marker (:func:`landmarks`): the straight
 distances (mm, a ruler or caliper from the point) to the :data:`MEASURED` landmarks that locate
 it best (:func:`locating_errors`: under a model of a distance measured by hand, the three whose
 readings pin the mark down most tightly on the surface, which the nearest three need not do:
@@ -49,12 +51,26 @@ TAPE_REL = 0.005
 LOCATE_CHI2 = -2.0 * math.log(0.05)
 #: a landmark nearer than this (mm) to the mark is not measured from (it gives no direction)
 MIN_MEASURE_MM = 5.0
+#: a mark may be set off a landmark in its own plane (out of it by at most IN_PLANE of the
+#: distance), the direction named judged by eye to OFFSET_DEG (one standard deviation)
+IN_PLANE = 0.1
+OFFSET_DEG = 15.0
 #: points sampled on the prop to look for those its readings cannot tell from a mark
 LOCATE_SAMPLES = 20_000
 #: a point facing more than this (degrees) away from the mark is told from it by the way it faces
 FACING_DEG = 45.0
 #: a flat face named as such covers at least this area (mm^2)
 FLAT_MIN_MM2 = 150.0
+#: vertices within this (m) of a prop's farthest point along a direction make its end there
+TIP_BAND_M = 0.0005
+#: an end no wider than this (m) is a point a person finds (an apex, a corner, a rib's tip)
+TIP_POINT_M = 0.002
+#: a flat end whose area is at least this share of its outline's convex hull is convex, and
+#: one at least END_WIDTH_M across every way is no sliver: its middle is found by measuring
+#: across it; it faces within END_DEG (degrees) of the direction it ends the prop in
+CONVEX_SHARE = 0.9
+END_WIDTH_M = 0.01
+END_DEG = 20.0
 
 
 def _direction(v: np.ndarray, within_deg: float = 20.0) -> str:
@@ -66,9 +82,67 @@ def _direction(v: np.ndarray, within_deg: float = 20.0) -> str:
     return "(" + ", ".join(f"{x:+.2f}" for x in v) + ")"
 
 
+def _end(mesh, v: np.ndarray, c: np.ndarray, d: np.ndarray) -> tuple[str, np.ndarray] | None:
+    """The prop's end along ``d`` as a point a person finds by hand, with its description: the
+    middle of the flat face the farthest point lies on, where that face faces within
+    :data:`END_DEG` of ``d`` and is convex and at least :data:`END_WIDTH_M` across every way (a
+    disc, a square: found by measuring across it); else the farthest point where the end is one
+    (an apex, a rib's tip: the vertices within :data:`TIP_BAND_M` of the farthest lie within
+    :data:`TIP_POINT_M` of each other); else None: the end is a line or a curved strip (the side
+    of a cylinder), of which no one point stands out."""
+    proj = (v - c) @ d
+    far = int(np.argmax(proj))
+    face = _flat_end(mesh, v, far, d)
+    if face is not None:
+        return f"the middle of the flat end towards {_direction(d)}", face
+    pts = v[proj >= proj[far] - TIP_BAND_M]
+    if np.linalg.norm(pts - pts.mean(axis=0), axis=1).max() <= TIP_POINT_M:
+        return f"the end towards {_direction(d)}", v[far]
+    return None
+
+
+def _flat_end(mesh, v: np.ndarray, vertex: int, d: np.ndarray) -> np.ndarray | None:
+    """The middle (m) of the flat face (a facet of coplanar faces, or one triangle) at
+    ``vertex`` facing within :data:`END_DEG` of ``d``, the largest such, when it is convex (its
+    area at least :data:`CONVEX_SHARE` of its outline's hull) and :data:`END_WIDTH_M` wide."""
+    from scipy.spatial import ConvexHull
+
+    faces = np.asarray(mesh.faces)
+    fn = np.asarray(mesh.face_normals)
+    area = np.asarray(mesh.area_faces)
+    touching = np.flatnonzero((faces == vertex).any(axis=1) & (fn @ d >= math.cos(math.radians(END_DEG))))
+    if not len(touching):
+        return None
+    facet = _facet_of(mesh)
+    groups = [np.asarray(mesh.facets[k], np.int64) for k in sorted({int(k) for k in facet[touching] if k >= 0})]
+    groups += [np.array([f]) for f in touching if facet[f] < 0]
+    g = max(groups, key=lambda g: float(area[g].sum()))
+    a = area[g]
+    if a.sum() * 1e6 < FLAT_MIN_MM2:
+        return None
+    n = fn[g[0]]
+    e1 = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
+    e1 /= np.linalg.norm(e1)
+    corners = v[np.unique(faces[g])]
+    flat = np.column_stack([corners @ e1, corners @ np.cross(n, e1)])
+    try:
+        hull = ConvexHull(flat)
+    except Exception:  # noqa: BLE001  (qhull: a degenerate outline is no face to measure across)
+        return None
+    if a.sum() < CONVEX_SHARE * hull.volume:  # in 2-D, volume is the area
+        return None
+    ring = flat[hull.vertices]
+    edges = np.roll(ring, -1, axis=0) - ring
+    normals = np.column_stack([-edges[:, 1], edges[:, 0]]) / np.linalg.norm(edges, axis=1)[:, None]
+    spans = ring @ normals.T  # the hull's width across each of its edges
+    if float((spans.max(axis=0) - spans.min(axis=0)).min()) < END_WIDTH_M:
+        return None
+    return (np.asarray(mesh.triangles_center)[g] * a[:, None]).sum(axis=0) / a.sum()
+
+
 def mesh_landmarks(mesh) -> list[dict]:
-    """The tips and corners of the mesh: ``[{"name": "T1", "kind": "tip" | "corner", "what":
-    text, "point": [x, y, z] m}]``, tips first."""
+    """The ends and corners of the mesh (:func:`_end`): ``[{"name": "T1", "kind": "tip" |
+    "corner", "what": text, "point": [x, y, z] m}]``, the ends first."""
     from starforge.props.grips import principal_axes
 
     v = np.asarray(mesh.vertices, float)
@@ -81,8 +155,9 @@ def mesh_landmarks(mesh) -> list[dict]:
 
     for ax in axes:
         for sign in (1.0, -1.0):
-            d = sign * ax
-            add("tip", f"the end towards {_direction(d)}", v[int(np.argmax((v - c) @ d))])
+            end = _end(mesh, v, c, sign * ax)
+            if end is not None:
+                add("tip", *end)
     angles = np.asarray(mesh.face_adjacency_angles)
     sharp = np.asarray(mesh.face_adjacency_edges)[angles > math.radians(CORNER_DEG)]
     if len(sharp):
@@ -112,6 +187,14 @@ def mesh_landmarks(mesh) -> list[dict]:
     return out
 
 
+def _facet_of(mesh) -> np.ndarray:
+    """(f,) int: the facet (``mesh.facets``: coplanar neighbours) each face belongs to, -1 if none."""
+    out = np.full(len(mesh.faces), -1, np.int64)
+    for k, g in enumerate(mesh.facets):
+        out[g] = k
+    return out
+
+
 def _flat_faces(mesh, faces) -> dict[int, dict]:
     """Face index (of ``faces``) -> its flat face (a facet of coplanar faces, or one triangle, of
     at least :data:`FLAT_MIN_MM2`; numbered F1, F2, ... largest first): ``{"id", "facing",
@@ -119,9 +202,7 @@ def _flat_faces(mesh, faces) -> dict[int, dict]:
     tri_area = np.asarray(mesh.area_faces) * 1e6
     fn = np.asarray(mesh.face_normals)
     facets = [np.asarray(f, int) for f in mesh.facets]
-    group = np.full(len(tri_area), -1, np.int64)  # face -> its group: the facets, then lone triangles
-    for k, g in enumerate(facets):
-        group[g] = k
+    group = _facet_of(mesh)  # face -> its group: the facets, then lone triangles
     lone = np.flatnonzero((group < 0) & (tri_area >= FLAT_MIN_MM2))
     group[lone] = len(facets) + np.arange(len(lone))
     first = np.array([g[0] for g in facets] + lone.tolist(), np.int64)  # a face of each group
@@ -221,25 +302,42 @@ def surface_sample(mesh) -> SurfaceSample:
     return SurfaceSample(np.asarray(pts, float), np.asarray(mesh.face_normals, float)[face])
 
 
-def _measured_from(p: np.ndarray, n: np.ndarray, lp: np.ndarray, surface, surface_mm) -> tuple[np.ndarray, float]:
-    """The :data:`MEASURED` landmarks (indices into ``lp``, nearest first) that locate the mark
-    at ``p`` best, and their locating error (mm; inf when no three do)."""
+def _measured_from(p: np.ndarray, n: np.ndarray, lp: np.ndarray, surface, surface_mm) -> tuple[np.ndarray, float, bool]:
+    """The landmarks (indices into ``lp``, nearest first) that locate the mark at ``p`` best, and
+    their locating error (mm; inf when they cannot): the :data:`MEASURED` whose readings do
+    (:func:`locating_errors`), or the nearest in the mark's own tangent plane (within
+    :data:`IN_PLANE`: on its flat face) when setting the mark off it, the distance read and the
+    direction named, does better (:func:`_offset_error`; then the flag is true)."""
     from itertools import combinations
 
     d = np.linalg.norm(lp - p, axis=1) * 1000.0
     usable = np.flatnonzero(d >= MIN_MEASURE_MM)
     if len(usable) < MEASURED:  # too few apart from the mark: the nearest, however poor
         order = np.argsort(d, kind="stable")[:MEASURED]
-        if len(order) < MEASURED:
-            return order, math.inf
-        return order, float(locating_errors(p, n, lp, [order], surface, surface_mm)[0])
-    triples = np.array(list(combinations(usable.tolist(), MEASURED)), np.int64)
-    err = locating_errors(p, n, lp, triples, surface, surface_mm)
-    # the tightest; among those within a micrometre of it, the shortest readings
-    key = np.where(np.isfinite(err), np.round(err, 3), np.inf)
-    best = int(np.lexsort((d[triples].sum(axis=1), key))[0])
-    chosen = triples[best][np.argsort(d[triples[best]], kind="stable")]
-    return chosen, float(err[best])
+        err = float(locating_errors(p, n, lp, [order], surface, surface_mm)[0]) if len(order) == MEASURED else math.inf
+        chosen = order
+    else:
+        triples = np.array(list(combinations(usable.tolist(), MEASURED)), np.int64)
+        errs = locating_errors(p, n, lp, triples, surface, surface_mm)
+        # the tightest; among those within a micrometre of it, the shortest readings
+        key = np.where(np.isfinite(errs), np.round(errs, 3), np.inf)
+        best = int(np.lexsort((d[triples].sum(axis=1), key))[0])
+        chosen, err = triples[best][np.argsort(d[triples[best]], kind="stable")], float(errs[best])
+    # a landmark in the mark's own plane (on its flat face): set the mark off it, if that is tighter
+    off = lp - p
+    level = np.abs(off @ n) <= IN_PLANE * np.linalg.norm(off, axis=1)
+    if level.any():
+        j = int(np.flatnonzero(level)[np.argmin(d[level])])
+        if _offset_error(d[j]) < err:
+            return np.array([j]), _offset_error(d[j]), True
+    return chosen, err, False
+
+
+def _offset_error(d_mm: float) -> float:
+    """How far (mm) 95 % of marks set ``d_mm`` off a landmark in the direction named land: the
+    reading's error along it, and across it the direction judged by eye to :data:`OFFSET_DEG`
+    (one standard deviation), the larger of the two as in :func:`locating_errors`."""
+    return math.sqrt(LOCATE_CHI2) * max(TAPE_MM + TAPE_REL * d_mm, d_mm * math.sin(math.radians(OFFSET_DEG)))
 
 
 def landmarks(
@@ -274,8 +372,11 @@ def landmarks(
             face = {"kind": "curved", "facing": _direction(n)}
             on = f"on the curved surface (facing {_direction(n)})"
         d = np.linalg.norm(lp - p, axis=1) * 1000.0
-        order, err = _measured_from(p, n, lp, surface, surface_mm)
+        order, err, set_off = _measured_from(p, n, lp, surface, surface_mm)
         near = [{"name": marks[j]["name"], "distance_mm": round(float(d[j]), 1) + 0.0} for j in order]
+        if set_off:  # set off a landmark on its own face, in the direction named
+            off = p - lp[order[0]]
+            near[0]["towards"] = _direction(off - (off @ n) * n)
         deg, leans = tilt(n)
         lean = f", leaning {leans}" if leans and 1.0 <= deg <= 179.0 else ""
         if err <= placement_error_mm:
@@ -284,7 +385,7 @@ def landmarks(
             located = f" (to {err:.1f} mm only: place it by the drawings)" if math.isfinite(err) else " (place it by the drawings)"
         text = (
             f"{on}; "
-            + ", ".join(f"{m['distance_mm']:.1f} mm from {m['name']}" for m in near)
+            + ", ".join(f"{m['distance_mm']:.1f} mm from {m['name']}" + (f" towards {m['towards']}" if "towards" in m else "") for m in near)
             + f"{located}; tilt {deg:.0f} deg from +z{lean}"
         )
         out.append({"from": side, "distance_mm": dist, "face": face, "measure_from": near,

@@ -21,6 +21,7 @@ labelled in some view).
 from __future__ import annotations
 
 import os
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -151,7 +152,13 @@ def guide_pages(res) -> list:
     )
     cur.advance(head)
     margin = d.margin_mm if d.margin_mm is not None else np.full(len(d.landmarks), np.nan)
-    lines = [f"{i + 1:>2}. {t}; margin {m:.1f} mm" for i, (t, m) in enumerate(zip(d.landmarks, margin, strict=True))]
+    # a line too long for the page goes on under its number (the table's font is monospaced:
+    # Courier in the PDF, 0.6 em a character)
+    width = int((1.0 - 2 * cur.left) * _PAGE[0] * 72.0 / (0.6 * TEXT_STYLES["table"]["fontsize"]))
+    lines = [
+        textwrap.fill(f"{i + 1:>2}. {t}; margin {m:.1f} mm", width, subsequent_indent="    ", break_on_hyphens=False)
+        for i, (t, m) in enumerate(zip(d.landmarks, margin, strict=True))
+    ]
     cur.advance(cur.block("\n".join(lines), **TEXT_STYLES["table"]))
     if d.caliper:
         tol = d.caliper[0][4]
