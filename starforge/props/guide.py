@@ -272,15 +272,15 @@ def locating_errors(point, normal, landmark_points, triples, surface=None, surfa
     if surface is None or not len(triples):
         return err
     q = surface.points
-    if surface_mm is None:
-        surface_mm = np.linalg.norm(q[:, None, :] - lp[None], axis=2) * 1000.0
-    z2 = ((surface_mm - d_mm) / sigma) ** 2  # (q, k)
-    facing = surface.normals @ n >= math.cos(math.radians(FACING_DEG))
-    rows = np.flatnonzero(facing & ((z2 <= LOCATE_CHI2).sum(axis=1) >= MEASURED))  # may fit some triple
+    facing = np.flatnonzero(surface.normals @ n >= math.cos(math.radians(FACING_DEG)))
+    dist = surface_mm[facing] if surface_mm is not None else np.linalg.norm(q[facing, None, :] - lp[None], axis=2) * 1000.0
+    z2 = ((dist - d_mm) / sigma) ** 2  # (facing, k)
+    fit = (z2 <= LOCATE_CHI2).sum(axis=1) >= MEASURED  # may fit some triple
+    z2, rows = z2[fit], facing[fit]
     far = np.linalg.norm(q[rows] - p, axis=1) * 1000.0
     for lo in range(0, len(triples), 256):  # (rows, 256) at a time
         t = triples[lo : lo + 256]
-        fits = z2[rows][:, t].sum(axis=2) <= LOCATE_CHI2  # (rows, t)
+        fits = z2[:, t].sum(axis=2) <= LOCATE_CHI2  # (rows, t)
         worst = np.where(fits, far[:, None], 0.0).max(axis=0, initial=0.0)
         err[lo : lo + 256] = np.maximum(err[lo : lo + 256], worst)
     return err
@@ -389,7 +389,7 @@ def landmarks(
             + f"{located}; tilt {deg:.0f} deg from +z{lean}"
         )
         out.append({"from": side, "distance_mm": dist, "face": face, "measure_from": near,
-                    "locating_error_mm": round(err, 2) if math.isfinite(err) else None,
+                    "locating_error_mm": round(float(err), 2) if math.isfinite(err) else None,
                     "tilt_deg": round(deg, 1), "leans": leans, "text": text})  # fmt: skip
     return out
 
