@@ -133,10 +133,13 @@ def write_docs(out: dict) -> None:
     """The figures of ``out`` as the results page's section on the guide's landmark readings."""
     from _results import table, write_section
 
+    def cell(x) -> str:  # None: the readings cannot place it (fewer than three landmarks)
+        return "-" if x is None else f"{x:g}"
+
     rows = [
         [name, v["markers"], v["landmarks"], f'{v["within_placement_error"]} ({v["nearest_within_placement_error"]})', v["set_off_one"],
-         f'{v["median_stated_mm"]} ({v["median_nearest_stated_mm"]})',
-         f'{v["median_solved_p95_mm"]} ({v["median_nearest_solved_p95_mm"]})', v["min_within_stated"]]
+         f'{cell(v["median_stated_mm"])} ({cell(v["median_nearest_stated_mm"])})',
+         f'{cell(v["median_solved_p95_mm"])} ({cell(v["median_nearest_solved_p95_mm"])})', cell(v["min_within_stated"])]
         for name, v in out["props"].items()
     ]  # fmt: skip
     body = (
@@ -149,7 +152,11 @@ def write_docs(out: dict) -> None:
         "of how far the solutions land; within stated: the least share, over the markers, of solutions within "
         "the stated error (0.95 if the statement is right).  Within the placement error: the markers the "
         "readings alone place within the seat's placement error (2 mm); the guide sends the others to its "
-        f"drawings.  In all, the readings place {out['within_placement_error']} of the {out['markers']} markers within "
+        "drawings.  Landmarks: the prop's ends and corners a person finds by hand.  Set off one: markers the "
+        "guide sets off a landmark on their own face in a named direction instead (judged by eye to 15 degrees: "
+        "a model the brute force cannot check, so they are not solved).  A dash: no figure (the median marker's "
+        "readings cannot place it at all, or no marker is measured from three landmarks).  "
+        f"In all, the readings place {out['within_placement_error']} of the {out['markers']} markers within "
         f"it ({out['nearest_within_placement_error']} from the nearest three): on round and large props a tape cannot "
         "keep to the margin the seats leave, and the template (at 1:1 where the prop fits the sheet) or a jig must.\n\n"
         + table(["prop", "markers", "landmarks", "within placement error", "set off one", "median stated (mm)", "median solved p95 (mm)",
