@@ -278,11 +278,12 @@ def locating_errors(point, normal, landmark_points, triples, surface=None, surfa
     fit = (z2 <= LOCATE_CHI2).sum(axis=1) >= MEASURED  # may fit some triple
     z2, rows = z2[fit], facing[fit]
     far = np.linalg.norm(q[rows] - p, axis=1) * 1000.0
-    for lo in range(0, len(triples), 256):  # (rows, 256) at a time
-        t = triples[lo : lo + 256]
+    step = max(1, 1_000_000 // max(len(rows), 1))  # (rows, step, 3) floats at a time: 24 MB at most
+    for lo in range(0, len(triples), step):
+        t = triples[lo : lo + step]
         fits = z2[:, t].sum(axis=2) <= LOCATE_CHI2  # (rows, t)
         worst = np.where(fits, far[:, None], 0.0).max(axis=0, initial=0.0)
-        err[lo : lo + 256] = np.maximum(err[lo : lo + 256], worst)
+        err[lo : lo + step] = np.maximum(err[lo : lo + step], worst)
     return err
 
 

@@ -131,6 +131,11 @@ class _Cursor:
 def guide_pages(res) -> list:
     """The guide's pages as matplotlib figures (see the module docstring)."""
     d = plot_data(res)
+    return [_first_page(d), _template_page(d, pyplot())]
+
+
+def _first_page(d):
+    """Page 1: the views, the marker table and the caliper check."""
     plt = pyplot()
     fig = plt.figure(figsize=_PAGE)
     fig.text(0.02, 0.975, f"Rigging guide: {d.name}, {len(d.marker_centres)} markers", va="top",
@@ -200,7 +205,7 @@ def guide_pages(res) -> list:
         numbers.place(ax, [t for _, t in marks], triangles)
         named |= {n for _, t in marks if t.get_visible() for n in t.get_text().split("/")}
     _views_scale_bar(fig, _VIEW_BOX[0] * _PAGE[0] / (2 * half))
-    return [fig, _template_page(d, plt)]
+    return fig
 
 
 #: the lengths (mm on the prop) a scale bar may show
@@ -287,21 +292,25 @@ def _template_page(d, plt):
 def guide_files(res, folder: str | Path, split: bool = False) -> list[str]:
     """Write ``guide.pdf`` (every page) and ``guide.png`` (page 1) into ``folder``.
 
-    ``split``: for a process of its own that draws only the guide (a render process): once the
-    pages are laid out, a forked copy of it writes the PDF while it writes the PNG, on another
-    core (the same bytes as one after the other; one after the other where it cannot fork)."""
+    ``split``: for a process of its own that draws only the guide (a render process): once page
+    1 is laid out, a forked copy of it lays out the template page and writes the PDF while it
+    writes the PNG, on another core (the same bytes as one after the other; one after the other
+    where it cannot fork)."""
     plt = pyplot()
-    pages = guide_pages(res)
+    d = plot_data(res)
+    first = _first_page(d)
     pid = fork_helper() if split and can_fork() else None
     if pid == 0:  # the PDF's process: never returns
         code = 1
         try:
-            _write_pdf(pages, folder)
+            _write_pdf([first, _template_page(d, plt)], folder)
             code = 0
         finally:
             os._exit(code)
-    save_png(pages[0], Path(folder) / "guide.png", dpi=_DPI)
+    save_png(first, Path(folder) / "guide.png", dpi=_DPI)
+    pages = [first]
     if pid is None:
+        pages.append(_template_page(d, plt))
         _write_pdf(pages, folder)
     else:
         status = os.waitpid(pid, 0)[1]
