@@ -26,6 +26,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from starforge.geometry.frames import perpendicular_basis
+
 #: a marker whose normal is within this angle of an axis, and that lies within FACE_MM of the
 #: box's side there, is "on" that box face
 FACE_DEG = 5.0
@@ -120,11 +122,9 @@ def _flat_end(mesh, v: np.ndarray, vertex: int, d: np.ndarray) -> np.ndarray | N
     a = area[g]
     if a.sum() * 1e6 < FLAT_MIN_MM2:
         return None
-    n = fn[g[0]]
-    e1 = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
-    e1 /= np.linalg.norm(e1)
+    e1, e2 = perpendicular_basis(fn[g[0]])
     corners = v[np.unique(faces[g])]
-    flat = np.column_stack([corners @ e1, corners @ np.cross(n, e1)])
+    flat = np.column_stack([corners @ e1, corners @ e2])
     try:
         hull = ConvexHull(flat)
     except Exception:  # noqa: BLE001  (qhull: a degenerate outline is no face to measure across)
@@ -176,14 +176,7 @@ def mesh_landmarks(mesh) -> list[dict]:
         n[kind] += 1
         name = f"{'T' if kind == 'tip' else 'C'}{n[kind]}"
         where = ", ".join(f"{1000 * x:.0f}" for x in p)
-        out.append(
-            {
-                "name": name,
-                "kind": kind,
-                "what": f"{what} ({where} mm)",
-                "point": [round(float(x), 6) + 0.0 for x in p],
-            }
-        )
+        out.append({"name": name, "kind": kind, "what": f"{what} ({where} mm)", "point": [round(float(x), 6) + 0.0 for x in p]})
     return out
 
 
@@ -215,11 +208,7 @@ def _flat_faces(mesh, faces) -> dict[int, dict]:
         k = group[f]
         if k < 0 or areas[k] < FLAT_MIN_MM2:
             continue
-        out[f] = {
-            "id": f"F{rank[k]}",
-            "facing": _direction(fn[first[k]], 1.0),
-            "area_mm2": round(float(areas[k]), 0),
-        }
+        out[f] = {"id": f"F{rank[k]}", "facing": _direction(fn[first[k]], 1.0), "area_mm2": round(float(areas[k]), 0)}
     return out
 
 
@@ -254,9 +243,7 @@ def locating_errors(point, normal, landmark_points, triples, surface=None, surfa
     distances (q, k) to the landmarks in mm, when known."""
     p = np.asarray(point, float)
     n = np.asarray(normal, float) / max(float(np.linalg.norm(normal)), 1e-300)
-    t1 = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
-    t1 /= np.linalg.norm(t1)
-    t2 = np.cross(n, t1)
+    t1, t2 = perpendicular_basis(n)
     lp = np.asarray(landmark_points, float).reshape(-1, 3)
     triples = np.asarray(triples, np.int64).reshape(-1, MEASURED)
     v = p - lp
@@ -303,15 +290,15 @@ def surface_sample(mesh) -> SurfaceSample:
     return SurfaceSample(np.asarray(pts, float), np.asarray(mesh.face_normals, float)[face])
 
 
-def _measured_from(p: np.ndarray, n: np.ndarray, lp: np.ndarray, surface, surface_mm) -> tuple[np.ndarray, float, bool]:
-    """The landmarks (indices into ``lp``, nearest first) that locate the mark at ``p`` best, and
-    their locating error (mm; inf when they cannot): the :data:`MEASURED` whose readings do
-    (:func:`locating_errors`), or the nearest in the mark's own tangent plane (within
-    :data:`IN_PLANE`: on its flat face) when setting the mark off it, the distance read and the
-    direction named, does better (:func:`_offset_error`; then the flag is true)."""
+def _measured_from(p, n, lp: np.ndarray, d: np.ndarray, surface, surface_mm) -> tuple[np.ndarray, float, bool]:
+    """The landmarks (indices into ``lp``, ``d`` mm from ``p``; nearest first) that locate the
+    mark at ``p`` best, and their locating error (mm; inf when they cannot): the
+    :data:`MEASURED` whose readings do (:func:`locating_errors`), or the nearest in the mark's
+    own tangent plane (within :data:`IN_PLANE`: on its flat face) when setting the mark off it,
+    the distance read and the direction named, does better (:func:`_offset_error`; then the
+    flag is true)."""
     from itertools import combinations
 
-    d = np.linalg.norm(lp - p, axis=1) * 1000.0
     usable = np.flatnonzero(d >= MIN_MEASURE_MM)
     if len(usable) < MEASURED:  # too few apart from the mark: the nearest, however poor
         order = np.argsort(d, kind="stable")[:MEASURED]
@@ -373,7 +360,7 @@ def landmarks(
             face = {"kind": "curved", "facing": _direction(n)}
             on = f"on the curved surface (facing {_direction(n)})"
         d = np.linalg.norm(lp - p, axis=1) * 1000.0
-        order, err, set_off = _measured_from(p, n, lp, surface, surface_mm)
+        order, err, set_off = _measured_from(p, n, lp, d, surface, surface_mm)
         near = [{"name": marks[j]["name"], "distance_mm": round(float(d[j]), 1) + 0.0} for j in order]
         if set_off:  # set off a landmark on its own face, in the direction named
             off = p - lp[order[0]]
