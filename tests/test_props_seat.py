@@ -442,3 +442,27 @@ def test_the_ends_named_are_points_a_person_finds():
     # a disc 12 mm thick: the facets of its rim are slivers, not faces to measure across
     slab = trimesh.creation.cylinder(radius=0.05, height=0.012, sections=64)
     assert len([f for f in mesh_landmarks(slab) if f["kind"] == "tip"]) == 2  # the two faces only
+
+
+@pytest.mark.parametrize(("sections", "sides_flat"), [(6, True), (8, True), (12, True), (16, False), (32, False), (64, False)])
+def test_a_flat_face_has_edges_a_person_finds(sections, sides_flat):
+    """A prism's sides bend 360 / sections degrees into each other: a hexagon's or a dodecagon's
+    are faces to find, a 16-gon's or a tessellated cylinder's are the round body; the caps bend
+    90 degrees into the sides and are faces either way."""
+    import trimesh
+
+    from starforge.props.guide import FLAT_EDGE_DEG, landmarks
+
+    prism = trimesh.creation.cylinder(radius=0.04, height=0.1, sections=sections)
+    # a side's outline: two long edges bending 360/sections degrees, two short rim edges bending
+    # 90 (by length, the long ones are most of it)
+    bend = 360.0 / sections
+    assert (bend >= FLAT_EDGE_DEG) == sides_flat
+    fn = np.asarray(prism.face_normals)
+    side = int(np.flatnonzero(np.abs(fn[:, 2]) < 1e-9)[0])
+    cap = int(np.flatnonzero(fn[:, 2] > 0.99)[0])
+    p = np.asarray(prism.triangles_center)[[side, cap]]
+    got = landmarks(prism, p, fn[[side, cap]], np.array([side, cap]))
+    assert got[0]["face"]["kind"] == ("flat" if sides_flat else "curved")
+    assert got[1]["face"]["kind"] == "flat" and got[1]["face"]["facing"] == "+z"
+    assert got[0]["text"].startswith("on flat face" if sides_flat else "on the curved surface")

@@ -10,8 +10,9 @@ distances (mm, a ruler or caliper from the point) to the :data:`MEASURED` landma
 it best (:func:`locating_errors`: under a model of a distance measured by hand, the three whose
 readings pin the mark down most tightly on the surface, which the nearest three need not do:
 at the end of a long prop they can lie nearly in one line with it), how tightly they do, the
-face it sits on (a flat face of the mesh at least :data:`FLAT_MIN_MM2`, named by the
-direction it faces, or the curved surface), its tilt (the angle of its normal from the prop's
+face it sits on (a flat face of the mesh at least :data:`FLAT_MIN_MM2` with edges a person
+finds, :data:`FLAT_EDGE_DEG`, named by the direction it faces; or the curved surface, the
+facets of a tessellated round body included), its tilt (the angle of its normal from the prop's
 +z, and the direction it leans), and, as before, its distances from the sides of the
 axis-aligned bounding box.  The caliper check (:func:`caliper_pairs`): every pair of ball
 centres, with the tolerance two markers each stuck up to the placement error off their marks
@@ -61,8 +62,13 @@ OFFSET_DEG = 15.0
 LOCATE_SAMPLES = 20_000
 #: a point facing more than this (degrees) away from the mark is told from it by the way it faces
 FACING_DEG = 45.0
-#: a flat face named as such covers at least this area (mm^2)
+#: a flat face named as such covers at least this area (mm^2), and at least FLAT_EDGE_SHARE of
+#: its outline (by length) bends by FLAT_EDGE_DEG (degrees) or more into the faces beside it: an
+#: edge a person sees and feels.  The facets of a tessellated round body (a 24-sided mug, its
+#: sides bending 15 degrees into each other) are the curved surface, not faces to find.
 FLAT_MIN_MM2 = 150.0
+FLAT_EDGE_DEG = 25.0
+FLAT_EDGE_SHARE = 0.5
 #: vertices within this (m) of a prop's farthest point along a direction make its end there
 TIP_BAND_M = 0.0005
 #: an end no wider than this (m) is a point a person finds (an apex, a corner, a rib's tip)
@@ -190,8 +196,9 @@ def _facet_of(mesh) -> np.ndarray:
 
 def _flat_faces(mesh, faces) -> dict[int, dict]:
     """Face index (of ``faces``) -> its flat face (a facet of coplanar faces, or one triangle, of
-    at least :data:`FLAT_MIN_MM2`; numbered F1, F2, ... largest first): ``{"id", "facing",
-    "area_mm2"}``; faces on no flat face are left out."""
+    at least :data:`FLAT_MIN_MM2`, outlined by edges a person finds: :data:`FLAT_EDGE_DEG`;
+    numbered F1, F2, ... largest first): ``{"id", "facing", "area_mm2"}``; faces on no flat
+    face are left out."""
     tri_area = np.asarray(mesh.area_faces) * 1e6
     fn = np.asarray(mesh.face_normals)
     facets = [np.asarray(f, int) for f in mesh.facets]
@@ -200,16 +207,35 @@ def _flat_faces(mesh, faces) -> dict[int, dict]:
     group[lone] = len(facets) + np.arange(len(lone))
     first = np.array([g[0] for g in facets] + lone.tolist(), np.int64)  # a face of each group
     areas = np.array([tri_area[g].sum() for g in facets] + tri_area[lone].tolist())
-    order = np.argsort(-areas, kind="stable")
-    rank = np.empty(len(order), np.int64)
+    named = (areas >= FLAT_MIN_MM2) & _crisp_outline(mesh, group, len(areas))
+    order = np.flatnonzero(named)[np.argsort(-areas[named], kind="stable")]
+    rank = np.zeros(len(areas), np.int64)
     rank[order] = np.arange(1, len(order) + 1)
     out = {}
     for f in {int(x) for x in np.asarray(faces).ravel()}:
         k = group[f]
-        if k < 0 or areas[k] < FLAT_MIN_MM2:
+        if k < 0 or not named[k]:
             continue
         out[f] = {"id": f"F{rank[k]}", "facing": _direction(fn[first[k]], 1.0), "area_mm2": round(float(areas[k]), 0)}
     return out
+
+
+def _crisp_outline(mesh, group: np.ndarray, n_groups: int) -> np.ndarray:
+    """(n_groups,) bool: at least :data:`FLAT_EDGE_SHARE` of the group's outline (the edges
+    between its faces and other groups', by length) bends by :data:`FLAT_EDGE_DEG` or more
+    (an outline along open edges only, which no neighbour bends from, counts as crisp)."""
+    pairs = np.asarray(mesh.face_adjacency, np.int64).reshape(-1, 2)
+    edges = np.asarray(mesh.face_adjacency_edges, np.int64).reshape(-1, 2)
+    v = np.asarray(mesh.vertices, float)
+    length = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
+    sharp = np.asarray(mesh.face_adjacency_angles, float) >= math.radians(FLAT_EDGE_DEG)
+    total, bent = np.zeros(n_groups), np.zeros(n_groups)
+    for side in (0, 1):
+        g, other = group[pairs[:, side]], group[pairs[:, 1 - side]]
+        rim = (g >= 0) & (g != other)
+        np.add.at(total, g[rim], length[rim])
+        np.add.at(bent, g[rim], length[rim] * sharp[rim])
+    return (total == 0) | (bent >= FLAT_EDGE_SHARE * total)
 
 
 def tilt(normal: np.ndarray) -> tuple[float, str]:
