@@ -247,7 +247,8 @@ def test_the_views_scale_bar_is_the_views_scale(guide_data):
     bar = next(ax for ax in page.axes if ax not in views)
     ends = bar.transData.transform([[0.0, 0.0], [mm, 0.0]])
     assert ends[1, 0] - ends[0, 0] == pytest.approx(mm * px_per_mm.pop(), rel=1e-6)
-    assert k == pytest.approx(page.dpi / 25.4 / np.diff(views[0].transData.transform([[0, 0], [0.001, 0]])[:, 0])[0], rel=0.01)
+    # printed to one decimal: within half of it
+    assert k == pytest.approx(page.dpi / 25.4 / np.diff(views[0].transData.transform([[0, 0], [0.001, 0]])[:, 0])[0], abs=0.05)
     matplotlib.pyplot.close("all")
 
 

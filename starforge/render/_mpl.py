@@ -10,13 +10,17 @@ from pathlib import Path
 def pyplot():
     """matplotlib.pyplot with the non-interactive Agg backend.  A character its fonts lack (a
     CJK prop or file name in a title) is drawn as a box without a warning per glyph on stderr:
-    the name itself is written in full in the text outputs."""
+    the name itself is written in full in the text outputs.  Text is drawn unhinted: its glyphs
+    sit where the font puts them, as in the PDFs (whose text the PNG's layout measures for
+    them), and FreeType's auto-hinter, much of the time a text-heavy page takes to draw, does
+    not run."""
     import warnings
 
     import matplotlib
 
     warnings.filterwarnings("ignore", message=r"Glyph \d+ .* missing from font", category=UserWarning)
     matplotlib.use("Agg")
+    matplotlib.rcParams["text.hinting"] = "no_hinting"
     import matplotlib.pyplot as plt
 
     return plt

@@ -311,15 +311,28 @@ class BackgroundRenderer:
 
 
 def _warm(role: str) -> None:
-    """What a render process does while the placement is still running: import pyplot and draw a
-    little text (for the guide: in each of its text styles, into a PNG and a PDF), so that the
-    font files are loaded and the font look-ups cached before the real pictures arrive (none of
-    this changes them)."""
+    """What a render process does while the placement is still running: import pyplot and draw
+    a small figure with the kinds of artist the pictures draw (a log scale, whose tick labels
+    are mathtext, a legend, a colour bar, ...) and a little text (for the guide: in each of its
+    text styles, into a PNG and a PDF), so that matplotlib's first-use work (the mathtext
+    parser, the font files and look-ups) is done before the real pictures arrive; none of this
+    changes them."""
     import io
 
+    from matplotlib.collections import PolyCollection
+
     plt = pyplot()
-    fig = plt.figure(figsize=(1, 1))
-    fig.text(0.5, 0.5, "0123456789 mm", fontsize=8)
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(2, 2))
+    ax.plot([1, 2], [1, 10], "o-", label="0123456789")
+    ax.set_yscale("log")
+    ax.annotate("1", (1, 1), xytext=(0, 5), textcoords="offset points", fontsize=7)
+    ax.axhline(2, ls="--")
+    ax.legend(fontsize=8)
+    fig.colorbar(ax2.scatter([0, 1], [0, 1], c=[0, 1]), ax=ax2)
+    ax2.fill([0, 1, 1], [0, 0, 1])
+    ax2.add_collection(PolyCollection([[(0, 0), (1, 0), (0, 1)]], facecolors="0.5"))
+    ax2.text(0.5, 0.5, "1", bbox={"boxstyle": "circle,pad=0.15", "fc": "white"})
+    fig.suptitle("0123456789 mm", fontsize=8)
     fig.text(0.5, 0.2, "0123456789 mm", fontsize=7.5, family="monospace")
     fig.savefig(io.BytesIO(), format="png", dpi=_DPI)
     plt.close(fig)
