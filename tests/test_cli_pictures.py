@@ -11,11 +11,13 @@ from starforge.render import _mpl
 
 def _overlaps(fig) -> list:
     """Pairs of text boxes that overlap (by more than a pixel) and texts outside the figure."""
+    from matplotlib.transforms import Bbox
+
     boxes = _mpl.text_boxes(fig)
     w, h = fig.bbox.width, fig.bbox.height
     bad = [(t, "outside") for t, (x0, y0, x1, y1) in boxes if x0 < -1 or y0 < -1 or x1 > w + 1 or y1 > h + 1]
     for (a, p), (b, q) in itertools.combinations(boxes, 2):
-        if min(p[2], q[2]) - max(p[0], q[0]) > 1 and min(p[3], q[3]) - max(p[1], q[1]) > 1:
+        if _mpl.boxes_overlap(Bbox.from_extents(*p), Bbox.from_extents(*q), pad=1.0):
             bad.append((a, b))
     return bad
 
