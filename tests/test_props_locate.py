@@ -107,3 +107,28 @@ def test_a_mark_next_to_a_landmark_is_set_off_it_in_a_direction():
     want = np.sqrt(-2 * np.log(0.05)) * max(0.51, 2 * np.sin(np.radians(15)))
     assert m["locating_error_mm"] == pytest.approx(want, abs=0.01)
     assert f"2.0 mm from {only['name']} towards +x (to {want:.1f} mm)" in m["text"]
+
+
+def test_a_heading_read_back_is_the_direction_to_half_a_degree():
+    """The direction a mark is set off in, as printed, read back by a parser of its own: within
+    half a degree of the true one for directions in an axis plane (and the nearest axis named);
+    the components where a direction leaves that plane."""
+    import re
+
+    from starforge.props.guide import heading
+
+    unit = {f"{s}{a}": (1.0 if s == "+" else -1.0) * np.eye(3)[i] for i, a in enumerate("xyz") for s in "+-"}
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        a, b = rng.choice(3, 2, replace=False)
+        t = rng.uniform(0, 2 * np.pi)
+        v = np.cos(t) * np.eye(3)[a] + np.sin(t) * np.eye(3)[b]
+        text = heading(v * rng.uniform(0.001, 0.3))
+        m = re.fullmatch(r"([+-][xyz])(?: turned (\d+) deg to ([+-][xyz]))?", text)
+        assert m, text
+        main = unit[m.group(1)]
+        got = main if m.group(2) is None else np.cos(np.radians(int(m.group(2)))) * main + np.sin(np.radians(int(m.group(2)))) * unit[m.group(3)]
+        assert np.degrees(np.arccos(np.clip(got @ v, -1, 1))) <= 0.5 + 1e-9, (v, text)
+        assert np.argmax(np.abs(v)) == np.argmax(np.abs(main))
+    assert heading(np.array([0.41, -0.91, 0.0])) == "-y turned 24 deg to +x"
+    assert heading(np.array([0.5, 0.5, 0.7071])).startswith("(")

@@ -90,6 +90,21 @@ def _direction(v: np.ndarray, within_deg: float = 20.0) -> str:
     return "(" + ", ".join(f"{x:+.2f}" for x in v) + ")"
 
 
+def heading(v: np.ndarray) -> str:
+    """An in-plane direction as a person sets it off by eye: its nearest axis turned by a whole
+    number of degrees towards the next (``-y turned 24 deg to +x``; ``+x`` when it rounds to
+    none), off the true direction by at most half a degree, well inside the eye's
+    :data:`OFFSET_DEG`; its rounded components where it leaves the plane of those two axes by
+    more than 2 degrees."""
+    v = np.asarray(v, float) / max(float(np.linalg.norm(v)), 1e-300)
+    k, j, out = np.argsort(-np.abs(v), kind="stable")
+    if abs(v[out]) > math.sin(math.radians(2.0)):
+        return "(" + ", ".join(f"{x:+.2f}" for x in v) + ")"
+    turn = round(math.degrees(math.atan2(abs(v[j]), abs(v[k]))))
+    main = f"{'+' if v[k] > 0 else '-'}{AXES[k]}"
+    return main if turn == 0 else f"{main} turned {turn} deg to {'+' if v[j] > 0 else '-'}{AXES[j]}"
+
+
 def _end(mesh, v: np.ndarray, c: np.ndarray, d: np.ndarray) -> tuple[str, np.ndarray] | None:
     """The prop's end along ``d`` as a point a person finds by hand, with its description: the
     middle of the flat face the farthest point lies on, where that face faces within
@@ -390,7 +405,7 @@ def landmarks(
         near = [{"name": marks[j]["name"], "distance_mm": round(float(d[j]), 1) + 0.0} for j in order]
         if set_off:  # set off a landmark on its own face, in the direction named
             off = p - lp[order[0]]
-            near[0]["towards"] = _direction(off - (off @ n) * n)
+            near[0]["towards"] = heading(off - (off @ n) * n)
         deg, leans = tilt(n)
         lean = f", leaning {leans}" if leans and 1.0 <= deg <= 179.0 else ""
         if err <= placement_error_mm:
