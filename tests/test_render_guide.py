@@ -276,3 +276,35 @@ def test_a_marker_line_too_long_for_the_page_goes_on_under_its_number(guide_data
     # wrapped at a space: the text reads the same joined up again
     assert " ".join(x.strip() for x in table[:2]) == f" 1. {long}; margin {guide_data.margin_mm[0]:.1f} mm".strip()
     matplotlib.pyplot.close("all")
+
+
+@pytest.mark.parametrize("band", [False, True])
+def test_a_part_of_the_prop_in_front_of_the_hand_hides_it(band):
+    """A slab seen from above a fist held under it hides the fist: the pixel at the slab's middle
+    is the slab's grey, not orange; seen from below, the fist is in front and its shade shows
+    there.  The fist is a capsule or a band (whose end circles, seen end on, reach no nearer)."""
+    import types
+
+    import matplotlib.pyplot as plt
+    import trimesh
+
+    from starforge.render.prop_views import VIEWS, shade_grips, shaded
+
+    slab = trimesh.creation.box(extents=(1.0, 1.0, 0.1), transform=trimesh.transformations.translation_matrix([0, 0, 0.5]))
+    # a fist round a handle along z, under the slab: its top at z = 0.4 (a band's circles reach no higher)
+    fist = [0.0, 0.0, -0.4, 0.0, 0.0, 0.4 - (0.0 if band else 0.3), 0.3, float(band)]
+    d = types.SimpleNamespace(hand=np.array([fist]), wrists=None, triangles=np.asarray(slab.triangles),
+                              face_normals=np.asarray(slab.face_normals))  # fmt: skip
+    for view, hidden in (("top (from +z)", True), ("bottom", False)):
+        B = VIEWS["top (from +z)"] if hidden else np.array([[1.0, 0, 0], [0, -1, 0], [0, 0, -1]])
+        fig = plt.figure(figsize=(2, 2), dpi=100)
+        ax = fig.add_axes([0, 0, 1, 1])
+        ax.set_xlim(-1, 1)
+        ax.set_ylim(-1, 1)
+        ax.axis("off")
+        shaded(ax, d.triangles, d.face_normals, B)
+        shade_grips(ax, d, B)
+        fig.canvas.draw()
+        r, g, b = np.asarray(fig.canvas.buffer_rgba())[100, 100, :3] / 255.0
+        plt.close(fig)
+        assert (abs(r - b) < 2.5 / 255) == hidden, (view, r, g, b)

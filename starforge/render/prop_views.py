@@ -180,19 +180,28 @@ def view_basis(elev_deg: float, azim_deg: float) -> np.ndarray:
     return np.array([right, up, toward])
 
 
-def shaded(ax, tris, fn, B, light=None):
-    """Draw the prop's faces seen along ``B[2]`` (painter's algorithm); return the projection."""
+def shaded(ax, tris, fn, B, light=None, nearer_than: float | None = None, zorder: float = 1.0):
+    """Draw the prop's faces seen along ``B[2]`` (painter's algorithm); return the projection.
+    ``nearer_than``: only the faces wholly nearer the viewer than that depth (along ``B[2]``),
+    drawn again above what lies behind them (the grips' shade, :func:`shade_grips`)."""
     from matplotlib.collections import PolyCollection
 
     if light is None:
         light = np.array([0.3, -0.4, 0.85]) / np.linalg.norm([0.3, -0.4, 0.85])
     proj = tris @ B.T
     front = fn @ B[2] > 0
+    if nearer_than is not None:
+        front &= proj[:, :, 2].min(axis=1) > nearer_than
+        if not front.any():
+            return proj
     order = np.argsort(proj[front][:, :, 2].mean(axis=1))
     shade = np.clip(np.abs(fn[front] @ B[2]), 0, 1) * 0.35 + np.clip(fn[front] @ light, 0, 1) * 0.2 + 0.4
     polys = proj[front][order][:, :, :2]
     cols = np.repeat(shade[order][:, None], 3, axis=1)
-    ax.add_collection(PolyCollection(polys, facecolors=cols, edgecolors=cols, linewidths=0.2))
+    # drawn again over a shade, the seams between faces (their edges, anti-aliased) would let it
+    # through: there the edges are drawn wider
+    width = 0.2 if nearer_than is None else 0.6
+    ax.add_collection(PolyCollection(polys, facecolors=cols, edgecolors=cols, linewidths=width, zorder=zorder))
     return proj
 
 
@@ -475,8 +484,24 @@ def hidden_in_views(mesh, centres: np.ndarray, views: dict) -> dict:
 
 def shade_grips(ax, d: PlotData, B, wrists: bool = True) -> None:
     """The grips, shaded by how many cover each spot: the fists, then the wrists fainter
-    (unless ``wrists`` is false)."""
+    (unless ``wrists`` is false); then the prop's faces nearer the viewer than every grip drawn
+    again over them, so that a part of the prop in front of the hand hides it (a hammer's head
+    seen from above its handle)."""
+    from starforge.props.hand import CAPSULE_COLUMNS
+
+    drawn = []
     if d.hand is not None and len(d.hand):
         shade_hand(ax, d.hand, B)
+        drawn.append(np.asarray(d.hand, float).reshape(-1, CAPSULE_COLUMNS))
     if wrists and d.wrists is not None and len(d.wrists):
         shade_hand(ax, d.wrists, B, deepest=0.2)
+        drawn.append(np.asarray(d.wrists, float).reshape(-1, CAPSULE_COLUMNS))
+    if drawn:
+        c = np.vstack(drawn)
+        # how far towards the viewer each reaches: a capsule its radius past its nearer end, a
+        # band (a cylinder between its end circles) the reach of those circles seen along B[2]
+        u = c[:, 3:6] - c[:, :3]
+        u /= np.maximum(np.linalg.norm(u, axis=1), 1e-12)[:, None]
+        reach = np.where(c[:, 7] != 0, np.sqrt(np.clip(1.0 - (u @ B[2]) ** 2, 0.0, 1.0)), 1.0) * c[:, 6]
+        nearest = float(np.max(np.maximum(c[:, :3] @ B[2], c[:, 3:6] @ B[2]) + reach))
+        shaded(ax, d.triangles, d.face_normals, B, nearer_than=nearest, zorder=2.5)
