@@ -99,7 +99,7 @@ def heading(v: np.ndarray) -> str:
     v = np.asarray(v, float) / max(float(np.linalg.norm(v)), 1e-300)
     k, j, out = np.argsort(-np.abs(v), kind="stable")
     if abs(v[out]) > math.sin(math.radians(2.0)):
-        return "(" + ", ".join(f"{x:+.2f}" for x in v) + ")"
+        return _direction(v, 0.0)
     turn = round(math.degrees(math.atan2(abs(v[j]), abs(v[k]))))
     main = f"{'+' if v[k] > 0 else '-'}{AXES[k]}"
     return main if turn == 0 else f"{main} turned {turn} deg to {'+' if v[j] > 0 else '-'}{AXES[j]}"
