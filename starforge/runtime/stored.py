@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import importlib
 import pickle
 import sys
 from collections.abc import Callable
@@ -66,16 +65,27 @@ def content_key(*parts, libraries: tuple[str, ...] = ()) -> str:
     """The hex key of ``parts`` (numbers, strings, arrays, and tuples, lists, dicts and
     dataclasses of them), starforge's code (:func:`starforge.runtime.kernels.digest`: every
     ``.py`` file, the version among them, so that code that computes a value differently never
-    reads it back), Python's version and the ``__version__`` of each module named in ``libraries``.
+    reads it back), Python's version and the installed version of each distribution named in
+    ``libraries`` (read from its metadata, so the key does not import it).
 
     >>> content_key(1, "a") == content_key(1, "a") != content_key(1, "b")
     True
     """
     h = hashlib.blake2b(digest_size=20)
     env = [digest(), sys.version]
-    env += [f"{name}={getattr(importlib.import_module(name), '__version__', '?')}" for name in libraries]
+    env += [f"{name}={_version(name)}" for name in libraries]
     _feed(h, (tuple(env), parts))
     return h.hexdigest()
+
+
+def _version(name: str) -> str:
+    """The installed version of the distribution ``name``; ``?`` when it is not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return "?"
 
 
 def stored(kind: str, key: str, compute: Callable[[], T]) -> tuple[T, bool]:
