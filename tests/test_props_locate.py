@@ -9,7 +9,7 @@ import pytest
 
 from benchmarks._locate import solved_offsets
 from starforge.props.builtin import builtin_mesh
-from starforge.props.guide import landmarks, locating_errors, mesh_landmarks, surface_sample
+from starforge.props.guide import landmarks, locating_errors, mesh_guide, mesh_landmarks, surface_sample
 
 
 @pytest.mark.parametrize("seed", [4, 11, 23])
@@ -22,7 +22,7 @@ def test_the_stated_locating_error_is_what_solving_noisy_readings_gives(seed):
     face = rng.choice(len(mesh.faces), 6, replace=False, p=mesh.area_faces / mesh.area)
     pts = mesh.triangles_center[face]
     normals = mesh.face_normals[face]
-    marks = landmarks(mesh, pts, normals, face, feats)
+    marks = landmarks(mesh_guide(mesh), pts, normals, face)
     surface = surface_sample(mesh)
     checked = 0
     for p, n, m in zip(pts, normals, marks, strict=True):
@@ -53,9 +53,9 @@ def test_a_mark_the_readings_cannot_place_within_the_margin_is_sent_to_the_drawi
     end = np.flatnonzero((mesh.face_normals[:, 2] < -0.99) & (mesh.triangles_center[:, 2] < lo[2] + 1e-4))
     f = end[:1]
     p, n = mesh.triangles_center[f], mesh.face_normals[f]
-    m = landmarks(mesh, p, n, f, feats, placement_error_mm=2.0)[0]
+    m = landmarks(mesh_guide(mesh), p, n, f, placement_error_mm=2.0)[0]
     assert m["locating_error_mm"] > 2.0 and "place it by the drawings" in m["text"]
-    assert landmarks(mesh, p, n, f, feats)[0]["text"].count("drawings") == 0  # no margin given: none said
+    assert landmarks(mesh_guide(mesh), p, n, f)[0]["text"].count("drawings") == 0  # no margin given: none said
     # the error grows without bound as the three directions fall in one line
     e = locating_errors(np.zeros(3), np.array([0, 0, 1.0]), np.array([[0.1, 0, 0], [0.2, 0, 0], [0.3, 0, 0.0]]), [[0, 1, 2]])
     assert np.isinf(e[0])
@@ -73,7 +73,7 @@ def test_where_the_nearest_landmarks_locate_a_mark_poorly_the_chosen_ones_do_bet
     surface = surface_sample(mesh)
     rng = np.random.default_rng(7)
     face = rng.choice(len(mesh.faces), 60, replace=False, p=mesh.area_faces / mesh.area)
-    marks = landmarks(mesh, mesh.triangles_center[face], mesh.face_normals[face], face, feats)
+    marks = landmarks(mesh_guide(mesh), mesh.triangles_center[face], mesh.face_normals[face], face)
     compared = 0
     for f, m in zip(face, marks, strict=True):
         p, n = mesh.triangles_center[f], mesh.face_normals[f]
@@ -99,7 +99,7 @@ def test_a_mark_next_to_a_landmark_is_set_off_it_in_a_direction():
     # 2 mm from the middle of the +z face, towards +x: nearer than any three readings place it
     p = np.array([[0.002, 0.0, 0.02]])
     face = box.nearest.on_surface(p)[2]
-    m = landmarks(box, p, np.array([[0.0, 0, 1]]), face, feats, placement_error_mm=2.0)[0]
+    m = landmarks(mesh_guide(box), p, np.array([[0.0, 0, 1]]), face, placement_error_mm=2.0)[0]
     (only,) = m["measure_from"]
     middle = [f for f in feats if f["name"] == only["name"]][0]
     assert np.allclose(middle["point"], [0, 0, 0.02]) and only["distance_mm"] == 2.0 and only["towards"] == "+x"
@@ -132,3 +132,30 @@ def test_a_heading_read_back_is_the_direction_to_half_a_degree():
         assert np.argmax(np.abs(v)) == np.argmax(np.abs(main))
     assert heading(np.array([0.41, -0.91, 0.0])) == "-y turned 24 deg to +x"
     assert heading(np.array([0.5, 0.5, 0.7071])).startswith("(")
+
+
+def test_the_guide_read_back_from_the_cache_is_the_one_computed(tmp_path, monkeypatch):
+    from starforge.props import guide
+    from starforge.props.mesh import load_prop
+
+    monkeypatch.setenv("STARFORGE_CACHE_DIR", str(tmp_path / "cache"))
+    want = mesh_guide(builtin_mesh("hammer"))
+    prop = load_prop("hammer")
+    computed = guide.prop_guide(prop)
+    monkeypatch.setattr(guide, "mesh_guide", lambda mesh: pytest.fail("computed again"))
+    for got in (computed, guide.prop_guide(load_prop("hammer"))):
+        assert got.landmarks == want.landmarks
+        np.testing.assert_array_equal(got.bounds, want.bounds)
+        np.testing.assert_array_equal(got.flat.rank, want.flat.rank)
+        assert got.flat.facing == want.flat.facing
+        np.testing.assert_array_equal(got.flat.area_mm2, want.flat.area_mm2)
+        np.testing.assert_array_equal(got.surface.points, want.surface.points)
+        np.testing.assert_array_equal(got.surface.normals, want.surface.normals)
+    # every face of a named flat face reads it back; the hammer's named faces are its box head's
+    # six sides and its handle's end, the 32-sided handle's strips are curved
+    m = builtin_mesh("hammer")
+    named = np.flatnonzero(want.flat.rank > 0)
+    assert want.flat.rank.max() == len(want.flat.facing) == 7
+    assert all(want.flat.of(int(f))["id"] == f"F{want.flat.rank[f]}" for f in named)
+    assert want.flat.of(int(np.flatnonzero(want.flat.rank == 0)[0])) is None
+    assert np.all(np.abs(m.face_normals[named]).max(axis=1) > 0.999)  # each faces along an axis

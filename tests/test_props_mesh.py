@@ -173,3 +173,34 @@ def test_dart_throw_is_the_greedy_brute_force():
                 if len(kept) >= limit:
                     break
         assert _dart_throw(pts, radius, limit).tolist() == kept
+
+
+def test_a_prop_is_kept_as_arrays_and_its_mesh_built_on_first_use(tmp_path, monkeypatch):
+    import pickle
+
+    from starforge.props import builtin
+    from starforge.props.mesh import PropMesh
+
+    monkeypatch.setenv("STARFORGE_CACHE_DIR", str(tmp_path / "cache"))
+    want = builtin_mesh("hammer")
+    first = load_prop("hammer")  # built, and kept in the empty cache folder
+    monkeypatch.setattr(builtin, "builtin_mesh", lambda name: pytest.fail("built again"))
+    for prop in (first, load_prop("hammer")):  # the second is read back
+        assert "mesh" not in prop.__dict__
+        assert np.array_equal(prop.vertices, want.vertices) and np.array_equal(prop.faces, want.faces)
+        np.testing.assert_array_equal(prop.bounds_m, want.bounds)
+        np.testing.assert_array_equal(prop.extents_m, want.extents)
+        m = prop.mesh
+        assert np.array_equal(m.vertices, want.vertices) and np.array_equal(m.faces, want.faces)
+        assert m.is_watertight and m.volume == pytest.approx(want.volume, rel=1e-12)
+    # a pickled prop carries its arrays, not the mesh built of them
+    again = pickle.loads(pickle.dumps(first))
+    assert "mesh" not in again.__dict__ and np.array_equal(again.mesh.faces, want.faces)
+    # a mesh given is kept as it is, with what trimesh computed of it
+    held = PropMesh.of(want, "h", "x.stl", "m", np.arange(len(want.faces)))
+    assert held.mesh is want and np.array_equal(held.vertices, want.vertices)
+    # the box the faces span: a vertex no face uses is left out, as trimesh leaves it out
+    import trimesh
+
+    stray = trimesh.Trimesh(np.vstack([want.vertices, [[5.0, 5.0, 5.0]]]), want.faces, process=False)
+    np.testing.assert_array_equal(PropMesh.of(stray, "s", "x.stl", "m", np.arange(len(want.faces))).bounds_m, want.bounds)

@@ -294,7 +294,7 @@ def test_paired_comparison_counts_discordant_poses_and_its_exact_p_value():
 
 
 def test_landmarks_from_the_bounding_box():
-    from starforge.props.guide import caliper_pairs, landmarks, mesh_landmarks, tilt
+    from starforge.props.guide import caliper_pairs, landmarks, mesh_guide, mesh_landmarks, tilt
 
     box = _box()  # 100 x 60 x 40 mm about the origin
     p = np.array([[0.04, -0.02, 0.02]])
@@ -309,7 +309,7 @@ def test_landmarks_from_the_bounding_box():
     assert len(pts) == 14 and np.allclose(np.linalg.norm(pts[:, None] - want[None], axis=2).min(1), 0, atol=1e-9)
     assert np.allclose(np.linalg.norm(want[:, None] - pts[None], axis=2).min(1), 0, atol=1e-9)
     assert [f["kind"] for f in feats] == ["tip"] * 6 + ["corner"] * 8
-    m = landmarks(box, p, np.array([[0.0, 0, 1]]), face, feats)[0]
+    m = landmarks(mesh_guide(box), p, np.array([[0.0, 0, 1]]), face)[0]
     assert m["from"] == {"x": "max", "y": "min", "z": "max"}
     assert m["distance_mm"] == [10.0, 10.0, 0.0]
     assert m["face"]["kind"] == "flat" and m["face"]["facing"] == "+z" and m["face"]["area_mm2"] == 6000
@@ -370,7 +370,7 @@ def test_turned_extent_warning():
     rig = load_rig("default")  # 2 x 2 x 2 m
     long = _box((0.1, 0.1, 1.9))  # fits upright; turned it sweeps a 1.91 m ball: fits
     thin = _box((1.5, 1.5, 0.1))  # fits upright; turned it sweeps 2.12 m: does not
-    mk = lambda m: PropMesh("p", "x.stl", "m", m, np.arange(len(m.faces)), (), len(m.faces), {})  # noqa: E731
+    mk = lambda m: PropMesh.of(m, "p", "x.stl", "m", np.arange(len(m.faces)), (), len(m.faces))  # noqa: E731
     assert check_scale(mk(long), rig, 0.0095) == []
     w = check_scale(mk(thin), rig, 0.0095)
     assert len(w) == 1 and "not when turned" in w[0] and "2.12" in w[0]
@@ -451,7 +451,7 @@ def test_a_flat_face_has_edges_a_person_finds(sections, sides_flat):
     90 degrees into the sides and are faces either way."""
     import trimesh
 
-    from starforge.props.guide import FLAT_EDGE_DEG, landmarks
+    from starforge.props.guide import FLAT_EDGE_DEG, landmarks, mesh_guide
 
     prism = trimesh.creation.cylinder(radius=0.04, height=0.1, sections=sections)
     # a side's outline: two long edges bending 360/sections degrees, two short rim edges bending
@@ -462,7 +462,7 @@ def test_a_flat_face_has_edges_a_person_finds(sections, sides_flat):
     side = int(np.flatnonzero(np.abs(fn[:, 2]) < 1e-9)[0])
     cap = int(np.flatnonzero(fn[:, 2] > 0.99)[0])
     p = np.asarray(prism.triangles_center)[[side, cap]]
-    got = landmarks(prism, p, fn[[side, cap]], np.array([side, cap]))
+    got = landmarks(mesh_guide(prism), p, fn[[side, cap]], np.array([side, cap]))
     assert got[0]["face"]["kind"] == ("flat" if sides_flat else "curved")
     assert got[1]["face"]["kind"] == "flat" and got[1]["face"]["facing"] == "+z"
     assert got[0]["text"].startswith("on flat face" if sides_flat else "on the curved surface")

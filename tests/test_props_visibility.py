@@ -262,3 +262,30 @@ def test_segment_distance_matches_dense_sampling():
         step = (np.linalg.norm(p1 - p0) + np.linalg.norm(q1 - q0)) / 800 / 2  # farthest from a grid point
         assert got <= brute + 1e-12
         assert brute - got <= 2 * math.sqrt(got) * step + step**2 + 1e-12
+
+
+def test_rays_hit_agrees_with_trimesh_with_and_without_embree(monkeypatch):
+    """The sight lines the guide casts (embree called directly) against trimesh's own numpy ray
+    tracer, an independent implementation, on rays from all round the hammer; and the same
+    without embree installed."""
+    import sys
+
+    from trimesh.ray.ray_triangle import RayMeshIntersector
+
+    from starforge.props.builtin import builtin_mesh
+    from starforge.props.visibility import rays_hit
+
+    mesh = builtin_mesh("hammer")
+    rng = np.random.default_rng(3)
+    origins = mesh.bounds.mean(axis=0) + rng.normal(size=(400, 3)) * 0.1
+    outside = ~mesh.contains(origins)
+    origins = origins[outside]
+    aims = mesh.sample(len(origins), seed=4) + rng.normal(size=(len(origins), 3)) * 0.01  # near the surface
+    dirs = aims - origins
+    want = RayMeshIntersector(mesh).intersects_any(origins, dirs)
+    got = rays_hit(mesh.vertices, mesh.faces, origins, dirs)
+    assert 0.1 < want.mean() < 0.9
+    assert np.array_equal(got, want)
+    monkeypatch.setitem(sys.modules, "embreex", None)  # import embreex now fails
+    assert np.array_equal(rays_hit(mesh.vertices, mesh.faces, origins, dirs), want)
+    assert rays_hit(mesh.vertices, mesh.faces, np.zeros((0, 3)), np.zeros((0, 3))).shape == (0,)

@@ -137,3 +137,19 @@ def builtin_mesh(name: str):
         mesh = trimesh.util.concatenate(parts)
     # manifold3d works in float32: snap its round-off (~1e-8 m) back to 0.1 micrometre
     return trimesh.Trimesh(vertices=np.round(mesh.vertices, 7) + 0.0, faces=mesh.faces, process=False)
+
+
+def builtin_arrays(name: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertices (v, 3) float m, faces (f, 3) int)`` of :func:`builtin_mesh`, kept in the cache
+    folder (:func:`starforge.runtime.stored.stored`) by starforge's code and the trimesh and
+    manifold3d versions that build it: a later run reads the arrays without importing either."""
+    from starforge.runtime.stored import content_key, stored
+
+    if name not in BUILTIN:
+        raise StarforgeError(f"unknown built-in prop {name!r}; known: {', '.join(BUILTIN)}")
+
+    def build():
+        mesh = builtin_mesh(name)
+        return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64)
+
+    return stored("builtin", content_key("builtin", name, libraries=("numpy", "trimesh", "manifold3d")), build)[0]

@@ -209,11 +209,26 @@ def _facet_of(mesh) -> np.ndarray:
     return out
 
 
-def _flat_faces(mesh, faces) -> dict[int, dict]:
-    """Face index (of ``faces``) -> its flat face (a facet of coplanar faces, or one triangle, of
-    at least :data:`FLAT_MIN_MM2`, outlined by edges a person finds: :data:`FLAT_EDGE_DEG`;
-    numbered F1, F2, ... largest first): ``{"id", "facing", "area_mm2"}``; faces on no flat
-    face are left out."""
+class FlatFaces(NamedTuple):
+    """The flat faces a person finds on a mesh (:func:`flat_faces`), numbered F1, F2, ...
+    largest first."""
+
+    rank: np.ndarray  # (f,) int: the number of the flat face each mesh face lies on; 0: none
+    facing: tuple[str, ...]  # the direction F1, F2, ... face
+    area_mm2: np.ndarray  # the area of F1, F2, ..., mm^2
+
+    def of(self, face: int) -> dict | None:
+        """``{"id", "facing", "area_mm2"}`` of the flat face mesh face ``face`` lies on; None
+        when it lies on none."""
+        k = int(self.rank[face]) - 1
+        if k < 0:
+            return None
+        return {"id": f"F{k + 1}", "facing": self.facing[k], "area_mm2": round(float(self.area_mm2[k]), 0)}
+
+
+def flat_faces(mesh) -> FlatFaces:
+    """The mesh's flat faces: facets of coplanar faces, or single triangles, of at least
+    :data:`FLAT_MIN_MM2`, outlined by edges a person finds (:data:`FLAT_EDGE_DEG`)."""
     tri_area = np.asarray(mesh.area_faces) * 1e6
     fn = np.asarray(mesh.face_normals)
     facets = [np.asarray(f, int) for f in mesh.facets]
@@ -224,15 +239,11 @@ def _flat_faces(mesh, faces) -> dict[int, dict]:
     areas = np.array([tri_area[g].sum() for g in facets] + tri_area[lone].tolist())
     named = (areas >= FLAT_MIN_MM2) & _crisp_outline(mesh, group, len(areas))
     order = np.flatnonzero(named)[np.argsort(-areas[named], kind="stable")]
-    rank = np.zeros(len(areas), np.int64)
+    rank = np.zeros(len(areas) + 1, np.int32)  # the last entry: faces in no group (group -1)
     rank[order] = np.arange(1, len(order) + 1)
-    out = {}
-    for f in {int(x) for x in np.asarray(faces).ravel()}:
-        k = group[f]
-        if k < 0 or not named[k]:
-            continue
-        out[f] = {"id": f"F{rank[k]}", "facing": _direction(fn[first[k]], 1.0), "area_mm2": round(float(areas[k]), 0)}
-    return out
+    return FlatFaces(
+        rank[group], tuple(_direction(fn[first[k]], 1.0) for k in order), np.asarray(areas[order], float)
+    )
 
 
 def _crisp_outline(mesh, group: np.ndarray, n_groups: int) -> np.ndarray:
@@ -331,6 +342,32 @@ def surface_sample(mesh) -> SurfaceSample:
     return SurfaceSample(np.asarray(pts, float), np.asarray(mesh.face_normals, float)[face])
 
 
+class MeshGuide(NamedTuple):
+    """What the rigging guide reads off the mesh alone (:func:`mesh_guide`): what
+    :func:`landmarks` locates every marker from."""
+
+    landmarks: list[dict]  # :func:`mesh_landmarks`
+    bounds: np.ndarray  # (2, 3) m: the axis-aligned bounding box
+    flat: FlatFaces
+    surface: SurfaceSample
+
+
+def mesh_guide(mesh) -> MeshGuide:
+    """The landmarks, bounding box, flat faces and surface sample of ``mesh`` (a
+    ``trimesh.Trimesh``, m)."""
+    return MeshGuide(mesh_landmarks(mesh), np.asarray(mesh.bounds, float), flat_faces(mesh), surface_sample(mesh))
+
+
+def prop_guide(prop) -> MeshGuide:
+    """:func:`mesh_guide` of a :class:`~starforge.props.mesh.PropMesh`, kept in the cache folder
+    (:func:`starforge.runtime.stored.stored`) by its arrays: a later run on the same prop reads it
+    back without building the mesh."""
+    from starforge.runtime.stored import content_key, stored
+
+    key = content_key("guide", prop.vertices, prop.faces, libraries=("numpy", "scipy", "trimesh"))
+    return stored("guide", key, lambda: mesh_guide(prop.mesh))[0]
+
+
 def _measured_from(p, n, lp: np.ndarray, d: np.ndarray, surface, surface_mm) -> tuple[np.ndarray, float, bool]:
     """The landmarks (indices into ``lp``, ``d`` mm from ``p``; nearest first) that locate the
     mark at ``p`` best, and their locating error (mm; inf when they cannot): the
@@ -370,21 +407,20 @@ def _offset_error(d_mm: float) -> float:
 
 
 def landmarks(
-    mesh, points: np.ndarray, normals: np.ndarray, faces=None, marks=None, placement_error_mm: float = math.inf
+    guide: MeshGuide, points: np.ndarray, normals: np.ndarray, faces=None, placement_error_mm: float = math.inf
 ) -> list[dict]:
     """Per marker (surface ``points`` (m, 3) m, outward ``normals``, the mesh ``faces`` they lie
     on): ``{"from": {"x": "min"|"max", ...}, "distance_mm": [dx, dy, dz] (from the nearer side of
     the bounding box on each axis), "face": {"kind": "flat" | "curved", ...}, "measure_from":
     [{"name", "distance_mm"}] (:func:`_measured_from`), "locating_error_mm" (how tightly those
     readings place the mark, :func:`locating_errors`; None when they cannot), "tilt_deg",
-    "leans", "text"}``.  ``marks``: the mesh's landmarks
-    (:func:`mesh_landmarks`, computed when not given); a mark the readings locate less tightly
-    than ``placement_error_mm`` is said to be placed by the drawings (the views, the template)."""
-    lo, hi = np.asarray(mesh.bounds, float)
-    marks = mesh_landmarks(mesh) if marks is None else marks
+    "leans", "text"}``, from ``guide`` (:func:`mesh_guide` of the mesh).  A mark the readings
+    locate less tightly than ``placement_error_mm`` is said to be placed by the drawings (the
+    views, the template)."""
+    lo, hi = np.asarray(guide.bounds, float)
+    marks = guide.landmarks
     lp = np.array([m["point"] for m in marks], float).reshape(-1, 3)
-    flat = _flat_faces(mesh, faces) if faces is not None else {}
-    surface = surface_sample(mesh) if len(points) else None
+    surface = guide.surface if len(points) else None
     surface_mm = None if surface is None else np.linalg.norm(surface.points[:, None, :] - lp[None], axis=2) * 1000.0
     out = []
     for i, (p, n) in enumerate(zip(np.asarray(points, float), np.asarray(normals, float), strict=True)):
@@ -393,7 +429,7 @@ def landmarks(
             a, b = p[k] - lo[k], hi[k] - p[k]
             side[ax] = "min" if a <= b else "max"
             dist.append(round(float(min(a, b)) * 1000.0, 1) + 0.0)
-        f = flat.get(int(faces[i])) if faces is not None else None
+        f = guide.flat.of(int(faces[i])) if faces is not None else None
         if f is not None:
             face = {"kind": "flat", **f}
             on = f"on flat face {f['id']} (facing {f['facing']}, {f['area_mm2']:.0f} mm2)"

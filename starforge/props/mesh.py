@@ -1,8 +1,8 @@
 """Prop meshes: load any format trimesh reads, convert units, repair, orient normals outward.
 
-Everything here works in metres.  The result is a :class:`PropMesh`: the repaired
-``trimesh.Trimesh``, the original face index of every face (for per-face masks) and a
-list of plain-language notes saying what was repaired.
+Everything here works in metres.  The result is a :class:`PropMesh`: the repaired mesh's
+vertices and faces (its ``trimesh.Trimesh`` built on first use), the original face index of
+every face (for per-face masks) and a list of plain-language notes saying what was repaired.
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from __future__ import annotations
 import gc
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -21,9 +22,13 @@ UNITS_TO_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 MESH_SUFFIXES = (".stl", ".obj", ".ply", ".glb", ".gltf", ".off")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class PropMesh:
     """A repaired prop mesh in metres.
+
+    The mesh is kept as arrays; :attr:`mesh`, the ``trimesh.Trimesh`` of them, is built on first
+    use, so that work that needs only the arrays (a placement read back from the cache up to its
+    layout) does not import trimesh.
 
     Attributes
     ----------
@@ -33,8 +38,11 @@ class PropMesh:
         ``builtin`` or the file path as given.
     units : str
         Units of the source file (``m``, ``cm`` or ``mm``); the mesh itself is in metres.
-    mesh : trimesh.Trimesh
-        Repaired mesh, metres, normals outward where that can be decided.
+    vertices : (v, 3) float
+        Vertices, m.
+    faces : (f, 3) int
+        Triangles (indices into ``vertices``), wound with their normals outward where that can
+        be decided.
     face_origin : (f,) int
         Index of each face in the file as loaded; -1 for faces added by repair (filled holes).
     notes : tuple of str
@@ -46,16 +54,48 @@ class PropMesh:
     name: str
     source: str
     units: str
-    mesh: object
+    vertices: np.ndarray = field(repr=False)
+    faces: np.ndarray = field(repr=False)
     face_origin: np.ndarray = field(repr=False)
     notes: tuple[str, ...] = ()
     source_faces: int = 0
-    timings: dict = field(default_factory=dict, compare=False)
+    timings: dict = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, mesh, name: str, source: str, units: str, face_origin, notes=(), source_faces: int = 0, timings=None) -> PropMesh:
+        """The PropMesh of a ``trimesh.Trimesh`` (m), kept as its :attr:`mesh` with what trimesh
+        has computed of it."""
+        out = cls(
+            name, source, units, np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64),
+            np.asarray(face_origin), tuple(notes), int(source_faces), dict(timings or {}),
+        )  # fmt: skip
+        out.__dict__["mesh"] = mesh
+        return out
+
+    @cached_property
+    def mesh(self):
+        """The ``trimesh.Trimesh`` of :attr:`vertices` and :attr:`faces` (built on first use)."""
+        import trimesh
+
+        return trimesh.Trimesh(vertices=self.vertices, faces=self.faces, process=False)
+
+    @cached_property
+    def bounds_m(self) -> np.ndarray:
+        """(2, 3) float, m: the corners of the axis-aligned box round the vertices the faces use."""
+        used = np.zeros(len(self.vertices), dtype=bool)
+        used[np.asarray(self.faces).ravel()] = True
+        v = np.asarray(self.vertices, dtype=float)[used]
+        return np.array([v.min(axis=0), v.max(axis=0)]) if len(v) else np.zeros((2, 3))
 
     @property
     def extents_m(self) -> np.ndarray:
         """(3,) float, m: axis-aligned size of the prop."""
-        return np.asarray(self.mesh.extents, dtype=float)
+        return np.ptp(self.bounds_m, axis=0)
+
+    def __getstate__(self) -> dict:
+        """The arrays only: a pickled prop (sent to a worker, kept in the cache) builds its
+        ``trimesh.Trimesh`` again where it is used."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("mesh",)}
 
 
 def units_hint(size_m: float, units: str, lo_m: float, hi_m: float) -> str:
@@ -306,7 +346,7 @@ def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
     ``timings`` holds the seconds spent loading and repairing."""
     import time
 
-    from starforge.props.builtin import BUILTIN, builtin_mesh
+    from starforge.props.builtin import BUILTIN, builtin_arrays
 
     t0 = time.perf_counter()
     units_scale(units)  # validate even for built-ins (which are in metres)
@@ -318,9 +358,9 @@ def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
     elif text in BUILTIN and Path(text).is_file():
         text = str(prop) if "/" in str(prop) else f"./{text}"  # a file of that name wins; said so
     if text in BUILTIN:
-        mesh = builtin_mesh(text)
-        n = len(mesh.faces)
-        return PropMesh(text, "builtin", "m", mesh, np.arange(n), (), n, {"load_s": round(time.perf_counter() - t0, 4)})
+        vertices, faces = builtin_arrays(text)
+        n = len(faces)
+        return PropMesh(text, "builtin", "m", vertices, faces, np.arange(n), (), n, {"load_s": round(time.perf_counter() - t0, 4)})
     path = Path(text)
     if not path.exists() and path.suffix.lower() not in MESH_SUFFIXES:
         raise StarforgeError(
@@ -332,7 +372,7 @@ def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
     t1 = time.perf_counter()
     timings = {"load_s": round(t1 - t0, 4)}
     if not repair:
-        return PropMesh(path.stem, text, units, raw, np.arange(len(raw.faces)), (), len(raw.faces), timings)
+        return PropMesh.of(raw, path.stem, text, units, np.arange(len(raw.faces)), (), len(raw.faces), timings)
     try:
         mesh, origin, notes = repair_mesh(raw)
     except StarforgeError as exc:
@@ -344,7 +384,7 @@ def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
         del raw
         gc.collect()
     timings["repair_s"] = round(time.perf_counter() - t1, 4)
-    return PropMesh(path.stem, text, units, mesh, origin, tuple(notes), n_raw, timings)
+    return PropMesh.of(mesh, path.stem, text, units, origin, tuple(notes), n_raw, timings)
 
 
 #: a mesh file with more faces is followed by a garbage collection once it is repaired

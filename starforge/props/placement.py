@@ -282,7 +282,7 @@ def _place_tracked(
     ts, table, sites, rig = spec.track, prep.table, prep.sites, prep.rig
     centres = sites.points + prep.seat.centre_height_m * sites.normals
     seen, _ = loss_scenarios(table.masks, len(rig.cameras), ts.cameras_lost, ts.loss_patterns, np.random.default_rng(seed + LOSS_SEED_OFFSET))
-    ext = np.sort(np.asarray(prop.mesh.extents))
+    ext = np.sort(prop.extents_m)
     spacing = spacing_m(ts.marker_mm, rig, ts.gap_px)
     warnings = list(warnings)
     fit = spaced_capacity(centres, spacing, ts.target_markers)

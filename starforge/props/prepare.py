@@ -85,9 +85,8 @@ def prepare(prop, spec: PlaceSpec, rng: np.random.Generator, progress=None, timi
     rig = load_rig(spec.rig)
     if spec.constraints.mesh or spec.constraints.mask:
         return _prepare(prop, spec, rig, rng, progress, timings, grip, seed)
-    mesh = prop.mesh
     key = content_key(
-        "prepared", mesh.vertices, mesh.faces, mesh.face_normals, prop.name, prop.source, spec, spec.marker_seat(), rig,
+        "prepared", prop.vertices, prop.faces, prop.name, prop.source, spec, spec.marker_seat(), rig,
         grip, seed,
         rng.bit_generator.state, libraries=("numpy", "trimesh", "embreex", "numba"),
     )  # fmt: skip
@@ -141,7 +140,7 @@ def _prepare(prop, spec, rig, rng, progress, timings, grip, seed) -> Prepared:
     if spec.objective == "tracked":
         check_trackable(kept.points + seat.centre_height_m * kept.normals, spec, rig, seat, removed)
     t = tick(timings, "sample_s", t)
-    pivot = np.asarray(prop.mesh.bounds, dtype=float).mean(axis=0)
+    pivot = prop.bounds_m.mean(axis=0)
     check_cost(prop, spec, rig, len(kept), spec.resolution**3 * spec.orientations)  # before building them
     poses = make_poses(rig.volume, spec.resolution, spec.orientations, pivot, rng)
     if progress is not None:
@@ -217,12 +216,12 @@ def check_scale(prop, rig, marker_m: float) -> list[str]:
     the prop about its bounding-box centre, so it sweeps a ball as wide as twice its farthest
     point from that centre: a prop that fits upright but not that ball gets its own warning.
     """
-    ext = float(np.max(prop.mesh.extents))
+    ext = float(np.max(prop.extents_m))
     vol = float(np.max(rig.volume.size))
     if ext > 2 * vol or ext < 4 * marker_m:
 
         hint = "; " + units_hint(ext, prop.units, 4 * marker_m, vol)
-        size = " x ".join(f"{e:.4g}" for e in prop.mesh.extents)
+        size = " x ".join(f"{e:.4g}" for e in prop.extents_m)
         raise StarforgeError(
             f"prop {prop.name} is {size} m read as {prop.units}: "
             + (f"larger than twice the capture volume ({vol:g} m)" if ext > 2 * vol
@@ -231,12 +230,12 @@ def check_scale(prop, rig, marker_m: float) -> list[str]:
         )
     size = np.asarray(rig.volume.size, float)
     vol_text = " x ".join(f"{e:g}" for e in size)
-    if np.any(np.asarray(prop.mesh.extents) > size):
+    if np.any(prop.extents_m > size):
         return [
-            f"the prop ({' x '.join(f'{e:.3g}' for e in prop.mesh.extents)} m) does not fit inside the capture volume ({vol_text} m)"
+            f"the prop ({' x '.join(f'{e:.3g}' for e in prop.extents_m)} m) does not fit inside the capture volume ({vol_text} m)"
         ]
-    pivot = np.asarray(prop.mesh.bounds, float).mean(axis=0)
-    span = 2.0 * float(np.linalg.norm(np.asarray(prop.mesh.vertices) - pivot, axis=1).max())
+    pivot = prop.bounds_m.mean(axis=0)
+    span = 2.0 * float(np.linalg.norm(prop.vertices - pivot, axis=1).max())
     if span > size.min():
         return [
             f"the prop fits the capture volume ({vol_text} m) upright but not when turned: turned about its "

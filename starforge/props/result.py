@@ -71,13 +71,12 @@ class PlacementResult:
         """What the rigging guide says (computed once, for placement.json and the drawings): the
         prop's landmarks (:func:`starforge.props.guide.mesh_landmarks`) and, per marker, where
         it is measured from (:func:`starforge.props.guide.landmarks`)."""
-        from starforge.props.guide import landmarks, mesh_landmarks
+        from starforge.props.guide import landmarks, prop_guide
 
-        features = mesh_landmarks(self.prop.mesh)
+        guide = prop_guide(self.prop)
         faces = self.sites.faces[list(self.marker_sites)]
-        marks = landmarks(self.prop.mesh, self.marker_points, self.marker_normals, faces, features,
-                          self.spec.seat.placement_error_mm)  # fmt: skip
-        return features, marks
+        marks = landmarks(guide, self.marker_points, self.marker_normals, faces, self.spec.seat.placement_error_mm)
+        return guide.landmarks, marks
 
     def centres(self, sites=None) -> np.ndarray:
         """(m, 3) ball centres of ``sites`` (default: the markers), m: on the seat's axis."""

@@ -36,7 +36,7 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
     pts, nrm = _on_surface(prop, points, normals)
     rng = np.random.default_rng(seed)
     rig = load_rig(spec.rig)
-    pivot = np.asarray(prop.mesh.bounds, dtype=float).mean(axis=0)
+    pivot = prop.bounds_m.mean(axis=0)
     poses = make_poses(rig.volume, spec.resolution, spec.orientations, pivot, rng)
     check_cost(prop, spec, rig, len(pts), len(poses))
     seat = spec.marker_seat()
@@ -109,7 +109,7 @@ def _score_tracked(prop, spec: PlaceSpec, seed: int, pts, nrm, table, rig, grips
         v,
         ts,
         spacing_m(ts.marker_mm, rig, ts.gap_px),
-        max(ts.spread_fraction * float(np.sort(prop.mesh.extents)[1]), 1e-4),
+        max(ts.spread_fraction * float(np.sort(prop.extents_m)[1]), 1e-4),
         margin=rep.margin_m,
         margin_target=spec.seat.margin_cap_mm / 1000.0,
     )
@@ -128,7 +128,7 @@ def _score_tracked(prop, spec: PlaceSpec, seed: int, pts, nrm, table, rig, grips
         len(pts),
         t["untracked"],
     )
-    pivot = np.asarray(prop.mesh.bounds, dtype=float).mean(axis=0)
+    pivot = prop.bounds_m.mean(axis=0)
     ev = evaluate_layouts(
         prop.mesh, {"layout": (centres, nrm)}, rig, pivot, spec.evaluation, seed, ts.min_height_mm, grips,
         spec.grazing_limit_deg,

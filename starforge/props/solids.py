@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-import manifold3d
 import numpy as np
-import trimesh
 
 
 def union_solids(shells):
     """Boolean union of watertight shells with manifold3d; None when manifold refuses them."""
+    import manifold3d
+    import trimesh
+
     try:
         solids = [
             manifold3d.Manifold(

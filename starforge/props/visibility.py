@@ -110,6 +110,36 @@ def segment_occluded(mesh, origins: np.ndarray, targets: np.ndarray) -> np.ndarr
     return out
 
 
+def rays_hit(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """(n,) bool: each ray from ``origins`` along ``directions`` hits a triangle of the mesh of
+    ``vertices`` (m) and ``faces``.
+
+    Embree (embreex) is called directly when it is installed, so that a few rays (the guide's
+    sight lines) need no ``trimesh.Trimesh``; as trimesh does, the scene is moved to its box's
+    corner and scaled to about 100 units, where embree's float32 keeps the precision.  Without
+    embreex, trimesh's numpy ray tracer.
+    """
+    origins = np.asarray(origins, dtype=float).reshape(-1, 3)
+    directions = np.asarray(directions, dtype=float).reshape(-1, 3)
+    if not len(origins):
+        return np.zeros(0, dtype=bool)
+    try:
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+    except ImportError:  # no embree on this platform
+        import trimesh
+
+        mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
+        return np.asarray(mesh.ray.intersects_any(origins, directions), dtype=bool)
+    v = np.asarray(vertices, dtype=float)
+    lo = v.min(axis=0)
+    scale = 100.0 / max(float(np.linalg.norm(np.ptp(v, axis=0))), 1e-300)
+    scene = rtcore_scene.EmbreeScene()
+    TriangleMesh(scene=scene, vertices=((v - lo) * scale).astype(np.float32), indices=np.asarray(faces).astype(np.int32))
+    unit = directions / np.linalg.norm(directions, axis=1)[:, None]
+    return np.asarray(scene.run(((origins - lo) * scale).astype(np.float32), unit.astype(np.float32))) != -1
+
+
 def camera_arrays(rig):
     """Positions (c,3), bases (c,3,3) and half-angle tangents (c,2) of the rig's cameras."""
     pos = np.array([c.position for c in rig.cameras], dtype=float)

@@ -72,7 +72,8 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         temps = ts.t0 * decay ** np.arange(n_hist) if ts.t0 > 0 else np.zeros(n_hist)
     else:
         temps = np.array([res.spec.chain.temperature(i) for i in range(n_hist)])
-    tris, normals = drawn_faces(res.prop.mesh, max_faces)
+    prop = res.prop
+    tris, normals = drawn_faces(prop.vertices, prop.faces, max_faces)
     from starforge.props.guide import caliper_pairs
     from starforge.props.hand import capsule_arrays
 
@@ -99,7 +100,7 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         landmarks=tuple(m["text"] for m in marks),
         contact=np.asarray(res.seat_report.contact)[idx],
         edge_mm=np.asarray(res.seat_report.edge_m)[idx] * 1000.0,
-        bounds=np.asarray(res.prop.mesh.bounds, float),
+        bounds=np.asarray(prop.bounds_m, float),
         seat_text=(
             f"{seat.name}: {seat.ball_mm:g} mm ball, centre {seat.centre_height_mm:g} mm above a {seat.base_mm:g} mm base"
             if seat.base_mm > 0
@@ -110,7 +111,7 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
             "fraction of scenarios seen by 2 surviving cameras" if tracked else "visibility (fraction of poses x pairs)"
         ),
         wrists=capsule_arrays([c for g in grips for c in g.capsules[1:]]),
-        hidden=hidden_in_views(res.prop.mesh, res.centres(), VIEWS),
+        hidden=hidden_in_views(prop.vertices, prop.faces, res.centres(), VIEWS),
         features=tuple((f["name"], np.asarray(f["point"], float)) for f in features if f["name"] in used),
         caliper=tuple(
             (c["a"], c["b"], c["centre_mm"], c["outside_mm"], c["tolerance_mm"])
@@ -136,19 +137,23 @@ def search_data(opt) -> dict:
     }
 
 
-def drawn_faces(mesh, max_faces: int = MAX_FACES) -> tuple[np.ndarray, np.ndarray]:
-    """The faces a picture draws: ``mesh``'s triangles (f, 3, 3) m and unit face normals (f, 3)
-    as they are when ``f <= max_faces``; else the mesh simplified by vertex clustering to at most
+def drawn_faces(vertices: np.ndarray, faces: np.ndarray, max_faces: int = MAX_FACES) -> tuple[np.ndarray, np.ndarray]:
+    """The faces a picture draws: the triangles (f, 3, 3) m of the mesh of ``vertices`` (m) and
+    ``faces``, and their unit normals (f, 3; zero for a face of no area), as they are when
+    ``f <= max_faces``; else the mesh simplified by vertex clustering to at most
     :data:`DRAWN_FACES` faces (vertices snapped to the mean of their cell of a cubic grid, faces
     that collapse or repeat dropped, normals recomputed from the kept winding, the grid coarsened
     until few enough remain).  A picture a thousand pixels wide cannot show the detail lost, while
     the surface stays closed (a subset of the faces would leave it full of holes) and drawing and
     the PDF stay small.
     """
-    if len(mesh.faces) <= max_faces:
-        return np.asarray(mesh.triangles, float), np.asarray(mesh.face_normals, float)
-    pts = np.asarray(mesh.vertices, float)
-    faces = np.asarray(mesh.faces, np.int64)
+    pts = np.asarray(vertices, float)
+    faces = np.asarray(faces, np.int64)
+    if len(faces) <= max_faces:
+        tris = pts[faces]
+        n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        length = np.linalg.norm(n, axis=1)
+        return tris, np.divide(n, length[:, None], out=np.zeros_like(n), where=length[:, None] > 0)
     lo = pts.min(axis=0)
     span = float(np.ptp(pts, axis=0).max()) or 1.0
     cells = max(8, int(np.sqrt(DRAWN_FACES)))  # cells along the longest side
@@ -468,18 +473,16 @@ VIEWS = {
 }
 
 
-def hidden_in_views(mesh, centres: np.ndarray, views: dict) -> dict:
-    """View name -> (m,) bool: the prop lies between the ball centre and the viewer (the sight
-    line along the view's third row, from just off the centre, hits the mesh)."""
+def hidden_in_views(vertices: np.ndarray, faces: np.ndarray, centres: np.ndarray, views: dict) -> dict:
+    """View name -> (m,) bool: the prop (the mesh of ``vertices``, m, and ``faces``) lies between
+    the ball centre and the viewer (the sight line along the view's third row, from just off the
+    centre, hits the mesh)."""
+    from starforge.props.visibility import rays_hit
+
     c = np.asarray(centres, float).reshape(-1, 3)
-    out = {}
-    for name, B in views.items():
-        if not len(c):
-            out[name] = np.zeros(0, bool)
-            continue
-        d = np.repeat(np.asarray(B[2], float)[None], len(c), axis=0)
-        out[name] = np.asarray(mesh.ray.intersects_any(c + 1e-6 * d, d), bool)
-    return out
+    d = np.vstack([np.repeat(np.asarray(B[2], float)[None], len(c), axis=0) for B in views.values()])
+    hit = rays_hit(vertices, faces, np.tile(c, (len(views), 1)) + 1e-6 * d, d)  # one scene, every view's lines
+    return {name: hit[k * len(c) : (k + 1) * len(c)] for k, name in enumerate(views)}
 
 
 def shade_grips(ax, d: PlotData, B, wrists: bool = True) -> None:
