@@ -213,16 +213,44 @@ def test_pose_matrices_map_pivot_to_position():
 
 
 def test_fallback_tracer_agrees_with_embree(box, monkeypatch):
-    import trimesh
+    import sys
+
+    from starforge.props.rays import RayScene
 
     rng = np.random.default_rng(0)
     o = rng.uniform(-1, 1, (200, 3)) * [1, 1, 0.1] + [0, 0, 1.0]
     t = rng.uniform(-1, 1, (200, 3)) * [1, 1, 0.1] - [0, 0, 1.0]
     fast = segment_occluded(box, o, t)
-    monkeypatch.setattr(trimesh.ray, "has_embree", False)
-    slow = segment_occluded(box, o, t)
+    monkeypatch.setitem(sys.modules, "embreex", None)  # import embreex now fails
+    slow = RayScene(box.vertices, box.faces).blocked(o, t)
     assert fast.any() and not fast.all()
     assert np.array_equal(fast, slow)
+
+
+def test_the_scene_is_trimeshs_and_is_built_again_when_the_mesh_changes():
+    """Segments blocked by the scene equal those blocked by trimesh's own embree scene (the
+    one the tables were computed with before), to the bit; a trimesh mesh changed in place gets
+    a new scene."""
+    from starforge.props.builtin import builtin_mesh
+    from starforge.props.rays import ray_scene
+
+    mesh = builtin_mesh("hammer")
+    rng = np.random.default_rng(5)
+    o = mesh.sample(3000, seed=1) + rng.normal(size=(3000, 3)) * 1e-3
+    t = rng.normal(size=(3000, 3)) * 2.0
+    wrap = mesh.ray._scene  # trimesh's scaled embreex scene
+    vec = t - o
+    dist = np.linalg.norm(vec, axis=1)
+    want = np.asarray(wrap.run(o, vec / dist[:, None], dists=(dist * wrap.scale).astype(np.float32), query="OCCLUDED")) != -1
+    assert 0.05 < want.mean() < 0.95
+    assert np.array_equal(segment_occluded(mesh, o, t), want)
+    import trimesh
+
+    box = trimesh.creation.box(extents=(0.1, 0.2, 0.3))
+    before = ray_scene(box)
+    assert ray_scene(box) is before
+    box.vertices = box.vertices * 2.0
+    assert ray_scene(box) is not before and ray_scene(box).size == pytest.approx(2.0 * before.size)
 
 
 def test_kernel_dot_is_the_fused_blas_sum():
@@ -264,16 +292,16 @@ def test_segment_distance_matches_dense_sampling():
         assert brute - got <= 2 * math.sqrt(got) * step + step**2 + 1e-12
 
 
-def test_rays_hit_agrees_with_trimesh_with_and_without_embree(monkeypatch):
-    """The sight lines the guide casts (embree called directly) against trimesh's own numpy ray
-    tracer, an independent implementation, on rays from all round the hammer; and the same
+def test_ray_hits_agree_with_trimesh_with_and_without_embree(monkeypatch):
+    """The sight lines the guide casts (embree called on the arrays) against trimesh's own numpy
+    ray tracer, an independent implementation, on rays from all round the hammer; and the same
     without embree installed."""
     import sys
 
     from trimesh.ray.ray_triangle import RayMeshIntersector
 
     from starforge.props.builtin import builtin_mesh
-    from starforge.props.visibility import rays_hit
+    from starforge.props.rays import RayScene
 
     mesh = builtin_mesh("hammer")
     rng = np.random.default_rng(3)
@@ -283,9 +311,10 @@ def test_rays_hit_agrees_with_trimesh_with_and_without_embree(monkeypatch):
     aims = mesh.sample(len(origins), seed=4) + rng.normal(size=(len(origins), 3)) * 0.01  # near the surface
     dirs = aims - origins
     want = RayMeshIntersector(mesh).intersects_any(origins, dirs)
-    got = rays_hit(mesh.vertices, mesh.faces, origins, dirs)
     assert 0.1 < want.mean() < 0.9
-    assert np.array_equal(got, want)
+    scene = RayScene(mesh.vertices, mesh.faces)
+    assert scene.size == mesh.scale
+    assert np.array_equal(scene.hits(origins, dirs), want)
     monkeypatch.setitem(sys.modules, "embreex", None)  # import embreex now fails
-    assert np.array_equal(rays_hit(mesh.vertices, mesh.faces, origins, dirs), want)
-    assert rays_hit(mesh.vertices, mesh.faces, np.zeros((0, 3)), np.zeros((0, 3))).shape == (0,)
+    assert np.array_equal(RayScene(mesh.vertices, mesh.faces).hits(origins, dirs), want)
+    assert scene.hits(np.zeros((0, 3)), np.zeros((0, 3))).shape == (0,)

@@ -12,7 +12,7 @@ their best-fit line, from the eigenvalues of their covariance).
 
 None of this goes through the optimizer's table or its compiled kernel: the geometry is
 recomputed here for the markers alone, so the check shares with the optimization only the
-prop's occlusion query (embree through trimesh).
+prop's occlusion query (embree, :mod:`starforge.props.rays`).
 """
 
 from __future__ import annotations
@@ -101,7 +101,8 @@ def tracked_poses(hits: np.ndarray, alive: np.ndarray, centres: np.ndarray, min_
 
 def evaluate_layouts(mesh, layouts: dict, rig, pivot, settings, seed: int, min_height_mm: float,
                      grips=(), grazing_limit_deg: float = 180.0) -> dict:
-    """Each layout (name -> (centres (m, 3), normals (m, 3)), prop frame, m) on the same fresh
+    """Each layout (name -> (centres (m, 3), normals (m, 3)), prop frame, m) on ``mesh`` (a
+    PropMesh or a ``trimesh.Trimesh``) on the same fresh
     poses and camera losses, each pose held in a grip of ``grips`` (:class:`starforge.props.grips.Grip`,
     the same number of poses each, in an order of their own seed): ``{name: {"tracked": fraction under loss and the hand,
     "tracked_all_cameras": fraction with every camera, "markers_reconstructed": mean fraction of

@@ -60,7 +60,7 @@ class HeldOut:
         sub = Poses(self.poses.rotations[k], self.poses.translations[k], self.poses.pivot)
         occ, starts = grip_arrays(prep.grips if hand else ())
         return compute_table(
-            self.prop.mesh, prep.sites.points[sites], prep.sites.normals[sites], prep.rig, sub,
+            self.prop, prep.sites.points[sites], prep.sites.normals[sites], prep.rig, sub,
             spec.grazing_limit_deg, radius_m=prep.seat.ball_radius_m, centre_m=prep.seat.centre_height_m,
             occlusion=spec.occlusion, occluders=occ, occluder_starts=starts,
             pose_grip=self.grip[k] if hand and prep.grips else None,

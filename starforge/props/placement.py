@@ -343,7 +343,7 @@ def _place_tracked(
     if opt.baselines["best_of_random"]["sites"] is not None:
         layouts["best_of_random"] = opt.baselines["best_of_random"]["sites"]
     ev = evaluate_layouts(
-        prop.mesh,
+        prop,
         {k: (centres[list(v)], sites.normals[list(v)]) for k, v in layouts.items()},
         rig,
         prep.poses.pivot,

@@ -148,7 +148,7 @@ def _prepare(prop, spec, rig, rng, progress, timings, grip, seed) -> Prepared:
     pose_grip = assign_grips(len(poses), grips, np.random.default_rng(seed + GRIP_SEED_OFFSET))
     occ, starts = grip_arrays(grips)
     table = compute_table(
-        prop.mesh,
+        prop,
         kept.points,
         kept.normals,
         rig,

@@ -44,7 +44,7 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
     occ, starts = grip_arrays(grips)
     pose_grip = assign_grips(len(poses), grips, np.random.default_rng(seed + GRIP_SEED_OFFSET))
     table = compute_table(
-        prop.mesh,
+        prop,
         pts,
         nrm,
         rig,
@@ -130,7 +130,7 @@ def _score_tracked(prop, spec: PlaceSpec, seed: int, pts, nrm, table, rig, grips
     )
     pivot = prop.bounds_m.mean(axis=0)
     ev = evaluate_layouts(
-        prop.mesh, {"layout": (centres, nrm)}, rig, pivot, spec.evaluation, seed, ts.min_height_mm, grips,
+        prop, {"layout": (centres, nrm)}, rig, pivot, spec.evaluation, seed, ts.min_height_mm, grips,
         spec.grazing_limit_deg,
     )  # fmt: skip
     m3, m4 = (subset_margin(centres * 1000.0, k) for k in (3, 4))

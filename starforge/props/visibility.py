@@ -7,7 +7,7 @@ cameras move): the site is inside the camera's field of view (in front of it, wi
 horizontal and vertical half-angles), the surface faces the camera within the grazing-angle
 limit (angle between the outward normal and the direction to the camera at most
 ``grazing_limit_deg``), and the segment from the site to the camera hits no part of the prop
-(one embree occlusion query per segment, through trimesh's embreex scene; the segment starts a
+(one embree occlusion query per segment, :mod:`starforge.props.rays`; the segment starts a
 hair above the surface to step off its own triangle).  A pair sees the site when both cameras do.
 """
 
@@ -22,6 +22,7 @@ from numba.extending import intrinsic
 
 from starforge.errors import StarforgeError
 from starforge.props.hand import CAPSULE_COLUMNS
+from starforge.props.rays import ray_scene
 from starforge.runtime.kernels import numba
 from starforge.runtime.threads import threads_for_work
 from starforge.spec import in_range
@@ -74,70 +75,14 @@ class VisibilityTable:
 
 def ray_offset(mesh) -> float:
     """Distance (m) rays start above the surface for a mesh of this size."""
-    return float(np.clip(RAY_OFFSET_FRACTION * float(mesh.scale), RAY_OFFSET_MIN_M, RAY_OFFSET_MAX_M))
+    size = ray_scene(mesh).size
+    return float(np.clip(RAY_OFFSET_FRACTION * size, RAY_OFFSET_MIN_M, RAY_OFFSET_MAX_M))
 
 
 def segment_occluded(mesh, origins: np.ndarray, targets: np.ndarray) -> np.ndarray:
-    """(n,) bool: the segment from each origin to its target crosses the mesh.
-
-    Uses embree (``trimesh.ray.ray_pyembree``, occlusion query with a finite ray length) when
-    available, else trimesh's pure-numpy ray tracer.
-    """
-    import trimesh
-
-    origins = np.asarray(origins, dtype=float)
-    vec = np.asarray(targets, dtype=float) - origins
-    dist = np.linalg.norm(vec, axis=1)
-    if len(origins) == 0:
-        return np.zeros(0, dtype=bool)
-    dirs = vec / np.where(dist > 0, dist, 1.0)[:, None]
-    # trimesh's scaled embreex scene (private attribute; float32 coordinates scaled to ~100 units)
-    scene = getattr(mesh.ray, "_scene", None) if trimesh.ray.has_embree else None
-    if scene is not None and hasattr(scene, "scale"):
-        hit = scene.run(origins, dirs, dists=(dist * scene.scale).astype(np.float32), query="OCCLUDED")
-        return np.asarray(hit) != -1
-    # fallback: first hit along the ray, compared with the segment length
-    from trimesh.ray.ray_triangle import RayMeshIntersector
-
-    _, ray_idx, loc = RayMeshIntersector(mesh).intersects_id(
-        origins, dirs, multiple_hits=True, return_locations=True
-    )
-    out = np.zeros(len(origins), dtype=bool)
-    if len(ray_idx):
-        d = np.einsum("ij,ij->i", loc - origins[ray_idx], dirs[ray_idx])
-        ok = (d > 0) & (d < dist[ray_idx])
-        out[ray_idx[ok]] = True
-    return out
-
-
-def rays_hit(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    """(n,) bool: each ray from ``origins`` along ``directions`` hits a triangle of the mesh of
-    ``vertices`` (m) and ``faces``.
-
-    Embree (embreex) is called directly when it is installed, so that a few rays (the guide's
-    sight lines) need no ``trimesh.Trimesh``; as trimesh does, the scene is moved to its box's
-    corner and scaled to about 100 units, where embree's float32 keeps the precision.  Without
-    embreex, trimesh's numpy ray tracer.
-    """
-    origins = np.asarray(origins, dtype=float).reshape(-1, 3)
-    directions = np.asarray(directions, dtype=float).reshape(-1, 3)
-    if not len(origins):
-        return np.zeros(0, dtype=bool)
-    try:
-        from embreex import rtcore_scene
-        from embreex.mesh_construction import TriangleMesh
-    except ImportError:  # no embree on this platform
-        import trimesh
-
-        mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
-        return np.asarray(mesh.ray.intersects_any(origins, directions), dtype=bool)
-    v = np.asarray(vertices, dtype=float)
-    lo = v.min(axis=0)
-    scale = 100.0 / max(float(np.linalg.norm(np.ptp(v, axis=0))), 1e-300)
-    scene = rtcore_scene.EmbreeScene()
-    TriangleMesh(scene=scene, vertices=((v - lo) * scale).astype(np.float32), indices=np.asarray(faces).astype(np.int32))
-    unit = directions / np.linalg.norm(directions, axis=1)[:, None]
-    return np.asarray(scene.run(((origins - lo) * scale).astype(np.float32), unit.astype(np.float32))) != -1
+    """(n,) bool: the segment from each origin to its target crosses ``mesh`` (a PropMesh or a
+    ``trimesh.Trimesh``): :meth:`starforge.props.rays.RayScene.blocked` of its scene."""
+    return ray_scene(mesh).blocked(origins, targets)
 
 
 def camera_arrays(rig):
@@ -354,8 +299,8 @@ def compute_table(
 
     Parameters
     ----------
-    mesh : trimesh.Trimesh
-        The prop, metres, normals outward.
+    mesh : PropMesh or trimesh.Trimesh
+        The prop, metres, normals outward (its rays: :func:`starforge.props.rays.ray_scene`).
     points, normals : (s, 3) float
         Sites on the surface (m) and their outward unit normals, prop frame.
     rig : Rig

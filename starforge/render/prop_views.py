@@ -111,7 +111,7 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
             "fraction of scenarios seen by 2 surviving cameras" if tracked else "visibility (fraction of poses x pairs)"
         ),
         wrists=capsule_arrays([c for g in grips for c in g.capsules[1:]]),
-        hidden=hidden_in_views(prop.vertices, prop.faces, res.centres(), VIEWS),
+        hidden=hidden_in_views(prop, res.centres(), VIEWS),
         features=tuple((f["name"], np.asarray(f["point"], float)) for f in features if f["name"] in used),
         caliper=tuple(
             (c["a"], c["b"], c["centre_mm"], c["outside_mm"], c["tolerance_mm"])
@@ -473,15 +473,15 @@ VIEWS = {
 }
 
 
-def hidden_in_views(vertices: np.ndarray, faces: np.ndarray, centres: np.ndarray, views: dict) -> dict:
-    """View name -> (m,) bool: the prop (the mesh of ``vertices``, m, and ``faces``) lies between
-    the ball centre and the viewer (the sight line along the view's third row, from just off the
-    centre, hits the mesh)."""
-    from starforge.props.visibility import rays_hit
+def hidden_in_views(mesh, centres: np.ndarray, views: dict) -> dict:
+    """View name -> (m,) bool: the prop (``mesh``, a PropMesh or a ``trimesh.Trimesh``) lies
+    between the ball centre and the viewer (the sight line along the view's third row, from just
+    off the centre, hits the mesh)."""
+    from starforge.props.rays import ray_scene
 
     c = np.asarray(centres, float).reshape(-1, 3)
     d = np.vstack([np.repeat(np.asarray(B[2], float)[None], len(c), axis=0) for B in views.values()])
-    hit = rays_hit(vertices, faces, np.tile(c, (len(views), 1)) + 1e-6 * d, d)  # one scene, every view's lines
+    hit = ray_scene(mesh).hits(np.tile(c, (len(views), 1)) + 1e-6 * d, d)
     return {name: hit[k * len(c) : (k + 1) * len(c)] for k, name in enumerate(views)}
 
 
