@@ -86,7 +86,7 @@ def test_stl_from_arrays_reloads_as_the_mesh_with_its_volume(tmp_path):
     import trimesh
 
     from starforge.cad.mesh import body_arrays, mesh_volume
-    from starforge.cad.stl import face_normals, stl_bytes
+    from starforge.meshfiles import face_normals, stl_bytes
 
     s = load_family(DATA).stars[1]
     v, f = body_arrays(build_body(s.id, s.vertices, 4.0, load_mount("flat"), BodySpec()))

@@ -290,9 +290,9 @@ def _mesh_plate(name, lay, bodies, meshes, formats, stage) -> dict:
     by the layout's translations; its bodies.json entry (the STEP worker adds ``<name>.step``)."""
     from starforge.cad.mesh import MeshArrays, check_shell
     from starforge.cad.raster import thumbnail_png
-    from starforge.cad.stl import stl_bytes
     from starforge.cad.threemf import threemf_bytes
     from starforge.colours import body_colour
+    from starforge.meshfiles import stl_bytes
 
     files = []
     moved = []
@@ -359,10 +359,10 @@ def _mesh_bodies(bodies, fits, to_print, spec, formats, stage, rep, meshes, tick
     centres it on a ``bed_mm`` bed (:func:`bed_centre_offset`)."""
     from starforge.cad.mesh import MeshArrays, body_arrays, check_shell, mesh_volume
     from starforge.cad.raster import thumbnail_png
-    from starforge.cad.stl import stl_bytes
     from starforge.cad.threemf import threemf_bytes
     from starforge.cad.visibility import sphere_visibility
     from starforge.colours import body_colour
+    from starforge.meshfiles import stl_bytes
 
     for b, fit, T in zip(bodies, fits, to_print, strict=True):
         v, f = body_arrays(b, spec.sphere_segments, spec.cylinder_segments, check=False)  # checked below

@@ -111,10 +111,10 @@ def placement_json(res: PlacementResult) -> dict:
             "name": prop.name,
             "units": prop.units,
             "source": prop.source,
-            "faces": int(len(prop.mesh.faces)),
-            "extents_m": _r(np.asarray(prop.mesh.extents)),
-            "bounds_m": _r(np.asarray(prop.mesh.bounds)),
-            "watertight": bool(prop.mesh.is_watertight),
+            "faces": int(len(prop.faces)),
+            "extents_m": _r(prop.extents_m),
+            "bounds_m": _r(prop.bounds_m),
+            "watertight": prop.watertight,
             "repairs": list(prop.notes),
         },
         "settings": to_mapping(spec),
@@ -318,32 +318,50 @@ def read_markers_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     return pts, nrm
 
 
-def marker_mesh(prop_mesh, points, normals, seat, fmt: str = "glb") -> bytes:
-    """The prop with every marker as it sits (a ball ``seat.centre_height_mm`` above the site
-    along its normal, on a disc of the base's diameter), as GLB or STL bytes."""
-    import trimesh
+#: segments round a marker's ball and its base in ``prop_markers``
+MARKER_SEGMENTS = 24
+#: the colours ``prop_markers.glb`` gives the prop and the markers (RGBA, 0-1)
+PROP_RGBA = (0.78, 0.78, 0.78, 1.0)
+MARKER_RGBA = (0.9, 0.16, 0.16, 1.0)
 
-    r = seat.ball_radius_m
+
+def marker_parts(points, normals, seat) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertices, faces)`` of every marker as it sits: a ball ``seat.centre_height_mm`` above
+    its site along the normal, on a 1 mm disc of the base's diameter (manifold3d's sphere and
+    cylinder, :data:`MARKER_SEGMENTS` round), m."""
+    from manifold3d import Manifold
+
+    from starforge.geometry.frames import perpendicular_basis
+
     parts = []
-    for p, n in zip(points, normals, strict=True):
-        s = trimesh.creation.icosphere(subdivisions=2, radius=r)
-        s.apply_translation(np.asarray(p) + seat.centre_height_m * np.asarray(n))
-        parts.append(s)
+    for p, n in zip(np.asarray(points, float).reshape(-1, 3), np.asarray(normals, float).reshape(-1, 3), strict=True):
+        n = n / np.linalg.norm(n)
+        parts.append(Manifold.sphere(seat.ball_radius_m, MARKER_SEGMENTS).translate(p + seat.centre_height_m * n))
         if seat.base_mm > 0:
-            tf = trimesh.geometry.align_vectors([0, 0, 1], n)
-            tf[:3, 3] = np.asarray(p) + 0.0005 * np.asarray(n)
-            parts.append(trimesh.creation.cylinder(radius=seat.base_radius_m, height=0.001, sections=24, transform=tf))
+            turn = np.column_stack([*perpendicular_basis(n), n, p])  # right-handed: a turn, then the site
+            r = seat.base_radius_m
+            parts.append(Manifold.cylinder(0.001, r, r, MARKER_SEGMENTS).transform(turn))
+    vertices, faces, start = [], [], 0
+    for part in parts:
+        m = part.to_mesh()
+        v = np.asarray(m.vert_properties, dtype=float)[:, :3]
+        vertices.append(v)
+        faces.append(np.asarray(m.tri_verts, dtype=np.int64) + start)
+        start += len(v)
+    if not parts:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    return np.vstack(vertices), np.vstack(faces)
+
+
+def marker_mesh(prop, points, normals, seat, fmt: str = "glb") -> bytes:
+    """The prop (a :class:`~starforge.props.mesh.PropMesh`) with every marker as it sits
+    (:func:`marker_parts`), as GLB (the prop grey, the markers red) or STL bytes, m."""
+    from starforge.meshfiles import glb_bytes, stl_bytes
+
+    mv, mf = marker_parts(points, normals, seat)
     if fmt == "stl":
-        return trimesh.util.concatenate([prop_mesh, *parts]).export(file_type="stl")
-    body = prop_mesh.copy()
-    body.visual.face_colors = [200, 200, 200, 255]
-    scene = trimesh.Scene()
-    scene.add_geometry(body, geom_name="prop")
-    if parts:
-        marks = trimesh.util.concatenate(parts)
-        marks.visual.face_colors = [230, 40, 40, 255]
-        scene.add_geometry(marks, geom_name="markers")
-    return scene.export(file_type="glb")
+        return stl_bytes(np.vstack([prop.vertices, mv]), np.vstack([prop.faces, mf + len(prop.vertices)]))
+    return glb_bytes([("prop", prop.vertices, prop.faces, PROP_RGBA), ("markers", mv, mf, MARKER_RGBA)])
 
 
 def write_outputs(res: PlacementResult, folder: Path, render: bool = True, renderer=None, bases_stl: bool = False) -> list[str]:
@@ -368,7 +386,7 @@ def write_outputs(res: PlacementResult, folder: Path, render: bool = True, rende
     mesh_name = f"prop_markers.{fmt}"
     atomic_write_bytes(
         folder / mesh_name,
-        marker_mesh(res.prop.mesh, res.marker_points, res.marker_normals, res.seat, fmt),
+        marker_mesh(res.prop, res.marker_points, res.marker_normals, res.seat, fmt),
     )
     names.append(mesh_name)
     if bases_stl:
@@ -462,8 +480,8 @@ def summary_lines(res: PlacementResult) -> list[str]:
     costs = res.anneal.costs
     sd = costs.std(ddof=1) if len(costs) > 1 else 0.0
     lines = [
-        f"prop {res.prop.name}: {len(res.prop.mesh.faces)} faces, extents "
-        f"{' x '.join(f'{e:.3f}' for e in res.prop.mesh.extents)} m",
+        f"prop {res.prop.name}: {len(res.prop.faces)} faces, extents "
+        f"{' x '.join(f'{e:.3f}' for e in res.prop.extents_m)} m",
     ]
     lines += [f"  repair: {n}" for n in res.prop.notes]
     rm = res.removed

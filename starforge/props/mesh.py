@@ -87,6 +87,15 @@ class PropMesh:
         v = np.asarray(self.vertices, dtype=float)[used]
         return np.array([v.min(axis=0), v.max(axis=0)]) if len(v) else np.zeros((2, 3))
 
+    @cached_property
+    def watertight(self) -> bool:
+        """Every edge (a pair of vertex indices) is shared by exactly two faces: trimesh's
+        ``is_watertight``, from the arrays (true of no faces, as there)."""
+        f = np.asarray(self.faces, dtype=np.int64)
+        e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+        _, counts = np.unique(e[:, 0] * (len(self.vertices) + 1) + e[:, 1], return_counts=True)
+        return bool(np.all(counts == 2))
+
     @property
     def extents_m(self) -> np.ndarray:
         """(3,) float, m: axis-aligned size of the prop."""
