@@ -74,3 +74,36 @@ def test_body_previews_and_sheet_have_no_overlapping_text(figures, small_family,
         assert n >= 2 and bad == [], path
     sheet = [f for f in found if f[0].endswith("sheet.png")]
     assert sheet and sheet[0][2] >= 4  # an id and size per body and the note
+
+
+def test_drawing_a_picture_leaves_a_notebooks_matplotlib_as_it_was(tmp_path):
+    """A notebook that draws its own figures (another backend, its own settings, a figure open)
+    calls starforge's pictures in its own process: afterwards its backend, its settings and its
+    figures are the same, and the picture is the one the CLI's render process draws (unhinted
+    text, whatever the notebook's setting)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    family = Path(__file__).parent / "data" / "cad" / "small_family.json"
+    code = f"""
+import matplotlib
+matplotlib.use("svg")
+import matplotlib.pyplot as plt
+plt.figure()
+matplotlib.rcParams["text.hinting"] = "force_autohint"
+before = dict(matplotlib.rcParams)
+from starforge.render.stars import family_sheet
+from starforge.stars.model import load_family
+family_sheet(load_family({str(family)!r}), {str(tmp_path / "in_notebook.png")!r})
+assert matplotlib.get_backend() == "svg", matplotlib.get_backend()
+assert plt.get_fignums() == [1], plt.get_fignums()
+changed = [k for k, v in matplotlib.rcParams.items() if before[k] != v]
+assert not changed, changed
+"""
+    subprocess.run([sys.executable, "-c", code], check=True)
+    from starforge.render.stars import family_sheet
+    from starforge.stars.model import load_family
+
+    family_sheet(load_family(family), tmp_path / "here.png")
+    assert (tmp_path / "in_notebook.png").read_bytes() == (tmp_path / "here.png").read_bytes()

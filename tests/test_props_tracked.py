@@ -742,4 +742,3 @@ def test_the_search_picture_draws_every_random_layout_and_candidate():
     costlier = sum(1 for x in opt.random_lower if x > winner)
     assert f"{costlier} of {len(opt.random_lower)} random layouts cost more" in top.get_title()
     assert s["greedy_additions"] == len(opt.baselines["greedy_local_search"]["sites"])
-    matplotlib.pyplot.close(fig)

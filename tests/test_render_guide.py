@@ -140,7 +140,6 @@ def test_the_template_is_drawn_at_the_scale_its_bar_shows(prop, tmp_path):
     assert len(page_texts) == 3
     for t in page_texts:
         assert not overlap(drawing, t.get_window_extent(r)), t.get_text()
-    matplotlib.pyplot.close("all")
 
 
 @pytest.mark.slow
@@ -161,7 +160,6 @@ def test_the_most_markers_keep_their_tables_on_the_page():
     r = page.canvas.get_renderer()
     lowest_view = min(ax.get_window_extent(r).y0 for ax in page.axes if ax.get_title() in GUIDE_VIEWS)
     assert all(t.get_window_extent(r).y1 <= lowest_view for t in page.texts if t.get_position()[1] < 0.5)
-    matplotlib.pyplot.close("all")
 
 
 def _spread_reference(pts, span, rounds=200):
@@ -249,7 +247,6 @@ def test_the_views_scale_bar_is_the_views_scale(guide_data):
     assert ends[1, 0] - ends[0, 0] == pytest.approx(mm * px_per_mm.pop(), rel=1e-6)
     # printed to one decimal: within half of it
     assert k == pytest.approx(page.dpi / 25.4 / np.diff(views[0].transData.transform([[0, 0], [0.001, 0]])[:, 0])[0], abs=0.05)
-    matplotlib.pyplot.close("all")
 
 
 def test_a_marker_line_too_long_for_the_page_goes_on_under_its_number(guide_data):
@@ -275,7 +272,6 @@ def test_a_marker_line_too_long_for_the_page_goes_on_under_its_number(guide_data
     assert len(table) == 2 * len(guide_data.landmarks) and all(line.startswith("    ") for line in table[1::2])
     # wrapped at a space: the text reads the same joined up again
     assert " ".join(x.strip() for x in table[:2]) == f" 1. {long}; margin {guide_data.margin_mm[0]:.1f} mm".strip()
-    matplotlib.pyplot.close("all")
 
 
 @pytest.mark.parametrize("band", [False, True])

@@ -1,29 +1,61 @@
-"""The two things every picture needs: matplotlib's pyplot on the Agg backend (imported only
-when a picture is drawn) and a byte-stable, atomic PNG write."""
+"""What every picture needs: figures on matplotlib's Agg canvas without pyplot (imported only
+when a picture is drawn), its text settings scoped to the drawing, and a byte-stable, atomic
+PNG write."""
 
 from __future__ import annotations
 
+import functools
 import io
 from pathlib import Path
 
+#: the text settings every picture is drawn with (:func:`drawing`): unhinted glyphs sit where the
+#: font puts them, as in the PDFs (whose text the PNG's layout measures for them), and FreeType's
+#: auto-hinter, much of the time a text-heavy page takes to draw, does not run
+RC = {"text.hinting": "no_hinting"}
 
-def pyplot():
-    """matplotlib.pyplot with the non-interactive Agg backend.  A character its fonts lack (a
-    CJK prop or file name in a title) is drawn as a box without a warning per glyph on stderr:
-    the name itself is written in full in the text outputs.  Text is drawn unhinted: its glyphs
-    sit where the font puts them, as in the PDFs (whose text the PNG's layout measures for
-    them), and FreeType's auto-hinter, much of the time a text-heavy page takes to draw, does
-    not run."""
-    import warnings
 
-    import matplotlib
+def drawing(fn):
+    """Run ``fn`` (a function that draws pictures) with :data:`RC` and without a warning per
+    glyph its fonts lack (a CJK prop or file name in a title is drawn as boxes: the name is
+    written in full in the text outputs), both undone when it returns: a notebook's own figures
+    and settings are left as they were."""
 
-    warnings.filterwarnings("ignore", message=r"Glyph \d+ .* missing from font", category=UserWarning)
-    matplotlib.use("Agg")
-    matplotlib.rcParams["text.hinting"] = "no_hinting"
-    import matplotlib.pyplot as plt
+    @functools.wraps(fn)
+    def draw(*args, **kwargs):
+        import warnings
 
-    return plt
+        import matplotlib
+
+        with matplotlib.rc_context(RC), warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r"Glyph \d+ .* missing from font", category=UserWarning)
+            return fn(*args, **kwargs)
+
+    return draw
+
+
+def figure(**kwargs):
+    """A matplotlib ``Figure`` (``kwargs`` as ``Figure`` takes them) on an Agg canvas of its own:
+    not pyplot's, so drawing switches no backend and registers no figure with pyplot."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(**kwargs)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def subplots(nrows: int = 1, ncols: int = 1, *, sharex=False, sharey=False, squeeze: bool = True,
+             subplot_kw=None, gridspec_kw=None, **fig_kw):
+    """``(fig, axes)`` as ``pyplot.subplots`` returns them, the figure made by :func:`figure`."""
+    fig = figure(**fig_kw)
+    axes = fig.subplots(nrows, ncols, sharex=sharex, sharey=sharey, squeeze=squeeze, subplot_kw=subplot_kw, gridspec_kw=gridspec_kw)
+    return fig, axes
+
+
+def discard(fig) -> None:
+    """Drop ``fig``'s artists, so that their arrays are freed at once by reference counting, not
+    at the next garbage collection (commands run with the collector paused)."""
+    fig.clear()
 
 
 #: zlib level of the PNGs: on these flat-coloured pictures level 3 compresses several times faster

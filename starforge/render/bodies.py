@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.cad.body import body_bounds, body_name
+from starforge.render._mpl import drawing
 
 _DPI = 110
 
@@ -139,14 +140,14 @@ def body_title(body) -> str:
     return f"star {body.star_id}" if body.name == body_name(body.star_id) else f"{body.name} (id {body.star_id})"
 
 
+@drawing
 def render_body_png(body, path: str | Path, size_px: int = 480, limit_mm=None) -> Path:
     """One body: a three-quarter view and a top view (its engraved id readable), titled
     ``star <id>, mount <mount>`` with its size (and the family's size limit, dashed round the
     top view, when ``limit_mm`` is given); written to ``path``."""
-    from starforge.render._mpl import pyplot, save_png
+    from starforge.render._mpl import discard, figure, save_png
 
-    plt = pyplot()
-    fig = plt.figure(figsize=(2 * size_px / _DPI, size_px / _DPI), dpi=_DPI)
+    fig = figure(figsize=(2 * size_px / _DPI, size_px / _DPI), dpi=_DPI)
     try:
         tris = _view_triangles(body)
         ax = fig.add_axes((0.0, 0.0, 0.5, 0.84), projection="3d")
@@ -164,16 +165,16 @@ def render_body_png(body, path: str | Path, size_px: int = 480, limit_mm=None) -
         fig.text(0.5, 0.88, "size " + _size_text(body, limit_mm), ha="center", va="center", fontsize=9)
         save_png(fig, path, dpi=_DPI)
     finally:
-        plt.close(fig)
+        discard(fig)
     return Path(path)
 
 
+@drawing
 def render_sheet_png(bodies, path: str | Path, cell_px: int = 240, box_mm=None) -> Path:
     """All bodies from above on one sheet at one scale, each with its id, its size and, given the
     family's size limit ``box_mm``, the limit dashed round it (green: fits; red: does not)."""
-    from starforge.render._mpl import pyplot, save_png
+    from starforge.render._mpl import discard, figure, save_png
 
-    plt = pyplot()
     n = len(bodies)
     cols = min(n, 6)
     rows = math.ceil(n / cols)
@@ -182,7 +183,7 @@ def render_sheet_png(bodies, path: str | Path, cell_px: int = 240, box_mm=None) 
     if box_mm is not None:
         span = max(span, float(max(box_mm)))
     half = 0.55 * span
-    fig = plt.figure(figsize=(cols * cell_px / _DPI, rows * cell_px / _DPI + 0.3), dpi=_DPI)
+    fig = figure(figsize=(cols * cell_px / _DPI, rows * cell_px / _DPI + 0.3), dpi=_DPI)
     try:
         h = (1 - 0.3 / fig.get_figheight()) / rows
         for k, (b, t) in enumerate(zip(bodies, tris, strict=True)):
@@ -202,7 +203,7 @@ def render_sheet_png(bodies, path: str | Path, cell_px: int = 240, box_mm=None) 
         fig.text(0.01, 0.01, note, fontsize=8)
         save_png(fig, path, dpi=_DPI)
     finally:
-        plt.close(fig)
+        discard(fig)
     return Path(path)
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from starforge.render._mpl import pyplot, save_png
+from starforge.render._mpl import discard, drawing, figure, save_png
 
 #: pairs whose dimension lines are drawn in the top view (more would hide the markers)
 MAX_DRAWN_PAIRS = 15
@@ -94,6 +94,7 @@ def _draw(fig, name: str, P: np.ndarray, names, source: str) -> None:
     fig.suptitle(f"{name}: {n} markers, from {Path(source).name}{more}", fontsize=10)
 
 
+@drawing
 def write_drawings(bodies, folder) -> list[Path]:
     """For ``bodies`` [(name, (n, 3) mm, marker names or None, source)] write into ``folder``:
     ``drawing.pdf`` (a page per body), ``<name>.png`` per body and ``dimensions.csv``
@@ -102,19 +103,18 @@ def write_drawings(bodies, folder) -> list[Path]:
 
     from starforge.io import atomic_write_text
 
-    plt = pyplot()
     folder = Path(folder)
     out = []
     pdf_path = folder / "drawing.pdf"
     with PdfPages(pdf_path, metadata={"CreationDate": None, "ModDate": None}) as pdf:
         for name, P, names, source in bodies:
-            fig = plt.figure(figsize=(11.69, 8.27))  # A4 landscape, inches
+            fig = figure(figsize=(11.69, 8.27))  # A4 landscape, inches
             try:
                 _draw(fig, name, np.asarray(P, dtype=float), names, source)
                 pdf.savefig(fig)
                 out.append(save_png(fig, folder / f"{name}.png", dpi=_DPI))
             finally:
-                plt.close(fig)
+                discard(fig)
     out.append(pdf_path)
     out.append(atomic_write_text(folder / "dimensions.csv", dimensions_csv([b[:3] for b in bodies])))
     return out

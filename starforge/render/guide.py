@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.props.guide import TAPE_MM, TAPE_REL, template_scale
-from starforge.render._mpl import boxes_overlap, pyplot, save_png, text_boxes
+from starforge.render._mpl import boxes_overlap, discard, drawing, figure, save_png, text_boxes
 from starforge.render.prop_views import (
     VIEWS,
     declutter,
@@ -128,16 +128,16 @@ class _Cursor:
         self.advance(*ts)
 
 
+@drawing
 def guide_pages(res) -> list:
     """The guide's pages as matplotlib figures (see the module docstring)."""
     d = plot_data(res)
-    return [_first_page(d), _template_page(d, pyplot())]
+    return [_first_page(d), _template_page(d)]
 
 
 def _first_page(d):
     """Page 1: the views, the marker table and the caliper check."""
-    plt = pyplot()
-    fig = plt.figure(figsize=_PAGE)
+    fig = figure(figsize=_PAGE)
     fig.text(0.02, 0.975, f"Rigging guide: {d.name}, {len(d.marker_centres)} markers", va="top",
              **TEXT_STYLES["title"])  # fmt: skip
     lo, hi = d.bounds
@@ -236,7 +236,7 @@ def _scale_bar(fig, rect, mm: float, ticks) -> None:
     bar.plot([0, mm], [0, 0], color="k", lw=1.2, clip_on=False)
 
 
-def _template_page(d, plt):
+def _template_page(d):
     """A view at a printed scale (1:1 where it fits) with a scale bar and the markers' base
     centres as crosshairs (see the module docstring)."""
     # the view whose silhouette is largest among front, side and top
@@ -249,7 +249,7 @@ def _template_page(d, plt):
     ext_mm = (hi2 - lo2) * 1000.0
     lo_band, hi_band = (f * _PAGE[1] for f in _TEMPLATE_BAND)
     k = template_scale((float(ext_mm[0]), float(ext_mm[1])), (_PAGE[0] * _MM - 40.0, (hi_band - lo_band) * _MM - 20.0))
-    fig = plt.figure(figsize=_PAGE)
+    fig = figure(figsize=_PAGE)
     # the drawing's box: the view at 1:k and 10 mm (printed) round it, the same as its limits
     # below, so that the drawing is at the scale the bar shows
     w_in, h_in = (ext_mm / k + 20.0) / _MM
@@ -289,6 +289,7 @@ def _template_page(d, plt):
     return fig
 
 
+@drawing
 def guide_files(res, folder: str | Path, split: bool = False) -> list[str]:
     """Write ``guide.pdf`` (every page) and ``guide.png`` (page 1) into ``folder``.
 
@@ -296,21 +297,20 @@ def guide_files(res, folder: str | Path, split: bool = False) -> list[str]:
     1 is laid out, a forked copy of it lays out the template page and writes the PDF while it
     writes the PNG, on another core (the same bytes as one after the other; one after the other
     where it cannot fork)."""
-    plt = pyplot()
     d = plot_data(res)
     first = _first_page(d)
     pid = fork_helper() if split and can_fork() else None
     if pid == 0:  # the PDF's process: never returns
         code = 1
         try:
-            _write_pdf([first, _template_page(d, plt)], folder)
+            _write_pdf([first, _template_page(d)], folder)
             code = 0
         finally:
             os._exit(code)
     save_png(first, Path(folder) / "guide.png", dpi=_DPI)
     pages = [first]
     if pid is None:
-        pages.append(_template_page(d, plt))
+        pages.append(_template_page(d))
         _write_pdf(pages, folder)
     else:
         status = os.waitpid(pid, 0)[1]
@@ -318,7 +318,7 @@ def guide_files(res, folder: str | Path, split: bool = False) -> list[str]:
         if status != 0:
             raise RuntimeError("writing guide.pdf failed in its process")
     for fig in pages:
-        plt.close(fig)
+        discard(fig)
     return ["guide.png", "guide.pdf"]
 
 
@@ -336,20 +336,20 @@ def _write_pdf(pages, folder: str | Path) -> None:
     atomic_write_bytes(Path(folder) / "guide.pdf", buf.getvalue())
 
 
+@drawing
 def load_fonts() -> None:
     """Draw a line in every text style of the guide into a PNG and a PDF that are thrown away, so
     that the fonts (and the PDF's standard-font metrics) are found and loaded before the guide is
     drawn (its render process does this while the placement still runs; the guide is the same)."""
     import io
 
-    plt = pyplot()
-    fig = plt.figure(figsize=(1, 1))
+    fig = figure(figsize=(1, 1))
     for kw in TEXT_STYLES.values():
         fig.text(0.5, 0.5, "0123456789 mm", **kw)
     fig.savefig(io.BytesIO(), format="png", dpi=_DPI)
     with _pdf_fonts([fig]):
         fig.savefig(io.BytesIO(), format="pdf")
-    plt.close(fig)
+    discard(fig)
 
 
 def _pdf_fonts(figs):

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from starforge.render._mpl import pyplot, save_png
+from starforge.render._mpl import discard, drawing, save_png, subplots
 from starforge.render.guide import guide_files, load_fonts
 from starforge.render.prop_views import (
     VIEWS,
@@ -49,14 +49,14 @@ def candidate_label(name: str) -> str:
     return CANDIDATES.get(name, name.replace("_", " "))
 
 
+@drawing
 def convergence_png(res, path: str | Path) -> Path:
     """Total cost per iteration for every restart (best run highlighted), temperature and marker
     count; for the tracked search without annealing chains (the default), :func:`search_png`."""
     d = plot_data(res)
     if d.search and all(len(c) <= 1 for c, _, _ in d.run_costs):
         return search_png(d, path)
-    plt = pyplot()
-    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    fig, (ax, ax2) = subplots(2, 1, figsize=(7, 5), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     for k, (cost, _, _) in enumerate(d.run_costs):
         if k != d.best:
             ax.plot(np.arange(1, len(cost) + 1), cost, color="0.75", lw=0.8)
@@ -81,18 +81,20 @@ def convergence_png(res, path: str | Path) -> Path:
     ax2.grid(alpha=0.3)
     fig.subplots_adjust(left=0.1, right=0.9, top=0.92, bottom=0.1, hspace=0.08)
     save_png(fig, path, dpi=_DPI)
-    plt.close(fig)
+    discard(fig)
     return Path(path)
 
 
+@drawing
 def search_png(res, path: str | Path) -> Path:
     """:func:`search_figure` as a PNG."""
     fig = search_figure(res)
     save_png(fig, path, dpi=_DPI)
-    pyplot().close(fig)
+    discard(fig)
     return Path(path)
 
 
+@drawing
 def search_figure(res):
     """The tracked search without annealing chains: above, the greedy layout's cost after each
     added marker (numbered by the markers it then has) and after each swap that lowered it
@@ -101,9 +103,9 @@ def search_figure(res):
     held-out tracked fraction, the chosen one solid."""
     d = plot_data(res)
     srch = d.search
-    plt = pyplot()
     from matplotlib.ticker import NullLocator
-    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(7.5, 6.6), gridspec_kw={"height_ratios": [3, 2]})
+
+    fig, (ax, ax2) = subplots(2, 1, figsize=(7.5, 6.6), gridspec_kw={"height_ratios": [3, 2]})
     trace = np.asarray(srch["greedy_trace"], float)
     n_add = min(srch["greedy_additions"], len(trace))
     step = np.arange(1, len(trace) + 1)
@@ -154,6 +156,7 @@ def search_figure(res):
     return fig
 
 
+@drawing
 def layout_png(res, path: str | Path) -> Path:
     """The prop (shaded, grey) in two orthographic views with its markers numbered (1-based,
     each number where it covers no other and no marker's dot) and coloured by visibility on the
@@ -163,7 +166,6 @@ def layout_png(res, path: str | Path) -> Path:
     than matplotlib's 3D axes; markers on the far side are drawn hollow.
     """
     d = plot_data(res)
-    plt = pyplot()
     from matplotlib.colors import Normalize
 
     vis = d.marker_visibility
@@ -171,7 +173,7 @@ def layout_png(res, path: str | Path) -> Path:
     if hi - lo < 0.02:
         lo, hi = max(0.0, lo - 0.01), min(1.0, hi + 0.01)
     norm = Normalize(lo, hi)
-    fig, axes = plt.subplots(1, 2, figsize=(9, 4.8))
+    fig, axes = subplots(1, 2, figsize=(9, 4.8))
     fig.subplots_adjust(left=0.03, right=0.84, top=0.84, bottom=0.04, wspace=0.06)
     sc = None
     for ax, (elev, azim), title in zip(axes, [(20, -60), (20, 120)], ["front", "back"], strict=True):
@@ -194,7 +196,7 @@ def layout_png(res, path: str | Path) -> Path:
         fontsize=9,
     )
     save_png(fig, path, dpi=_DPI)
-    plt.close(fig)
+    discard(fig)
     return Path(path)
 
 
@@ -310,8 +312,9 @@ class BackgroundRenderer:
             self._pid = None
 
 
+@drawing
 def _warm(role: str) -> None:
-    """What a render process does while the placement is still running: import pyplot and draw
+    """What a render process does while the placement is still running: import matplotlib and draw
     a small figure with the kinds of artist the pictures draw (a log scale, whose tick labels
     are mathtext, a legend, a colour bar, ...) and a little text (for the guide: in each of its
     text styles, into a PNG and a PDF), so that matplotlib's first-use work (the mathtext
@@ -321,8 +324,7 @@ def _warm(role: str) -> None:
 
     from matplotlib.collections import PolyCollection
 
-    plt = pyplot()
-    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(2, 2))
+    fig, (ax, ax2) = subplots(2, 1, figsize=(2, 2))
     ax.plot([1, 2], [1, 10], "o-", label="0123456789")
     ax.set_yscale("log")
     ax.annotate("1", (1, 1), xytext=(0, 5), textcoords="offset points", fontsize=7)
@@ -335,7 +337,7 @@ def _warm(role: str) -> None:
     fig.suptitle("0123456789 mm", fontsize=8)
     fig.text(0.5, 0.2, "0123456789 mm", fontsize=7.5, family="monospace")
     fig.savefig(io.BytesIO(), format="png", dpi=_DPI)
-    plt.close(fig)
+    discard(fig)
     if role == "guide":
         load_fonts()
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from starforge.render._mpl import drawing
+
 _EDGES = [(0, 1), (2, 3), (1, 2), (0, 3), (0, 2), (1, 3)]
 
 
@@ -15,6 +17,7 @@ def _nice_length(mm: float) -> float:
     return float(max(m * k for m in (1, 2, 5) if m * k <= mm))
 
 
+@drawing
 def family_sheet(family, path: str | Path, limit: int = 40, cols: int = 8) -> Path:
     """Write a PNG: for each star, its xz view (long side vertical) and xy view, to scale.
 
@@ -27,15 +30,13 @@ def family_sheet(family, path: str | Path, limit: int = 40, cols: int = 8) -> Pa
     """
     from matplotlib.patches import Circle, Rectangle
 
-    from starforge.render._mpl import pyplot, save_png
-
-    plt = pyplot()
+    from starforge.render._mpl import discard, save_png, subplots
 
     stars = family.stars[:limit]
     rows = max(1, int(np.ceil(len(stars) / cols)))
     box = np.sort(np.asarray(family.spec.box_mm, dtype=float))  # short, middle, long
     r = family.spec.marker_mm / 2
-    fig, axes = plt.subplots(rows, cols, figsize=(cols * 1.55, rows * 2.35), squeeze=False)
+    fig, axes = subplots(rows, cols, figsize=(cols * 1.55, rows * 2.35), squeeze=False)
     for ax in axes.ravel():
         ax.set_axis_off()
     # physical limit around the star: x spans the middle side, z the long side
@@ -73,5 +74,5 @@ def family_sheet(family, path: str | Path, limit: int = 40, cols: int = 8) -> Pa
     )
     fig.tight_layout(rect=(0, 0, 1, 0.97))
     save_png(fig, path, dpi=110)
-    plt.close(fig)
+    discard(fig)
     return Path(path)

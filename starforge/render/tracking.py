@@ -5,18 +5,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from starforge.render._mpl import pyplot, save_png, wrap_to_width
+from starforge.render._mpl import discard, drawing, save_png, subplots, wrap_to_width
 
 _DPI = 100
 
 
+@drawing
 def rates_plot(check_doc: dict, path: Path) -> Path:
     """Identification and wrong body or pose rates against marker noise (sigma per axis, mm),
     under the rule the check's headline names (``curve.rule``)."""
-    plt = pyplot()
     c = check_doc["curve"]
     s = check_doc["settings"]
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    fig, ax = subplots(figsize=(6.4, 4.2))
     try:
         ax.plot(c["noise_mm"], [100 * v for v in c["identification_rate"]], "o-", label="identified")
         ax.plot(
@@ -43,10 +43,11 @@ def rates_plot(check_doc: dict, path: Path) -> Path:
         fig.tight_layout()
         save_png(fig, path, dpi=_DPI)
     finally:
-        plt.close(fig)
+        discard(fig)
     return Path(path)
 
 
+@drawing
 def sweep_plot(rows: list[dict], path: Path, marker_mm: float) -> Path:
     """Number of stars against cube size, one colour per minimal variation, one panel per rule
     (cells with no star are left out of the log plot).
@@ -54,9 +55,8 @@ def sweep_plot(rows: list[dict], path: Path, marker_mm: float) -> Path:
     Exhaustive cells are points joined by lines; interval cells are vertical bars from the
     verified family (lower end) to the certified upper bound, never joined into a curve.
     """
-    plt = pyplot()
     rules = sorted({r["rule"] for r in rows})
-    fig, axes = plt.subplots(1, len(rules), figsize=(6.0 * len(rules), 4.4), squeeze=False)
+    fig, axes = subplots(1, len(rules), figsize=(6.0 * len(rules), 4.4), squeeze=False)
     try:
         for ax, rule in zip(axes[0], rules, strict=True):
             deltas = sorted({r["delta_mm"] for r in rows if r["rule"] == rule})
@@ -98,5 +98,5 @@ def sweep_plot(rows: list[dict], path: Path, marker_mm: float) -> Path:
         fig.tight_layout()
         save_png(fig, path, dpi=_DPI)
     finally:
-        plt.close(fig)
+        discard(fig)
     return Path(path)
