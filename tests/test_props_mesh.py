@@ -204,3 +204,36 @@ def test_a_prop_is_kept_as_arrays_and_its_mesh_built_on_first_use(tmp_path, monk
 
     stray = trimesh.Trimesh(np.vstack([want.vertices, [[5.0, 5.0, 5.0]]]), want.faces, process=False)
     np.testing.assert_array_equal(PropMesh.of(stray, "s", "x.stl", "m", np.arange(len(want.faces))).bounds_m, want.bounds)
+
+
+def test_a_repaired_mesh_file_is_read_back_from_the_cache_until_the_file_changes(tmp_path, monkeypatch):
+    from starforge.props import mesh as pm
+
+    monkeypatch.setenv("STARFORGE_CACHE_DIR", str(tmp_path / "cache"))
+    path = _messy(tmp_path / "messy.stl")
+    computed = load_prop(str(path))
+    assert computed.notes and "mesh" in computed.__dict__  # computed: the repaired mesh is kept
+    calls = []
+    real = pm.repair_mesh
+    monkeypatch.setattr(pm, "repair_mesh", lambda raw: calls.append(1) or real(raw))
+    read = load_prop(str(path))
+    assert calls == [] and "mesh" not in read.__dict__
+    assert np.array_equal(read.vertices, computed.vertices) and np.array_equal(read.faces, computed.faces)
+    assert read.faces.dtype == computed.faces.dtype == np.int64
+    assert np.array_equal(read.face_origin, computed.face_origin) and read.face_origin.dtype == np.int64
+    assert (read.notes, read.source_faces, read.name, read.source) == (computed.notes, computed.source_faces, computed.name, computed.source)
+    assert read.mesh.is_watertight and read.mesh.volume == pytest.approx(computed.mesh.volume, rel=1e-12)
+    load_prop(str(path), units="mm")  # other units: computed again
+    assert calls == [1]
+    import trimesh
+
+    trimesh.creation.box(extents=(0.1, 0.1, 0.1)).export(path)  # the file changes
+    assert len(load_prop(str(path)).faces) == 12 and calls == [1, 1]
+    monkeypatch.setattr(pm, "KEEP_BYTES", 10)  # a file larger than this is repaired on every run
+    load_prop(str(path))
+    load_prop(str(path))
+    assert calls == [1, 1, 1, 1]
+    path.write_bytes(b"solid x\nnot a mesh\n")  # a broken file is refused every time, never kept
+    for _ in range(2):
+        with pytest.raises(StarforgeError):
+            load_prop(str(path))

@@ -375,25 +375,74 @@ def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
         raise StarforgeError(
             f"unknown prop {text!r}: not a file and not a built-in; built-ins: {', '.join(BUILTIN)}"
         )
+    if not repair:
+        raw = _loaded(path, units)
+        timings = {"load_s": round(time.perf_counter() - t0, 4)}
+        return PropMesh.of(raw, path.stem, text, units, np.arange(len(raw.faces)), (), len(raw.faces), timings)
+    return _repaired(path, text, units, t0)
+
+
+def _loaded(path: Path, units: str):
+    """The mesh file read (:func:`load_mesh_file`), refused past :data:`MAX_FACES`."""
     raw = load_mesh_file(path, units)
     if len(raw.faces) > MAX_FACES:
         raise StarforgeError(f"prop mesh {path} has {len(raw.faces):,} faces; at most {MAX_FACES:,} (simplify it first)")
-    t1 = time.perf_counter()
-    timings = {"load_s": round(t1 - t0, 4)}
-    if not repair:
-        return PropMesh.of(raw, path.stem, text, units, np.arange(len(raw.faces)), (), len(raw.faces), timings)
-    try:
-        mesh, origin, notes = repair_mesh(raw)
-    except StarforgeError as exc:
-        raise StarforgeError(f"{path}: {exc}") from None
-    n_raw = len(raw.faces)
-    if n_raw > COLLECT_FACES:
-        # the loader's and the repair's meshes hold reference cycles (a mesh and its caches),
-        # hundreds of MB on a fine mesh, which a command running with the collector paused keeps
-        del raw
-        gc.collect()
-    timings["repair_s"] = round(time.perf_counter() - t1, 4)
-    return PropMesh.of(mesh, path.stem, text, units, origin, tuple(notes), n_raw, timings)
+    return raw
+
+
+def _repaired(path: Path, text: str, units: str, t0: float) -> PropMesh:
+    """The mesh file read and repaired, kept in the cache folder
+    (:func:`starforge.runtime.stored.stored`) by the file's bytes (a BLAKE2b digest), its
+    suffix, ``units`` and the versions of the libraries that read and repair it: a later run on
+    the same file reads the repaired arrays back without reading the file with trimesh.  A file
+    larger than :data:`KEEP_BYTES` is read and repaired on every run."""
+    import hashlib
+    import time
+
+    from starforge.io import check_input_file
+    from starforge.runtime.stored import content_key, stored
+
+    path = check_input_file(path, "prop mesh", "mesh")
+    timings: dict = {}
+    made: dict = {}
+
+    def work():
+        raw = _loaded(path, units)
+        t1 = time.perf_counter()
+        timings["load_s"] = round(t1 - t0, 4)
+        try:
+            mesh, origin, notes = repair_mesh(raw)
+        except StarforgeError as exc:
+            raise StarforgeError(f"{path}: {exc}") from None
+        n_raw = len(raw.faces)
+        if n_raw > COLLECT_FACES:
+            # the loader's and the repair's meshes hold reference cycles (a mesh and its caches),
+            # hundreds of MB on a fine mesh, which a command running with the collector paused keeps
+            del raw
+            gc.collect()
+        timings["repair_s"] = round(time.perf_counter() - t1, 4)
+        made["mesh"] = mesh
+        # kept as 32-bit indices (fewer than 2**31 of anything under MAX_FACES): half the bytes
+        return np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int32), np.asarray(origin, np.int32), tuple(notes), n_raw
+
+    if path.stat().st_size > KEEP_BYTES:  # a mesh this large is read again rather than kept
+        vertices, faces, origin, notes, n_raw = work()
+    else:
+        with open(path, "rb") as fh:
+            digest = hashlib.file_digest(fh, "blake2b").hexdigest()
+        libraries = ("numpy", "scipy", "trimesh", "manifold3d", "networkx")
+        key = content_key("repaired", digest, path.suffix.lower(), units, libraries=libraries)
+        (vertices, faces, origin, notes, n_raw), _ = stored("repaired", key, work)
+    origin = origin.astype(np.int64)
+    if "mesh" in made:  # computed here: the mesh, with what trimesh computed of it, is kept
+        return PropMesh.of(made["mesh"], path.stem, text, units, origin, notes, n_raw, timings)
+    timings["load_s"] = round(time.perf_counter() - t0, 4)
+    return PropMesh(path.stem, text, units, vertices, faces.astype(np.int64), origin, notes, n_raw, timings)
+
+
+#: a mesh file up to this size (bytes; a binary STL of a million faces) is kept repaired in the
+#: cache folder (about 30 MB at that size)
+KEEP_BYTES = 50_000_000
 
 
 #: a mesh file with more faces is followed by a garbage collection once it is repaired
