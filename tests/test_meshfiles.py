@@ -64,7 +64,7 @@ def test_a_props_watertight_flag_is_trimeshs():
     empty = trimesh.Trimesh(box.vertices, np.zeros((0, 3), int), process=False)
     for mesh in (box, open_box, fin, trimesh.creation.icosphere(1), empty):
         prop = PropMesh("p", "x.stl", "m", np.asarray(mesh.vertices), np.asarray(mesh.faces), np.arange(len(mesh.faces)))
-        assert prop.watertight == mesh.is_watertight
+        assert "mesh" not in prop.__dict__ and prop.watertight == mesh.is_watertight
 
 
 def test_the_markers_sit_on_their_sites_as_closed_balls_on_discs():

@@ -318,3 +318,30 @@ def test_ray_hits_agree_with_trimesh_with_and_without_embree(monkeypatch):
     monkeypatch.setitem(sys.modules, "embreex", None)  # import embreex now fails
     assert np.array_equal(RayScene(mesh.vertices, mesh.faces).hits(origins, dirs), want)
     assert scene.hits(np.zeros((0, 3)), np.zeros((0, 3))).shape == (0,)
+
+
+def test_first_hits_are_trimeshs_to_the_bit_from_one_scene():
+    """The seat's first hits (the scene's first triangle, trimesh's plane intersection) against
+    trimesh's own intersects_id on rays that hit, miss and graze the hammer; a PropMesh and its
+    built mesh share one scene."""
+    from starforge.props.builtin import builtin_mesh
+    from starforge.props.mesh import PropMesh
+    from starforge.props.rays import ray_scene
+    from starforge.props.visibility import first_hits
+
+    mesh = builtin_mesh("hammer")
+    rng = np.random.default_rng(8)
+    n = 4000
+    o = mesh.sample(n, seed=2) + rng.normal(size=(n, 3)) * 0.004
+    d = -rng.normal(size=(n, 3)) - (o - mesh.bounds.mean(axis=0))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    tri, ray, loc = mesh.ray.intersects_id(o, d, multiple_hits=False, return_locations=True)
+    want_d = np.full(n, np.inf)
+    want_f = np.full(n, -1)
+    want_d[ray] = np.einsum("ij,ij->i", loc - o[ray], d[ray])
+    want_f[ray] = tri
+    dist, face = first_hits(mesh, o, d)
+    assert 0.2 < (face >= 0).mean() < 0.98
+    assert np.array_equal(face, want_f) and np.array_equal(dist, want_d)
+    prop = PropMesh.of(mesh, "h", "x.stl", "m", np.arange(len(mesh.faces)))
+    assert ray_scene(prop) is ray_scene(mesh)

@@ -90,7 +90,10 @@ class PropMesh:
     @cached_property
     def watertight(self) -> bool:
         """Every edge (a pair of vertex indices) is shared by exactly two faces: trimesh's
-        ``is_watertight``, from the arrays (true of no faces, as there)."""
+        ``is_watertight``, from the arrays (true of no faces, as there); trimesh's own where the
+        mesh is built, which its repair has already computed."""
+        if "mesh" in self.__dict__:
+            return bool(self.mesh.is_watertight)
         f = np.asarray(self.faces, dtype=np.int64)
         e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
         _, counts = np.unique(e[:, 0] * (len(self.vertices) + 1) + e[:, 1], return_counts=True)

@@ -66,6 +66,17 @@ class RayScene:
         scaled = (np.asarray(origins, dtype=float) - self._origin) * self._scale
         return np.asarray(self._embree.run(scaled.astype(np.float32), directions.astype(np.float32), **kwargs))
 
+    def first(self, origins: np.ndarray, unit: np.ndarray) -> np.ndarray:
+        """(n,) int: the first triangle each ray from ``origins`` along the unit directions
+        ``unit`` hits, -1 for a miss."""
+        origins = np.asarray(origins, dtype=float).reshape(-1, 3)
+        unit = np.asarray(unit, dtype=float).reshape(-1, 3)
+        if not len(origins):
+            return np.zeros(0, dtype=np.int64)
+        if self._embree is None:
+            return np.asarray(self._tracer().intersects_first(origins, unit), dtype=np.int64)
+        return self._run(origins, unit).astype(np.int64)
+
     def hits(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """(n,) bool: the ray from each origin along its direction hits a triangle."""
         origins = np.asarray(origins, dtype=float).reshape(-1, 3)
@@ -106,7 +117,11 @@ def ray_scene(mesh) -> RayScene:
     """The :class:`RayScene` of ``mesh`` (anything with ``vertices`` and ``faces``: a
     :class:`~starforge.props.mesh.PropMesh`, a ``trimesh.Trimesh``), built on the first call and
     kept while the mesh lives and its hash stays the same (a PropMesh hashes by identity, being
-    immutable; a trimesh mesh by its content)."""
+    immutable; a trimesh mesh by its content).  A PropMesh whose ``trimesh.Trimesh`` is built
+    shares that mesh's scene."""
+    built = getattr(mesh, "__dict__", {}).get("mesh")
+    if built is not None:  # a PropMesh whose trimesh is built: one scene for the two
+        mesh = built
     tag = hash(mesh)
     kept = _SCENES.get(mesh)
     if kept is not None and kept[0] == tag:

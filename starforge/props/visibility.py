@@ -387,13 +387,34 @@ def compute_table(
 
 
 def first_hits(mesh, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distance (m, inf for a miss) to the first face each ray hits, and that face (-1)."""
+    """Distance (m, inf for a miss) to the first face each ray hits, and that face (-1).
+
+    The face is the scene's first hit (:func:`starforge.props.rays.ray_scene`, the embree scene
+    trimesh builds) and the distance is where the ray meets that face's plane, computed as
+    trimesh's ``intersects_id(multiple_hits=False, return_locations=True)`` computes it, so that
+    the answer is trimesh's to the bit without trimesh building a second scene of the mesh."""
+    import trimesh
+
     origins = np.asarray(origins, float)
     dirs = np.asarray(dirs, float)
     dist = np.full(len(origins), np.inf)
     face = np.full(len(origins), -1, dtype=np.int64)
     if not len(origins):
         return dist, face
+    unit = trimesh.util.unitize(np.array(dirs, dtype=np.float64))
+    tri = ray_scene(mesh).first(origins, unit)
+    hit = np.flatnonzero(tri != -1)
+    if len(hit):
+        loc, valid = trimesh.intersections.planes_lines(
+            plane_origins=np.asarray(mesh.triangles)[tri[hit], 0],
+            plane_normals=np.asarray(mesh.face_normals)[tri[hit]],
+            line_origins=origins[hit],
+            line_directions=unit[hit],
+        )
+        ray = hit[valid]
+        dist[ray] = np.einsum("ij,ij->i", np.asarray(loc) - origins[ray], dirs[ray])
+        face[ray] = tri[ray]
+    return dist, face
     tri, ray, loc = mesh.ray.intersects_id(origins, dirs, multiple_hits=False, return_locations=True)
     if len(ray):
         d = np.einsum("ij,ij->i", np.asarray(loc) - origins[ray], dirs[ray])
