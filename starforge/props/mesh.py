@@ -81,11 +81,8 @@ class PropMesh:
 
     @cached_property
     def bounds_m(self) -> np.ndarray:
-        """(2, 3) float, m: the corners of the axis-aligned box round the vertices the faces use."""
-        used = np.zeros(len(self.vertices), dtype=bool)
-        used[np.asarray(self.faces).ravel()] = True
-        v = np.asarray(self.vertices, dtype=float)[used]
-        return np.array([v.min(axis=0), v.max(axis=0)]) if len(v) else np.zeros((2, 3))
+        """(2, 3) float, m: :func:`face_bounds` of the prop."""
+        return face_bounds(self.vertices, self.faces)
 
     @cached_property
     def watertight(self) -> bool:
@@ -108,6 +105,15 @@ class PropMesh:
         """The arrays only: a pickled prop (sent to a worker, kept in the cache) builds its
         ``trimesh.Trimesh`` again where it is used."""
         return {k: v for k, v in self.__dict__.items() if k not in ("mesh",)}
+
+
+def face_bounds(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(2, 3) float: the corners of the axis-aligned box round the vertices the faces use (a
+    vertex no face uses is left out, as trimesh's ``bounds`` leaves it out); zeros for no faces."""
+    used = np.zeros(len(vertices), dtype=bool)
+    used[np.asarray(faces).ravel()] = True
+    v = np.asarray(vertices, dtype=float)[used]
+    return np.array([v.min(axis=0), v.max(axis=0)]) if len(v) else np.zeros((2, 3))
 
 
 def units_hint(size_m: float, units: str, lo_m: float, hi_m: float) -> str:

@@ -16,6 +16,8 @@ import weakref
 
 import numpy as np
 
+from starforge.props.mesh import face_bounds
+
 #: the bounding-box diagonal the scene is scaled to (trimesh's choice)
 SCENE_SIZE = 100.0
 
@@ -33,9 +35,7 @@ class RayScene:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
         self._vertices = np.asarray(vertices, dtype=float)
         self._faces = np.asarray(faces, dtype=np.int64)
-        used = np.zeros(len(self._vertices), dtype=bool)
-        used[self._faces.ravel()] = True
-        box = np.ptp(self._vertices[used], axis=0) if used.any() else np.zeros(3)
+        box = np.ptp(face_bounds(self._vertices, self._faces), axis=0)
         size = float((box**2).sum() ** 0.5)  # as trimesh's mesh.scale, to the last bit
         self.size = size if size >= 1e-13 else 1.0
         self._embree = None

@@ -147,13 +147,12 @@ def drawn_faces(vertices: np.ndarray, faces: np.ndarray, max_faces: int = MAX_FA
     the surface stays closed (a subset of the faces would leave it full of holes) and drawing and
     the PDF stay small.
     """
+    from starforge.meshfiles import face_normals
+
     pts = np.asarray(vertices, float)
     faces = np.asarray(faces, np.int64)
     if len(faces) <= max_faces:
-        tris = pts[faces]
-        n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-        length = np.linalg.norm(n, axis=1)
-        return tris, np.divide(n, length[:, None], out=np.zeros_like(n), where=length[:, None] > 0)
+        return pts[faces], face_normals(pts, faces)
     lo = pts.min(axis=0)
     span = float(np.ptp(pts, axis=0).max()) or 1.0
     cells = max(8, int(np.sqrt(DRAWN_FACES)))  # cells along the longest side
@@ -169,11 +168,9 @@ def drawn_faces(vertices: np.ndarray, faces: np.ndarray, max_faces: int = MAX_FA
     centre = np.zeros((cell.max() + 1, 3))
     np.add.at(centre, cell, pts)
     centre /= np.bincount(cell)[:, None]
-    out = centre[f]
-    n = np.cross(out[:, 1] - out[:, 0], out[:, 2] - out[:, 0])
-    length = np.linalg.norm(n, axis=1)
-    ok = length > 0
-    return out[ok], n[ok] / length[ok, None]
+    n = face_normals(centre, f)
+    ok = n.any(axis=1)  # the faces the snapping left without area are dropped
+    return centre[f][ok], n[ok]
 
 
 def view_basis(elev_deg: float, azim_deg: float) -> np.ndarray:
