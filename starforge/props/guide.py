@@ -184,8 +184,8 @@ def mesh_landmarks(mesh) -> list[dict]:
     if len(sharp):
         count = np.bincount(sharp.ravel(), minlength=len(v))
         cand = v[count >= 3]
-        if len(cand):  # farthest-point order from the first tip: spread, deterministic
-            d = np.linalg.norm(cand - found[0][2], axis=1)
+        if len(cand):  # farthest-point order from the first tip (or the centroid): spread, deterministic
+            d = np.linalg.norm(cand - (found[0][2] if found else c), axis=1)
             for _ in range(min(len(cand), 4 * MAX_CORNERS)):
                 k = int(np.argmax(d))
                 if d[k] < SAME_M or sum(1 for f in found if f[0] == "corner") >= MAX_CORNERS:
@@ -448,11 +448,8 @@ def landmarks(
             located = f" (to {err:.1f} mm)"
         else:  # the readings cannot place it within the margin: the drawings must
             located = f" (to {err:.1f} mm only: place it by the drawings)" if math.isfinite(err) else " (place it by the drawings)"
-        text = (
-            f"{on}; "
-            + ", ".join(f"{m['distance_mm']:.1f} mm from {m['name']}" + (f" towards {m['towards']}" if "towards" in m else "") for m in near)
-            + f"{located}; tilt {deg:.0f} deg from +z{lean}"
-        )
+        readings = ", ".join(f"{m['distance_mm']:.1f} mm from {m['name']}" + (f" towards {m['towards']}" if "towards" in m else "") for m in near)
+        text = f"{on}; {readings or 'no landmark to measure from'}{located}; tilt {deg:.0f} deg from +z{lean}"
         out.append({"from": side, "distance_mm": dist, "face": face, "measure_from": near,
                     "locating_error_mm": round(float(err), 2) if math.isfinite(err) else None,
                     "tilt_deg": round(deg, 1), "leans": leans, "text": text})  # fmt: skip

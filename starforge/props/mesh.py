@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
+from starforge.props.scan import noisy, smooth_scan, surface_noise
 from starforge.props.solids import union_solids
 
 UNITS_TO_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
@@ -217,14 +218,14 @@ def load_mesh_file(path: str | Path, units: str = "m", what: str = "prop mesh"):
 MAX_SIZE_M = 1000.0
 
 
-def repair_mesh(mesh, union_shells: bool = True):
+def repair_mesh(mesh, union_shells: bool = True, smooth: bool = True):
     """Repair a raw mesh for placement; return ``(mesh, face_origin, notes)``.
 
     Steps (each reported in ``notes`` when it changed something): merge duplicate vertices,
     drop degenerate and duplicate faces, make winding consistent and normals outward per
-    connected shell, fill small holes, and merge overlapping watertight shells into one
-    surface with a boolean union (manifold3d) so that no candidate site lies buried inside
-    another shell.
+    connected shell, fill small holes, smooth a scan's noise (:mod:`starforge.props.scan`), and
+    merge overlapping watertight shells into one surface with a boolean union (manifold3d) so
+    that no candidate site lies buried inside another shell.
 
     Parameters
     ----------
@@ -232,6 +233,9 @@ def repair_mesh(mesh, union_shells: bool = True):
         Raw mesh, metres.
     union_shells : bool
         Merge two or more watertight shells with a boolean union.
+    smooth : bool
+        Smooth a scan's noise away (:mod:`starforge.props.scan`) when the mesh carries enough
+        of it to tilt its faces (:func:`starforge.props.scan.noisy`).
 
     Returns
     -------
@@ -283,6 +287,15 @@ def repair_mesh(mesh, union_shells: bool = True):
         if n_open:
             notes.append(
                 f"turned {n_open} open shell{'s' if n_open > 1 else ''} inside out (normals faced inward)"
+            )
+
+    if smooth:
+        noise = noisy(m.vertices, m.faces)
+        if noise:
+            m.vertices = smooth_scan(m.vertices, m.faces)
+            notes.append(
+                f"smoothed scanner noise of {1000 * noise:.3f} mm RMS to "
+                f"{1000 * surface_noise(m.vertices, m.faces):.3f} mm (every vertex onto the surface fitted round it)"
             )
 
     if n_shells is None:

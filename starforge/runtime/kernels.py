@@ -255,6 +255,11 @@ SIGNATURES = (
     ),
     ("starforge.props.distinct:_added_own", "float64[:, ::1], float64[:, ::1], float64[:, ::1], float64"),
     ("starforge.props.distinct:_own_counts", "float64[:, ::1], float64"),
+    (
+        "starforge.props.scan:_quadric_fits",
+        "float64[:, ::1], float64[:, ::1], int64[::1], int64[:, ::1], float64[:, ::1], float64, float64, float64, "
+        "float64[:, ::1], float64[::1], int64[::1], boolean[::1]",
+    ),
     ("starforge.geometry.sym3:line_spread2", ", ".join(["float64"] * 10)),
     ("starforge.geometry.sym3:line_spread2", ", ".join(["int64"] + ["float64"] * 9)),
     ("starforge.geometry.sym3:line_spread2_at_least", ", ".join(["float64"] * 11)),
