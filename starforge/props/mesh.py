@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.props.scan import noisy, smooth_scan, surface_noise
+from starforge.props.scan import noisy, smooth_scan
 from starforge.props.solids import union_solids
 
 UNITS_TO_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
@@ -290,12 +290,12 @@ def repair_mesh(mesh, union_shells: bool = True, smooth: bool = True):
             )
 
     if smooth:
-        noise = noisy(m.vertices, m.faces)
+        noise, radius = noisy(m.vertices, m.faces)
         if noise:
-            m.vertices = smooth_scan(m.vertices, m.faces)
+            m.vertices = smooth_scan(m.vertices, m.faces, radius=radius)
             notes.append(
-                f"smoothed scanner noise of {1000 * noise:.3f} mm RMS to "
-                f"{1000 * surface_noise(m.vertices, m.faces):.3f} mm (every vertex onto the surface fitted round it)"
+                f"smoothed scanner noise of {1000 * noise:.3f} mm RMS (every vertex onto the surface fitted "
+                f"within {1000 * radius:.1f} mm round it)"
             )
 
     if n_shells is None:

@@ -42,9 +42,12 @@ NEIGHBOURS = 60
 MIN_NEIGHBOURS = 12
 #: neighbours whose normals are more than about 60 degrees from the vertex's are left out
 SAME_SIDE = 0.5
-#: the noise is measured where the normals round a vertex stay within this (degrees) of its
-#: own: away from the edges and corners of a CAD body, whose fit measures its shape, not noise
-FEATURE_DEG = 30.0
+#: the noise is measured where the normals round a vertex stay within this (degrees) of the
+#: plane fitted to them, but for FEATURE_SHARE of them: away from the edges and corners of a
+#: CAD body, whose fit measures its shape, not noise (next to a right-angled edge about half of
+#: them lean 45 degrees; noise of a fifth of an edge tilts a vertex's normal by up to about 30)
+FEATURE_DEG = 40.0
+FEATURE_SHARE = 0.1
 #: vertices whose noise :func:`surface_noise` measures
 NOISE_SAMPLES = 2000
 #: projections :func:`smooth_scan` makes (a second takes the noise of a scanned bottle from
@@ -73,19 +76,21 @@ def median_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float(np.median(edges)) if edges.size else 0.0
 
 
-def noisy(vertices: np.ndarray, faces: np.ndarray) -> float:
-    """The mesh's noise (:func:`surface_noise`, m) when it is to be smoothed (above
-    :data:`NOISE_M` and :data:`NOISE_SHARE` of the median edge), else 0."""
-    noise = surface_noise(vertices, faces)
-    return noise if noise > max(NOISE_M, NOISE_SHARE * median_edge(vertices, faces)) else 0.0
+def noisy(vertices: np.ndarray, faces: np.ndarray) -> tuple[float, float]:
+    """``(noise, radius)``, m: the mesh's noise (:func:`surface_noise`) when it is to be
+    smoothed (above :data:`NOISE_M` and :data:`NOISE_SHARE` of the median edge), else 0, and the
+    fitting radius (:data:`RADIUS_EDGES` median edges) to smooth it with."""
+    edge = median_edge(vertices, faces)
+    noise = surface_noise(vertices, faces, RADIUS_EDGES * edge)
+    return (noise if noise > max(NOISE_M, NOISE_SHARE * edge) else 0.0), RADIUS_EDGES * edge
 
 
 def _fit(v: np.ndarray, normals: np.ndarray, idx: np.ndarray, radius: float, tree) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For the vertices ``idx``: where each lies on its fitted quadric (k, 3), the fit's
     weighted RMS residual (k,), m, whether it had :data:`MIN_NEIGHBOURS` to fit (k,), and
-    whether its neighbourhood is free of features (k,): every neighbour's normal within
-    :data:`FEATURE_DEG` of its own or facing away (the far side of a thin wall), no edge or
-    corner of a CAD body in reach."""
+    whether its neighbourhood is free of features (k,): the neighbours' normals within
+    :data:`FEATURE_DEG` of the fitted patch's (but for :data:`FEATURE_SHARE` of them), no edge
+    or corner of a CAD body in reach."""
     idx = np.ascontiguousarray(idx, np.int64)
     v = np.ascontiguousarray(v, dtype=np.float64)
     normals = np.ascontiguousarray(normals, dtype=np.float64)
@@ -157,8 +162,9 @@ def _quadric_fits(v, normals, idx, nb, d, radius, same_side, cos_feature, placed
     the weighted quadric fit of :func:`_fit` (weights ``exp(-(d / (radius / 2))**2)`` over
     the neighbours facing within ``same_side`` (a cosine) of it; coordinates in units of
     ``radius``, so the normal equations are well scaled), into ``placed[i]``, ``residual[i]``
-    and ``count[i]`` (the neighbours used); ``plain[i]`` false when a neighbour faces farther
-    than ``cos_feature`` from it but not away from it (``-same_side``: the far side of a wall).  A vertex with fewer than 6 neighbours to fit, or a
+    and ``count[i]`` (the neighbours used); ``plain[i]`` false when more than
+    :data:`FEATURE_SHARE` of them face farther than ``cos_feature`` from the fitted patch's
+    normal (an edge or a corner in reach).  A vertex with fewer than 6 neighbours to fit, or a
     degenerate neighbourhood, stays where it is."""
     k = nb.shape[1]
     h = 0.5 * radius
@@ -179,8 +185,6 @@ def _quadric_fits(v, normals, idx, nb, d, radius, same_side, cos_feature, placed
                 continue
             o = nb[i, j]
             facing = normals[o, 0] * nx + normals[o, 1] * ny + normals[o, 2] * nz
-            if -same_side <= facing < cos_feature:  # (one facing away is a thin wall's far side)
-                plain[i] = False
             if facing < same_side:
                 continue
             w[j] = math.exp(-((d[i, j] / h) ** 2))
@@ -207,6 +211,14 @@ def _quadric_fits(v, normals, idx, nb, d, radius, same_side, cos_feature, placed
             syz += w[j] * y * z
             sxz += w[j] * x * z
         ax, ay, az = _smallest_axis(sxx, syy, szz, sxy, syz, sxz)  # the patch's normal
+        if ax * nx + ay * ny + az * nz < 0.0:
+            ax, ay, az = -ax, -ay, -az
+        off = 0
+        for j in range(k):  # neighbours whose own normals leave the patch's: an edge in reach
+            if w[j] != 0.0:
+                o = nb[i, j]
+                off += normals[o, 0] * ax + normals[o, 1] * ay + normals[o, 2] * az < cos_feature
+        plain[i] = off <= FEATURE_SHARE * used
         if ax * ax >= 0.81:  # two tangents square to it (as frames.perpendicular_basis)
             ux, uy, uz = ay * 0.0 - az * 1.0, az * 0.0 - ax * 0.0, ax * 1.0 - ay * 0.0
         else:
@@ -252,15 +264,16 @@ def _quadric_fits(v, normals, idx, nb, d, radius, same_side, cos_feature, placed
         placed[i, 2] = mz + radius * (x0 * uz + y0 * tz + z0 * az)
 
 
-def surface_noise(vertices: np.ndarray, faces: np.ndarray) -> float:
+def surface_noise(vertices: np.ndarray, faces: np.ndarray, radius: float | None = None) -> float:
     """The mesh's noise, m: the median fit residual over :data:`NOISE_SAMPLES` vertices (drawn
     with a fixed seed) that have enough neighbours, none across a feature; 0 when fewer than a
     quarter have (a coarse mesh, whose noise, if any, tilts its large faces too little to
-    matter, or a CAD body of edges and corners)."""
+    matter, or a CAD body of edges and corners).  ``radius``: the fitting radius (default
+    :data:`RADIUS_EDGES` median edges)."""
     from scipy.spatial import cKDTree
 
     v = np.asarray(vertices, float)
-    radius = RADIUS_EDGES * median_edge(v, faces)
+    radius = RADIUS_EDGES * median_edge(v, faces) if radius is None else radius
     if len(v) < MIN_NEIGHBOURS or radius <= 0.0:
         return 0.0
     idx = np.sort(np.random.default_rng(0).choice(len(v), min(NOISE_SAMPLES, len(v)), replace=False))
@@ -269,9 +282,10 @@ def surface_noise(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float(np.median(residual[ok])) if ok.sum() * 4 >= len(idx) else 0.0
 
 
-def smooth_scan(vertices: np.ndarray, faces: np.ndarray, iterations: int = ITERATIONS) -> np.ndarray:
-    """(v, 3) m: every vertex with enough neighbours moved onto the quadric fitted round it,
-    ``iterations`` times (the normals and the neighbourhoods found again each time).  The
+def smooth_scan(vertices: np.ndarray, faces: np.ndarray, iterations: int = ITERATIONS, radius: float | None = None) -> np.ndarray:
+    """(v, 3) m: every vertex with enough neighbours moved onto the quadric fitted round it
+    (within ``radius``, default :data:`RADIUS_EDGES` median edges), ``iterations`` times (the
+    normals and the neighbourhoods found again each time).  The
     vertices are fitted in ranges on every core (:func:`starforge.runtime.threads.over_ranges`;
     each vertex's fit reads only the previous positions, so the result does not depend on the
     thread count)."""
@@ -280,7 +294,7 @@ def smooth_scan(vertices: np.ndarray, faces: np.ndarray, iterations: int = ITERA
     from starforge.runtime.threads import over_ranges
 
     v = np.asarray(vertices, float).copy()
-    radius = RADIUS_EDGES * median_edge(v, faces)
+    radius = RADIUS_EDGES * median_edge(v, faces) if radius is None else radius
     for _ in range(iterations):
         tree, normals = cKDTree(v), vertex_normals(v, faces)
         out = v.copy()
