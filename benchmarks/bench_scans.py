@@ -1,7 +1,7 @@
 """Props as a 3D scanner delivers them: their noise measured and smoothed, their markers placed; JSON on stdout.
 
 For the scanned bottle and carton of ``_scans.py`` (triangles about 1 mm across) at each noise
-level (``--noise``, mm, Gaussian along each axis), written to an STL and placed at the default
+level (``--noise``, mm, Gaussian along each vertex's normal), written to an STL and placed at the default
 spec, seed 0:
 
 * ``noise_measured_mm``: :func:`starforge.props.scan.surface_noise` of the file's mesh, and
@@ -161,8 +161,8 @@ def write_docs(out: dict) -> None:
     ]
     body = (
         "Props as a 3D scanner delivers them (`benchmarks/_scans.py`: a 70 mm bottle meshed ring by ring and a "
-        "70 x 70 x 200 mm carton, triangles about 1 mm across, every vertex moved by Gaussian noise of the "
-        "given size along each axis), placed at the default spec, seed 0, as `starforge place` runs (the repair "
+        "70 x 70 x 200 mm carton, triangles about 1 mm across, every vertex moved along its normal by Gaussian "
+        "noise of the given size: a scanner's depth noise), placed at the default spec, seed 0, as `starforge place` runs (the repair "
         "smooths a mesh whose noise tilts its faces, `starforge.props.scan`) and with the smoothing off.  Measured: "
         "the noise the repair reads off the file.  Each cell: the candidate sites where a marker seats, the "
         "markers placed, the layout's own tracked fraction, and, checked on the noise-free shape (each base "

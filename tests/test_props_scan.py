@@ -119,3 +119,17 @@ def test_landmarks_of_a_prop_with_corners_but_no_end_a_person_finds():
     assert marks and all(m["kind"] == "corner" for m in marks)
     corners = np.array([m["point"] for m in marks])
     assert np.allclose(np.abs(corners), 0.005, atol=1e-9)
+
+
+def test_a_scan_file_is_smoothed_unless_told_and_each_kept_apart_in_the_cache(tmp_path, monkeypatch):
+    from starforge.props.mesh import load_prop
+
+    monkeypatch.setenv("STARFORGE_CACHE_DIR", str(tmp_path / "cache"))
+    path = tmp_path / "scan.stl"
+    _noisy(_sphere(subdivisions=4), 1e-4, seed=5).export(path)
+    for _ in range(2):  # computed, then read back from the cache
+        smoothed, kept = load_prop(str(path)), load_prop(str(path), smooth=False)
+        assert any("smoothed" in n for n in smoothed.notes) and not any("smoothed" in n for n in kept.notes)
+        r_smoothed = np.linalg.norm(smoothed.vertices, axis=1) - 0.04
+        r_kept = np.linalg.norm(kept.vertices, axis=1) - 0.04
+        assert np.sqrt(np.mean(r_smoothed**2)) < np.sqrt(np.mean(r_kept**2)) / 2

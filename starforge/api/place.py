@@ -106,7 +106,7 @@ class PlacePlan:
     tolerances_mm: tuple[float, ...] | None = None
 
 
-def _prop_and_spec(prop: str, spec: str | PlaceSpec, units: str, forbid_mesh, mask, **overrides):
+def _prop_and_spec(prop: str, spec: str | PlaceSpec, units: str, forbid_mesh, mask, smooth: bool = True, **overrides):
     """The prop and the spec with ``overrides`` (:func:`starforge.props.spec.with_overrides`
     keywords) and the constrained areas applied; the files are checked before the prop loads."""
     from starforge.props.mesh import load_prop
@@ -123,7 +123,7 @@ def _prop_and_spec(prop: str, spec: str | PlaceSpec, units: str, forbid_mesh, ma
             check_input_file(mask, "--mask file", "mask")
             cons = replace(cons, mask=str(mask))
     s = with_overrides(s, constraints=cons, **overrides)
-    return load_prop(prop, units), s
+    return load_prop(prop, units, smooth=smooth), s
 
 
 def plan_placement(
@@ -138,6 +138,7 @@ def plan_placement(
     noise_mm: float = NOISE_MM,
     forbid_mesh: str | Path | None = None,
     mask: str | Path | None = None,
+    smooth: bool = True,
     **overrides,
 ) -> PlacePlan:
     """The prop, the spec and the bodies to avoid of a placement, from a template and options.
@@ -164,6 +165,9 @@ def plan_placement(
         relabelled and from ``avoid``'s (unless ``distinct_mm`` is given).
     forbid_mesh, mask : path, optional
         A mesh of a constrained area, and a per-face mask file (1: no markers on that face).
+    smooth : bool
+        Smooth a scanned mesh's noise where it tilts the faces (:mod:`starforge.props.scan`);
+        False keeps the mesh as it is.
     **overrides
         :func:`starforge.props.spec.with_overrides` keywords (``markers``, ``sites``, ``rig``,
         ``resolution``, ``orientations``, ``marker_mm``, ``base_mm``, ``cameras_lost``...);
@@ -181,7 +185,7 @@ def plan_placement(
         hand, grip = False, None
     if hand is False:
         grip = None
-    loaded, s = _prop_and_spec(prop, spec, units, forbid_mesh, mask, hand=hand, **overrides)
+    loaded, s = _prop_and_spec(prop, spec, units, forbid_mesh, mask, smooth, hand=hand, **overrides)
     table = None
     if overrides.get("distinct_mm") is None:
         table = distinct_tolerances_mm(s, preset, noise_mm)

@@ -158,6 +158,11 @@ AVOID = typer.Option(
 UNITS = typer.Option("m", "--units", help="Units of a mesh file: m, cm or mm.")
 FORBID_MESH = typer.Option(None, "--forbid-mesh", help="Mesh of a constrained area, no markers there (default: none).")
 MASK = typer.Option(None, "--mask", help="Per-face mask file, 1 = no markers on that face (default: none).")
+KEEP_NOISE = typer.Option(
+    False,
+    "--keep-noise",
+    help="Keep a scanned mesh's noise (default: the repair smooths noise that tilts the faces, and says so).",
+)
 MESH_FORMAT = typer.Option(
     None,
     "--mesh-format",
@@ -196,6 +201,7 @@ def run_cmd(
     units: str = UNITS,
     forbid_mesh: str = FORBID_MESH,
     mask: str = MASK,
+    keep_noise: bool = KEEP_NOISE,
     mesh_format: str = MESH_FORMAT,
     preset: str = PRESET,
     noise: float = NOISE,
@@ -212,7 +218,8 @@ def run_cmd(
         prop, out=out, seed=seed, force=force, bases_stl=bases_stl, spec=spec, units=units, rig=rig, markers=markers,
         resolution=resolution, orientations=orientations, sites=sites, restarts=restarts, marker_mm=marker_mm,
         base_mm=base_mm, hand=False if no_hand else None, grip=grip, placement_error_mm=placement_error,
-        cameras_lost=cameras_lost, avoid=avoid or (), forbid_mesh=forbid_mesh, mask=mask, mesh_format=mesh_format,
+        cameras_lost=cameras_lost, avoid=avoid or (), forbid_mesh=forbid_mesh, mask=mask, smooth=not keep_noise,
+        mesh_format=mesh_format,
         preset=preset, noise_mm=noise,
         on_layout=None if quiet else lambda _: console(),  # rich imported while the pictures are drawn, if it talks
     )  # fmt: skip

@@ -407,11 +407,12 @@ def _nearest_origin(raw, origin, new):
     return known[idx]
 
 
-def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
+def load_prop(prop: str, units: str = "m", repair: bool = True, smooth: bool = True) -> PropMesh:
     """A built-in prop name (``hammer``, or ``builtin:hammer``) or a mesh file path -> repaired
     :class:`PropMesh` in metres.  A bare built-in name that is also a file here reads the file
     (``builtin:NAME`` names the built-in); a folder of that name does not hide the built-in.
-    ``timings`` holds the seconds spent loading and repairing."""
+    ``smooth``: the repair smooths a scan's noise (:func:`repair_mesh`).  ``timings`` holds the
+    seconds spent loading and repairing."""
     import time
 
     from starforge.props.builtin import BUILTIN, builtin_arrays
@@ -438,7 +439,7 @@ def load_prop(prop: str, units: str = "m", repair: bool = True) -> PropMesh:
         raw = _loaded(path, units)
         timings = {"load_s": round(time.perf_counter() - t0, 4)}
         return PropMesh.of(raw, path.stem, text, units, np.arange(len(raw.faces)), (), len(raw.faces), timings)
-    return _repaired(path, text, units, t0)
+    return _repaired(path, text, units, t0, smooth)
 
 
 def _loaded(path: Path, units: str):
@@ -449,10 +450,10 @@ def _loaded(path: Path, units: str):
     return raw
 
 
-def _repaired(path: Path, text: str, units: str, t0: float) -> PropMesh:
+def _repaired(path: Path, text: str, units: str, t0: float, smooth: bool = True) -> PropMesh:
     """The mesh file read and repaired, kept in the cache folder
     (:func:`starforge.runtime.stored.stored`) by the file's bytes (a BLAKE2b digest), its
-    suffix, ``units`` and the versions of the libraries that read and repair it: a later run on
+    suffix, ``units``, ``smooth`` and the versions of the libraries that read and repair it: a later run on
     the same file reads the repaired arrays back without reading the file with trimesh.  A file
     larger than :data:`KEEP_BYTES` is read and repaired on every run."""
     import hashlib
@@ -470,7 +471,7 @@ def _repaired(path: Path, text: str, units: str, t0: float) -> PropMesh:
         t1 = time.perf_counter()
         timings["load_s"] = round(t1 - t0, 4)
         try:
-            mesh, origin, notes = repair_mesh(raw)
+            mesh, origin, notes = repair_mesh(raw, smooth=smooth)
         except StarforgeError as exc:
             raise StarforgeError(f"{path}: {exc}") from None
         n_raw = len(raw.faces)
@@ -490,7 +491,7 @@ def _repaired(path: Path, text: str, units: str, t0: float) -> PropMesh:
         with open(path, "rb") as fh:
             digest = hashlib.file_digest(fh, "blake2b").hexdigest()
         libraries = ("numpy", "scipy", "trimesh", "manifold3d", "networkx")
-        key = content_key("repaired", digest, path.suffix.lower(), units, libraries=libraries)
+        key = content_key("repaired", digest, path.suffix.lower(), units, smooth, libraries=libraries)
         (vertices, faces, origin, notes, n_raw), _ = stored("repaired", key, work)
     origin = origin.astype(np.int64)
     if "mesh" in made:  # computed here: the mesh, with what trimesh computed of it, is kept
