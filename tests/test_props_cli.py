@@ -408,7 +408,7 @@ def avoid_seen(monkeypatch):
 
     seen = []
 
-    def fake_load(prop, units):
+    def fake_load(prop, units, smooth=True):
         seen.append(("prop", prop))
         return object()
 

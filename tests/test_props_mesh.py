@@ -217,7 +217,7 @@ def test_a_repaired_mesh_file_is_read_back_from_the_cache_until_the_file_changes
     assert computed.notes and "mesh" in computed.__dict__  # computed: the repaired mesh is kept
     calls = []
     real = pm.repair_mesh
-    monkeypatch.setattr(pm, "repair_mesh", lambda raw: calls.append(1) or real(raw))
+    monkeypatch.setattr(pm, "repair_mesh", lambda raw, **kw: calls.append(1) or real(raw, **kw))
     read = load_prop(str(path))
     assert calls == [] and "mesh" not in read.__dict__
     assert np.array_equal(read.vertices, computed.vertices) and np.array_equal(read.faces, computed.faces)
