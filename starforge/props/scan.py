@@ -62,16 +62,21 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     v = np.asarray(vertices, float)
     f = np.asarray(faces, np.int64)
     cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # twice the area along the normal
-    out = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(out, f[:, k], cross)
+    corner = f.ravel()
+    out = np.column_stack([np.bincount(corner, np.repeat(cross[:, j], 3), minlength=len(v)) for j in range(3)])
     return out / np.maximum(np.linalg.norm(out, axis=1), 1e-300)[:, None]
 
 
+#: the median edge is read off at most this many faces (every k-th)
+EDGE_FACES = 50_000
+
+
 def median_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
-    """The median length of the faces' edges (each shared edge counted twice), m."""
+    """The median length of the faces' edges (each shared edge counted twice; of every k-th
+    face, at most :data:`EDGE_FACES`), m."""
     v = np.asarray(vertices, float)
     f = np.asarray(faces, np.int64)
+    f = f[:: max(1, len(f) // EDGE_FACES)]
     edges = np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2)
     return float(np.median(edges)) if edges.size else 0.0
 
