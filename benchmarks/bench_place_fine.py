@@ -38,10 +38,11 @@ def fine_hammer(times: int):
     return trimesh.Trimesh(v, f, process=False)
 
 
-def run_once(path: Path, out: Path) -> dict:
-    """One ``starforge place run PATH`` in a fresh process: wall, CPU, peak RSS, stage timings."""
+def run_once(path: Path, out: Path, env: dict | None = None) -> dict:
+    """One ``starforge place run PATH`` in a fresh process (with ``env`` added to this one's
+    environment): wall, CPU, peak RSS, stage timings."""
     load = os.getloadavg()[0]
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    env = dict(os.environ, PYTHONPATH=str(ROOT), **(env or {}))
     t = time.perf_counter()
     proc = subprocess.Popen(
         [sys.executable, "-m", "starforge", "place", "run", str(path), "--out", str(out), "-q", "--force"],

@@ -239,6 +239,7 @@ def _quadric_fits(v, normals, idx, nb, d, radius, same_side, cos_feature, placed
             x = loc[j, 0] * ux + loc[j, 1] * uy + loc[j, 2] * uz
             y = loc[j, 0] * tx + loc[j, 1] * ty + loc[j, 2] * tz
             z = loc[j, 0] * ax + loc[j, 1] * ay + loc[j, 2] * az
+            loc[j, 0], loc[j, 1], loc[j, 2] = x, y, z  # in the patch's frame from here on
             terms[0], terms[1], terms[2], terms[3], terms[4], terms[5] = x * x, x * y, y * y, x, y, 1.0
             for a in range(6):
                 rhs[a] += w[j] * terms[a] * z
@@ -254,9 +255,7 @@ def _quadric_fits(v, normals, idx, nb, d, radius, same_side, cos_feature, placed
         for j in range(k):
             if w[j] == 0.0:
                 continue
-            x = loc[j, 0] * ux + loc[j, 1] * uy + loc[j, 2] * uz
-            y = loc[j, 0] * tx + loc[j, 1] * ty + loc[j, 2] * tz
-            z = loc[j, 0] * ax + loc[j, 1] * ay + loc[j, 2] * az
+            x, y, z = loc[j, 0], loc[j, 1], loc[j, 2]
             fit = rhs[0] * x * x + rhs[1] * x * y + rhs[2] * y * y + rhs[3] * x + rhs[4] * y + rhs[5]
             err += w[j] * (z - fit) ** 2
         residual[i] = radius * math.sqrt(err / total)
