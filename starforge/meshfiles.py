@@ -16,11 +16,17 @@ import numpy as np
 _RECORD = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attr", "<u2")])
 
 
-def face_normals(vertices, faces) -> np.ndarray:
-    """(m, 3) unit normals of the triangles (right-hand rule); zero for a degenerate one."""
+def face_cross(vertices, faces) -> np.ndarray:
+    """(m, 3) each triangle's normal (right-hand rule) times twice its area: the cross product
+    of its two edges from its first corner."""
     v = np.asarray(vertices, dtype=float)
     f = np.asarray(faces, dtype=np.int64)
-    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    return np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+
+
+def face_normals(vertices, faces) -> np.ndarray:
+    """(m, 3) unit normals of the triangles (right-hand rule); zero for a degenerate one."""
+    n = face_cross(vertices, faces)
     length = np.sqrt(np.einsum("ij,ij->i", n, n))
     ok = length > 0
     n[ok] /= length[ok, None]

@@ -59,11 +59,11 @@ _CHUNK = 20_000
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(v, 3) unit normals: the area-weighted sum of the normals of the faces round each vertex."""
-    v = np.asarray(vertices, float)
-    f = np.asarray(faces, np.int64)
-    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # twice the area along the normal
-    corner = f.ravel()
-    out = np.column_stack([np.bincount(corner, np.repeat(cross[:, j], 3), minlength=len(v)) for j in range(3)])
+    from starforge.meshfiles import face_cross
+
+    cross = face_cross(vertices, faces)  # twice the area along the normal
+    corner = np.asarray(faces, np.int64).ravel()
+    out = np.column_stack([np.bincount(corner, np.repeat(cross[:, j], 3), minlength=len(vertices)) for j in range(3)])
     return out / np.maximum(np.linalg.norm(out, axis=1), 1e-300)[:, None]
 
 
@@ -224,10 +224,10 @@ def _quadric_fits(v, normals, idx, nb, d, radius, same_side, cos_feature, placed
                 o = nb[i, j]
                 off += normals[o, 0] * ax + normals[o, 1] * ay + normals[o, 2] * az < cos_feature
         plain[i] = off <= FEATURE_SHARE * used
-        if ax * ax >= 0.81:  # two tangents square to it (as frames.perpendicular_basis)
-            ux, uy, uz = ay * 0.0 - az * 1.0, az * 0.0 - ax * 0.0, ax * 1.0 - ay * 0.0
+        if ax * ax >= 0.81:  # two tangents square to it: the axis crossed with y, else with x (as frames.perpendicular_basis)
+            ux, uy, uz = -az, 0.0, ax
         else:
-            ux, uy, uz = ay * 0.0 - az * 0.0, az * 1.0 - ax * 0.0, ax * 0.0 - ay * 1.0
+            ux, uy, uz = 0.0, az, -ay
         size = math.sqrt(ux * ux + uy * uy + uz * uz)
         ux, uy, uz = ux / size, uy / size, uz / size
         tx, ty, tz = ay * uz - az * uy, az * ux - ax * uz, ax * uy - ay * ux
