@@ -132,6 +132,63 @@ class MarkerType:
             in_range("stud_length_mm", self.stud_length_mm, 1.0, 30.0)
 
 
+def seat_hole(kind: str, mt) -> tuple[float, float, float]:
+    """(diameter, depth, least wall round it), mm, of a threaded marker's hole: the ISO 2306
+    tap drill for ``screw`` (the stud's length + 0.5 mm deep, a 1.2 mm wall), the insert's
+    published hole for ``insert`` (its length, or the stud's if longer, + 0.5 mm); see
+    :data:`THREAD_SOURCES`."""
+    th = THREADS[mt.thread]
+    if kind == "screw":
+        return th.tap_drill_mm, mt.stud_length_mm + 0.5, 1.2
+    depth = max(th.insert_length_mm, mt.stud_length_mm) + INSERT_HOLE_EXTRA_MM
+    return th.insert_hole_mm, depth, th.insert_wall_mm
+
+
+#: a post's pin is this much shorter than the hole in the marker's base, so the marker seats on
+#: the shoulder (its designed centre), never on the pin's end
+POST_PLAY_MM = 0.3
+#: the least length of a printed post, mm, below a threaded marker's hole
+POST_FLOOR_MM = 1.0
+#: the least width of a printed post, mm (a thinner one snaps when a hand knocks its marker)
+POST_MIN_WIDTH_MM = 5.0
+
+
+@dataclass(frozen=True)
+class PostTop:
+    """The top of a printed post a marker sits on, mm: the post's width, and the hole cut into it
+    (a threaded marker's tap drill or insert, :func:`seat_hole`) or the pin standing on it (a
+    post marker's, :data:`POST_PLAY_MM` shorter than its hole); neither for a glued marker."""
+
+    width_mm: float
+    words: str
+    hole_mm: float = 0.0
+    hole_depth_mm: float = 0.0
+    pin_mm: float = 0.0
+    pin_length_mm: float = 0.0
+
+    @property
+    def min_length_mm(self) -> float:
+        """The shortest post that holds this top (its hole and :data:`POST_FLOOR_MM` below it)."""
+        return self.hole_depth_mm + POST_FLOOR_MM
+
+
+def post_top(marker: MarkerType | None, base_mm: float) -> PostTop:
+    """How ``marker`` (None: a plain ball glued by a base of ``base_mm``) sits on top of a printed
+    post: the post is as wide as the marker's base, or as its threaded hole and the wall round it,
+    and at least :data:`POST_MIN_WIDTH_MM`."""
+    width = max(float(base_mm), POST_MIN_WIDTH_MM)
+    if marker is None or marker.attach == "glue":
+        return PostTop(width, "its base glued to the post's top")
+    if marker.attach == "post":
+        pin = marker.hole_mm - marker.fit_mm
+        return PostTop(
+            width, f"pressed onto a {pin:g} mm pin on the post's top", pin_mm=pin,
+            pin_length_mm=marker.hole_depth_mm - POST_PLAY_MM,
+        )  # fmt: skip
+    d, depth, wall = seat_hole(marker.attach, marker)
+    return PostTop(max(width, d + 2.0 * wall), thread_words(marker.thread, marker.attach), hole_mm=d, hole_depth_mm=depth)
+
+
 def marker_names() -> list[str]:
     """Names of the catalogue's markers, sorted."""
     return list_templates("markers")

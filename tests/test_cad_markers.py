@@ -76,9 +76,10 @@ def test_a_measured_marker_file_overrides_the_defaults(tmp_path):
 
 
 def test_post_pin_is_shorter_than_the_hole_so_the_marker_seats_on_the_shoulder():
-    from starforge.cad.body import POST_PLAY_MM, BodySpec, build_body
+    from starforge.cad.body import BodySpec, build_body
     from starforge.cad.mounts import load_mount
     from starforge.cad.primitives import Cylinder
+    from starforge.markers import POST_PLAY_MM
 
     mt = load_marker("6.4mm-post")
     d = mt.diameter_mm

@@ -18,11 +18,11 @@ import subprocess
 import numpy as np
 import pytest
 
-from starforge.cad.body import SEAT_CONE_MIN_DEG, BodySpec, build_body, seat_hole
+from starforge.cad.body import SEAT_CONE_MIN_DEG, BodySpec, build_body
 from starforge.cad.mesh import body_mesh, shell_defects
 from starforge.cad.mounts import load_mount
 from starforge.cad.primitives import Cylinder, Revolved, Sphere
-from starforge.markers import THREADS, load_marker
+from starforge.markers import THREADS, load_marker, seat_hole
 from tests.conftest import main
 
 ADMESH = shutil.which("admesh")

@@ -250,6 +250,12 @@ def _placement_error() -> list[float]:
     return [load_spec("default").seat.placement_error_mm]
 
 
+def _standoff() -> list[float]:
+    from starforge.props.spec import load_spec
+
+    return [load_spec("default").standoff_mm]
+
+
 _BODY_NUMBERS = {
     "--nozzle-mm": lambda: [_body_spec().nozzle_mm],
     "--coating-mm": _coating,
@@ -274,6 +280,7 @@ USED_NUMBERS = {
     ("starforge stars", "--tip"): _tip,
     ("starforge stars", "--reserve"): lambda: list(_stars_spec().reserve_mm),
     ("starforge place run", "--placement-error"): _placement_error,
+    ("starforge place run", "--standoff"): _standoff,
 }
 
 

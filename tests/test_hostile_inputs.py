@@ -326,6 +326,8 @@ def _cases(f) -> list[Case]:
         Case("place-units-unknown", ("place", "run", "--units", "furlong"), r"units"),
         Case("place-huge-table", ("place", "run", "--resolution", "64", "--orientations", "1000"), r"memory"),
         Case("place-markers-zero", ("place", "run", "--markers", "0"), r"markers"),
+        Case("place-standoff-long", ("place", "run", "--standoff", "100"), r"--standoff\) must be in \[0"),
+        Case("place-standoff-short", ("place", "run", "--marker", "12.7mm-m3", "--standoff", "3"), r"--standoff 7\.2 or more"),
         Case("place-score-far", ("place", "score", "hammer", str(f["far_csv"])), r"(surface|off)", uses_out=False),
         # sweep, templates, mounts, global limits
         Case("sweep-huge", ("sweep", "--delta", "0.01:0.02:0.01", "--cube", "10:2000:1"), r"cube has 1991 values; at most"),

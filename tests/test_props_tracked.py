@@ -372,8 +372,8 @@ def test_the_shortfall_line_names_the_grips_that_lose_the_prop():
     # that no layout on the surface reaches it; below that, it says nothing of it
     bare = shortfall_warning({**sf, "under_three_sites_seen": 0.05, "searched_scenarios": 384}, 0.02, True)
     assert "in 5.0 % of the 384 searched scenarios fewer than 3 of the 300 usable sites" in bare
-    assert "tracks more than 95.0 % of them" in bare and "marker tree" in bare
-    assert "marker tree" not in shortfall_warning({**sf, "under_three_sites_seen": 0.005, "searched_scenarios": 384}, 0.02, True)
+    assert "tracks more than 95.0 % of them" in bare and "on posts can" in bare and "--standoff MM" in bare
+    assert "on posts can" not in shortfall_warning({**sf, "under_three_sites_seen": 0.005, "searched_scenarios": 384}, 0.02, True)
 
 
 class _Weighted:

@@ -170,7 +170,7 @@ def plan_placement(
         False keeps the mesh as it is.
     **overrides
         :func:`starforge.props.spec.with_overrides` keywords (``markers``, ``sites``, ``rig``,
-        ``resolution``, ``orientations``, ``marker_mm``, ``base_mm``, ``cameras_lost``...);
+        ``resolution``, ``orientations``, ``marker_mm``, ``base_mm``, ``standoff_mm``, ``cameras_lost``...);
         None means not given.
 
     Examples
@@ -243,9 +243,11 @@ def place_markers(
 
 
 def placement_files(spec: PlaceSpec, *, bases_stl: bool = False) -> list[str]:
-    """The files :func:`run_place` writes for ``spec`` (``prop_bases.stl`` with ``bases_stl``)."""
+    """The files :func:`run_place` writes for ``spec`` (``standoff.stl`` with a stand-off,
+    ``prop_bases.stl`` with ``bases_stl``)."""
     names = ["placement.json", "markers.csv", f"prop_markers.{spec.mesh_format}"]
     names += ["convergence.png", "layout.png", "guide.png", "guide.pdf"]
+    names += ["standoff.stl"] if spec.standoff_mm > 0 else []
     return names + (["prop_bases.stl"] if bases_stl else [])
 
 

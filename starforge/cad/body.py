@@ -28,6 +28,7 @@ from starforge.cad.mounts import Mount, mount_geometry
 from starforge.cad.primitives import Cylinder, Revolved, Sphere, fillet_profile
 from starforge.cad.stems import route_stems
 from starforge.geometry.distance import segment_segment_distance
+from starforge.markers import POST_PLAY_MM, seat_hole
 from starforge.spec import in_range, require
 
 UP = np.array([0.0, 1.0, 0.0])
@@ -42,9 +43,6 @@ SEATS_FOR = {
     "screw": ("screw", "insert", "sphere"),
     "insert": ("insert", "screw", "sphere"),
 }
-#: a post's pin is this much shorter than the hole in the marker's base, so the marker seats on
-#: the shoulder (its designed centre), never on the pin's end
-POST_PLAY_MM = 0.3
 #: a stem's root fillet reaches this far into the plate below its face (one solid, no seam)
 FILLET_BURIED_MM = 0.3
 #: a root fillet's top ends this far inside its stem (beyond the stem's tilt and both circles'
@@ -270,20 +268,6 @@ def _seat_depth(kind: str, mt, spec: BodySpec, marker_mm: float) -> float:
         return mt.centre_height_mm + 1.0
     _, hole_len, _ = seat_hole(kind, mt)
     return mt.centre_height_mm + hole_len + 1.0
-
-
-def seat_hole(kind: str, mt) -> tuple[float, float, float]:
-    """(diameter, depth, least wall round it), mm, of a threaded marker's hole: the ISO 2306
-    tap drill for ``screw`` (the stud's length + 0.5 mm deep, a 1.2 mm wall), the insert's
-    published hole for ``insert`` (its length, or the stud's if longer, + 0.5 mm); see
-    :data:`starforge.markers.THREAD_SOURCES`."""
-    from starforge.markers import INSERT_HOLE_EXTRA_MM, THREADS
-
-    th = THREADS[mt.thread]
-    if kind == "screw":
-        return th.tap_drill_mm, mt.stud_length_mm + 0.5, 1.2
-    depth = max(th.insert_length_mm, mt.stud_length_mm) + INSERT_HOLE_EXTRA_MM
-    return th.insert_hole_mm, depth, th.insert_wall_mm
 
 
 def plate_gap_mm(spec: BodySpec, marker_mm: float) -> float:

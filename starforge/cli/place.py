@@ -125,6 +125,13 @@ BASE = typer.Option(
     "--base-mm",
     help="Diameter of the flat base under each marker, mm (a stick-on pad; default: the marker's own).",
 )
+STANDOFF = typer.Option(
+    None,
+    "--standoff",
+    help="Lift every marker this far off the prop (mm) on a printed post, written as standoff.stl: markers stand "
+    "clear of the hand and of the prop's bulk, for a small prop that no layout stuck on it keeps tracked (default: "
+    "the spec's standoff_mm, 0: stuck on).",
+)
 GRIP = typer.Option(
     None,
     "--grip",
@@ -192,6 +199,7 @@ def run_cmd(
     restarts: int = RESTARTS,
     marker_mm: str = MARKER,
     base_mm: float = BASE,
+    standoff: float = STANDOFF,
     grip: str = GRIP,
     no_hand: bool = NO_HAND,
     placement_error: float = PLACEMENT_ERROR,
@@ -217,7 +225,7 @@ def run_cmd(
     run = api.run_place(
         prop, out=out, seed=seed, force=force, bases_stl=bases_stl, spec=spec, units=units, rig=rig, markers=markers,
         resolution=resolution, orientations=orientations, sites=sites, restarts=restarts, marker_mm=marker_mm,
-        base_mm=base_mm, hand=False if no_hand else None, grip=grip, placement_error_mm=placement_error,
+        base_mm=base_mm, standoff_mm=standoff, hand=False if no_hand else None, grip=grip, placement_error_mm=placement_error,
         cameras_lost=cameras_lost, avoid=avoid or (), forbid_mesh=forbid_mesh, mask=mask, smooth=not keep_noise,
         mesh_format=mesh_format,
         preset=preset, noise_mm=noise,

@@ -327,8 +327,8 @@ MARKER_RGBA = (0.9, 0.16, 0.16, 1.0)
 
 def marker_parts(points, normals, seat) -> tuple[np.ndarray, np.ndarray]:
     """``(vertices, faces)`` of every marker as it sits: a ball ``seat.centre_height_mm`` above
-    its site along the normal, on a 1 mm disc of the base's diameter (manifold3d's sphere and
-    cylinder, :data:`MARKER_SEGMENTS` round), m."""
+    its site along the normal, on a 1 mm disc of the base's diameter or its stand-off's post
+    (manifold3d's sphere and cylinder, :data:`MARKER_SEGMENTS` round), m."""
     from manifold3d import Manifold
 
     from starforge.geometry.frames import perpendicular_basis
@@ -337,10 +337,10 @@ def marker_parts(points, normals, seat) -> tuple[np.ndarray, np.ndarray]:
     for p, n in zip(np.asarray(points, float).reshape(-1, 3), np.asarray(normals, float).reshape(-1, 3), strict=True):
         n = n / np.linalg.norm(n)
         parts.append(Manifold.sphere(seat.ball_radius_m, MARKER_SEGMENTS).translate(p + seat.centre_height_m * n))
-        if seat.base_mm > 0:
+        if seat.base_mm > 0:  # the base pad, or the stand-off's post
             turn = np.column_stack([*perpendicular_basis(n), n, p])  # right-handed: a turn, then the site
             r = seat.base_radius_m
-            parts.append(Manifold.cylinder(0.001, r, r, MARKER_SEGMENTS).transform(turn))
+            parts.append(Manifold.cylinder(max(0.001, seat.standoff_m), r, r, MARKER_SEGMENTS).transform(turn))
     vertices, faces, start = [], [], 0
     for part in parts:
         m = part.to_mesh()
@@ -389,6 +389,11 @@ def write_outputs(res: PlacementResult, folder: Path, render: bool = True, rende
         marker_mesh(res.prop, res.marker_points, res.marker_normals, res.seat, fmt),
     )
     names.append(mesh_name)
+    if res.seat.standoff_mm > 0:
+        from starforge.props.standoff import standoff_stl
+
+        atomic_write_bytes(folder / "standoff.stl", standoff_stl(res.seat))
+        names.append("standoff.stl")
     if bases_stl:
         from starforge.props.guide import bases_mesh
 
@@ -523,6 +528,10 @@ def summary_lines(res: PlacementResult) -> list[str]:
             + f" away (base radius {res.seat.base_mm / 2:g} mm); margin for a {rules.placement_error_mm:g} mm placement "
             f"error: {', '.join(f'{m:.1f}' for m in margin)} mm (measured up to {rules.margin_cap_mm:g})"
         )
+        if res.seat.standoff_mm > 0:
+            from starforge.props.standoff import standoff_words
+
+            lines.append(f"stand-offs: {standoff_words(res.seat)}; print {len(idx)}")
         if not math.isinf(t["near_symmetry_margin_m"]):
             lines.append(symmetry_line(t["near_symmetry_margin_m"], res.spec.track.near_symmetry_target_mm))
         d = distinct_report(res)

@@ -217,6 +217,32 @@ def grip_segment(mesh) -> tuple[np.ndarray, np.ndarray, float]:
     return a, b, min(r, 0.05)
 
 
+#: a stand-off post is tested for the hand at points this far apart along it, m
+POST_STEP_M = 5e-4
+
+
+def posts_in_hands(bases: np.ndarray, tops: np.ndarray, occluders: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """(n, g) bool: the post from ``bases[i]`` to ``tops[i]`` (n, 3) passes through a capsule (or
+    band) of grip g: rows ``starts[g]:starts[g + 1]`` of ``occluders`` (:func:`capsule_arrays`).
+
+    A hand cannot close round a post: where the grip's hand would hold a stand-off marker's post,
+    the marker is taken as hidden at that grip (the hand covers it, or holds the prop elsewhere).
+    The post is sampled every :data:`POST_STEP_M` (both ends included)."""
+    a, b = np.asarray(bases, float).reshape(-1, 3), np.asarray(tops, float).reshape(-1, 3)
+    G = len(starts) - 1
+    out = np.zeros((len(a), G), bool)
+    if not len(a) or not len(occluders):
+        return out
+    k = max(2, int(np.ceil(float(np.linalg.norm(b - a, axis=1).max()) / POST_STEP_M)) + 1)
+    t = np.linspace(0.0, 1.0, k)
+    pts = (a[:, None] + t[None, :, None] * (b - a)[:, None]).reshape(-1, 3)
+    for g in range(G):
+        for row in occluders[starts[g] : starts[g + 1]]:
+            cap = Capsule(tuple(row[:3]), tuple(row[3:6]), float(row[6]), bool(row[7]))
+            out[:, g] |= cap.contains(pts).reshape(len(a), k).any(axis=1)
+    return out
+
+
 def inside_capsules(points: np.ndarray, caps) -> np.ndarray:
     """(n,) bool: each point inside some capsule (or band)."""
     pts = np.asarray(points, float).reshape(-1, 3)

@@ -63,7 +63,7 @@ class HeldOut:
             self.prop, prep.sites.points[sites], prep.sites.normals[sites], prep.rig, sub,
             spec.grazing_limit_deg, radius_m=prep.seat.ball_radius_m, centre_m=prep.seat.centre_height_m,
             occlusion=spec.occlusion, occluders=occ, occluder_starts=starts,
-            pose_grip=self.grip[k] if hand and prep.grips else None,
+            pose_grip=self.grip[k] if hand and prep.grips else None, post_m=prep.seat.standoff_m,
         ).masks  # fmt: skip
 
     def seen(self, sites, poses=None, hand: bool = True):
@@ -264,12 +264,12 @@ def shortfall_warning(sf: dict, spacing_m: float, hand: bool) -> str:
         cause.append(
             f"in {100 * bare:.1f} % of the {sf['searched_scenarios']} searched scenarios fewer than 3 of the "
             f"{sf['usable_sites']} usable sites are seen at all, so no layout stuck on its surface tracks more "
-            f"than {100 * (1.0 - bare):.1f} % of them: markers held clear of the hand on a mount (a marker tree) can"
+            f"than {100 * (1.0 - bare):.1f} % of them: markers held clear of the hand and the prop on posts can"
         )
     helps = [f"with every camera {100 * sf['tracked_with_every_camera']:.1f} %"]
     if hand:
         helps.append(f"without the hand {100 * sf['tracked_without_the_hand']:.1f} %")
-    advice = "a smaller --marker or --base-mm (more markers fit, more sites seat)"
+    advice = "a smaller --marker or --base-mm (more markers fit, more sites seat), --standoff MM (markers on posts, or on longer ones)"
     if hand:
         advice += ", another --grip or --no-hand"
     return (

@@ -161,6 +161,7 @@ def _prepare(prop, spec, rig, rng, progress, timings, grip, seed) -> Prepared:
         occluders=occ,
         occluder_starts=starts,
         pose_grip=pose_grip,
+        post_m=seat.standoff_m,
     )
     tick(timings, "visibility_s", t)
     return Prepared(kept, removed, rig, poses, table, seat, report, caps, grips, pose_grip, part, tuple(notes))

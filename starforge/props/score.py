@@ -56,6 +56,7 @@ def score_layout(prop, points: np.ndarray, normals: np.ndarray | None, spec: Pla
         occluders=occ,
         occluder_starts=starts,
         pose_grip=pose_grip if grips else None,
+        post_m=seat.standoff_m,
     )
     v = table.site_visibility
     rep = seat_report(prop.mesh, pts, nrm, seat, spec.seat)

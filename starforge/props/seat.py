@@ -31,10 +31,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from starforge.errors import StarforgeError
 from starforge.geometry.frames import perpendicular_basis
+from starforge.markers import MarkerType
 from starforge.spec import in_range
 from starforge.tol import tol
 
+#: the longest stand-off post, mm (a longer lever on a glued foot breaks off)
+MAX_STANDOFF_MM = 60.0
 #: points of the base disc tested for contact (area-uniform sunflower spiral)
 DISC_SAMPLES = 37
 #: spacing of the points sampled along sharp edges, m
@@ -56,22 +60,35 @@ class Seat:
     base_mm : float
         Diameter of the flat base that rests on the prop.
     centre_height_mm : float
-        Base plane to sphere centre.
+        Base plane to sphere centre (the stand-off included).
+    standoff_mm : float
+        Length of a printed stand-off post between the prop and the marker's own base
+        (:func:`with_standoff`; 0: the marker is stuck on the prop).  ``base_mm`` is then the
+        post's foot, which is what rests on the prop.
+    marker : MarkerType, optional
+        The catalogue entry (None for a plain ball): how the marker attaches to a stand-off.
     """
 
     name: str
     ball_mm: float
     base_mm: float
     centre_height_mm: float
+    standoff_mm: float = 0.0
+    marker: MarkerType | None = None
 
     def __post_init__(self):
         in_range("ball_mm", self.ball_mm, 1.0, 50.0)
         in_range("base_mm", self.base_mm, 0.0, 100.0)
-        in_range("centre_height_mm", self.centre_height_mm, 0.0, 100.0)
+        in_range("centre_height_mm", self.centre_height_mm, 0.0, 100.0 + MAX_STANDOFF_MM)
+        in_range("standoff_mm", self.standoff_mm, 0.0, MAX_STANDOFF_MM)
 
     @property
     def centre_height_m(self) -> float:
         return self.centre_height_mm / 1000.0
+
+    @property
+    def standoff_m(self) -> float:
+        return self.standoff_mm / 1000.0
 
     @property
     def ball_radius_m(self) -> float:
@@ -82,7 +99,29 @@ class Seat:
         return self.base_mm / 2000.0
 
     def to_json(self) -> dict:
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+        return {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "marker"}
+
+
+def with_standoff(seat: Seat, standoff_mm: float) -> Seat:
+    """``seat`` lifted ``standoff_mm`` off the prop on a printed post (:mod:`starforge.cad.standoff`):
+    the ball's centre that much higher, the post's foot the base's diameter (0: ``seat``)."""
+    from dataclasses import replace
+
+    from starforge.markers import post_top
+
+    h = float(in_range("standoff_mm (--standoff)", standoff_mm, 0.0, MAX_STANDOFF_MM))
+    if h == 0.0:
+        return seat
+    top = post_top(seat.marker, seat.base_mm or 0.75 * seat.ball_mm)
+    if h < top.min_length_mm:
+        raise StarforgeError(
+            f"--standoff {h:g}: a post under a {seat.name} marker is at least {top.min_length_mm:g} mm long "
+            f"({top.words}); give --standoff {top.min_length_mm:g} or more"
+        )
+    return replace(
+        seat, name=f"{seat.name} on a {h:g} mm stand-off", base_mm=top.width_mm,
+        centre_height_mm=seat.centre_height_mm + h, standoff_mm=h,
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -137,7 +176,7 @@ def seat_for(marker: str | float, base_mm: float | None = None) -> Seat:
         d = entry.diameter_mm
     d = marker_diameter_mm(d)
     if entry is not None:
-        seat = Seat(entry.name, entry.diameter_mm, entry.base_mm, entry.centre_height_mm)
+        seat = Seat(entry.name, entry.diameter_mm, entry.base_mm, entry.centre_height_mm, marker=entry)
     else:
         seat = Seat(f"{d:g} mm ball", d, round(0.75 * d, 3), round(0.55 * d, 3))
     if base_mm is not None:
@@ -251,9 +290,28 @@ def seat_report(mesh, points: np.ndarray, normals: np.ndarray, seat: Seat, rules
     clearance = surface_distance(mesh, centres)
     need = min(seat.ball_radius_m, seat.centre_height_m) - rules.clearance_tol_mm / 1000.0
     ok = clearance >= need
+    if seat.standoff_m > 0:
+        ok &= post_clear(mesh, pts, nrm, R, seat.standoff_m, rules.clearance_tol_mm / 1000.0)
     if rules.base:
         ok &= (contact >= rules.min_contact) & (margin >= rules.placement_error_mm / 1000.0 - 1e-12)
     return SeatReport(contact, edge_m, clearance, ok, margin)
+
+
+#: a stand-off post's axis is tested for clearance at points this far apart, m
+POST_CLEAR_STEP_M = 1e-3
+
+
+def post_clear(mesh, points: np.ndarray, normals: np.ndarray, radius_m: float, length_m: float, tol_m: float) -> np.ndarray:
+    """(s,) bool: a post of ``radius_m`` standing ``length_m`` along each site's normal clears the
+    prop: every point of its axis from one radius up to its top, every
+    :data:`POST_CLEAR_STEP_M`, lies at least the radius (less ``tol_m``) from the surface.  (Below
+    one radius the foot sits on the surface; the base rules test it.)"""
+    pts, nrm = np.asarray(points, float), np.asarray(normals, float)
+    if not len(pts) or length_m <= radius_m:
+        return np.ones(len(pts), bool)
+    h = np.linspace(radius_m, length_m, max(2, int(math.ceil((length_m - radius_m) / POST_CLEAR_STEP_M)) + 1))
+    axis = (pts[:, None] + h[None, :, None] * nrm[:, None]).reshape(-1, 3)
+    return (surface_distance(mesh, axis).reshape(len(pts), -1) >= radius_m - tol_m).all(axis=1)
 
 
 #: pairs (point, candidate face) measured at once by :func:`surface_distance`

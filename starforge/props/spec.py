@@ -9,7 +9,7 @@ from typing import Literal
 from starforge.errors import StarforgeError
 from starforge.props.costs import CostSettings
 from starforge.props.optimizer import ChainSettings
-from starforge.props.seat import SeatRules
+from starforge.props.seat import MAX_STANDOFF_MM, SeatRules
 from starforge.props.sites import Constraints
 from starforge.props.tracked import TrackSettings
 from starforge.spec import in_range, require
@@ -48,6 +48,7 @@ class PlaceSpec:
     constraints: Constraints = field(default_factory=Constraints)
     seat: SeatRules = field(default_factory=SeatRules)
     base_mm: float = 0.0  # diameter of the base under the marker, mm; 0: the marker's own
+    standoff_mm: float = 0.0  # a printed post this long lifts every marker off the prop, mm; 0: none
     hand: bool = True  # a hand holds the prop at its grip (an occluder; no markers under it)
     evaluation: EvalSettings = field(default_factory=EvalSettings)
     name: str = "custom"
@@ -62,6 +63,7 @@ class PlaceSpec:
         in_range("orientations", self.orientations, 1, 1000)
         in_range("grazing_limit_deg", self.grazing_limit_deg, 1e-6, 180.0)
         in_range("base_mm", self.base_mm, 0.0, 100.0)
+        in_range("standoff_mm (--standoff)", self.standoff_mm, 0.0, MAX_STANDOFF_MM)
 
     @property
     def marker_diameter_m(self) -> float:
@@ -70,15 +72,14 @@ class PlaceSpec:
 
     def marker_seat(self):
         """The :class:`starforge.props.seat.Seat` in effect: the catalogue marker of this diameter
-        (or ``track.marker``) on its own base or ``base_mm``; the paper's 2 mm-radius ball rests
-        on the surface (centre one radius up)."""
-        from starforge.props.seat import Seat, seat_for
+        (or ``track.marker``) on its own base or ``base_mm``, lifted ``standoff_mm`` on a post;
+        the paper's 2 mm-radius ball rests on the surface (centre one radius up)."""
+        from starforge.props.seat import Seat, seat_for, with_standoff
 
         if self.objective == "paper":
             d = self.costs.marker_diameter_m * 1000.0
-            return Seat(f"{d:g} mm ball", d, 0.0, d / 2)
-        seat = seat_for(self.track.marker or self.track.marker_mm, self.base_mm or None)
-        return seat
+            return with_standoff(Seat(f"{d:g} mm ball", d, 0.0, d / 2), self.standoff_mm)
+        return with_standoff(seat_for(self.track.marker or self.track.marker_mm, self.base_mm or None), self.standoff_mm)
 
 
 
@@ -107,6 +108,7 @@ def with_overrides(
     mesh_format: str | None = None,
     marker_mm: str | float | None = None,
     base_mm: float | None = None,
+    standoff_mm: float | None = None,
     hand: bool | None = None,
     cameras_lost: float | None = None,
     placement_error_mm: float | None = None,
@@ -114,7 +116,7 @@ def with_overrides(
 ) -> PlaceSpec:
     """The spec with CLI options applied (each validated by the dataclasses).  ``marker_mm``: a
     diameter in mm or a marker catalogue name (:mod:`starforge.markers`); ``base_mm``: the base
-    under it (0: its own); ``cameras_lost``: the fraction of the cameras lost in each scenario;
+    under it (0: its own); ``standoff_mm``: a printed post under every marker (0: none); ``cameras_lost``: the fraction of the cameras lost in each scenario;
     ``placement_error_mm``: how far off its mark a marker may be stuck and still seat;
     ``distinct_mm``: how far (every sorted side) each marker triangle keeps from the layout's
     others and from other bodies' (``track.avoid_tolerance_mm``)."""
@@ -165,6 +167,7 @@ def with_overrides(
         k: v
         for k, v in dict(
             base_mm=None if base_mm is None else float(base_mm),
+            standoff_mm=None if standoff_mm is None else float(standoff_mm),
             hand=hand,
             resolution=resolution,
             orientations=orientations,

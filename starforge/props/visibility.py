@@ -21,7 +21,7 @@ from numba import types
 from numba.extending import intrinsic
 
 from starforge.errors import StarforgeError
-from starforge.props.hand import CAPSULE_COLUMNS
+from starforge.props.hand import CAPSULE_COLUMNS, posts_in_hands
 from starforge.props.rays import ray_scene
 from starforge.runtime.kernels import numba
 from starforge.runtime.threads import threads_for_work
@@ -294,6 +294,7 @@ def compute_table(
     occluders: np.ndarray | None = None,
     occluder_starts: np.ndarray | None = None,
     pose_grip: np.ndarray | None = None,
+    post_m: float = 0.0,
 ) -> VisibilityTable:
     """Build the (sites x poses) camera-mask table.
 
@@ -328,6 +329,11 @@ def compute_table(
         (:func:`starforge.props.grips.grip_arrays`).
     pose_grip : (p,) int, optional
         The grip each pose is held in (:func:`starforge.props.grips.assign_grips`; default 0).
+    post_m : float
+        Length of a stand-off post under each marker's base, m (0: none).  With a post, a marker
+        whose post (the site to the ball's centre) passes through the hand of a pose's grip is
+        hidden at that pose (:func:`starforge.props.hand.posts_in_hands`).  A marker stuck on the
+        prop is tested by its ball's centre alone.
 
     Notes
     -----
@@ -360,6 +366,9 @@ def compute_table(
             centres, nrm, np.ascontiguousarray(q), np.ascontiguousarray(axes), tans, cos_lim,
             np.ascontiguousarray(caps, dtype=float), starts, grip, 2,
         )  # fmt: skip
+    if post_m > 0 and len(caps):
+        held = posts_in_hands(pts, centres, caps, starts)  # (s, g)
+        masks[held[:, grip]] = 0
     rays = 0
     if occlusion and masks.any():
         si, ki = np.nonzero(masks)

@@ -102,7 +102,8 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         edge_mm=np.asarray(res.seat_report.edge_m)[idx] * 1000.0,
         bounds=np.asarray(prop.bounds_m, float),
         seat_text=(
-            f"{seat.name}: {seat.ball_mm:g} mm ball, centre {seat.centre_height_mm:g} mm above a {seat.base_mm:g} mm base"
+            f"{seat.name}: {seat.ball_mm:g} mm ball, centre {seat.centre_height_mm:g} mm above a {seat.base_mm:g} mm "
+            + ("post's foot (standoff.stl)" if seat.standoff_mm > 0 else "base")
             if seat.base_mm > 0
             else f"{seat.ball_mm:g} mm ball on the surface"
         ),
