@@ -126,6 +126,12 @@ def test_place_writes_the_post_and_the_markers_stand_on_it(tmp_path):
     pts = np.array([m["position"] for m in doc["markers"]], float)  # where a technician marks: the surface
     assert trimesh.proximity.closest_point(builtin_mesh("box"), pts)[1].max() < 1e-6
     assert run_cli([*args, "--standoff", "12", "--out", out, "-q"]) == 2  # no overwrite without --force
+    from benchmarks._pdftext import glyph_boxes, off_page, overlapping_glyphs
+
+    pages = glyph_boxes(out / "guide.pdf")  # the guide names the post, and its text stays apart
+    assert "standoff.stl" in "".join(c for c, _ in pages[0][1])
+    for page in pages:
+        assert overlapping_glyphs([b for _, b in page[1]]) == [] and off_page(page) == []
 
 
 def test_the_table_hides_a_marker_at_the_poses_whose_grip_holds_its_post():

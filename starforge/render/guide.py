@@ -156,6 +156,10 @@ def _first_page(d):
         **TEXT_STYLES["body"],
     )
     cur.advance(head)
+    if d.standoff_text:  # a block of its own, a gap further down: a PDF reader's glyph boxes (the font's
+        # ascent and descent) reach past the extents the page is laid out by
+        cur.y -= cur.gap
+        cur.advance(cur.block(d.standoff_text[:1].upper() + d.standoff_text[1:] + ".", **TEXT_STYLES["body"]))
     margin = d.margin_mm if d.margin_mm is not None else np.full(len(d.landmarks), np.nan)
     # a line too long for the page goes on under its number (the table's font is monospaced:
     # Courier in the PDF, 0.6 em a character)
@@ -181,13 +185,15 @@ def _first_page(d):
     height = _VIEW_BOX[1] + spare
     named: set[str] = set()  # landmarks already labelled in an earlier view
     # one scale for every view, as large as the views' boxes (taller than wide) hold the prop
-    half = shared_half_width(d.triangles.reshape(-1, 3), [VIEWS[n] for n in GUIDE_VIEWS],
+    # markers on posts stand well off the prop: the views frame their balls too
+    balls = d.marker_centres if d.standoff_text else np.zeros((0, 3))
+    half = shared_half_width(np.vstack([d.triangles.reshape(-1, 3), balls]), [VIEWS[n] for n in GUIDE_VIEWS],
                              height * _PAGE[1] / (_VIEW_BOX[0] * _PAGE[0]), 1.3)  # fmt: skip
     for k, name in enumerate(GUIDE_VIEWS):
         B = VIEWS[name]
         ax = fig.add_axes([0.01 + 0.245 * k, _VIEW_TOP - height, _VIEW_BOX[0], height])
         proj = shaded(ax, d.triangles, d.face_normals, B)
-        span = frame(ax, proj, pad=1.3, half_width=half)
+        span = frame(ax, np.vstack([proj.reshape(-1, 3), balls @ B.T]), pad=1.3, half_width=half)
         shade_grips(ax, d, B, wrists=False)
         numbers = markers_in_view(ax, d, B, span, size=_DOT_AREA, view=name)
         triangles, marks = [], []

@@ -40,6 +40,7 @@ class PlotData:
     edge_mm: np.ndarray = field(default=None, repr=False)
     bounds: np.ndarray = field(default=None, repr=False)  # (2, 3) m
     seat_text: str = ""
+    standoff_text: str = ""  # the posts the markers stand on, a sentence; "" without
     hand: np.ndarray = field(default=None, repr=False)  # (k, 8) the grips' fists (capsule_arrays)
     visibility_label: str = "visibility"
     wrists: np.ndarray = field(default=None, repr=False)  # (k, 8) the grips' wrists
@@ -76,6 +77,7 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
     tris, normals = drawn_faces(prop.vertices, prop.faces, max_faces)
     from starforge.props.guide import caliper_pairs
     from starforge.props.hand import capsule_arrays
+    from starforge.props.standoff import standoff_words
 
     idx = list(res.marker_sites)
     seat = res.seat
@@ -103,10 +105,11 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         bounds=np.asarray(prop.bounds_m, float),
         seat_text=(
             f"{seat.name}: {seat.ball_mm:g} mm ball, centre {seat.centre_height_mm:g} mm above a {seat.base_mm:g} mm "
-            + ("post's foot (standoff.stl)" if seat.standoff_mm > 0 else "base")
+            + ("post's foot" if seat.standoff_mm > 0 else "base")
             if seat.base_mm > 0
             else f"{seat.ball_mm:g} mm ball on the surface"
         ),
+        standoff_text=standoff_words(seat) + f" (print {len(idx)})" if seat.standoff_mm > 0 else "",
         hand=capsule_arrays([g.capsules[0] for g in grips]) if grips else capsule_arrays(res.capsules),
         visibility_label=(
             "fraction of scenarios seen by 2 surviving cameras" if tracked else "visibility (fraction of poses x pairs)"
@@ -347,6 +350,11 @@ def markers_in_view(ax, d: PlotData, B, span, colour=None, norm=None, cmap=None,
     lab[:, 1] = np.clip(lab[:, 1], y0 + m, y1 - m)
     sc = None
     texts, leaders = [], []
+    if d.standoff_text:  # each ball on its post, from the mark on the prop
+        foot = d.marker_points @ B.T
+        for i in range(len(mp)):
+            ax.plot([foot[i, 0], mp[i, 0]], [foot[i, 1], mp[i, 1]], color="0.3" if facing[i] else "0.6", lw=1.8,
+                    solid_capstyle="butt", zorder=4.5)  # fmt: skip
     for i in range(len(mp)):
         col = "k" if facing[i] else "0.55"
         leaders += ax.plot([mp[i, 0], lab[i, 0]], [mp[i, 1], lab[i, 1]], color=col, lw=0.5, zorder=4)

@@ -179,7 +179,8 @@ def layout_png(res, path: str | Path) -> Path:
     for ax, (elev, azim), title in zip(axes, [(20, -60), (20, 120)], ["front", "back"], strict=True):
         B = VIEWS[f"layout {title}"]
         proj = shaded(ax, d.triangles, d.face_normals, B)
-        span = frame(ax, proj)
+        balls = d.marker_centres @ B.T if d.standoff_text else np.zeros((0, 3))  # posts hold them off the prop
+        span = frame(ax, np.vstack([proj.reshape(-1, 3), balls]))
         shade_grips(ax, d, B)
         marks = markers_in_view(ax, d, B, span, vis, norm, "plasma", view=f"layout {title}")
         marks.place(ax)
