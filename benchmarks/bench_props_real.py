@@ -18,7 +18,8 @@ but the prop's mesh and the layout:
   longest axis when none does); the fist is a band as long as the palm and 25 mm thicker than
   that circle, and a forearm (a capsule of 35 mm radius, 220 mm long) leaves it at a random
   angle around the axis; markers inside the fist are lost, sight lines through the fist or the
-  forearm are blocked;
+  forearm are blocked; with ``--standoff MM`` (every marker on a printed post), a marker whose
+  post passes through the fist is lost too;
 * sight lines to the prop: trimesh's ray queries from the ball centre to the camera.
 
 A pose is tracked when >= 3 markers are reconstructed and they span a triangle 15 mm high (RMS
@@ -39,7 +40,7 @@ views as drawn, the labels that cover another label or a marker's dot or a landm
 (``guide_label_clashes``, :mod:`_views`) and the landmarks the marker table names that no view
 labels (``guide_landmarks_unlabelled``).
 
-Run: ``python benchmarks/bench_props_real.py [--poses 600] [--props bottle,torch] [--room] [--write-docs]``
+Run: ``python benchmarks/bench_props_real.py [--poses 600] [--props bottle,torch] [--room] [--standoff MM] [--write-docs]``
 (``--room`` places each prop for this room, :func:`room_rig_toml`, instead of starforge's default
 rig; ``--write-docs`` also writes the table into the docs' results page, ``docs/results.md``).
 """
@@ -247,8 +248,9 @@ def band_blocks(p, q, band):
     return in_band(p[:, None] + s[None, :, None] * (q - p)[:, None], band).any(axis=1)
 
 
-def seen_table(mesh, centres, normals, R, t, hands, rng):
-    """(P, s) int: cameras (of the surviving ones) that see each ball centre at each pose."""
+def seen_table(mesh, centres, normals, R, t, hands, rng, bases=None):
+    """(P, s) int: cameras (of the surviving ones) that see each ball centre at each pose; with
+    ``bases`` (s, 3), the feet of stand-off posts, a marker whose post the fist holds is lost."""
     cam, look = ring_cameras()
     P, S = len(R), len(centres)
     alive = np.zeros((P, 8), bool)
@@ -260,6 +262,8 @@ def seen_table(mesh, centres, normals, R, t, hands, rng):
         qk = (cam - t[k]) @ R[k]  # cameras in the prop frame
         fist, (a, b, r) = hands[k]
         under = in_band(centres, fist)
+        if bases is not None:
+            under |= band_blocks(bases, centres, fist)
         for c in np.flatnonzero(alive[k]):
             d = w - cam[c]
             dist = np.linalg.norm(d, axis=1)
@@ -341,7 +345,12 @@ def write_docs(out: dict) -> None:
         + table(["prop", "markers", "usable sites", "grips", "tracked", "best random", "flip-proof random", "every site", "own", "margin (mm)",
                  "guide text overlaps", "guide label clashes", "seconds"], rows)
     )  # fmt: skip
-    if out.get("placed_for", "").startswith("this room"):
+    if out.get("standoff_mm"):
+        body = (f"Every marker on a printed {out['standoff_mm']:g} mm post (`place --standoff "
+                f"{out['standoff_mm']:g}`), in every layout compared; the evaluation's fist also holds a post that "
+                "passes through it, and its marker is then lost.\n\n" + body)
+        write_section("props-real-standoff", f"Props no one on the project made, markers on {out['standoff_mm']:g} mm posts", body)
+    elif out.get("placed_for", "").startswith("this room"):
         body = ("Placed for the evaluation's room instead (`--room`): its cameras as a rig file, the volume "
                 "grown by the prop's longest side, since the room keeps the mesh's origin anywhere in it.\n\n" + body)
         write_section("props-real-room", "Props no one on the project made, placed for the room", body)
@@ -355,6 +364,8 @@ def main(argv=None) -> int:
     ap.add_argument("--props", default="")
     ap.add_argument("--room", action="store_true",
                     help="place each prop for this room (its rig file, room_rig_toml) instead of starforge's default rig")
+    ap.add_argument("--standoff", type=float, default=0.0,
+                    help="place every marker on a printed post this long (mm, `place --standoff`); a post the fist holds loses its marker")
     ap.add_argument("--write-docs", action="store_true", help="also write the table into docs/results.md")
     args = ap.parse_args(argv)
     from _pdftext import glyph_boxes, off_page, overlapping_glyphs
@@ -377,6 +388,8 @@ def main(argv=None) -> int:
             if args.room:
                 (Path(tmp) / f"{name}-room.toml").write_text(room_rig_toml(meshes[name]), encoding="utf-8")
                 rig = {"rig": str(Path(tmp) / f"{name}-room.toml")}
+            if args.standoff:
+                rig["standoff_mm"] = args.standoff
             res = run_placement(str(path), seed=0, **rig)
             sec = time.perf_counter() - t0
             mesh = res.prop.mesh
@@ -385,9 +398,10 @@ def main(argv=None) -> int:
             chosen = list(res.marker_sites)
             rng = np.random.default_rng(123)
             R, t = random_world(args.poses, rng)
-            counts = seen_table(mesh, centres, normals, R, t, random_hands(mesh, args.poses, rng), rng)
+            bases = res.sites.points if args.standoff else None
+            counts = seen_table(mesh, centres, normals, R, t, random_hands(mesh, args.poses, rng), rng, bases)
             R2, t2 = random_world(args.poses, rng)
-            counts2 = seen_table(mesh, centres, normals, R2, t2, random_hands(mesh, args.poses, rng), rng)
+            counts2 = seen_table(mesh, centres, normals, R2, t2, random_hands(mesh, args.poses, rng), rng, bases)
             lay_rng = np.random.default_rng(7)
             best, best_f = None, -1.0
             tol_mm = res.spec.track.avoid_tolerance_mm
@@ -448,6 +462,7 @@ def main(argv=None) -> int:
     out = {
         "evaluation": "own 8-camera ring, uniform random rotations, 4 of 8 cameras lost, a random-grip hand (see the docstring)",
         "placed_for": "this room (--room)" if args.room else "starforge's default rig",
+        "standoff_mm": args.standoff,
         "poses": args.poses,
         "props": rows,
         "targets": {
