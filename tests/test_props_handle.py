@@ -185,6 +185,18 @@ def _inside_brute(points, capsules, samples=4001):
     return out
 
 
+def _inside_shapes(points, capsules):
+    """Each point within some capsule's radius of its core segment (the textbook projection,
+    clamped to the segment), a band (``flat``) cut square at its ends."""
+    out = np.zeros(len(points), bool)
+    for c in capsules:
+        a, b = np.asarray(c.a), np.asarray(c.b)
+        t = (points - a) @ (b - a) / ((b - a) @ (b - a))
+        near = np.linalg.norm(points - (a + np.clip(t, 0, 1)[:, None] * (b - a)), axis=1) <= c.radius
+        out |= near & ((t >= 0) & (t <= 1) if c.flat else True)
+    return out
+
+
 def test_the_share_of_poses_whose_hand_encloses_the_sites_is_weighed_by_the_grips():
     mug, _ = _mug()
     _, grips = grip_distribution(mug)
@@ -196,3 +208,13 @@ def test_the_share_of_poses_whose_hand_encloses_the_sites_is_weighed_by_the_grip
     assert hidden_share(sites, grips) == pytest.approx(want)
     assert 0 < want < 1  # the body's grips enclose the cup, the handle's do not
     assert hidden_share(sites, ()) == 0.0
+    # balls on 30 mm posts stand clear of the fist, but the fist holds the posts: a marker whose
+    # post (sampled densely here) passes through the hand is lost as well
+    feet = wall[:: max(1, len(wall) // 30)]
+    out = feet + 0.03 * np.column_stack([feet[:, :2] / 0.042, np.zeros(len(feet))])
+    post = np.linspace(0.0, 1.0, 121)
+    along = (feet[:, None] + post[None, :, None] * (out - feet)[:, None]).reshape(-1, 3)
+    held = [_inside_shapes(along, g.capsules).reshape(len(feet), -1).any(axis=1) for g in grips]
+    lost = sum(g.weight for g, h in zip(grips, held, strict=True) if (~h).sum() < 3) / sum(g.weight for g in grips)
+    assert hidden_share(out, grips, feet) == pytest.approx(lost)
+    assert hidden_share(out, grips) < lost  # the balls alone are out of the fist

@@ -12,7 +12,7 @@ import numpy as np
 from starforge.props.ceiling import tracked_ceiling
 from starforge.props.evaluate import random_poses
 from starforge.props.grips import GRIP_SEED_OFFSET, assign_grips, grip_arrays
-from starforge.props.hand import inside_capsules
+from starforge.props.hand import inside_capsules, posts_in_hands
 from starforge.props.layout_search import held_out_polish
 from starforge.props.rig import Poses
 from starforge.props.scenarios import alive_masks
@@ -177,7 +177,10 @@ def explain_shortfall(sample: HeldOut, spec, prep, prob, chosen, removed, fit) -
         "markers_that_fit_at_the_spacing": fit,
         "usable_sites": len(prep.sites),
         "sites_under_the_hand": removed["under_hand"],
-        "hidden_by_the_hand": hidden_share(prep.sites.points + prep.seat.centre_height_m * prep.sites.normals, prep.grips),
+        "hidden_by_the_hand": hidden_share(
+            prep.sites.points + prep.seat.centre_height_m * prep.sites.normals, prep.grips,
+            prep.sites.points if prep.seat.standoff_m > 0 else None,
+        ),  # fmt: skip
     }
     if prep.grips:
         grip = np.repeat(sample.grip, sample.patterns)  # scenario k * patterns + j is pose k's
@@ -215,14 +218,20 @@ def numbers_as_ranges(numbers: list[int]) -> str:
     return ", ".join(out)
 
 
-def hidden_share(centres: np.ndarray, grips) -> float:
+def hidden_share(centres: np.ndarray, grips, bases: np.ndarray | None = None) -> float:
     """The share of the poses (by the grips' weights) held in a grip whose capsules enclose all but
-    at most 2 of the markers' ball ``centres`` (n, 3), m: a marker inside the hand is lost, so no
-    3 markers are seen in those poses whatever the layout."""
+    at most 2 of the markers' ball ``centres`` (n, 3), m, or, with ``bases`` (n, 3) (the feet of
+    stand-off posts), hold their posts: a marker inside the hand is lost, so no 3 markers are seen
+    in those poses whatever the layout."""
     total = sum(g.weight for g in grips)
     if not total:
         return 0.0
-    lost = sum(g.weight for g in grips if int((~inside_capsules(centres, g.capsules)).sum()) < 3)
+    held = np.zeros((len(centres), len(grips)), bool)
+    if bases is not None:
+        held = posts_in_hands(bases, centres, *grip_arrays(grips))
+    lost = sum(
+        g.weight for k, g in enumerate(grips) if int((~(inside_capsules(centres, g.capsules) | held[:, k])).sum()) < 3
+    )
     return float(lost / total)
 
 
