@@ -180,22 +180,29 @@ def test_a_grip_on_the_shaft_closes_round_the_shaft():
     assert under_hand(shaft, shaft, grips).all()
 
 
+def held_scene(mesh, sites: int, seed: int):
+    """``(grips, rig, sites, poses, pose_grip)``: ``mesh``'s grip distribution, the default rig,
+    ``sites`` sites and two random poses per grip, each held in its own grip."""
+    from starforge.props.evaluate import random_poses
+    from starforge.props.rig import load_rig
+    from starforge.props.sites import sample_sites
+
+    _, grips = grip_distribution(mesh)
+    rig = load_rig("default")
+    rng = np.random.default_rng(seed)
+    samples = sample_sites(mesh, sites, rng)
+    poses = random_poses(rig.volume, 2 * len(grips), mesh.bounds.mean(axis=0), rng)
+    return grips, rig, samples, poses, assign_grips(len(poses), len(grips), np.random.default_rng(1))
+
+
 def test_the_table_holds_each_pose_in_its_own_grip():
     """The compiled table with a grip per pose equals, pose by pose, tables built with that
     grip's capsules alone (brute force over the grips)."""
-    from starforge.props.evaluate import random_poses
     from starforge.props.hand import capsule_arrays
-    from starforge.props.rig import load_rig
-    from starforge.props.sites import sample_sites
     from starforge.props.visibility import compute_table
 
     mesh = _torch()
-    _, grips = grip_distribution(mesh)
-    rig = load_rig("default")
-    rng = np.random.default_rng(5)
-    sites = sample_sites(mesh, 60, rng)
-    poses = random_poses(rig.volume, 2 * len(grips), mesh.bounds.mean(axis=0), rng)
-    pose_grip = assign_grips(len(poses), len(grips), np.random.default_rng(1))
+    grips, rig, sites, poses, pose_grip = held_scene(mesh, 60, 5)
     assert np.bincount(pose_grip).tolist() == [2] * len(grips)
     occ, starts = grip_arrays(grips)
     table = compute_table(mesh, sites.points, sites.normals, rig, poses, 180.0, radius_m=0.005,

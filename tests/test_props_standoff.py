@@ -140,20 +140,13 @@ def test_place_writes_the_post_and_the_markers_stand_on_it(tmp_path):
 def test_the_table_hides_a_marker_at_the_poses_whose_grip_holds_its_post():
     """Pose by pose against the table without posts: a marker is cleared exactly where the
     pose's grip has a capsule that a dense sample of the post (site to ball centre) enters."""
-    from starforge.props.evaluate import random_poses
-    from starforge.props.grips import assign_grips, grip_arrays, grip_distribution
-    from starforge.props.rig import load_rig
-    from starforge.props.sites import sample_sites
+    from starforge.props.grips import grip_arrays
     from starforge.props.visibility import compute_table
+    from tests.test_props_grips import held_scene
 
     mesh = trimesh.creation.cylinder(radius=0.016, height=0.12, sections=48)
     mesh.apply_translation([0, 0, 0.06])
-    _, grips = grip_distribution(mesh)
-    rig = load_rig("default")
-    rng = np.random.default_rng(3)
-    sites = sample_sites(mesh, 50, rng)
-    poses = random_poses(rig.volume, 2 * len(grips), mesh.bounds.mean(axis=0), rng)
-    pose_grip = assign_grips(len(poses), len(grips), np.random.default_rng(1))
+    grips, rig, sites, poses, pose_grip = held_scene(mesh, 50, 3)
     occ, starts = grip_arrays(grips)
     h = 0.03
     kw = dict(radius_m=0.005, centre_m=h, occluders=occ, occluder_starts=starts, pose_grip=pose_grip)
