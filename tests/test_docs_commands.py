@@ -107,6 +107,17 @@ def _drill(folder: Path) -> None:
     _union(parts).export(folder / "drill.stl")
 
 
+def _mug(folder: Path) -> None:
+    """A mug: an 80 mm cup, its wall 4 mm, and a ring handle (mug.stl)."""
+    cup = trimesh.boolean.difference(
+        [trimesh.creation.cylinder(40, 95, sections=64, transform=_at(0, 0, 47.5)),
+         trimesh.creation.cylinder(36, 95, sections=64, transform=_at(0, 0, 53.5))], engine="manifold",
+    )  # fmt: skip
+    Rx = trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0))
+    handle = trimesh.creation.torus(30, 7, transform=_at(45, 0, 50, Rx))
+    _union([cup, handle]).export(folder / "mug.stl")
+
+
 def _wand_mm() -> np.ndarray:
     """A calibration-wand-like tool: five markers on a T, mm, not in one plane."""
     return np.array([[0, 0, 0], [140, 0, 0], [300, 0, 4], [0, 95, 0], [0, -180, 8]], dtype=float)
@@ -172,7 +183,7 @@ def _expert(folder: Path) -> None:
 
 
 #: a file a page assumes -> its maker (a path under lab/ is made with the whole lab)
-MAKERS = {"quad.stl": _quad, "scan.obj": _mallet, "grip.stl": _grip_area, "drill.stl": _drill,
+MAKERS = {"quad.stl": _quad, "scan.obj": _mallet, "grip.stl": _grip_area, "drill.stl": _drill, "mug.stl": _mug,
           "lab": _lab, "session.c3d": _session, "out/finger/family.json": _finger,
           "out/finger25/family.json": _finger25, "out/hammer/placement.json": _hammer,
           "expert.csv": _expert}
