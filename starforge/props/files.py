@@ -531,7 +531,7 @@ def summary_lines(res: PlacementResult) -> list[str]:
         if res.seat.standoff_mm > 0:
             from starforge.props.standoff import standoff_words
 
-            lines.append(f"stand-offs: {standoff_words(res.seat)}; print {len(idx)}")
+            lines.append(f"stand-offs: {standoff_words(res.seat, len(idx))}")
         if not math.isinf(t["near_symmetry_margin_m"]):
             lines.append(symmetry_line(t["near_symmetry_margin_m"], res.spec.track.near_symmetry_target_mm))
         d = distinct_report(res)

@@ -33,7 +33,7 @@ import numpy as np
 
 from starforge.errors import StarforgeError
 from starforge.geometry.frames import perpendicular_basis
-from starforge.markers import MarkerType
+from starforge.markers import MarkerType, post_top
 from starforge.spec import in_range
 from starforge.tol import tol
 
@@ -103,11 +103,10 @@ class Seat:
 
 
 def with_standoff(seat: Seat, standoff_mm: float) -> Seat:
-    """``seat`` lifted ``standoff_mm`` off the prop on a printed post (:mod:`starforge.cad.standoff`):
-    the ball's centre that much higher, the post's foot the base's diameter (0: ``seat``)."""
+    """``seat`` lifted ``standoff_mm`` off the prop on a printed post (:mod:`starforge.props.standoff`):
+    the ball's centre that much higher, the base the post's foot (as wide as
+    :func:`starforge.markers.post_top` makes the post; 0: ``seat``)."""
     from dataclasses import replace
-
-    from starforge.markers import post_top
 
     h = float(in_range("standoff_mm (--standoff)", standoff_mm, 0.0, MAX_STANDOFF_MM))
     if h == 0.0:

@@ -48,10 +48,11 @@ def standoff_stl(seat) -> bytes:
     return stl_bytes(np.asarray(m.vert_properties, float)[:, :3], np.asarray(m.tri_verts, np.int64))
 
 
-def standoff_words(seat) -> str:
-    """One line for the guide and the run's summary: what to print and how the marker goes on."""
+def standoff_words(seat, count: int) -> str:
+    """One line for the guide and the run's summary: what to print (``count`` posts) and how the
+    marker goes on."""
     top = post_top(seat.marker, seat.base_mm)
     return (
         f"every marker stands on a printed {seat.standoff_mm:g} mm post, {seat.base_mm:g} mm across "
-        f"(standoff.stl, mm): its foot glued on the mark, the marker {top.words}"
+        f"(standoff.stl, mm): its foot glued on the mark, the marker {top.words}; print {count}"
     )

@@ -109,7 +109,7 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
             if seat.base_mm > 0
             else f"{seat.ball_mm:g} mm ball on the surface"
         ),
-        standoff_text=standoff_words(seat) + f" (print {len(idx)})" if seat.standoff_mm > 0 else "",
+        standoff_text=standoff_words(seat, len(idx)) if seat.standoff_mm > 0 else "",
         hand=capsule_arrays([g.capsules[0] for g in grips]) if grips else capsule_arrays(res.capsules),
         visibility_label=(
             "fraction of scenarios seen by 2 surviving cameras" if tracked else "visibility (fraction of poses x pairs)"
