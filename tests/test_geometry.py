@@ -294,3 +294,23 @@ def test_a_ray_enters_a_band_exactly_when_points_along_it_do(seed):
             assert _band_samples_hit(o[i], d[i], length, a, b, radius, 1e-3)
         else:
             assert not _band_samples_hit(o[i], d[i], length, a, b, radius, -1e-3)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_a_point_is_as_far_from_many_segments_as_from_each_alone(seed):
+    """:func:`point_segments_distance` (one point, many segments) against
+    :func:`point_segment_distance` (many points, one segment) taken segment by segment, and
+    against dense samples of each segment; segments of no length included."""
+    from starforge.geometry.distance import point_segment_distance, point_segments_distance
+
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-1, 1, 3)
+    a = rng.uniform(-1, 1, (12, 3))
+    b = a + rng.normal(size=(12, 3)) * rng.uniform(0, 1, (12, 1))
+    b[0] = a[0]
+    got = point_segments_distance(p, a, b)
+    t = np.linspace(0.0, 1.0, 2001)[:, None]
+    for i in range(len(a)):
+        assert got[i] == pytest.approx(point_segment_distance(p[None], a[i], b[i])[0], abs=1e-12)
+        assert np.linalg.norm(a[i] + t * (b[i] - a[i]) - p, axis=1).min() >= got[i] - 1e-12

@@ -52,6 +52,15 @@ def segment_segment_distance(a0, a1, b0, b1, samples: int = 0) -> float:
     return float(min(cands))
 
 
+def point_segments_distance(point, a, b) -> np.ndarray:
+    """(n,) distance from one ``point`` (3,) to each segment ``a[i]``-``b[i]`` (n, 3)."""
+    a, b = np.atleast_2d(np.asarray(a, dtype=float)), np.atleast_2d(np.asarray(b, dtype=float))
+    d, r = b - a, np.asarray(point, dtype=float) - a
+    dd = np.einsum("ij,ij->i", d, d)
+    t = np.clip(np.einsum("ij,ij->i", r, d) / np.where(dd > 0, dd, 1.0), 0.0, 1.0)
+    return np.linalg.norm(r - t[:, None] * d, axis=1)
+
+
 def ray_hits_spheres(origins, dirs, centres, radii) -> np.ndarray:
     """Whether each ray ``origins[i] + t dirs[i]`` (t > 0) enters any sphere.
 

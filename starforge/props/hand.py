@@ -23,7 +23,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from starforge.errors import StarforgeError
-from starforge.geometry.distance import in_band, point_segment_distance, ray_enters_band, ray_segment_distance
+from starforge.geometry.distance import (
+    in_band,
+    point_segment_distance,
+    point_segments_distance,
+    ray_enters_band,
+    ray_segment_distance,
+)
 
 #: a palm's width along the grip, m (an adult hand is 75-95 mm across the knuckles)
 PALM_M = 0.09
@@ -73,6 +79,17 @@ class Capsule:
         if self.flat:
             return ray_enters_band(origins, dirs, self.a, self.b, self.radius)
         return ray_segment_distance(origins, dirs, np.asarray(self.a), np.asarray(self.b)) <= self.radius
+
+    def meets_segments(self, starts, ends) -> np.ndarray:
+        """(n,) bool: each segment ``starts[i]``-``ends[i]`` (n, 3) has a point inside.  Exact: a
+        segment is a ray cut at its length, and a capsule is its band with a ball at each end."""
+        p, q = np.asarray(starts, float).reshape(-1, 3), np.asarray(ends, float).reshape(-1, 3)
+        length = np.linalg.norm(q - p, axis=1)
+        dirs = (q - p) / np.where(length > 0, length, 1.0)[:, None]
+        hit = ray_enters_band(p, dirs, self.a, self.b, self.radius, length)
+        if not self.flat:
+            hit |= (point_segments_distance(self.a, p, q) <= self.radius) | (point_segments_distance(self.b, p, q) <= self.radius)
+        return hit
 
 
 def fist(a, b, part_radius: float, fingers_m: float = FINGERS_M) -> Capsule:
@@ -217,29 +234,21 @@ def grip_segment(mesh) -> tuple[np.ndarray, np.ndarray, float]:
     return a, b, min(r, 0.05)
 
 
-#: a stand-off post is tested for the hand at points this far apart along it, m
-POST_STEP_M = 5e-4
-
-
 def posts_in_hands(bases: np.ndarray, tops: np.ndarray, occluders: np.ndarray, starts: np.ndarray) -> np.ndarray:
     """(n, g) bool: the post from ``bases[i]`` to ``tops[i]`` (n, 3) passes through a capsule (or
     band) of grip g: rows ``starts[g]:starts[g + 1]`` of ``occluders`` (:func:`capsule_arrays`).
 
     A hand cannot close round a post: where the grip's hand would hold a stand-off marker's post,
     the marker is taken as hidden at that grip (the hand covers it, or holds the prop elsewhere).
-    The post is sampled every :data:`POST_STEP_M` (both ends included)."""
+    Exact (:meth:`Capsule.meets_segments`), in time and memory linear in posts x capsules."""
     a, b = np.asarray(bases, float).reshape(-1, 3), np.asarray(tops, float).reshape(-1, 3)
     G = len(starts) - 1
     out = np.zeros((len(a), G), bool)
     if not len(a) or not len(occluders):
         return out
-    k = max(2, int(np.ceil(float(np.linalg.norm(b - a, axis=1).max()) / POST_STEP_M)) + 1)
-    t = np.linspace(0.0, 1.0, k)
-    pts = (a[:, None] + t[None, :, None] * (b - a)[:, None]).reshape(-1, 3)
     for g in range(G):
         for row in occluders[starts[g] : starts[g + 1]]:
-            cap = Capsule(tuple(row[:3]), tuple(row[3:6]), float(row[6]), bool(row[7]))
-            out[:, g] |= cap.contains(pts).reshape(len(a), k).any(axis=1)
+            out[:, g] |= Capsule(tuple(row[:3]), tuple(row[3:6]), float(row[6]), bool(row[7])).meets_segments(a, b)
     return out
 
 
