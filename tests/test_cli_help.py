@@ -281,6 +281,7 @@ USED_NUMBERS = {
     ("starforge stars", "--reserve"): lambda: list(_stars_spec().reserve_mm),
     ("starforge place run", "--placement-error"): _placement_error,
     ("starforge place run", "--standoff"): _standoff,
+    ("starforge place-batch", "--standoff"): _standoff,
 }
 
 

@@ -418,6 +418,7 @@ def _bounded_cases(f) -> list[Case]:
         # place-batch reads every prop before a job starts
         Case("place-batch-bad-mesh", ("place-batch", "hammer", str(f["garbage_stl"])), r"garbage.stl"),
         Case("place-batch-missing-mesh", ("place-batch", "hammer", "nope.stl"), r"not found: nope.stl"),
+        Case("place-batch-standoff-short", ("place-batch", "hammer", "--standoff", "3"), r"--standoff 6\.5 or more"),
     ]
 
 

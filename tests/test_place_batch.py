@@ -34,17 +34,18 @@ def _markers(folder):
 
 
 @pytest.mark.parametrize(
-    "props, workers",
+    "props, workers, extra",
     [
-        pytest.param(("hammer",), "1", marks=pytest.mark.slow),  # in this process
-        pytest.param(("hammer", "sword"), "2", marks=pytest.mark.slow),  # on a 2-worker local cluster
+        pytest.param(("hammer",), "1", (), marks=pytest.mark.slow),  # in this process
+        pytest.param(("hammer", "sword"), "2", (), marks=pytest.mark.slow),  # on a 2-worker local cluster
+        pytest.param(("hammer",), "1", ("--standoff", "15"), marks=pytest.mark.slow),  # markers on posts
     ],
 )
-def test_batch_equals_single_runs(tmp_path, props, workers):
+def test_batch_equals_single_runs(tmp_path, props, workers, extra):
     spec = tmp_path / "quick.toml"
     spec.write_text(SPEC)
     out = tmp_path / "batch"
-    rc = main(["place-batch", *props, "--spec", str(spec), "--workers", workers, "--out", str(out), "-q"])
+    rc = main(["place-batch", *props, "--spec", str(spec), *extra, "--workers", workers, "--out", str(out), "-q"])
     assert rc == 0
     rows = {r["job"]: r for r in csv.DictReader((out / "batch.csv").read_text().splitlines())}
     assert list(rows) == list(props)
@@ -52,9 +53,12 @@ def test_batch_equals_single_runs(tmp_path, props, workers):
         if rows[prop]["placed_again"] == "1":  # placed again to keep clear of another: not a single run
             continue
         single = tmp_path / f"single-{prop}"
-        assert main(["place", prop, "--spec", str(spec), "--out", str(single), "-q"]) == 0
+        assert main(["place", prop, "--spec", str(spec), *extra, "--out", str(single), "-q"]) == 0
         assert _markers(out / prop) == _markers(single)
-        assert (out / prop / "markers.csv").read_bytes() == (single / "markers.csv").read_bytes()
+        for name in ("markers.csv", "standoff.stl"):
+            assert (out / prop / name).exists() == (single / name).exists() == (name != "standoff.stl" or bool(extra))
+            if (single / name).exists():
+                assert (out / prop / name).read_bytes() == (single / name).read_bytes()
 
 
 def test_batch_bad_prop_publishes_nothing(tmp_path, capsys):

@@ -110,9 +110,9 @@ def _prop_and_spec(prop: str, spec: str | PlaceSpec, units: str, forbid_mesh, ma
     """The prop and the spec with ``overrides`` (:func:`starforge.props.spec.with_overrides`
     keywords) and the constrained areas applied; the files are checked before the prop loads."""
     from starforge.props.mesh import load_prop
-    from starforge.props.spec import PlaceSpec, load_spec, with_overrides
+    from starforge.props.spec import as_spec, with_overrides
 
-    s = spec if isinstance(spec, PlaceSpec) else load_spec(spec)
+    s = as_spec(spec)
     cons = None
     if forbid_mesh or mask:
         cons = s.constraints

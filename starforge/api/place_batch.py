@@ -92,10 +92,12 @@ def plan_place_batch(
     workers: int = 0,
     out: str | Path = "out/place-batch",
     force: bool = False,
+    standoff_mm: float | None = None,
 ) -> PlaceBatchPlan:
     """Check every input of a batch and name its jobs, before any work: the options' ranges, the
     files to avoid, the spec and rigs (with each job's memory estimate), every prop, and that the
-    output folder takes the placements (``force`` replaces them).
+    output folder takes the placements (``force`` replaces them).  ``standoff_mm``: every marker
+    of every layout on a printed post this long (the spec's ``standoff_mm`` when None).
 
     Examples
     --------
@@ -105,7 +107,7 @@ def plan_place_batch(
     [['hammer-01', 'hammer-02'], ['box-01', 'box-02']]
     """
     from starforge.props.batch import check_props, job_bytes, jobs
-    from starforge.props.spec import load_spec
+    from starforge.props.spec import load_spec, with_overrides
 
     if seed < 0:
         raise StarforgeError(f"seed must be >= 0, got {seed}")
@@ -123,18 +125,21 @@ def plan_place_batch(
         check_body_files([Path(a) for a in avoid], "--avoid file")
         faces = faces_to_avoid([Path(a) for a in avoid])[0] / 1000.0  # mm -> m
     s = load_spec(spec)
+    if standoff_mm is not None:
+        s = with_overrides(s, standoff_mm=standoff_mm)
+    s.marker_seat()  # a post too short for its marker is refused here, not on a worker
     if copies > 1 and s.objective != "tracked":
         raise StarforgeError(
             f"--copies needs the tracked objective; --spec {spec} uses {s.objective!r} (try --spec default)"
         )
     distinct = distinct_tolerance_mm(s, preset, noise_mm)
     table = distinct_tolerances_mm(s, preset, noise_mm)
-    todo = jobs(props, list(rigs), units, spec, seed, copies, faces, distinct, table)
+    todo = jobs(props, list(rigs), units, s, seed, copies, faces, distinct, table)
     folder = Path(out)
     # a layout's folder may be there from an earlier run: its placement.json is what force replaces
     check_writable(folder, [f"{f}/placement.json" for names, _ in todo for f in names] + ["batch.csv"], force)
     # every input read before a cluster starts: the spec and rigs (the estimates), then the props
-    est = tuple(job_bytes(spec, job[3]) for _, job in todo)
+    est = tuple(job_bytes(s, job[3]) for _, job in todo)
     check_props(props, units)
     return PlaceBatchPlan(
         tuple(todo), est, faces, distinct, table, noise_mm, preset, frames, seed, workers, folder, force

@@ -10,7 +10,7 @@ import typer
 from starforge import api
 from starforge.cli._app import SCHEDULER_HELP, app, console, use_scheduler
 from starforge.cli._jobs import job_progress
-from starforge.cli.place import NOISE, PRESET
+from starforge.cli.place import NOISE, PRESET, STANDOFF
 
 
 @app.command(
@@ -36,6 +36,7 @@ def place_batch_cmd(
         help="Placements, star families or tracker files of bodies already in the room (repeat the flag for "
         "several): no layout comes within the tolerance of theirs (default: none).",
     ),
+    standoff: float = STANDOFF,
     preset: str = PRESET,
     noise: float = NOISE,
     frames: int = typer.Option(
@@ -54,7 +55,7 @@ def place_batch_cmd(
     use_scheduler(scheduler)
     plan = api.plan_place_batch(
         props, rigs=rig or (), spec=spec, copies=copies, avoid=avoid or (), preset=preset, noise_mm=noise,
-        frames=frames, units=units, seed=seed, workers=workers, out=out, force=force,
+        frames=frames, units=units, seed=seed, workers=workers, out=out, force=force, standoff_mm=standoff,
     )  # fmt: skip
     with job_progress("place-batch", "placements", len(plan.jobs), quiet) as (tick, where):
         run = api.run_place_batch(plan, scheduler=scheduler, progress=tick, on_plan=where)

@@ -42,7 +42,7 @@ def place_job(args: tuple) -> list[dict[str, bytes]]:
     from starforge.props.files import write_outputs
     from starforge.props.mesh import load_prop
     from starforge.props.placement import place_copies, run_placement
-    from starforge.props.spec import load_spec, with_overrides
+    from starforge.props.spec import as_spec, with_overrides
 
     prop, units, spec, rig, seed, copies, avoid, distinct, table = args
     if copies == 1:
@@ -52,7 +52,7 @@ def place_job(args: tuple) -> list[dict[str, bytes]]:
             )
         ]
     else:
-        s = with_overrides(load_spec(spec), rig=rig, distinct_mm=distinct)
+        s = with_overrides(as_spec(spec), rig=rig, distinct_mm=distinct)
         results = place_copies(load_prop(prop, units), s, int(copies), seed=int(seed), avoid=avoid, tolerances_mm=table)
     out = []
     for res in results:
@@ -129,14 +129,14 @@ def fleet(todo, results, distinct_mm: float, avoid=None, tolerances_mm=None) -> 
     return [tuple(r) for r in rows], redone
 
 
-def job_bytes(spec: str, rig: str | None) -> float:
+def job_bytes(spec, rig: str | None) -> float:
     """Rough peak memory of one placement, bytes: the visibility table's estimate of
     :func:`starforge.props.prepare.check_cost` (sites x poses x (camera pairs + 8 + 3 loss
     patterns + 16)) plus the process's libraries (about 400 MB measured for ``place hammer``)."""
     from starforge.props.rig import load_rig
-    from starforge.props.spec import load_spec, with_overrides
+    from starforge.props.spec import as_spec, with_overrides
 
-    s = with_overrides(load_spec(spec), rig=rig)
+    s = with_overrides(as_spec(spec), rig=rig)
     r = load_rig(s.rig)
     poses = s.resolution**3 * s.orientations
     patterns = s.track.loss_patterns if s.objective == "tracked" else 1
@@ -153,7 +153,7 @@ def job_name(prop: str, rig: str | None, many_rigs: bool) -> str:
 
 
 def jobs(
-    props, rigs, units: str, spec: str, seed: int, copies: int = 1, avoid=None, distinct_mm=None, tolerances_mm=None
+    props, rigs, units: str, spec, seed: int, copies: int = 1, avoid=None, distinct_mm=None, tolerances_mm=None
 ) -> list[tuple[list[str], tuple]]:
     """(folder names, job) for every prop x rig, in the order given: one folder per copy
     (``<name>-01``, ``-02``, ... when ``copies`` > 1).  A name is never reused, nor one that

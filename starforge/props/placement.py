@@ -31,7 +31,7 @@ from starforge.props.result import PlacementResult, tick
 from starforge.props.rig import load_rig
 from starforge.props.scenarios import LOSS_SEED_OFFSET, loss_scenarios
 from starforge.props.spacing import spaced_capacity, spacing_m
-from starforge.props.spec import PlaceSpec, load_spec, with_overrides
+from starforge.props.spec import PlaceSpec, as_spec, with_overrides
 from starforge.props.tracked import Problem, TrackSettings, kernels_compiled
 from starforge.props.tracked_optimizer import optimize
 from starforge.runtime.kernels import FIRST_RUN_NOTE
@@ -74,7 +74,7 @@ def run_placement(
     **overrides
         :func:`starforge.props.spec.with_overrides` keywords (``markers``, ``marker_mm``, ...).
     """
-    s = spec if isinstance(spec, PlaceSpec) else load_spec(spec)
+    s = as_spec(spec)
     cap = None
     if grip is not None and str(grip).strip().lower() == "none":
         overrides["hand"] = False

@@ -96,6 +96,11 @@ def load_spec(name_or_path: str = "default") -> PlaceSpec:
         return from_mapping(PlaceSpec, data, where=f"place spec {name}")
 
 
+def as_spec(spec: str | PlaceSpec) -> PlaceSpec:
+    """``spec`` itself, or the template or TOML file it names (:func:`load_spec`)."""
+    return spec if isinstance(spec, PlaceSpec) else load_spec(spec)
+
+
 def with_overrides(
     spec: PlaceSpec,
     markers: int | None = None,
