@@ -9,7 +9,7 @@ import trimesh
 
 from starforge.props.builtin import builtin_mesh
 from starforge.props.mesh import repair_mesh, signed_volume
-from starforge.props.seat import surface_distance
+from starforge.props.surface import surface_distance
 from starforge.render.prop_views import DRAWN_FACES, drawn_faces
 
 

@@ -158,6 +158,20 @@ def test_the_table_hides_a_marker_at_the_poses_whose_grip_holds_its_post():
     assert (plain != posts).any() and (posts != 0).any()
 
 
+def sliced_layers(folder, name: str, stl: bytes) -> list[float]:
+    """The layer heights (mm) PrusaSlicer prints the STL bytes at, 0.2 mm layers; it must slice
+    them without an error."""
+    (folder / f"{name}.stl").write_bytes(stl)
+    g = folder / f"{name}.gcode"
+    res = subprocess.run(
+        ["prusa-slicer", "--export-gcode", str(folder / f"{name}.stl"), "--layer-height", "0.2",
+         "--first-layer-height", "0.2", "--output", str(g)],
+        capture_output=True, text=True, timeout=240,
+    )  # fmt: skip
+    assert res.returncode == 0 and g.exists(), res.stdout[-2000:] + res.stderr[-2000:]
+    return [float(z) for z in re.findall(r"^;Z:([0-9.]+)", g.read_text(), flags=re.M)]
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("prusa-slicer") is None, reason="PrusaSlicer is not installed here")
 @pytest.mark.parametrize("name", ["9.5mm-m3", "6.4mm-post"])
@@ -167,14 +181,6 @@ def test_prusaslicer_slices_the_post_standing_on_its_foot(tmp_path, name):
     from starforge.props.standoff import standoff_stl
 
     seat = with_standoff(seat_for(name), 22.0)
-    (tmp_path / "post.stl").write_bytes(standoff_stl(seat))
-    g = tmp_path / "post.gcode"
-    res = subprocess.run(
-        ["prusa-slicer", "--export-gcode", str(tmp_path / "post.stl"), "--layer-height", "0.2",
-         "--first-layer-height", "0.2", "--output", str(g)],
-        capture_output=True, text=True, timeout=240,
-    )  # fmt: skip
-    assert res.returncode == 0 and g.exists(), res.stdout[-2000:] + res.stderr[-2000:]
-    zs = [float(z) for z in re.findall(r"^;Z:([0-9.]+)", g.read_text(), flags=re.M)]
+    zs = sliced_layers(tmp_path, "post", standoff_stl(seat))
     top = 22.0 + post_top(seat.marker, seat.base_mm).pin_length_mm
     assert zs[0] == pytest.approx(0.2) and abs(max(zs) - top) <= 0.2

@@ -243,11 +243,11 @@ def place_markers(
 
 
 def placement_files(spec: PlaceSpec, *, bases_stl: bool = False) -> list[str]:
-    """The files :func:`run_place` writes for ``spec`` (``standoff.stl`` with a stand-off,
-    ``prop_bases.stl`` with ``bases_stl``)."""
+    """The files :func:`run_place` may write for ``spec`` (``standoff.stl`` with a stand-off, and
+    ``clamps.stl`` when a post stands on a rod; ``prop_bases.stl`` with ``bases_stl``)."""
     names = ["placement.json", "markers.csv", f"prop_markers.{spec.mesh_format}"]
     names += ["convergence.png", "layout.png", "guide.png", "guide.pdf"]
-    names += ["standoff.stl"] if spec.standoff_mm > 0 else []
+    names += ["standoff.stl", "clamps.stl"] if spec.standoff_mm > 0 else []
     return names + (["prop_bases.stl"] if bases_stl else [])
 
 
@@ -263,8 +263,16 @@ def write_placement(result: PlacementResult, out: str | Path, *, pictures: bool 
         renderer = BackgroundRenderer(enabled=False)
     folder = Path(out)
     with staged_output(folder, force) as stage:
-        write_outputs(result, stage, render=pictures, renderer=renderer)
+        written = write_outputs(result, stage, render=pictures, renderer=renderer)
+    _drop_stale(folder, written, force)
     return folder
+
+
+def _drop_stale(folder: Path, written: list[str], force: bool) -> None:
+    """Remove the ``clamps.stl`` an earlier run left in ``folder`` (replaced with ``force``) when
+    this layout has no clamp: it would not fit these markers."""
+    if force and "clamps.stl" not in written:
+        (folder / "clamps.stl").unlink(missing_ok=True)
 
 
 @dataclass(frozen=True)
@@ -345,8 +353,9 @@ def run_place(
 
             res = place_markers(plan, seed=seed, on_layout=chosen)
             with runtime_progress.stage("render", unit="pictures"):
-                write_outputs(res, stage, renderer=renderer, bases_stl=bases_stl)
-    return PlaceRun(res, folder, tuple(names))
+                written = write_outputs(res, stage, renderer=renderer, bases_stl=bases_stl)
+    _drop_stale(folder, written, force)
+    return PlaceRun(res, folder, tuple(n for n in names if n in written))
 
 
 def describe_placement(result: PlacementResult) -> list[str]:

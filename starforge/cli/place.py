@@ -128,9 +128,9 @@ BASE = typer.Option(
 STANDOFF = typer.Option(
     None,
     "--standoff",
-    help="Lift every marker this far off the prop (mm) on a printed post, written as standoff.stl: markers stand "
-    "clear of the hand and of the prop's bulk, for a small prop that no layout stuck on it keeps tracked (default: "
-    "the spec's standoff_mm, 0: stuck on).",
+    help="Lift every marker this far off the prop (mm) on a printed post, written as standoff.stl (on a rod too thin "
+    "for its foot, on a ring clamped round the rod: clamps.stl): markers stand clear of the hand and of the prop's "
+    "bulk, for a small prop that no layout stuck on it keeps tracked (default: the spec's standoff_mm, 0: stuck on).",
 )
 GRIP = typer.Option(
     None,

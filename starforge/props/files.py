@@ -84,9 +84,11 @@ def placement_json(res: PlacementResult) -> dict:
     centres = res.centres()
     features, marks = res.rigging
     rep = res.seat_report
+    rods = res.marker_rods_mm
     markers = []
     for i, s in enumerate(res.marker_sites):
         edge = float(rep.edge_m[s])
+        clamp = {"clamp_rod_mm": _r(float(rods[i]), 3)} if rods[i] > 0 else {}
         markers.append(
             {
                 "id": i,
@@ -101,6 +103,7 @@ def placement_json(res: PlacementResult) -> dict:
                 "base_contact": _r(rep.contact[s], 4),
                 "edge_distance_mm": None if not math.isfinite(edge) else _r(edge * 1000.0, 3),
                 "seat_margin_mm": _r(float(rep.margin_m[s]) * 1000.0, 3),
+                **clamp,
                 "landmark": marks[i],
             }
         )
@@ -394,6 +397,12 @@ def write_outputs(res: PlacementResult, folder: Path, render: bool = True, rende
 
         atomic_write_bytes(folder / "standoff.stl", standoff_stl(res.seat))
         names.append("standoff.stl")
+        rods = res.marker_rods_mm
+        if (rods > 0).any():
+            from starforge.props.standoff import clamps_solid, solid_stl
+
+            atomic_write_bytes(folder / "clamps.stl", solid_stl(clamps_solid(res.seat, rods[rods > 0])))
+            names.append("clamps.stl")
     if bases_stl:
         from starforge.props.guide import bases_mesh
 
@@ -518,20 +527,29 @@ def summary_lines(res: PlacementResult) -> list[str]:
                 f"fresh poses ({ev['_poses']}, {ev['_cameras_lost']} cameras lost, the hand): tracked " + ", ".join(parts)
             )
         idx = list(res.marker_sites)
-        contact = np.asarray(res.seat_report.contact)[idx]
-        edge = np.asarray(res.seat_report.edge_m)[idx]
+        foot = res.marker_rods_mm <= 0  # a clamp's post stands on its ring, not on the surface
+        contact = np.asarray(res.seat_report.contact)[idx][foot]
+        edge = np.asarray(res.seat_report.edge_m)[idx][foot]
         margin = np.asarray(res.seat_report.margin_m)[idx] * 1000.0
         rules = res.spec.seat
+        clamped = ", ".join(str(i + 1) for i in np.flatnonzero(~foot))
         lines.append(
-            f"seats: base contact >= {100 * contact.min():.0f} %, sharp edges >= "
-            + (f"{1000 * edge.min():.1f} mm" if np.isfinite(edge.min()) else "none")
-            + f" away (base radius {res.seat.base_mm / 2:g} mm); margin for a {rules.placement_error_mm:g} mm placement "
-            f"error: {', '.join(f'{m:.1f}' for m in margin)} mm (measured up to {rules.margin_cap_mm:g})"
+            "seats: "
+            + (
+                f"base contact >= {100 * contact.min():.0f} %, sharp edges >= "
+                + (f"{1000 * edge.min():.1f} mm" if np.isfinite(edge.min()) else "none")
+                + f" away (base radius {res.seat.base_mm / 2:g} mm); "
+                if foot.any()
+                else ""
+            )
+            + f"margin for a {rules.placement_error_mm:g} mm placement "
+            f"error: {', '.join(f'{m:.1f}' for m in margin)} mm (measured up to {rules.margin_cap_mm:g}"
+            + (f"; along the rod for {clamped}, on clamps)" if clamped else ")")
         )
         if res.seat.standoff_mm > 0:
             from starforge.props.standoff import standoff_words
 
-            lines.append(f"stand-offs: {standoff_words(res.seat, len(idx))}")
+            lines.append(f"stand-offs: {standoff_words(res.seat, res.marker_rods_mm)}")
         if not math.isinf(t["near_symmetry_margin_m"]):
             lines.append(symmetry_line(t["near_symmetry_margin_m"], res.spec.track.near_symmetry_target_mm))
         d = distinct_report(res)

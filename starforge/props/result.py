@@ -63,6 +63,15 @@ class PlacementResult:
         return self.sites.normals[list(self.marker_sites)]
 
     @property
+    def marker_rods_mm(self) -> np.ndarray:
+        """(m,) the diameter of the rod each marker's post is clamped round, mm (0: it stands on
+        its foot; :mod:`starforge.props.clamp`)."""
+        rods = None if self.seat_report is None else self.seat_report.clamp_m
+        if rods is None:
+            return np.zeros(len(self.marker_sites))
+        return 2000.0 * np.asarray(rods, float)[list(self.marker_sites)]
+
+    @property
     def marker_visibility(self) -> np.ndarray:
         return self.site_visibility[list(self.marker_sites)]
 

@@ -19,6 +19,10 @@ marker when
 * the ball, centred ``centre_height_mm`` above the site, does not cut into the prop (its
   centre is at least a radius from the surface, less ``clearance_tol_mm``).
 
+With a stand-off post (:func:`with_standoff`) the post's foot is the base tested; where it does
+not rest, on a rod 2-25 mm thick, the post may stand on a clamp round the rod instead
+(:mod:`starforge.props.clamp`; :attr:`SeatReport.clamp_m`).
+
 Everything is in metres inside, the settings in mm as named.  The edge distance is measured
 to points sampled along the sharp edges every :data:`EDGE_STEP_M` (it errs by at most half a
 step, 0.125 mm, and only ever upward).
@@ -34,8 +38,8 @@ import numpy as np
 from starforge.errors import StarforgeError
 from starforge.geometry.frames import perpendicular_basis
 from starforge.markers import MarkerType, post_top
+from starforge.props.surface import surface_distance
 from starforge.spec import in_range
-from starforge.tol import tol
 
 #: the longest stand-off post, mm (a longer lever on a glued foot breaks off)
 MAX_STANDOFF_MM = 60.0
@@ -236,7 +240,10 @@ class SeatReport:
     clearance_m : ball centre to the prop's surface, m
     ok : the site seats the marker (every rule of the module docstring)
     margin_m : room beyond the base radius to the nearest sharp edge or surface tilted more than
-        ``sharp_deg``, m, measured up to :attr:`SeatRules.margin_cap_mm` (a site with more gets the cap)
+        ``sharp_deg``, m, measured up to :attr:`SeatRules.margin_cap_mm` (a site with more gets the cap);
+        on a clamp, the straight rod beyond the ring's half-width (:mod:`starforge.props.clamp`)
+    clamp_m : the radius of the rod a clamp holds the marker's post round, m (0: the post's foot
+        or the base rests on the surface); None without a stand-off
     """
 
     contact: np.ndarray
@@ -244,11 +251,13 @@ class SeatReport:
     clearance_m: np.ndarray
     ok: np.ndarray
     margin_m: np.ndarray = None
+    clamp_m: np.ndarray = None
 
     def subset(self, keep: np.ndarray) -> SeatReport:
         """The report of the sites where the boolean mask ``keep`` is true."""
         m = None if self.margin_m is None else self.margin_m[keep]
-        return SeatReport(self.contact[keep], self.edge_m[keep], self.clearance_m[keep], self.ok[keep], m)
+        c = None if self.clamp_m is None else self.clamp_m[keep]
+        return SeatReport(self.contact[keep], self.edge_m[keep], self.clearance_m[keep], self.ok[keep], m, c)
 
 
 def seat_report(mesh, points: np.ndarray, normals: np.ndarray, seat: Seat, rules: SeatRules) -> SeatReport:
@@ -291,9 +300,21 @@ def seat_report(mesh, points: np.ndarray, normals: np.ndarray, seat: Seat, rules
     ok = clearance >= need
     if seat.standoff_m > 0:
         ok &= post_clear(mesh, pts, nrm, R, seat.standoff_m, rules.clearance_tol_mm / 1000.0)
-    if rules.base:
-        ok &= (contact >= rules.min_contact) & (margin >= rules.placement_error_mm / 1000.0 - 1e-12)
-    return SeatReport(contact, edge_m, clearance, ok, margin)
+    if not rules.base:
+        return SeatReport(contact, edge_m, clearance, ok, margin)
+    err = rules.placement_error_mm / 1000.0
+    rests = (contact >= rules.min_contact) & (margin >= err - 1e-12)
+    clamp = None
+    if seat.standoff_m > 0:  # a post that cannot stand on its foot may stand on a clamp round a rod
+        from starforge.props.clamp import clamp_fit
+
+        clamp = np.zeros(s)
+        todo = np.flatnonzero(ok & ~rests)
+        r, _, room = clamp_fit(mesh, pts[todo], nrm[todo], 2 * R, err, cap - R)
+        on = r > 0
+        clamp[todo[on]], margin[todo[on]] = r[on], room[on]
+        rests[todo[on]] = True
+    return SeatReport(contact, edge_m, clearance, ok & rests, margin, clamp)
 
 
 #: a stand-off post's axis is tested for clearance at points this far apart, m
@@ -311,46 +332,6 @@ def post_clear(mesh, points: np.ndarray, normals: np.ndarray, radius_m: float, l
     h = np.linspace(radius_m, length_m, max(2, int(math.ceil((length_m - radius_m) / POST_CLEAR_STEP_M)) + 1))
     axis = (pts[:, None] + h[None, :, None] * nrm[:, None]).reshape(-1, 3)
     return (surface_distance(mesh, axis).reshape(len(pts), -1) >= radius_m - tol_m).all(axis=1)
-
-
-#: pairs (point, candidate face) measured at once by :func:`surface_distance`
-_PAIR_CHUNK = 200_000
-
-
-def surface_distance(mesh, points: np.ndarray) -> np.ndarray:
-    """(p,) m: exact distance from each of ``points`` (p, 3) m to the surface of ``mesh``.
-
-    Without a tree of the faces' boxes (whose build dominates on a fine mesh): the faces are
-    grouped by their size (the farthest corner from the centroid, ``r``; within a group ``r``
-    varies at most twofold) and each group's centroids go in a k-d tree.  A face's distance is at
-    most its centroid's, so the nearest centroid of any group bounds the answer ``u``; a face
-    nearer than ``u`` has its centroid within ``u + r``, and only those faces are measured."""
-    import trimesh
-    from scipy.spatial import cKDTree
-
-    pts = np.asarray(points, float).reshape(-1, 3)
-    tri = np.asarray(mesh.triangles, float)
-    out = np.full(len(pts), np.inf)
-    if not len(pts) or not len(tri):
-        return out
-    cen = tri.mean(axis=1)
-    rad = np.linalg.norm(tri - cen[:, None], axis=2).max(axis=1)
-    level = np.floor(np.log2(np.maximum(rad, tol.zero) / max(float(rad.max()), tol.zero))).astype(np.int64)
-    groups = [np.flatnonzero(level == k) for k in np.unique(level)]
-    trees = [cKDTree(cen[g]) for g in groups]
-    bound = np.min([t.query(pts)[0] for t in trees], axis=0)
-    for g, tree in zip(groups, trees, strict=True):
-        near = tree.query_ball_point(pts, bound + float(rad[g].max()), return_sorted=False)
-        cnt = np.fromiter(map(len, near), np.int64, len(near))
-        if not cnt.sum():
-            continue
-        face = g[np.concatenate([np.asarray(x, np.int64) for x in near if x])]
-        site = np.repeat(np.arange(len(pts)), cnt)
-        for a in range(0, len(face), _PAIR_CHUNK):
-            f, q = face[a : a + _PAIR_CHUNK], pts[site[a : a + _PAIR_CHUNK]]
-            d = np.linalg.norm(trimesh.triangles.closest_point(tri[f], q) - q, axis=1)
-            np.minimum.at(out, site[a : a + _PAIR_CHUNK], d)
-    return out
 
 
 #: surface samples for :func:`tilt_distance`: this far apart (m), at most :data:`TILT_SAMPLES`

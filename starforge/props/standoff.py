@@ -8,6 +8,12 @@ to the prop where the layout puts the marker (the seat rules test that foot,
 :mod:`starforge.props.seat`); its top holds the marker as the catalogue attaches it: a tap-drill
 or insert hole cut from the top, a pin standing on it, or a flat face to glue a base to.  It
 prints standing on its foot, with no overhang.  Lengths in mm, as slicers read them.
+
+Where the post stands on a rod instead (:mod:`starforge.props.clamp`), :func:`clamp_solid` puts the
+same post on a split ring round the rod: the ring as wide as the post, its bore the rod's, its
+wall :data:`starforge.props.clamp.CLAMP_WALL_MM`, cut open opposite the post across
+:data:`CLAMP_OPENING` of the rod's diameter so it snaps on.  It prints lying on the ring's face,
+the post level with the bed.
 """
 
 from __future__ import annotations
@@ -18,6 +24,10 @@ from starforge.markers import post_top
 
 #: segments round the post, its hole and its pin
 POST_SEGMENTS = 64
+#: a clamp's opening, as a share of the rod's diameter (narrower than the rod: it snaps on)
+CLAMP_OPENING = 0.8
+#: rods of diameters this close (mm) take one clamp
+CLAMP_ROUND_MM = 0.1
 
 
 def standoff_solid(seat):
@@ -40,19 +50,70 @@ def standoff_solid(seat):
     return post
 
 
-def standoff_stl(seat) -> bytes:
-    """:func:`standoff_solid` as binary STL bytes, mm."""
+def clamp_solid(seat, rod_mm: float):
+    """The post under one marker of ``seat`` on a split ring round a rod ``rod_mm`` across, as a
+    manifold3d ``Manifold``, mm: the ring's axis along z from z = 0 to its width, the post along
+    +x from the rod's surface (x = ``rod_mm / 2``) to the marker's seat ``seat.standoff_mm``
+    further, its side level with z = 0."""
+    from manifold3d import Manifold
+
+    from starforge.props.clamp import CLAMP_WALL_MM
+
+    r, width = rod_mm / 2.0, seat.base_mm
+    outer = r + CLAMP_WALL_MM
+    ring = Manifold.cylinder(width, outer, outer, POST_SEGMENTS)
+    post = standoff_solid(seat).rotate((0.0, 90.0, 0.0)).translate((r, 0.0, width / 2.0))
+    bore = Manifold.cylinder(width + 2.0, r, r, POST_SEGMENTS).translate((0.0, 0.0, -1.0))
+    gap = CLAMP_OPENING * rod_mm
+    slot = Manifold.cube((outer + 1.0, gap, width + 2.0)).translate((-(outer + 1.0), -gap / 2.0, -1.0))
+    return (ring + post) - bore - slot
+
+
+def clamp_sizes(rods_mm) -> list[float]:
+    """The clamps a layout needs: its rods' diameters (mm) rounded to :data:`CLAMP_ROUND_MM`, once each, smallest first."""
+    return sorted({round(round(float(d) / CLAMP_ROUND_MM) * CLAMP_ROUND_MM, 3) for d in rods_mm})
+
+
+def clamps_solid(seat, rods_mm):
+    """One :func:`clamp_solid` for each size of :func:`clamp_sizes`, side by side along y, mm."""
+    from manifold3d import Manifold
+
+    out, y = Manifold(), 0.0
+    for d in clamp_sizes(rods_mm):
+        part = clamp_solid(seat, d)
+        lo, hi = np.asarray(part.bounding_box()[:3]), np.asarray(part.bounding_box()[3:])
+        out += part.translate((0.0, y - lo[1], 0.0))
+        y += float(hi[1] - lo[1]) + 5.0
+    return out
+
+
+def solid_stl(solid) -> bytes:
+    """A manifold3d ``Manifold`` as binary STL bytes, mm."""
     from starforge.meshfiles import stl_bytes
 
-    m = standoff_solid(seat).to_mesh()
+    m = solid.to_mesh()
     return stl_bytes(np.asarray(m.vert_properties, float)[:, :3], np.asarray(m.tri_verts, np.int64))
 
 
-def standoff_words(seat, count: int) -> str:
-    """One line for the guide and the run's summary: what to print (``count`` posts) and how the
-    marker goes on."""
+def standoff_stl(seat) -> bytes:
+    """:func:`standoff_solid` as binary STL bytes, mm."""
+    return solid_stl(standoff_solid(seat))
+
+
+def standoff_words(seat, rods_mm) -> str:
+    """One line for the guide and the run's summary: what to print and how the marker goes on;
+    ``rods_mm``: per marker, the rod its post is clamped round (mm; 0: it stands on its foot)."""
     top = post_top(seat.marker, seat.base_mm)
-    return (
+    rods = np.asarray(rods_mm, float)
+    feet = int((rods <= 0).sum())
+    text = (
         f"every marker stands on a printed {seat.standoff_mm:g} mm post, {seat.base_mm:g} mm across "
-        f"(standoff.stl, mm): its foot glued on the mark, the marker {top.words}; print {count}"
+        f"(standoff.stl, mm): its foot glued on the mark, the marker {top.words}; print {feet}"
     )
+    for d in clamp_sizes(rods[rods > 0]):
+        on = [str(i + 1) for i in np.flatnonzero(np.abs(rods - d) <= CLAMP_ROUND_MM / 2 + 1e-9)]
+        text += (
+            f"; {'marker' if len(on) == 1 else 'markers'} {', '.join(on)}: the post on a split ring snapped round "
+            f"the {d:g} mm rod (clamps.stl), print {len(on)}"
+        )
+    return text

@@ -159,7 +159,9 @@ def _first_page(d):
     if d.standoff_text:  # a block of its own, a gap further down: a PDF reader's glyph boxes (the font's
         # ascent and descent) reach past the extents the page is laid out by
         cur.y -= cur.gap
-        cur.advance(cur.block(d.standoff_text[:1].upper() + d.standoff_text[1:] + ".", **TEXT_STYLES["body"]))
+        chars = int((1.0 - 2 * cur.left) * _PAGE[0] * 72.0 / (0.6 * TEXT_STYLES["body"]["fontsize"]))
+        text = textwrap.fill(d.standoff_text[:1].upper() + d.standoff_text[1:] + ".", chars, break_on_hyphens=False)
+        cur.advance(cur.block(text, **TEXT_STYLES["body"]))
     margin = d.margin_mm if d.margin_mm is not None else np.full(len(d.landmarks), np.nan)
     # a line too long for the page goes on under its number (the table's font is monospaced:
     # Courier in the PDF, 0.6 em a character)

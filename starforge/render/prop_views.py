@@ -99,7 +99,10 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         marker_normals=res.marker_normals,
         marker_visibility=res.marker_visibility,
         marker_centres=res.centres(),
-        landmarks=tuple(m["text"] for m in marks),
+        landmarks=tuple(
+            (f"on a clamp round the {rod:.3g} mm rod (its margin: along the rod); " if rod > 0 else "") + m["text"]
+            for m, rod in zip(marks, res.marker_rods_mm, strict=True)
+        ),
         contact=np.asarray(res.seat_report.contact)[idx],
         edge_mm=np.asarray(res.seat_report.edge_m)[idx] * 1000.0,
         bounds=np.asarray(prop.bounds_m, float),
@@ -109,7 +112,7 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
             if seat.base_mm > 0
             else f"{seat.ball_mm:g} mm ball on the surface"
         ),
-        standoff_text=standoff_words(seat, len(idx)) if seat.standoff_mm > 0 else "",
+        standoff_text=standoff_words(seat, res.marker_rods_mm) if seat.standoff_mm > 0 else "",
         hand=capsule_arrays([g.capsules[0] for g in grips]) if grips else capsule_arrays(res.capsules),
         visibility_label=(
             "fraction of scenarios seen by 2 surviving cameras" if tracked else "visibility (fraction of poses x pairs)"
