@@ -34,7 +34,8 @@ cannot flip (no two of their marker triangles, nor one and itself relabelled, wi
 ``avoid_tolerance_mm``: starforge's own rule, which its layouts keep) and the best of those on
 fresh poses (``random_flip_proof``, ``best_flip_proof_random_fresh_poses``); the markers with less than the
 placement error of room, recomputed by brute force over every face and sharp edge of the mesh
-(``markers_below_margin``); the overlapping glyphs of the written guide.pdf as pdfminer.six reads
+(for a marker on a clamp, the straight rod beyond its ring, from exact plane sections:
+:func:`clamp_shortfall`) (``markers_below_margin``); the overlapping glyphs of the written guide.pdf as pdfminer.six reads
 the file (``guide_text_overlaps``, :mod:`_pdftext`) and the glyphs off the page; in the guide's
 views as drawn, the labels that cover another label or a marker's dot or a landmark's triangle
 (``guide_label_clashes``, :mod:`_views`) and the landmarks the marker table names that no view
@@ -320,12 +321,93 @@ def margin_shortfall(mesh, points, normals, base_r, error, sharp_deg=30.0):
     return bad, rooms
 
 
+def _circle_fit(xy):
+    """Centre (2,), radius and largest residual of the least-squares circle through points (k, 2)."""
+    A = np.column_stack([xy, np.ones(len(xy))])
+    a, b, c = np.linalg.lstsq(A, (xy**2).sum(axis=1), rcond=None)[0]
+    centre = np.array([a / 2, b / 2])
+    r = math.sqrt(max(c + centre @ centre, 0.0))
+    return centre, r, float(np.abs(np.linalg.norm(xy - centre, axis=1) - r).max())
+
+
+def _rod_section(mesh, origin, t, n, reach):
+    """The points of the mesh's exact section by the plane through ``origin`` square to ``t``
+    within ``reach`` of it, in the plane's (n, t x n) coordinates."""
+    segs = trimesh.intersections.mesh_plane(mesh, t, origin)
+    if not len(segs):
+        return np.zeros((0, 2))
+    q = segs.reshape(-1, 3)
+    q = q[np.linalg.norm(q - origin, axis=1) <= reach]
+    w = np.cross(t, n)
+    return np.column_stack([(q - origin) @ n, (q - origin) @ w])
+
+
+def _room_along(mesh, p, n, r, t, width, error, wall, tol):
+    """The straight rod (m) beyond the ring's half-width on the shorter side, along ``t``."""
+    origin = p - r * n
+    axis = _circle_fit(_rod_section(mesh, origin, t, n, r + wall))[0]  # where the axis crosses
+    if abs(math.hypot(r - axis[0], axis[1]) - r) > tol:  # the mark (at (r, 0) here) is off that circle
+        return -np.inf
+    reach = []
+    for side in (1.0, -1.0):
+        s = 0.0
+        while s <= width / 2 + error + 0.006:
+            xy = _rod_section(mesh, origin + side * s * t, t, n, r + wall)
+            if len(xy) < 6:
+                break
+            c, rr, res = _circle_fit(xy)
+            if abs(rr - r) > tol or res > tol or np.linalg.norm(c - axis) > tol:
+                break
+            s += 2.5e-4
+        reach.append(s - 2.5e-4)
+    return min(reach) - width / 2
+
+
+def clamp_shortfall(mesh, points, normals, rods_mm, width, error, wall=0.003):
+    """For markers on clamps: the room (m) along the rod beyond the ring's half-width, by exact
+    plane sections.  The section through the marker's mark square to the rod's axis is the
+    roundest circle of the stated diameter: the direction in the tangent plane (every degree)
+    that makes it so, then every half degree within 10 degrees of it, is tried as the axis, and
+    the one along which the rod stays straight longest is kept (a bent tube's roundest section
+    need not be square to its centre line).  Along it, sections every 0.25 mm must stay that
+    circle (the mark on it, its centre where the first one's is, radius within 3 %, every section
+    point within the ring's wall of the rod on the circle: nothing else of the prop there).
+    Independent of starforge's ray chords, fitted axis and sampled circles."""
+    from starforge.geometry.frames import perpendicular_basis
+
+    bad, rooms = 0, []
+    for p, n, d in zip(points, normals, rods_mm, strict=True):
+        r = d / 2000.0
+        tol = max(1e-4, 0.03 * r)
+        u, v = perpendicular_basis(n)
+
+        def along(deg, u=u, v=v):
+            return math.cos(math.radians(deg)) * u + math.sin(math.radians(deg)) * v
+
+        best = None
+        for deg in range(180):
+            xy = _rod_section(mesh, p - r * n, along(deg), n, r + wall)
+            if len(xy) < 6:
+                continue
+            _, rr, res = _circle_fit(xy)
+            if best is None or res + abs(rr - r) < best[0]:
+                best = (res + abs(rr - r), deg)
+        room = -np.inf
+        if best is not None:
+            room = max(
+                _room_along(mesh, p, n, r, along(best[1] + k / 2), width, error, wall, tol) for k in range(-20, 21)
+            )
+        rooms.append(room)
+        bad += int(room < error - 1e-6)
+    return bad, rooms
+
+
 def write_docs(out: dict) -> None:
     """The figures of ``out`` as the results page's section on props no one on the project made."""
     from _results import table, write_section
 
     rows = [
-        [name, v["markers"], v["usable_sites"], v["grips"], v["chosen_fresh_poses"], v["best_random_fresh_poses"],
+        [name, f'{v["markers"]}' + (f' ({v["markers_on_clamps"]} on clamps)' if v.get("markers_on_clamps") else ""), v["usable_sites"], v["grips"], v["chosen_fresh_poses"], v["best_random_fresh_poses"],
          f'{v["best_flip_proof_random_fresh_poses"]} ({v["random_flip_proof"]})', v["every_site_fresh_poses"], v["optimizer_own_evaluation"], v["min_margin_mm"], v["guide_text_overlaps"], v["guide_label_clashes"], v["seconds"]]
         for name, v in out["props"].items()
     ]  # fmt: skip
@@ -348,7 +430,9 @@ def write_docs(out: dict) -> None:
     if out.get("standoff_mm"):
         body = (f"Every marker on a printed {out['standoff_mm']:g} mm post (`place --standoff "
                 f"{out['standoff_mm']:g}`), in every layout compared; the evaluation's fist also holds a post that "
-                "passes through it, and its marker is then lost.\n\n" + body)
+                "passes through it, and its marker is then lost.  Where a post's foot finds no seat on a rod 2-25 mm "
+                "thick, it stands on a clamp round the rod; such a marker's margin is the straight rod beyond the "
+                "ring, re-measured from exact plane sections of the mesh (`clamp_shortfall`).\n\n" + body)
         write_section("props-real-standoff", f"Props no one on the project made, markers on {out['standoff_mm']:g} mm posts", body)
     elif out.get("placed_for", "").startswith("this room"):
         body = ("Placed for the evaluation's room instead (`--room`): its cameras as a rig file, the volume "
@@ -423,7 +507,13 @@ def main(argv=None) -> int:
                     if f > proof_f:
                         proof, proof_f = lay, f
             err = res.spec.seat.placement_error_mm / 1000.0
-            below, rooms = margin_shortfall(mesh, res.marker_points, res.marker_normals, res.seat.base_radius_m, err)
+            rods = res.marker_rods_mm
+            foot = rods <= 0
+            below, rooms = margin_shortfall(mesh, res.marker_points[foot], res.marker_normals[foot], res.seat.base_radius_m, err)
+            below_c, rooms_c = clamp_shortfall(
+                mesh, res.marker_points[~foot], res.marker_normals[~foot], rods[~foot], 2 * res.seat.base_radius_m, err
+            )
+            below, rooms = below + below_c, rooms + rooms_c
             folder = Path(tmp) / name
             folder.mkdir()
             guide_files(res, folder)
@@ -438,6 +528,7 @@ def main(argv=None) -> int:
                 "grips": len(res.grips),
                 "held_part": None if res.part is None else res.part.to_json(),
                 "markers": len(chosen),
+                "markers_on_clamps": int((~foot).sum()),
                 "usable_sites": len(res.sites),
                 "chosen_tracked": round(float(tracked(counts, centres, chosen).mean()), 4),
                 "best_random_same_poses": round(best_f, 4),
