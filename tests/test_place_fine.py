@@ -40,8 +40,13 @@ def test_surface_distance_is_the_brute_force_minimum(name, times):
     pts = rng.uniform(lo - 0.02, hi + 0.02, (60, 3))
     pts[:20] = mesh.vertices[rng.choice(len(mesh.vertices), 20)]  # on the surface: 0
     d = surface_distance(mesh, pts)
-    np.testing.assert_allclose(d, _brute_distance(mesh, pts), rtol=0, atol=1e-12)
+    brute = _brute_distance(mesh, pts)
+    np.testing.assert_allclose(d, brute, rtol=0, atol=1e-12)
     assert np.all(d[:20] <= 1e-12)
+    reach = float(np.median(brute[20:]))  # up to a reach: exact within it, inf past it
+    near = surface_distance(mesh, pts, reach)
+    np.testing.assert_allclose(near[brute <= reach], brute[brute <= reach], rtol=0, atol=1e-12)
+    assert np.isinf(near[brute > reach]).all() and (brute > reach).any()
 
 
 def test_surface_distance_with_faces_of_very_different_sizes():

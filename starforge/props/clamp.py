@@ -171,8 +171,9 @@ def _circle(c, t, n, w, rho, offsets) -> np.ndarray:
 def _rings_fit(mesh, c, t, n, w, r, offsets) -> np.ndarray:
     """(k, len(offsets)) bool: the circle of the rod's radius at each offset lies on the surface."""
     q = _circle(c, t, n, w, r, offsets)
-    d = surface_distance(mesh, q.reshape(-1, 3)).reshape(q.shape[:3])
-    return (d <= fit_tolerance(r)[:, None, None]).all(axis=2)
+    tol = fit_tolerance(r)
+    d = surface_distance(mesh, q.reshape(-1, 3), float(tol.max(initial=0.0))).reshape(q.shape[:3])
+    return (d <= tol[:, None, None]).all(axis=2)
 
 
 def _room_round(mesh, c, t, n, w, r, offsets) -> np.ndarray:
@@ -180,7 +181,7 @@ def _room_round(mesh, c, t, n, w, r, offsets) -> np.ndarray:
     each offset: a circle that far out keeps its distance from the surface."""
     out = CLAMP_WALL_MM / 1000.0 + CLAMP_ROOM_M
     q = _circle(c, t, n, w, r + out, offsets)
-    d = surface_distance(mesh, q.reshape(-1, 3)).reshape(q.shape[:3])
+    d = surface_distance(mesh, q.reshape(-1, 3), out).reshape(q.shape[:3])
     return (d >= out - fit_tolerance(r)[:, None, None]).all(axis=(1, 2))
 
 

@@ -237,7 +237,8 @@ class SeatReport:
 
     contact : base-disc fraction resting on the surface, [0, 1]
     edge_m : distance to the nearest sharp edge, m (inf when the mesh has none)
-    clearance_m : ball centre to the prop's surface, m
+    clearance_m : ball centre to the prop's surface, m (on a post, ``inf`` past 1 mm more than the
+        marker's own centre height: the ball clears it)
     ok : the site seats the marker (every rule of the module docstring)
     margin_m : room beyond the base radius to the nearest sharp edge or surface tilted more than
         ``sharp_deg``, m, measured up to :attr:`SeatRules.margin_cap_mm` (a site with more gets the cap);
@@ -295,7 +296,9 @@ def seat_report(mesh, points: np.ndarray, normals: np.ndarray, seat: Seat, rules
     tilt = tilt_distance(mesh, pts, nrm, rules.sharp_deg, cap)
     margin = np.minimum(np.minimum(edge_m, tilt), cap) - R
     centres = pts + seat.centre_height_m * nrm
-    clearance = surface_distance(mesh, centres)
+    # the centre is at most its height off the surface (the site is on it); on a post, past the
+    # ball's own height it only needs to clear
+    clearance = surface_distance(mesh, centres, seat.centre_height_m - seat.standoff_m + 1e-3)
     need = min(seat.ball_radius_m, seat.centre_height_m) - rules.clearance_tol_mm / 1000.0
     ok = clearance >= need
     if seat.standoff_m > 0:
@@ -331,7 +334,7 @@ def post_clear(mesh, points: np.ndarray, normals: np.ndarray, radius_m: float, l
         return np.ones(len(pts), bool)
     h = np.linspace(radius_m, length_m, max(2, int(math.ceil((length_m - radius_m) / POST_CLEAR_STEP_M)) + 1))
     axis = (pts[:, None] + h[None, :, None] * nrm[:, None]).reshape(-1, 3)
-    return (surface_distance(mesh, axis).reshape(len(pts), -1) >= radius_m - tol_m).all(axis=1)
+    return (surface_distance(mesh, axis, radius_m).reshape(len(pts), -1) >= radius_m - tol_m).all(axis=1)
 
 
 #: surface samples for :func:`tilt_distance`: this far apart (m), at most :data:`TILT_SAMPLES`

@@ -11,8 +11,10 @@ from starforge.tol import tol
 _PAIR_CHUNK = 200_000
 
 
-def surface_distance(mesh, points: np.ndarray) -> np.ndarray:
-    """(p,) m: exact distance from each of ``points`` (p, 3) m to the surface of ``mesh``.
+def surface_distance(mesh, points: np.ndarray, reach: float = np.inf) -> np.ndarray:
+    """(p,) m: exact distance from each of ``points`` (p, 3) m to the surface of ``mesh``, up to
+    ``reach`` (a point farther off gets ``inf``: a test against a threshold needs no more, and
+    a point far off a fine mesh would otherwise measure every face round it).
 
     Without a tree of the faces' boxes (whose build dominates on a fine mesh): the faces are
     grouped by their size (the farthest corner from the centroid, ``r``; within a group ``r``
@@ -32,7 +34,7 @@ def surface_distance(mesh, points: np.ndarray) -> np.ndarray:
     level = np.floor(np.log2(np.maximum(rad, tol.zero) / max(float(rad.max()), tol.zero))).astype(np.int64)
     groups = [np.flatnonzero(level == k) for k in np.unique(level)]
     trees = [cKDTree(cen[g]) for g in groups]
-    bound = np.min([t.query(pts)[0] for t in trees], axis=0)
+    bound = np.minimum(np.min([t.query(pts)[0] for t in trees], axis=0), reach)
     for g, tree in zip(groups, trees, strict=True):
         near = tree.query_ball_point(pts, bound + float(rad[g].max()), return_sorted=False)
         cnt = np.fromiter(map(len, near), np.int64, len(near))
@@ -44,4 +46,5 @@ def surface_distance(mesh, points: np.ndarray) -> np.ndarray:
             f, q = face[a : a + _PAIR_CHUNK], pts[site[a : a + _PAIR_CHUNK]]
             d = np.linalg.norm(trimesh.triangles.closest_point(tri[f], q) - q, axis=1)
             np.minimum.at(out, site[a : a + _PAIR_CHUNK], d)
+    out[out > reach] = np.inf
     return out
