@@ -297,12 +297,16 @@ def seat_report(mesh, points: np.ndarray, normals: np.ndarray, seat: Seat, rules
     margin = np.minimum(np.minimum(edge_m, tilt), cap) - R
     centres = pts + seat.centre_height_m * nrm
     # the centre is at most its height off the surface (the site is on it); on a post, past the
-    # ball's own height it only needs to clear
-    clearance = surface_distance(mesh, centres, seat.centre_height_m - seat.standoff_m + 1e-3)
+    # ball's own height it only needs to clear; the post's axis (one measurement with the centres)
+    # only needs its radius
+    axis = post_axis(pts, nrm, R, seat.standoff_m).reshape(-1, 3)
+    reach = np.repeat([seat.centre_height_m - seat.standoff_m + 1e-3, R], [s, len(axis)])
+    dist = surface_distance(mesh, np.concatenate([centres, axis]), reach)
+    clearance = dist[:s]
     need = min(seat.ball_radius_m, seat.centre_height_m) - rules.clearance_tol_mm / 1000.0
     ok = clearance >= need
-    if seat.standoff_m > 0:
-        ok &= post_clear(mesh, pts, nrm, R, seat.standoff_m, rules.clearance_tol_mm / 1000.0)
+    if len(axis):
+        ok &= (dist[s:].reshape(s, -1) >= R - rules.clearance_tol_mm / 1000.0).all(axis=1)
     if not rules.base:
         return SeatReport(contact, edge_m, clearance, ok, margin)
     err = rules.placement_error_mm / 1000.0
@@ -324,17 +328,26 @@ def seat_report(mesh, points: np.ndarray, normals: np.ndarray, seat: Seat, rules
 POST_CLEAR_STEP_M = 1e-3
 
 
+def post_axis(points: np.ndarray, normals: np.ndarray, radius_m: float, length_m: float) -> np.ndarray:
+    """(s, k, 3) the points of each post's axis that must clear the prop: from one radius up
+    along each site's normal to ``length_m``, every :data:`POST_CLEAR_STEP_M` (k = 0 for a post
+    no longer than its radius).  Below one radius the foot sits on the surface; the base rules
+    test it."""
+    pts, nrm = np.asarray(points, float).reshape(-1, 3), np.asarray(normals, float).reshape(-1, 3)
+    if length_m <= radius_m:
+        return np.zeros((len(pts), 0, 3))
+    h = np.linspace(radius_m, length_m, max(2, int(math.ceil((length_m - radius_m) / POST_CLEAR_STEP_M)) + 1))
+    return pts[:, None] + h[None, :, None] * nrm[:, None]
+
+
 def post_clear(mesh, points: np.ndarray, normals: np.ndarray, radius_m: float, length_m: float, tol_m: float) -> np.ndarray:
     """(s,) bool: a post of ``radius_m`` standing ``length_m`` along each site's normal clears the
-    prop: every point of its axis from one radius up to its top, every
-    :data:`POST_CLEAR_STEP_M`, lies at least the radius (less ``tol_m``) from the surface.  (Below
-    one radius the foot sits on the surface; the base rules test it.)"""
-    pts, nrm = np.asarray(points, float), np.asarray(normals, float)
-    if not len(pts) or length_m <= radius_m:
-        return np.ones(len(pts), bool)
-    h = np.linspace(radius_m, length_m, max(2, int(math.ceil((length_m - radius_m) / POST_CLEAR_STEP_M)) + 1))
-    axis = (pts[:, None] + h[None, :, None] * nrm[:, None]).reshape(-1, 3)
-    return (surface_distance(mesh, axis, radius_m).reshape(len(pts), -1) >= radius_m - tol_m).all(axis=1)
+    prop: every point of its axis (:func:`post_axis`) lies at least the radius (less ``tol_m``)
+    from the surface."""
+    axis = post_axis(points, normals, radius_m, length_m)
+    if not axis.size:
+        return np.ones(len(axis), bool)
+    return (surface_distance(mesh, axis.reshape(-1, 3), radius_m).reshape(len(axis), -1) >= radius_m - tol_m).all(axis=1)
 
 
 #: surface samples for :func:`tilt_distance`: this far apart (m), at most :data:`TILT_SAMPLES`

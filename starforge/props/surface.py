@@ -11,9 +11,9 @@ from starforge.tol import tol
 _PAIR_CHUNK = 200_000
 
 
-def surface_distance(mesh, points: np.ndarray, reach: float = np.inf) -> np.ndarray:
+def surface_distance(mesh, points: np.ndarray, reach: float | np.ndarray = np.inf) -> np.ndarray:
     """(p,) m: exact distance from each of ``points`` (p, 3) m to the surface of ``mesh``, up to
-    ``reach`` (a point farther off gets ``inf``: a test against a threshold needs no more, and
+    ``reach`` (one for all, or (p,) one each; a point farther off gets ``inf``: a test against a threshold needs no more, and
     a point far off a fine mesh would otherwise measure every face round it).
 
     Without a tree of the faces' boxes (whose build dominates on a fine mesh): the faces are
