@@ -197,3 +197,25 @@ def test_prusaslicer_slices_the_clamp_lying_on_its_ring(tmp_path):
     seat = with_standoff(seat_for("9.5mm-m3"), 20.0)
     zs = sliced_layers(tmp_path, "clamps", solid_stl(clamps_solid(seat, [7.0])))
     assert zs[0] == pytest.approx(0.2) and abs(max(zs) - seat.base_mm) <= 0.2
+
+
+def test_the_prop_with_its_markers_shows_each_clamp_round_its_rod():
+    """``prop_markers``: a clamped marker's ring lies round the rod's axis, between the rod and
+    the wall's outside, as wide as the post; a marker on its foot gets none."""
+    from starforge.props.files import marker_parts
+
+    seat = with_standoff(seat_for("9.5mm-m3"), 20.0)
+    t = np.array([0.0, 0.6, 0.8])
+    n = np.cross(t, [1.0, 0.0, 0.0])
+    n /= np.linalg.norm(n)
+    centre = np.array([0.01, 0.02, 0.03])
+    p = centre + 0.0035 * n
+    with_ring = trimesh.Trimesh(*marker_parts(p[None], n[None], seat, [7.0], t[None]))
+    without = trimesh.Trimesh(*marker_parts(p[None], n[None], seat))
+    assert len(with_ring.split(only_watertight=False)) == len(without.split(only_watertight=False)) + 1
+    ring = min(with_ring.split(only_watertight=False), key=lambda m: np.linalg.norm(m.vertices.mean(axis=0) - centre))
+    rel = ring.vertices - centre
+    along = rel @ t
+    radial = np.linalg.norm(rel - along[:, None] * t, axis=1)
+    assert np.allclose(np.abs(along), seat.base_radius_m, atol=1e-6)  # its two faces, as wide as the post (float32)
+    assert radial.min() >= 0.0035 - 1e-6 and radial.max() <= 0.0035 + CLAMP_WALL_MM / 1000.0 + 1e-6

@@ -328,22 +328,32 @@ PROP_RGBA = (0.78, 0.78, 0.78, 1.0)
 MARKER_RGBA = (0.9, 0.16, 0.16, 1.0)
 
 
-def marker_parts(points, normals, seat) -> tuple[np.ndarray, np.ndarray]:
+def marker_parts(points, normals, seat, rods_mm=None, rod_axes=None) -> tuple[np.ndarray, np.ndarray]:
     """``(vertices, faces)`` of every marker as it sits: a ball ``seat.centre_height_mm`` above
     its site along the normal, on a 1 mm disc of the base's diameter or its stand-off's post
-    (manifold3d's sphere and cylinder, :data:`MARKER_SEGMENTS` round), m."""
+    (manifold3d's sphere and cylinder, :data:`MARKER_SEGMENTS` round), and round a rod
+    ``rods_mm[i]`` across (axis ``rod_axes[i]``), the clamp's ring, m."""
     from manifold3d import Manifold
 
     from starforge.geometry.frames import perpendicular_basis
+    from starforge.props.clamp import CLAMP_WALL_MM
 
+    pts = np.asarray(points, float).reshape(-1, 3)
+    rods = np.zeros(len(pts)) if rods_mm is None else np.asarray(rods_mm, float)
+    axes = np.zeros((len(pts), 3)) if rod_axes is None else np.asarray(rod_axes, float)
     parts = []
-    for p, n in zip(np.asarray(points, float).reshape(-1, 3), np.asarray(normals, float).reshape(-1, 3), strict=True):
+    for p, n, d, t in zip(pts, np.asarray(normals, float).reshape(-1, 3), rods, axes, strict=True):
         n = n / np.linalg.norm(n)
         parts.append(Manifold.sphere(seat.ball_radius_m, MARKER_SEGMENTS).translate(p + seat.centre_height_m * n))
         if seat.base_mm > 0:  # the base pad, or the stand-off's post
             turn = np.column_stack([*perpendicular_basis(n), n, p])  # right-handed: a turn, then the site
             r = seat.base_radius_m
             parts.append(Manifold.cylinder(max(0.001, seat.standoff_m), r, r, MARKER_SEGMENTS).transform(turn))
+        if d > 0:  # the clamp's ring round the rod, as wide as the post
+            r, w = d / 2000.0, seat.base_radius_m
+            ring = Manifold.cylinder(2 * w, r + CLAMP_WALL_MM / 1000.0, r + CLAMP_WALL_MM / 1000.0, MARKER_SEGMENTS, True)
+            ring -= Manifold.cylinder(3 * w, r, r, MARKER_SEGMENTS, True)
+            parts.append(ring.transform(np.column_stack([n, np.cross(t, n), t, p - r * n])))
     vertices, faces, start = [], [], 0
     for part in parts:
         m = part.to_mesh()
@@ -356,12 +366,12 @@ def marker_parts(points, normals, seat) -> tuple[np.ndarray, np.ndarray]:
     return np.vstack(vertices), np.vstack(faces)
 
 
-def marker_mesh(prop, points, normals, seat, fmt: str = "glb") -> bytes:
+def marker_mesh(prop, points, normals, seat, fmt: str = "glb", rods_mm=None, rod_axes=None) -> bytes:
     """The prop (a :class:`~starforge.props.mesh.PropMesh`) with every marker as it sits
     (:func:`marker_parts`), as GLB (the prop grey, the markers red) or STL bytes, m."""
     from starforge.meshfiles import glb_bytes, stl_bytes
 
-    mv, mf = marker_parts(points, normals, seat)
+    mv, mf = marker_parts(points, normals, seat, rods_mm, rod_axes)
     if fmt == "stl":
         return stl_bytes(np.vstack([prop.vertices, mv]), np.vstack([prop.faces, mf + len(prop.vertices)]))
     return glb_bytes([("prop", prop.vertices, prop.faces, PROP_RGBA), ("markers", mv, mf, MARKER_RGBA)])
@@ -389,7 +399,7 @@ def write_outputs(res: PlacementResult, folder: Path, render: bool = True, rende
     mesh_name = f"prop_markers.{fmt}"
     atomic_write_bytes(
         folder / mesh_name,
-        marker_mesh(res.prop, res.marker_points, res.marker_normals, res.seat, fmt),
+        marker_mesh(res.prop, res.marker_points, res.marker_normals, res.seat, fmt, res.marker_rods_mm, res.marker_rod_axes),
     )
     names.append(mesh_name)
     if res.seat.standoff_mm > 0:

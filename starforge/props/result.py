@@ -72,6 +72,14 @@ class PlacementResult:
         return 2000.0 * np.asarray(rods, float)[list(self.marker_sites)]
 
     @property
+    def marker_rod_axes(self) -> np.ndarray:
+        """(m, 3) the axis of the rod each marker is clamped round (zero where it stands on its foot)."""
+        axes = None if self.seat_report is None else self.seat_report.clamp_axis
+        if axes is None:
+            return np.zeros((len(self.marker_sites), 3))
+        return np.asarray(axes, float)[list(self.marker_sites)]
+
+    @property
     def marker_visibility(self) -> np.ndarray:
         return self.site_visibility[list(self.marker_sites)]
 

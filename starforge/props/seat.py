@@ -245,6 +245,7 @@ class SeatReport:
         on a clamp, the straight rod beyond the ring's half-width (:mod:`starforge.props.clamp`)
     clamp_m : the radius of the rod a clamp holds the marker's post round, m (0: the post's foot
         or the base rests on the surface); None without a stand-off
+    clamp_axis : (s, 3) that rod's unit axis (zero where no clamp); None without a stand-off
     """
 
     contact: np.ndarray
@@ -253,12 +254,12 @@ class SeatReport:
     ok: np.ndarray
     margin_m: np.ndarray = None
     clamp_m: np.ndarray = None
+    clamp_axis: np.ndarray = None
 
     def subset(self, keep: np.ndarray) -> SeatReport:
         """The report of the sites where the boolean mask ``keep`` is true."""
-        m = None if self.margin_m is None else self.margin_m[keep]
-        c = None if self.clamp_m is None else self.clamp_m[keep]
-        return SeatReport(self.contact[keep], self.edge_m[keep], self.clearance_m[keep], self.ok[keep], m, c)
+        m, c, a = (None if x is None else x[keep] for x in (self.margin_m, self.clamp_m, self.clamp_axis))
+        return SeatReport(self.contact[keep], self.edge_m[keep], self.clearance_m[keep], self.ok[keep], m, c, a)
 
 
 def seat_report(mesh, points: np.ndarray, normals: np.ndarray, seat: Seat, rules: SeatRules) -> SeatReport:
@@ -311,17 +312,17 @@ def seat_report(mesh, points: np.ndarray, normals: np.ndarray, seat: Seat, rules
         return SeatReport(contact, edge_m, clearance, ok, margin)
     err = rules.placement_error_mm / 1000.0
     rests = (contact >= rules.min_contact) & (margin >= err - 1e-12)
-    clamp = None
+    clamp = axis = None
     if seat.standoff_m > 0:  # a post that cannot stand on its foot may stand on a clamp round a rod
         from starforge.props.clamp import clamp_fit
 
-        clamp = np.zeros(s)
+        clamp, axis = np.zeros(s), np.zeros((s, 3))
         todo = np.flatnonzero(ok & ~rests)
-        r, _, room = clamp_fit(mesh, pts[todo], nrm[todo], 2 * R, err, cap - R)
+        r, t, room = clamp_fit(mesh, pts[todo], nrm[todo], 2 * R, err, cap - R)
         on = r > 0
-        clamp[todo[on]], margin[todo[on]] = r[on], room[on]
+        clamp[todo[on]], axis[todo[on]], margin[todo[on]] = r[on], t[on], room[on]
         rests[todo[on]] = True
-    return SeatReport(contact, edge_m, clearance, ok & rests, margin, clamp)
+    return SeatReport(contact, edge_m, clearance, ok & rests, margin, clamp, axis)
 
 
 #: a stand-off post's axis is tested for clearance at points this far apart, m
