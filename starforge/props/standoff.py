@@ -69,9 +69,14 @@ def clamp_solid(seat, rod_mm: float):
     return (ring + post) - bore - slot
 
 
+def clamp_size(rod_mm: float) -> float:
+    """The clamp a rod ``rod_mm`` across takes: its diameter rounded to :data:`CLAMP_ROUND_MM`."""
+    return round(round(float(rod_mm) / CLAMP_ROUND_MM) * CLAMP_ROUND_MM, 3)
+
+
 def clamp_sizes(rods_mm) -> list[float]:
-    """The clamps a layout needs: its rods' diameters (mm) rounded to :data:`CLAMP_ROUND_MM`, once each, smallest first."""
-    return sorted({round(round(float(d) / CLAMP_ROUND_MM) * CLAMP_ROUND_MM, 3) for d in rods_mm})
+    """The clamps a layout needs (:func:`clamp_size` of its rods), once each, smallest first."""
+    return sorted({clamp_size(d) for d in rods_mm})
 
 
 def clamps_solid(seat, rods_mm):
@@ -111,7 +116,7 @@ def standoff_words(seat, rods_mm) -> str:
         f"(standoff.stl, mm): its foot glued on the mark, the marker {top.words}; print {feet}"
     )
     for d in clamp_sizes(rods[rods > 0]):
-        on = [str(i + 1) for i in np.flatnonzero(np.abs(rods - d) <= CLAMP_ROUND_MM / 2 + 1e-9)]
+        on = [str(i + 1) for i, rod in enumerate(rods) if rod > 0 and clamp_size(rod) == d]
         text += (
             f"; {'marker' if len(on) == 1 else 'markers'} {', '.join(on)}: the post on a split ring snapped round "
             f"the {d:g} mm rod (clamps.stl), print {len(on)}"

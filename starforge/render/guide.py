@@ -66,6 +66,13 @@ _DOT_AREA = 40  # a marker's dot in the views (scatter size: points squared)
 _TRIANGLE_PT = 4  # a landmark's triangle, points across
 
 
+def _line_chars(left: float, style: str) -> int:
+    """Characters of ``TEXT_STYLES[style]`` a line across the page between margins of ``left``
+    (a fraction of its width) holds, at 0.6 em a character (Courier's width; wider than the
+    proportional body font's average, so a body line wrapped at it fits)."""
+    return int((1.0 - 2 * left) * _PAGE[0] * 72.0 / (0.6 * TEXT_STYLES[style]["fontsize"]))
+
+
 def coincident_landmarks(features, B, tol: float) -> list[tuple[list[str], np.ndarray]]:
     """The landmarks ``features`` ((name, point) pairs) as seen in view ``B``, those that fall
     within ``tol`` of each other (in the view's plane) grouped under one symbol: (names, the first
@@ -159,13 +166,13 @@ def _first_page(d):
     if d.standoff_text:  # a block of its own, a gap further down: a PDF reader's glyph boxes (the font's
         # ascent and descent) reach past the extents the page is laid out by
         cur.y -= cur.gap
-        chars = int((1.0 - 2 * cur.left) * _PAGE[0] * 72.0 / (0.6 * TEXT_STYLES["body"]["fontsize"]))
+        chars = _line_chars(cur.left, "body")
         text = textwrap.fill(d.standoff_text[:1].upper() + d.standoff_text[1:] + ".", chars, break_on_hyphens=False)
         cur.advance(cur.block(text, **TEXT_STYLES["body"]))
     margin = d.margin_mm if d.margin_mm is not None else np.full(len(d.landmarks), np.nan)
     # a line too long for the page goes on under its number (the table's font is monospaced:
     # Courier in the PDF, 0.6 em a character)
-    width = int((1.0 - 2 * cur.left) * _PAGE[0] * 72.0 / (0.6 * TEXT_STYLES["table"]["fontsize"]))
+    width = _line_chars(cur.left, "table")
     lines = [
         textwrap.fill(f"{i + 1:>2}. {t}; margin {m:.1f} mm", width, subsequent_indent="    ", break_on_hyphens=False)
         for i, (t, m) in enumerate(zip(d.landmarks, margin, strict=True))

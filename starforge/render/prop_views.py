@@ -77,7 +77,7 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
     tris, normals = drawn_faces(prop.vertices, prop.faces, max_faces)
     from starforge.props.guide import caliper_pairs
     from starforge.props.hand import capsule_arrays
-    from starforge.props.standoff import standoff_words
+    from starforge.props.standoff import clamp_size, standoff_words
 
     idx = list(res.marker_sites)
     seat = res.seat
@@ -100,7 +100,7 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         marker_visibility=res.marker_visibility,
         marker_centres=res.centres(),
         landmarks=tuple(
-            (f"on a clamp round the {rod:.3g} mm rod (its margin: along the rod); " if rod > 0 else "") + m["text"]
+            (f"on a clamp round the {clamp_size(rod):g} mm rod (its margin: along the rod); " if rod > 0 else "") + m["text"]
             for m, rod in zip(marks, res.marker_rods_mm, strict=True)
         ),
         contact=np.asarray(res.seat_report.contact)[idx],
