@@ -8,6 +8,7 @@ keys are refused (with the known ones listed) and values are converted to the fi
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import types
 import typing
@@ -110,6 +111,12 @@ def _convert(name: str, tp: Any, value: Any) -> Any:
     return value
 
 
+@functools.cache
+def _type_hints(cls: type) -> dict[str, Any]:
+    """``cls``'s type hints, evaluated once per class (a spec class's annotations are strings)."""
+    return typing.get_type_hints(cls)
+
+
 def from_mapping(cls: type[T], data: Mapping[str, Any], where: str = "spec") -> T:
     """Build the frozen dataclass ``cls`` from ``data``; refuse unknown keys, convert types."""
     if not isinstance(data, Mapping):
@@ -121,7 +128,7 @@ def from_mapping(cls: type[T], data: Mapping[str, Any], where: str = "spec") -> 
             f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))} in {where}; "
             f"known: {', '.join(fields)}"
         )
-    hints = typing.get_type_hints(cls)
+    hints = _type_hints(cls)
     kwargs = {k: _convert(k if where == "spec" else f"{where}.{k}", hints[k], v) for k, v in data.items()}
     missing = [
         n

@@ -59,9 +59,9 @@ def test_write_refuses_existing_files_and_changes_nothing(small_family, tmp_path
 def test_the_cli_writes_what_the_api_makes(small_family, tmp_path):
     from typer.testing import CliRunner
 
-    from starforge.cli import _load_commands, app
+    from starforge.cli import app, click_command
 
-    _load_commands()
+    click_command()  # every command module loaded into app
     out = tmp_path / "cli"
     res = CliRunner().invoke(
         app, ["stars", "--box", "14", "10", "30", "--delta", "2", "--count", "4", "--name", "custom", "--out", str(out), "-q"]

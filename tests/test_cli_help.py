@@ -5,16 +5,14 @@ from __future__ import annotations
 import re
 
 import pytest
-import typer
 
-from starforge.cli import _load_commands, app, main
+from starforge.cli import click_command, main
 from starforge.cli._args import normalise
 
 
 @pytest.fixture(scope="module")
 def root():
-    _load_commands()
-    return typer.main.get_command(app)
+    return click_command()
 
 
 def _walk(cmd, path):

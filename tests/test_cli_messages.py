@@ -78,9 +78,7 @@ def test_spec_refusals_name_the_option_not_the_key(args, option, tmp_path, capsy
 
 
 def test_seat_without_mount_suggests_the_same_command_with_a_mount(tmp_path, capsys):
-    import typer
-
-    from starforge.cli import _load_commands, app
+    from starforge.cli import click_command
     from starforge.cli._args import normalise
 
     line = _error(
@@ -89,8 +87,7 @@ def test_seat_without_mount_suggests_the_same_command_with_a_mount(tmp_path, cap
     assert "--seat" in line and "--mount" in line
     args = _suggested(line)
     assert args[args.index("--delta") + 1] == "2" and "--mount" in args and "--seat" in args
-    _load_commands()
-    root = typer.main.get_command(app)
+    root = click_command()
     ctx = root.commands["stars"].make_context("stars", normalise(root, args, {})[1:])  # it parses
     assert ctx.params["mount"] == "flat" and ctx.params["seat"] == "screw"
 

@@ -46,9 +46,8 @@ def test_readme_opens_with_the_two_commands_and_a_tour_that_parses():
     """Every tour command names a real command and real options with valid values (parsed by the
     CLI itself, not run), and reads only families that the README's earlier commands write."""
     import click
-    import typer
 
-    from starforge.cli import _load_commands, app
+    from starforge.cli import click_command
 
     rc = _readme_commands()
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
@@ -58,8 +57,7 @@ def test_readme_opens_with_the_two_commands_and_a_tour_that_parses():
     assert setup[1].startswith('pip install -e ".[test]"') and "pytest" in setup[1]
     tour = rc.readme_commands(readme, "tour")
     assert len(tour) >= 3
-    _load_commands()
-    group = typer.main.get_command(app)
+    group = click_command()
     made: set[str] = set()
     for line in [setup[0].split("&&", 1)[1].strip(), *tour]:
         words = shlex.split(line)
@@ -129,12 +127,9 @@ def test_export_refusal_names_the_stars_command_that_fits():
     cmd = stars_command_for(other, "strap")
     assert "--box 30 20 50" in cmd and "--delta 2" in cmd and cmd.endswith("--name big-strap --mount strap")
     # the command it prints parses, and makes that spec again (save the name and mount)
-    import typer
+    from starforge.cli import click_command
 
-    from starforge.cli import _load_commands, app
-
-    _load_commands()
-    ctx = typer.main.get_command(app).commands["stars"].make_context("stars", shlex.split(cmd)[2:])
+    ctx = click_command().commands["stars"].make_context("stars", shlex.split(cmd)[2:])
     assert tuple(ctx.params["box"]) == (30, 20, 50) and ctx.params["delta"] == 2.0
 
 

@@ -15,43 +15,40 @@ from starforge.runtime import process
 
 __all__ = ["app", "click_command", "main"]
 
-_loaded = False
-
-
-def _load_commands() -> None:
-    global _loaded
-    if _loaded:
-        return
-    for mod in sorted(m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_")):
-        importlib.import_module(f"{__name__}.{mod}")
-    _loaded = True
+_command = None
 
 
 def click_command():
     """The click command of the whole CLI, every command module loaded: what ``starforge --help``
     and ``starforge COMMAND --help`` print, for tools that document the commands (the docs'
-    generated command pages)."""
-    import typer.main
+    generated command pages), and what :func:`main` runs.  Built once per process: typer builds
+    it by reading every command function's signature and type hints, which costs more than
+    most refusals take."""
+    global _command
+    if _command is None:
+        import typer.main
 
-    _load_commands()
-    return typer.main.get_command(app)
+        for mod in sorted(m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_")):
+            importlib.import_module(f"{__name__}.{mod}")
+        _command = typer.main.get_command(app)
+    return _command
 
 
 def main(argv: list[str] | None = None) -> int:
     """Console-script entry point; returns (and exits with) the process exit code."""
-    _load_commands()
+    command = click_command()
     with process.command() as cmd:
-        code = cmd.finish(_run(argv))
+        code = cmd.finish(_run(command, argv))
     if argv is None:  # the console script: the process ends here
         process.end_process(code)
     return code
 
 
-def _run(argv: list[str] | None) -> int:
+def _run(command, argv: list[str] | None) -> int:
     from starforge.io import interrupted, note_interrupt
 
     try:
-        rv = app(args=argv, prog_name="starforge", standalone_mode=False)
+        rv = command.main(args=argv, prog_name="starforge", standalone_mode=False)
         code = rv if isinstance(rv, int) else 0
     except KeyboardInterrupt:
         note_interrupt()  # reported by main()
