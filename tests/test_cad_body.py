@@ -46,6 +46,7 @@ def _sampled_segment_distance(p, a, b, k=4001):
 
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.floats(-5, 5), min_size=12, max_size=12))
+@pytest.mark.slow
 def test_segment_distances_match_sampling(xs):
     a0, a1, b0, b1 = np.array(xs).reshape(4, 3)
     t = np.linspace(0, 1, 801)

@@ -112,6 +112,7 @@ def test_plate_step_files_are_the_same_from_run_to_run(tmp_path):
     assert plate.count(b"COLOUR_RGB") == 2 * 3  # a style per body and one per placed instance
 
 
+@pytest.mark.slow
 def test_a_plate_of_repeated_colours_is_the_same_from_run_to_run(tmp_path):
     """Bodies of one colour share its colour entity in the writer's output: the order of the
     styles still does not depend on the process, and every body keeps its name and colour."""
@@ -211,7 +212,7 @@ def _fresh(script: str, tmp_path, how: str) -> str:
     return res.stdout.strip().splitlines()[-1]
 
 
-@pytest.mark.parametrize("how", ["forked", "launched"])
+@pytest.mark.parametrize("how", ["forked", pytest.param("launched", marks=pytest.mark.slow)])
 def test_a_worker_error_is_one_clear_error(tmp_path, how):
     """The worker's StarforgeError (here: an unwritable folder) comes back as the parent's."""
     forked, code, message = _fresh(WORKER_ERROR, tmp_path, how).split(" ", 2)
@@ -219,7 +220,7 @@ def test_a_worker_error_is_one_clear_error(tmp_path, how):
     assert message.startswith("could not write STEP file")
 
 
-@pytest.mark.parametrize("how", ["forked", "launched"])
+@pytest.mark.parametrize("how", ["forked", pytest.param("launched", marks=pytest.mark.slow)])
 def test_a_crashing_worker_is_reported_and_reaped(tmp_path, how):
     """A worker that dies without a word (here: killed before its job) is one clear error with
     its exit status, and nothing is left running; a worker never given a job is ended by kill()."""
@@ -273,6 +274,7 @@ print(sorted(m for m in ("build123d", "OCP", "trimesh", "scipy") if m in sys.mod
 """
 
 
+@pytest.mark.slow
 def test_the_exporting_process_loads_no_cad_kernel(tmp_path):
     """STEP, STL and 3MF of a star without build123d, OCP, trimesh or scipy in the exporting
     process (build123d takes seconds to import): the kernel loads in the STEP worker."""
@@ -303,6 +305,7 @@ print(slim, same, type(bd).__name__, round(hull.length, 6), real)
 """
 
 
+@pytest.mark.slow
 def test_the_worker_kernel_is_build123d_without_its_package_init():
     """kernel() in a fresh interpreter loads the build123d modules the bodies use and not the
     package's other importers (scikit-learn, ezdxf) nor the modules its kernel modules import
@@ -364,6 +367,7 @@ print(sorted(rep.files))
 """
 
 
+@pytest.mark.slow
 def test_the_early_worker_is_handed_out_once_and_builds_the_export(tmp_path):
     """start_early() launches one worker, the first launch() hands it out (a later one launches a
     new worker), and the early worker writes the export's STEP file."""

@@ -32,7 +32,7 @@ from tests.test_cad_backends import _sphere_centres_from_mesh
 FINGER_BOX = (20.8, 12.6, 48.3)
 MOUNTS = [m.name for m in list_mounts()]
 #: every mount, those the other checks do not use checked by ``pytest -m slow``
-MOUNT_PARAMS = [m if m in ("flat", "saddle", "strap") else pytest.param(m, marks=pytest.mark.slow) for m in MOUNTS]
+MOUNT_PARAMS = [m if m == "flat" else pytest.param(m, marks=pytest.mark.slow) for m in MOUNTS]
 PRUSA = shutil.which("prusa-slicer")
 SLIC3R = shutil.which("slic3r")
 
@@ -108,6 +108,7 @@ def test_bodies_lie_plate_down_and_print_without_supports(made_for, mount):
     assert layer_report(plate)["midair_islands"] == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mount", ["saddle", "strap"])
 def test_redesigned_mounts_stand_on_flat_ground(made_for, mount):
     """The saddle prints on two flat rails beside its channel, the strap on its tunnel's floor."""
@@ -203,7 +204,8 @@ def test_thumbnail_silhouette_matches_the_projected_hull():
 
 
 @pytest.mark.skipif(PRUSA is None, reason="PrusaSlicer is not installed here")
-@pytest.mark.parametrize(("mount", "name"), [("saddle", "star_001.stl"), ("strap", "star_002.3mf"), ("flat", "plate.3mf")])
+@pytest.mark.parametrize(("mount", "name"), [pytest.param("saddle", "star_001.stl", marks=pytest.mark.slow),
+     pytest.param("strap", "star_002.3mf", marks=pytest.mark.slow), ("flat", "plate.3mf")])
 def test_prusaslicer_slices_the_files_as_written(made_for, tmp_path, mount, name):
     """The slicer that must slice the file: no error, and the sliced height is the body's."""
     _, _, out, doc = made_for(mount)

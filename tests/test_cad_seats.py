@@ -110,7 +110,9 @@ def test_insert_holes_follow_the_published_insert():
     assert not [p for p in b.add if isinstance(p, Sphere)]
 
 
-@pytest.mark.parametrize("mount", ["flat", "saddle", "strap", "adhesive", "magnet"])
+@pytest.mark.parametrize(
+    "mount", ["flat", *(pytest.param(m, marks=pytest.mark.slow) for m in ("saddle", "strap", "adhesive", "magnet"))]
+)
 def test_every_mesh_is_a_closed_2_manifold_as_written(mount, tmp_path):
     """Every id 1..25 engraved (each glyph and glyph pair of the finger family) on every mount:
     the STL, as written (float32) and read back by trimesh, is one watertight shell with no

@@ -76,6 +76,7 @@ def test_body_previews_and_sheet_have_no_overlapping_text(figures, small_family,
     assert sheet and sheet[0][2] >= 4  # an id and size per body and the note
 
 
+@pytest.mark.slow
 def test_drawing_a_picture_leaves_a_notebooks_matplotlib_as_it_was(tmp_path):
     """A notebook that draws its own figures (another backend, its own settings, a figure open)
     calls starforge's pictures in its own process: afterwards its backend, its settings and its

@@ -218,6 +218,7 @@ def test_a_command_refused_at_once_writes_only_its_error(tmp_path, capsys):
     assert out == "" and err.count("\n") == 1 and err.startswith("error: ")
 
 
+@pytest.mark.slow
 def test_quiet_prints_nothing_and_otherwise_stages_come_in_order(tmp_path, capsys, no_hold):
     from conftest import run_cli
 
@@ -232,6 +233,7 @@ def test_quiet_prints_nothing_and_otherwise_stages_come_in_order(tmp_path, capsy
     assert "wrote" in out
 
 
+@pytest.mark.slow
 def test_quiet_before_the_command_and_global_options_after_it(tmp_path, capsys):
     from conftest import run_cli
 
@@ -252,6 +254,7 @@ def test_check_stages_and_quiet(small_family, tmp_path, capsys, no_hold):
     assert _stages(capsys.readouterr().err) == ["load", "simulate", "curve", "render"]
 
 
+@pytest.mark.slow
 def test_export_stages_and_quiet(small_family, tmp_path, capsys, no_hold):
     from conftest import run_cli
 

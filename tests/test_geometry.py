@@ -141,6 +141,7 @@ def _brute_force_min_volume(P, starts=30, seed=0):
     return min(minimize(vol, x0, method="Nelder-Mead", options=opts).fun for x0 in x0s)
 
 
+@pytest.mark.slow
 def test_min_volume_box_contains_points_is_proper_and_minimal():
     rng = np.random.default_rng(1)
     P = rng.normal(size=(8, 4, 3)) * np.array([1, 3, 8])
@@ -270,6 +271,7 @@ def _band_samples_hit(o, d, length, a, b, radius, grow):
 
 @settings(max_examples=150, deadline=None, derandomize=True)
 @given(seed=st.integers(0, 2**31 - 1))
+@pytest.mark.slow
 def test_a_ray_enters_a_band_exactly_when_points_along_it_do(seed):
     """:func:`ray_enters_band` against dense samples of the ray: a ray it says enters the band has
     samples inside the band grown by a hair, and one it says misses has none inside the band shrunk

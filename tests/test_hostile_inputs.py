@@ -629,6 +629,7 @@ def test_ctrl_c_exits_within_2_s_and_leaves_the_output_as_it_was(args, signame, 
     assert snapshot(work) == before
 
 
+@pytest.mark.slow
 def test_a_swallowed_ctrl_c_still_changes_nothing(tmp_path, monkeypatch):
     """numba compiles inside ctypes callbacks, which print a KeyboardInterrupt and carry on (seen
     on a fresh install: Ctrl-C during `place`'s first compile, and the run went on to exit 0).
@@ -665,6 +666,7 @@ def test_a_swallowed_ctrl_c_still_changes_nothing(tmp_path, monkeypatch):
     assert signal.getsignal(signal.SIGINT) is handler  # restored after the run
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("existing", [False, True], ids=["new-folder", "into-a-folder"])
 def test_a_signal_during_the_publish_says_the_outputs_were_written(existing, tmp_path, monkeypatch, capsys):
     """SIGTERM while the outputs are renamed into place (the new folder renamed, or the first file

@@ -79,6 +79,7 @@ def test_readme_opens_with_the_two_commands_and_a_tour_that_parses():
     assert "out/finger" in made
 
 
+@pytest.mark.slow
 def test_caches_live_outside_the_package(tmp_path):
     """After a kernel compile, no numba cache file is inside the starforge package, and the
     cache folder is the one STARFORGE_CACHE_DIR names."""

@@ -51,7 +51,7 @@ def _on_rod(z: np.ndarray, angle: np.ndarray, mesh=None):
     return q, mesh.face_normals[face]
 
 
-@pytest.mark.parametrize("sections", [16, 64])
+@pytest.mark.parametrize("sections", [16, pytest.param(64, marks=pytest.mark.slow)])
 def test_a_clamp_fits_round_a_rod_with_the_room_the_rod_has(sections):
     """Against the cylinder's own numbers: its radius (less the flats' sag on a prism), its axis
     (z), and the room along it, the rod's straight stretch beyond the ring's half-width, up to

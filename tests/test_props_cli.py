@@ -167,6 +167,7 @@ def test_score_subcommand_rescores_a_layout(tmp_path, capsys):
     assert code == 0, err and "cost" in stdout
 
 
+@pytest.mark.slow
 def test_refuses_to_overwrite_without_force(hammer_run, tmp_path, capsys):
     out = tmp_path / "o"
     shutil.copytree(hammer_run[0], out)
@@ -323,6 +324,7 @@ def test_pictures_drawn_in_a_child_process_are_identical(tmp_path, capsys):
     assert not list(out.glob(".render*"))
 
 
+@pytest.mark.slow
 def test_guide_pdf_in_standard_fonts_unless_a_text_needs_more(tmp_path):
     """guide.pdf names PDF's standard fonts and embeds none; a prop name outside Latin-1 keeps
     the embedded fonts (the standard ones cannot draw it)."""
@@ -363,6 +365,7 @@ for name in ("guide.png", "guide.pdf"):
 """
 
 
+@pytest.mark.slow
 def test_the_guide_split_over_two_processes_is_the_same_bytes(tmp_path):
     """guide_files(split=True) writes the PDF from a forked copy while it writes the PNG: the same
     files as one after the other (run in a process of its own, where forking is allowed)."""
@@ -467,6 +470,7 @@ print("ok")
 """
 
 
+@pytest.mark.slow
 def test_render_processes_fork_beside_the_heartbeat_only():
     """Off a terminal the CLI's heartbeat thread runs; it holds its print lock across forks, so the
     pictures still get their render processes; any other thread keeps them in-process.  Run in a
@@ -500,6 +504,7 @@ print("ok")
 """
 
 
+@pytest.mark.slow
 def test_render_processes_fork_beside_the_signal_watcher_and_leave_its_pipe():
     """The CLI's last-resort signal watcher (a thread) does not keep the pictures in-process
     (they are drawn off the critical path, in a forked process); a render process stops writing
@@ -686,6 +691,7 @@ def test_the_written_guide_pdf_has_no_overlapping_text(hammer_run, tmp_path):
         assert off_page(page) == []
 
 
+@pytest.mark.slow
 def test_the_run_prints_its_grips_and_pins_one_by_number(hammer_run, tmp_path, capsys):
     """Every run lists the grips it assumed (numbered as --grip takes them) and placement.json
     holds them; --grip N scores the layout under that grip alone, and out of range is refused."""

@@ -195,6 +195,7 @@ def held_scene(mesh, sites: int, seed: int):
     return grips, rig, samples, poses, assign_grips(len(poses), len(grips), np.random.default_rng(1))
 
 
+@pytest.mark.slow
 def test_the_table_holds_each_pose_in_its_own_grip():
     """The compiled table with a grip per pose equals, pose by pose, tables built with that
     grip's capsules alone (brute force over the grips)."""
@@ -360,7 +361,7 @@ def _fist_shares(mesh, points, monkeypatch, step=None, positions=POSITIONS):
     return np.mean([inside_capsules(points, [g.capsules[0]]) for g in dist], axis=0)
 
 
-@pytest.mark.parametrize("make", [_torch, _screwdriver], ids=["torch", "screwdriver"])
+@pytest.mark.parametrize("make", [_torch, pytest.param(_screwdriver, marks=pytest.mark.slow)], ids=["torch", "screwdriver"])
 def test_the_grip_places_stand_for_a_hand_anywhere_along_the_reach(make, monkeypatch):
     """Each surface point is covered by about the share of grips that a palm placed anywhere
     along the reach covers it in (brute force: a palm every hundredth of a palm), and closer

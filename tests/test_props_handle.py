@@ -66,7 +66,7 @@ def _surface_distance(points, mesh, per_edge=12):
     return np.array([np.linalg.norm(grid - p, axis=1).min() for p in np.atleast_2d(points)])
 
 
-@pytest.mark.parametrize("tilt", [0.0, 33.0])
+@pytest.mark.parametrize("tilt", [0.0, pytest.param(33.0, marks=pytest.mark.slow)])
 def test_a_mug_gets_grips_on_its_handle_whatever_its_orientation(tilt):
     mug, handle = _mug(tilt)
     part, grips = grip_distribution(mug)

@@ -12,7 +12,7 @@ from starforge.props.builtin import builtin_mesh
 from starforge.props.guide import landmarks, locating_errors, mesh_guide, mesh_landmarks, surface_sample
 
 
-@pytest.mark.parametrize("seed", [4, 11, 23])
+@pytest.mark.parametrize("seed", [4, *(pytest.param(s, marks=pytest.mark.slow) for s in (11, 23))])
 def test_the_stated_locating_error_is_what_solving_noisy_readings_gives(seed):
     mesh = builtin_mesh("hammer")
     feats = mesh_landmarks(mesh)
@@ -62,6 +62,7 @@ def test_a_mark_the_readings_cannot_place_within_the_margin_is_sent_to_the_drawi
     assert len(lp) >= 3
 
 
+@pytest.mark.slow
 def test_where_the_nearest_landmarks_locate_a_mark_poorly_the_chosen_ones_do_better_solved():
     """Where the model says the nearest three landmarks are much worse than the chosen three
     (at the ends of the hammer's head, they lie nearly in one line with the mark), solving

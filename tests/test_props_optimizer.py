@@ -122,7 +122,10 @@ def test_chain_settings_validation():
         ChainSettings(restarts=0)
 
 
-@pytest.mark.parametrize("name", ["hammer", "racket", "sword", "bottle", "box", "shield", "umbrella"])
+@pytest.mark.parametrize(
+    "name",
+    ["hammer", "umbrella", *(pytest.param(n, marks=pytest.mark.slow) for n in ("racket", "sword", "bottle", "box", "shield"))],
+)
 def test_beats_best_of_1000_random_layouts(name):
     from starforge.props.mesh import load_prop
     from starforge.props.placement import place

@@ -113,6 +113,7 @@ def test_a_post_that_would_run_into_the_prop_is_refused():
     assert rep.clearance_m[0] > seat.ball_radius_m and not rep.ok[0]
 
 
+@pytest.mark.slow
 def test_place_writes_the_post_and_the_markers_stand_on_it(tmp_path):
     import json
 

@@ -141,6 +141,7 @@ def test_the_default_beats_or_ties_both_baselines_on_every_builtin_prop(props):
             assert c["cost"] >= 0  # a chain's cost leaves out the near-symmetry term (a lower bound)
 
 
+@pytest.mark.slow
 def test_the_held_out_ranking_recounted_with_the_evaluations_own_geometry():
     """The held-out tracked fractions that pick the layout, recomputed for the winner and both
     baselines by :mod:`starforge.props.evaluate` (numpy geometry, not the compiled table) on the
@@ -311,6 +312,7 @@ def _shield_in_a_small_room(tmp_path, sites: int) -> dict:
     return json.loads((out / "placement.json").read_text())
 
 
+@pytest.mark.slow
 def test_untracked_poses_are_warned_and_recorded(tmp_path, capsys):
     """A 4-camera room and only 4 markers on the shield leave a pose untracked: the run says so
     on stderr and in placement.json."""
@@ -396,6 +398,7 @@ def test_numbers_as_ranges_reads_back(numbers):
     assert back == numbers
 
 
+@pytest.mark.slow
 def test_below_target_names_the_exact_ceiling_when_layouts_are_few(tmp_path):
     """On 20 sites every spaced layout is scored: the ceiling bounds the chosen layout, and the
     warning line quotes it."""
@@ -718,6 +721,7 @@ def test_the_greedy_trace_follows_the_search_to_its_layout():
     assert (np.diff(swaps) < 0).all()  # a swap is kept only when it lowers the cost
 
 
+@pytest.mark.slow
 def test_the_search_picture_draws_every_random_layout_and_candidate():
     import matplotlib
 

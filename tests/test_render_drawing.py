@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from starforge.cli import main
 from starforge.tracking.convert import convert_to, read_records
@@ -15,6 +16,7 @@ from starforge.tracking.formats import read_file
 VENDOR = Path(__file__).parent / "data" / "vendor"
 
 
+@pytest.mark.slow
 def test_drawings_of_a_lab_file_and_a_tool(tmp_path, cli_error):
     one = convert_to(read_records([VENDOR / "qtm_6d_settings.xml"]), "qtm").files["Table.xml"]
     (tmp_path / "Table.xml").write_bytes(one)  # a QTM file of one body, with its point names

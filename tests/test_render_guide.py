@@ -21,7 +21,7 @@ from starforge.render.guide import GUIDE_VIEWS, guide_pages
 from starforge.render.prop_views import VIEWS, declutter, plot_data, symbol_box
 
 
-@pytest.fixture(scope="module", params=["hammer", "box"])
+@pytest.fixture(scope="module", params=["hammer", pytest.param("box", marks=pytest.mark.slow)])
 def guide_data(request):
     from starforge.props.placement import run_placement
 

@@ -121,6 +121,7 @@ def test_a_prepared_placement_read_back_is_the_one_computed(cache, monkeypatch):
         pr.prepare(prop, spec, np.random.default_rng(5), seed=5)
 
 
+@pytest.mark.slow
 def test_a_placement_is_the_same_from_an_empty_and_a_filled_cache(cache, tmp_path):
     from starforge.api.place import place_markers, write_placement
 

@@ -68,6 +68,7 @@ def test_margins_are_what_they_claim(finger_face):
         assert s["margins"]["family_face_mm"] >= tol_mm - 1e-9
 
 
+@pytest.mark.slow
 def test_same_spec_same_bytes(small_family, tmp_path):
     out, _ = small_family
     assert run_cli(["stars", "--box", 16, 12, 24, "--delta", 2, "--out", tmp_path, "-q"]) == 0
@@ -183,6 +184,7 @@ def test_finger_default_args_are_the_template():
     assert [str(x) for x in data["box_mm"]] == FINGER[1:4]
 
 
+@pytest.mark.slow
 def test_preview_draws_a_png_sheet(tmp_path):
     args = ["stars", "--box", 16, 12, 24, "--delta", 2, "--select", "greedy", "--preview", "--out", tmp_path, "-q"]
     assert run_cli(args) == 0
@@ -192,6 +194,7 @@ def test_preview_draws_a_png_sheet(tmp_path):
     assert width > 400 and height > 200
 
 
+@pytest.mark.slow
 def test_family_made_under_a_preset_passes_that_presets_rules(tmp_path):
     fam = tmp_path / "art"
     args = ["stars", "--preset", "art", "--box", 70, 50, 80, "--marker", 10, "--select", "greedy", "--out", fam, "-q"]

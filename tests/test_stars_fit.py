@@ -88,7 +88,7 @@ def finger_sample():
     return vertices_from_lengths(L)
 
 
-@pytest.mark.parametrize("n", [500, pytest.param(2000, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("n", [250, pytest.param(2000, marks=pytest.mark.slow)])
 def test_decision_agrees_with_a_dense_independent_search_both_ways(finger_sample, n):
     assert len(finger_sample) == 2000
     P = finger_sample[:n]
@@ -261,6 +261,7 @@ def test_tolerance_holds_within_a_star_a_face_and_between_faces(tmp_path):
         assert (d >= 2 - 1e-9).all()
 
 
+@pytest.mark.slow
 def test_accuracy_is_reported_and_count_takes_the_most_accurate(tmp_path):
     from starforge.geometry.rigid import simulate_fit_errors
 
@@ -331,6 +332,7 @@ def test_solvable_case_is_the_proven_maximum_by_an_independent_count(solvable_ca
     assert {tuple(x) for x in np.round(canonical_lengths(fam), 6).tolist()} <= fit
 
 
+@pytest.mark.slow
 def test_corner_test_is_sound_against_sampled_directions():
     """corners_exclude says no direction of a cube-map cell is thin enough only when none is:
     checked on directions drawn inside random cells (and at their corners) against random pair

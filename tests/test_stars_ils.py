@@ -87,6 +87,7 @@ def test_ils_variable_row_counts(cands):
     assert np.array_equal(a, b) and len(a) >= len(ls)
 
 
+@pytest.mark.slow
 def test_ils_reaches_milp_optimum(cands):
     """Face rule: HiGHS proves the optimum on this instance (the pair rule's MILP takes too long)."""
     rule = "face"

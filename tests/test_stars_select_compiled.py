@@ -383,7 +383,8 @@ def instance(cands, rule: str, m: int, drop: float = 0.0):
 
 
 CASES = [(0, "face", 1, 0.0), (0, "pair", 1, 0.0), (0, "face", 2, 0.0), (0, "pair", 2, 0.4),
-         (1, "face", 1, 0.0), (1, "pair", 1, 0.0), (1, "face", 2, 0.0), (1, "pair", 1, 0.5)]
+         (1, "face", 1, 0.0), (1, "pair", 1, 0.0), pytest.param(1, "face", 2, 0.0, marks=pytest.mark.slow),
+         (1, "pair", 1, 0.5)]
 
 
 @pytest.mark.parametrize("which,rule,m,drop", CASES)
@@ -470,7 +471,7 @@ def test_compiled_window_rows_are_numpys(small, rule, m, which):
         assert a.dtype == b.dtype and np.array_equal(a, b)
 
 
-@pytest.mark.parametrize("which,rule,m", [(0, "face", 1), (0, "pair", 2), (1, "face", 2), (1, "pair", 1), (0, "face", 3)])
+@pytest.mark.parametrize("which,rule,m", [(0, "face", 1), (1, "pair", 1), (0, "face", 3), *(pytest.param(*c, marks=pytest.mark.slow) for c in ((0, "pair", 2), (1, "face", 2)))])
 def test_search_by_key_points_is_the_reference(small, which, rule, m):
     """Neighbours found through the keys' grid points (what ``select_family`` uses) give the
     reference's families and counts: the same stars share a window either way."""

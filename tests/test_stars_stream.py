@@ -93,6 +93,7 @@ def test_streamed_greedy_is_the_in_memory_greedy(cands, monkeypatch, rule, tol):
     _assert_family(S.stream_family(spec), c, rule, m)
 
 
+@pytest.mark.slow
 def test_streamed_family_does_not_depend_on_the_completion_order(cands, monkeypatch):
     def backwards(spec, consume, *args, **kw):  # every chunk first collected, then fed in reverse
         got = []
@@ -108,6 +109,7 @@ def test_streamed_family_does_not_depend_on_the_completion_order(cands, monkeypa
     _assert_family(b, cands, "face", 1)
 
 
+@pytest.mark.slow
 def test_make_family_streamed_equals_in_memory(monkeypatch):
     a = make_family(SPEC)
     monkeypatch.setattr(estimate, "check_size", lambda spec, allow_stream=False: "stream")
@@ -160,6 +162,7 @@ def test_ordered_is_the_compactness_order(cands):
     assert np.array_equal(S.ordered(idx, pool, vol), compactness_order(idx, pool, vol))
 
 
+@pytest.mark.slow
 def test_the_spill_folder_is_removed_after_success_and_failure(tmp_path, monkeypatch):
     monkeypatch.setenv("STARFORGE_SPILL_DIR", str(tmp_path))
     seen = []

@@ -101,7 +101,10 @@ def _pipeline(lib, X):
     ]
 
 
-@pytest.mark.parametrize("hide,ghosts", [(False, 0), (True, 0), (True, 2), (False, 2)])
+@pytest.mark.parametrize(
+    "hide,ghosts",
+    [(False, 0), (True, 0), pytest.param(True, 2, marks=pytest.mark.slow), pytest.param(False, 2, marks=pytest.mark.slow)],
+)
 def test_the_best_hypothesis_is_the_brute_forces_under_both_headline_rules(hide, ghosts):
     rng = np.random.default_rng(11 + 3 * ghosts + hide)
     bodies = _bodies(rng)

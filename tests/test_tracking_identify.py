@@ -107,6 +107,7 @@ def test_congruent_faces_are_reported_as_confused():
     assert t0.correct == t0.instances
 
 
+@pytest.mark.slow
 def test_resolution_equals_sequential_greedy(family_lib):
     _, lib = family_lib
     sc = ident.simulate(lib, 40, 0.3, 1, 3, np.random.default_rng(2), match_mm=2.0)

@@ -72,6 +72,7 @@ def test_sampled_lower_bound_is_a_valid_family(rule):
     assert (face_rule_ok if rule == "face" else pair_rule_ok)(L, spec.tol_mm)
 
 
+@pytest.mark.slow
 def test_interval_ends_bracket_the_exhaustive_maximum():
     """For cells small enough to solve exhaustively, the interval's certified upper end is at
     least the exhaustive family and the sampled lower end at most its certified bound."""

@@ -67,6 +67,7 @@ def test_four_marker_identification_never_reports_three():
     assert r["identification_rate"] == 0.0 and r["wrong_body_rate"] == 0.0 and r["missed_rate"] == 1.0
 
 
+@pytest.mark.slow
 def test_art_preset_simulation_agrees_with_its_rules(small_family, tmp_path):
     fam, _ = small_family
     out = tmp_path / "art"
