@@ -219,3 +219,32 @@ def test_the_prop_with_its_markers_shows_each_clamp_round_its_rod():
     radial = np.linalg.norm(rel - along[:, None] * t, axis=1)
     assert np.allclose(np.abs(along), seat.base_radius_m, atol=1e-6)  # its two faces, as wide as the post (float32)
     assert radial.min() >= 0.0035 - 1e-6 and radial.max() <= 0.0035 + CLAMP_WALL_MM / 1000.0 + 1e-6
+
+
+def test_the_guide_draws_each_clamps_ring_where_the_printed_ring_sits():
+    """The guide's views outline a clamped marker's ring by its two faces: circles round the rod's
+    axis at the wall's outside, the post's half-width either side of the mark, on the ring
+    ``prop_markers`` shows; a marker on its foot gets none, and a layout without clamps none."""
+    from starforge.props.files import marker_parts
+    from starforge.render.prop_views import clamp_rings
+
+    seat = with_standoff(seat_for("9.5mm-m3"), 20.0)
+    t = np.array([0.0, 0.6, 0.8])
+    n = np.cross(t, [1.0, 0.0, 0.0])
+    n /= np.linalg.norm(n)
+    centre = np.array([0.01, 0.02, 0.03])
+    p = np.array([centre + 0.0035 * n, centre + [0.05, 0.0, 0.0]])
+    normals = np.array([n, [1.0, 0.0, 0.0]])
+    rings = clamp_rings(p, normals, [7.0, 0.0], [t, [0.0, 0.0, 0.0]], seat.base_radius_m)
+    assert np.isnan(rings[1]).all() and np.isfinite(rings[0]).all()
+    rel = rings[0].reshape(-1, 3) - centre
+    along = rel @ t
+    radial = np.linalg.norm(rel - along[:, None] * t, axis=1)
+    assert np.allclose(np.abs(along), seat.base_radius_m) and np.allclose(radial, 0.0035 + CLAMP_WALL_MM / 1000.0)
+    parts = trimesh.Trimesh(*marker_parts(p[:1], n[None], seat, [7.0], t[None])).split(only_watertight=False)
+    printed = min(parts, key=lambda m: np.linalg.norm(m.vertices.mean(axis=0) - centre)).vertices - centre
+    p_along = printed @ t
+    p_radial = np.linalg.norm(printed - p_along[:, None] * t, axis=1)
+    rim = p_radial > p_radial.max() - 1e-6  # the printed ring's outer edges (float32)
+    assert np.allclose(p_radial[rim], radial[0], atol=1e-6) and np.allclose(np.abs(p_along[rim]), seat.base_radius_m, atol=1e-6)
+    assert clamp_rings(p, normals, [0.0, 0.0], np.zeros((2, 3)), seat.base_radius_m) is None

@@ -49,6 +49,7 @@ class PlotData:
     caliper: tuple = ()  # (a, b, centre_mm, outside_mm, tolerance_mm) per marker pair
     margin_mm: np.ndarray = field(default=None, repr=False)  # (m,) seat margin
     placement_error_mm: float = 0.0
+    rings: np.ndarray = field(default=None, repr=False)  # (m, 2, k, 3) each clamp's ring faces, m (NaN: no clamp)
     search: dict = field(default_factory=dict, repr=False)  # the tracked search without chains (search_data)
 
 
@@ -126,6 +127,8 @@ def plot_data(res, max_faces: int = MAX_FACES) -> PlotData:
         ),
         margin_mm=None if res.seat_report.margin_m is None else np.asarray(res.seat_report.margin_m)[idx] * 1000.0,
         placement_error_mm=err,
+        rings=clamp_rings(res.marker_points, res.marker_normals, res.marker_rods_mm, res.marker_rod_axes,
+                          seat.base_radius_m),
         search=search_data(res.tracked) if tracked else {},
     )
 
@@ -358,6 +361,9 @@ def markers_in_view(ax, d: PlotData, B, span, colour=None, norm=None, cmap=None,
         for i in range(len(mp)):
             ax.plot([foot[i, 0], mp[i, 0]], [foot[i, 1], mp[i, 1]], color="0.3" if facing[i] else "0.6", lw=1.8,
                     solid_capstyle="butt", zorder=4.5)  # fmt: skip
+            if d.rings is not None and np.isfinite(d.rings[i]).all():  # the clamp's ring: its two faces
+                for face in d.rings[i] @ B.T:
+                    ax.plot(face[:, 0], face[:, 1], color="0.3" if facing[i] else "0.6", lw=0.8, zorder=4.5)
     for i in range(len(mp)):
         col = "k" if facing[i] else "0.55"
         leaders += ax.plot([mp[i, 0], lab[i, 0]], [mp[i, 1], lab[i, 1]], color=col, lw=0.5, zorder=4)
@@ -372,6 +378,33 @@ def markers_in_view(ax, d: PlotData, B, span, colour=None, norm=None, cmap=None,
                linestyle=":", zorder=5)  # fmt: skip
     dot = size**0.5 + 1  # a dot's diameter (the scatter's size is its area in points squared) and its edge
     return MarkerLabels(sc, texts, leaders, [(p, dot) for p in mp[:, :2]])
+
+
+#: points round each face of a clamp's ring as the views draw it
+RING_DRAWN = 48
+
+
+def clamp_rings(points, normals, rods_mm, rod_axes, half_width_m: float) -> np.ndarray | None:
+    """(m, 2, RING_DRAWN, 3) the outer edges of each marker's clamp ring (the ring's two faces,
+    ``half_width_m`` either side of the post's axis, round the rod ``rods_mm`` across with axis
+    ``rod_axes``, the wall :data:`~starforge.props.clamp.CLAMP_WALL_MM` thick), m; NaN for a
+    marker on its foot; None when no marker is clamped."""
+    from starforge.props.clamp import CLAMP_WALL_MM
+
+    rods = np.asarray(rods_mm, float)
+    if not (rods > 0).any():
+        return None
+    out = np.full((len(rods), 2, RING_DRAWN, 3), np.nan)
+    a = np.linspace(0.0, 2 * np.pi, RING_DRAWN)
+    for i in np.flatnonzero(rods > 0):
+        n = np.asarray(normals[i], float) / np.linalg.norm(normals[i])
+        t = np.asarray(rod_axes[i], float)
+        r = rods[i] / 2000.0
+        centre = np.asarray(points[i], float) - r * n
+        rim = (r + CLAMP_WALL_MM / 1000.0) * (np.cos(a)[:, None] * n + np.sin(a)[:, None] * np.cross(t, n))
+        for k, side in enumerate((-1.0, 1.0)):
+            out[i, k] = centre + side * half_width_m * t + rim
+    return out
 
 
 def symbol_box(ax, xy, size_pt: float):
