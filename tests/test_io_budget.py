@@ -193,3 +193,24 @@ def test_an_interrupt_while_the_folder_is_made_leaves_no_folder(tmp_path, monkey
     monkeypatch.undo()
     assert list(tmp_path.iterdir()) == []
 
+
+
+@pytest.mark.parametrize("before", [None, ("3G", "100", "")], ids=["unset", "set"])
+def test_a_commands_limits_do_not_outlive_it(before, tmp_path, monkeypatch, capsys):
+    """``--max-memory``, ``--max-seconds`` and ``--scheduler`` hold for their command only: a
+    program that calls the CLI again (a notebook, the tests) gets the environment it had."""
+    from starforge.cli import main
+    from starforge.runtime.engine import ENV_SCHEDULER
+
+    for k, key in enumerate((budget.ENV_MEMORY, budget.ENV_SECONDS, ENV_SCHEDULER)):
+        if before is None:
+            monkeypatch.delenv(key, raising=False)
+        else:
+            monkeypatch.setenv(key, before[k])
+    env = {k: os.environ.get(k) for k in (budget.ENV_MEMORY, budget.ENV_SECONDS, ENV_SCHEDULER)}
+    args = ["--max-memory", "1G", "--max-seconds", "5", "stars", "--box", "14", "10", "30", "--delta", "2",
+            "--count", "2", "--out", tmp_path / "o", "-q"]
+    assert main([str(a) for a in args]) == 0
+    assert main(["--max-memory", "1G", "stars", "--delta", "-1"]) == 2  # a refusal, too
+    capsys.readouterr()
+    assert {k: os.environ.get(k) for k in env} == env

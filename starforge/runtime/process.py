@@ -16,6 +16,7 @@ import sys
 import threading
 
 from starforge.io import discard_stages, interrupted, note_interrupt, published, renaming, reset_interrupt
+from starforge.runtime.budget import ENV_MEMORY, ENV_SECONDS
 from starforge.runtime.engine import ENV_SCHEDULER, silence_dask
 from starforge.runtime.procs import end_children
 from starforge.runtime.stop import report_stop
@@ -182,15 +183,21 @@ class Command:
         return code
 
 
+#: what ``--scheduler``, ``--max-memory`` and ``--max-seconds`` set (for the command's helpers and
+#: workers to read): :func:`command` puts them back as they were when it ends, so that a program
+#: calling the CLI twice does not carry one call's limits into the next
+COMMAND_ENV = (ENV_SCHEDULER, ENV_MEMORY, ENV_SECONDS)
+
+
 @contextlib.contextmanager
 def command():
-    """Run one command: signals, helpers, the scheduler address it set and the collector it
-    paused are all undone when it ends, whatever way it ends."""
+    """Run one command: signals, helpers, the scheduler address and limits it set and the
+    collector it paused are all undone when it ends, whatever way it ends."""
     reset_interrupt()
     _stopped_by[0] = None
     _quick_exit[0] = False
     silence_dask()  # the engine's one line says what a cluster did wrong; dask's loggers stay quiet
-    scheduler_env = os.environ.get(ENV_SCHEDULER)  # --scheduler sets it for this command only
+    saved_env = {k: os.environ.get(k) for k in COMMAND_ENV}  # the global options set them for this command only
     done, undo = _install_signals()
     previous_hook = sys.unraisablehook
     sys.unraisablehook = _quiet_interrupts(previous_hook)
@@ -198,10 +205,11 @@ def command():
         yield Command(done)
     finally:
         end_children()  # a helper the command did not wait for (an error, a signal) ends with it
-        if scheduler_env is None:
-            os.environ.pop(ENV_SCHEDULER, None)
-        else:
-            os.environ[ENV_SCHEDULER] = scheduler_env
+        for key, value in saved_env.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
         sys.unraisablehook = previous_hook
         undo()
         reset_interrupt()  # library calls after this command are not affected
