@@ -47,6 +47,29 @@ RING_POINTS = 16
 MARGIN_STEP_M = 5e-4
 
 
+def ring_radii_mm(rod_mm: float) -> tuple[float, float]:
+    """The ring round a rod ``rod_mm`` across: its bore's and its outside's radii, mm."""
+    r = float(rod_mm) / 2.0
+    return r, r + CLAMP_WALL_MM
+
+
+def ring_frame(point, normal, rod_mm: float, rod_axis) -> tuple[np.ndarray, float, float]:
+    """Where the ring of a clamp sits on the prop, for a marker whose site is ``point`` (m) with
+    outward ``normal``, on a rod ``rod_mm`` across along ``rod_axis``: a (4, 4) placement, m
+    (x the site's normal, z the rod's axis, y completing a right-handed frame, the origin on the
+    rod's axis under the site) and the bore's and the outside's radii, m.  The picture's solid
+    (:func:`starforge.props.files.marker_parts`) and the guide's outline
+    (:func:`starforge.render.prop_views.clamp_rings`) both place the ring with it; the printed
+    part (:func:`starforge.props.standoff.clamp_solid`) has the same radii in its own frame."""
+    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    t = np.asarray(rod_axis, float)
+    bore, outside = (x / 1000.0 for x in ring_radii_mm(rod_mm))
+    frame = np.eye(4)
+    frame[:3, :3] = np.column_stack([n, np.cross(t, n), t])
+    frame[:3, 3] = np.asarray(point, float) - bore * n
+    return frame, bore, outside
+
+
 def fit_tolerance(radius_m: np.ndarray) -> np.ndarray:
     """How far (m) a point of the fitted circle may lie off the surface: 0.1 mm, or 3 % of the
     radius on a thick rod (a 16-sided prism's flats lie 1.9 % of its radius inside its circle)."""

@@ -336,7 +336,7 @@ def marker_parts(points, normals, seat, rods_mm=None, rod_axes=None) -> tuple[np
     from manifold3d import Manifold
 
     from starforge.geometry.frames import perpendicular_basis
-    from starforge.props.clamp import CLAMP_WALL_MM
+    from starforge.props.clamp import ring_frame
 
     pts = np.asarray(points, float).reshape(-1, 3)
     rods = np.zeros(len(pts)) if rods_mm is None else np.asarray(rods_mm, float)
@@ -350,10 +350,11 @@ def marker_parts(points, normals, seat, rods_mm=None, rod_axes=None) -> tuple[np
             r = seat.base_radius_m
             parts.append(Manifold.cylinder(max(0.001, seat.standoff_m), r, r, MARKER_SEGMENTS).transform(turn))
         if d > 0:  # the clamp's ring round the rod, as wide as the post
-            r, w = d / 2000.0, seat.base_radius_m
-            ring = Manifold.cylinder(2 * w, r + CLAMP_WALL_MM / 1000.0, r + CLAMP_WALL_MM / 1000.0, MARKER_SEGMENTS, True)
-            ring -= Manifold.cylinder(3 * w, r, r, MARKER_SEGMENTS, True)
-            parts.append(ring.transform(np.column_stack([n, np.cross(t, n), t, p - r * n])))
+            frame, bore, outside = ring_frame(p, n, d, t)
+            w = seat.base_radius_m
+            ring = Manifold.cylinder(2 * w, outside, outside, MARKER_SEGMENTS, True)
+            ring -= Manifold.cylinder(3 * w, bore, bore, MARKER_SEGMENTS, True)
+            parts.append(ring.transform(frame[:3]))
     vertices, faces, start = [], [], 0
     for part in parts:
         m = part.to_mesh()

@@ -57,10 +57,9 @@ def clamp_solid(seat, rod_mm: float):
     further, its side level with z = 0."""
     from manifold3d import Manifold
 
-    from starforge.props.clamp import CLAMP_WALL_MM
+    from starforge.props.clamp import ring_radii_mm
 
-    r, width = rod_mm / 2.0, seat.base_mm
-    outer = r + CLAMP_WALL_MM
+    (r, outer), width = ring_radii_mm(rod_mm), seat.base_mm
     ring = Manifold.cylinder(width, outer, outer, POST_SEGMENTS)
     post = standoff_solid(seat).rotate((0.0, 90.0, 0.0)).translate((r, 0.0, width / 2.0))
     bore = Manifold.cylinder(width + 2.0, r, r, POST_SEGMENTS).translate((0.0, 0.0, -1.0))

@@ -386,10 +386,10 @@ RING_DRAWN = 48
 
 def clamp_rings(points, normals, rods_mm, rod_axes, half_width_m: float) -> np.ndarray | None:
     """(m, 2, RING_DRAWN, 3) the outer edges of each marker's clamp ring (the ring's two faces,
-    ``half_width_m`` either side of the post's axis, round the rod ``rods_mm`` across with axis
-    ``rod_axes``, the wall :data:`~starforge.props.clamp.CLAMP_WALL_MM` thick), m; NaN for a
-    marker on its foot; None when no marker is clamped."""
-    from starforge.props.clamp import CLAMP_WALL_MM
+    ``half_width_m`` either side of the post's axis, placed by
+    :func:`~starforge.props.clamp.ring_frame`), m; NaN for a marker on its foot; None when no
+    marker is clamped."""
+    from starforge.props.clamp import ring_frame
 
     rods = np.asarray(rods_mm, float)
     if not (rods > 0).any():
@@ -397,11 +397,9 @@ def clamp_rings(points, normals, rods_mm, rod_axes, half_width_m: float) -> np.n
     out = np.full((len(rods), 2, RING_DRAWN, 3), np.nan)
     a = np.linspace(0.0, 2 * np.pi, RING_DRAWN)
     for i in np.flatnonzero(rods > 0):
-        n = np.asarray(normals[i], float) / np.linalg.norm(normals[i])
-        t = np.asarray(rod_axes[i], float)
-        r = rods[i] / 2000.0
-        centre = np.asarray(points[i], float) - r * n
-        rim = (r + CLAMP_WALL_MM / 1000.0) * (np.cos(a)[:, None] * n + np.sin(a)[:, None] * np.cross(t, n))
+        frame, _, outside = ring_frame(points[i], normals[i], rods[i], rod_axes[i])
+        x, y, t, centre = frame[:3, 0], frame[:3, 1], frame[:3, 2], frame[:3, 3]
+        rim = outside * (np.cos(a)[:, None] * x + np.sin(a)[:, None] * y)
         for k, side in enumerate((-1.0, 1.0)):
             out[i, k] = centre + side * half_width_m * t + rim
     return out
