@@ -15,7 +15,9 @@ worst (target <= 0.1 %), each layout's tracked fraction on the placement's fresh
 half the cameras lost), its self-margins from any 3 and any 4 markers and its closest other
 layout, the closest pair, the layouts placed again, and the wall time.
 
-Run: ``python benchmarks/bench_fleet.py [--frames 10000] [--copies 10] [--workers 1] [--spec default]``.
+Run: ``python benchmarks/bench_fleet.py [--frames 10000] [--copies 10] [--workers 1] [--spec default]
+[--write-docs]`` (``--write-docs`` also writes the figures into the docs' results page,
+``docs/results.md``, section ``fleet``).
 """
 
 from __future__ import annotations
@@ -108,6 +110,43 @@ def run(args_cli: list[str], out: Path) -> tuple[float, str]:
     return time.perf_counter() - t0, buf.getvalue()
 
 
+def write_docs(out: dict) -> None:
+    """The fleets of ``out`` as the results page's section on fleets."""
+    from _results import table, write_section
+
+    def pct(x):
+        return f"{100 * x:.3f} %"
+
+    rows, layouts = [], []
+    for key, title in (("props", "4 real props (" + ", ".join(REAL) + ")"), ("copies", "")):
+        if key not in out:
+            continue
+        f = out[key]
+        title = title or f"`{f['prop']}` x {f['copies']} copies"
+        rules = ", ".join(f"{r} {pct(v['mislabel_rate'])}" for r, v in f["by_rule"].items())
+        rows.append([title, len(f["layouts"]), f"{f['closest_pair']['a']} / {f['closest_pair']['b']}: {f['closest_pair']['margin_mm']:g}",
+                     f["min_self_margin_3_mm"], f["window_mm"], rules, pct(f["wrong_rate_worst_headline"]),
+                     "yes" if f["target_met"] else "no", f["min_tracked_fresh_poses"], ", ".join(f["placed_again"]) or "none", f["seconds"]])  # fmt: skip
+        layouts += [[title if i == 0 else "", x["layout"], x["markers"], x["tracked_fresh_poses"], x["self_margin_3_mm"],
+                     x["self_margin_4_mm"], f"{x['closest']} ({x['closest_margin_mm']:g})"] for i, x in enumerate(f["layouts"])]  # fmt: skip
+    frames = next(out[k]["frames"] for k in ("props", "copies") if k in out)
+    body = (
+        f"`starforge place-batch` at the `{out['spec']}` spec with `--noise {out['noise_mm']:g}`, each fleet then "
+        "read back from its placement.json files and checked by `starforge check`'s simulator (its own seed, "
+        f"{frames:,} frames): exactly {out['markers_seen']} markers of every layout seen, 0.2 mm noise, every rule; "
+        "wrong: wrong body + wrong pose (target <= 0.1 % under every headline rule).  Closest pair: the two "
+        "layouts whose marker triangles come closest (mm); self-margin: the least distance between two of a "
+        "layout's own triangles, or one relabelled (mm); tracked: the least, over the layouts, of the share of "
+        "the placement's fresh poses (the hand, half the cameras lost) tracked; placed again: layouts the "
+        "batch re-optimized to keep apart from the others.\n\n"
+        + table(["fleet", "layouts", "closest pair (mm)", "least self-margin (mm)", "window (mm)", "wrong, by rule",
+                 "wrong, worst headline", "target met", "least tracked", "placed again", "seconds"], rows)
+        + "\n\nEach layout:\n\n"
+        + table(["fleet", "layout", "markers", "tracked", "self-margin, 3 (mm)", "self-margin, 4 (mm)", "closest (mm)"], layouts)
+    )  # fmt: skip
+    write_section("fleet", "Fleets a tracker tells apart from three markers", body)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--frames", type=int, default=10000, help="frames of the independent check")
@@ -115,6 +154,7 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", default="1", help="place-batch --workers (1: in this process)")
     ap.add_argument("--spec", default="default", help="place-batch --spec (the figures: default)")
     ap.add_argument("--part", default="props,copies")
+    ap.add_argument("--write-docs", action="store_true", help="also write the figures into docs/results.md")
     args = ap.parse_args(argv)
     parts = args.part.split(",")
     meshes = real_props()
@@ -144,6 +184,8 @@ def main(argv=None) -> int:
                 **check_fleet(tmp / "copies", args.frames, 2),
             }
     print(json.dumps(out, indent=2))
+    if args.write_docs:
+        write_docs(out)
     return 0
 
 
