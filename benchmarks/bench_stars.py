@@ -381,7 +381,7 @@ def main() -> None:
         "finger_min_depth_0": "more stars than 396, with its bound",
         "small_14x10x30_delta_2": "the proven maximum",
         "finger_delta_1.0": "<= 20 s (issue 20; issue 9: 120 s) and <= 4 GB",
-        "default_delta_1.0": "<= 20 s (issue 30)",
+        "default_delta_1.0": "<= 20 s",
         "finger_tolerance_2": "<= 20 s",
     }
     res["paper_family_size"] = 25

@@ -259,8 +259,8 @@ def write_targets(rows: dict, frames: int, seed: int) -> None:
         "ambiguity ratio).  Each cell: identified / wrong body + wrong pose, %, the worse of the two headline "
         "rules (best fit and sorted sides).  Targets: >= 99.9 % identified and <= 0.01 % wrong with up to one "
         "marker hidden; <= 0.1 % wrong with all four seen and 2 ghosts; with one hidden and 2 ghosts, the wrong "
-        f"rate cut 4-fold from {GHOST_BEFORE['fit']} % (fit) and {GHOST_BEFORE['sides']} % (sides), the rates the "
-        "tour's family had before it was designed for the tracker.  The last column but one reports the best "
+        f"rate cut 4-fold from {GHOST_BEFORE['fit']} % (fit) and {GHOST_BEFORE['sides']} % (sides), the rates of a "
+        "25-star family not designed for the tracker.  The last column but one reports the best "
         "match always, as a tracker without an ambiguity test does: the ghosts' wrong poses that withholding "
         "near-ties turns into missed frames.\n\n" + table(header, body)
     )
@@ -271,7 +271,7 @@ def write_presets(rows: dict, frames: int) -> None:
     from _results import table, write_section
 
     header = ["preset", "stars", "box (mm)", "window (mm)", "markers hidden", "no ghosts", "all 4 seen, 2 ghosts",
-              "hidden as before, 2 ghosts", "targets met"]  # fmt: skip
+              "same markers hidden, 2 ghosts", "targets met"]  # fmt: skip
     body = [
         [f"`{name}`", row["stars"], " x ".join(f"{x:g}" for x in row["box_mm"]), row["window_mm"], row["markers_hidden"],
          _cell(row["drop1_ghosts0"]), _cell(row["all_seen_ghosts2"]), _cell(row["one_hidden_2_ghosts"]), _flags(row["met"])]
